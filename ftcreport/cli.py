@@ -1,0 +1,176 @@
+"""Command-line interface (Typer): thin commands over the library.
+
+Every command parses its arguments, calls the library and turns an
+:class:`~ftcreport.errors.FtcError` into one line on stderr and an exit code.
+Commands of DESIGN.md that are not built yet say so and exit 2.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from . import __version__
+from .errors import FtcError, NotBuiltError
+
+app = typer.Typer(
+    name="ftcreport",
+    help=(
+        "Fault-tolerant control of linked 2WD robots: simulate fault cases through "
+        "switching, adaptive and active FTC, compare against nominal and oracle, report.\n\n"
+        "Examples:\n\n"
+        "  ftcreport patterns 3            # compensable failure patterns of a 3-robot chain\n\n"
+        "  ftcreport demo --robots 3       # nominal velocity loop with a motor lost at 10 s"
+    ),
+    no_args_is_help=True,
+    add_completion=True,
+    pretty_exceptions_enable=False,
+)
+cases_app = typer.Typer(help="Validate case files or start a new one.", no_args_is_help=True)
+app.add_typer(cases_app, name="cases")
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"ftcreport {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """ftcreport command-line interface."""
+
+
+def _fail(exc: FtcError) -> None:
+    typer.echo(f"ftcreport: error: {exc}", err=True)
+    raise typer.Exit(code=getattr(exc, "exit_code", 2))
+
+
+def _not_built(command: str, issue: str) -> None:
+    _fail(NotBuiltError(f"'{command}' is not built yet ({issue}); nothing was done"))
+
+
+@app.command()
+def patterns(
+    robots: Annotated[int, typer.Argument(help="Number of robots in the chain (>= 2).")],
+) -> None:
+    """List the compensable 0/1 failure patterns of an n-robot chain (rank(Bbar sigma) = 2).
+
+    1 = the wheel works, 0 = it gives no torque; wheel order 1r, 1l, 2r, 2l, ...
+
+    Example: ftcreport patterns 2
+    """
+    from .model import compensable_patterns, wheel_names
+
+    if robots < 2:
+        _fail(FtcError(f"robots: a chain needs at least 2 robots, got {robots}"))
+    if robots > 8:
+        _fail(FtcError(f"robots: {robots} robots give 2^{2 * robots} patterns; list at most 8 robots"))
+    names = wheel_names(robots)
+    pats = compensable_patterns(robots)
+    typer.echo(" ".join(f"{w:>3}" for w in names) + "   failed")
+    for p in pats:
+        failed = [w for w, s in zip(names, p, strict=True) if s == 0]
+        typer.echo(" ".join(f"{s:>3}" for s in p) + "   " + (",".join(failed) or "-"))
+    typer.echo(f"{len(pats)} of {2 ** (2 * robots)} patterns are compensable (3*2^(2n-2) - 2).")
+
+
+@app.command()
+def demo(
+    robots: Annotated[int, typer.Option(help="Number of robots (>= 2).")] = 3,
+    duration: Annotated[float, typer.Option(help="Simulated time [s].")] = 20.0,
+    dt: Annotated[float, typer.Option(help="RK4 step [s].")] = 0.01,
+    fault_time: Annotated[float, typer.Option(help="When wheel 2l loses its motor [s].")] = 10.0,
+) -> None:
+    """Run the nominal velocity loop on a thesis-parameter chain that loses motor 2l.
+
+    Prints the velocity error before and after the fault and the peak torque.
+
+    Example: ftcreport demo --robots 3 --duration 20
+    """
+    import numpy as np
+
+    from .control import VelocityController, constant_command
+    from .model import Chain, FaultEvent, FaultSchedule
+    from .sim import Plant, SimSettings, simulate
+
+    try:
+        chain = Chain.uniform(robots, d=1.0)
+        faults = FaultSchedule(robots, [FaultEvent(fault_time, "2l", sigma=0.0, ubar=0.0)])
+        ctrl = VelocityController(chain, constant_command(0.5, 0.1), k=5.0)
+        run = simulate(
+            Plant(chain, faults), ctrl, np.zeros(chain.n_q), np.zeros(2), SimSettings(dt=dt, duration=duration)
+        )
+    except FtcError as exc:
+        _fail(exc)
+    err = np.abs(run["eta"] - run["eta_c"]).max(axis=1)
+    before = run.t < fault_time
+    typer.echo(f"{robots}-robot chain, v_n = 0.5 m/s, omega_1 = 0.1 rad/s, wheel 2l lost at {fault_time} s")
+    typer.echo(f"status: {run.status} {run.reason}".rstrip())
+    if before.any():
+        typer.echo(f"velocity error at {run.t[before][-1]:.2f} s: {err[before][-1]:.3e}")
+    typer.echo(f"velocity error at {run.t[-1]:.2f} s: {err[-1]:.3e}")
+    typer.echo(f"peak |tau|: {np.abs(run['tau']).max():.3f} N m; wall time {run.wall_time:.2f} s")
+    margin = min(chain.singularity_margin(q) for q in run["q"])
+    typer.echo(f"singularity margin min: {math.degrees(margin):.1f} deg")
+    if not run.ok:
+        raise typer.Exit(code=1)
+
+
+@app.command()
+def batch(cases: Annotated[Path, typer.Argument(help="Directory of case files.")] = Path("cases")) -> None:
+    """Run every case through every scheme and write reports/ (not built yet)."""
+    _not_built("batch", "issue 7")
+
+
+@app.command()
+def run(case: Annotated[Path, typer.Argument(help="One case file.")]) -> None:
+    """Run one case through all its schemes and write its report (not built yet)."""
+    _not_built("run", "issue 7")
+
+
+@app.command()
+def report() -> None:
+    """Re-render the HTML reports from stored results (not built yet)."""
+    _not_built("report", "issue 7")
+
+
+@app.command()
+def check(cases: Annotated[list[Path] | None, typer.Argument(help="Case files or directories.")] = None) -> None:
+    """Compare metrics with each case's thresholds; exit 0/1 (not built yet)."""
+    _not_built("check", "issue 7")
+
+
+@app.command()
+def analyze(case: Annotated[Path, typer.Argument(help="One case file.")]) -> None:
+    """Linearized analyses with python-control (not built yet)."""
+    _not_built("analyze", "issue 8")
+
+
+@app.command()
+def campaign(case: Annotated[Path, typer.Argument(help="Base case file.")]) -> None:
+    """Monte Carlo fault campaign on a Dask cluster (not built yet)."""
+    _not_built("campaign", "issue 10")
+
+
+@cases_app.command("validate")
+def cases_validate(directory: Annotated[Path, typer.Argument(help="Directory of case files.")]) -> None:
+    """Validate every case file in a directory (not built yet)."""
+    _not_built("cases validate", "issue 7")
+
+
+@cases_app.command("new")
+def cases_new(name: Annotated[str, typer.Argument(help="Name of the new case.")]) -> None:
+    """Write a commented case template (not built yet)."""
+    _not_built("cases new", "issue 7")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    app()

@@ -1,0 +1,26 @@
+"""Physics of n linked 2WD robots: model, faults (pure, no I/O)."""
+
+from .chain import THESIS_ROBOT, Chain
+from .faults import (
+    FaultEvent,
+    FaultSchedule,
+    apply_faults,
+    compensable_patterns,
+    is_compensable_at,
+    pattern_is_compensable,
+    wheel_index,
+    wheel_names,
+)
+
+__all__ = [
+    "THESIS_ROBOT",
+    "Chain",
+    "FaultEvent",
+    "FaultSchedule",
+    "apply_faults",
+    "compensable_patterns",
+    "is_compensable_at",
+    "pattern_is_compensable",
+    "wheel_index",
+    "wheel_names",
+]

@@ -1,0 +1,225 @@
+r"""Actuator fault model and redundancy condition, thesis section 2.6.
+
+Per wheel j (order 1r, 1l, 2r, 2l, ..., nr, nl) the applied torque is
+
+    tau_j = sigma_j u_j + ubar_j,          (2.101); vector form (2.102)
+
+with effectiveness 0 <= sigma_j <= 1 and an additive friction ubar_j [N m].
+A :class:`FaultSchedule` holds time-stamped events, each setting (sigma, ubar)
+of one wheel from its time on; a later event on the same wheel replaces it,
+so intermittent faults (a wheel that recovers) are two events.
+
+Redundancy rule (2.103), derived from the structure of Bbar = S^T B
+------------------------------------------------------------------
+Row 2 of Bbar is the omega_1 row of B: only robot 1's wheels enter it, with
+``+b_1/r_1`` (1r) and ``-b_1/r_1`` (1l).  Row 1 (v_n) has the same entry
+``1/(r_1 prod cos(phi_i))`` for both leader wheels, never zero, and for the
+followers' wheels entries ``p_ir != p_il`` that are non-zero at a generic pose,
+with 0 in row 2.  The columns of the working wheels span R^2 exactly when
+
+    at least one of robot 1's two wheels works, and at least two wheels work.
+
+(the two leader columns are independent; a leader column and any follower
+column are independent).  Hence 3 * 2^(2n-2) - 2 compensable 0/1 patterns:
+10 of 16 for n = 2 (Remark 2.1), 46 of 64 for n = 3, 190 of 256 for n = 4.
+The rule is generic (ERRATA E5d): at particular poses a follower entry can
+vanish, e.g. with only 1r and 2r working at tan(phi) = -d/b_2;
+:func:`is_compensable_at` checks one pose numerically.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FaultError
+
+__all__ = [
+    "FaultEvent",
+    "FaultSchedule",
+    "apply_faults",
+    "compensable_patterns",
+    "is_compensable_at",
+    "pattern_is_compensable",
+    "wheel_index",
+    "wheel_names",
+]
+
+_WHEEL_RE = re.compile(r"^\s*(\d+)\s*([rlRL])\s*$")
+
+
+def wheel_names(n: int) -> tuple[str, ...]:
+    """Wheel names in torque order for n robots: ``('1r', '1l', ..., 'nr', 'nl')``."""
+    return tuple(f"{i}{side}" for i in range(1, n + 1) for side in "rl")
+
+
+def wheel_index(wheel: str | int, n: int) -> int:
+    """Index in the torque vector of a wheel named like ``'2l'`` (or an index).
+
+    Raises
+    ------
+    FaultError
+        If the wheel does not exist in an n-robot chain.
+    """
+    if isinstance(wheel, bool):
+        raise FaultError(f"{wheel!r} is not a wheel name")
+    if isinstance(wheel, int | np.integer):
+        if 0 <= int(wheel) < 2 * n:
+            return int(wheel)
+        raise FaultError(f"wheel index {wheel} is out of range for a {n}-robot chain (0..{2 * n - 1})")
+    match = _WHEEL_RE.match(str(wheel))
+    if not match:
+        raise FaultError(f"{wheel!r} is not a wheel name (expected e.g. '1r' or '2l')")
+    robot, side = int(match.group(1)), match.group(2).lower()
+    if not 1 <= robot <= n:
+        raise FaultError(f"{wheel!r} is not a wheel of a {n}-robot chain")
+    return 2 * (robot - 1) + (0 if side == "r" else 1)
+
+
+def pattern_is_compensable(pattern: Sequence[float]) -> bool:
+    """The redundancy rule on a 0/1 (or sigma) pattern: a leader wheel and two wheels work."""
+    works = [float(s) > 0.0 for s in pattern]
+    return (works[0] or works[1]) and sum(works) >= 2
+
+
+def compensable_patterns(n: int) -> list[tuple[int, ...]]:
+    """All compensable 0/1 patterns of an n-robot chain (1 = wheel works).
+
+    Ordered by the number of failed wheels, then lexicographically with the
+    healthy pattern first.  Length 3 * 2^(2n-2) - 2.
+    """
+    pats = [p for p in itertools.product((1, 0), repeat=2 * n) if pattern_is_compensable(p)]
+    pats.sort(key=lambda p: (2 * n - sum(p), tuple(-x for x in p)))
+    return pats
+
+
+def is_compensable_at(Bbar: np.ndarray, sigma: Sequence[float], tol: float = 1e-9) -> bool:
+    """rank(Bbar diag(sigma)) = 2 numerically (relative singular-value tolerance)."""
+    Bs = np.asarray(Bbar, dtype=float) * np.asarray(sigma, dtype=float)[None, :]
+    sv = np.linalg.svd(Bs, compute_uv=False)
+    return bool(sv[0] > 0 and sv[1] > tol * max(1.0, sv[0]))
+
+
+def apply_faults(u: np.ndarray, sigma: np.ndarray, ubar: np.ndarray) -> np.ndarray:
+    """tau = sigma u + ubar, elementwise per wheel, thesis (2.101)-(2.102)."""
+    return sigma * u + ubar
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    """From ``time`` on, wheel ``wheel`` has effectiveness ``sigma`` and friction ``ubar``.
+
+    Attributes
+    ----------
+    time : float
+        Event time [s], >= 0.
+    wheel : str
+        Wheel name such as ``'1r'`` or ``'3l'``.
+    sigma : float
+        Effectiveness in [0, 1] (1 healthy, 0 no torque).
+    ubar : float
+        Additive torque (friction) [N m].
+    """
+
+    time: float
+    wheel: str
+    sigma: float = 0.0
+    ubar: float = 0.0
+
+
+class FaultSchedule:
+    """Piecewise-constant sigma(t), ubar(t) for the 2n wheels of a chain.
+
+    Values are right-continuous: at an event time the new value applies.
+    Evaluation is a binary search in precomputed tables (hot-path safe).
+
+    Parameters
+    ----------
+    n : int
+        Number of robots.
+    events : iterable of FaultEvent
+        In any order; two events on the same wheel at the same time are refused.
+    """
+
+    def __init__(self, n: int, events: Iterable[FaultEvent] = ()) -> None:
+        self.n = int(n)
+        evs = list(events)
+        nw = 2 * self.n
+        seen: set[tuple[float, int]] = set()
+        parsed = []
+        for k, ev in enumerate(evs):
+            where = f"event {k} (t={ev.time}, wheel={ev.wheel!r})"
+            try:
+                j = wheel_index(ev.wheel, self.n)
+            except FaultError as exc:
+                raise FaultError(f"{where}: {exc}") from None
+            t, s, ub = float(ev.time), float(ev.sigma), float(ev.ubar)
+            if not math.isfinite(t) or t < 0:
+                raise FaultError(f"{where}: time must be finite and >= 0, got {ev.time}")
+            if not 0.0 <= s <= 1.0:
+                raise FaultError(f"{where}: sigma must be in [0, 1], got {ev.sigma}")
+            if not math.isfinite(ub):
+                raise FaultError(f"{where}: ubar must be finite, got {ev.ubar}")
+            if (t, j) in seen:
+                raise FaultError(f"{where}: a second event on the same wheel at the same time")
+            seen.add((t, j))
+            parsed.append((t, j, s, ub))
+        parsed.sort(key=lambda e: e[0])
+        self.events: tuple[FaultEvent, ...] = tuple(
+            FaultEvent(t, wheel_names(self.n)[j], s, ub) for t, j, s, ub in parsed
+        )
+        self.times = np.array(sorted({e[0] for e in parsed}), dtype=float)
+        k = self.times.shape[0]
+        self._sigma = np.ones((k + 1, nw))
+        self._ubar = np.zeros((k + 1, nw))
+        cur_s, cur_u = np.ones(nw), np.zeros(nw)
+        idx = 0
+        for row, tk in enumerate(self.times, start=1):
+            while idx < len(parsed) and parsed[idx][0] == tk:
+                _, j, s, ub = parsed[idx]
+                cur_s[j], cur_u[j] = s, ub
+                idx += 1
+            self._sigma[row] = cur_s
+            self._ubar[row] = cur_u
+
+    def _row(self, t: float) -> int:
+        return int(np.searchsorted(self.times, t, side="right"))
+
+    def sigma(self, t: float) -> np.ndarray:
+        """Effectiveness of every wheel at time t, (2n,)."""
+        return self._sigma[self._row(t)]
+
+    def ubar(self, t: float) -> np.ndarray:
+        """Additive friction of every wheel at time t [N m], (2n,)."""
+        return self._ubar[self._row(t)]
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(sigma, ubar)`` at time t."""
+        row = self._row(t)
+        return self._sigma[row], self._ubar[row]
+
+    def pattern(self, t: float) -> tuple[int, ...]:
+        """0/1 failure pattern at time t: 0 where sigma = 0 (the wheel gives no torque)."""
+        return tuple(int(s > 0.0) for s in self.sigma(t))
+
+    def phases(self, duration: float) -> list[tuple[float, float]]:
+        """Intervals ``[start, end)`` between event times, covering [0, duration]."""
+        cuts = [0.0] + [float(t) for t in self.times if 0.0 < t < duration] + [float(duration)]
+        return list(itertools.pairwise(cuts))
+
+    def uncompensable_intervals(self, duration: float) -> list[tuple[float, float, tuple[int, ...]]]:
+        """Phases whose pattern violates the redundancy rule, with that pattern."""
+        out = []
+        for start, end in self.phases(duration):
+            pat = self.pattern(start)
+            if not pattern_is_compensable(pat):
+                out.append((start, end, pat))
+        return out
+
+    def __repr__(self) -> str:
+        return f"FaultSchedule(n={self.n}, events={list(self.events)!r})"

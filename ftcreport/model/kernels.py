@@ -1,0 +1,343 @@
+r"""Array kernels of the n-link 2WD chain model (the simulation hot path).
+
+Every function takes plain ``numpy`` arrays and a :class:`ChainParams` tuple of
+constant arrays computed once per chain, and returns new arrays.  Nothing is
+allocated beyond the outputs, no Python objects are built per call, so the
+functions can later be compiled (numba) without change.
+
+Conventions (used everywhere in ftcreport)
+------------------------------------------
+* Robots are numbered 1..n, robot 1 is the leader.  Arrays "in robot order"
+  have index 0 for robot 1.
+* ``q = [x, y, theta_n, theta_(n-1), ..., theta_1]`` (thesis 2.60), where
+  ``(x, y)`` is P_n, the axle midpoint of the last robot.
+* ``eta = [v_n, omega_1]``: linear velocity of robot n, angular velocity of
+  robot 1 (thesis 2.63).
+* Wheels and torques in the order ``1r, 1l, 2r, 2l, ..., nr, nl`` (2.102).
+* ``d_i = |P_i P_(i+1)|``, i = 1..n-1 (ERRATA E5c); the link is rigid with
+  the follower i+1 and pinned at the leader's axle P_i:
+  ``P_i = P_(i+1) + d_i (cos theta_(i+1), sin theta_(i+1))`` (ERRATA E5).
+* ``C_i = P_i + a_i (cos theta_i, sin theta_i)`` is the centre of mass.
+
+Structure used by the derivation
+--------------------------------
+Every point of interest is ``(x, y) + sum_k L_k U_k`` with
+``U_k = (cos theta_k, sin theta_k)`` and constant lever arms ``L_k``.  For the
+centre of mass of robot i, ``L[i, k] = d_(k-1) [k > i] + a_i [k = i]``, so
+its Jacobian (Appendix D, D.3) is ``[I_2, L[i, k] U_k^perp]`` and the kinetic
+energy (D.2, D.4) gives (D.5, with ERRATA E5a for the inertia slots)::
+
+    M_xy,xy = (sum_i m_i) I_2
+    M_xy,k  = h_k U_k^perp,                       h = L^T m
+    M_k,l   = G_kl cos(theta_k - theta_l) + I_k delta_kl,   G = L^T diag(m) L
+
+and ``C = Mdot qdot - dT/dq`` (D.9) collapses to::
+
+    C_xy = -sum_k h_k thetadot_k^2 U_k
+    C_l  =  sum_k G_lk thetadot_k^2 sin(theta_l - theta_k)
+
+The input matrix follows from virtual work (Appendix C, C.2-C.8): the force
+``(tau_ir + tau_il) U_i / r_i`` acts at P_i, whose lever arms are
+``D[i, k] = d_(k-1) [k > i]``, and the moment ``b_i (tau_ir - tau_il) / r_i``
+acts on theta_i.  Both forms are checked against a symbolic Lagrangian
+derivation and the explicit two- and three-link matrices in the tests.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "A_matrix",
+    "B_matrix",
+    "C_vector",
+    "ChainParams",
+    "M_matrix",
+    "S_and_Sdot",
+    "S_matrix",
+    "articulation_cos",
+    "eta_dot",
+    "headings",
+    "make_params",
+    "positions",
+    "reduced",
+    "wheel_speeds",
+]
+
+
+class ChainParams(NamedTuple):
+    """Constant arrays of one chain, computed once by :func:`make_params`.
+
+    Arrays indexed ``[robot]`` are in robot order (index 0 = robot 1);
+    arrays indexed ``[row of q]`` follow the order of q.
+    """
+
+    n: int
+    a: np.ndarray  # (n,) P_i -> C_i [m], signed along the heading
+    b: np.ndarray  # (n,) half axle length [m]
+    r: np.ndarray  # (n,) wheel radius [m]
+    m: np.ndarray  # (n,) mass [kg]
+    I: np.ndarray  # (n,) yaw inertia about C_i [kg m^2]
+    d: np.ndarray  # (n-1,) link lengths d_i = |P_i P_(i+1)| [m]
+    m_total: float
+    h: np.ndarray  # (n,) first moments h_k = sum_i m_i L[i, k], robot order
+    G: np.ndarray  # (n, n) G = L^T diag(m) L, robot order
+    D: np.ndarray  # (n, n) D[i, k] lever arm of P_i on theta_k, robot order
+
+
+def make_params(a, b, r, m, I, d) -> ChainParams:
+    """Precompute the constant arrays of a chain (no validation here)."""
+    a, b, r, m, I = (np.asarray(v, dtype=float).copy() for v in (a, b, r, m, I))
+    d = np.asarray(d, dtype=float).copy()
+    n = a.shape[0]
+    # D[i, k] = d_(k-1) for k > i (0-based: D[i, k] = d[k - 1] for k > i)
+    D = np.zeros((n, n))
+    for i in range(n):
+        for k in range(i + 1, n):
+            D[i, k] = d[k - 1]
+    L = D + np.diag(a)
+    h = L.T @ m
+    G = L.T @ (m[:, None] * L)
+    return ChainParams(n, a, b, r, m, I, d, float(m.sum()), h, G, D)
+
+
+def headings(q: np.ndarray) -> np.ndarray:
+    """Headings in robot order, ``[theta_1, ..., theta_n]``, from q."""
+    return q[:1:-1]
+
+
+def articulation_cos(p: ChainParams, q: np.ndarray) -> np.ndarray:
+    """cos(theta_i - theta_(i+1)), i = 1..n-1: zero at the jack-knife singularity."""
+    th = q[:1:-1]
+    return np.cos(th[:-1] - th[1:])
+
+
+def _s_column(p: ChainParams, th: np.ndarray):
+    """First column of S in robot order plus the helpers Sdot needs.
+
+    v_(i+1) = v_n w_(i+1) with w_(i+1) = prod_(j=i+1)^(n-1) sec(phi_j), and
+    thetadot_(i+1) = v_(i+1) tan(phi_i) / d_i, phi_i = theta_i - theta_(i+1)
+    (thesis 2.64; the kinematics of one pinned link, 2.33).
+    """
+    n = p.n
+    phi = th[:-1] - th[1:]  # (n-1,)
+    tphi = np.tan(phi)
+    sphi = 1.0 / np.cos(phi)
+    w = np.ones(n)  # w[i] = v_(i+1) / v_n in 0-based robot index i
+    for i in range(n - 2, -1, -1):
+        w[i] = w[i + 1] * sphi[i]
+    col = np.zeros(n)  # thetadot_k / v_n in robot order, theta_1 entry is 0
+    col[1:] = tphi * w[1:] / p.d
+    return col, phi, tphi, sphi, w
+
+
+def S_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
+    r"""Kinematic matrix S(q), qdot = S(q) eta, thesis (2.63)-(2.64).
+
+    Returns
+    -------
+    S : (n + 2, 2) ndarray
+    """
+    th = q[:1:-1]
+    col, *_ = _s_column(p, th)
+    S = np.zeros((p.n + 2, 2))
+    S[0, 0] = np.cos(th[-1])
+    S[1, 0] = np.sin(th[-1])
+    S[2:, 0] = col[::-1]
+    S[-1, 1] = 1.0
+    return S
+
+
+def S_and_Sdot(p: ChainParams, q: np.ndarray, eta: np.ndarray):
+    r"""S(q) and its time derivative along qdot = S(q) eta.
+
+    Sdot = sum_j dS/dq_j qdot_j, computed analytically:
+    d/dt tan(phi_i) = sec^2(phi_i) phidot_i and
+    d/dt w_(i+1) = w_(i+1) sum_(j > i) tan(phi_j) phidot_j.
+
+    Returns
+    -------
+    S, Sdot : (n + 2, 2) ndarrays
+    """
+    n = p.n
+    th = q[:1:-1]
+    col, _phi, tphi, sphi, w = _s_column(p, th)
+    thdot = col * eta[0]
+    thdot[0] = eta[1]
+    phidot = thdot[:-1] - thdot[1:]
+    g = tphi * phidot  # (n-1,)
+    # wdot[i] = w[i] * sum_{j >= i} g[j] (0-based; j runs over links below robot i+1)
+    wdot = np.zeros(n)
+    acc = 0.0
+    for i in range(n - 2, -1, -1):
+        acc += g[i]
+        wdot[i] = w[i] * acc
+    coldot = np.zeros(n)
+    coldot[1:] = (sphi**2 * phidot * w[1:] + tphi * wdot[1:]) / p.d
+    S = np.zeros((n + 2, 2))
+    Sdot = np.zeros((n + 2, 2))
+    cn, sn = np.cos(th[-1]), np.sin(th[-1])
+    S[0, 0], S[1, 0] = cn, sn
+    S[2:, 0] = col[::-1]
+    S[-1, 1] = 1.0
+    Sdot[0, 0] = -sn * thdot[-1]
+    Sdot[1, 0] = cn * thdot[-1]
+    Sdot[2:, 0] = coldot[::-1]
+    return S, Sdot
+
+
+def A_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
+    r"""Constraint matrix A(q), A(q) qdot = 0, thesis (2.61)-(2.62).
+
+    Row j (j = 0..n-1) is the no-side-slip constraint of robot n - j
+    (robot n first, as in 2.62): the velocity of P_i has no component along
+    U_i^perp, i.e. ``xdot sin th_i - ydot cos th_i - sum_k D[i,k] cos(th_i - th_k) thdot_k = 0``.
+
+    Returns
+    -------
+    A : (n, n + 2) ndarray
+    """
+    n = p.n
+    th = q[:1:-1]
+    A = np.zeros((n, n + 2))
+    for row in range(n):
+        i = n - 1 - row
+        A[row, 0] = np.sin(th[i])
+        A[row, 1] = -np.cos(th[i])
+        # columns of theta_k in q: index 2 + (n - 1 - k) for 0-based k
+        A[row, 2:] = (-p.D[i] * np.cos(th[i] - th))[::-1]
+    return A
+
+
+def M_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
+    r"""Inertia matrix M(q) from kinetic energy, Appendix D (D.5) with E5a.
+
+    Returns
+    -------
+    M : (n + 2, n + 2) ndarray, symmetric positive definite
+    """
+    n = p.n
+    th = q[:1:-1]
+    M = np.zeros((n + 2, n + 2))
+    M[0, 0] = M[1, 1] = p.m_total
+    # M_xy,k = h_k U_k^perp = h_k (-sin th_k, cos th_k)
+    hx = (-p.h * np.sin(th))[::-1]
+    hy = (p.h * np.cos(th))[::-1]
+    M[0, 2:] = hx
+    M[2:, 0] = hx
+    M[1, 2:] = hy
+    M[2:, 1] = hy
+    # M_kl = G_kl cos(th_k - th_l) + I_k delta_kl
+    Mth = p.G * np.cos(th[:, None] - th[None, :]) + np.diag(p.I)
+    M[2:, 2:] = Mth[::-1, ::-1]
+    return M
+
+
+def C_vector(p: ChainParams, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
+    r"""Centripetal/Coriolis vector C(q, qdot) = Mdot qdot - dT/dq, (D.9).
+
+    Returns
+    -------
+    C : (n + 2,) ndarray
+    """
+    th = q[:1:-1]
+    thd2 = qdot[:1:-1] ** 2
+    C = np.empty(p.n + 2)
+    # C_xy = -sum_k h_k thd_k^2 U_k
+    C[0] = -np.sum(p.h * thd2 * np.cos(th))
+    C[1] = -np.sum(p.h * thd2 * np.sin(th))
+    # C_l = sum_k G_lk thd_k^2 sin(th_l - th_k)
+    Cth = (p.G * np.sin(th[:, None] - th[None, :])) @ thd2
+    C[2:] = Cth[::-1]
+    return C
+
+
+def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
+    r"""Input matrix B(q) by virtual work, Appendix C (C.2)-(C.8), ERRATA E3.
+
+    Column ``2i`` (wheel ir) is ``(1/r_i) [U_i; D[i,k] sin(th_i - th_k) + b_i delta_ik]``,
+    column ``2i+1`` (wheel il) the same with ``-b_i``.
+
+    Returns
+    -------
+    B : (n + 2, 2 n) ndarray, columns in wheel order 1r, 1l, ..., nr, nl
+    """
+    n = p.n
+    th = q[:1:-1]
+    F = np.empty((n + 2, n))  # force part per robot, rows in q order
+    F[0] = np.cos(th)
+    F[1] = np.sin(th)
+    # rows theta_k (robot order k), columns robot i: D[i, k] sin(th_i - th_k)
+    Fth = (p.D * np.sin(th[:, None] - th[None, :])).T  # [k, i]
+    F[2:] = Fth[::-1]
+    F /= p.r
+    Tm = np.zeros((n + 2, n))  # moment part: b_i / r_i on row theta_i
+    Tm[2 + (n - 1 - np.arange(n)), np.arange(n)] = p.b / p.r
+    B = np.empty((n + 2, 2 * n))
+    B[:, 0::2] = F + Tm
+    B[:, 1::2] = F - Tm
+    return B
+
+
+def reduced(p: ChainParams, q: np.ndarray, eta: np.ndarray):
+    r"""Reduced dynamics matrices, thesis (2.70)-(2.74).
+
+    ``Mbar1 etadot + Mbar2 eta + Cbar = Bbar tau`` with
+    Mbar1 = S^T M S, Mbar2 = S^T M Sdot, Cbar = S^T C(q, S eta), Bbar = S^T B.
+
+    Returns
+    -------
+    Mbar1 : (2, 2), Mbar2 : (2, 2), Cbar : (2,), Bbar : (2, 2 n) ndarrays
+    """
+    S, Sdot = S_and_Sdot(p, q, eta)
+    M = M_matrix(p, q)
+    MS = M @ S
+    Mbar1 = S.T @ MS
+    Mbar2 = S.T @ (M @ Sdot)
+    Cbar = S.T @ C_vector(p, q, S @ eta)
+    Bbar = S.T @ B_matrix(p, q)
+    return Mbar1, Mbar2, Cbar, Bbar
+
+
+def eta_dot(p: ChainParams, q: np.ndarray, eta: np.ndarray, tau: np.ndarray):
+    r"""Forward dynamics of the reduced model (2.70): qdot and etadot.
+
+    Returns
+    -------
+    qdot : (n + 2,), etadot : (2,) ndarrays
+    """
+    Mbar1, Mbar2, Cbar, Bbar = reduced(p, q, eta)
+    S = S_matrix(p, q)
+    # Mbar1 etadot = Bbar tau - Mbar2 eta - Cbar
+    etadot = np.linalg.solve(Mbar1, Bbar @ tau - Mbar2 @ eta - Cbar)
+    return S @ eta, etadot
+
+
+def positions(p: ChainParams, q: np.ndarray):
+    """Axle midpoints P_i and centres of mass C_i, robot order.
+
+    Returns
+    -------
+    P, Cm : (n, 2) ndarrays, row 0 = robot 1
+    """
+    n = p.n
+    th = q[:1:-1]
+    P = np.empty((n, 2))
+    P[n - 1] = q[0], q[1]
+    for i in range(n - 2, -1, -1):
+        # P_i = P_(i+1) + d_i U_(i+1)
+        P[i, 0] = P[i + 1, 0] + p.d[i] * np.cos(th[i + 1])
+        P[i, 1] = P[i + 1, 1] + p.d[i] * np.sin(th[i + 1])
+    Cm = P + p.a[:, None] * np.column_stack((np.cos(th), np.sin(th)))
+    return P, Cm
+
+
+def wheel_speeds(p: ChainParams, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    r"""Wheel angular velocities in wheel order: ``Bbar^T eta = B^T S eta``.
+
+    By virtual work the power delivered by the torques is ``tau . wheel_speeds``:
+    omega_ir = (v_i + b_i omega_i) / r_i, omega_il = (v_i - b_i omega_i) / r_i.
+    """
+    return B_matrix(p, q).T @ (S_matrix(p, q) @ eta)

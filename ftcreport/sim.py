@@ -1,0 +1,392 @@
+r"""Simulation engine: plant and controller integrated together.
+
+The plant is the reduced dynamics (2.70) of a :class:`~ftcreport.model.Chain`
+with the actuator fault model (2.102) and optional torque saturation::
+
+    qdot   = S(q) eta
+    etadot = Mbar1^-1 (Bbar tau - Mbar2 eta - Cbar),   tau = sigma sat(u) + ubar
+
+A controller (any object following :class:`Controller`) has its own
+continuous state ``xc``; plant and controller state are stepped together by
+fixed-step classical RK4.  Fault events land exactly on step boundaries: the
+time grid is ``t0 + k dt`` with every event time inserted (the step before an
+event is shortened), and sigma, ubar are held over each step at their value at
+its start, so the fault model is exact.  After each step the controller's
+discrete hook runs (switching logic and the like).
+
+A run that approaches a singular configuration (an articulation angle
+within ``singularity_margin`` of 90 deg, ERRATA P4) stops with status
+``"singular"``; a non-finite or out-of-bounds state stops with ``"diverged"``.
+Either way the log up to that point is kept and the reason is recorded;
+a NaN is never returned silently.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .errors import DivergenceError, FtcError, ModelError, SingularityError
+from .model import kernels as K
+from .model.chain import Chain
+from .model.faults import FaultSchedule
+
+__all__ = ["Controller", "Plant", "Run", "SimSettings", "simulate", "time_grid"]
+
+STATUS_OK = "ok"
+STATUS_SINGULAR = "singular"
+STATUS_DIVERGED = "diverged"
+STATUS_ERROR = "error"
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """What the engine needs of a controller.
+
+    Attributes
+    ----------
+    n_states : int
+        Length of the controller's continuous state ``xc`` (may be 0).
+    signal_names : tuple of str
+        Names of the signals :meth:`signals` returns, logged at log instants.
+    """
+
+    n_states: int
+    signal_names: tuple[str, ...]
+
+    def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        """Controller state at the start of the run, (n_states,)."""
+        ...
+
+    def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Control signal u (2n,) and controller state derivative (n_states,)."""
+        ...
+
+    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        """Discrete update after each step (e.g. switching); return xc (possibly unchanged)."""
+        ...
+
+    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
+        """Named signals to log at this instant (keys are :attr:`signal_names`)."""
+        ...
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """Settings of one simulation run.
+
+    Attributes
+    ----------
+    dt : float
+        Nominal RK4 step [s].
+    duration : float
+        Simulated time [s].
+    t0 : float
+        Start time [s].
+    log_every : int
+        Log one step in ``log_every`` (decimation); the last step is always logged.
+    singularity_margin : float
+        Stop when an articulation angle comes within this many rad of 90 deg.
+    max_speed : float
+        Stop (diverged) when |v_n| or |omega_1| exceeds this [m/s, rad/s].
+    max_position : float
+        Stop (diverged) when |x| or |y| exceeds this [m].
+    """
+
+    dt: float
+    duration: float
+    t0: float = 0.0
+    log_every: int = 1
+    singularity_margin: float = math.radians(2.0)
+    max_speed: float = 1e3
+    max_position: float = 1e6
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.dt) and self.dt > 0):
+            raise ModelError(f"dt: must be a positive number of seconds, got {self.dt}")
+        if not (math.isfinite(self.duration) and self.duration > 0):
+            raise ModelError(f"duration: must be a positive number of seconds, got {self.duration}")
+        if self.dt > self.duration:
+            raise ModelError(f"dt: {self.dt} s is longer than the duration {self.duration} s")
+        if int(self.log_every) < 1:
+            raise ModelError(f"log_every: must be >= 1, got {self.log_every}")
+        if not 0 <= self.singularity_margin < math.pi / 2:
+            raise ModelError(f"singularity_margin: must be in [0, pi/2) rad, got {self.singularity_margin}")
+
+
+class Plant:
+    """True chain, fault schedule and actuator saturation.
+
+    Parameters
+    ----------
+    chain : Chain
+        The true physical parameters (the controller may hold different ones).
+    faults : FaultSchedule, optional
+        Actuator faults; healthy wheels when omitted.
+    saturation : float, optional
+        Symmetric limit on every wheel's control signal |u_j| [N m], applied
+        before the fault model: tau = sigma sat(u) + ubar.
+    """
+
+    def __init__(self, chain: Chain, faults: FaultSchedule | None = None, saturation: float | None = None):
+        self.chain = chain
+        self.faults = faults if faults is not None else FaultSchedule(chain.n)
+        if self.faults.n != chain.n:
+            raise ModelError(f"faults: schedule is for {self.faults.n} robots, chain has {chain.n}")
+        if saturation is not None and not (math.isfinite(saturation) and saturation > 0):
+            raise ModelError(f"saturation: must be a positive torque [N m], got {saturation}")
+        self.saturation = saturation
+
+    def torque(self, u: np.ndarray, sigma: np.ndarray, ubar: np.ndarray) -> np.ndarray:
+        """Applied torque tau = sigma sat(u) + ubar (2.102)."""
+        if self.saturation is not None:
+            u = np.clip(u, -self.saturation, self.saturation)
+        return sigma * u + ubar
+
+    def rhs(self, t: float, x: np.ndarray, u: np.ndarray, params: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Plant state derivative in python-control order ``f(t, x, u, params)``.
+
+        ``x = [q, eta]``, ``params = (sigma, ubar)``.
+        """
+        nq = self.chain.n_q
+        tau = self.torque(u, *params)
+        qdot, etadot = K.eta_dot(self.chain.params, x[:nq], x[nq:], tau)
+        return np.concatenate((qdot, etadot))
+
+
+@dataclass
+class Run:
+    """Result of one simulation: logged time series and outcome.
+
+    Attributes
+    ----------
+    t : (K,) ndarray
+        Logged instants [s].
+    signals : dict of str to ndarray
+        ``'q'`` (K, n+2), ``'eta'`` (K, 2), ``'u'`` (K, 2n) commanded control,
+        ``'tau'`` (K, 2n) applied torque, ``'sigma'``, ``'ubar'`` (K, 2n) true
+        faults, ``'xc'`` (K, n_states), then the controller's own signals.
+    status : str
+        ``'ok'``, ``'singular'``, ``'diverged'`` or ``'error'``.
+    reason : str
+        Why the run stopped early ('' when it completed).
+    t_end : float
+        Last simulated instant [s].
+    steps : int
+        RK4 steps taken.
+    wall_time : float
+        Wall-clock seconds spent in the loop.
+    """
+
+    t: np.ndarray
+    signals: dict[str, np.ndarray]
+    status: str = STATUS_OK
+    reason: str = ""
+    t_end: float = 0.0
+    steps: int = 0
+    wall_time: float = 0.0
+    meta: dict = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.signals[name]
+
+    @property
+    def ok(self) -> bool:
+        """True when the run completed without stopping early."""
+        return self.status == STATUS_OK
+
+
+def time_grid(t0: float, duration: float, dt: float, breakpoints=()) -> np.ndarray:
+    """Step boundaries ``t0 + k dt`` with every breakpoint inside inserted exactly.
+
+    Grid points closer than ``1e-6 dt`` to a breakpoint are replaced by it, so a
+    fault at t = 20 s starts a step at exactly 20.0 whatever dt is.
+    """
+    t_end = t0 + duration
+    n = math.floor(duration / dt + 1e-9)
+    grid = t0 + dt * np.arange(n + 1)
+    if t_end - grid[-1] > 1e-6 * dt:
+        grid = np.append(grid, t_end)
+    else:
+        grid[-1] = t_end
+    bps = np.array([b for b in breakpoints if t0 < b < t_end], dtype=float)
+    if bps.size:
+        close = np.min(np.abs(grid[:, None] - bps[None, :]), axis=1) < 1e-6 * dt
+        grid = np.union1d(grid[~close], bps)
+    return grid
+
+
+def simulate(
+    plant: Plant,
+    controller: Controller,
+    q0: np.ndarray,
+    eta0: np.ndarray,
+    settings: SimSettings,
+    progress: Callable[[float], None] | None = None,
+) -> Run:
+    """Integrate plant and controller with fixed-step RK4.
+
+    Parameters
+    ----------
+    plant : Plant
+    controller : Controller
+    q0 : (n + 2,) array_like
+        Initial configuration ``[x, y, theta_n, ..., theta_1]``.
+    eta0 : (2,) array_like
+        Initial ``[v_n, omega_1]``.
+    settings : SimSettings
+    progress : callable, optional
+        Called with the simulated time now and then (every ~1 % of the run).
+
+    Returns
+    -------
+    Run
+        Always returned; ``run.status`` says whether it completed.
+    """
+    chain = plant.chain
+    p = chain.params
+    nq, nw, nc = chain.n_q, chain.n_wheels, int(controller.n_states)
+    q0 = np.asarray(q0, dtype=float)
+    eta0 = np.asarray(eta0, dtype=float)
+    if q0.shape != (nq,):
+        raise ModelError(f"q0: expected {nq} values [x, y, theta_n..theta_1], got shape {q0.shape}")
+    if eta0.shape != (2,):
+        raise ModelError(f"eta0: expected 2 values [v_n, omega_1], got shape {eta0.shape}")
+
+    grid = time_grid(settings.t0, settings.duration, settings.dt, plant.faults.times)
+    n_steps = grid.shape[0] - 1
+    every = int(settings.log_every)
+    log_idx = np.unique(np.append(np.arange(0, n_steps + 1, every), n_steps))
+    n_log = log_idx.shape[0]
+    is_logged = np.zeros(n_steps + 1, dtype=bool)
+    is_logged[log_idx] = True
+
+    xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
+    x = np.concatenate((q0, eta0, xc0))
+
+    names = tuple(controller.signal_names)
+    first = controller.signals(grid[0], q0, eta0, xc0)
+    logs: dict[str, np.ndarray] = {
+        "q": np.full((n_log, nq), np.nan),
+        "eta": np.full((n_log, 2), np.nan),
+        "u": np.full((n_log, nw), np.nan),
+        "tau": np.full((n_log, nw), np.nan),
+        "sigma": np.full((n_log, nw), np.nan),
+        "ubar": np.full((n_log, nw), np.nan),
+        "xc": np.full((n_log, nc), np.nan),
+    }
+    for name in names:
+        logs[name] = np.full((n_log, *np.shape(first[name])), np.nan)
+    t_log = np.full(n_log, np.nan)
+
+    def deriv(t: float, xs: np.ndarray, sigma: np.ndarray, ubar: np.ndarray):
+        q, eta, xc = xs[:nq], xs[nq : nq + 2], xs[nq + 2 :]
+        u, xcdot = controller.evaluate(t, q, eta, xc)
+        tau = plant.torque(u, sigma, ubar)
+        qdot, etadot = K.eta_dot(p, q, eta, tau)
+        return np.concatenate((qdot, etadot, xcdot)), u, tau
+
+    status, reason = STATUS_OK, ""
+    li = 0
+    k = 0
+    t = grid[0]
+    report_every = max(1, n_steps // 100)
+    wall0 = _time.perf_counter()
+    with np.errstate(all="ignore"):
+        for k in range(n_steps + 1):
+            t = grid[k]
+            sigma, ubar = plant.faults.at(t)
+            try:
+                if not np.all(np.isfinite(x)):
+                    raise DivergenceError(f"non-finite state at t = {t:.6g} s")
+                _check_state(chain, x, settings)
+                k1, u, tau = deriv(t, x, sigma, ubar)
+                if not (np.all(np.isfinite(k1)) and np.all(np.isfinite(u))):
+                    raise DivergenceError(f"non-finite control or derivative at t = {t:.6g} s")
+            except SingularityError as exc:
+                status, reason = STATUS_SINGULAR, str(exc)
+                break
+            except (DivergenceError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError) as exc:
+                status, reason = STATUS_DIVERGED, str(exc)
+                break
+            except FtcError as exc:
+                status, reason = STATUS_ERROR, str(exc)
+                break
+            if is_logged[k]:
+                q, eta, xc = x[:nq], x[nq : nq + 2], x[nq + 2 :]
+                t_log[li] = t
+                logs["q"][li] = q
+                logs["eta"][li] = eta
+                logs["u"][li] = u
+                logs["tau"][li] = tau
+                logs["sigma"][li] = sigma
+                logs["ubar"][li] = ubar
+                logs["xc"][li] = xc
+                sig = controller.signals(t, q, eta, xc)
+                for name in names:
+                    logs[name][li] = sig[name]
+                li += 1
+            if k == n_steps:
+                break
+            h = grid[k + 1] - t
+            try:
+                k2 = deriv(t + 0.5 * h, x + 0.5 * h * k1, sigma, ubar)[0]
+                k3 = deriv(t + 0.5 * h, x + 0.5 * h * k2, sigma, ubar)[0]
+                k4 = deriv(t + h, x + h * k3, sigma, ubar)[0]
+                x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+                xn = x
+                x = np.asarray(controller.discrete(grid[k + 1], xn[:nq], xn[nq : nq + 2], xn[nq + 2 :]), dtype=float)
+                x = np.concatenate((xn[: nq + 2], x)) if nc else xn
+            except SingularityError as exc:
+                status, reason = STATUS_SINGULAR, str(exc)
+                t = grid[k + 1]
+                break
+            except (DivergenceError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError) as exc:
+                status, reason = STATUS_DIVERGED, str(exc)
+                t = grid[k + 1]
+                break
+            except FtcError as exc:
+                status, reason = STATUS_ERROR, str(exc)
+                t = grid[k + 1]
+                break
+            if progress is not None and k % report_every == 0:
+                progress(float(grid[k + 1]))
+    wall = _time.perf_counter() - wall0
+    if progress is not None:
+        progress(float(t))
+    for name in logs:
+        logs[name] = logs[name][:li]
+    return Run(
+        t=t_log[:li],
+        signals=logs,
+        status=status,
+        reason=reason,
+        t_end=float(t),
+        steps=int(k),
+        wall_time=wall,
+        meta={"dt": settings.dt, "duration": settings.duration, "log_every": every},
+    )
+
+
+def _check_state(chain: Chain, x: np.ndarray, settings: SimSettings) -> None:
+    """Raise SingularityError / DivergenceError for a state that must stop the run."""
+    nq = chain.n_q
+    q, eta = x[:nq], x[nq : nq + 2]
+    c = np.abs(K.articulation_cos(chain.params, q))
+    limit = math.sin(settings.singularity_margin)
+    if np.any(c <= limit):
+        i = int(np.argmin(c))
+        ang = math.degrees(math.acos(min(1.0, c[i])))
+        raise SingularityError(
+            f"articulation angle theta_{i + 1} - theta_{i + 2} reached {ang:.2f} deg "
+            f"(within {math.degrees(settings.singularity_margin):.2g} deg of 90 deg)"
+        )
+    if np.any(np.abs(eta) > settings.max_speed):
+        raise DivergenceError(f"velocity {eta.tolist()} exceeds the bound {settings.max_speed}")
+    if np.any(np.abs(q[:2]) > settings.max_position):
+        raise DivergenceError(f"position {q[:2].tolist()} exceeds the bound {settings.max_position} m")

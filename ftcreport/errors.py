@@ -54,3 +54,7 @@ class DivergenceError(FtcError):
 
 class NotBuiltError(FtcError):
     """A CLI command that is registered but not implemented yet."""
+
+
+class ReferenceError(FtcError, ValueError):
+    """An infeasible reference (speed near 0, articulation angle near 90 deg)."""

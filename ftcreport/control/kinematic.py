@@ -1,0 +1,365 @@
+r"""Kinematic controllers: eta_c, T_alpha and f_eta for the dynamic layer.
+
+Two designs, both returning a :class:`KinematicOutput` from ``law(t, q, xc)``
+with ``alpha = T_alpha eta + f_alpha`` and the Lyapunov cross term ``f_eta`` that
+the dynamic law cancels with ``-T_alpha^T f_eta`` (ERRATA E8):
+
+* :class:`TwoLinkKinematic` -- the two-link diffeomorphism controller of thesis
+  section 3.2.2.1 (3.8-3.29, Appendices F, G) with ERRATA E6, E7, E9, E11a.
+* :class:`ChainedBackstepping` -- recursive backstepping on the chained form
+  for any n (thesis 3.67-3.106 for n = 3, Jiang & Nijmeijer 1999), with explicit
+  gains on every virtual control (ERRATA E12d) and the corrections E12a-E12c,
+  in a frame re-anchored to the reference heading (beyond the thesis).
+
+Backstepping for any n (derivation used here)
+----------------------------------------------
+With m = n + 2 chained states, errors xi_e = xi - xi_d and p = m - 1, set
+``Z_j = xi_e,(m+1-j) - xi_(m-j) xi_e,1`` (j = 1..m-2), ``Z_(m-1) = xi_e,2``,
+``z = Z_m = xi_e,1`` (3.71 generalized).  Then (3.73 generalized)::
+
+    Z_j'     = alpha_1d Z_(j+1) - xi_(m-1-j) (alpha_1 - alpha_1d) z,   j = 1..m-3
+    Z_(m-2)' = alpha_1d Z_(m-1) - alpha_2 z
+    Z_(m-1)' = alpha_2 - alpha_2d,      z' = alpha_1 - alpha_1d
+
+Backstepping on the chain Z_1..Z_p with linear virtual controls gives
+``Zbar = L Z`` with L unit lower triangular, built row by row::
+
+    row_1 = e_1,   row_(j+1) = row_j N + row_(j-1) + c_j row_j      (N: shift, row_0 = 0)
+
+so that, with z = 0, ``Zbar_j' = alpha_1d (-Zbar_(j-1) - c_j Zbar_j + Zbar_(j+1))``
+(c_j = 0 gives the thesis's gain-free beta functions 3.77-3.87).  Then, with
+``V = |Zbar|^2 / 2 + kappa z^2 / 2``::
+
+    alpha_2c = alpha_2d - c_a2 Zbar_p - alpha_1d Zbar_(p-1) - alpha_1d row_p N Z        (3.102)
+    Delta_1  = sum_(j<=p-2) (L^T Zbar)_j xi_(m-1-j),   Gamma = (L^T Zbar)_(p-1)          (3.93)
+    alpha_1c = alpha_1d + (kappa - Delta_1)^-1 (-c_z z + Gamma alpha_2c)                  (3.103)
+    f_eta    = [z (kappa - Delta_1), Zbar_p - z Gamma]                                    (3.105, E12c)
+
+and ``V' = -alpha_1d sum_(j<p) c_j Zbar_j^2 - c_a2 Zbar_p^2 - c_z z^2 + f_eta^T alpha_e``.
+
+Length scale (beyond the thesis).  The couplings of the chain above all have
+unit coefficient per metre travelled, so for n >= 4 the n + 1 chain modes ask
+for lateral corrections within about a metre of travel: from a 0.5 m, 30 deg
+offset the leader then folds the chain into a singular configuration.  With
+``mu`` [1/m] the design runs on ``Zhat_j = mu^-(j-1) Z_j``, whose chain is
+``Zhat_j' = mu alpha_1d Zhat_(j+1)``: every formula above holds with
+alpha_1d -> mu alpha_1d, ``Zbar = L Zhat``, the alpha_2 input scaled by
+``mu^-(p-1)``::
+
+    alpha_2c = alpha_2d + mu^(p-1) [-c_a2 Zbar_p - mu alpha_1d (Zbar_(p-1) + row_p N Zhat)]
+    Delta_1  = rho sum_(j<=p-2) (L^T Zbar)_j mu^-(j-1) xi_(m-1-j),   Gamma = rho (L^T Zbar)_(p-1) mu^-(p-2)
+    f_eta    = [z (kappa - Delta_1), rho mu^-(p-1) Zbar_p - z Gamma]
+
+with ``V = rho |Zbar|^2 / 2 + kappa z^2 / 2`` and ``rho = mu^(2(p-1))`` (any rho > 0 is a
+valid Lyapunov weight; this one keeps Delta_1, hence kappa - Delta_1, and f_eta at
+the magnitudes of the unscaled design).  Every chain eigenvalue (per metre)
+scales with mu; mu = 1 (rho = 1) is the design above.
+The chain gains need alpha_1d = v_nd cos(theta_nd) > 0: the reference moves
+forward and, thanks to re-anchoring, |theta_nd| stays below the band in the frame.
+
+Re-anchoring (paths that turn)
+------------------------------
+The chained form holds only while |theta_n| < 90 deg in its frame.  The
+controller keeps a frame angle psi as discrete state and expresses q and q_d
+in the frame rotated by psi.  After every step, if the reference heading
+theta_nd leaves psi +/- band (45 deg by default), psi jumps to theta_nd.  v_n and
+omega_1 are frame independent, so eta_c stays meaningful; the Lyapunov
+function jumps at re-anchoring, by an amount that vanishes with the tracking
+error.  Boundedness through re-anchoring is shown by the closed-loop tests on
+the circle and the eight.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ModelError, SingularityError
+from ..model.chained import ChainedForm
+from ..references import FlatReference, RefPoint
+
+__all__ = ["ChainedBackstepping", "KinematicOutput", "TwoLinkKinematic", "to_frame", "wrap"]
+
+
+def wrap(a):
+    """Angle(s) wrapped to [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def to_frame(q: np.ndarray, psi: float) -> np.ndarray:
+    """q expressed in the frame rotated by psi, headings continuous along the chain.
+
+    theta_n is wrapped to [-pi, pi) in the new frame; every other heading keeps its
+    (wrapped) articulation angle to its follower.
+    """
+    c, s = math.cos(psi), math.sin(psi)
+    out = np.empty_like(q)
+    out[0] = c * q[0] + s * q[1]
+    out[1] = -s * q[0] + c * q[1]
+    th = q[2:]  # theta_n, ..., theta_1
+    out[2] = float(wrap(th[0] - psi))
+    out[3:] = out[2] + np.cumsum(wrap(np.diff(th)))
+    return out
+
+
+@dataclass(frozen=True)
+class KinematicOutput:
+    """What the dynamic layer needs from a kinematic controller at one instant.
+
+    Attributes
+    ----------
+    eta_c : (2,) ndarray
+        Kinematic velocity command [v_nc, omega_1c].
+    T_alpha : (2, 2) ndarray
+        alpha = T_alpha eta + f_alpha.
+    f_eta : (2,) ndarray
+        Lyapunov cross term: V_kin' = ... + f_eta^T T_alpha (eta - eta_c).
+    z : (k,) ndarray
+        The controller's error coordinates (logged).
+    """
+
+    eta_c: np.ndarray
+    T_alpha: np.ndarray
+    f_eta: np.ndarray
+    z: np.ndarray
+
+
+class TwoLinkKinematic:
+    r"""Two-link diffeomorphism controller, thesis (3.8)-(3.29), ERRATA E6-E11a.
+
+    Errors (3.8)-(3.10) ``e = T_e (q - q_d)`` of robot 2 against the unicycle
+    reference, ``phi = theta_1 - theta_2``, then (3.14)-(3.17) with E6::
+
+        z1 = e_x, z2 = e_y, z3 = tan e_theta,
+        z4 = tan(phi) / (d cos^3 e_theta) - omega_d / (v_d cos^2 e_theta) + e_y
+
+    ``alpha_1 = v_2 cos e_theta - v_d`` (E11a), ``alpha_2 = z4'``, so that
+    ``z1' = omega_d z2 + alpha_1``, ``z2' = -omega_d z1 + (v_d + alpha_1) z3``,
+    ``z3' = v_d (z4 - z2) + alpha_1 (z4 - z2 + (omega_d/v_d)(1 + z3^2))`` (E7),
+    ``z4' = alpha_2``.  T_alpha and f_alpha below are derived by differentiating
+    z4 (Appendix G with E6) and tested against finite differences.
+
+    Parameters
+    ----------
+    d : float
+        Link length |P_1 P_2| [m].
+    reference : FlatReference
+        Supplies x_d, y_d, theta_d, v_d, omega_d and their derivatives (robot 2).
+    k1, k2, k3 : float
+        Gains of (3.27)-(3.28), k1, k2, k3 > 0.
+    """
+
+    n_states = 0
+    z_names = ("z1", "z2", "z3", "z4")
+
+    def __init__(self, d: float, reference: FlatReference, k1: float, k2: float, k3: float) -> None:
+        if reference.n != 2:
+            raise ModelError(f"reference: the two-link controller needs a 2-robot reference, got n = {reference.n}")
+        for name, val in (("k1", k1), ("k2", k2), ("k3", k3)):
+            if not val > 0:
+                raise ModelError(f"{name}: must be > 0, got {val}")
+        self.d = float(d)
+        self.reference = reference
+        self.k1, self.k2, self.k3 = float(k1), float(k2), float(k3)
+
+    def initial_state(self, t: float, q: np.ndarray) -> np.ndarray:
+        return np.zeros(0)
+
+    def discrete(self, t: float, q: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        return xc
+
+    def zcoords(self, q: np.ndarray, r: RefPoint) -> tuple[np.ndarray, dict]:
+        """(z1..z4) and the intermediate quantities at state q and reference point r."""
+        d = self.d
+        x, y, th2, th1 = q
+        thd = r.theta_d
+        ct, st = math.cos(thd), math.sin(thd)
+        ex_w, ey_w = x - r.q_d[0], y - r.q_d[1]
+        # e = T_e e_tilde (3.9)-(3.10)
+        ex = ct * ex_w + st * ey_w
+        ey = -st * ex_w + ct * ey_w
+        eth = float(wrap(th2 - thd))
+        c, s = math.cos(eth), math.sin(eth)
+        phi = th1 - th2
+        cphi = math.cos(phi)
+        if abs(c) < 1e-3:
+            raise SingularityError(f"two-link controller singular: heading error e_theta = {math.degrees(eth):.1f} deg")
+        if abs(cphi) < 1e-3:
+            raise SingularityError(f"two-link controller singular: theta_1 - theta_2 = {math.degrees(phi):.1f} deg")
+        tphi = math.tan(phi)
+        vd, wd = r.v_d, r.omega_d
+        z = np.array([ex, ey, s / c, tphi / (d * c**3) - wd / (vd * c**2) + ey])
+        aux = {"c": c, "s": s, "tphi": tphi, "sec2phi": 1.0 / cphi**2, "ex": ex, "ey": ey, "eth": eth}
+        return z, aux
+
+    def law(self, t: float, q: np.ndarray, xc: np.ndarray) -> KinematicOutput:
+        """eta_c (3.29), T_alpha, f_eta at time t and state q."""
+        r = self.reference.at(t)
+        return self._law(q, r)
+
+    def _law(self, q: np.ndarray, r: RefPoint) -> KinematicOutput:
+        d = self.d
+        z, a = self.zcoords(q, r)
+        c, s, tphi, sec2 = a["c"], a["s"], a["tphi"], a["sec2phi"]
+        vd, wd, vdd, wdd = r.v_d, r.omega_d, r.v_d_dot, r.omega_d_dot
+        # alpha_1 = cos(e_theta) v2 - v_d
+        # alpha_2 = z4' = T21 v2 + T22 omega1 + f2 (derivative of 3.17 with E6)
+        T21 = (
+            -sec2 * tphi / (d**2 * c**3) + 3.0 * tphi**2 * s / (d**2 * c**4) - 2.0 * wd * s * tphi / (d * vd * c**3) + s
+        )
+        T22 = sec2 / (d * c**3)
+        f2 = (
+            -3.0 * tphi * s * wd / (d * c**4)
+            - (wdd * vd - wd * vdd) / (vd**2 * c**2)
+            + 2.0 * wd**2 * s / (vd * c**3)
+            - wd * a["ex"]
+        )
+        T = np.array([[c, 0.0], [T21, T22]])
+        f_alpha = np.array([-vd, f2])
+        z1, _, z3, z4 = z
+        g = z1 + z3 * (z4 + (wd / vd) * (1.0 + z3**2))
+        # (3.27)-(3.28), E9
+        alpha_c = np.array([-self.k1 * g, -self.k2 * vd * z3 - self.k3 * z4])
+        # eta_c = T_alpha^-1 (alpha_c - f_alpha)   (3.29)
+        eta_c = np.linalg.solve(T, alpha_c - f_alpha)
+        f_eta = np.array([g, z4 / self.k2])
+        return KinematicOutput(eta_c, T, f_eta, z)
+
+    def f_alpha(self, t: float, q: np.ndarray) -> np.ndarray:
+        """f_alpha of alpha = T_alpha eta + f_alpha (exposed for tests and analysis)."""
+        r = self.reference.at(t)
+        out = self._law(q, r)
+        alpha_c = np.array([-self.k1 * out.f_eta[0], -self.k2 * r.v_d * out.z[2] - self.k3 * out.z[3]])
+        return alpha_c - out.T_alpha @ out.eta_c
+
+
+class ChainedBackstepping:
+    r"""Recursive backstepping on the chained form for any n, with re-anchoring.
+
+    Parameters
+    ----------
+    d : sequence of float
+        Link lengths d_1..d_(n-1) [m].
+    reference : FlatReference
+        Reference of the whole chain.
+    c_chain : sequence of float
+        Gains c_1..c_n of the n virtual controls (>= 0; the thesis uses none,
+        ERRATA E12d recommends 0.2-0.5).
+    c_alpha2 : float
+        Gain of Zbar_p in alpha_2c (the thesis's c4), > 0.
+    c_xi1 : float
+        Gain of z = xi_e,1 in alpha_1c (the thesis's c5), > 0.
+    kappa : float
+        Weight of z in the Lyapunov function, > 0; kappa - Delta_1 must stay away from 0.
+    band : float
+        Re-anchor the frame when |theta_nd - psi| exceeds this [rad] (< 90 deg).
+    mu : float
+        Length scale of the chain dynamics [1/m], > 0 (1 = the thesis design).
+    """
+
+    n_states = 1  # the frame angle psi
+
+    def __init__(
+        self,
+        d: Sequence[float],
+        reference: FlatReference,
+        c_chain: Sequence[float],
+        c_alpha2: float,
+        c_xi1: float,
+        kappa: float,
+        band: float = math.radians(45.0),
+        mu: float = 1.0,
+        singular_tol: float = 1e-2,
+    ) -> None:
+        self.cf = ChainedForm(d)
+        self.n = self.cf.n
+        self.m = self.cf.m
+        if reference.n != self.n:
+            raise ModelError(f"reference: built for {reference.n} robots, controller for {self.n}")
+        p = self.m - 1
+        c = np.asarray(c_chain, dtype=float)
+        if c.shape != (p - 1,):
+            raise ModelError(f"c_chain: expected {p - 1} gains for {self.n} robots, got {c.shape[0]}")
+        if np.any(c < 0):
+            raise ModelError(f"c_chain: gains must be >= 0, got {c.tolist()}")
+        for name, val in (("c_alpha2", c_alpha2), ("c_xi1", c_xi1), ("kappa", kappa)):
+            if not val > 0:
+                raise ModelError(f"{name}: must be > 0, got {val}")
+        if not mu > 0:
+            raise ModelError(f"mu: length scale must be > 0 1/m, got {mu}")
+        if not 0 < band < math.pi / 2:
+            raise ModelError(f"band: must be in (0, 90) deg, got {math.degrees(band):.1f} deg")
+        self.reference = reference
+        self.c_chain = c
+        self.c_alpha2, self.c_xi1, self.kappa = float(c_alpha2), float(c_xi1), float(kappa)
+        self.band = float(band)
+        self.mu = float(mu)
+        self.Dscale = float(mu) ** -np.arange(p)  # Zhat_j = mu^-(j-1) Z_j
+        self.rho = float(mu) ** (2 * (p - 1))  # Lyapunov weight of the chain part
+        self.singular_tol = float(singular_tol)
+        self.p = p
+        # shift N: (N Z)_j = Z_(j+1) for j < p
+        N = np.zeros((p, p))
+        N[np.arange(p - 1), np.arange(1, p)] = 1.0
+        L = np.zeros((p, p))
+        L[0, 0] = 1.0
+        prev = np.zeros(p)
+        for j in range(p - 1):
+            # row_(j+1) = row_j N + row_(j-1) + c_j row_j
+            L[j + 1] = L[j] @ N + prev + c[j] * L[j]
+            prev = L[j]
+        self.N = N
+        self.L = L
+        self.LN_last = L[p - 1] @ N
+        self.z_names = tuple(f"Z{j + 1}" for j in range(self.m))
+
+    # ------------------------------------------------------------ discrete state
+    def initial_state(self, t: float, q: np.ndarray) -> np.ndarray:
+        return np.array([self.reference.at(t).theta_d])
+
+    def discrete(self, t: float, q: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        """Re-anchor the frame when the reference heading leaves psi +/- band."""
+        thd = self.reference.at(t).theta_d
+        if abs(float(wrap(thd - xc[0]))) > self.band:
+            xc = xc.copy()
+            xc[0] = thd
+        return xc
+
+    # ------------------------------------------------------------ the law
+    def law(self, t: float, q: np.ndarray, xc: np.ndarray) -> KinematicOutput:
+        r = self.reference.at(t)
+        psi = float(xc[0])
+        qf = to_frame(np.asarray(q, dtype=float), psi)
+        qdf = to_frame(r.q_d, psi)
+        self.cf.check_domain(qf, margin=self.singular_tol)
+        xi, T = self.cf.xi_and_T(qf)
+        xi_d, T_d = self.cf.xi_and_T(qdf)
+        alpha_d = T_d @ r.eta_d
+        a1d, a2d = alpha_d
+        m, p = self.m, self.p
+        e = xi - xi_d  # e[k-1] is xi_e,k in thesis numbering
+        Z = np.empty(m)
+        for j in range(1, m - 1):  # Z_j = xi_e,(m+1-j) - xi_(m-j) xi_e,1
+            Z[j - 1] = e[m - j] - xi[m - j - 1] * e[0]
+        Z[m - 2] = e[1]
+        Z[m - 1] = e[0]
+        mu, D = self.mu, self.Dscale
+        Zh, z = Z[:p] * D, Z[m - 1]
+        Zbar = self.L @ Zh
+        # alpha_2c (3.102 generalized, length scale mu)
+        a2c = a2d + mu ** (p - 1) * (-self.c_alpha2 * Zbar[p - 1] - mu * a1d * (Zbar[p - 2] + self.LN_last @ Zh))
+        LtZ = self.rho * (self.L.T @ Zbar) * D
+        # Delta_1 = sum_(j<=p-2) (L^T Zbar)_j mu^-(j-1) xi_(m-1-j)   (3.93 generalized)
+        delta1 = sum(LtZ[j - 1] * xi[m - 2 - j] for j in range(1, p - 1))
+        gamma = LtZ[p - 2]
+        kd = self.kappa - delta1
+        if abs(kd) < self.singular_tol * self.kappa:
+            raise SingularityError(f"backstepping singular: kappa - Delta_1 = {kd:.3g} (ERRATA E12d)")
+        a1c = a1d + (-self.c_xi1 * z + gamma * a2c) / kd  # (3.103) with E12a
+        alpha_c = np.array([a1c, a2c])
+        eta_c = np.linalg.solve(T, alpha_c)  # alpha = T_alpha eta (3.98)
+        f_eta = np.array([z * kd, self.rho * D[p - 1] * Zbar[p - 1] - z * gamma])  # (3.105) with E12c
+        return KinematicOutput(eta_c, T, f_eta, Z)

@@ -1,0 +1,123 @@
+r"""Kinematic + dynamic tracking controller (no FTC): the nominal closed loop.
+
+The dynamic law for a failure pattern sigma_(k), thesis (3.35)/(3.107) with E8::
+
+    u_(k) = (Mbar1^-1 Bbar sigma_(k))^+ [ -k_v eta_e - T_alpha^T f_eta
+                                           + Mbar1^-1 Mbar2 eta + Mbar1^-1 Cbar + etadot_c ]
+
+with the minimum-norm right inverse A^+ = A^T (A A^T)^-1.  With sigma = sigma_(k)
+the velocity error obeys ``eta_e' = -k_v eta_e - T_alpha^T f_eta`` and the total
+Lyapunov function decreases.  :class:`TrackingController` applies it with the
+healthy pattern (the ``nominal`` baseline); the FTC schemes reuse
+:func:`dynamic_law` with other patterns.
+
+etadot_c is the derivative of eta_c(t, q, psi) along the closed loop (ERRATA P5):
+the directional derivative in the direction (qdot = S(q) eta, 1), computed as a
+central difference of step h (truncation O(h^2), about 1e-10 relative at
+h = 1e-5).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ModelError
+from ..model import kernels as K
+from ..model.chain import Chain
+from .kinematic import ChainedBackstepping, KinematicOutput, TwoLinkKinematic
+
+__all__ = ["TrackingController", "dynamic_law"]
+
+
+def dynamic_law(
+    Mbar1: np.ndarray,
+    Mbar2: np.ndarray,
+    Cbar: np.ndarray,
+    Bbar: np.ndarray,
+    sigma_k: np.ndarray,
+    eta: np.ndarray,
+    eta_e: np.ndarray,
+    kin: KinematicOutput,
+    eta_c_dot: np.ndarray,
+    k_v: float,
+) -> np.ndarray:
+    r"""Control signal of the dynamic law for pattern sigma_k, thesis (3.35)/(3.107).
+
+    Parameters
+    ----------
+    sigma_k : (2n,) ndarray
+        Assumed effectiveness of every wheel (0/1 pattern or gains).
+
+    Returns
+    -------
+    u : (2n,) ndarray
+    """
+    Minv = np.linalg.inv(Mbar1)
+    # w = -k_v eta_e - T_alpha^T f_eta + Mbar1^-1 (Mbar2 eta + Cbar) + etadot_c
+    w = -k_v * eta_e - kin.T_alpha.T @ kin.f_eta + Minv @ (Mbar2 @ eta + Cbar) + eta_c_dot
+    A = (Minv @ Bbar) * sigma_k[None, :]
+    # u = A^T (A A^T)^-1 w
+    return A.T @ np.linalg.solve(A @ A.T, w)
+
+
+class TrackingController:
+    """Kinematic controller + dynamic law for one assumed pattern (nominal: healthy).
+
+    Parameters
+    ----------
+    chain : Chain
+        The controller's model (may differ from the plant's).
+    kinematic : TwoLinkKinematic or ChainedBackstepping
+    k_v : float
+        Velocity-error gain of the dynamic law (thesis k4 or c6), > 0.
+    sigma : sequence of float, optional
+        Assumed effectiveness per wheel; healthy (all ones) by default.
+    h : float
+        Step of the directional central difference for etadot_c [s].
+    """
+
+    def __init__(
+        self,
+        chain: Chain,
+        kinematic: TwoLinkKinematic | ChainedBackstepping,
+        k_v: float,
+        sigma=None,
+        h: float = 1e-5,
+    ) -> None:
+        if not k_v > 0:
+            raise ModelError(f"k_v: velocity gain must be > 0, got {k_v}")
+        self.chain = chain
+        self.kin = kinematic
+        self.k_v = float(k_v)
+        self.sigma = np.ones(chain.n_wheels) if sigma is None else np.asarray(sigma, dtype=float)
+        self.h = float(h)
+        self.n_states = kinematic.n_states
+        self.signal_names = ("eta_c", "eta_c_dot", "z", "q_d", "eta_d")
+
+    # --------------------------------------------------------------- pieces
+    def eta_c_and_dot(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
+        """(KinematicOutput at t, etadot_c along qdot = S(q) eta)."""
+        kin = self.kin.law(t, q, xc)
+        h = self.h
+        qdot = K.S_matrix(self.chain.params, q) @ eta
+        plus = self.kin.law(t + h, q + h * qdot, xc).eta_c
+        minus = self.kin.law(t - h, q - h * qdot, xc).eta_c
+        return kin, (plus - minus) / (2.0 * h)
+
+    # --------------------------------------------------------------- Controller protocol
+    def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        return self.kin.initial_state(t, q)
+
+    def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
+        kin, eta_c_dot = self.eta_c_and_dot(t, q, eta, xc)
+        Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)
+        u = dynamic_law(Mbar1, Mbar2, Cbar, Bbar, self.sigma, eta, eta - kin.eta_c, kin, eta_c_dot, self.k_v)
+        return u, np.zeros(self.n_states)
+
+    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        return self.kin.discrete(t, q, xc)
+
+    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
+        kin, eta_c_dot = self.eta_c_and_dot(t, q, eta, xc)
+        r = self.kin.reference.at(t)
+        return {"eta_c": kin.eta_c, "eta_c_dot": eta_c_dot, "z": kin.z, "q_d": r.q_d, "eta_d": r.eta_d}

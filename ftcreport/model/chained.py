@@ -1,0 +1,145 @@
+r"""Chained form of the n-link kinematics, Theorem 2.1 / Appendix E (Sordalen).
+
+With ``m = n + 2`` chained coordinates (thesis numbering, 2.75)::
+
+    xi_1 = x,   xi_m = y,   xi_(m-1) = tan(theta_n),
+    xi_(k-1) = (L_g1 xi_k) / cos(theta_n),  k = m-1, ..., 3
+
+where ``g1`` is the first column of S(q) (the v_n direction), so ``xi_(k-1)`` is
+the derivative of ``xi_k`` with respect to x along the motion.  Then::
+
+    xi_1' = alpha_1,  xi_2' = alpha_2,  xi_k' = xi_(k-1) alpha_1  (k >= 3)
+    alpha = T_alpha(q) eta,   T_alpha = [[cos theta_n, 0], [L_g1 xi_2, d xi_2 / d theta_1]]
+
+The derivation is done once per n with sympy (in the link lengths as symbols),
+common subexpressions eliminated and compiled to numpy; the result is cached.
+It replaces the thesis's hand-printed three-link formulas, which ERRATA
+E5e-E5g list as wrong.  Valid while |theta_n| < 90 deg and every articulation
+angle |theta_i - theta_(i+1)| < 90 deg.
+
+The inverse map uses that ``xi_(m-1-j)`` is the first coordinate to depend on
+theta_(n-j) and is affine in ``tan(theta_(n-j) - theta_(n-j+1))``: the angles are
+recovered one by one in closed form.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from ..errors import ModelError, SingularityError
+
+__all__ = ["ChainedForm", "chained_form"]
+
+
+@lru_cache(maxsize=16)
+def _derive(n: int):
+    """Symbolic derivation for n robots: compiled xi(th, d), T_alpha(th, d)."""
+    import sympy as sp
+
+    th = sp.symbols(f"th1:{n + 1}", real=True)  # robot order theta_1..theta_n
+    d = sp.symbols(f"d1:{n}", positive=True)
+    x, y = sp.symbols("x y", real=True)
+    # first column of S, thetadot_k / v_n (robot order), from (2.64)
+    g1 = [sp.Integer(0)] * n
+    for i in range(n - 1):  # theta_(i+2) driven by phi_(i+1) = theta_(i+1) - theta_(i+2)
+        w = sp.Integer(1)
+        for j in range(i + 1, n - 1):
+            w = w / sp.cos(th[j] - th[j + 1])
+        g1[i + 1] = sp.tan(th[i] - th[i + 1]) / d[i] * w
+    m = n + 2
+    xi = [None] * (m + 1)  # 1-based
+    xi[1] = x
+    xi[m] = y
+    xi[m - 1] = sp.tan(th[n - 1])
+    cn = sp.cos(th[n - 1])
+
+    def lie(expr):
+        return sum(sp.diff(expr, th[k]) * g1[k] for k in range(n))
+
+    for k in range(m - 1, 2, -1):
+        xi[k - 1] = lie(xi[k]) / cn
+    T21 = lie(xi[2])
+    T22 = sp.diff(xi[2], th[0])
+    ang = [xi[k] for k in range(2, m)]  # xi_2..xi_(m-1): functions of the angles only
+    f_xi = sp.lambdify([th, d], ang, modules="numpy", cse=True)
+    f_T = sp.lambdify([th, d], [T21, T22], modules="numpy", cse=True)
+    return f_xi, f_T
+
+
+class ChainedForm:
+    """Chained-form map of an n-robot chain with link lengths d (leader first).
+
+    Parameters
+    ----------
+    d : (n - 1,) sequence of float
+        Link lengths d_1..d_(n-1) [m].
+    """
+
+    def __init__(self, d) -> None:
+        self.d = tuple(float(v) for v in d)
+        self.n = len(self.d) + 1
+        if self.n < 2:
+            raise ModelError("d: the chained form needs at least 2 robots")
+        self.m = self.n + 2
+        self._xi, self._T = _derive(self.n)
+
+    def _th(self, q: np.ndarray) -> np.ndarray:
+        return np.asarray(q, dtype=float)[:1:-1]
+
+    def check_domain(self, q: np.ndarray, margin: float = 1e-6) -> None:
+        """Raise SingularityError outside |theta_n| < 90 deg, |theta_i - theta_(i+1)| < 90 deg."""
+        th = self._th(q)
+        if abs(math.cos(th[-1])) <= margin:
+            raise SingularityError(
+                f"chained form singular: theta_{self.n} = {math.degrees(th[-1]):.2f} deg in its frame"
+            )
+        c = np.cos(th[:-1] - th[1:])
+        if np.any(c <= margin):
+            i = int(np.argmin(c))
+            raise SingularityError(
+                f"chained form singular: theta_{i + 1} - theta_{i + 2} = {math.degrees(th[i] - th[i + 1]):.2f} deg"
+            )
+
+    def xi(self, q: np.ndarray) -> np.ndarray:
+        r"""Chained coordinates xi = phi(q), (n + 2,), thesis numbering xi_1..xi_m."""
+        q = np.asarray(q, dtype=float)
+        ang = self._xi(self._th(q), self.d)
+        return np.array([q[0], *ang, q[1]], dtype=float)
+
+    def T_alpha(self, q: np.ndarray) -> np.ndarray:
+        """Input map alpha = T_alpha(q) eta, (2, 2)."""
+        th = self._th(q)
+        T21, T22 = self._T(th, self.d)
+        return np.array([[math.cos(th[-1]), 0.0], [float(T21), float(T22)]])
+
+    def xi_and_T(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(xi(q), T_alpha(q))`` in one call."""
+        return self.xi(q), self.T_alpha(q)
+
+    def inverse(self, xi: np.ndarray) -> np.ndarray:
+        """q = phi^-1(xi) on the domain |theta_n|, |articulations| < 90 deg."""
+        xi = np.asarray(xi, dtype=float)
+        if xi.shape != (self.m,):
+            raise ModelError(f"xi: expected {self.m} values, got shape {xi.shape}")
+        n, m = self.n, self.m
+        th = np.zeros(n)  # robot order
+        th[n - 1] = math.atan(xi[m - 2])  # xi_(m-1) = tan(theta_n), 0-based index m-2
+        for j in range(1, n):
+            i = n - 1 - j  # 0-based robot index of the new angle theta_(n-j)
+            k = m - 1 - j  # thesis index of the coordinate that first depends on it
+            th[i] = th[i + 1]
+            a0 = self._xi(th, self.d)[k - 2]
+            th[i] = th[i + 1] + math.pi / 4
+            a1 = self._xi(th, self.d)[k - 2] - a0  # coefficient of tan(phi)
+            if a1 == 0:
+                raise SingularityError("chained form inverse: degenerate coefficient")
+            th[i] = th[i + 1] + math.atan((xi[k - 1] - a0) / a1)
+        return np.concatenate(([xi[0], xi[m - 1]], th[::-1]))
+
+
+def chained_form(d) -> ChainedForm:
+    """The chained form of a chain with link lengths d (cached derivation per n)."""
+    return ChainedForm(d)

@@ -206,14 +206,24 @@ def line(speed: float, heading: float = 0.0, start: Sequence[float] = (0.0, 0.0)
 
 
 def sinusoid(
-    speed: float, amplitude: float, frequency: float, heading: float = 0.0, start: Sequence[float] = (0.0, 0.0)
+    speed: float,
+    amplitude: float,
+    frequency: float,
+    heading: float = 0.0,
+    start: Sequence[float] = (0.0, 0.0),
+    phase: float = 0.0,
 ) -> TrigPath:
-    """x = speed t, y = amplitude sin(frequency t), rotated by heading."""
+    """x = speed t, y = amplitude (sin(frequency t + phase) - sin(phase)), rotated by heading.
+
+    The path starts at ``start`` whatever the phase; phase = -90 deg gives
+    y = amplitude (1 - cos(frequency t)), which starts with heading ``heading``.
+    """
     if not speed > 0:
         raise ReferenceError(f"speed: must be > 0 m/s, got {speed}")
     return TrigPath(
         vx=speed,
-        y_terms=((amplitude, frequency, 0.0),),
+        y0=-amplitude * math.sin(phase),
+        y_terms=((amplitude, frequency, phase),),
         rotation=heading,
         origin=(float(start[0]), float(start[1])),
         kind="sinusoid",

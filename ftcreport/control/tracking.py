@@ -19,6 +19,8 @@ h = 1e-5).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..errors import ModelError
@@ -27,6 +29,53 @@ from ..model.chain import Chain
 from .kinematic import ChainedBackstepping, KinematicOutput, TwoLinkKinematic
 
 __all__ = ["TrackingController", "dynamic_law"]
+
+
+class LawTerms(NamedTuple):
+    """Pattern-independent pieces of the dynamic law at one instant.
+
+    ``w`` is the desired closed-loop velocity-error derivative term
+    ``-k_v eta_e - T_alpha^T f_eta + Mbar1^-1 (Mbar2 eta + Cbar) + etadot_c``,
+    ``MB = Mbar1^-1 Bbar`` and ``g = -Mbar1^-1 (Mbar2 eta + Cbar)`` (free dynamics).
+    """
+
+    w: np.ndarray
+    MB: np.ndarray
+    g: np.ndarray
+
+
+def law_terms(
+    Mbar1: np.ndarray,
+    Mbar2: np.ndarray,
+    Cbar: np.ndarray,
+    Bbar: np.ndarray,
+    eta: np.ndarray,
+    eta_e: np.ndarray,
+    kin: KinematicOutput,
+    eta_c_dot: np.ndarray,
+    k_v: float,
+) -> LawTerms:
+    """The bracket of (3.35)/(3.107) and Mbar1^-1 Bbar, computed once for every pattern."""
+    Minv = np.linalg.inv(Mbar1)
+    g = -Minv @ (Mbar2 @ eta + Cbar)
+    # w = -k_v eta_e - T_alpha^T f_eta + Mbar1^-1 (Mbar2 eta + Cbar) + etadot_c
+    w = -k_v * eta_e - kin.T_alpha.T @ kin.f_eta - g + eta_c_dot
+    return LawTerms(w, Minv @ Bbar, g)
+
+
+def law_for_pattern(terms: LawTerms, sigma_k: np.ndarray, w_extra: np.ndarray | None = None) -> np.ndarray:
+    r"""u_(k) = (Mbar1^-1 Bbar sigma_(k))^+ w, thesis (3.35)/(3.107), A^+ = A^T (A A^T)^-1.
+
+    ``w_extra`` is added to the bracket (e.g. ``-Mbar1^-1 Bbar ubar`` to cancel a known
+    or estimated friction).  For a pattern with rank(A) < 2 the least-squares
+    pseudo-inverse is used (the oracle facing an uncompensable fault).
+    """
+    w = terms.w if w_extra is None else terms.w + w_extra
+    A = terms.MB * sigma_k[None, :]
+    AAt = A @ A.T
+    if np.linalg.cond(AAt) > 1e12:
+        return np.linalg.pinv(A, rcond=1e-9) @ w
+    return A.T @ np.linalg.solve(AAt, w)
 
 
 def dynamic_law(
@@ -52,12 +101,8 @@ def dynamic_law(
     -------
     u : (2n,) ndarray
     """
-    Minv = np.linalg.inv(Mbar1)
-    # w = -k_v eta_e - T_alpha^T f_eta + Mbar1^-1 (Mbar2 eta + Cbar) + etadot_c
-    w = -k_v * eta_e - kin.T_alpha.T @ kin.f_eta + Minv @ (Mbar2 @ eta + Cbar) + eta_c_dot
-    A = (Minv @ Bbar) * sigma_k[None, :]
-    # u = A^T (A A^T)^-1 w
-    return A.T @ np.linalg.solve(A @ A.T, w)
+    terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin, eta_c_dot, k_v)
+    return law_for_pattern(terms, sigma_k)
 
 
 class TrackingController:

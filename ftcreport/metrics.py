@@ -1,0 +1,207 @@
+r"""Metrics of a run (pure: arrays in, plain dicts out, SI units).
+
+Names are stable: they are the keys of ``metrics.json`` and of the thresholds
+``ftcreport check`` compares.  Definitions:
+
+* position error: distance between P_n and its reference, ``|(x, y) - (x_d, y_d)|`` [m];
+* heading error: ``max_i |wrap(theta_i - theta_id)|`` over every robot [rad];
+* phases: the intervals between fault events (the schedule's event times);
+  per phase ``start``, ``end``, ``position_error_max``, ``position_error_rms``,
+  ``position_error_final`` and ``recovery_time``: the time from the phase start
+  until the position error enters the band and stays in it until the phase ends
+  (``None`` if it never does);
+* ``recovery_time_max``: the largest recovery time over the phases that start
+  with a fault event (``None`` when one of them never recovers);
+* torques: ``torque_peak`` = max |tau| over wheels and time [N m], ``torque_rms``
+  = RMS over time of the per-wheel torques (largest wheel), ``saturation_fraction``
+  = fraction of logged instants with some |u_j| at the limit;
+* ``singularity_margin_min``: the smallest distance of an articulation angle
+  |theta_i - theta_(i+1)| from 90 deg over the run [rad];
+* switching (ERRATA E12g): the true 0/1 pattern marks a wheel faulty when its
+  sigma < 1; the applied model *exactly* matches when its pattern equals it, and
+  *effectively* matches when it assumes a superset of the true faults (the
+  models are compensable by construction, so the same torques reach the
+  ground).  ``switching_match_fraction`` is the effective fraction,
+  ``switching_exact_match_fraction`` the exact one, ``detection_delays`` per
+  fault event the time until the applied model effectively matches (0 when the
+  applied one already did: no switch needed), ``detection_delay_max`` their max.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = [
+    "phase_metrics",
+    "recovery_time",
+    "singularity_margin",
+    "switching_metrics",
+    "torque_metrics",
+    "tracking_errors",
+    "tracking_metrics",
+]
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def tracking_errors(q: np.ndarray, q_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position error of P_n (K,) [m] and heading errors (K, n) [rad], headings in q order."""
+    pos = np.hypot(q[:, 0] - q_d[:, 0], q[:, 1] - q_d[:, 1])
+    head = np.abs(_wrap(q[:, 2:] - q_d[:, 2:]))
+    return pos, head
+
+
+def recovery_time(t: np.ndarray, err: np.ndarray, start: float, end: float, band: float) -> float | None:
+    """Time from ``start`` until err enters [0, band] and stays there until ``end``."""
+    m = (t >= start) & (t <= end)
+    if not np.any(m):
+        return None
+    tt, ee = t[m], err[m]
+    outside = np.flatnonzero(ee > band)
+    if outside.size == 0:
+        return 0.0
+    last = outside[-1]
+    if last == tt.size - 1:
+        return None
+    return float(tt[last + 1] - start)
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+
+
+def phase_metrics(t: np.ndarray, pos_err: np.ndarray, phases: Sequence[tuple[float, float]], band: float) -> list[dict]:
+    """Per-phase tracking metrics (see the module docstring)."""
+    out = []
+    for start, end in phases:
+        m = (t >= start) & (t < end) if end < t[-1] else (t >= start) & (t <= end)
+        if not np.any(m):
+            out.append(
+                {
+                    "start": start,
+                    "end": end,
+                    "position_error_max": None,
+                    "position_error_rms": None,
+                    "position_error_final": None,
+                    "recovery_time": None,
+                }
+            )
+            continue
+        e = pos_err[m]
+        out.append(
+            {
+                "start": float(start),
+                "end": float(end),
+                "position_error_max": float(e.max()),
+                "position_error_rms": _rms(e),
+                "position_error_final": float(e[-1]),
+                "recovery_time": recovery_time(t, pos_err, start, end, band),
+            }
+        )
+    return out
+
+
+def tracking_metrics(
+    t: np.ndarray, q: np.ndarray, q_d: np.ndarray, phases: Sequence[tuple[float, float]], band: float
+) -> dict:
+    """Whole-run and per-phase tracking metrics."""
+    pos, head = tracking_errors(q, q_d)
+    hmax = head.max(axis=1)
+    ph = phase_metrics(t, pos, phases, band)
+    rec = [p["recovery_time"] for p in ph[1:]]  # phases that start with a fault event
+    return {
+        "position_error_max": float(pos.max()),
+        "position_error_rms": _rms(pos),
+        "position_error_final": float(pos[-1]),
+        "heading_error_max": float(hmax.max()),
+        "heading_error_final": float(hmax[-1]),
+        "recovery_time_max": (None if any(r is None for r in rec) else float(max(rec))) if rec else 0.0,
+        "phases": ph,
+    }
+
+
+def torque_metrics(tau: np.ndarray, u: np.ndarray, u_limit: float | None) -> dict:
+    """Peak and RMS torque, and the fraction of instants at saturation."""
+    rms_per_wheel = np.sqrt(np.mean(np.square(tau), axis=0))
+    sat = 0.0
+    if u_limit is not None:
+        sat = float(np.mean(np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1)))
+    return {
+        "torque_peak": float(np.abs(tau).max()),
+        "torque_rms": float(rms_per_wheel.max()),
+        "saturation_fraction": sat,
+    }
+
+
+def singularity_margin(q: np.ndarray) -> float:
+    """Smallest distance of an articulation angle from 90 deg over the run [rad]."""
+    th = q[:, :1:-1]  # robot order
+    c = np.abs(np.cos(th[:, :-1] - th[:, 1:]))
+    return float(np.arcsin(np.clip(c.min(), 0.0, 1.0)))
+
+
+def switching_metrics(
+    t: np.ndarray,
+    selected: np.ndarray,
+    patterns: np.ndarray,
+    sigma_true: np.ndarray,
+    event_times: Sequence[float],
+) -> dict:
+    """Switch count, exact/effective match fractions and detection delays (ERRATA E12g).
+
+    Parameters
+    ----------
+    selected : (K,) ndarray
+        Index of the applied model at each logged instant.
+    patterns : (N, 2n) ndarray
+        The models' 0/1 patterns (1 = wheel assumed working).
+    sigma_true : (K, 2n) ndarray
+        True effectiveness at each logged instant.
+    """
+    sel = np.asarray(selected).astype(int)
+    assumed_ok = patterns[sel] > 0.5  # (K, 2n)
+    true_ok = sigma_true >= 1.0
+    exact = np.all(assumed_ok == true_ok, axis=1)
+    # effective: every wheel assumed working really works (assumed failures are a superset)
+    effective = np.all(~assumed_ok | true_ok, axis=1)
+    delays = []
+    for te in event_times:
+        k0 = int(np.searchsorted(t, te, side="left"))
+        if k0 >= t.size:
+            continue
+        ok = np.flatnonzero(effective[k0:])
+        if ok.size == 0:
+            delays.append({"time": float(te), "needs_switch": True, "delay": None})
+            continue
+        first = k0 + int(ok[0])
+        delays.append({"time": float(te), "needs_switch": bool(first > k0), "delay": float(t[first] - t[k0])})
+    known = [d["delay"] for d in delays if d["delay"] is not None]
+    return {
+        "switch_count": int(np.sum(sel[1:] != sel[:-1])),
+        "switching_match_fraction": float(np.mean(effective)),
+        "switching_exact_match_fraction": float(np.mean(exact)),
+        "detection_delays": delays,
+        "detection_delay_max": (None if len(known) < len(delays) else (max(known) if known else 0.0)),
+        "switch_sequence": _sequence(t, sel)[:100],
+        "switch_sequence_truncated": bool(len(_sequence(t, sel)) > 100),
+    }
+
+
+def _sequence(t: np.ndarray, sel: np.ndarray) -> list[tuple[float, int]]:
+    """(time, model index) each time the applied model changes, starting at t[0]."""
+    if sel.size == 0:
+        return []
+    idx = np.concatenate(([0], np.flatnonzero(sel[1:] != sel[:-1]) + 1))
+    return [(float(t[i]), int(sel[i])) for i in idx]
+
+
+def finite_or_none(x: float | None) -> float | None:
+    """JSON-friendly number: None for None/NaN/inf."""
+    if x is None or not math.isfinite(x):
+        return None
+    return float(x)

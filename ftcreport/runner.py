@@ -1,0 +1,134 @@
+"""Run one scheme of a validated case and compute its metrics (pure, no I/O).
+
+case --build--> chain, reference, faults, plant, controller
+(plant, controller) --simulate--> Run --metrics--> dict (the metrics.json content)
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from . import __version__
+from .cases import Case, build_chain, initial_state, switching_patterns
+from .control.baselines import OracleController, nominal
+from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
+from .control.switching import SwitchingController
+from .errors import FtcError
+from .metrics import singularity_margin, switching_metrics, torque_metrics, tracking_metrics
+from .references import FlatReference
+from .sim import Plant, Run, SimSettings, simulate
+
+__all__ = ["Built", "build", "make_controller", "run_metrics", "run_scheme"]
+
+
+class Built:
+    """The simulation objects of a case (shared by its schemes)."""
+
+    def __init__(self, case: Case) -> None:
+        self.case = case
+        self.chain = build_chain(case)
+        self.reference = FlatReference(case.reference.path(), self.chain.d)
+        self.faults = case.fault_schedule()
+        self.plant = Plant(self.chain, self.faults, case.plant.saturation)
+        self.q0, self.eta0 = initial_state(case, self.reference)
+        s = case.simulation
+        self.settings = SimSettings(
+            dt=s.dt,
+            duration=s.duration,
+            method=s.method,
+            log_every=s.log_every,
+            singularity_margin=math.radians(s.singularity_margin_deg),
+        )
+
+    def kinematic(self) -> TwoLinkKinematic | ChainedBackstepping:
+        k = self.case.kinematic
+        if k.kind == "two_link":
+            return TwoLinkKinematic(self.chain.d[0], self.reference, k.k1, k.k2, k.k3)
+        c = k.c_chain if isinstance(k.c_chain, list) else [k.c_chain] * self.chain.n
+        return ChainedBackstepping(
+            self.chain.d, self.reference, c, k.c_alpha2, k.c_xi1, k.kappa, band=math.radians(k.band_deg), mu=k.mu
+        )
+
+
+def build(case: Case) -> Built:
+    """Chain, reference, faults, plant, initial state and settings of a case."""
+    return Built(case)
+
+
+def make_controller(built: Built, scheme: str):
+    """The controller of one scheme of the case."""
+    case = built.case
+    cfg = getattr(case.schemes, scheme, None)
+    if cfg is None:
+        raise FtcError(f"scheme '{scheme}' is not configured in case '{case.name}'")
+    kin = built.kinematic()
+    if scheme == "nominal":
+        return nominal(built.chain, kin, cfg.k_v)
+    if scheme == "oracle":
+        return OracleController(built.chain, kin, cfg.k_v)
+    if scheme == "switching":
+        return SwitchingController(
+            built.chain,
+            kin,
+            cfg.k_v,
+            patterns=switching_patterns(case, built.chain),
+            gamma=cfg.gamma,
+            T_min=cfg.T_min,
+            c_inst=cfg.c_inst,
+            c_int=cfg.c_int,
+            forgetting=cfg.forgetting,
+            hysteresis=cfg.hysteresis,
+            u_limit=case.plant.saturation,
+        )
+    raise FtcError(f"unknown scheme '{scheme}'")
+
+
+def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=None) -> tuple[Run, dict]:
+    """Simulate one scheme of a case; always returns (run, metrics), failures included.
+
+    A run that stops early (singular, diverged) keeps its log and its metrics
+    over the simulated part; an error while building is reported with status
+    ``error`` and an empty run.
+    """
+    wall0 = time.perf_counter()
+    try:
+        built = built or build(case)
+        ctrl = make_controller(built, scheme)
+        run = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings, progress=progress)
+    except FtcError as exc:
+        empty = Run(t=np.zeros(0), signals={}, status="error", reason=str(exc))
+        return empty, _identity(case, scheme) | {"status": "error", "reason": str(exc), "wall_time": 0.0}
+    metrics = run_metrics(case, scheme, run, built, ctrl)
+    metrics["wall_time"] = time.perf_counter() - wall0
+    return run, metrics
+
+
+def _identity(case: Case, scheme: str) -> dict:
+    return {
+        "case": case.name,
+        "scheme": scheme,
+        "n_robots": case.robots.n,
+        "reference_kind": case.reference.kind,
+        "duration": case.simulation.duration,
+        "dt": case.simulation.dt,
+        "method": case.simulation.method,
+        "package_version": __version__,
+    }
+
+
+def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
+    """The metrics.json content of one run (see ftcreport.metrics for definitions)."""
+    out = _identity(case, scheme) | {"status": run.status, "reason": run.reason, "t_end": run.t_end}
+    if run.t.size < 2:
+        return out
+    phases = built.faults.phases(min(case.simulation.duration, run.t_end))
+    out |= tracking_metrics(run.t, run["q"], run["q_d"], phases, case.recovery_band)
+    out |= torque_metrics(run["tau"], run["u"], case.plant.saturation)
+    out["singularity_margin_min"] = singularity_margin(run["q"])
+    if scheme == "switching":
+        out |= switching_metrics(run.t, run["selected"], ctrl.patterns, run["sigma"], list(built.faults.times))
+        out["patterns"] = ctrl.patterns.astype(int).tolist()
+    return out

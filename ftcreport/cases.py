@@ -409,3 +409,12 @@ def switching_patterns(case: Case, chain: Chain) -> list[tuple[int, ...]] | None
 
 def validation_error_message(exc: Exception) -> str:  # pragma: no cover - helper for the CLI
     return str(exc)
+
+
+def with_duration(case: Case, duration: float) -> Case:
+    """The same case simulated for ``duration`` s (events at or after it dropped)."""
+    if not duration > 0:
+        raise CaseError(f"{case.name}: duration override must be > 0 s, got {duration}")
+    sim = case.simulation.model_copy(update={"duration": float(duration), "dt": min(case.simulation.dt, duration)})
+    faults = [f for f in case.faults if f.time < duration]
+    return case.model_copy(update={"simulation": sim, "faults": faults})

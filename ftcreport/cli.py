@@ -131,9 +131,74 @@ def batch(cases: Annotated[Path, typer.Argument(help="Directory of case files.")
 
 
 @app.command()
-def run(case: Annotated[Path, typer.Argument(help="One case file.")]) -> None:
-    """Run one case through all its schemes and write its report (not built yet)."""
-    _not_built("run", "issue 7")
+def run(
+    case: Annotated[Path, typer.Argument(help="One case file (TOML).")],
+    out: Annotated[Path, typer.Option(help="Output directory.")] = Path("reports"),
+    scheme: Annotated[list[str] | None, typer.Option(help="Run only these schemes (repeatable).")] = None,
+    duration: Annotated[float | None, typer.Option(help="Override the simulated time [s].")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only errors.")] = False,
+) -> None:
+    """Run one case through its schemes; store metrics.json and time series under OUT/<case>/<scheme>/.
+
+    Prints a comparison table.  Exit 0 when every run completed, 1 when a run
+    stopped early (singular, diverged, error), 2 for a bad case file.
+
+    Example: ftcreport run cases/two_link_switching.toml --scheme switching
+    """
+    from .cases import case_hash, load_case, with_duration
+    from .runner import build, run_scheme
+    from .store import save_run
+
+    try:
+        c = load_case(case)
+        if duration is not None:
+            c = with_duration(c, duration)
+        schemes = [s for s in ("nominal", "switching", "oracle") if getattr(c.schemes, s) is not None]
+        if scheme:
+            unknown = [s for s in scheme if s not in schemes]
+            if unknown:
+                raise FtcError(f"{case}: schemes.{unknown[0]}: not configured in this case (has {', '.join(schemes)})")
+            schemes = [s for s in schemes if s in scheme]
+        built = build(c)
+    except FtcError as exc:
+        _fail(exc)
+    if not quiet:
+        for w in c.warnings():
+            typer.echo(f"warning: {case}: {w}", err=True)
+    key = case_hash(c, __version__)
+    rows = []
+    for s in schemes:
+        r, m = run_scheme(c, s, built)
+        save_run(out, c.name, s, r, m, key)
+        rows.append(m)
+    if not quiet:
+        typer.echo(_table(rows))
+        typer.echo(f"results in {out / c.name}/")
+    if any(m["status"] != "ok" for m in rows):
+        raise typer.Exit(code=1)
+
+
+def _fmt(x, spec: str = ".3g") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def _table(rows: list[dict]) -> str:
+    head = (
+        f"{'scheme':<10} {'status':<9} {'max err after faults':>20} {'final err':>10} {'switches':>8} "
+        f"{'match':>6} {'peak tau':>9} {'wall/sim-s':>10}"
+    )
+    lines = [head, "-" * len(head)]
+    for m in rows:
+        after = [p["position_error_max"] for p in m.get("phases", [])[1:] if p["position_error_max"] is not None]
+        wall = m.get("wall_time", 0.0) / max(m.get("t_end") or m["duration"], 1e-9)
+        lines.append(
+            f"{m['scheme']:<10} {m['status']:<9} {_fmt(max(after) if after else None):>20} "
+            f"{_fmt(m.get('position_error_final')):>10} {_fmt(m.get('switch_count'), 'd'):>8} "
+            f"{_fmt(m.get('switching_match_fraction'), '.3f'):>6} {_fmt(m.get('torque_peak')):>9} {wall:>10.3f}"
+        )
+        if m.get("reason"):
+            lines.append(f"{'':<10} reason: {m['reason']}")
+    return "\n".join(lines)
 
 
 @app.command()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from typer.testing import CliRunner
 
@@ -28,7 +30,6 @@ def test_version():
     "args",
     [
         ["batch", "cases"],
-        ["run", "x.toml"],
         ["report"],
         ["check"],
         ["analyze", "x.toml"],
@@ -69,3 +70,28 @@ def test_demo_bad_parameter_is_one_line():
     res = runner.invoke(app, ["demo", "--dt", "-1"])
     assert res.exit_code == 2
     assert "dt" in res.output and "Traceback" not in res.output
+
+
+def test_run_command_writes_results(tmp_path):
+    import json
+
+    from ftcreport.store import load_timeseries
+
+    case = Path(__file__).resolve().parents[1] / "cases" / "two_link_uncompensable.toml"
+    res = runner.invoke(app, ["run", str(case), "--out", str(tmp_path), "--duration", "3", "--scheme", "oracle"])
+    assert res.exit_code == 0, res.output
+    assert "oracle" in res.output and "Traceback" not in res.output
+    m = json.loads((tmp_path / "two_link_uncompensable" / "oracle" / "metrics.json").read_text())
+    assert m["status"] == "ok" and m["scheme"] == "oracle" and m["duration"] == 3.0
+    assert m["position_error_final"] < 1e-6
+    ts = load_timeseries(tmp_path, "two_link_uncompensable", "oracle")
+    assert ts["t"][-1] == pytest.approx(3.0) and ts["q"].shape[1] == 4
+
+
+def test_run_bad_case_is_one_line(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[robots]\nn = 1\n")
+    res = runner.invoke(app, ["run", str(bad)])
+    assert res.exit_code == 2
+    assert "bad.toml" in res.output and "Traceback" not in res.output
+    assert res.output.strip().count("\n") == 0

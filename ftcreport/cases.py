@@ -418,3 +418,55 @@ def with_duration(case: Case, duration: float) -> Case:
     sim = case.simulation.model_copy(update={"duration": float(duration), "dt": min(case.simulation.dt, duration)})
     faults = [f for f in case.faults if f.time < duration]
     return case.model_copy(update={"simulation": sim, "faults": faults})
+
+
+TEMPLATE = """# A case file for ftcreport (documented field by field in cases/README.md).
+# Units: SI; angles in degrees where a name ends in _deg.
+description = "Three robots on a circle; robot 2 loses its left motor at 20 s"
+
+[robots]
+n = 3               # number of robots (robot 1 is the leader)
+d = 1.0             # link lengths [m]: a scalar, or a list of n - 1 values leader first
+# a, b, r, m, I default to the thesis robots: 0.3 m, 0.75 m, 0.15 m, 30 kg, 15.625 kg m^2
+
+[reference]         # path of the last robot: unicycle | circle | eight | line | sinusoid
+kind = "circle"
+radius = 5.0        # [m]
+speed = 0.5         # [m/s]
+
+[initial]           # offsets from the reference at t = 0 (mode = "absolute" for absolute values)
+x = 0.3             # [m]
+y = -0.2            # [m]
+heading_offset_deg = 10.0
+
+[[faults]]          # from time on, wheel has tau = sigma u + ubar
+time = 20.0         # [s]
+wheel = "2l"        # "1r", "1l", ..., "nr", "nl"
+sigma = 0.0         # effectiveness in [0, 1]
+ubar = 0.0          # friction [N m]
+
+[kinematic]         # "two_link" (n = 2: k1, k2, k3) or "chained" (any n)
+kind = "chained"
+c_chain = 0.3
+c_alpha2 = 2.0
+c_xi1 = 2.0
+kappa = 5.0
+
+[schemes.nominal]   # no FTC
+k_v = 5.0
+[schemes.switching] # multiple models + switching
+k_v = 5.0
+gamma = 10.0
+T_min = 0.01
+[schemes.oracle]    # knows the true faults
+k_v = 5.0
+
+[simulation]
+dt = 0.02           # [s]
+duration = 60.0     # [s]
+method = "rk4"      # or "ros2" for stiff velocity loops
+log_every = 5
+
+[thresholds.switching]
+position_error_final = { max = 1e-3 }
+"""

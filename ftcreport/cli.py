@@ -7,6 +7,7 @@ Commands of DESIGN.md that are not built yet say so and exit 2.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Annotated
@@ -125,9 +126,31 @@ def demo(
 
 
 @app.command()
-def batch(cases: Annotated[Path, typer.Argument(help="Directory of case files.")] = Path("cases")) -> None:
-    """Run every case through every scheme and write reports/ (not built yet)."""
-    _not_built("batch", "issue 7")
+def batch(
+    cases: Annotated[list[Path] | None, typer.Argument(help="Case files or directories (default: cases/).")] = None,
+    out: Annotated[Path, typer.Option(help="Output directory.")] = Path("reports"),
+    jobs: Annotated[int | None, typer.Option(help="Parallel processes (default: the core count).")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Re-simulate cached runs.")] = False,
+    duration: Annotated[float | None, typer.Option(help="Override every case's simulated time [s].")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Run every case x scheme (cached by case content and version) and write OUT/index.html.
+
+    A broken case file or a failing run is recorded and the batch goes on.
+    Exit 0 when every run completed, 1 when some run or case failed.
+
+    Example: ftcreport batch cases/ --jobs 2
+    """
+    from .batch import failures_summary, run_batch
+
+    res = run_batch(cases or [Path("cases")], out, jobs, force, duration, show_progress=not quiet)
+    typer.echo(
+        f"{len(res.cases)} case(s): {len(res.simulated)} run(s) simulated, {len(res.cached)} cached, "
+        f"{len(res.failed_runs)} failed, {len(res.case_errors)} case file(s) rejected; report: {out / 'index.html'}"
+    )
+    if res.case_errors or res.failed_runs:
+        typer.echo(failures_summary(res), err=True)
+        raise typer.Exit(code=1)
 
 
 @app.command()
@@ -202,15 +225,62 @@ def _table(rows: list[dict]) -> str:
 
 
 @app.command()
-def report() -> None:
-    """Re-render the HTML reports from stored results (not built yet)."""
-    _not_built("report", "issue 7")
+def report(
+    out: Annotated[Path, typer.Option(help="Output directory holding stored results.")] = Path("reports"),
+) -> None:
+    """Re-render every HTML page from stored results (no simulation).
+
+    Example: ftcreport report --out reports
+    """
+    from .report.render import render_all
+
+    if not out.is_dir():
+        _fail(FtcError(f"{out}: no stored results (run 'ftcreport batch' first)"))
+    typer.echo(f"report: {render_all(out)}")
 
 
 @app.command()
-def check(cases: Annotated[list[Path] | None, typer.Argument(help="Case files or directories.")] = None) -> None:
-    """Compare metrics with each case's thresholds; exit 0/1 (not built yet)."""
-    _not_built("check", "issue 7")
+def check(
+    cases: Annotated[list[Path] | None, typer.Argument(help="Case files or directories (default: cases/).")] = None,
+    junit: Annotated[Path | None, typer.Option(help="Write JUnit XML here.")] = None,
+    out: Annotated[Path, typer.Option(help="Output directory (results are reused when cached).")] = Path("reports"),
+    jobs: Annotated[int | None, typer.Option(help="Parallel processes.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only failures.")] = False,
+) -> None:
+    """Compare each case's metrics with its thresholds: exit 0 if all hold, 1 if not, 2 for bad case files.
+
+    Runs what is not cached first (as 'batch' does).
+
+    Example: ftcreport check cases/ --junit reports/junit.xml
+    """
+    from .batch import run_batch
+    from .check import evaluate
+    from .report.junit import write_junit
+    from .store import load_metrics
+
+    res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
+    results = []
+    for name in res.cases:
+        rec = json.loads((out / name / "case.json").read_text())
+        metrics = {s: load_metrics(out, name, s) for s in rec.get("schemes", [])}
+        results += evaluate(name, rec.get("thresholds", {}), metrics)
+    if junit is not None:
+        write_junit(junit, results, res.case_errors)
+    for r in results:
+        if not r.ok or not quiet:
+            mark = "pass" if r.ok else "FAIL"
+            typer.echo(
+                f"{mark:4}  {r.case} / {r.scheme} / {r.metric}: actual {_fmt(r.actual, '.6g')} "
+                f"(min {_fmt(r.min, 'g')}, max {_fmt(r.max, 'g')}) {r.reason}".rstrip()
+            )
+    for msg in res.case_errors.values():
+        typer.echo(f"error: {msg}", err=True)
+    failed = sum(not r.ok for r in results)
+    typer.echo(f"{len(results) - failed}/{len(results)} thresholds hold")
+    if res.case_errors:
+        raise typer.Exit(code=2)
+    if failed:
+        raise typer.Exit(code=1)
 
 
 @app.command()
@@ -226,15 +296,54 @@ def campaign(case: Annotated[Path, typer.Argument(help="Base case file.")]) -> N
 
 
 @cases_app.command("validate")
-def cases_validate(directory: Annotated[Path, typer.Argument(help="Directory of case files.")]) -> None:
-    """Validate every case file in a directory (not built yet)."""
-    _not_built("cases validate", "issue 7")
+def cases_validate(
+    paths: Annotated[list[Path], typer.Argument(help="Case files or directories.")],
+) -> None:
+    """Validate case files: one line per file; exit 0 if all are valid, 2 otherwise.
+
+    Example: ftcreport cases validate cases/
+    """
+    from .batch import discover
+    from .cases import load_case
+
+    files = discover(paths)
+    if not files:
+        _fail(FtcError(f"no case files (*.toml) in {', '.join(map(str, paths))}"))
+    bad = 0
+    for f in files:
+        try:
+            c = load_case(f)
+        except FtcError as exc:
+            bad += 1
+            typer.echo(f"error: {exc}", err=True)
+            continue
+        typer.echo(f"ok     {f}")
+        for w in c.warnings():
+            typer.echo(f"warning: {f}: {w}", err=True)
+    if bad:
+        raise typer.Exit(code=2)
 
 
 @cases_app.command("new")
-def cases_new(name: Annotated[str, typer.Argument(help="Name of the new case.")]) -> None:
-    """Write a commented case template (not built yet)."""
-    _not_built("cases new", "issue 7")
+def cases_new(
+    name: Annotated[str, typer.Argument(help="Name of the new case (file NAME.toml).")],
+    directory: Annotated[Path, typer.Option("--dir", help="Where to write it.")] = Path("cases"),
+) -> None:
+    """Write a commented case template (three links on a circle, one motor lost) to DIR/NAME.toml.
+
+    Example: ftcreport cases new my_case
+    """
+    from .cases import TEMPLATE, load_case
+
+    if not name.replace("_", "").replace("-", "").isalnum():
+        _fail(FtcError(f"name: '{name}' must be letters, digits, '_' or '-'"))
+    path = directory / f"{name}.toml"
+    if path.exists():
+        _fail(FtcError(f"{path}: exists already; not overwritten"))
+    directory.mkdir(parents=True, exist_ok=True)
+    path.write_text(TEMPLATE)
+    load_case(path)  # the template itself is valid
+    typer.echo(f"wrote {path}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,222 @@
+"""``ftcreport batch``: every case x scheme, in parallel processes, cached, then reports.
+
+Edge module (files, processes, progress).  For each case file:
+
+* it is validated; a broken file is recorded (``<out>/<stem>/case.json`` with the
+  error) and the batch goes on;
+* each scheme's run is skipped when ``<out>/<case>/<scheme>/key`` equals the hash of
+  (case content, package version) (``force`` re-runs); otherwise it is simulated
+  in a worker process and stored atomically as soon as it finishes, so an
+  interrupted batch keeps every finished run;
+* a run that fails (singular, diverged, error, or an exception in the worker) is
+  stored with its status and reason.
+
+Progress: one line per running job with case, scheme and simulated time (rich).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import multiprocessing as mp
+import os
+import queue as _queue
+import traceback
+from collections.abc import Iterable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import __version__
+from .cases import SCHEME_NAMES, Case, case_hash, load_case, with_duration
+from .errors import CaseError, FtcError
+from .store import cached_key, save_run, write_atomic, write_json
+
+__all__ = ["BatchResult", "discover", "run_batch"]
+
+
+@dataclass
+class BatchResult:
+    """What a batch did."""
+
+    simulated: list[tuple[str, str]] = field(default_factory=list)
+    cached: list[tuple[str, str]] = field(default_factory=list)
+    failed_runs: list[tuple[str, str, str]] = field(default_factory=list)
+    case_errors: dict[str, str] = field(default_factory=dict)
+    cases: list[str] = field(default_factory=list)
+
+
+def discover(paths: Iterable[Path]) -> list[Path]:
+    """Case files: directories are searched for ``*.toml`` (sorted), files taken as given."""
+    out: list[Path] = []
+    for p in paths:
+        p = Path(p)
+        if p.is_dir():
+            out.extend(sorted(p.glob("*.toml")))
+        else:
+            out.append(p)
+    return out
+
+
+def _record(out: Path, name: str, payload: dict) -> None:
+    write_json(out / name / "case.json", payload | {"time": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")})
+
+
+def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> dict:
+    """Run one scheme in a worker process and store it; returns its metrics."""
+    from .cases import parse_case
+    from .runner import run_scheme
+
+    case = parse_case(case_data, source)
+    last = [0.0]
+
+    def progress(t: float) -> None:
+        if progress_q is not None and t - last[0] >= 0.005 * case.simulation.duration:
+            last[0] = t
+            with contextlib.suppress(Exception):
+                progress_q.put_nowait((case.name, scheme, t))
+
+    try:
+        run, metrics = run_scheme(case, scheme, progress=progress)
+    except Exception as exc:
+        import numpy as np
+
+        from .sim import Run
+
+        run = Run(t=np.zeros(0), signals={}, status="error", reason=f"{type(exc).__name__}: {exc}")
+        metrics = {
+            "case": case.name,
+            "scheme": scheme,
+            "status": "error",
+            "reason": f"{type(exc).__name__}: {exc}",
+            "traceback": traceback.format_exc(),
+        }
+    save_run(Path(out), case.name, scheme, run, metrics, key)
+    return metrics
+
+
+def run_batch(
+    paths: Iterable[Path],
+    out: Path = Path("reports"),
+    jobs: int | None = None,
+    force: bool = False,
+    duration: float | None = None,
+    show_progress: bool = True,
+    render: bool = True,
+) -> BatchResult:
+    """Run every case x scheme not already cached, then render the reports."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    res = BatchResult()
+    todo: list[tuple[Case, str, str, str]] = []  # case, source, scheme, key
+    for path in discover(paths):
+        try:
+            case = load_case(path)
+            if duration is not None:
+                case = with_duration(case, duration)
+        except CaseError as exc:
+            res.case_errors[str(path)] = str(exc)
+            try:
+                text = Path(path).read_text()
+            except OSError:
+                text = ""
+            _record(
+                out, Path(path).stem, {"source": str(path), "status": "error", "error": str(exc), "source_text": text}
+            )
+            continue
+        res.cases.append(case.name)
+        key = case_hash(case, __version__)
+        write_atomic(out / case.name / "case.toml", Path(path).read_bytes())
+        schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+        _record(
+            out,
+            case.name,
+            {
+                "source": str(path),
+                "status": "ok",
+                "key": key,
+                "schemes": schemes,
+                "n": case.robots.n,
+                "reference": case.reference.kind,
+                "warnings": case.warnings(),
+                "thresholds": {s: {m: b.model_dump() for m, b in t.items()} for s, t in case.thresholds.items()},
+                "duration_override": duration,
+            },
+        )
+        for s in schemes:
+            if not force and cached_key(out, case.name, s) == key:
+                res.cached.append((case.name, s))
+            else:
+                todo.append((case, str(path), s, key))
+    if todo:
+        _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res)
+    if render:
+        from .report.render import render_all
+
+        render_all(out)
+    return res
+
+
+def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult) -> None:
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    ctx = mp.get_context("spawn")
+    manager = ctx.Manager()
+    q = manager.Queue()
+    progress = Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+        TimeElapsedColumn(),
+        disable=not show_progress,
+        transient=False,
+    )
+    tasks = {}
+    with progress, ProcessPoolExecutor(max_workers=max(1, jobs), mp_context=ctx) as pool:
+        futures = {}
+        for case, source, scheme, key in todo:
+            data = case.model_dump(mode="json")
+            fut = pool.submit(_worker, data, source, scheme, str(out), key, q)
+            futures[fut] = (case.name, scheme)
+            tasks[(case.name, scheme)] = progress.add_task(f"{case.name} / {scheme}", total=case.simulation.duration)
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            _drain(q, progress, tasks)
+            for fut in done:
+                name, scheme = futures[fut]
+                try:
+                    m = fut.result()
+                    status, reason = m.get("status", "error"), m.get("reason", "")
+                except Exception as exc:
+                    status, reason = "error", f"worker failed: {type(exc).__name__}: {exc}"
+                    write_json(
+                        out / name / scheme / "metrics.json",
+                        {"case": name, "scheme": scheme, "status": "error", "reason": reason},
+                    )
+                res.simulated.append((name, scheme))
+                if status != "ok":
+                    res.failed_runs.append((name, scheme, f"{status}: {reason}"))
+                task = tasks[(name, scheme)]
+                progress.update(task, completed=progress.tasks[task].total, description=f"{name} / {scheme} [{status}]")
+    manager.shutdown()
+
+
+def _drain(q, progress, tasks) -> None:
+    while True:
+        try:
+            name, scheme, t = q.get_nowait()
+        except (_queue.Empty, EOFError, OSError):
+            return
+        task = tasks.get((name, scheme))
+        if task is not None:
+            progress.update(task, completed=t)
+
+
+def failures_summary(res: BatchResult) -> str:  # pragma: no cover - CLI text helper
+    lines = [f"{p}: {e}" for p, e in res.case_errors.items()]
+    lines += [f"{c} / {s}: {r}" for c, s, r in res.failed_runs]
+    return "\n".join(lines)
+
+
+__all__ += ["FtcError", "failures_summary"]

@@ -1,0 +1,165 @@
+"""Figures of the reports, rendered as inline SVG strings (matplotlib, Agg-free SVG backend).
+
+Each function takes stored time series (dicts of arrays from ``timeseries.npz``)
+and returns an ``<svg ...>`` string, so pages are self-contained and work offline.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+
+import matplotlib
+
+matplotlib.use("svg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+__all__ = [
+    "SCHEME_COLORS",
+    "articulation_svg",
+    "errors_svg",
+    "paths_svg",
+    "switching_svg",
+    "torques_svg",
+]
+
+SCHEME_COLORS = {"nominal": "#d62728", "switching": "#1f77b4", "oracle": "#2ca02c"}
+plt.rcParams.update({"font.size": 8, "svg.fonttype": "none", "axes.grid": True, "grid.alpha": 0.3})
+
+
+def _svg(fig) -> str:
+    buf = io.StringIO()
+    fig.savefig(buf, format="svg", bbox_inches="tight")
+    plt.close(fig)
+    text = buf.getvalue()
+    return text[text.index("<svg") :]
+
+
+def _shade_phases(ax, events: list[float]) -> None:
+    for i, t in enumerate(events):
+        ax.axvline(t, color="k", lw=0.6, ls=":")
+        if i % 2 == 0:
+            end = events[i + 1] if i + 1 < len(events) else ax.get_xlim()[1]
+            ax.axvspan(t, end, color="0.9", zorder=0)
+
+
+def _positions(q: np.ndarray, d: list[float]) -> np.ndarray:
+    """Axle midpoints P_i (robot order) for one q."""
+    n = q.shape[0] - 2
+    th = q[:1:-1]
+    P = np.empty((n, 2))
+    P[-1] = q[:2]
+    for i in range(n - 2, -1, -1):
+        P[i] = P[i + 1] + d[i] * np.array([math.cos(th[i + 1]), math.sin(th[i + 1])])
+    return P
+
+
+def paths_svg(series: dict[str, dict], d: list[float], events: list[float], b: float = 0.75) -> str:
+    """Paths of P_n for every scheme over the reference, the chain drawn at a few instants."""
+    fig, ax = plt.subplots(figsize=(5.6, 4.4))
+    ref = next(iter(series.values()))
+    ax.plot(ref["q_d"][:, 0], ref["q_d"][:, 1], "k--", lw=1, label="reference")
+    for scheme, ts in series.items():
+        ax.plot(ts["q"][:, 0], ts["q"][:, 1], color=SCHEME_COLORS.get(scheme), lw=1.2, label=scheme)
+        for te in events:
+            k = int(np.searchsorted(ts["t"], te))
+            if k < ts["t"].size:
+                ax.plot(ts["q"][k, 0], ts["q"][k, 1], "x", color=SCHEME_COLORS.get(scheme), ms=6)
+    show = "switching" if "switching" in series else next(iter(series))
+    ts = series[show]
+    for k in np.linspace(0, ts["t"].size - 1, 5).astype(int):
+        P = _positions(ts["q"][k], d)
+        ax.plot(P[:, 0], P[:, 1], "-", color="0.35", lw=1.5)
+        th = ts["q"][k, :1:-1]
+        for (x, y), t in zip(P, th, strict=True):
+            nx, ny = -math.sin(t) * b, math.cos(t) * b
+            ax.plot([x - nx, x + nx], [y - ny, y + ny], "-", color="0.2", lw=2.5)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"paths of P_n (x: fault events; chain drawn for {show})")
+    ax.legend(loc="best")
+    return _svg(fig)
+
+
+def errors_svg(series: dict[str, dict], events: list[float]) -> str:
+    """Position error and largest heading error per scheme, log scale, fault phases shaded."""
+    fig, axes = plt.subplots(2, 1, figsize=(6.4, 4.6), sharex=True)
+    for scheme, ts in series.items():
+        q, qd = ts["q"], ts["q_d"]
+        pos = np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])
+        head = np.abs((q[:, 2:] - qd[:, 2:] + np.pi) % (2 * np.pi) - np.pi).max(axis=1)
+        c = SCHEME_COLORS.get(scheme)
+        axes[0].semilogy(ts["t"], np.maximum(pos, 1e-12), color=c, lw=1, label=scheme)
+        axes[1].semilogy(ts["t"], np.maximum(head, 1e-12), color=c, lw=1, label=scheme)
+    axes[0].set_ylabel("position error [m]")
+    axes[1].set_ylabel("max heading error [rad]")
+    axes[1].set_xlabel("t [s]")
+    for ax in axes:
+        _shade_phases(ax, events)
+    axes[0].legend(loc="upper right")
+    axes[0].set_title("tracking errors (shaded/dotted: fault phases)")
+    return _svg(fig)
+
+
+def torques_svg(ts: dict, wheels: list[str], events: list[float], scheme: str) -> str:
+    """Applied wheel torques, one panel per robot."""
+    n = len(wheels) // 2
+    fig, axes = plt.subplots(n, 1, figsize=(6.4, 1.5 * n + 0.6), sharex=True, squeeze=False)
+    tau = ts["tau"]
+    lim = np.percentile(np.abs(tau), 99.5) * 1.2 + 1e-9
+    for i in range(n):
+        ax = axes[i, 0]
+        ax.plot(ts["t"], tau[:, 2 * i], lw=0.9, label=wheels[2 * i])
+        ax.plot(ts["t"], tau[:, 2 * i + 1], lw=0.9, label=wheels[2 * i + 1])
+        ax.set_ylim(-lim, lim)
+        ax.set_ylabel(f"robot {i + 1} [N m]")
+        ax.legend(loc="upper right", ncol=2)
+        _shade_phases(ax, events)
+    axes[-1, 0].set_xlabel("t [s]")
+    axes[0, 0].set_title(f"applied torques, {scheme} (axis clipped at the 99.5th percentile)")
+    return _svg(fig)
+
+
+def switching_svg(ts: dict, patterns: list[list[int]], events: list[float]) -> str:
+    """Applied model index against the true pattern's index (when it is a model)."""
+    fig, ax = plt.subplots(figsize=(6.4, 2.4))
+    pats = [tuple(p) for p in patterns]
+    true = [
+        pats.index(tuple((s >= 1.0).astype(int))) if tuple((s >= 1.0).astype(int)) in pats else -1 for s in ts["sigma"]
+    ]
+    ax.step(ts["t"], true, where="post", color="k", lw=2.5, alpha=0.35, label="true pattern")
+    ax.step(ts["t"], ts["selected"], where="post", color=SCHEME_COLORS["switching"], lw=1, label="applied model")
+    ax.set_yticks(range(len(pats)) if len(pats) <= 12 else np.linspace(0, len(pats) - 1, 8).astype(int))
+    ax.set_ylabel("model index")
+    ax.set_xlabel("t [s]")
+    _shade_phases(ax, events)
+    ax.legend(loc="upper left")
+    ax.set_title("switching: applied model vs true pattern (-1: the true pattern is not a model)")
+    return _svg(fig)
+
+
+def articulation_svg(series: dict[str, dict], events: list[float]) -> str:
+    """Articulation angles theta_i - theta_(i+1) with the 90 deg singularity."""
+    fig, ax = plt.subplots(figsize=(6.4, 2.6))
+    for scheme, ts in series.items():
+        th = ts["q"][:, :1:-1]
+        art = np.degrees((th[:, :-1] - th[:, 1:] + np.pi) % (2 * np.pi) - np.pi)
+        for j in range(art.shape[1]):
+            ax.plot(
+                ts["t"],
+                art[:, j],
+                color=SCHEME_COLORS.get(scheme),
+                lw=0.9,
+                alpha=0.5 + 0.5 / (j + 1),
+                label=scheme if j == 0 else None,
+            )
+    for y in (90, -90):
+        ax.axhline(y, color="r", lw=1)
+    ax.set_ylabel("theta_i - theta_(i+1) [deg]")
+    ax.set_xlabel("t [s]")
+    _shade_phases(ax, events)
+    ax.legend(loc="upper right")
+    ax.set_title("articulation angles (red: singular at +/-90 deg)")
+    return _svg(fig)

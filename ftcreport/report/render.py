@@ -1,0 +1,279 @@
+"""HTML pages from stored results (Jinja2 templates in ``templates/``).
+
+Reads only what the batch stored under the output directory::
+
+    <case>/case.json            batch record: source, status, error, schemes, key, warnings
+    <case>/case.toml            copy of the case file (provenance)
+    <case>/<scheme>/metrics.json, timeseries.npz
+
+and writes ``<case>/index.html`` and ``index.html`` atomically.  Pages are
+self-contained (inline CSS, SVG, a few lines of JS for sorting): they work offline.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import tomllib
+from importlib import metadata, resources
+from pathlib import Path
+
+import jinja2
+
+from .. import __version__
+from ..cases import SCHEME_NAMES, parse_case, with_duration
+from ..check import evaluate
+from ..model.faults import wheel_names
+from ..store import load_metrics, load_timeseries, write_atomic
+from . import plots
+
+__all__ = ["dependency_versions", "render_all", "render_case", "render_index"]
+
+
+def _env() -> jinja2.Environment:
+    loader = jinja2.FileSystemLoader(str(resources.files("ftcreport.templates")))
+    env = jinja2.Environment(loader=loader, autoescape=jinja2.select_autoescape(["html"]))
+    env.globals["fmt"] = _fmt
+    return env
+
+
+def _fmt(x) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, float) and not math.isfinite(x):
+        return "-"
+    if isinstance(x, int | float):
+        return f"{x:.3g}"
+    return str(x)
+
+
+def dependency_versions() -> str:
+    names = ["numpy", "scipy", "control", "filterpy", "matplotlib", "jinja2", "pydantic", "sympy", "typer"]
+    out = []
+    for n in names:
+        try:
+            out.append(f"{n} {metadata.version(n)}")
+        except metadata.PackageNotFoundError:
+            out.append(f"{n} ?")
+    return f"ftcreport {__version__}; " + ", ".join(out)
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+
+
+def _after_max(m: dict) -> float | None:
+    vals = [p["position_error_max"] for p in (m.get("phases") or [])[1:] if p.get("position_error_max") is not None]
+    return max(vals) if vals else None
+
+
+def _record(out: Path, name: str) -> dict | None:
+    try:
+        return json.loads((out / name / "case.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def render_case(out: Path, name: str) -> Path | None:
+    """Render ``<out>/<name>/index.html``; returns its path (None if the case has no record)."""
+    out = Path(out)
+    rec = _record(out, name)
+    if rec is None:
+        return None
+    env = _env()
+    page = out / name / "index.html"
+    if rec.get("status") == "error" or not (out / name / "case.toml").exists():
+        html = env.get_template("case.html").render(
+            root="../",
+            version=__version__,
+            rendered=_now(),
+            name=name,
+            description=rec.get("error", ""),
+            n="?",
+            reference="?",
+            kinematic="?",
+            duration="?",
+            dt="?",
+            method="?",
+            log_every="?",
+            warnings=[],
+            faults=[],
+            runs=[],
+            n_phases=0,
+            phase_labels=[],
+            checks=[],
+            figures=[],
+            key=rec.get("key", "-"),
+            versions=dependency_versions(),
+            simulated=rec.get("time", "-"),
+            case_text=rec.get("source_text", ""),
+        )
+        write_atomic(page, html.encode())
+        return page
+    text = (out / name / "case.toml").read_text()
+    case = parse_case(tomllib.loads(text), rec.get("source", name))
+    case = case.model_copy(update={"name": name})
+    if rec.get("duration_override"):
+        case = with_duration(case, rec["duration_override"])
+    runs, series = [], {}
+    for s in SCHEME_NAMES:
+        m = load_metrics(out, name, s)
+        if m is None:
+            continue
+        m = dict(m)
+        m["after_max"] = _after_max(m)
+        sm = m.get("singularity_margin_min")
+        m["margin_deg"] = None if sm is None else math.degrees(sm)
+        runs.append(m)
+        ts = load_timeseries(out, name, s)
+        if ts is not None and ts.get("t") is not None and ts["t"].size > 1:
+            series[s] = ts
+    checks = evaluate(name, case.thresholds, {m["scheme"]: m for m in runs})
+    sched = case.fault_schedule()
+    events = [float(t) for t in sched.times]
+    names = wheel_names(case.robots.n)
+    faults = []
+    for f in case.faults:
+        pat = sched.pattern(f.time)
+        failed = [w for w, p in zip(names, pat, strict=True) if p == 0]
+        faults.append(
+            {
+                "time": f.time,
+                "wheel": f.wheel,
+                "sigma": f.sigma,
+                "ubar": f.ubar,
+                "pattern": " ".join(map(str, pat)) + (f"  (failed: {', '.join(failed)})" if failed else ""),
+            }
+        )
+    phases = sched.phases(case.simulation.duration)
+    figures = []
+    if series:
+        d = case.robots.values("d")
+        b = case.robots.values("b")[0]
+        figures.append(
+            {
+                "id": "paths",
+                "svg": plots.paths_svg(series, d, events, b),
+                "caption": "Path of the last robot's axle midpoint P_n for every scheme over the reference.",
+            }
+        )
+        figures.append(
+            {
+                "id": "errors",
+                "svg": plots.errors_svg(series, events),
+                "caption": "Tracking errors per scheme (log scale); fault phases shaded.",
+            }
+        )
+        main = "switching" if "switching" in series else next(iter(series))
+        figures.append(
+            {
+                "id": "torques",
+                "svg": plots.torques_svg(series[main], list(names), events, main),
+                "caption": f"Wheel torques per robot, {main} scheme.",
+            }
+        )
+        if "switching" in series and "selected" in series["switching"]:
+            pats = next((m.get("patterns") for m in runs if m["scheme"] == "switching"), None)
+            if pats:
+                figures.append(
+                    {
+                        "id": "switching",
+                        "svg": plots.switching_svg(series["switching"], pats, events),
+                        "caption": "Applied model index against the true failure pattern.",
+                    }
+                )
+        figures.append(
+            {
+                "id": "articulation",
+                "svg": plots.articulation_svg(series, events),
+                "caption": "Articulation angles with the singular configuration at +/-90 deg.",
+            }
+        )
+    html = env.get_template("case.html").render(
+        root="../",
+        version=__version__,
+        rendered=_now(),
+        name=name,
+        description=case.description,
+        n=case.robots.n,
+        reference=case.reference.kind,
+        kinematic=case.kinematic.kind,
+        duration=case.simulation.duration,
+        dt=case.simulation.dt,
+        method=case.simulation.method,
+        log_every=case.simulation.log_every,
+        warnings=rec.get("warnings", []),
+        faults=faults,
+        runs=runs,
+        n_phases=len(phases),
+        phase_labels=[f"{a:g}-{b:g}" for a, b in phases],
+        checks=checks,
+        figures=figures,
+        key=rec.get("key", "-"),
+        versions=dependency_versions(),
+        simulated=rec.get("time", "-"),
+        case_text=text,
+    )
+    write_atomic(page, html.encode())
+    return page
+
+
+def render_index(out: Path) -> Path:
+    """Render ``<out>/index.html`` from every case record under ``out``."""
+    out = Path(out)
+    cases = []
+    n_runs = n_ok = n_pass = n_fail = 0
+    for rec_path in sorted(out.glob("*/case.json")):
+        name = rec_path.parent.name
+        rec = _record(out, name) or {}
+        entry = {
+            "name": name,
+            "n": rec.get("n", "?"),
+            "reference": rec.get("reference", "?"),
+            "error": rec.get("error") if rec.get("status") == "error" else None,
+            "runs": {},
+        }
+        metrics = {}
+        for s in SCHEME_NAMES:
+            m = load_metrics(out, name, s)
+            if m is None:
+                continue
+            metrics[s] = m
+            n_runs += 1
+            n_ok += m.get("status") == "ok"
+        checks = evaluate(name, rec.get("thresholds", {}), metrics) if rec.get("thresholds") else []
+        for s, m in metrics.items():
+            mine = [c for c in checks if c.scheme == s]
+            failed = sum(not c.ok for c in mine)
+            n_pass += len(mine) - failed
+            n_fail += failed
+            entry["runs"][s] = {**m, "after_max": _after_max(m), "checks_total": len(mine), "checks_failed": failed}
+        cases.append(entry)
+    html = (
+        _env()
+        .get_template("index.html")
+        .render(
+            root="",
+            version=__version__,
+            rendered=_now(),
+            cases=cases,
+            schemes=list(SCHEME_NAMES),
+            n_runs=n_runs,
+            n_ok=n_ok,
+            n_bad=n_runs - n_ok,
+            n_pass=n_pass,
+            n_fail=n_fail,
+        )
+    )
+    page = out / "index.html"
+    write_atomic(page, html.encode())
+    return page
+
+
+def render_all(out: Path) -> Path:
+    """Every case page, then the index."""
+    out = Path(out)
+    for rec_path in sorted(out.glob("*/case.json")):
+        render_case(out, rec_path.parent.name)
+    return render_index(out)

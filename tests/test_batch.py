@@ -1,0 +1,215 @@
+"""batch, check, report: the product's edges."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tomllib
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+import pytest
+import tomli_w
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
+from ftcreport.batch import run_batch
+from ftcreport.cli import app
+
+CASES = Path(__file__).resolve().parents[1] / "cases"
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def batch_dir(tmp_path_factory):
+    """Every case of cases/ through every scheme at a 2 s duration override."""
+    out = tmp_path_factory.mktemp("reports")
+    res = run_batch([CASES], out, jobs=2, duration=2.0, show_progress=False)
+    return out, res
+
+
+def test_every_case_runs_through_every_scheme(batch_dir):
+    out, res = batch_dir
+    names = {p.stem for p in CASES.glob("*.toml")}
+    assert set(res.cases) == names and not res.case_errors
+    assert not res.failed_runs, res.failed_runs
+    for name in names:
+        rec = json.loads((out / name / "case.json").read_text())
+        for s in rec["schemes"]:
+            m = json.loads((out / name / s / "metrics.json").read_text())
+            assert m["status"] == "ok" and m["duration"] == 2.0
+            for key in (
+                "position_error_max",
+                "position_error_rms",
+                "position_error_final",
+                "heading_error_max",
+                "heading_error_final",
+                "recovery_time_max",
+                "torque_peak",
+                "torque_rms",
+                "saturation_fraction",
+                "singularity_margin_min",
+                "wall_time",
+                "phases",
+            ):
+                assert key in m, (name, s, key)
+    assert (out / "index.html").exists()
+    assert all((out / n / "index.html").exists() for n in names)
+
+
+def test_rerun_simulates_nothing(batch_dir):
+    out, first = batch_dir
+    again = run_batch([CASES], out, jobs=2, duration=2.0, show_progress=False)
+    assert again.simulated == []
+    assert sorted(again.cached) == sorted(first.simulated)
+    forced = run_batch(
+        [CASES / "two_link_uncompensable.toml"], out, jobs=1, duration=2.0, force=True, show_progress=False
+    )
+    assert len(forced.simulated) == 3
+
+
+def test_changed_case_is_resimulated(tmp_path):
+    src = tmp_path / "c.toml"
+    shutil.copy(CASES / "two_link_uncompensable.toml", src)
+    out = tmp_path / "r"
+    assert len(run_batch([src], out, jobs=1, duration=1.0, show_progress=False).simulated) == 3
+    data = tomllib.loads(src.read_text())
+    data["schemes"]["oracle"]["k_v"] = 6.0
+    src.write_text(tomli_w.dumps(data))
+    res = run_batch([src], out, jobs=1, duration=1.0, show_progress=False)
+    assert len(res.simulated) == 3  # the key hashes the whole case content
+
+
+def test_broken_case_does_not_stop_the_batch(tmp_path):
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    shutil.copy(CASES / "two_link_uncompensable.toml", cases / "good.toml")
+    (cases / "broken.toml").write_text('[robots]\nn = 3\nd = 1.0\n[reference]\nkind = "circle"\n')
+    out = tmp_path / "reports"
+    res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "--duration", "1", "--jobs", "1", "-q"])
+    assert res.exit_code == 1
+    assert "broken.toml" in res.output and "Traceback" not in res.output
+    assert (out / "good" / "index.html").exists()
+    assert json.loads((out / "good" / "oracle" / "metrics.json").read_text())["status"] == "ok"
+    rec = json.loads((out / "broken" / "case.json").read_text())
+    assert rec["status"] == "error" and "broken.toml" in rec["error"]
+    index = (out / "index.html").read_text()
+    assert "broken" in index and "good" in index
+
+
+def test_check_fails_on_an_impossible_threshold(tmp_path):
+    src = tmp_path / "t.toml"
+    data = tomllib.loads((CASES / "two_link_uncompensable.toml").read_text())
+    data["simulation"]["duration"] = 2.0
+    data["faults"] = []
+    data["thresholds"] = {
+        "oracle": {"position_error_final": {"max": 1e-3}, "torque_peak": {"max": 1e-9}},
+    }
+    src.write_text(tomli_w.dumps(data))
+    junit = tmp_path / "junit.xml"
+    out = tmp_path / "r"
+    res = runner.invoke(app, ["check", str(src), "--out", str(out), "--junit", str(junit), "-q"])
+    assert res.exit_code == 1, res.output
+    assert "FAIL" in res.output and "torque_peak" in res.output
+    root = ET.parse(junit).getroot()
+    assert root.get("failures") == "1" and root.get("tests") == "2"
+    failing = [tc for tc in root.iter("testcase") if tc.find("failure") is not None]
+    assert [tc.get("name") for tc in failing] == ["torque_peak"]
+    assert "expected <= 1e-09" in failing[0].find("failure").get("message")
+
+
+def test_check_passes_and_exit_2_on_bad_case(tmp_path):
+    src = tmp_path / "ok.toml"
+    data = tomllib.loads((CASES / "two_link_uncompensable.toml").read_text())
+    data["simulation"]["duration"] = 2.0
+    data["faults"] = [f for f in data["faults"] if f["time"] < 2.0]
+    data["thresholds"] = {"oracle": {"position_error_final": {"max": 1e-6}}}
+    src.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["check", str(src), "--out", str(tmp_path / "r"), "-q"])
+    assert res.exit_code == 0, res.output
+    assert "1/1 thresholds hold" in res.output
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[robots]\nn = 2\n")
+    res = runner.invoke(app, ["check", str(bad), "--out", str(tmp_path / "r"), "-q"])
+    assert res.exit_code == 2
+
+
+def test_report_rerenders_from_stored_results(batch_dir):
+    out, _ = batch_dir
+    page = out / "two_link_switching" / "index.html"
+    page.unlink()
+    res = runner.invoke(app, ["report", "--out", str(out)])
+    assert res.exit_code == 0
+    html = page.read_text()
+    for marker in (
+        'id="schemes"',
+        'id="faults"',
+        'id="fig-paths"',
+        'id="fig-errors"',
+        'id="fig-torques"',
+        'id="fig-switching"',
+        'id="fig-articulation"',
+        "<svg",
+        "Provenance",
+    ):
+        assert marker in html, marker
+
+
+# ------------------------------------------------------------------ fuzzed malformed cases
+BASE = tomllib.loads((CASES / "two_link_uncompensable.toml").read_text())
+_paths = [
+    ("robots", "n"),
+    ("robots", "m"),
+    ("robots", "d"),
+    ("reference", "kind"),
+    ("reference", "radius"),
+    ("simulation", "dt"),
+    ("simulation", "duration"),
+    ("kinematic", "kind"),
+    ("kinematic", "k1"),
+    ("schemes", "oracle"),
+]
+_bad_values = st.one_of(
+    st.just(-1.0),
+    st.just(0),
+    st.just("x"),
+    st.just([]),
+    st.just({"q": 1}),
+    st.just(True),
+    st.text(max_size=5),
+    st.floats(max_value=-1e-9, allow_nan=False),
+    st.just(1e9),
+)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(where=st.sampled_from(_paths), value=_bad_values, extra=st.booleans())
+def test_fuzzed_bad_cases_give_one_clear_error(tmp_path, where, value, extra):
+    data = json.loads(json.dumps(BASE))
+    table, key = where
+    data[table][key] = value
+    if extra:
+        data["robots"]["colour"] = "red"
+    path = tmp_path / "fz.toml"
+    path.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["cases", "validate", str(path)])
+    if res.exit_code == 0:  # some values happen to be valid (e.g. a big radius)
+        assert "ok" in res.output
+        return
+    assert res.exit_code == 2
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1, res.output
+    assert "fz.toml: " in lines[0] and "Traceback" not in res.output
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["", "not toml at all [", "[robots]\nn = 2\n", '[[faults]]\ntime = "soon"\n', "robots = 3\n"],
+)
+def test_garbage_files_give_one_line_and_exit_2(tmp_path, text):
+    path = tmp_path / "g.toml"
+    path.write_text(text)
+    res = runner.invoke(app, ["cases", "validate", str(path)])
+    assert res.exit_code == 2
+    assert res.output.count("error:") == 1 and "Traceback" not in res.output

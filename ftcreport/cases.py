@@ -193,8 +193,30 @@ class Simulation(_Strict):
     singularity_margin_deg: Annotated[float, Field(ge=0, lt=90)] = 2.0
 
 
+class Noise(_Strict):
+    """Measurement noise (standard deviations), drawn once per step, seeded."""
+
+    position: Annotated[float, Field(ge=0)] = 0.0  # on x, y [m]
+    heading: Annotated[float, Field(ge=0)] = 0.0  # on every theta [rad]
+    velocity: Annotated[float, Field(ge=0)] = 0.0  # on v_n [m/s] and omega_1 [rad/s]
+    seed: int = 0
+
+
+class Mismatch(_Strict):
+    """Plant parameters = [robots] x these factors (the controllers keep [robots])."""
+
+    a: Finite | list[Finite] = 1.0
+    b: PosFloat | list[PosFloat] = 1.0
+    r: PosFloat | list[PosFloat] = 1.0
+    m: PosFloat | list[PosFloat] = 1.0
+    I: PosFloat | list[PosFloat] = 1.0
+    d: PosFloat | list[PosFloat] = 1.0
+
+
 class Plant(_Strict):
     saturation: PosFloat | None = None  # |u| limit per wheel [N m]
+    noise: Noise = Noise()
+    mismatch: Mismatch = Mismatch()
 
 
 class Bound(_Strict):
@@ -271,6 +293,11 @@ class Case(_Strict):
                         f"schemes.switching.patterns[{i}]",
                         f"{failed} is uncompensable: rank(Bbar sigma) < 2 (a leader wheel and two wheels must work)",
                     )
+        for key in ("a", "b", "r", "m", "I", "d"):
+            v = getattr(self.plant.mismatch, key)
+            count = n - 1 if key == "d" else n
+            if isinstance(v, list) and len(v) != count:
+                raise _FieldError(f"plant.mismatch.{key}", f"{len(v)} factors given, {count} needed")
         if self.initial.headings_deg is not None and len(self.initial.headings_deg) != n:
             raise _FieldError("initial.headings_deg", f"{len(self.initial.headings_deg)} values for {n} robots")
         if not any(getattr(self.schemes, s) is not None for s in SCHEME_NAMES):
@@ -371,8 +398,20 @@ def case_hash(case: Case, version: str) -> str:
 
 # ---------------------------------------------------------------------- building (pure)
 def build_chain(case: Case) -> Chain:
+    """The controllers' model of the chain ([robots])."""
     r = case.robots
     return Chain(**{k: r.values(k) for k in ("a", "b", "r", "m", "I", "d")})
+
+
+def build_plant_chain(case: Case) -> Chain:
+    """The true chain: [robots] times the [plant.mismatch] factors."""
+    r, mm = case.robots, case.plant.mismatch
+    vals = {}
+    for k in ("a", "b", "r", "m", "I", "d"):
+        base = np.asarray(r.values(k), dtype=float)
+        f = getattr(mm, k)
+        vals[k] = (base * (np.asarray(f, dtype=float) if isinstance(f, list) else float(f))).tolist()
+    return Chain(**vals)
 
 
 def initial_state(case: Case, ref) -> tuple[np.ndarray, np.ndarray]:

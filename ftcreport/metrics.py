@@ -12,9 +12,13 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
   (``None`` if it never does);
 * ``recovery_time_max``: the largest recovery time over the phases that start
   with a fault event (``None`` when one of them never recovers);
+* ``position_error_iae`` (whole run and per phase): integral of the position
+  error over time [m s] (trapezoid on the logged samples);
 * torques: ``torque_peak`` = max |tau| over wheels and time [N m], ``torque_rms``
   = RMS over time of the per-wheel torques (largest wheel), ``saturation_fraction``
-  = fraction of logged instants with some |u_j| at the limit;
+  = fraction of logged instants with some |u_j| at the limit, ``energy`` = the
+  motors' absolute mechanical work int sum_j |tau_j omega_j| dt [J] (trapezoid on
+  the logged samples, so decimated logging approximates it);
 * ``singularity_margin_min``: the smallest distance of an articulation angle
   |theta_i - theta_(i+1)| from 90 deg over the run [rad];
 * switching (ERRATA E12g): the true 0/1 pattern marks a wheel faulty when its
@@ -71,6 +75,10 @@ def recovery_time(t: np.ndarray, err: np.ndarray, start: float, end: float, band
     return float(tt[last + 1] - start)
 
 
+def _iae(t: np.ndarray, e: np.ndarray) -> float:
+    return float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t))) if e.size > 1 else 0.0
+
+
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
 
@@ -100,6 +108,7 @@ def phase_metrics(t: np.ndarray, pos_err: np.ndarray, phases: Sequence[tuple[flo
                 "position_error_max": float(e.max()),
                 "position_error_rms": _rms(e),
                 "position_error_final": float(e[-1]),
+                "position_error_iae": _iae(t[m], e),
                 "recovery_time": recovery_time(t, pos_err, start, end, band),
             }
         )
@@ -118,6 +127,7 @@ def tracking_metrics(
         "position_error_max": float(pos.max()),
         "position_error_rms": _rms(pos),
         "position_error_final": float(pos[-1]),
+        "position_error_iae": _iae(t, pos),
         "heading_error_max": float(hmax.max()),
         "heading_error_final": float(hmax[-1]),
         "recovery_time_max": (None if any(r is None for r in rec) else float(max(rec))) if rec else 0.0,
@@ -125,17 +135,22 @@ def tracking_metrics(
     }
 
 
-def torque_metrics(tau: np.ndarray, u: np.ndarray, u_limit: float | None) -> dict:
-    """Peak and RMS torque, and the fraction of instants at saturation."""
+def torque_metrics(
+    tau: np.ndarray, u: np.ndarray, u_limit: float | None, t: np.ndarray | None = None, omega: np.ndarray | None = None
+) -> dict:
+    """Peak and RMS torque, fraction of instants at saturation, and (given wheel speeds) energy."""
     rms_per_wheel = np.sqrt(np.mean(np.square(tau), axis=0))
     sat = 0.0
     if u_limit is not None:
         sat = float(np.mean(np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1)))
-    return {
+    out = {
         "torque_peak": float(np.abs(tau).max()),
         "torque_rms": float(rms_per_wheel.max()),
         "saturation_fraction": sat,
     }
+    if t is not None and omega is not None:
+        out["energy"] = _iae(t, np.sum(np.abs(tau * omega), axis=1))
+    return out
 
 
 def singularity_margin(q: np.ndarray) -> float:

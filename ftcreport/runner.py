@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from . import __version__
-from .cases import Case, build_chain, initial_state, switching_patterns
+from .cases import Case, build_chain, build_plant_chain, initial_state, switching_patterns
 from .control.baselines import OracleController, nominal
 from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
 from .control.switching import SwitchingController
@@ -32,7 +32,16 @@ class Built:
         self.chain = build_chain(case)
         self.reference = FlatReference(case.reference.path(), self.chain.d)
         self.faults = case.fault_schedule()
-        self.plant = Plant(self.chain, self.faults, case.plant.saturation)
+        nz = case.plant.noise
+        n = self.chain.n
+        self.plant = Plant(
+            build_plant_chain(case),
+            self.faults,
+            case.plant.saturation,
+            noise_q=[nz.position, nz.position] + [nz.heading] * n,
+            noise_eta=[nz.velocity, nz.velocity],
+            seed=nz.seed,
+        )
         self.q0, self.eta0 = initial_state(case, self.reference)
         s = case.simulation
         self.settings = SimSettings(
@@ -126,7 +135,9 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
         return out
     phases = built.faults.phases(min(case.simulation.duration, run.t_end))
     out |= tracking_metrics(run.t, run["q"], run["q_d"], phases, case.recovery_band)
-    out |= torque_metrics(run["tau"], run["u"], case.plant.saturation)
+    chain = built.plant.chain
+    omega = np.array([chain.wheel_speeds(q, e) for q, e in zip(run["q"], run["eta"], strict=True)])
+    out |= torque_metrics(run["tau"], run["u"], case.plant.saturation, run.t, omega)
     out["singularity_margin_min"] = singularity_margin(run["q"])
     if scheme == "switching":
         out |= switching_metrics(run.t, run["selected"], ctrl.patterns, run["sigma"], list(built.faults.times))

@@ -157,9 +157,25 @@ class Plant:
     saturation : float, optional
         Symmetric limit on every wheel's control signal |u_j| [N m], applied
         before the fault model: tau = sigma sat(u) + ubar.
+    noise_q : (n + 2,) array_like, optional
+        Standard deviations of the measurement noise on q [m, m, rad, ...]: the
+        controller sees q + noise, drawn once per step (a sampled sensor held
+        over the step), seeded.
+    noise_eta : (2,) array_like, optional
+        Standard deviations of the noise on the measured eta [m/s, rad/s].
+    seed : int
+        Seed of the noise generator (runs are reproducible).
     """
 
-    def __init__(self, chain: Chain, faults: FaultSchedule | None = None, saturation: float | None = None):
+    def __init__(
+        self,
+        chain: Chain,
+        faults: FaultSchedule | None = None,
+        saturation: float | None = None,
+        noise_q=None,
+        noise_eta=None,
+        seed: int = 0,
+    ):
         self.chain = chain
         self.faults = faults if faults is not None else FaultSchedule(chain.n)
         if self.faults.n != chain.n:
@@ -167,6 +183,19 @@ class Plant:
         if saturation is not None and not (math.isfinite(saturation) and saturation > 0):
             raise ModelError(f"saturation: must be a positive torque [N m], got {saturation}")
         self.saturation = saturation
+        nq = np.zeros(chain.n_q) if noise_q is None else np.broadcast_to(np.asarray(noise_q, float), (chain.n_q,))
+        ne = np.zeros(2) if noise_eta is None else np.broadcast_to(np.asarray(noise_eta, float), (2,))
+        if np.any(nq < 0) or np.any(ne < 0) or not (np.all(np.isfinite(nq)) and np.all(np.isfinite(ne))):
+            raise ModelError("noise: standard deviations must be finite and >= 0")
+        self.noise_std = np.concatenate((nq, ne))
+        self.noisy = bool(np.any(self.noise_std > 0))
+        self.seed = int(seed)
+
+    def draw_noise(self, rng: np.random.Generator) -> np.ndarray:
+        """Measurement noise of one step, (n + 4,) = [q noise, eta noise]."""
+        if not self.noisy:
+            return np.zeros_like(self.noise_std)
+        return rng.standard_normal(self.noise_std.shape[0]) * self.noise_std
 
     def torque(self, u: np.ndarray, sigma: np.ndarray, ubar: np.ndarray) -> np.ndarray:
         """Applied torque tau = sigma sat(u) + ubar (2.102)."""
@@ -310,9 +339,10 @@ def simulate(
         logs[name] = np.full((n_log, *np.shape(first[name])), np.nan)
     t_log = np.full(n_log, np.nan)
 
-    def deriv(t: float, xs: np.ndarray, sigma: np.ndarray, ubar: np.ndarray):
+    def deriv(t: float, xs: np.ndarray, hold: tuple):
+        sigma, ubar, nz = hold
         q, eta, xc = xs[:nq], xs[nq : nq + 2], xs[nq + 2 :]
-        u, xcdot = controller.evaluate(t, q, eta, xc)
+        u, xcdot = controller.evaluate(t, q + nz[:nq], eta + nz[nq:], xc)
         tau = plant.torque(u, sigma, ubar)
         qdot, etadot = K.eta_dot(p, q, eta, tau)
         return np.concatenate((qdot, etadot, xcdot)), u, tau
@@ -326,6 +356,9 @@ def simulate(
             diag[nq + 2 :] = np.asarray(stiff, dtype=float)
         step = _make_ros2(nq, diag)
     observe = getattr(controller, "observe_faults", None)  # the oracle is told the true faults
+    rng = np.random.default_rng(plant.seed)
+    if plant.noisy:
+        logs["q_meas"] = np.full((n_log, nq), np.nan)
     status, reason = STATUS_OK, ""
     li = 0
     k = 0
@@ -336,13 +369,15 @@ def simulate(
         for k in range(n_steps + 1):
             t = grid[k]
             sigma, ubar = plant.faults.at(t)
+            nz = plant.draw_noise(rng)
+            hold = (sigma, ubar, nz)
             if observe is not None:
                 observe(sigma, ubar)
             try:
                 if not np.all(np.isfinite(x)):
                     raise DivergenceError(f"non-finite state at t = {t:.6g} s")
                 _check_state(chain, x, settings)
-                k1, u, tau = deriv(t, x, sigma, ubar)
+                k1, u, tau = deriv(t, x, hold)
                 if not (np.all(np.isfinite(k1)) and np.all(np.isfinite(u))):
                     raise DivergenceError(f"non-finite control or derivative at t = {t:.6g} s")
             except SingularityError as exc:
@@ -364,7 +399,9 @@ def simulate(
                 logs["sigma"][li] = sigma
                 logs["ubar"][li] = ubar
                 logs["xc"][li] = xc
-                sig = controller.signals(t, q, eta, xc)
+                if plant.noisy:
+                    logs["q_meas"][li] = q + nz[:nq]
+                sig = controller.signals(t, q + nz[:nq], eta + nz[nq:], xc)
                 for name in names:
                     logs[name][li] = sig[name]
                 li += 1
@@ -372,8 +409,11 @@ def simulate(
                 break
             h = grid[k + 1] - t
             try:
-                xn = step(deriv, t, x, h, k1, sigma, ubar)
-                x = np.asarray(controller.discrete(grid[k + 1], xn[:nq], xn[nq : nq + 2], xn[nq + 2 :]), dtype=float)
+                xn = step(deriv, t, x, h, k1, hold)
+                x = np.asarray(
+                    controller.discrete(grid[k + 1], xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xn[nq + 2 :]),
+                    dtype=float,
+                )
                 x = np.concatenate((xn[: nq + 2], x)) if nc else xn
             except SingularityError as exc:
                 status, reason = STATUS_SINGULAR, str(exc)
@@ -406,11 +446,11 @@ def simulate(
     )
 
 
-def _step_rk4(deriv, t, x, h, k1, sigma, ubar):
+def _step_rk4(deriv, t, x, h, k1, hold):
     """One classical RK4 step (k1 = f(t, x) already evaluated)."""
-    k2 = deriv(t + 0.5 * h, x + 0.5 * h * k1, sigma, ubar)[0]
-    k3 = deriv(t + 0.5 * h, x + 0.5 * h * k2, sigma, ubar)[0]
-    k4 = deriv(t + h, x + h * k3, sigma, ubar)[0]
+    k2 = deriv(t + 0.5 * h, x + 0.5 * h * k1, hold)[0]
+    k3 = deriv(t + 0.5 * h, x + 0.5 * h * k2, hold)[0]
+    k4 = deriv(t + h, x + h * k3, hold)[0]
     return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
@@ -421,14 +461,14 @@ def _make_ros2(nq: int, diag: np.ndarray):
     """ROS2 step with A = F E^T + diag(diag), F the eta columns of the Jacobian."""
     cols = [nq, nq + 1]
 
-    def step(deriv, t, x, h, f0, sigma, ubar):
+    def step(deriv, t, x, h, f0, hold):
         # F = df/d(eta), forward differences
         F = np.empty((x.shape[0], 2))
         for j, c in enumerate(cols):
             delta = 1e-7 * max(1.0, abs(x[c]))
             xp = x.copy()
             xp[c] += delta
-            F[:, j] = (deriv(t, xp, sigma, ubar)[0] - f0) / delta
+            F[:, j] = (deriv(t, xp, hold)[0] - f0) / delta
         gh = _ROS2_GAMMA * h
         # W = Dm - gh F E^T with Dm = I - gh diag(a):
         # W^-1 r = Dm^-1 r + gh Dm^-1 F (I_2 - gh E^T Dm^-1 F)^-1 E^T Dm^-1 r
@@ -441,7 +481,7 @@ def _make_ros2(nq: int, diag: np.ndarray):
             return rd + gh * (DF @ np.linalg.solve(small, rd[cols]))
 
         k1 = solve(f0)
-        k2 = solve(deriv(t + h, x + h * k1, sigma, ubar)[0] - 2.0 * k1)
+        k2 = solve(deriv(t + h, x + h * k1, hold)[0] - 2.0 * k1)
         return x + 1.5 * h * k1 + 0.5 * h * k2
 
     return step

@@ -1,0 +1,57 @@
+"""Metric definitions on hand-made data, and energy against the work-energy theorem."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ftcreport.control import VelocityController, constant_command
+from ftcreport.metrics import phase_metrics, recovery_time, switching_metrics, torque_metrics
+from ftcreport.model import Chain
+from ftcreport.sim import Plant, SimSettings, simulate
+
+
+def test_recovery_time_is_entry_into_the_band_for_good():
+    t = np.linspace(0, 10, 101)
+    e = np.where(t < 3, 1.0, 0.001)
+    e[50] = 0.5  # an excursion at t = 5 s
+    assert recovery_time(t, e, 0.0, 10.0, 0.01) == pytest.approx(5.1)
+    assert recovery_time(t, e, 6.0, 10.0, 0.01) == 0.0
+    assert recovery_time(t, np.ones_like(t), 0.0, 10.0, 0.01) is None
+
+
+def test_phase_metrics_split_at_events():
+    t = np.linspace(0, 4, 401)
+    e = np.abs(np.sin(t))
+    ph = phase_metrics(t, e, [(0.0, 2.0), (2.0, 4.0)], band=0.5)
+    assert ph[0]["position_error_max"] == pytest.approx(1.0, abs=1e-4)
+    assert ph[1]["position_error_final"] == pytest.approx(abs(np.sin(4.0)))
+    # IAE of |sin| over the phase samples [0, 1.99] is 1 - cos 1.99 (the event sample starts phase 2)
+    assert ph[0]["position_error_iae"] == pytest.approx(1 - np.cos(1.99), rel=1e-4)
+
+
+def test_switching_metrics_exact_effective_and_delays():
+    t = np.arange(0.0, 10.0, 1.0)
+    patterns = np.array([[1, 1, 1, 1], [0, 1, 1, 1], [0, 1, 1, 0]])
+    sigma = np.ones((10, 4))
+    sigma[3:, 0] = 0.0  # 1r fails at 3 s
+    sel = np.array([0, 0, 0, 0, 1, 1, 2, 2, 2, 2])  # right at 4 s; a superset (1r + 2l) from 6 s
+    m = switching_metrics(t, sel, patterns, sigma, [3.0])
+    assert m["switch_count"] == 2
+    assert m["switching_exact_match_fraction"] == pytest.approx(5 / 10)  # 0-2 healthy, 4-5 exact
+    assert m["switching_match_fraction"] == pytest.approx(9 / 10)  # + superset 6-9; 3 s wrong
+    assert m["detection_delays"] == [{"time": 3.0, "needs_switch": True, "delay": 1.0}]
+    assert m["switch_sequence"] == [(0.0, 0), (4.0, 1), (6.0, 2)]
+
+
+def test_energy_bounds_the_kinetic_energy_gained():
+    """From rest, no friction: int tau.omega dt = T(end) exactly, so energy >= T(end)."""
+    chain = Chain.uniform(2)
+    ctrl = VelocityController(chain, constant_command(0.5, 0.2), k=3.0)
+    run = simulate(Plant(chain), ctrl, np.zeros(4), np.zeros(2), SimSettings(dt=0.005, duration=3.0))
+    omega = np.array([chain.wheel_speeds(q, e) for q, e in zip(run["q"], run["eta"], strict=True)])
+    m = torque_metrics(run["tau"], run["u"], None, run.t, omega)
+    T_end = chain.kinetic_energy(run["q"][-1], run["eta"][-1])
+    signed = np.sum(0.5 * (np.sum(run["tau"] * omega, 1)[1:] + np.sum(run["tau"] * omega, 1)[:-1]) * np.diff(run.t))
+    assert signed == pytest.approx(T_end, rel=1e-4)
+    assert m["energy"] >= T_end * (1 - 1e-4)

@@ -62,6 +62,27 @@ def _record(out: Path, name: str, payload: dict) -> None:
     write_json(out / name / "case.json", payload | {"time": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")})
 
 
+def record_case(out: Path, case: Case, path: Path, duration: float | None = None) -> str:
+    """Store the case record and a copy of the case file (provenance); returns the cache key."""
+    key = case_hash(case, __version__)
+    write_atomic(out / case.name / "case.toml", Path(path).read_bytes())
+    schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+    thresholds = {s: {m: b.model_dump() for m, b in t.items()} for s, t in case.thresholds.items()}
+    payload = {
+        "source": str(path),
+        "status": "ok",
+        "key": key,
+        "schemes": schemes,
+        "n": case.robots.n,
+        "reference": case.reference.kind,
+        "warnings": case.warnings(),
+        "thresholds": thresholds,
+        "duration_override": duration,
+    }
+    _record(out, case.name, payload)
+    return key
+
+
 def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> dict:
     """Run one scheme in a worker process and store it; returns its metrics."""
     from .cases import parse_case
@@ -125,24 +146,8 @@ def run_batch(
             )
             continue
         res.cases.append(case.name)
-        key = case_hash(case, __version__)
-        write_atomic(out / case.name / "case.toml", Path(path).read_bytes())
+        key = record_case(out, case, Path(path), duration)
         schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
-        _record(
-            out,
-            case.name,
-            {
-                "source": str(path),
-                "status": "ok",
-                "key": key,
-                "schemes": schemes,
-                "n": case.robots.n,
-                "reference": case.reference.kind,
-                "warnings": case.warnings(),
-                "thresholds": {s: {m: b.model_dump() for m, b in t.items()} for s, t in case.thresholds.items()},
-                "duration_override": duration,
-            },
-        )
         for s in schemes:
             if not force and cached_key(out, case.name, s) == key:
                 res.cached.append((case.name, s))

@@ -28,7 +28,7 @@ from .model.chain import THESIS_ROBOT
 
 __all__ = ["SCHEME_NAMES", "Case", "case_hash", "load_case", "parse_case"]
 
-SCHEME_NAMES = ("nominal", "switching", "oracle")
+SCHEME_NAMES = ("nominal", "switching", "adaptive", "adaptive_frozen", "oracle")
 
 PosFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -179,9 +179,18 @@ class SwitchingScheme(_Strict):
     patterns: Literal["all"] | list[list[str]] = "all"  # each entry: the wheels assumed failed
 
 
+class AdaptiveScheme(_Strict):
+    k_v: PosFloat
+    gamma: PosFloat = 1.0  # adaptation gain of every weight
+    Gamma_f: PosFloat = 1.0  # friction estimate gain (times the identity)
+    patterns: Literal["all"] | list[list[str]] = "all"
+
+
 class Schemes(_Strict):
     nominal: NominalScheme | None = None
     switching: SwitchingScheme | None = None
+    adaptive: AdaptiveScheme | None = None
+    adaptive_frozen: AdaptiveScheme | None = None  # the same law with weights and friction frozen
     oracle: OracleScheme | None = None
 
 
@@ -279,18 +288,20 @@ class Case(_Strict):
             raise _FieldError("kinematic.c_chain", f"{len(self.kinematic.c_chain)} gains given, {n} needed")
         if self.simulation.dt > self.simulation.duration:
             raise _FieldError("simulation.dt", "longer than the duration")
-        sw = self.schemes.switching
-        if sw is not None and sw.patterns != "all":
+        for sname in ("switching", "adaptive", "adaptive_frozen"):
+            sw = getattr(self.schemes, sname)
+            if sw is None or sw.patterns == "all":
+                continue
             for i, failed in enumerate(sw.patterns):
                 pat = [1] * (2 * n)
                 for w in failed:
                     try:
                         pat[wheel_index(w, n)] = 0
                     except FtcError as exc:
-                        raise _FieldError(f"schemes.switching.patterns[{i}]", str(exc)) from None
+                        raise _FieldError(f"schemes.{sname}.patterns[{i}]", str(exc)) from None
                 if not pattern_is_compensable(pat):
                     raise _FieldError(
-                        f"schemes.switching.patterns[{i}]",
+                        f"schemes.{sname}.patterns[{i}]",
                         f"{failed} is uncompensable: rank(Bbar sigma) < 2 (a leader wheel and two wheels must work)",
                     )
         for key in ("a", "b", "r", "m", "I", "d"):
@@ -433,8 +444,9 @@ def initial_state(case: Case, ref) -> tuple[np.ndarray, np.ndarray]:
     return q0, eta0
 
 
-def switching_patterns(case: Case, chain: Chain) -> list[tuple[int, ...]] | None:
-    sw = case.schemes.switching
+def switching_patterns(case: Case, chain: Chain, scheme: str = "switching") -> list[tuple[int, ...]] | None:
+    """The 0/1 patterns a scheme's models use (None: every compensable pattern)."""
+    sw = getattr(case.schemes, scheme)
     if sw is None or sw.patterns == "all":
         return None
     out = []

@@ -168,7 +168,7 @@ def run(
 
     Example: ftcreport run cases/two_link_switching.toml --scheme switching
     """
-    from .cases import case_hash, load_case, with_duration
+    from .cases import SCHEME_NAMES, load_case, with_duration
     from .runner import build, run_scheme
     from .store import save_run
 
@@ -176,7 +176,7 @@ def run(
         c = load_case(case)
         if duration is not None:
             c = with_duration(c, duration)
-        schemes = [s for s in ("nominal", "switching", "oracle") if getattr(c.schemes, s) is not None]
+        schemes = [s for s in SCHEME_NAMES if getattr(c.schemes, s) is not None]
         if scheme:
             unknown = [s for s in scheme if s not in schemes]
             if unknown:
@@ -188,15 +188,20 @@ def run(
     if not quiet:
         for w in c.warnings():
             typer.echo(f"warning: {case}: {w}", err=True)
-    key = case_hash(c, __version__)
+    from .batch import record_case
+    from .report.render import render_case, render_index
+
+    key = record_case(out, c, case, duration)
     rows = []
     for s in schemes:
         r, m = run_scheme(c, s, built)
         save_run(out, c.name, s, r, m, key)
         rows.append(m)
+    page = render_case(out, c.name)
+    render_index(out)
     if not quiet:
         typer.echo(_table(rows))
-        typer.echo(f"results in {out / c.name}/")
+        typer.echo(f"results in {out / c.name}/, report {page}")
     if any(m["status"] != "ok" for m in rows):
         raise typer.Exit(code=1)
 

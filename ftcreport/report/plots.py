@@ -24,7 +24,13 @@ __all__ = [
     "torques_svg",
 ]
 
-SCHEME_COLORS = {"nominal": "#d62728", "switching": "#1f77b4", "oracle": "#2ca02c"}
+SCHEME_COLORS = {
+    "nominal": "#d62728",
+    "switching": "#1f77b4",
+    "adaptive": "#9467bd",
+    "adaptive_frozen": "#8c564b",
+    "oracle": "#2ca02c",
+}
 plt.rcParams.update({"font.size": 8, "svg.fonttype": "none", "axes.grid": True, "grid.alpha": 0.3})
 
 
@@ -162,4 +168,30 @@ def articulation_svg(series: dict[str, dict], events: list[float]) -> str:
     _shade_phases(ax, events)
     ax.legend(loc="upper right")
     ax.set_title("articulation angles (red: singular at +/-90 deg)")
+    return _svg(fig)
+
+
+def adaptive_svg(ts: dict, patterns: list[list[int]], wheels: list[str], events: list[float], scheme: str) -> str:
+    """Weights chihat_(k) (mean over the wheels each model drives) and uhat_f against the true ubar."""
+    fig, axes = plt.subplots(2, 1, figsize=(6.4, 4.4), sharex=True)
+    chi = ts["chi_hat"]  # (K, N, 2n)
+    pats = np.asarray(patterns, dtype=float)
+    for k in range(pats.shape[0]):
+        used = pats[k] > 0
+        axes[0].plot(ts["t"], chi[:, k, used].mean(axis=1), lw=1, label=f"model {k}")
+    axes[0].set_ylim(-0.05, 1.05)
+    axes[0].set_ylabel("chihat (mean over wheels)")
+    if pats.shape[0] <= 10:
+        axes[0].legend(loc="upper right", ncol=2, fontsize=6)
+    for j, w in enumerate(wheels):
+        line = axes[1].plot(ts["t"], ts["uf_hat"][:, j], lw=1, label=f"uhat_f {w}")[0]
+        axes[1].plot(ts["t"], ts["ubar"][:, j], "--", lw=1, color=line.get_color())
+    axes[1].set_ylabel("friction [N m]")
+    axes[1].set_xlabel("t [s]")
+    axes[1].legend(loc="lower left", ncol=4, fontsize=6)
+    for ax in axes:
+        _shade_phases(ax, events)
+    axes[0].set_title(
+        f"{scheme}: weights and friction estimate (dashed: true ubar) - control variables, not a diagnosis"
+    )
     return _svg(fig)

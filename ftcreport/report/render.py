@@ -183,6 +183,18 @@ def render_case(out: Path, name: str) -> Path | None:
                         "caption": "Applied model index against the true failure pattern.",
                     }
                 )
+        for ad in ("adaptive", "adaptive_frozen"):
+            if ad in series and "chi_hat" in series[ad]:
+                pats = next((m.get("patterns") for m in runs if m["scheme"] == ad), None)
+                if pats:
+                    figures.append(
+                        {
+                            "id": ad,
+                            "svg": plots.adaptive_svg(series[ad], pats, list(names), events, ad),
+                            "caption": f"{ad}: weights and friction estimate; they are control variables of the "
+                            "adaptive law, not a fault diagnosis (ERRATA P2).",
+                        }
+                    )
         figures.append(
             {
                 "id": "articulation",

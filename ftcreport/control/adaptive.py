@@ -1,0 +1,173 @@
+r"""Passive FTC 2: multi-design integration with adaptive weights and friction estimate.
+
+Thesis section 3.3.2 (3.114-3.127), ERRATA E8, E13, E14, P1, P2.
+
+Per failure pattern sigma_(k) a dynamic law with the friction estimate (3.121, E8)::
+
+    u_(k) = (Mbar1^-1 Bbar sigma_(k))^+ [ -k_v eta_e - T_alpha^T f_eta + Mbar1^-1 (Mbar2 eta + Cbar)
+                                          - Mbar1^-1 Bbar uhat_f + etadot_c ]
+
+and the applied signal is their per-wheel weighted sum (3.118)::
+
+    u_j = sum_k chihat_(k)j u_(k)j
+
+Adaptive laws, from the Lyapunov function (3.129) (checked term by term)::
+
+    uhat_f' = Gamma_f (Mbar1^-1 Bbar)^T eta_e                          (3.124 with E13)
+    chihat_(k)j' = p_kj + f_kj,   p_kj = -gamma u_(k)j eta_e^T (Mbar1^-1 Bbar)_(:, j)   (3.125)
+
+with the projection of E14 keeping every weight in [0, 1]: f = -p (update frozen)
+when chihat is at 0 and p < 0 or at 1 and p > 0, else f = 0.  A fixed-step
+integrator can step over the boundary within a step by O(h p); after every step
+the weights are put back into [0, 1] (the discrete counterpart of the projection).
+
+The weights and the friction estimate are control variables, not a diagnosis
+(ERRATA P2): they drift even without faults and do not identify the pattern.
+``adapt=False`` freezes them at their initial values (what adaptation buys).
+
+State: ``[kinematic state, chihat (N x 2n, row-major), uhat_f (2n)]``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..errors import ModelError, UncompensableError
+from ..model import kernels as K
+from ..model.chain import Chain
+from ..model.faults import pattern_is_compensable
+from .kinematic import ChainedBackstepping, TwoLinkKinematic
+from .tracking import TrackingController, law_terms
+
+__all__ = ["AdaptiveController", "pattern_laws"]
+
+
+def pattern_laws(MB: np.ndarray, patterns: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """u_(k) = (MB sigma_(k))^+ w for every pattern at once, (N, 2n); A^+ = A^T (A A^T)^-1."""
+    A = MB[None, :, :] * patterns[:, None, :]  # (N, 2, 2n)
+    AAt = np.einsum("kij,klj->kil", A, A)  # (N, 2, 2)
+    y = np.linalg.solve(AAt, np.broadcast_to(w, (patterns.shape[0], 2))[..., None])[..., 0]  # (N, 2)
+    return np.einsum("kij,ki->kj", A, y)
+
+
+class AdaptiveController:
+    """Multi-design integration adaptive FTC for any n with either kinematic controller.
+
+    Parameters
+    ----------
+    chain : Chain
+    kinematic : TwoLinkKinematic or ChainedBackstepping
+    k_v : float
+        Velocity-error gain (thesis k4 / c6).
+    patterns : sequence of 0/1 sequences, optional
+        The failure patterns; default every compensable pattern of the chain.
+    gamma : float
+        Adaptation gain of every weight chihat_(k)j (thesis gamma_kj).
+    Gamma_f : float or (2n, 2n) array
+        Adaptation gain matrix of the friction estimate.
+    chi0 : (N, 2n) array, optional
+        Initial weights; default the thesis's chihat_(1)(0) = I (first pattern), others 0.
+    uf0 : (2n,) array, optional
+        Initial friction estimate [N m] (default 0).
+    adapt : bool
+        False freezes weights and friction estimate at their initial values.
+    """
+
+    def __init__(
+        self,
+        chain: Chain,
+        kinematic: TwoLinkKinematic | ChainedBackstepping,
+        k_v: float,
+        patterns: Sequence[Sequence[float]] | None = None,
+        gamma: float = 1.0,
+        Gamma_f: float | np.ndarray = 1.0,
+        chi0: np.ndarray | None = None,
+        uf0: np.ndarray | None = None,
+        adapt: bool = True,
+    ) -> None:
+        pats = chain.compensable_patterns() if patterns is None else [tuple(p) for p in patterns]
+        for p in pats:
+            if len(p) != chain.n_wheels:
+                raise ModelError(f"patterns: {p} has {len(p)} entries, the chain has {chain.n_wheels} wheels")
+            if not pattern_is_compensable(p):
+                raise UncompensableError(f"patterns: {p} violates rank(Bbar sigma) = 2")
+        if not gamma > 0:
+            raise ModelError(f"gamma: adaptation gain must be > 0, got {gamma}")
+        nw = chain.n_wheels
+        G = np.asarray(Gamma_f, dtype=float)
+        G = G * np.eye(nw) if G.ndim == 0 else G
+        if G.shape != (nw, nw) or np.any(np.linalg.eigvalsh(0.5 * (G + G.T)) <= 0):
+            raise ModelError(f"Gamma_f: must be a positive scalar or a ({nw}, {nw}) positive definite matrix")
+        self.chain = chain
+        self.kin = kinematic
+        self.tracking = TrackingController(chain, kinematic, k_v)
+        self.k_v = float(k_v)
+        self.patterns = np.array(pats, dtype=float)
+        self.N = self.patterns.shape[0]
+        self.gamma = float(gamma)
+        self.Gamma_f = G
+        if chi0 is None:
+            chi0 = np.zeros((self.N, nw))
+            chi0[0] = 1.0
+        chi0 = np.asarray(chi0, dtype=float)
+        if chi0.shape != (self.N, nw) or np.any(chi0 < 0) or np.any(chi0 > 1):
+            raise ModelError(f"chi0: expected ({self.N}, {nw}) weights inside [0, 1] (ERRATA E14)")
+        self.chi0 = chi0
+        self.uf0 = np.zeros(nw) if uf0 is None else np.asarray(uf0, dtype=float)
+        self.adapt = bool(adapt)
+        nk = kinematic.n_states
+        self._kin = slice(0, nk)
+        self._chi = slice(nk, nk + self.N * nw)
+        self._uf = slice(self._chi.stop, self._chi.stop + nw)
+        self.n_states = self._uf.stop
+        self.signal_names = ("eta_c", "z", "q_d", "eta_d", "chi_hat", "uf_hat")
+
+    def chi_hat(self, xc: np.ndarray) -> np.ndarray:
+        return xc[self._chi].reshape(self.N, self.chain.n_wheels)
+
+    # ------------------------------------------------------------------ Controller protocol
+    def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        xc = np.zeros(self.n_states)
+        xc[self._kin] = self.kin.initial_state(t, q)
+        xc[self._chi] = self.chi0.ravel()
+        xc[self._uf] = self.uf0
+        return xc
+
+    def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
+        kin, eta_c_dot = self.tracking.eta_c_and_dot(t, q, eta, xc[self._kin])
+        Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)
+        eta_e = eta - kin.eta_c
+        terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin, eta_c_dot, self.k_v)
+        uf = xc[self._uf]
+        # bracket of (3.121): w - Mbar1^-1 Bbar uhat_f
+        U = pattern_laws(terms.MB, self.patterns, terms.w - terms.MB @ uf)  # (N, 2n)
+        chi = self.chi_hat(xc)
+        u = np.sum(chi * U, axis=0)  # (3.118)
+        dx = np.zeros(self.n_states)
+        if self.adapt:
+            c = eta_e @ terms.MB  # c_j = eta_e^T (Mbar1^-1 Bbar)_(:, j)
+            p = -self.gamma * U * c[None, :]  # (3.125)
+            frozen = ((chi <= 0.0) & (p < 0.0)) | ((chi >= 1.0) & (p > 0.0))  # projection, ERRATA E14
+            dx[self._chi] = np.where(frozen, 0.0, p).ravel()
+            dx[self._uf] = self.Gamma_f @ (terms.MB.T @ eta_e)  # (3.124), ERRATA E13
+        return u, dx
+
+    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        xc = xc.copy()
+        xc[self._kin] = self.kin.discrete(t, q, xc[self._kin])
+        xc[self._chi] = np.clip(xc[self._chi], 0.0, 1.0)
+        return xc
+
+    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
+        kin = self.kin.law(t, q, xc[self._kin])
+        r = self.kin.reference.at(t)
+        return {
+            "eta_c": kin.eta_c,
+            "z": kin.z,
+            "q_d": r.q_d,
+            "eta_d": r.eta_d,
+            "chi_hat": self.chi_hat(xc).copy(),
+            "uf_hat": xc[self._uf].copy(),
+        }

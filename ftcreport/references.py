@@ -289,11 +289,13 @@ class FlatReference:
         self.path = path
         self.d = np.asarray(d, dtype=float)
         self.n = self.d.shape[0] + 1
-        # theta_1 loses one order per robot; omega_1d' needs 3 coefficients of theta_1
-        self.order = self.n + 2
+        # theta_1 loses one order per robot; omega_1d' needs 3 coefficients of theta_1, and two
+        # more keep the Taylor evaluation at t0 + delta (below) exact to round-off
+        self.order = self.n + 4
         self.max_articulation = float(max_articulation)
         self.min_speed = float(min_speed)
         self._cache: dict[float, RefPoint] = {}
+        self._jets: tuple | None = None  # (t0, X, Y, theta jets, v jet) of the last full evaluation
 
     @property
     def kind(self) -> str:
@@ -339,7 +341,12 @@ class FlatReference:
         hit = self._cache.get(t)
         if hit is not None:
             return hit
-        point = self._at(t)
+        jets = self._jets
+        if jets is not None and abs(t - jets[0]) <= _TAYLOR_REACH:
+            # the etadot_c difference asks for t0 +/- 1e-5: the jets at t0 are its Taylor series
+            point = self._point(t, jets, t - jets[0])
+        else:
+            point = self._at(t)
         if len(self._cache) >= 16:
             self._cache.clear()
         self._cache[t] = point
@@ -347,7 +354,16 @@ class FlatReference:
 
     def _at(self, t: float) -> RefPoint:
         th_jets, v_jet = self._headings(t)
-        X, Y = self.path.jets(t, 0)
+        X, Y = self.path.jets(t, self.order)
+        self._jets = (t, X, Y, th_jets, v_jet)
+        return self._point(t, self._jets, 0.0)
+
+    def _point(self, t: float, jets: tuple, delta: float) -> RefPoint:
+        """RefPoint at t = t0 + delta from the jets at t0 (Taylor series, shifted)."""
+        _, X, Y, th_jets, v_jet = jets
+        if delta != 0.0:
+            X, Y, v_jet = (_shift(a, delta, 3) for a in (X, Y, v_jet))
+            th_jets = [_shift(a, delta, 3) for a in th_jets]
         th = np.array([j[0] for j in th_jets])
         # unwrap the leader side relative to robot n so articulation angles are small
         for i in range(self.n - 2, -1, -1):
@@ -382,6 +398,21 @@ class FlatReference:
         """Raise ReferenceError if the reference is infeasible anywhere on [t0, t0 + duration]."""
         for t in np.arange(t0, t0 + duration + 0.5 * dt, dt):
             self.at(float(t))
+
+
+_TAYLOR_REACH = 1e-4  # [s] largest shift served from cached jets (truncation ~ delta^5: round-off)
+
+
+def _shift(a: np.ndarray, delta: float, m: int) -> np.ndarray:
+    """First m normalized Taylor coefficients at t0 + delta of the jet a at t0."""
+    k = np.arange(a.shape[0])
+    out = np.empty(m)
+    for i in range(m):
+        # b_i = sum_(j >= i) C(j, i) a_j delta^(j - i)
+        j = k[i:]
+        coef = np.array([math.comb(int(jj), i) for jj in j], dtype=float)
+        out[i] = np.sum(coef * a[i:] * delta ** (j - i))
+    return out
 
 
 def _wrap(a: float) -> float:

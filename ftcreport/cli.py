@@ -133,6 +133,7 @@ def batch(
     force: Annotated[bool, typer.Option("--force", help="Re-simulate cached runs.")] = False,
     duration: Annotated[float | None, typer.Option(help="Override every case's simulated time [s].")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="One line per run after the summary.")] = False,
 ) -> None:
     """Run every case x scheme (cached by case content and version) and write OUT/index.html.
 
@@ -148,6 +149,15 @@ def batch(
         f"{len(res.cases)} case(s): {len(res.simulated)} run(s) simulated, {len(res.cached)} cached, "
         f"{len(res.failed_runs)} failed, {len(res.case_errors)} case file(s) rejected; report: {out / 'index.html'}"
     )
+    if verbose:
+        from .store import load_metrics
+
+        for name, scheme in sorted(res.simulated + res.cached):
+            m = load_metrics(out, name, scheme) or {}
+            typer.echo(
+                f"  {name} / {scheme}: {m.get('status', '?')}, final error {_fmt(m.get('position_error_final'))} m, "
+                f"wall {_fmt(m.get('wall_time'))} s{' (cached)' if (name, scheme) in res.cached else ''}"
+            )
     if res.case_errors or res.failed_runs:
         typer.echo(failures_summary(res), err=True)
         raise typer.Exit(code=1)

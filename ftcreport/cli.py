@@ -299,9 +299,42 @@ def check(
 
 
 @app.command()
-def analyze(case: Annotated[Path, typer.Argument(help="One case file.")]) -> None:
-    """Linearized analyses with python-control (not built yet)."""
-    _not_built("analyze", "issue 8")
+def analyze(
+    case: Annotated[Path, typer.Argument(help="One case file.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+) -> None:
+    """Linearized analyses (python-control): closed-loop poles, controllability per fault pattern.
+
+    Closed-loop poles (key closed_loop_poles, [re, im] pairs per scheme) for two-link cases
+    on constant-velocity references; controllability rank and Gramian per 0/1 pattern for all.
+
+    Example: ftcreport analyze cases/two_link_adaptive_circle.toml --json
+    """
+    from .analysis import analyze_case
+    from .cases import load_case
+
+    try:
+        res = analyze_case(load_case(case))
+    except FtcError as exc:
+        _fail(exc)
+    if as_json:
+        from .store import _jsonable
+
+        typer.echo(json.dumps(_jsonable(res), indent=2))
+        return
+    typer.echo(f"{res['case']}: {res['n_robots']} robots, reference {res['reference_kind']}")
+    if res.get("closed_loop_poles"):
+        for s, table in res["pole_tables"].items():
+            poles = ", ".join(f"{r['re']:.4g}{r['im']:+.4g}j" for r in table)
+            typer.echo(f"  {s}: closed-loop poles {poles}")
+        kp = ", ".join(f"{r['re']:.4g}{r['im']:+.4g}j" for r in res["kinematic_poles"])
+        typer.echo(f"  kinematic part (perfect velocity loop): {kp}")
+    else:
+        typer.echo(f"  closed-loop poles: {res['note']}")
+    worst = [r for r in res["controllability"] if r["compensable_rule"]][-3:]
+    typer.echo("  least well conditioned compensable patterns (Gramian min eigenvalue):")
+    for r in worst:
+        typer.echo(f"    {r['pattern']}: {r['gramian_min_eig']:.3g}")
 
 
 @app.command()

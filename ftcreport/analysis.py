@@ -1,0 +1,220 @@
+r"""Linearized analyses with python-control (pure: no I/O).
+
+Two-link closed loop at zero error (constant v_d, omega_d)
+----------------------------------------------------------
+With a constant-velocity unicycle reference, the closed loop of the two-link
+kinematic controller (3.27)-(3.29) and a matched dynamic law (3.35) is
+autonomous in its error coordinates ``x = [z1, z2, z3, z4, eta_e1, eta_e2]``::
+
+    z' = (3.19)-(3.22) with alpha = alpha_c(z) + T_alpha(z) eta_e       (E7)
+    eta_e' = -k_v eta_e - T_alpha(z)^T f_eta(z)                          (matched law)
+
+T_alpha, alpha_c and f_eta are the project's own :class:`TwoLinkKinematic`
+(the state q is rebuilt from z, the inverse of 3.14-3.17).  The system is a
+``control.nlsys``; ``control.linearize`` gives its Jacobian at 0, checked
+against :func:`two_link_error_jacobian` (analytic) in the tests, and its poles
+predict the convergence rate (ERRATA P1: the circle gains of 3.3.2.3 give
+-1.93, -0.22, -0.025 +/- 0.786j for the kinematic part).
+
+Controllability per failure pattern
+-----------------------------------
+The velocity loop about the reference motion, closed by the dynamic law's
+-k_v eta_e (the Hurwitz part), is ``eta_e' = -k_v eta_e + Mbar1^-1 Bbar sigma v``;
+the rank of ctrb(A, B sigma) is 2 exactly for the compensable patterns, and the
+smallest eigenvalue of the controllability Gramian (``control.gram``) measures
+how close a pattern is to uncompensable.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import control
+import numpy as np
+
+from .control.kinematic import TwoLinkKinematic
+from .model.chain import Chain
+from .model.faults import pattern_is_compensable
+from .references import FlatReference, unicycle
+
+__all__ = [
+    "kinematic_error_matrix",
+    "pattern_controllability",
+    "pole_table",
+    "two_link_error_jacobian",
+    "two_link_error_system",
+]
+
+
+class _TwoLinkError:
+    """Error dynamics of the two-link closed loop built on the project's controller."""
+
+    def __init__(self, d: float, v_d: float, omega_d: float, k1: float, k2: float, k3: float, k_v: float):
+        self.d, self.v_d, self.omega_d = float(d), float(v_d), float(omega_d)
+        self.k_v = float(k_v)
+        self.ref = FlatReference(unicycle(v_d, omega_d), [d])
+        self.kin = TwoLinkKinematic(d, self.ref, k1, k2, k3)
+        self.r0 = self.ref.at(0.0)
+
+    def q_from_z(self, z: np.ndarray) -> np.ndarray:
+        """Inverse of (3.14)-(3.17) at t = 0 (E6)."""
+        r = self.r0
+        z1, z2, z3, z4 = z
+        eth = math.atan(z3)
+        c = math.cos(eth)
+        # z4 = tan(phi) / (d c^3) - omega_d / (v_d c^2) + e_y
+        tphi = self.d * c**3 * (z4 + self.omega_d / (self.v_d * c**2) - z2)
+        thd = r.theta_d
+        x = r.q_d[0] + math.cos(thd) * z1 - math.sin(thd) * z2
+        y = r.q_d[1] + math.sin(thd) * z1 + math.cos(thd) * z2
+        th2 = thd + eth
+        return np.array([x, y, th2, th2 + math.atan(tphi)])
+
+    def rhs(self, t, x, u, params) -> np.ndarray:
+        z, eta_e = x[:4], x[4:]
+        q = self.q_from_z(z)
+        out = self.kin.law(0.0, q, np.zeros(0))
+        alpha_c = np.array([-self.kin.k1 * out.f_eta[0], -self.kin.k2 * self.v_d * z[2] - self.kin.k3 * z[3]])
+        a1, a2 = alpha_c + out.T_alpha @ eta_e
+        vd, wd = self.v_d, self.omega_d
+        z1, z2, z3, z4 = z
+        zdot = np.array(
+            [
+                wd * z2 + a1,  # (3.19)
+                -wd * z1 + (vd + a1) * z3,  # (3.20)
+                vd * (z4 - z2) + a1 * (z4 - z2 + (wd / vd) * (1.0 + z3**2)),  # (3.21) with E7
+                a2,  # (3.22)
+            ]
+        )
+        eta_e_dot = -self.k_v * eta_e - out.T_alpha.T @ out.f_eta
+        return np.concatenate((zdot, eta_e_dot))
+
+
+def two_link_error_system(
+    d: float, v_d: float, omega_d: float, k1: float, k2: float, k3: float, k_v: float
+) -> control.NonlinearIOSystem:
+    """The 6-state closed-loop error dynamics as a python-control nonlinear system."""
+    err = _TwoLinkError(d, v_d, omega_d, k1, k2, k3, k_v)
+    return control.nlsys(err.rhs, None, states=6, inputs=0, outputs=6, name="two_link_error")
+
+
+def kinematic_error_matrix(v_d: float, omega_d: float, k1: float, k2: float, k3: float) -> np.ndarray:
+    """Analytic Jacobian at z = 0 of (3.19)-(3.22) closed by alpha_c (perfect velocity loop)."""
+    r = omega_d / v_d
+    return np.array(
+        [
+            [-k1, omega_d, -k1 * r, 0.0],
+            [-omega_d, 0.0, v_d, 0.0],
+            [-k1 * r, -v_d, -k1 * r * r, v_d],
+            [0.0, 0.0, -k2 * v_d, -k3],
+        ]
+    )
+
+
+def two_link_error_jacobian(
+    d: float, v_d: float, omega_d: float, k1: float, k2: float, k3: float, k_v: float
+) -> np.ndarray:
+    """Analytic 6 x 6 Jacobian at zero error of :func:`two_link_error_system`.
+
+    At z = 0: e_theta = 0, tan(phi0) = d omega_d / v_d, T_alpha = [[1, 0], [T21, T22]]
+    with T21 = -sec^2(phi0) tan(phi0) / d^2, T22 = sec^2(phi0) / d; f_eta is linear
+    to first order: f_eta = [z1 + (omega_d/v_d) z3, z4 / k2].
+    """
+    r = omega_d / v_d
+    tphi = d * r
+    sec2 = 1.0 + tphi**2
+    T = np.array([[1.0, 0.0], [-sec2 * tphi / d**2, sec2 / d]])
+    A = np.zeros((6, 6))
+    A[:4, :4] = kinematic_error_matrix(v_d, omega_d, k1, k2, k3)
+    # alpha_e = T eta_e enters z1' and z4' directly and z3' through alpha_1 (omega_d/v_d)
+    A[0, 4:] = T[0]
+    A[2, 4:] = r * T[0]
+    A[3, 4:] = T[1]
+    Df = np.array([[1.0, 0.0, r, 0.0], [0.0, 0.0, 0.0, 1.0 / k2]])
+    A[4:, :4] = -T.T @ Df
+    A[4:, 4:] = -k_v * np.eye(2)
+    return A
+
+
+def pole_table(A: np.ndarray) -> list[dict]:
+    """Poles with natural frequency, damping and time constant (control.damp)."""
+    sys = control.ss(A, np.zeros((A.shape[0], 1)), np.eye(A.shape[0]), 0)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a pole at 0 has no damping ratio
+        wn, zeta, poles = control.damp(sys, doprint=False)
+    out = []
+    for p, w, z in sorted(zip(poles, wn, zeta, strict=True), key=lambda e: -e[0].real):
+        out.append(
+            {
+                "re": float(p.real),
+                "im": float(p.imag),
+                "wn": float(w),
+                "damping": float(z) if math.isfinite(z) else None,
+                "time_constant": (math.inf if p.real >= 0 else float(-1.0 / p.real)),
+            }
+        )
+    return out
+
+
+def pattern_controllability(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float) -> list[dict]:
+    """Rank of ctrb(A, B sigma) and the Gramian's smallest eigenvalue for every 0/1 pattern.
+
+    ``A = -k_v I`` (the velocity loop closed by the dynamic law), ``B = Mbar1^-1 Bbar``
+    at the state (q, eta); sorted from best to worst conditioned.
+    """
+    Mbar1, _, _, Bbar = chain.reduced(q, eta)
+    MB = np.linalg.solve(Mbar1, Bbar)
+    A = -float(k_v) * np.eye(2)
+    rows = []
+    for pat in itertools.product((1, 0), repeat=chain.n_wheels):
+        B = MB * np.asarray(pat, dtype=float)[None, :]
+        rank = int(np.linalg.matrix_rank(control.ctrb(A, B), tol=1e-9 * max(1.0, np.abs(MB).max())))
+        sys = control.ss(A, B, np.eye(2), 0)
+        W = control.gram(sys, "c") if np.any(B) else np.zeros((2, 2))
+        lam = float(np.linalg.eigvalsh(0.5 * (W + W.T)).min())
+        rows.append(
+            {
+                "pattern": list(pat),
+                "rank": rank,
+                "compensable_rule": pattern_is_compensable(pat),
+                "gramian_min_eig": max(lam, 0.0),
+            }
+        )
+    rows.sort(key=lambda r: -r["gramian_min_eig"])
+    return rows
+
+
+def analyze_case(case) -> dict:
+    """Analyses of one validated case (see ftcreport.cases.Case), as plain data.
+
+    ``closed_loop_poles`` (per scheme, [re, im] pairs) is given for two-link cases on a
+    constant-velocity unicycle reference: at zero error with healthy wheels every scheme
+    applies the same matched law, so their poles coincide.  Chained-form cases and
+    time-varying references are not linearized yet (frozen-time analysis is open work).
+    """
+    from .cases import SCHEME_NAMES, build_chain, initial_state
+
+    out: dict = {"case": case.name, "n_robots": case.robots.n, "reference_kind": case.reference.kind}
+    chain = build_chain(case)
+    ref = FlatReference(case.reference.path(), chain.d)
+    kin = case.kinematic
+    schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+    if kin.kind == "two_link" and case.reference.kind == "unicycle":
+        v_d, w_d = case.reference.v_d, case.reference.omega_d
+        out["kinematic_poles"] = pole_table(kinematic_error_matrix(v_d, w_d, kin.k1, kin.k2, kin.k3))
+        out["closed_loop_poles"] = {}
+        out["pole_tables"] = {}
+        for s in schemes:
+            k_v = getattr(case.schemes, s).k_v
+            table = pole_table(two_link_error_jacobian(chain.d[0], v_d, w_d, kin.k1, kin.k2, kin.k3, k_v))
+            out["pole_tables"][s] = table
+            out["closed_loop_poles"][s] = [[r["re"], r["im"]] for r in table]
+            out["predicted_decay_rate"] = -table[0]["re"]
+    else:
+        out["closed_loop_poles"] = None
+        out["note"] = "linearization implemented for two-link cases on constant-velocity references only"
+    q0 = ref.at(0.0).q_d
+    k_v = next(getattr(case.schemes, s).k_v for s in schemes)
+    out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v)
+    _ = initial_state  # the reference pose, not the initial state, is the linearization point
+    return out

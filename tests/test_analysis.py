@@ -1,0 +1,112 @@
+"""Linearized analyses: error dynamics of the two-link closed loop, controllability per pattern."""
+
+from __future__ import annotations
+
+import math
+
+import control
+import numpy as np
+import pytest
+
+from ftcreport.analysis import (
+    _TwoLinkError,
+    kinematic_error_matrix,
+    pattern_controllability,
+    pole_table,
+    two_link_error_jacobian,
+    two_link_error_system,
+)
+from ftcreport.control.tracking import TrackingController
+from ftcreport.model import Chain
+from ftcreport.sim import Plant, SimSettings, simulate
+
+CIRCLE = {"d": 1.7, "v_d": 0.5, "omega_d": 0.5, "k1": 1.0, "k2": 1.0, "k3": 0.2, "k_v": 20.0}
+
+
+def test_predicts_errata_p1():
+    """Circle gains of 3.3.2.3: kinematic error poles -1.93, -0.22, -0.025 +/- 0.786j."""
+    A = kinematic_error_matrix(0.5, 0.5, 1.0, 1.0, 0.2)
+    poles = sorted(np.linalg.eigvals(A), key=lambda p: (p.real, p.imag))
+    expected = sorted([-1.93, -0.22, -0.025 + 0.786j, -0.025 - 0.786j], key=lambda p: (p.real, p.imag))
+    np.testing.assert_allclose(poles, expected, atol=5e-3)
+    assert all(p.real < 0 for p in poles)
+
+
+def test_control_linearize_equals_analytic_jacobian():
+    """control.linearize (forward differences, eps 1e-6) of the nlsys built on the project's controller."""
+    sys = two_link_error_system(**CIRCLE)
+    lin = control.linearize(sys, np.zeros(6), [])
+    np.testing.assert_allclose(lin.A, two_link_error_jacobian(**CIRCLE), atol=2e-5)
+
+
+def test_linearization_equals_fd_jacobian_of_the_simulated_closed_loop():
+    """The engine's closed loop (plant + TrackingController), in error coordinates, to 1e-5."""
+    p = CIRCLE
+    err = _TwoLinkError(p["d"], p["v_d"], p["omega_d"], p["k1"], p["k2"], p["k3"], p["k_v"])
+    chain = Chain.uniform(2, d=p["d"])
+    ctrl = TrackingController(chain, err.kin, k_v=p["k_v"])
+    xc = np.zeros(0)
+
+    def eps_of(t, q, eta):
+        out = err.kin.law(t, q, xc)
+        z, _ = err.kin.zcoords(q, err.ref.at(t))
+        return np.concatenate((z, eta - out.eta_c))
+
+    def eps_dot(e):
+        q = err.q_from_z(e[:4])
+        eta = e[4:] + err.kin.law(0.0, q, xc).eta_c
+        u, _ = ctrl.evaluate(0.0, q, eta, xc)
+        qdot, etadot = chain.dynamics(q, eta, u)  # the simulated closed loop's right-hand side
+        h = 1e-5
+        return (eps_of(h, q + h * qdot, eta + h * etadot) - eps_of(-h, q - h * qdot, eta - h * etadot)) / (2 * h)
+
+    delta = 1e-4
+    J = np.column_stack([(eps_dot(delta * e) - eps_dot(-delta * e)) / (2 * delta) for e in np.eye(6)])
+    np.testing.assert_allclose(J, two_link_error_jacobian(**p), atol=1e-5 * np.abs(J).max())
+
+
+@pytest.mark.slow
+def test_predicted_rate_matches_simulated_decay_on_the_circle():
+    """Slowest pole of the 6-state linearization vs the fitted envelope decay of a simulated run (10 %)."""
+    p = CIRCLE
+    A = two_link_error_jacobian(**p)
+    rate = -pole_table(A)[0]["re"]
+    err = _TwoLinkError(p["d"], p["v_d"], p["omega_d"], p["k1"], p["k2"], p["k3"], p["k_v"])
+    chain = Chain.uniform(2, d=p["d"])
+    q0 = err.q_from_z(np.array([0.02, -0.02, 0.01, 0.0]))
+    eta0 = err.kin.law(0.0, q0, np.zeros(0)).eta_c
+    run = simulate(
+        Plant(chain),
+        TrackingController(chain, err.kin, p["k_v"]),
+        q0,
+        eta0,
+        SimSettings(dt=0.02, duration=160.0, log_every=5),
+    )
+    assert run.ok
+    e = np.hypot(run["q"][:, 0] - run["q_d"][:, 0], run["q"][:, 1] - run["q_d"][:, 1])
+    # envelope: local maxima of the oscillating error after the fast modes have died out
+    k = np.flatnonzero((e[1:-1] > e[:-2]) & (e[1:-1] >= e[2:])) + 1
+    k = k[run.t[k] > 30.0]
+    fitted = -np.polyfit(run.t[k], np.log(e[k]), 1)[0]
+    assert fitted == pytest.approx(rate, rel=0.10)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_controllability_rank_is_the_redundancy_rule(n):
+    chain = Chain.uniform(n, d=1.2)
+    q = chain.q_from_headings(0.0, 0.0, np.radians([25.0, 10.0, 0.0][:n]))
+    rows = pattern_controllability(chain, q, np.array([0.5, 0.1]), k_v=5.0)
+    assert len(rows) == 2 ** (2 * n)
+    for r in rows:
+        assert (r["rank"] == 2) == r["compensable_rule"], r
+        assert (r["gramian_min_eig"] > 1e-9) == r["compensable_rule"], r
+    # ranking: the healthy pattern is the best conditioned, uncompensable ones come last
+    assert rows[0]["pattern"] == [1] * (2 * n)
+    assert all(not r["compensable_rule"] for r in rows[-(2 ** (2 * n) - (3 * 2 ** (2 * n - 2) - 2)) :])
+
+
+def test_pole_table_fields():
+    rows = pole_table(np.diag([-2.0, -0.5]))
+    assert [r["re"] for r in rows] == [-0.5, -2.0]
+    assert rows[0]["time_constant"] == pytest.approx(2.0) and rows[0]["damping"] == pytest.approx(1.0)
+    assert math.isinf(pole_table(np.diag([0.0]))[0]["time_constant"])

@@ -151,6 +151,8 @@ def test_report_rerenders_from_stored_results(batch_dir):
         'id="fig-torques"',
         'id="fig-switching"',
         'id="fig-articulation"',
+        'id="controllability"',
+        'id="poles"',  # a two-link case on a constant-velocity reference: linearized poles shown
         "<svg",
         "Provenance",
     ):

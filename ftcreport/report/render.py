@@ -20,6 +20,7 @@ from importlib import metadata, resources
 from pathlib import Path
 
 import jinja2
+import numpy as np
 
 from .. import __version__
 from ..cases import SCHEME_NAMES, parse_case, with_duration
@@ -202,11 +203,13 @@ def render_case(out: Path, name: str) -> Path | None:
                 "caption": "Articulation angles with the singular configuration at +/-90 deg.",
             }
         )
+    analysis = _analysis(case, names)
     html = env.get_template("case.html").render(
         root="../",
         version=__version__,
         rendered=_now(),
         name=name,
+        analysis=analysis,
         description=case.description,
         n=case.robots.n,
         reference=case.reference.kind,
@@ -229,6 +232,24 @@ def render_case(out: Path, name: str) -> Path | None:
     )
     write_atomic(page, html.encode())
     return page
+
+
+def _analysis(case, names) -> dict | None:
+    """Linearized analyses for the case page (None if they cannot be computed)."""
+    from ..analysis import analyze_case
+    from ..errors import FtcError
+
+    try:
+        res = analyze_case(case)
+    except (FtcError, ValueError, np.linalg.LinAlgError):
+        return None
+    rows = res["controllability"]
+    pick = rows[:4] + rows[-4:] if len(rows) > 8 else rows
+    res["ctrb_rows"] = [
+        {**r, "failed": ", ".join(w for w, p in zip(names, r["pattern"], strict=True) if p == 0) or "none"}
+        for r in pick
+    ]
+    return res
 
 
 def render_index(out: Path) -> Path:

@@ -110,3 +110,18 @@ def test_pole_table_fields():
     assert [r["re"] for r in rows] == [-0.5, -2.0]
     assert rows[0]["time_constant"] == pytest.approx(2.0) and rows[0]["damping"] == pytest.approx(1.0)
     assert math.isinf(pole_table(np.diag([0.0]))[0]["time_constant"])
+
+
+def test_frozen_time_poles_along_the_eight():
+    """Frozen-time poles along the thesis's eight with its gains: computed, and equal to the
+    constant-reference poles where the eight is momentarily straight (t = 0: zero curvature)."""
+    from ftcreport.analysis import frozen_time_poles
+    from ftcreport.references import FlatReference, eight
+
+    ref = FlatReference(eight(), [1.7])
+    res = frozen_time_poles(ref, 1.7, 10.0, 10.0, 2.0, 10.0, duration=60.0, samples=61)
+    assert len(res["worst_real_part"]) == 61 and 0.0 <= res["positive_fraction"] <= 1.0
+    r0 = ref.at(0.0)
+    p0 = np.linalg.eigvals(two_link_error_jacobian(1.7, r0.v_d, r0.omega_d, 10.0, 10.0, 2.0, 10.0))
+    assert res["worst_real_part"][0] == pytest.approx(p0.real.max())
+    assert res["worst"] < 0  # the eight's gains keep every frozen-time pole in the left half plane

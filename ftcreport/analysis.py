@@ -213,6 +213,45 @@ def frozen_time_poles(
     }
 
 
+def velocity_loop(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, law: np.ndarray) -> list[dict]:
+    r"""Velocity loop of the law for pattern ``law`` against every true 0/1 pattern.
+
+    With the minimum-norm law u = (MB sigma_k)^+ w on a plant with effectiveness sigma_a,
+    eta_e' = -k_v G eta_e + (feedforward mismatch), G = MB sigma_a (MB sigma_k)^+
+    = W_(a and k) W_k^-1 with W_p = MB sigma_p MB^T (MB = Mbar1^-1 Bbar).  G is a product
+    of a positive semi-definite and a positive definite matrix: its eigenvalues are real,
+    >= 0, and positive exactly when the wheels working in both patterns are compensable.
+    Each eigen-direction is the loop L(s) = k_v lambda / s: python-control's
+    stability_margins give its gain and phase margins (infinite and 90 deg while
+    lambda > 0; the margin that matters is the rate k_v lambda_min).
+    """
+    Mbar1, _, _, Bbar = chain.reduced(q, eta)
+    MB = np.linalg.solve(Mbar1, Bbar)
+    law = np.asarray(law, dtype=float)
+    Ak = MB * law[None, :]
+    Wk = Ak @ Ak.T
+    rows = []
+    for pat in itertools.product((1, 0), repeat=chain.n_wheels):
+        G = (MB * np.asarray(pat, float)[None, :]) @ np.linalg.solve(Wk, Ak).T
+        lam = np.linalg.eigvals(G)
+        lmin = float(lam.real.min())
+        if lmin > 1e-12:
+            gm, pm, *_ = control.stability_margins(control.tf([k_v * lmin], [1, 0]))
+        else:
+            gm, pm = 0.0, 0.0
+        rows.append(
+            {
+                "pattern": list(pat),
+                "lambda_min": lmin,
+                "rate": k_v * lmin,
+                "stable": lmin > 1e-12,
+                "gain_margin": float(gm),
+                "phase_margin_deg": float(pm),
+            }
+        )
+    return rows
+
+
 def analyze_case(case) -> dict:
     """Analyses of one validated case (see ftcreport.cases.Case), as plain data.
 
@@ -250,5 +289,14 @@ def analyze_case(case) -> dict:
     q0 = ref.at(0.0).q_d
     k_v = next(getattr(case.schemes, s).k_v for s in schemes)
     out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v)
+    # passive robustness of the healthy (nominal) law: the true patterns it keeps stable, and how fast
+    vl = velocity_loop(chain, q0, ref.at(0.0).eta_d, k_v, np.ones(chain.n_wheels))
+    stable = [r for r in vl if r["stable"]]
+    out["nominal_velocity_loop"] = {
+        "stable_patterns": len(stable),
+        "compensable_patterns": sum(pattern_is_compensable(r["pattern"]) for r in vl),
+        "slowest_rate": min(r["rate"] for r in stable),
+        "rows": vl,
+    }
     _ = initial_state  # the reference pose, not the initial state, is the linearization point
     return out

@@ -125,3 +125,27 @@ def test_frozen_time_poles_along_the_eight():
     p0 = np.linalg.eigvals(two_link_error_jacobian(1.7, r0.v_d, r0.omega_d, 10.0, 10.0, 2.0, 10.0))
     assert res["worst_real_part"][0] == pytest.approx(p0.real.max())
     assert res["worst"] < 0  # the eight's gains keep every frozen-time pole in the left half plane
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_healthy_law_velocity_loop_is_stable_exactly_for_compensable_patterns(n):
+    """G = W_a W^-1 has real eigenvalues >= 0, positive iff the true pattern is compensable."""
+    from ftcreport.analysis import velocity_loop
+    from ftcreport.model import pattern_is_compensable
+
+    chain = Chain.uniform(n, d=1.3)
+    q = chain.q_from_headings(0.0, 0.0, np.radians([20.0, 5.0, 0.0][:n]))
+    rows = velocity_loop(chain, q, np.array([0.5, 0.1]), 5.0, np.ones(2 * n))
+    for r in rows:
+        assert r["stable"] == pattern_is_compensable(r["pattern"]), r
+        if r["stable"]:
+            assert 0 < r["lambda_min"] <= 1 + 1e-9
+            assert math.isinf(r["gain_margin"]) and r["phase_margin_deg"] == pytest.approx(90.0)
+    healthy = next(r for r in rows if all(r["pattern"]))
+    assert healthy["lambda_min"] == pytest.approx(1.0)
+    # a switching law for '1r failed' on a plant that also lost 1l: the common working set is not compensable
+    law = np.ones(2 * n)
+    law[0] = 0
+    rows_k = velocity_loop(chain, q, np.array([0.5, 0.1]), 5.0, law)
+    lost_1l = next(r for r in rows_k if r["pattern"] == [1, 0] + [1] * (2 * n - 2))
+    assert not lost_1l["stable"]

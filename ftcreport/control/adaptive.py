@@ -34,12 +34,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..errors import ModelError, UncompensableError
+from ..errors import ModelError
 from ..model import kernels as K
 from ..model.chain import Chain
-from ..model.faults import pattern_is_compensable
+from ..model.faults import model_patterns
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
-from .tracking import TrackingController, law_terms
+from .tracking import TrackingController, kinematic_signals, law_terms
 
 __all__ = ["AdaptiveController", "pattern_laws"]
 
@@ -87,12 +87,7 @@ class AdaptiveController:
         uf0: np.ndarray | None = None,
         adapt: bool = True,
     ) -> None:
-        pats = chain.compensable_patterns() if patterns is None else [tuple(p) for p in patterns]
-        for p in pats:
-            if len(p) != chain.n_wheels:
-                raise ModelError(f"patterns: {p} has {len(p)} entries, the chain has {chain.n_wheels} wheels")
-            if not pattern_is_compensable(p):
-                raise UncompensableError(f"patterns: {p} violates rank(Bbar sigma) = 2")
+        pats = model_patterns(chain.n, patterns)
         if not gamma > 0:
             raise ModelError(f"gamma: adaptation gain must be > 0, got {gamma}")
         nw = chain.n_wheels
@@ -161,13 +156,7 @@ class AdaptiveController:
         return xc
 
     def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        kin = self.kin.law(t, q, xc[self._kin])
-        r = self.kin.reference.at(t)
-        return {
-            "eta_c": kin.eta_c,
-            "z": kin.z,
-            "q_d": r.q_d,
-            "eta_d": r.eta_d,
+        return kinematic_signals(self.kin, t, q, xc[self._kin]) | {
             "chi_hat": self.chi_hat(xc).copy(),
             "uf_hat": xc[self._uf].copy(),
         }

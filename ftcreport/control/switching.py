@@ -37,12 +37,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..errors import ModelError, UncompensableError
+from ..errors import ModelError
 from ..model import kernels as K
 from ..model.chain import Chain
-from ..model.faults import pattern_is_compensable
+from ..model.faults import model_patterns
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
-from .tracking import TrackingController, law_for_pattern, law_terms
+from .tracking import TrackingController, kinematic_signals, law_for_pattern, law_terms
 
 __all__ = ["SwitchingController"]
 
@@ -90,16 +90,7 @@ class SwitchingController:
         u_limit: float | None = None,
         initial_model: int = 0,
     ) -> None:
-        pats = chain.compensable_patterns() if patterns is None else [tuple(p) for p in patterns]
-        if not pats:
-            raise ModelError("patterns: at least one failure pattern is needed")
-        for p in pats:
-            if len(p) != chain.n_wheels:
-                raise ModelError(f"patterns: {p} has {len(p)} entries, the chain has {chain.n_wheels} wheels")
-            if not pattern_is_compensable(p):
-                raise UncompensableError(
-                    f"patterns: {p} violates rank(Bbar sigma) = 2 (a leader wheel and two wheels must work)"
-                )
+        pats = model_patterns(chain.n, patterns)
         for name, val in (("gamma", gamma), ("forgetting", forgetting)):
             if not val > 0:
                 raise ModelError(f"{name}: must be > 0, got {val}")
@@ -182,13 +173,7 @@ class SwitchingController:
         return xc
 
     def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        kin = self.kin.law(t, q, xc[self._kin])
-        r = self.kin.reference.at(t)
-        return {
-            "eta_c": kin.eta_c,
-            "z": kin.z,
-            "q_d": r.q_d,
-            "eta_d": r.eta_d,
+        return kinematic_signals(self.kin, t, q, xc[self._kin]) | {
             "selected": np.array(self.selected(xc), dtype=float),
             "cost": self.costs(eta, xc),
         }

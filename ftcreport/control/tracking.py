@@ -28,7 +28,14 @@ from ..model import kernels as K
 from ..model.chain import Chain
 from .kinematic import ChainedBackstepping, KinematicOutput, TwoLinkKinematic
 
-__all__ = ["TrackingController", "dynamic_law"]
+__all__ = [
+    "LawTerms",
+    "TrackingController",
+    "dynamic_law",
+    "kinematic_signals",
+    "law_for_pattern",
+    "law_terms",
+]
 
 
 class LawTerms(NamedTuple):
@@ -105,6 +112,13 @@ def dynamic_law(
     return law_for_pattern(terms, sigma_k)
 
 
+def kinematic_signals(kin: TwoLinkKinematic | ChainedBackstepping, t: float, q: np.ndarray, xc_kin: np.ndarray) -> dict:
+    """The logged signals every tracking scheme shares: eta_c, z, q_d, eta_d."""
+    out = kin.law(t, q, xc_kin)
+    r = kin.reference.at(t)
+    return {"eta_c": out.eta_c, "z": out.z, "q_d": r.q_d, "eta_d": r.eta_d}
+
+
 class TrackingController:
     """Kinematic controller + dynamic law for one assumed pattern (nominal: healthy).
 
@@ -163,6 +177,5 @@ class TrackingController:
         return self.kin.discrete(t, q, xc)
 
     def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        kin, eta_c_dot = self.eta_c_and_dot(t, q, eta, xc)
-        r = self.kin.reference.at(t)
-        return {"eta_c": kin.eta_c, "eta_c_dot": eta_c_dot, "z": kin.z, "q_d": r.q_d, "eta_d": r.eta_d}
+        _, eta_c_dot = self.eta_c_and_dot(t, q, eta, xc)
+        return kinematic_signals(self.kin, t, q, xc) | {"eta_c_dot": eta_c_dot}

@@ -98,6 +98,31 @@ def compensable_patterns(n: int) -> list[tuple[int, ...]]:
     return pats
 
 
+def model_patterns(n: int, patterns=None) -> list[tuple[int, ...]]:
+    """The failure patterns of a multi-model scheme: all compensable ones, or a checked list.
+
+    Raises
+    ------
+    FaultError
+        A pattern of the wrong length.
+    UncompensableError
+        A pattern that violates the redundancy rule.
+    """
+    from ..errors import UncompensableError
+
+    pats = compensable_patterns(n) if patterns is None else [tuple(int(x) for x in p) for p in patterns]
+    if not pats:
+        raise FaultError("patterns: at least one failure pattern is needed")
+    for p in pats:
+        if len(p) != 2 * n:
+            raise FaultError(f"patterns: {p} has {len(p)} entries, the chain has {2 * n} wheels")
+        if not pattern_is_compensable(p):
+            raise UncompensableError(
+                f"patterns: {p} violates rank(Bbar sigma) = 2 (a leader wheel and two wheels must work)"
+            )
+    return pats
+
+
 def is_compensable_at(Bbar: np.ndarray, sigma: Sequence[float], tol: float = 1e-9) -> bool:
     """rank(Bbar diag(sigma)) = 2 numerically (relative singular-value tolerance)."""
     Bs = np.asarray(Bbar, dtype=float) * np.asarray(sigma, dtype=float)[None, :]

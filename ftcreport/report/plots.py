@@ -90,8 +90,9 @@ def paths_svg(series: dict[str, dict], d: list[float], events: list[float], b: f
 
 
 def errors_svg(series: dict[str, dict], events: list[float]) -> str:
-    """Position error and largest heading error per scheme, log scale, fault phases shaded."""
-    fig, axes = plt.subplots(2, 1, figsize=(6.4, 4.6), sharex=True)
+    """Tracking errors, log scale, fault phases shaded: position and largest heading error per
+    scheme, then every coordinate (x, y, each heading) of the main FTC scheme."""
+    fig, axes = plt.subplots(3, 1, figsize=(6.4, 6.6), sharex=True)
     for scheme, ts in series.items():
         q, qd = ts["q"], ts["q_d"]
         pos = np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])
@@ -99,12 +100,23 @@ def errors_svg(series: dict[str, dict], events: list[float]) -> str:
         c = SCHEME_COLORS.get(scheme)
         axes[0].semilogy(ts["t"], np.maximum(pos, 1e-12), color=c, lw=1, label=scheme)
         axes[1].semilogy(ts["t"], np.maximum(head, 1e-12), color=c, lw=1, label=scheme)
+    main = next((s for s in ("switching", "adaptive", "oracle") if s in series), next(iter(series)))
+    ts = series[main]
+    q, qd = ts["q"], ts["q_d"]
+    n = q.shape[1] - 2
+    labels = ["x", "y"] + [f"theta_{n - j}" for j in range(n)]
+    err = np.abs(q - qd)
+    err[:, 2:] = np.abs((q[:, 2:] - qd[:, 2:] + np.pi) % (2 * np.pi) - np.pi)
+    for j, lab in enumerate(labels):
+        axes[2].semilogy(ts["t"], np.maximum(err[:, j], 1e-12), lw=0.9, label=lab)
     axes[0].set_ylabel("position error [m]")
     axes[1].set_ylabel("max heading error [rad]")
-    axes[1].set_xlabel("t [s]")
+    axes[2].set_ylabel(f"{main}: per coordinate [m, rad]")
+    axes[2].set_xlabel("t [s]")
     for ax in axes:
         _shade_phases(ax, events)
     axes[0].legend(loc="upper right")
+    axes[2].legend(loc="upper right", ncol=min(4, len(labels)), fontsize=6)
     axes[0].set_title("tracking errors (shaded/dotted: fault phases)")
     return _svg(fig)
 

@@ -163,7 +163,8 @@ def render_case(out: Path, name: str) -> Path | None:
             {
                 "id": "errors",
                 "svg": plots.errors_svg(series, events),
-                "caption": "Tracking errors per scheme (log scale); fault phases shaded.",
+                "caption": "Tracking errors (log scale): per scheme, then every coordinate of the main FTC scheme; "
+                "fault phases shaded.",
             }
         )
         main = "switching" if "switching" in series else next(iter(series))

@@ -1,0 +1,178 @@
+r"""Nonlinear adaptive observer of Farza et al. (2009) for n linked robots.
+
+Thesis chapter 4, (4.4)-(4.11) with ERRATA E15 (signs) and E16 (parentheses).
+State ``x = [q, qdot]`` (2N, N = n + 2), output ``y = q``, unknown parameters
+``rho_bar = [rho (2n gains), ubar (2n frictions)]`` (a subset may be chosen)::
+
+    x' = A x + phi(u, x, rho_bar),  A = [[0, I], [0, 0]],  C = [I, 0]
+    phi_2 = S Mbar1^-1 (-Mbar2 eta - Cbar + Bbar (diag(rho) u + ubar)) + Sdot eta,  eta = S^+ qdot   (E16)
+
+phi is linear in rho_bar: d phi / d rho_bar = [0; S Mbar1^-1 Bbar [diag(u), I]] (exact).
+Observer, with ytilde = y - C xhat (E15)::
+
+    xhat'   = A xhat + phi(u, xhat, rhohat) + Theta Delta^-1 (S_o^-1 + Y P Y^T) C^T K(ytilde)
+    rhohat' = Theta P Y^T C^T K(ytilde)
+    Y'      = Theta (A - S_o^-1 C^T C) Y + Delta d phi / d rho_bar
+    P'      = Theta P (I - P / p_max) - Theta P Y^T C^T C Y P              (guard, see below)
+
+with S_o = [[I, -I], [-I, 2I]] (the solution of (4.9)), Delta = diag(I, I / Theta),
+K(e) = k1 tanh(k0 e), Y(0) = 0, P(0) = p0 I.
+
+P guard (ERRATA P3).  The printed P' = Theta P - Theta P Y^T C^T C Y P grows like
+exp(Theta t) in directions the regressor does not excite (individual gains and
+frictions are not identifiable in steady tracking: the regressor has rank <= 2 per
+instant).  The term -Theta P^2 / p_max bounds P at p_max in those directions and
+leaves it essentially unchanged where excitation keeps P << p_max; the trade-off
+is a slower parameter convergence (smaller adaptation gain) when p_max is small.
+``p_max = None`` reproduces the printed law.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..errors import ModelError
+from ..model import kernels as K
+from ..model.chain import Chain
+
+__all__ = ["FarzaObserver"]
+
+
+class FarzaObserver:
+    """Adaptive observer of q, qdot and the actuator parameters from measured q.
+
+    Parameters
+    ----------
+    chain : Chain
+        The observer's model.
+    Theta : float
+        High-gain tuning parameter (> 0).
+    k0, k1 : float
+        K(e) = k1 tanh(k0 e) (thesis k0 = k1 = 1, ERRATA E17).
+    p0 : float
+        P(0) = p0 I (thesis 0.1).
+    p_max : float, optional
+        Bound of P in unexcited directions (guard); None: the printed law.
+    estimate : sequence of str
+        Which parameters to estimate: any of ``"rho"`` (2n gains), ``"ubar"`` (2n frictions).
+    printed_signs : bool
+        Use the signs of (4.11) as printed (diverges, kept for the ERRATA E15 test).
+    """
+
+    def __init__(
+        self,
+        chain: Chain,
+        Theta: float,
+        k0: float = 1.0,
+        k1: float = 1.0,
+        p0: float = 0.1,
+        p_max: float | None = 1e3,
+        estimate: Sequence[str] = ("rho", "ubar"),
+        printed_signs: bool = False,
+    ) -> None:
+        if not Theta > 0:
+            raise ModelError(f"Theta: must be > 0, got {Theta}")
+        if not (k0 > 0 and k1 > 0 and p0 > 0):
+            raise ModelError("k0, k1 and p0 must be > 0")
+        if p_max is not None and not p_max > 0:
+            raise ModelError(f"p_max: must be > 0 (or None), got {p_max}")
+        unknown = set(estimate) - {"rho", "ubar"}
+        if unknown or not estimate:
+            raise ModelError(f"estimate: choose among 'rho', 'ubar', got {list(estimate)}")
+        self.chain = chain
+        self.N = chain.n_q
+        self.nw = chain.n_wheels
+        self.Theta, self.k0, self.k1, self.p0, self.p_max = float(Theta), float(k0), float(k1), float(p0), p_max
+        self.est_rho = "rho" in estimate
+        self.est_ubar = "ubar" in estimate
+        self.p = self.nw * (int(self.est_rho) + int(self.est_ubar))
+        self.sign = -1.0 if printed_signs else 1.0
+        N, p = self.N, self.p
+        self._x = slice(0, 2 * N)
+        self._rho = slice(2 * N, 2 * N + p)
+        self._Y = slice(self._rho.stop, self._rho.stop + 2 * N * p)
+        self._P = slice(self._Y.stop, self._Y.stop + p * p)
+        self.n_states = self._P.stop
+        I = np.eye(N)
+        Z = np.zeros((N, N))
+        self.A = np.block([[Z, I], [Z, Z]])
+        self.Soinv = np.block([[2 * I, I], [I, I]])  # inverse of S_o = [[I, -I], [-I, 2I]]
+        self.AY = self.Theta * (self.A - self.Soinv[:, :N] @ np.eye(N, 2 * N))  # Theta (A - S_o^-1 C^T C)
+
+    # ------------------------------------------------------------------ parameters
+    def split(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(xhat, rhohat, Y, P) from the observer state."""
+        return s[self._x], s[self._rho], s[self._Y].reshape(2 * self.N, self.p), s[self._P].reshape(self.p, self.p)
+
+    def gains_frictions(self, rho_hat: np.ndarray, rho_known=None, ubar_known=None):
+        """(rho, ubar) per wheel from the estimated parameters (known values where not estimated)."""
+        nw = self.nw
+        rho = np.ones(nw) if rho_known is None else np.asarray(rho_known, float)
+        ubar = np.zeros(nw) if ubar_known is None else np.asarray(ubar_known, float)
+        k = 0
+        if self.est_rho:
+            rho = rho_hat[:nw]
+            k = nw
+        if self.est_ubar:
+            ubar = rho_hat[k : k + nw]
+        return rho, ubar
+
+    def initial_state(self, q0: np.ndarray, qdot0: np.ndarray | None = None) -> np.ndarray:
+        s = np.zeros(self.n_states)
+        s[: self.N] = q0
+        if qdot0 is not None:
+            s[self.N : 2 * self.N] = qdot0
+        rho0 = []
+        if self.est_rho:
+            rho0.append(np.ones(self.nw))
+        if self.est_ubar:
+            rho0.append(np.zeros(self.nw))
+        s[self._rho] = np.concatenate(rho0)
+        s[self._P] = (self.p0 * np.eye(self.p)).ravel()
+        return s
+
+    # ------------------------------------------------------------------ dynamics
+    def phi_and_regressor(self, u: np.ndarray, xhat: np.ndarray, rho: np.ndarray, ubar: np.ndarray):
+        """phi_2 (N,) and d phi_2 / d rho_bar (N, p) at the estimate (E16)."""
+        p = self.chain.params
+        q, qdot = xhat[: self.N], xhat[self.N :]
+        S = K.S_matrix(p, q)
+        eta = np.linalg.lstsq(S, qdot, rcond=None)[0]  # eta = S^+ qdot
+        Mbar1, Mbar2, Cbar, Bbar = K.reduced(p, q, eta)
+        _, Sdot = K.S_and_Sdot(p, q, eta)
+        MB = np.linalg.solve(Mbar1, Bbar)
+        # phi_2 = S Mbar1^-1 (-Mbar2 eta - Cbar + Bbar (diag(rho) u + ubar)) + Sdot eta
+        acc = np.linalg.solve(Mbar1, -Mbar2 @ eta - Cbar) + MB @ (rho * u + ubar)
+        phi2 = S @ acc + Sdot @ eta
+        SMB = S @ MB
+        cols = []
+        if self.est_rho:
+            cols.append(SMB * u[None, :])
+        if self.est_ubar:
+            cols.append(SMB)
+        return phi2, np.hstack(cols), eta
+
+    def derivative(self, u: np.ndarray, y: np.ndarray, s: np.ndarray, rho_known=None, ubar_known=None):
+        """Observer state derivative, (n_states,), for measured q = y and applied control u."""
+        N, Th = self.N, self.Theta
+        xhat, rhohat, Y, P = self.split(s)
+        rho, ubar = self.gains_frictions(rhohat, rho_known, ubar_known)
+        phi2, dphi2, _ = self.phi_and_regressor(u, xhat, rho, ubar)
+        Kt = self.k1 * np.tanh(self.k0 * (y - xhat[:N]))  # K(ytilde)
+        YN = Y[:N]  # C Y
+        # correction = Theta Delta^-1 (S_o^-1 + Y P Y^T) C^T K
+        corr = (self.Soinv[:, :N] + Y @ P @ YN.T) @ Kt
+        corr[N:] *= Th  # Delta^-1 = diag(I, Theta I)
+        ds = np.empty(self.n_states)
+        xdot = np.concatenate((xhat[N:], phi2))
+        ds[self._x] = xdot + self.sign * Th * corr
+        ds[self._rho] = self.sign * Th * (P @ (YN.T @ Kt))
+        dphi = np.vstack((np.zeros((N, self.p)), dphi2 / Th))  # Delta d phi / d rho_bar
+        ds[self._Y] = (self.AY @ Y + dphi).ravel()
+        dP = Th * P - Th * P @ YN.T @ YN @ P
+        if self.p_max is not None:
+            dP -= Th * (P @ P) / self.p_max
+        ds[self._P] = dP.ravel()
+        return ds

@@ -247,6 +247,8 @@ class Case(_Strict):
     simulation: Simulation
     plant: Plant = Plant()
     recovery_band: PosFloat = 0.01  # [m] band of the recovery time
+    # run outcomes that are not failures for this case (a case built to lose tracking says so)
+    expected_status: list[Literal["ok", "singular", "diverged"]] = ["ok"]
     thresholds: dict[str, dict[str, Bound]] = {}
 
     @field_validator("faults")

@@ -216,3 +216,21 @@ def test_garbage_files_give_one_line_and_exit_2(tmp_path, text):
     res = runner.invoke(app, ["cases", "validate", str(path)])
     assert res.exit_code == 2
     assert res.output.count("error:") == 1 and "Traceback" not in res.output
+
+
+def test_expected_status_keeps_a_designed_loss_from_failing_the_batch(tmp_path):
+    """A case built to lose tracking declares it; without the declaration the same run fails the batch."""
+    data = tomllib.loads((CASES / "two_link_uncompensable.toml").read_text())
+    data["faults"] = [{"time": 1.0, "wheel": "1r"}, {"time": 2.0, "wheel": "1l"}]
+    data["simulation"]["duration"] = 30.0
+    data["schemes"] = {"oracle": {"k_v": 5.0}}
+    outcomes = {}
+    for expected in (["ok"], ["ok", "singular", "diverged"]):
+        data["expected_status"] = expected
+        src = tmp_path / f"loss{len(expected)}.toml"
+        src.write_text(tomli_w.dumps(data))
+        res = run_batch([src], tmp_path / "r", jobs=1, show_progress=False)
+        m = json.loads((tmp_path / "r" / src.stem / "oracle" / "metrics.json").read_text())
+        assert m["status"] in ("singular", "diverged"), m["status"]
+        outcomes[len(expected)] = len(res.failed_runs)
+    assert outcomes == {1: 1, 3: 0}

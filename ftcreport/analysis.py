@@ -260,7 +260,7 @@ def analyze_case(case) -> dict:
     applies the same matched law, so their poles coincide.  Chained-form cases and
     time-varying references are not linearized yet (frozen-time analysis is open work).
     """
-    from .cases import SCHEME_NAMES, build_chain, initial_state
+    from .cases import SCHEME_NAMES, build_chain
 
     out: dict = {"case": case.name, "n_robots": case.robots.n, "reference_kind": case.reference.kind}
     chain = build_chain(case)
@@ -298,5 +298,4 @@ def analyze_case(case) -> dict:
         "slowest_rate": min(r["rate"] for r in stable),
         "rows": vl,
     }
-    _ = initial_state  # the reference pose, not the initial state, is the linearization point
     return out

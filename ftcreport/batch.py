@@ -29,10 +29,10 @@ from pathlib import Path
 
 from . import __version__
 from .cases import SCHEME_NAMES, Case, case_hash, load_case, with_duration
-from .errors import CaseError, FtcError
+from .errors import CaseError
 from .store import cached_key, save_run, write_atomic, write_json
 
-__all__ = ["BatchResult", "discover", "run_batch"]
+__all__ = ["BatchResult", "discover", "failures_summary", "record_case", "run_batch"]
 
 
 @dataclass
@@ -224,6 +224,3 @@ def failures_summary(res: BatchResult) -> str:  # pragma: no cover - CLI text he
     lines = [f"{p}: {e}" for p, e in res.case_errors.items()]
     lines += [f"{c} / {s}: {r}" for c, s, r in res.failed_runs]
     return "\n".join(lines)
-
-
-__all__ += ["FtcError", "failures_summary"]

@@ -460,10 +460,6 @@ def switching_patterns(case: Case, chain: Chain, scheme: str = "switching") -> l
     return out
 
 
-def validation_error_message(exc: Exception) -> str:  # pragma: no cover - helper for the CLI
-    return str(exc)
-
-
 def with_duration(case: Case, duration: float) -> Case:
     """The same case simulated for ``duration`` s (events at or after it dropped)."""
     if not duration > 0:

@@ -33,7 +33,6 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -213,10 +212,3 @@ def _sequence(t: np.ndarray, sel: np.ndarray) -> list[tuple[float, int]]:
         return []
     idx = np.concatenate(([0], np.flatnonzero(sel[1:] != sel[:-1]) + 1))
     return [(float(t[i]), int(sel[i])) for i in idx]
-
-
-def finite_or_none(x: float | None) -> float | None:
-    """JSON-friendly number: None for None/NaN/inf."""
-    if x is None or not math.isfinite(x):
-        return None
-    return float(x)

@@ -291,14 +291,18 @@ def reduced(p: ChainParams, q: np.ndarray, eta: np.ndarray):
     -------
     Mbar1 : (2, 2), Mbar2 : (2, 2), Cbar : (2,), Bbar : (2, 2 n) ndarrays
     """
+    return _reduced_and_S(p, q, eta)[:4]
+
+
+def _reduced_and_S(p: ChainParams, q: np.ndarray, eta: np.ndarray):
+    """(Mbar1, Mbar2, Cbar, Bbar, S): the reduced matrices and the S they were built with."""
     S, Sdot = S_and_Sdot(p, q, eta)
     M = M_matrix(p, q)
-    MS = M @ S
-    Mbar1 = S.T @ MS
+    Mbar1 = S.T @ (M @ S)
     Mbar2 = S.T @ (M @ Sdot)
     Cbar = S.T @ C_vector(p, q, S @ eta)
     Bbar = S.T @ B_matrix(p, q)
-    return Mbar1, Mbar2, Cbar, Bbar
+    return Mbar1, Mbar2, Cbar, Bbar, S
 
 
 def eta_dot(p: ChainParams, q: np.ndarray, eta: np.ndarray, tau: np.ndarray):
@@ -308,8 +312,7 @@ def eta_dot(p: ChainParams, q: np.ndarray, eta: np.ndarray, tau: np.ndarray):
     -------
     qdot : (n + 2,), etadot : (2,) ndarrays
     """
-    Mbar1, Mbar2, Cbar, Bbar = reduced(p, q, eta)
-    S = S_matrix(p, q)
+    Mbar1, Mbar2, Cbar, Bbar, S = _reduced_and_S(p, q, eta)  # S once per evaluation
     # Mbar1 etadot = Bbar tau - Mbar2 eta - Cbar
     etadot = np.linalg.solve(Mbar1, Bbar @ tau - Mbar2 @ eta - Cbar)
     return S @ eta, etadot

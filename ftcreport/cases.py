@@ -28,7 +28,7 @@ from .model.chain import THESIS_ROBOT
 
 __all__ = ["SCHEME_NAMES", "Case", "case_hash", "load_case", "parse_case"]
 
-SCHEME_NAMES = ("nominal", "switching", "adaptive", "adaptive_frozen", "oracle")
+SCHEME_NAMES = ("nominal", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf", "oracle")
 
 PosFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -186,11 +186,51 @@ class AdaptiveScheme(_Strict):
     patterns: Literal["all"] | list[list[str]] = "all"
 
 
+class Diagnosis(_Strict):
+    """Fault detection on the estimated gains and frictions (ftcreport.diagnosis)."""
+
+    gain_band: PosFloat = 0.1  # |rho_hat - reference| beyond this is an excursion
+    friction_band: PosFloat = 0.2  # [N m]
+    dwell: PosFloat = 2.0  # [s] an estimate steady this long at a new value is declared
+    settle_band: PosFloat | None = None  # "steady": within this of its window mean (default band / 4)
+
+
+class ActiveScheme(_Strict):
+    """Active FTC with the Farza et al. (2009) adaptive observer (thesis chapter 4)."""
+
+    k_v: PosFloat
+    Theta: PosFloat = 1.6
+    k0: PosFloat = 1.0
+    k1: PosFloat = 1.0
+    p0: PosFloat = 0.1
+    p_max: PosFloat = 1e3  # P guard: bound of P (the printed law has none; P grows like exp(Theta t))
+    estimate: list[Literal["rho", "ubar"]] = ["rho", "ubar"]
+    tau: PosFloat | None = None  # [s] filter 1/(tau s + 1) on the estimates used by the law
+    diagnosis: Diagnosis = Diagnosis()
+
+
+class ActiveUKFScheme(_Strict):
+    """Active FTC with the augmented-state unscented Kalman filter (filterpy)."""
+
+    k_v: PosFloat
+    meas_std: PosFloat = 1e-3  # [m, rad] R of the filter
+    eta_noise: Annotated[float, Field(ge=0)] = 1e-4  # [(m/s)^2/s]
+    rho_noise: Annotated[float, Field(ge=0)] = 1e-2  # random-walk intensity of the gains [1/s]
+    ubar_noise: Annotated[float, Field(ge=0)] = 1e-2  # [(N m)^2/s]
+    rho_std0: PosFloat = 0.3
+    ubar_std0: PosFloat = 0.5
+    estimate: list[Literal["rho", "ubar"]] = ["rho", "ubar"]
+    tau: PosFloat | None = None
+    diagnosis: Diagnosis = Diagnosis()
+
+
 class Schemes(_Strict):
     nominal: NominalScheme | None = None
     switching: SwitchingScheme | None = None
     adaptive: AdaptiveScheme | None = None
     adaptive_frozen: AdaptiveScheme | None = None  # the same law with weights and friction frozen
+    active: ActiveScheme | None = None  # Farza observer + (4.14)
+    active_ukf: ActiveUKFScheme | None = None  # UKF + (4.14)
     oracle: OracleScheme | None = None
 
 

@@ -13,12 +13,15 @@ import numpy as np
 
 from . import __version__
 from .cases import Case, build_chain, build_plant_chain, initial_state, switching_patterns
+from .control.active import ActiveController
 from .control.adaptive import AdaptiveController
 from .control.baselines import OracleController, nominal
 from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
 from .control.switching import SwitchingController
+from .diagnosis import diagnosis_metrics
 from .errors import FtcError
 from .metrics import singularity_margin, switching_metrics, torque_metrics, tracking_metrics
+from .observers import FarzaObserver, UKFEstimator
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
@@ -103,6 +106,23 @@ def make_controller(built: Built, scheme: str):
             Gamma_f=cfg.Gamma_f,
             adapt=scheme == "adaptive",
         )
+    if scheme == "active":
+        obs = FarzaObserver(
+            built.chain, cfg.Theta, cfg.k0, cfg.k1, cfg.p0, cfg.p_max, estimate=tuple(dict.fromkeys(cfg.estimate))
+        )
+        return ActiveController(built.chain, kin, cfg.k_v, obs, u_limit=case.plant.saturation, tau=cfg.tau)
+    if scheme == "active_ukf":
+        ukf = UKFEstimator(
+            built.chain,
+            meas_std=cfg.meas_std,
+            eta_noise=cfg.eta_noise,
+            rho_noise=cfg.rho_noise,
+            ubar_noise=cfg.ubar_noise,
+            rho_std0=cfg.rho_std0,
+            ubar_std0=cfg.ubar_std0,
+            estimate=tuple(dict.fromkeys(cfg.estimate)),
+        )
+        return ActiveController(built.chain, kin, cfg.k_v, ukf, u_limit=case.plant.saturation, tau=cfg.tau)
     raise FtcError(f"unknown scheme '{scheme}'")
 
 
@@ -163,4 +183,24 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
         out["friction_estimate_final"] = run["uf_hat"][-1].tolist()
         out["friction_true_final"] = run["ubar"][-1].tolist()
         out["friction_estimate_note"] = "control variable of the adaptive law, not a fault diagnosis (ERRATA P2)"
+    if scheme in ("active", "active_ukf"):
+        cfg = getattr(case.schemes, scheme)
+        names = ctrl.est.parameter_names()
+        out["estimated_parameters"] = names
+        out |= diagnosis_metrics(
+            built.chain,
+            built.faults,
+            names,
+            run.t,
+            run.signals,
+            case.plant.saturation,
+            cfg.diagnosis.gain_band,
+            cfg.diagnosis.friction_band,
+            cfg.diagnosis.dwell,
+            run.t_end,
+            cfg.diagnosis.settle_band,
+        )
+        out["P_max"] = float(np.max(run["P_max"]))
+        out["rho_hat_final"] = run["rho_hat"][-1].tolist()
+        out["ubar_hat_final"] = run["ubar_hat"][-1].tolist()
     return out

@@ -30,6 +30,7 @@ is a slower parameter convergence (smaller adaptation gain) when p_max is small.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -37,7 +38,20 @@ from ..errors import ModelError
 from ..model import kernels as K
 from ..model.chain import Chain
 
-__all__ = ["FarzaObserver"]
+__all__ = ["Estimate", "FarzaObserver"]
+
+
+class Estimate(NamedTuple):
+    """What an estimator provides the active controller at one instant.
+
+    ``rho`` and ``ubar`` are per wheel (2n,); where a parameter is not estimated
+    it holds its nominal value (gain 1, friction 0).
+    """
+
+    q: np.ndarray
+    eta: np.ndarray
+    rho: np.ndarray
+    ubar: np.ndarray
 
 
 class FarzaObserver:
@@ -176,3 +190,29 @@ class FarzaObserver:
             dP -= Th * (P @ P) / self.p_max
         ds[self._P] = dP.ravel()
         return ds
+
+    # ------------------------------------------------------------------ estimator interface
+    discrete_time = False  # integrated with the plant (continuous observer)
+
+    def parameter_names(self) -> list[str]:
+        """Names of the estimated parameters, e.g. ``rho_1r``, ``ubar_2l``."""
+        from ..model.faults import wheel_names
+
+        wheels = wheel_names(self.chain.n)
+        return [f"rho_{w}" for w in wheels if self.est_rho] + [f"ubar_{w}" for w in wheels if self.est_ubar]
+
+    def estimates(self, s: np.ndarray, y: np.ndarray) -> Estimate:
+        """Estimate from the observer state; eta_hat = S^+(y) qdot_hat (thesis 4.2.3.2)."""
+        xhat, rhohat, _, _ = self.split(s)
+        S = K.S_matrix(self.chain.params, y)
+        eta = np.linalg.solve(S.T @ S, S.T @ xhat[self.N :])
+        rho, ubar = self.gains_frictions(rhohat)
+        return Estimate(xhat[: self.N], eta, rho, ubar)
+
+    def parameter_std(self, s: np.ndarray) -> np.ndarray:
+        """sqrt(diag P) per estimated parameter: the observer's adaptation gain, not a covariance."""
+        return np.sqrt(np.maximum(np.diag(self.split(s)[3]), 0.0))
+
+    def covariance_bound(self, s: np.ndarray) -> float:
+        """Largest eigenvalue of P (the quantity the guard bounds)."""
+        return float(np.linalg.eigvalsh(self.split(s)[3]).max())

@@ -17,6 +17,7 @@ import numpy as np
 
 __all__ = [
     "SCHEME_COLORS",
+    "active_svg",
     "articulation_svg",
     "errors_svg",
     "paths_svg",
@@ -29,6 +30,8 @@ SCHEME_COLORS = {
     "switching": "#1f77b4",
     "adaptive": "#9467bd",
     "adaptive_frozen": "#8c564b",
+    "active": "#ff7f0e",
+    "active_ukf": "#17becf",
     "oracle": "#2ca02c",
 }
 plt.rcParams.update({"font.size": 8, "svg.fonttype": "none", "axes.grid": True, "grid.alpha": 0.3})
@@ -206,4 +209,39 @@ def adaptive_svg(ts: dict, patterns: list[list[int]], wheels: list[str], events:
     axes[0].set_title(
         f"{scheme}: weights and friction estimate (dashed: true ubar) - control variables, not a diagnosis"
     )
+    return _svg(fig)
+
+
+def active_svg(ts: dict, wheels: list[str], events: list[float], scheme: str, estimated: list[str]) -> str:
+    """Estimated gains and frictions against the truth (dashed), and the state-estimation error."""
+    rows = 1 + int(any(e.startswith("rho_") for e in estimated)) + int(any(e.startswith("ubar_") for e in estimated))
+    fig, axes = plt.subplots(rows, 1, figsize=(6.4, 1.9 * rows + 0.6), sharex=True)
+    axes = np.atleast_1d(axes)
+    t = ts["t"]
+    i = 0
+    for key, true_key, label in (("rho_hat", "sigma", "gain"), ("ubar_hat", "ubar", "friction [N m]")):
+        prefix = "rho_" if key == "rho_hat" else "ubar_"
+        if not any(e.startswith(prefix) for e in estimated):
+            continue
+        ax = axes[i]
+        for j, w in enumerate(wheels):
+            line = ax.plot(t, ts[key][:, j], lw=1, label=w)[0]
+            ax.plot(t, ts[true_key][:, j], "--", lw=1, color=line.get_color())
+        lo, hi = np.nanpercentile(ts[true_key], [0, 100])
+        pad = 0.5 if key == "rho_hat" else 1.0
+        ax.set_ylim(lo - pad, hi + pad)
+        ax.set_ylabel(label)
+        ax.legend(loc="lower left", ncol=len(wheels), fontsize=6)
+        i += 1
+    ax = axes[i]
+    eq = np.abs(ts["q_hat"] - ts["q"]).max(axis=1)
+    ee = np.abs(ts["eta_hat"] - ts["eta"]).max(axis=1)
+    ax.semilogy(t, np.maximum(eq, 1e-12), lw=1, label="max |q_hat - q|")
+    ax.semilogy(t, np.maximum(ee, 1e-12), lw=1, label="max |eta_hat - eta|")
+    ax.set_ylabel("estimation error")
+    ax.set_xlabel("t [s]")
+    ax.legend(loc="upper right", fontsize=6)
+    for a in axes:
+        _shade_phases(a, events)
+    axes[0].set_title(f"{scheme}: estimates (solid) and truth (dashed); clipped axes, see P3 on transients")
     return _svg(fig)

@@ -197,6 +197,18 @@ def render_case(out: Path, name: str) -> Path | None:
                             "adaptive law, not a fault diagnosis (ERRATA P2).",
                         }
                     )
+        for act in ("active", "active_ukf"):
+            if act in series and "rho_hat" in series[act]:
+                est = next((m.get("estimated_parameters") for m in runs if m["scheme"] == act), None) or []
+                figures.append(
+                    {
+                        "id": act,
+                        "svg": plots.active_svg(series[act], list(names), events, act, est),
+                        "caption": f"{act}: estimated gains and frictions against the truth, and the state "
+                        "estimation error. Individual parameters are weakly identifiable in steady tracking; "
+                        "the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is what the data determine (P3).",
+                    }
+                )
         figures.append(
             {
                 "id": "articulation",
@@ -205,12 +217,14 @@ def render_case(out: Path, name: str) -> Path | None:
             }
         )
     analysis = _analysis(case, names)
+    diagnosis = [m for m in runs if m.get("detection_events") is not None]
     html = env.get_template("case.html").render(
         root="../",
         version=__version__,
         rendered=_now(),
         name=name,
         analysis=analysis,
+        diagnosis=diagnosis,
         description=case.description,
         n=case.robots.n,
         reference=case.reference.kind,

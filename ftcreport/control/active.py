@@ -1,0 +1,179 @@
+r"""Active FTC: an estimator of velocities and actuator faults, and a law that uses the estimates.
+
+Thesis section 4.2.3, (4.12)-(4.14).  Only q is measured: the velocity eta
+the engine also hands over is ignored.  With the estimator's q_hat, eta_hat,
+rho_hat, ubar_hat, the dynamic law (4.14) is::
+
+    u = (Mbar1^-1 Bbar sigma_hat)^+ [ -k_v etahat_e - T_alpha^T f_eta + Mbar1^-1 (Mbar2 etahat + Cbar)
+                                      - Mbar1^-1 Bbar ubar_hat + etadot_c ]
+
+with etahat_e = etahat - eta_c, the matrices evaluated at the measured q and
+etahat, eta_c from the kinematic law (4.12) at the measured q, and etadot_c
+the directional derivative along qdot = S(q) etahat (ERRATA P5).  Choices
+where the thesis is silent or ambiguous:
+
+* sigma_hat = clip(rho_hat, 0, 1): a gain estimate outside [0, 1] is not a
+  physical effectiveness (the issue asks for the clip);
+* the friction estimate used by the law is clipped to the actuator limit: a
+  friction beyond it cannot be compensated by any admissible u, and such values
+  occur only in the estimator's transients after a fault (ERRATA P3);
+* optional first-order filters 1/(tau s + 1) on rho_hat and ubar_hat before the
+  law (thesis 4.2.4, tau = 30 s in the three-link case), started at the
+  nominal values;
+* the control is clipped to the actuator limit, and the estimator is given the
+  clipped value (what the motors actually receive);
+* a continuous estimator (Farza) is integrated with the plant; a discrete one
+  (the UKF) runs at the sampling instants and the control is then held over
+  the sample (a sampled-data controller: measure, update, compute, hold).
+
+State: ``[kinematic state, estimator state, filtered rho and ubar (if tau),
+held u and the last sample time (discrete estimators)]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ModelError
+from ..model import kernels as K
+from ..model.chain import Chain
+from .kinematic import ChainedBackstepping, TwoLinkKinematic
+from .tracking import TrackingController, kinematic_signals, law_for_pattern, law_terms
+
+__all__ = ["ActiveController"]
+
+
+class ActiveController:
+    """Estimator-based active FTC for any n with either kinematic controller.
+
+    Parameters
+    ----------
+    chain : Chain
+        The controller's (and estimator's) model.
+    kinematic : TwoLinkKinematic or ChainedBackstepping
+    k_v : float
+        Velocity-error gain (thesis k4 / c6).
+    estimator : FarzaObserver or UKFEstimator
+    u_limit : float, optional
+        Actuator limit [N m] (thesis 5 N m); the estimator receives the clipped control.
+    tau : float, optional
+        Time constant [s] of the filters on the estimates (thesis 30 s); None: unfiltered.
+    """
+
+    def __init__(
+        self,
+        chain: Chain,
+        kinematic: TwoLinkKinematic | ChainedBackstepping,
+        k_v: float,
+        estimator,
+        u_limit: float | None = None,
+        tau: float | None = None,
+    ) -> None:
+        if tau is not None and not tau > 0:
+            raise ModelError(f"tau: filter time constant must be > 0 s, got {tau}")
+        if u_limit is not None and not u_limit > 0:
+            raise ModelError(f"u_limit: must be > 0 N m, got {u_limit}")
+        self.chain = chain
+        self.kin = kinematic
+        self.tracking = TrackingController(chain, kinematic, k_v)
+        self.k_v = float(k_v)
+        self.est = estimator
+        self.u_limit = u_limit
+        self.tau = tau
+        self.discrete_time = bool(estimator.discrete_time)
+        nw = chain.n_wheels
+        nk = kinematic.n_states
+        self._kin = slice(0, nk)
+        self._est = slice(nk, nk + estimator.n_states)
+        self._filt = slice(self._est.stop, self._est.stop + (2 * nw if tau is not None else 0))
+        self._u = slice(self._filt.stop, self._filt.stop + (nw if self.discrete_time else 0))
+        self._t = slice(self._u.stop, self._u.stop + (1 if self.discrete_time else 0))
+        self.n_states = self._t.stop
+        self.signal_names = (
+            "eta_c",
+            "z",
+            "q_d",
+            "eta_d",
+            "q_hat",
+            "eta_hat",
+            "rho_hat",
+            "ubar_hat",
+            "sigma_used",
+            "ubar_used",
+            "P_max",
+            "param_std",
+        )
+
+    # ------------------------------------------------------------------ pieces
+    def used_estimates(self, q: np.ndarray, xc: np.ndarray):
+        """(estimate, sigma_hat used by the law, ubar_hat used by the law)."""
+        e = self.est.estimates(xc[self._est], q)
+        rho, ubar = e.rho, e.ubar
+        if self.tau is not None:
+            nw = self.chain.n_wheels
+            f = xc[self._filt]
+            rho, ubar = f[:nw], f[nw:]
+        if self.u_limit is not None:
+            ubar = np.clip(ubar, -self.u_limit, self.u_limit)
+        return e, np.clip(rho, 0.0, 1.0), ubar
+
+    def control(self, t: float, q: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        """(4.14) at the measured q with the estimates in xc, clipped to the actuator limit."""
+        e, sigma_hat, ubar_hat = self.used_estimates(q, xc)
+        eta_hat = e.eta
+        kin, eta_c_dot = self.tracking.eta_c_and_dot(t, q, eta_hat, xc[self._kin])
+        Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta_hat)
+        terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta_hat, eta_hat - kin.eta_c, kin, eta_c_dot, self.k_v)
+        u = law_for_pattern(terms, sigma_hat, -terms.MB @ ubar_hat)
+        if self.u_limit is not None:
+            u = np.clip(u, -self.u_limit, self.u_limit)
+        return u
+
+    # ------------------------------------------------------------------ Controller protocol
+    def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        xc = np.zeros(self.n_states)
+        xc[self._kin] = self.kin.initial_state(t, q)
+        xc[self._est] = self.est.initial_state(q)  # only q is measured: velocity estimate starts at 0
+        if self.tau is not None:
+            nw = self.chain.n_wheels
+            xc[self._filt] = np.concatenate((np.ones(nw), np.zeros(nw)))
+        if self.discrete_time:
+            xc[self._u] = self.control(t, q, xc)
+            xc[self._t] = t
+        return xc
+
+    def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
+        dx = np.zeros(self.n_states)
+        if self.discrete_time:
+            u = xc[self._u].copy()
+        else:
+            u = self.control(t, q, xc)
+            dx[self._est] = self.est.derivative(u, q, xc[self._est])
+        if self.tau is not None:
+            e = self.est.estimates(xc[self._est], q)
+            dx[self._filt] = (np.concatenate((e.rho, e.ubar)) - xc[self._filt]) / self.tau
+        return u, dx
+
+    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        xc = xc.copy()
+        xc[self._kin] = self.kin.discrete(t, q, xc[self._kin])
+        if self.discrete_time:
+            h = t - float(xc[self._t][0])
+            if h > 0:
+                xc[self._est] = self.est.step(xc[self._est], xc[self._u], q, h)
+            xc[self._u] = self.control(t, q, xc)
+            xc[self._t] = t
+        return xc
+
+    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
+        e, sigma_hat, ubar_hat = self.used_estimates(q, xc)
+        return kinematic_signals(self.kin, t, q, xc[self._kin]) | {
+            "q_hat": e.q.copy(),
+            "eta_hat": e.eta.copy(),
+            "rho_hat": e.rho.copy(),
+            "ubar_hat": e.ubar.copy(),
+            "sigma_used": sigma_hat,
+            "ubar_used": ubar_hat.copy(),
+            "P_max": np.array(self.est.covariance_bound(xc[self._est])),
+            "param_std": self.est.parameter_std(xc[self._est]),
+        }

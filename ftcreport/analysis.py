@@ -34,6 +34,7 @@ import control
 import numpy as np
 
 from .control.kinematic import TwoLinkKinematic
+from .model import kernels as K
 from .model.chain import Chain
 from .model.faults import pattern_is_compensable
 from .references import FlatReference, unicycle
@@ -252,6 +253,113 @@ def velocity_loop(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, law:
     return rows
 
 
+# ---------------------------------------------------------------------- observer
+def measured_q_model(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray, h: float = 1e-6):
+    r"""Linearization of the plant with parameters as constant states, output y = q.
+
+    State ``[q, eta, rho, ubar]`` (N + 2 + 4n), ``rho' = ubar' = 0``; central-difference Jacobian of
+    ``q' = S(q) eta``, ``eta' = Mbar1^-1 (-Mbar2 eta - Cbar + Bbar (diag(rho) u + ubar))`` (2.70, 2.102)
+    at healthy parameters.  Returns (A, C) as arrays.
+    """
+    p = chain.params
+    N, nw = chain.n_q, chain.n_wheels
+
+    def f(x):
+        qx, ex = x[:N], x[N : N + 2]
+        rho, ubar = x[N + 2 : N + 2 + nw], x[N + 2 + nw :]
+        qd, ed = K.eta_dot(p, qx, ex, rho * u + ubar)
+        return np.concatenate((qd, ed, np.zeros(2 * nw)))
+
+    x0 = np.concatenate((q, eta, np.ones(nw), np.zeros(nw)))
+    n = x0.size
+    A = np.empty((n, n))
+    for j in range(n):
+        dx = np.zeros(n)
+        dx[j] = h
+        A[:, j] = (f(x0 + dx) - f(x0 - dx)) / (2 * h)
+    C = np.eye(N, n)
+    return A, C
+
+
+def observability(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray) -> dict:
+    """Ranks of ``control.obsv`` for the measured-q model: the state alone, and with the 4n parameters.
+
+    The state [q, eta] is observable (rank N + 2: qdot = S eta with S of full column rank).  With the
+    gains and frictions appended, the rank at a frozen instant is N + 2 + rank(Mbar1^-1 Bbar [diag(u), I])
+    <= N + 4: only two combinations of the 4n parameters are seen at each instant (ERRATA P3); the rest
+    must come from the variation of u along the motion.
+    """
+    A, C = measured_q_model(chain, q, eta, u)
+    N = chain.n_q
+    ns = N + 2
+    Os = control.obsv(A[:ns, :ns], C[:, :ns])
+    Oa = control.obsv(A, C)
+    sv = np.linalg.svd(Oa, compute_uv=False)
+    tol = sv[0] * 1e-9
+    return {
+        "state_dim": ns,
+        "state_rank": int(np.linalg.matrix_rank(Os, tol=np.linalg.svd(Os, compute_uv=False)[0] * 1e-9)),
+        "augmented_dim": A.shape[0],
+        "augmented_rank": int(np.sum(sv > tol)),
+    }
+
+
+def farza_error_poles(Theta: float, n_q: int, k0: float = 1.0, k1: float = 1.0) -> np.ndarray:
+    r"""Poles of the Farza observer's linearized state-error dynamics (parameters known, model part omitted).
+
+    With K(e) ~ k0 k1 e near 0 and the gain Theta Delta^-1 S_o^-1 C^T = [2 Theta I; Theta^2 I], each
+    coordinate's error pair obeys e1' = e2 - 2 Theta k e1, e2' = -Theta^2 k e1 (k = k0 k1): characteristic
+    polynomial s^2 + 2 Theta k s + Theta^2 k, poles Theta (-k +/- sqrt(k^2 - k)), proportional to Theta
+    (a double pole at -Theta for k = 1).  Built as a ``control.ss`` and read with ``poles()``.
+    """
+    k = k0 * k1
+    I = np.eye(n_q)
+    Z = np.zeros((n_q, n_q))
+    A = np.block([[-2 * Theta * k * I, I], [-(Theta**2) * k * I, Z]])
+    return np.sort_complex(control.ss(A, np.zeros((2 * n_q, 1)), np.eye(1, 2 * n_q), 0).poles())
+
+
+def farza_linearized_poles(obs, q: np.ndarray, qdot: np.ndarray, u: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """Poles of the full observer's state-error dynamics at zero error (model Jacobian included).
+
+    Central-difference Jacobian of the observer's xhat derivative with respect to xhat, the measured
+    q and the parameter estimates held (at the truth, healthy).  For large Theta the poles approach
+    :func:`farza_error_poles`; for small Theta the model's own dynamics shift them.
+    """
+    N = obs.N
+    s0 = obs.initial_state(q, qdot)
+    n = 2 * N
+    A = np.empty((n, n))
+    for j in range(n):
+        sp, sm = s0.copy(), s0.copy()
+        sp[j] += h
+        sm[j] -= h
+        A[:, j] = (obs.derivative(u, q, sp)[:n] - obs.derivative(u, q, sm)[:n]) / (2 * h)
+    return np.sort_complex(np.linalg.eigvals(A))
+
+
+def observer_analysis(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray, thetas=(0.5, 0.9, 1.6, 3.0, 6.0)):
+    """Observability ranks and Farza error poles against Theta at one operating point, as data."""
+    from .observers import FarzaObserver
+
+    qdot = chain.S(q) @ eta
+    rows = []
+    for th in thetas:
+        obs = FarzaObserver(chain, th, p_max=1e3)
+        full = farza_linearized_poles(obs, q, qdot, u)
+        nominal = farza_error_poles(th, chain.n_q)
+        rows.append(
+            {
+                "Theta": th,
+                "nominal_poles": [[float(z.real), float(z.imag)] for z in nominal],
+                "slowest_nominal": float(-nominal.real.max()),
+                "slowest_full": float(-full.real.max()),
+                "fastest_full": float(-full.real.min()),
+            }
+        )
+    return {"observability": observability(chain, q, eta, u), "farza_poles": rows}
+
+
 def analyze_case(case) -> dict:
     """Analyses of one validated case (see ftcreport.cases.Case), as plain data.
 
@@ -298,4 +406,12 @@ def analyze_case(case) -> dict:
         "slowest_rate": min(r["rate"] for r in stable),
         "rows": vl,
     }
+    if case.schemes.active is not None or case.schemes.active_ukf is not None:
+        # operating point: the reference at t = 0 with the healthy torque that realizes it
+        from .control.velocity import healthy_torque
+
+        r0 = ref.at(0.0)
+        u0 = healthy_torque(chain.params, r0.q_d, r0.eta_d, r0.eta_d_dot)
+        thetas = sorted({0.5, 1.0, 2.0, 4.0, *([case.schemes.active.Theta] if case.schemes.active else [])})
+        out["observer"] = observer_analysis(chain, r0.q_d, r0.eta_d, u0, thetas)
     return out

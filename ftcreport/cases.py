@@ -273,6 +273,32 @@ class Bound(_Strict):
     max: Finite | None = None
 
 
+class CampaignSpec(_Strict):
+    """Distributions a Monte Carlo campaign draws variants of the case from (ftcreport.campaign)."""
+
+    faults: tuple[Annotated[int, Field(ge=0)], Annotated[int, Field(ge=0)]] = (1, 2)  # events per sample
+    fault_time: tuple[Annotated[float, Field(ge=0)], Annotated[float, Field(ge=0)]]  # [s] uniform
+    wheels: Literal["any"] | list[str] = "any"  # wheels a fault may hit (distinct per sample)
+    sigma: tuple[Annotated[float, Field(ge=0, le=1)], Annotated[float, Field(ge=0, le=1)]] = (0.0, 0.0)
+    friction_probability: Annotated[float, Field(ge=0, le=1)] = 0.0  # a fault also adds a friction
+    ubar: tuple[Finite, Finite] = (0.0, 0.0)  # [N m] uniform
+    offset_position: Annotated[float, Field(ge=0)] = 0.0  # [m] uniform +/- on the initial x, y
+    offset_heading_deg: Annotated[float, Field(ge=0)] = 0.0  # [deg] uniform +/- on every initial heading
+    mismatch: Annotated[float, Field(ge=0, lt=1)] = 0.0  # relative +/- on the plant's m and I
+    noise_position: tuple[Annotated[float, Field(ge=0)], Annotated[float, Field(ge=0)]] = (0.0, 0.0)  # [m]
+    noise_heading: tuple[Annotated[float, Field(ge=0)], Annotated[float, Field(ge=0)]] = (0.0, 0.0)  # [rad]
+    keep_base_faults: bool = False
+    success: dict[str, Bound] = {"position_error_final": Bound(max=0.05)}  # a sample succeeds if all hold
+
+    @model_validator(mode="after")
+    def _ranges(self) -> CampaignSpec:
+        for key in ("faults", "fault_time", "sigma", "ubar", "noise_position", "noise_heading"):
+            lo, hi = getattr(self, key)
+            if lo > hi:
+                raise _FieldError(f"campaign.{key}", f"empty range [{lo}, {hi}]")
+        return self
+
+
 class Case(_Strict):
     """A validated case (see cases/README.md for every field and unit)."""
 
@@ -290,6 +316,7 @@ class Case(_Strict):
     # run outcomes that are not failures for this case (a case built to lose tracking says so)
     expected_status: list[Literal["ok", "singular", "diverged"]] = ["ok"]
     thresholds: dict[str, dict[str, Bound]] = {}
+    campaign: CampaignSpec | None = None  # distributions for `ftcreport campaign` (ignored by batch)
 
     @field_validator("faults")
     @classmethod
@@ -353,6 +380,18 @@ class Case(_Strict):
                 raise _FieldError(f"plant.mismatch.{key}", f"{len(v)} factors given, {count} needed")
         if self.initial.headings_deg is not None and len(self.initial.headings_deg) != n:
             raise _FieldError("initial.headings_deg", f"{len(self.initial.headings_deg)} values for {n} robots")
+        if self.campaign is not None:
+            if self.campaign.fault_time[1] >= self.simulation.duration:
+                raise _FieldError(
+                    "campaign.fault_time",
+                    f"upper bound must be before the end of the run ({self.simulation.duration} s)",
+                )
+            if self.campaign.wheels != "any":
+                for i, w in enumerate(self.campaign.wheels):
+                    try:
+                        wheel_index(w, n)
+                    except FtcError as exc:
+                        raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
         if not any(getattr(self.schemes, s) is not None for s in SCHEME_NAMES):
             raise _FieldError("schemes", "no scheme to run (give at least one of " + ", ".join(SCHEME_NAMES) + ")")
         for scheme, metrics in self.thresholds.items():

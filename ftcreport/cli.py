@@ -15,7 +15,7 @@ from typing import Annotated
 import typer
 
 from . import __version__
-from .errors import FtcError, NotBuiltError
+from .errors import FtcError
 
 app = typer.Typer(
     name="ftcreport",
@@ -52,10 +52,6 @@ def main(
 def _fail(exc: FtcError) -> None:
     typer.echo(f"ftcreport: error: {exc}", err=True)
     raise typer.Exit(code=getattr(exc, "exit_code", 2))
-
-
-def _not_built(command: str, issue: str) -> None:
-    _fail(NotBuiltError(f"'{command}' is not built yet ({issue}); nothing was done"))
 
 
 @app.command()
@@ -338,9 +334,53 @@ def analyze(
 
 
 @app.command()
-def campaign(case: Annotated[Path, typer.Argument(help="Base case file.")]) -> None:
-    """Monte Carlo fault campaign on a Dask cluster (not built yet)."""
-    _not_built("campaign", "issue 10")
+def campaign(
+    case: Annotated[Path, typer.Argument(help="Base case file with a [campaign] table.")],
+    samples: Annotated[int, typer.Option("--samples", "-n", help="Number of samples (variants).")] = 100,
+    seed: Annotated[int, typer.Option(help="Campaign seed; sample i uses a seed derived from (seed, i).")] = 0,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")
+    ] = None,
+    workers: Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")] = 2,
+    out: Annotated[Path | None, typer.Option(help="Output directory (default reports/campaigns/<case>).")] = None,
+    schemes: Annotated[str | None, typer.Option(help="Comma-separated schemes (default: all in the case).")] = None,
+    in_process: Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Monte Carlo fault campaign: draw variants of CASE, run every scheme on Dask, write a table and report.
+
+    Resumable: re-running with the same --out skips the samples already there.
+
+    Example: ftcreport campaign cases/two_link_campaign.toml --samples 200 --workers 2
+    """
+    from .campaign import read_table, run_campaign
+    from .cases import load_case
+    from .report.campaign import render_campaign
+
+    try:
+        base = load_case(case)
+        out_dir = out or Path("reports") / "campaigns" / base.name
+        chosen = None if schemes is None else [s.strip() for s in schemes.split(",") if s.strip()]
+        res = run_campaign(
+            base,
+            samples,
+            out_dir,
+            seed=seed,
+            schemes=chosen,
+            scheduler=scheduler,
+            workers=workers,
+            in_process=in_process,
+            show_progress=not quiet,
+        )
+        page = render_campaign(out_dir, read_table(res.table))
+    except FtcError as exc:
+        _fail(exc)
+    typer.echo(
+        f"{len(res.completed)} samples run, {res.skipped} already done, {len(res.failed)} failed "
+        f"in {res.wall_time:.1f} s; table {res.table}; report {page}"
+    )
+    if res.failed:
+        raise typer.Exit(1)
 
 
 @cases_app.command("validate")

@@ -149,3 +149,51 @@ def test_healthy_law_velocity_loop_is_stable_exactly_for_compensable_patterns(n)
     rows_k = velocity_loop(chain, q, np.array([0.5, 0.1]), 5.0, law)
     lost_1l = next(r for r in rows_k if r["pattern"] == [1, 0] + [1] * (2 * n - 2))
     assert not lost_1l["stable"]
+
+
+# ---------------------------------------------------------------------- observer (issue 8, item 5)
+def test_farza_error_poles_scale_with_theta():
+    """The high-gain error pairs are Theta (-k +/- sqrt(k^2 - k)): proportional to Theta."""
+    from ftcreport.analysis import farza_error_poles
+
+    for k0, k1 in ((1.0, 1.0), (2.0, 1.5)):
+        base = farza_error_poles(1.0, 4, k0, k1)
+        k = k0 * k1
+        expect = np.sort_complex(np.array([-k + np.sqrt(complex(k * k - k)), -k - np.sqrt(complex(k * k - k))] * 4))
+        np.testing.assert_allclose(base, expect, atol=1e-6)  # a double root is exact only to ~sqrt(eps)
+        for th in (0.5, 1.6, 3.0, 10.0):
+            np.testing.assert_allclose(farza_error_poles(th, 4, k0, k1), th * base, rtol=1e-6, atol=1e-6 * th)
+
+
+def test_full_observer_poles_approach_the_high_gain_ones():
+    """With the model Jacobian included, slowest rate / Theta -> 1 as Theta grows (and the model dominates at 0.5)."""
+    from ftcreport.analysis import farza_linearized_poles
+    from ftcreport.control.velocity import healthy_torque
+    from ftcreport.observers import FarzaObserver
+
+    chain = Chain.uniform(2, d=1.0)
+    q = np.array([0.0, 0.0, 0.2, -0.1])
+    eta = np.array([0.5, 0.3])
+    u = healthy_torque(chain.params, q, eta, np.array([0.1, -0.2]))
+    ratios = []
+    for th in (2.0, 8.0, 32.0):
+        poles = farza_linearized_poles(FarzaObserver(chain, th), q, chain.S(q) @ eta, u)
+        ratios.append(-poles.real.max() / th)
+    assert abs(ratios[-1] - 1.0) < 0.05
+    assert abs(ratios[2] - 1.0) < abs(ratios[0] - 1.0)
+
+
+def test_measured_q_observability_ranks():
+    """State observable from q; with the 4n parameters only two more directions (ERRATA P3), n = 2, 3."""
+    from ftcreport.analysis import observability
+    from ftcreport.control.velocity import healthy_torque
+
+    for n in (2, 3):
+        chain = Chain.uniform(n, d=1.0)
+        q = np.concatenate(([0.0, 0.0], np.linspace(0.1, -0.1, n)))
+        eta = np.array([0.5, 0.2])
+        u = healthy_torque(chain.params, q, eta, np.array([0.1, 0.1]))
+        ob = observability(chain, q, eta, u)
+        assert ob["state_rank"] == n + 4
+        assert ob["augmented_dim"] == n + 4 + 4 * n
+        assert ob["augmented_rank"] == n + 6

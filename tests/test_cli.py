@@ -27,13 +27,16 @@ def test_version():
 
 
 @pytest.mark.parametrize(
-    "args",
-    [["campaign", "x.toml"]],
+    ("args", "why"),
+    [
+        (["campaign", "x.toml"], "x.toml: cannot read"),
+        (["campaign", "cases/two_link_active.toml", "--in-process"], "no [campaign] table"),
+    ],
 )
-def test_unbuilt_commands_exit_2_without_traceback(args):
-    res = runner.invoke(app, args)
+def test_campaign_errors_exit_2_in_one_line(args, why, tmp_path):
+    res = runner.invoke(app, [*args, "--out", str(tmp_path / "c")])
     assert res.exit_code == 2
-    assert "not built yet" in res.output
+    assert why in res.output
     assert "Traceback" not in res.output
     assert res.exception is None or isinstance(res.exception, SystemExit)
 

@@ -40,6 +40,9 @@ SCENARIOS = [
     ("three-link switching (3.3.1.4, RK4 10 ms)", "three_link_switching.toml", "switching", 20.0),
     ("three-link adaptive (3.3.2.3, RK4 10 ms)", "three_link_adaptive.toml", "adaptive", 20.0),
     ("five-link switching, 766 models (RK4 20 ms)", "five_link_cascade.toml", "switching", 20.0),
+    ("two-link active Farza (Table 4.1, RK4 10 ms)", "two_link_active.toml", "active", 20.0),
+    ("two-link active UKF (Table 4.1, 10 ms samples)", "two_link_active.toml", "active_ukf", 20.0),
+    ("three-link active Farza (Table 4.2, RK4 20 ms)", "three_link_active.toml", "active", 40.0),
 ]
 
 

@@ -253,6 +253,105 @@ def velocity_loop(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, law:
     return rows
 
 
+# ---------------------------------------------------------------------- any closed loop, chained form
+def closed_loop_jacobian(chain: Chain, controller, t: float, q: np.ndarray, eta: np.ndarray, xc, h: float = 1e-6):
+    r"""Jacobian of the closed loop (plant + controller with its discrete state xc held) in [q, eta].
+
+    ``F(x) = [S(q) eta, etadot(q, eta, u(t, q, eta, xc))]`` by central differences of step h: the
+    linearized tracking-error dynamics e' = A(t) e about the reference point (q_d(t), eta_d(t)).
+    """
+    p = chain.params
+    N = chain.n_q
+    x0 = np.concatenate((q, eta))
+
+    def F(x):
+        u, _ = controller.evaluate(t, x[:N], x[N:], xc)
+        qd, ed = K.eta_dot(p, x[:N], x[N:], u)
+        return np.concatenate((qd, ed))
+
+    n = x0.size
+    A = np.empty((n, n))
+    for j in range(n):
+        dx = np.zeros(n)
+        dx[j] = h
+        A[:, j] = (F(x0 + dx) - F(x0 - dx)) / (2 * h)
+    return A
+
+
+def chained_circle_analysis(chain: Chain, kinematic, k_v: float, omega_d: float, steps: int = 60) -> dict:
+    r"""Linearized chained-form closed loop on a constant-curvature reference (circle), healthy wheels.
+
+    The chained form is expressed in a frame psi re-anchored to theta_nd each time |theta_nd - psi|
+    reaches the band (ERRATA-free extension, see control.kinematic), so along a circle the error
+    dynamics are not autonomous: between re-anchorings phi = theta_nd - psi sweeps [0, band] (sign
+    of omega_d), and the loop is periodic up to a rotation of the plane.  Two results:
+
+    * frozen-phi poles (the Jacobian at each phi): the pole loci over one period;
+    * the Floquet multipliers of the period, from the monodromy of e' = A(t) e integrated over the
+      period T = band / |omega_d| (RK4 on the matrix ODE) and composed with the rotation R by the
+      band (A(t + T) = R A(t) R^-1), giving the predicted convergence rate -ln rho(R^-1 Phi(T)) / T.
+    """
+    from .control.tracking import TrackingController
+
+    ref = kinematic.reference
+    ctrl = TrackingController(chain, kinematic, k_v)
+    r0 = ref.at(0.0)
+    xc = kinematic.initial_state(0.0, r0.q_d)
+    band = kinematic.band
+    T = band / abs(omega_d)
+
+    def A_at(t):
+        r = ref.at(t)
+        return closed_loop_jacobian(chain, ctrl, t, r.q_d, r.eta_d, xc)
+
+    m = chain.n_q + 2
+    frozen = []
+    for t in np.linspace(0.0, T, 7):
+        ev = np.linalg.eigvals(A_at(float(t)))
+        ev = ev[np.argsort(-ev.real)]
+        frozen.append({"phi_deg": math.degrees(omega_d * t), "poles": [[float(z.real), float(z.imag)] for z in ev]})
+    Phi = np.eye(m)
+    h = T / steps
+    t = 0.0
+    for _ in range(steps):
+        A1, A2, A4 = A_at(t), A_at(t + h / 2), A_at(t + h)
+        k1 = A1 @ Phi
+        k2 = A2 @ (Phi + h / 2 * k1)
+        k3 = A2 @ (Phi + h / 2 * k2)
+        k4 = A4 @ (Phi + h * k3)
+        Phi = Phi + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        t += h
+    R = np.eye(m)
+    c, s = math.cos(math.copysign(band, omega_d)), math.sin(math.copysign(band, omega_d))
+    R[:2, :2] = [[c, -s], [s, c]]
+    mu = np.linalg.eigvals(np.linalg.solve(R, Phi))
+    rho = float(np.abs(mu).max())
+    return {
+        "period": T,
+        "frozen": frozen,
+        "multipliers": [[float(z.real), float(z.imag)] for z in mu[np.argsort(-np.abs(mu))]],
+        "floquet_rate": -math.log(rho) / T,
+        "worst_frozen_real_part": max(f["poles"][0][0] for f in frozen),
+    }
+
+
+def _omega(case) -> float:
+    r = case.reference
+    if r.kind == "unicycle":
+        return float(r.omega_d)
+    if r.kind == "circle":
+        return (1.0 if r.ccw else -1.0) * float(r.speed) / float(r.radius)
+    return 0.0
+
+
+def _chained(case, chain: Chain, ref: FlatReference):
+    from .control.kinematic import ChainedBackstepping
+
+    k = case.kinematic
+    c = k.c_chain if isinstance(k.c_chain, list) else [k.c_chain] * chain.n
+    return ChainedBackstepping(chain.d, ref, c, k.c_alpha2, k.c_xi1, k.kappa, band=math.radians(k.band_deg), mu=k.mu)
+
+
 # ---------------------------------------------------------------------- observer
 def measured_q_model(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray, h: float = 1e-6):
     r"""Linearization of the plant with parameters as constant states, output y = q.
@@ -391,9 +490,25 @@ def analyze_case(case) -> dict:
         out["note"] = "time-varying reference: see the frozen-time poles"
         k_v0 = getattr(case.schemes, schemes[0]).k_v
         out["frozen_time"] = frozen_time_poles(ref, chain.d[0], kin.k1, kin.k2, kin.k3, k_v0, case.simulation.duration)
+    elif case.reference.kind in ("circle", "unicycle") and _omega(case) != 0.0:
+        # chained form on a constant-curvature reference: frozen poles over the re-anchoring period
+        # and the Floquet rate of the period (the same for every scheme at zero error, healthy wheels)
+        out["closed_loop_poles"] = {}
+        out["chained"] = {}
+        by_gain: dict[float, dict] = {}
+        for s in schemes:
+            k_v = getattr(case.schemes, s).k_v
+            if k_v not in by_gain:
+                by_gain[k_v] = chained_circle_analysis(chain, _chained(case, chain, ref), k_v, _omega(case))
+            res = by_gain[k_v]
+            out["chained"][s] = res
+            out["closed_loop_poles"][s] = res["frozen"][0]["poles"]
+            out["predicted_decay_rate"] = res["floquet_rate"]
     else:
         out["closed_loop_poles"] = None
-        out["note"] = "chained-form closed loops are not linearized yet"
+        out["note"] = (
+            "chained form on a reference of varying curvature: not linearized (see the Floquet analysis on circles)"
+        )
     q0 = ref.at(0.0).q_d
     k_v = next(getattr(case.schemes, s).k_v for s in schemes)
     out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v)

@@ -197,3 +197,53 @@ def test_measured_q_observability_ranks():
         assert ob["state_rank"] == n + 4
         assert ob["augmented_dim"] == n + 4 + 4 * n
         assert ob["augmented_rank"] == n + 6
+
+
+# ---------------------------------------------------------------------- chained form on a circle (item 1)
+@pytest.mark.slow
+def test_chained_circle_floquet_rate_predicts_simulated_decay():
+    """n = 3 chained form on a 5 m circle: the Floquet rate of the re-anchoring period matches the fitted
+    decay of a healthy simulation within 10 %, and the Jacobian equals python-control's linearize."""
+    from ftcreport.analysis import chained_circle_analysis, closed_loop_jacobian
+    from ftcreport.control.kinematic import ChainedBackstepping
+    from ftcreport.model import kernels as K
+    from ftcreport.references import FlatReference, circle
+    from ftcreport.sim import Plant, SimSettings, simulate
+
+    n = 3
+    chain = Chain.uniform(n, d=1.0)
+    ref = FlatReference(circle(5.0, 0.5), chain.d)
+    kin = ChainedBackstepping(chain.d, ref, [0.3] * n, 2.0, 2.0, 5.0)
+    res = chained_circle_analysis(chain, kin, 5.0, 0.1)
+    rate = res["floquet_rate"]
+    assert rate > 0
+    # frozen poles at phi = 0 are all stable; the frozen loci move toward the axis as phi grows
+    assert res["frozen"][0]["poles"][0][0] < 0
+    assert res["frozen"][-1]["poles"][0][0] > res["frozen"][0]["poles"][0][0]
+
+    ctrl = TrackingController(chain, kin, 5.0)
+    r0 = ref.at(0.0)
+    q0 = r0.q_d + np.array([0.05, -0.03, 0.02, 0.02, 0.02])
+    run = simulate(Plant(chain), ctrl, q0, r0.eta_d, SimSettings(dt=0.02, duration=45.0, log_every=5))
+    d = run["q"] - run["q_d"]
+    d[:, 2:] = np.angle(np.exp(1j * d[:, 2:]))
+    e = np.linalg.norm(d, axis=1)
+    k = (run.t >= 5.0) & (run.t <= 40.0)
+    fitted = -np.polyfit(run.t[k], np.log(e[k]), 1)[0]
+    assert abs(fitted - rate) / rate < 0.10, (fitted, rate)
+
+    t = 3.0
+    r = ref.at(t)
+    xc = kin.initial_state(0.0, r0.q_d)
+    N = chain.n_q
+
+    def upd(_t, x, _u, _params):
+        u, _ = ctrl.evaluate(t, x[:N], x[N:], xc)
+        qd, ed = K.eta_dot(chain.params, x[:N], x[N:], u)
+        return np.concatenate((qd, ed))
+
+    sys = control.nlsys(upd, None, states=N + 2, inputs=0, outputs=N + 2)
+    x0 = np.concatenate((r.q_d, r.eta_d))
+    A_pc = control.linearize(sys, x0, np.zeros(0)).A
+    A = closed_loop_jacobian(chain, ctrl, t, r.q_d, r.eta_d, xc)
+    np.testing.assert_allclose(A, A_pc, atol=1e-5 * max(1.0, np.abs(A).max()))

@@ -19,8 +19,11 @@ __all__ = [
     "SCHEME_COLORS",
     "active_svg",
     "articulation_svg",
+    "decay_svg",
     "errors_svg",
+    "fitted_decay_rate",
     "paths_svg",
+    "pole_loci_svg",
     "switching_svg",
     "torques_svg",
 ]
@@ -244,4 +247,58 @@ def active_svg(ts: dict, wheels: list[str], events: list[float], scheme: str, es
     for a in axes:
         _shade_phases(a, events)
     axes[0].set_title(f"{scheme}: estimates (solid) and truth (dashed); clipped axes, see P3 on transients")
+    return _svg(fig)
+
+
+def _error_norm(ts: dict) -> np.ndarray:
+    d = ts["q"] - ts["q_d"]
+    d[:, 2:] = np.angle(np.exp(1j * d[:, 2:]))
+    return np.linalg.norm(d, axis=1)
+
+
+def fitted_decay_rate(ts: dict, t_end: float, lo: float = 1e-7, hi: float = 1e-1) -> tuple[float, float, float] | None:
+    """Least-squares slope of log |q - q_d| (headings wrapped) where lo < error < hi, before t_end.
+
+    Returns (rate [1/s], window start, window end), or None when the window is too short.
+    """
+    t = ts["t"]
+    e = _error_norm(ts)
+    k = (t < t_end) & (e > lo) & (e < hi)
+    if k.sum() < 10 or t[k][-1] - t[k][0] < 1.0:
+        return None
+    slope = np.polyfit(t[k], np.log(e[k]), 1)[0]
+    return float(-slope), float(t[k][0]), float(t[k][-1])
+
+
+def decay_svg(ts: dict, rate: float, window: tuple[float, float], scheme: str) -> str:
+    """Simulated error norm against the predicted envelope e(t_a) exp(-rate (t - t_a))."""
+    fig, ax = plt.subplots(figsize=(6.4, 2.6))
+    t = ts["t"]
+    e = _error_norm(ts)
+    ax.semilogy(t, np.maximum(e, 1e-14), lw=1, color=SCHEME_COLORS.get(scheme, "k"), label=f"{scheme}: |q - q_d|")
+    ta, tb = window
+    ka = int(np.searchsorted(t, ta))
+    tt = np.linspace(ta, tb, 50)
+    ax.semilogy(tt, e[ka] * np.exp(-rate * (tt - ta)), "k--", lw=1.2, label=f"predicted, rate {rate:.4g} 1/s")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("error norm")
+    ax.legend(fontsize=6)
+    return _svg(fig)
+
+
+def pole_loci_svg(loci: list[tuple[float, list[list[float]]]], label: str) -> str:
+    """Pole loci in the complex plane, colored by the parameter (time or frame angle)."""
+    fig, ax = plt.subplots(figsize=(6.4, 3.0))
+    vals = [v for v, _ in loci]
+    cmap = plt.get_cmap("viridis")
+    lo, hi = (min(vals), max(vals)) if vals else (0.0, 1.0)
+    for v, poles in loci:
+        p = np.asarray(poles, dtype=float)
+        c = cmap(0.0 if hi == lo else (v - lo) / (hi - lo))
+        ax.plot(p[:, 0], p[:, 1], "x", color=c, ms=4)
+    ax.axvline(0.0, color="r", lw=0.8)
+    ax.set_xlabel("real part [1/s]")
+    ax.set_ylabel("imaginary part [1/s]")
+    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(lo, hi))
+    fig.colorbar(sm, ax=ax, label=label)
     return _svg(fig)

@@ -217,6 +217,8 @@ def render_case(out: Path, name: str) -> Path | None:
             }
         )
     analysis = _analysis(case, names)
+    if analysis is not None:
+        figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
     html = env.get_template("case.html").render(
         root="../",
@@ -265,6 +267,53 @@ def _analysis(case, names) -> dict | None:
         for r in pick
     ]
     return res
+
+
+def _analysis_figures(analysis: dict, series: dict, events: list[float], duration: float) -> list[dict]:
+    """Pole loci and the predicted envelope against the simulated decay (first fault-free phase)."""
+    figs = []
+    ft = analysis.get("frozen_time")
+    if ft:
+        step = max(1, len(ft["times"]) // 60)
+        loci = list(zip(ft["times"][::step], ft["poles"][::step], strict=True))
+        figs.append(
+            {
+                "id": "pole-loci",
+                "svg": plots.pole_loci_svg(loci, "t [s]"),
+                "caption": "Frozen-time poles of the closed-loop error dynamics along the reference "
+                "(red line: imaginary axis).",
+            }
+        )
+    ch = analysis.get("chained")
+    if ch:
+        first = next(iter(ch.values()))
+        loci = [(f["phi_deg"], f["poles"]) for f in first["frozen"]]
+        figs.append(
+            {
+                "id": "pole-loci",
+                "svg": plots.pole_loci_svg(loci, "theta_nd - psi [deg]"),
+                "caption": "Frozen poles of the chained-form loop over one re-anchoring period; the Floquet "
+                f"rate of the period is {first['floquet_rate']:.4g} 1/s.",
+            }
+        )
+    rate = analysis.get("predicted_decay_rate")
+    if rate and series:
+        scheme = "nominal" if "nominal" in series else next(iter(series))
+        t_end = min([duration, *[t for t in events if t > 0]])
+        fit = plots.fitted_decay_rate(series[scheme], t_end)
+        analysis["fitted_decay"] = None
+        if fit is not None:
+            fitted, ta, tb = fit
+            analysis["fitted_decay"] = {"scheme": scheme, "rate": fitted, "from": ta, "to": tb}
+            figs.append(
+                {
+                    "id": "decay",
+                    "svg": plots.decay_svg(series[scheme], rate, (ta, tb), scheme),
+                    "caption": f"Predicted envelope (rate {rate:.4g} 1/s) against the simulated error of the "
+                    f"{scheme} run before the first fault (fitted rate {fitted:.4g} 1/s over {ta:.0f}-{tb:.0f} s).",
+                }
+            )
+    return figs
 
 
 def render_index(out: Path) -> Path:

@@ -77,6 +77,37 @@ def scenario(case_file: str, scheme: str, seconds: float, repeats: int) -> dict:
     return {"wall_per_sim_s": statistics.median(walls) / seconds, "peak_mb": peak / 2**20, "steps": run.steps}
 
 
+def peak_rss_400s() -> dict:
+    """Peak resident memory of the 400 s Table 4.2 active run (decimated logging), in a fresh process."""
+    import subprocess
+
+    code = (
+        "import resource, sys; sys.path.insert(0, {!r})\n"
+        "from ftcreport.cases import load_case\n"
+        "from ftcreport.runner import run_scheme\n"
+        "run, m = run_scheme(load_case({!r}), 'active')\n"
+        "print(m['status'], run.t.size, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n"
+    ).format(str(ROOT), str(CASES / "three_link_active.toml"))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    return {"status": out[0], "logged_samples": int(out[1]), "peak_rss_mb": int(out[2]) / 1024}
+
+
+def batch_times() -> dict:
+    """`ftcreport batch cases/` cold (empty output directory) and warm (everything cached)."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        cmd = [sys.executable, "-m", "ftcreport.cli", "batch", str(CASES), "--out", d, "--quiet"]
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=False, capture_output=True)
+        cold = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=False, capture_output=True)
+        warm = time.perf_counter() - t0
+    return {"cold_s": cold, "warm_s": warm}
+
+
 def io_response_comparison(seconds: float) -> dict:
     """The two-link healthy closed loop: our engine vs control.input_output_response (RK45)."""
     import control
@@ -116,6 +147,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repeats, shorter runs")
     ap.add_argument("--json", type=Path, help="also write the results here")
+    ap.add_argument("--no-batch", action="store_true", help="skip the cold/warm batch and the 400 s memory run")
     args = ap.parse_args()
     repeats = 1 if args.quick else 3
     scale = 0.25 if args.quick else 1.0
@@ -134,6 +166,16 @@ def main() -> None:
         f"input_output_response {cmp_['python_control_wall_per_sim_s']:.3f} s/s (ratio {cmp_['ratio']:.2f}); "
         f"final positions differ by {cmp_['final_position_difference_m']:.1e} m"
     )
+    if not args.no_batch:
+        mem = peak_rss_400s()
+        out["memory_400s"] = mem
+        print(
+            f"400 s Table 4.2 active run: peak RSS {mem['peak_rss_mb']:.0f} MB "
+            f"({mem['logged_samples']} logged samples, every 10th step)"
+        )
+        bt = batch_times()
+        out["batch"] = bt
+        print(f"ftcreport batch cases/: cold {bt['cold_s']:.0f} s, warm {bt['warm_s']:.1f} s")
     if args.json:
         args.json.write_text(json.dumps(out, indent=2))
 

@@ -304,11 +304,14 @@ def run_campaign(
     show_progress: bool = True,
     retries: int = 2,
     on_sample: Callable[[int], None] | None = None,
+    table_every: float = 2.0,
 ) -> CampaignResult:
     """Run (or resume) a campaign of ``samples`` samples; results under ``out``.
 
     ``scheduler``: address of an existing Dask scheduler; otherwise a LocalCluster
     of ``workers`` processes on 127.0.0.1 (or this process when ``in_process``).
+    ``results.csv`` is rewritten (atomically) at most every ``table_every`` seconds
+    while samples finish, and once at the end; the per-sample files are written at once.
     """
     if base.campaign is None:
         raise CaseError(f"{base.name}: no [campaign] table: add the distributions to draw from (cases/README.md)")
@@ -334,11 +337,16 @@ def run_campaign(
     base_json = base.model_dump_json()
     wall0 = time.perf_counter()
 
+    last_table = [0.0]
+
     def store(rec: dict) -> None:
         write_atomic(_sample_path(out, rec["sample"]), json.dumps(_jsonable(rec)).encode())
         records[rec["sample"]] = rec
         res.completed.append(rec["sample"])
-        write_table(out, records.values())
+        # the table is a view of the sample files: refreshed at most every table_every seconds
+        if time.perf_counter() - last_table[0] >= table_every:
+            write_table(out, records.values())
+            last_table[0] = time.perf_counter()
         if on_sample is not None:
             on_sample(rec["sample"])
 

@@ -335,6 +335,38 @@ def chained_circle_analysis(chain: Chain, kinematic, k_v: float, omega_d: float,
     }
 
 
+def chained_frozen_time_poles(chain: Chain, kinematic, k_v: float, duration: float, samples: int = 120) -> dict:
+    """Frozen-time poles of the chained-form closed loop along any reference (healthy wheels).
+
+    At each sample time the Jacobian :func:`closed_loop_jacobian` at the reference point, with the
+    frame psi the controller would hold then (re-anchored along the reference by the controller's
+    own rule).  Indicative only, as for the two-link loop: frozen-time stability is not a proof.
+    """
+    from .control.tracking import TrackingController
+
+    ctrl = TrackingController(chain, kinematic, k_v)
+    ref = kinematic.reference
+    times = np.linspace(0.0, duration, samples)
+    xc = kinematic.initial_state(0.0, ref.at(0.0).q_d)
+    poles = []
+    for t in times:
+        r = ref.at(float(t))
+        xc = kinematic.discrete(float(t), r.q_d, xc)
+        ev = np.linalg.eigvals(closed_loop_jacobian(chain, ctrl, float(t), r.q_d, r.eta_d, xc))
+        poles.append(ev[np.argsort(-ev.real)])
+    poles = np.array(poles)
+    worst = poles.real.max(axis=1)
+    k = int(np.argmax(worst))
+    return {
+        "times": times.tolist(),
+        "worst_real_part": worst.tolist(),
+        "worst": float(worst[k]),
+        "t_worst": float(times[k]),
+        "positive_fraction": float(np.mean(worst > 0)),
+        "poles": [[[float(p.real), float(p.imag)] for p in row] for row in poles],
+    }
+
+
 def _omega(case) -> float:
     r = case.reference
     if r.kind == "unicycle":
@@ -506,9 +538,10 @@ def analyze_case(case) -> dict:
             out["predicted_decay_rate"] = res["floquet_rate"]
     else:
         out["closed_loop_poles"] = None
-        out["note"] = (
-            "chained form on a reference of varying curvature: not linearized (see the Floquet analysis on circles)"
-        )
+        out["note"] = "time-varying reference: see the frozen-time poles"
+        k_v0 = getattr(case.schemes, schemes[0]).k_v
+        span = min(case.simulation.duration, 60.0)
+        out["frozen_time"] = chained_frozen_time_poles(chain, _chained(case, chain, ref), k_v0, span, samples=60)
     q0 = ref.at(0.0).q_d
     k_v = next(getattr(case.schemes, s).k_v for s in schemes)
     out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import control
 import numpy as np
@@ -247,3 +248,15 @@ def test_chained_circle_floquet_rate_predicts_simulated_decay():
     A_pc = control.linearize(sys, x0, np.zeros(0)).A
     A = closed_loop_jacobian(chain, ctrl, t, r.q_d, r.eta_d, xc)
     np.testing.assert_allclose(A, A_pc, atol=1e-5 * max(1.0, np.abs(A).max()))
+
+
+def test_chained_frozen_time_poles_on_the_sinusoid():
+    """Three links on the thesis sinusoid (3.3.1.4): frozen-time poles stable all along (worst about -0.14)."""
+    from ftcreport.analysis import analyze_case
+    from ftcreport.cases import load_case
+
+    a = analyze_case(load_case(Path(__file__).resolve().parents[1] / "cases" / "three_link_switching.toml"))
+    ft = a["frozen_time"]
+    assert ft["positive_fraction"] == 0.0
+    assert -0.2 < ft["worst"] < -0.05
+    assert len(ft["poles"][0]) == 3 + 4  # n + 4 error states

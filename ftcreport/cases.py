@@ -545,7 +545,8 @@ def with_duration(case: Case, duration: float) -> Case:
         raise CaseError(f"{case.name}: duration override must be > 0 s, got {duration}")
     sim = case.simulation.model_copy(update={"duration": float(duration), "dt": min(case.simulation.dt, duration)})
     faults = [f for f in case.faults if f.time < duration]
-    return case.model_copy(update={"simulation": sim, "faults": faults})
+    # the campaign table's ranges refer to the full duration; a shortened run is not a campaign base
+    return case.model_copy(update={"simulation": sim, "faults": faults, "campaign": None})
 
 
 TEMPLATE = """# A case file for ftcreport (documented field by field in cases/README.md).

@@ -185,6 +185,20 @@ def pattern_controllability(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: f
     return rows
 
 
+def _frozen_summary(times: np.ndarray, poles: np.ndarray) -> dict:
+    """Frozen-time poles (samples x poles) as data: the worst real part, where, how often positive."""
+    worst = poles.real.max(axis=1)
+    k = int(np.argmax(worst))
+    return {
+        "times": times.tolist(),
+        "worst_real_part": worst.tolist(),
+        "worst": float(worst[k]),
+        "t_worst": float(times[k]),
+        "positive_fraction": float(np.mean(worst > 0)),
+        "poles": [[[float(p.real), float(p.imag)] for p in row] for row in poles],
+    }
+
+
 def frozen_time_poles(
     ref: FlatReference, d: float, k1: float, k2: float, k3: float, k_v: float, duration: float, samples: int = 200
 ) -> dict:
@@ -201,17 +215,7 @@ def frozen_time_poles(
     for t in times:
         r = ref.at(float(t))
         poles.append(np.linalg.eigvals(two_link_error_jacobian(d, r.v_d, r.omega_d, k1, k2, k3, k_v)))
-    poles = np.array(poles)
-    worst = poles.real.max(axis=1)
-    k = int(np.argmax(worst))
-    return {
-        "times": times.tolist(),
-        "worst_real_part": worst.tolist(),
-        "worst": float(worst[k]),
-        "t_worst": float(times[k]),
-        "positive_fraction": float(np.mean(worst > 0)),
-        "poles": [[[float(p.real), float(p.imag)] for p in row] for row in poles],
-    }
+    return _frozen_summary(times, np.array(poles))
 
 
 def velocity_loop(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, law: np.ndarray) -> list[dict]:
@@ -354,17 +358,7 @@ def chained_frozen_time_poles(chain: Chain, kinematic, k_v: float, duration: flo
         xc = kinematic.discrete(float(t), r.q_d, xc)
         ev = np.linalg.eigvals(closed_loop_jacobian(chain, ctrl, float(t), r.q_d, r.eta_d, xc))
         poles.append(ev[np.argsort(-ev.real)])
-    poles = np.array(poles)
-    worst = poles.real.max(axis=1)
-    k = int(np.argmax(worst))
-    return {
-        "times": times.tolist(),
-        "worst_real_part": worst.tolist(),
-        "worst": float(worst[k]),
-        "t_worst": float(times[k]),
-        "positive_fraction": float(np.mean(worst > 0)),
-        "poles": [[[float(p.real), float(p.imag)] for p in row] for row in poles],
-    }
+    return _frozen_summary(times, np.array(poles))
 
 
 def _omega(case) -> float:

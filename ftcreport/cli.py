@@ -247,7 +247,7 @@ def report(
 
     if not out.is_dir():
         _fail(FtcError(f"{out}: no stored results (run 'ftcreport batch' first)"))
-    typer.echo(f"report: {render_all(out)}")
+    typer.echo(f"report: {render_all(out, force=True)}")
 
 
 @app.command()

@@ -60,13 +60,17 @@ def test_every_case_runs_through_every_scheme(batch_dir):
 
 def test_rerun_simulates_nothing(batch_dir):
     out, first = batch_dir
+    page = out / "two_link_uncompensable" / "index.html"
+    before = page.stat().st_mtime_ns
     again = run_batch([CASES], out, jobs=2, duration=2.0, show_progress=False)
     assert again.simulated == []
     assert sorted(again.cached) == sorted(first.simulated)
+    assert page.stat().st_mtime_ns == before  # a warm batch does not re-render an unchanged page
     forced = run_batch(
         [CASES / "two_link_uncompensable.toml"], out, jobs=1, duration=2.0, force=True, show_progress=False
     )
     assert len(forced.simulated) == 3
+    assert page.stat().st_mtime_ns > before  # new runs: the page is rendered again
 
 
 def test_changed_case_is_resimulated(tmp_path):

@@ -13,6 +13,7 @@ self-contained (inline CSS, SVG, a few lines of JS for sorting): they work offli
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import math
 import tomllib
@@ -368,9 +369,44 @@ def render_index(out: Path) -> Path:
     return page
 
 
-def render_all(out: Path) -> Path:
-    """Every case page, then the index."""
+def _page_stamp(out: Path, name: str) -> str:
+    """Hash of everything a case page is made of: the record (minus its time stamp), every run's
+    metrics and time series, the templates and the package version."""
+    h = hashlib.sha256(__version__.encode())
+    rec = json.loads((out / name / "case.json").read_text())
+    rec.pop("time", None)
+    h.update(json.dumps(rec, sort_keys=True).encode())
+    for s in SCHEME_NAMES:
+        for f in ("metrics.json", "timeseries.npz"):
+            p = out / name / s / f
+            if p.exists():
+                st = p.stat()
+                h.update(f"{s}/{f}:{st.st_size}:{st.st_mtime_ns}".encode())
+    for t in sorted(resources.files("ftcreport.templates").iterdir(), key=lambda p: p.name):
+        if t.name.endswith(".html"):
+            h.update(t.read_bytes())
+    return h.hexdigest()
+
+
+def render_all(out: Path, force: bool = False) -> Path:
+    """Every case page whose inputs changed (all with ``force``), then the index.
+
+    A page is re-rendered when its stamp (:func:`_page_stamp`) differs from the one stored
+    beside it, so a warm batch (every run cached) does not redo the figures and analyses.
+    """
     out = Path(out)
     for rec_path in sorted(out.glob("*/case.json")):
-        render_case(out, rec_path.parent.name)
+        name = rec_path.parent.name
+        stamp_path = out / name / "page.stamp"
+        try:
+            stamp = _page_stamp(out, name)
+        except (OSError, ValueError):
+            stamp = None
+        page = out / name / "index.html"
+        unchanged = stamp is not None and page.exists() and stamp_path.exists() and stamp_path.read_text() == stamp
+        if unchanged and not force:
+            continue
+        render_case(out, name)
+        if stamp is not None:
+            write_atomic(stamp_path, stamp.encode())
     return render_index(out)

@@ -258,6 +258,17 @@ def velocity_loop(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, law:
 
 
 # ---------------------------------------------------------------------- any closed loop, chained form
+def central_jacobian(f, x0: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """Jacobian of f at x0 by central differences of step h (error O(h^2))."""
+    n = x0.size
+    cols = []
+    for j in range(n):
+        dx = np.zeros(n)
+        dx[j] = h
+        cols.append((f(x0 + dx) - f(x0 - dx)) / (2 * h))
+    return np.column_stack(cols)
+
+
 def closed_loop_jacobian(chain: Chain, controller, t: float, q: np.ndarray, eta: np.ndarray, xc, h: float = 1e-6):
     r"""Jacobian of the closed loop (plant + controller with its discrete state xc held) in [q, eta].
 
@@ -273,13 +284,7 @@ def closed_loop_jacobian(chain: Chain, controller, t: float, q: np.ndarray, eta:
         qd, ed = K.eta_dot(p, x[:N], x[N:], u)
         return np.concatenate((qd, ed))
 
-    n = x0.size
-    A = np.empty((n, n))
-    for j in range(n):
-        dx = np.zeros(n)
-        dx[j] = h
-        A[:, j] = (F(x0 + dx) - F(x0 - dx)) / (2 * h)
-    return A
+    return central_jacobian(F, x0, h)
 
 
 def chained_circle_analysis(chain: Chain, kinematic, k_v: float, omega_d: float, steps: int = 60) -> dict:
@@ -396,14 +401,7 @@ def measured_q_model(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray
         return np.concatenate((qd, ed, np.zeros(2 * nw)))
 
     x0 = np.concatenate((q, eta, np.ones(nw), np.zeros(nw)))
-    n = x0.size
-    A = np.empty((n, n))
-    for j in range(n):
-        dx = np.zeros(n)
-        dx[j] = h
-        A[:, j] = (f(x0 + dx) - f(x0 - dx)) / (2 * h)
-    C = np.eye(N, n)
-    return A, C
+    return central_jacobian(f, x0, h), np.eye(N, x0.size)
 
 
 def observability(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray) -> dict:
@@ -451,16 +449,15 @@ def farza_linearized_poles(obs, q: np.ndarray, qdot: np.ndarray, u: np.ndarray, 
     q and the parameter estimates held (at the truth, healthy).  For large Theta the poles approach
     :func:`farza_error_poles`; for small Theta the model's own dynamics shift them.
     """
-    N = obs.N
     s0 = obs.initial_state(q, qdot)
-    n = 2 * N
-    A = np.empty((n, n))
-    for j in range(n):
-        sp, sm = s0.copy(), s0.copy()
-        sp[j] += h
-        sm[j] -= h
-        A[:, j] = (obs.derivative(u, q, sp)[:n] - obs.derivative(u, q, sm)[:n]) / (2 * h)
-    return np.sort_complex(np.linalg.eigvals(A))
+    n = 2 * obs.N
+
+    def f(xhat):
+        s = s0.copy()
+        s[:n] = xhat
+        return obs.derivative(u, q, s)[:n]
+
+    return np.sort_complex(np.linalg.eigvals(central_jacobian(f, s0[:n], h)))
 
 
 def observer_analysis(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray, thetas=(0.5, 0.9, 1.6, 3.0, 6.0)):

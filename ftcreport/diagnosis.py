@@ -35,7 +35,15 @@ from .model import kernels as K
 from .model.chain import Chain
 from .model.faults import FaultSchedule, wheel_names
 
-__all__ = ["Declaration", "combined_effect", "detect", "diagnosis_metrics", "match_events", "true_events"]
+__all__ = [
+    "Declaration",
+    "combined_effect",
+    "detect",
+    "diagnosis_metrics",
+    "input_matrices",
+    "match_events",
+    "true_events",
+]
 
 
 @dataclass(frozen=True)
@@ -162,14 +170,22 @@ def match_events(declarations: list[Declaration], events: list[dict], t_end: flo
     return {"events": matched, "false_alarms": false, "early_declarations": early}
 
 
-def combined_effect(chain: Chain, q: np.ndarray, u: np.ndarray, rho: np.ndarray, ubar: np.ndarray) -> np.ndarray:
-    """Mbar1^-1 Bbar (diag(rho) u + ubar) at each logged instant, (K, 2): what the actuators accelerate."""
-    out = np.empty((q.shape[0], 2))
-    eta0 = np.zeros(2)  # Mbar1 and Bbar depend on q only
+def input_matrices(chain: Chain, q: np.ndarray) -> np.ndarray:
+    """Mbar1^-1 Bbar at each logged configuration, (K, 2, 2n) (both depend on q only)."""
+    eta0 = np.zeros(2)
+    out = np.empty((q.shape[0], 2, chain.n_wheels))
     for k in range(q.shape[0]):
         Mbar1, _, _, Bbar = K.reduced(chain.params, q[k], eta0)
-        out[k] = np.linalg.solve(Mbar1, Bbar @ (rho[k] * u[k] + ubar[k]))
+        out[k] = np.linalg.solve(Mbar1, Bbar)
     return out
+
+
+def combined_effect(MB: np.ndarray, u: np.ndarray, rho: np.ndarray, ubar: np.ndarray) -> np.ndarray:
+    """Mbar1^-1 Bbar (diag(rho) u + ubar) at each logged instant, (K, 2): what the actuators accelerate.
+
+    ``MB`` from :func:`input_matrices`.
+    """
+    return np.einsum("kij,kj->ki", MB, rho * u + ubar)
 
 
 def diagnosis_metrics(
@@ -202,8 +218,9 @@ def diagnosis_metrics(
     out["fault_estimation_error_final"] = float(err_final.max())
     out["fault_estimation_errors_final"] = dict(zip(names, err_final.tolist(), strict=True))
     u_applied = signals["u"] if u_limit is None else np.clip(signals["u"], -u_limit, u_limit)
-    ce_hat = combined_effect(chain, q, u_applied, signals["rho_hat"], signals["ubar_hat"])
-    ce_true = combined_effect(chain, q, u_applied, signals["sigma"], signals["ubar"])
+    MB = input_matrices(chain, q)
+    ce_hat = combined_effect(MB, u_applied, signals["rho_hat"], signals["ubar_hat"])
+    ce_true = combined_effect(MB, u_applied, signals["sigma"], signals["ubar"])
     out["combined_effect_error_rms"] = float(np.sqrt(np.mean((ce_hat[after] - ce_true[after]) ** 2)))
     out["combined_effect_rms"] = float(np.sqrt(np.mean(ce_true[after] ** 2)))
     decl = detect(t, est[:, cols], names, gain_band, friction_band, dwell, settle_band)

@@ -119,6 +119,10 @@ class ActiveController:
 
     def control(self, t: float, q: np.ndarray, xc: np.ndarray) -> np.ndarray:
         """(4.14) at the measured q with the estimates in xc, clipped to the actuator limit."""
+        return self._control(t, q, xc)[0]
+
+    def _control(self, t: float, q: np.ndarray, xc: np.ndarray):
+        """(u, the raw estimate it was computed from)."""
         e, sigma_hat, ubar_hat = self.used_estimates(q, xc)
         eta_hat = e.eta
         kin, eta_c_dot = self.tracking.eta_c_and_dot(t, q, eta_hat, xc[self._kin])
@@ -127,7 +131,7 @@ class ActiveController:
         u = law_for_pattern(terms, sigma_hat, -terms.MB @ ubar_hat)
         if self.u_limit is not None:
             u = np.clip(u, -self.u_limit, self.u_limit)
-        return u
+        return u, e
 
     # ------------------------------------------------------------------ Controller protocol
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
@@ -146,11 +150,11 @@ class ActiveController:
         dx = np.zeros(self.n_states)
         if self.discrete_time:
             u = xc[self._u].copy()
+            e = self.est.estimates(xc[self._est], q) if self.tau is not None else None
         else:
-            u = self.control(t, q, xc)
+            u, e = self._control(t, q, xc)
             dx[self._est] = self.est.derivative(u, q, xc[self._est])
         if self.tau is not None:
-            e = self.est.estimates(xc[self._est], q)
             dx[self._filt] = (np.concatenate((e.rho, e.ubar)) - xc[self._filt]) / self.tau
         return u, dx
 

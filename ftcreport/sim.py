@@ -283,8 +283,9 @@ def simulate(
     eta0: np.ndarray,
     settings: SimSettings,
     progress: Callable[[float], None] | None = None,
+    engine: str = "auto",
 ) -> Run:
-    """Integrate plant and controller with fixed-step RK4.
+    """Integrate plant and controller with fixed-step RK4 or ROS2.
 
     Parameters
     ----------
@@ -297,6 +298,11 @@ def simulate(
     settings : SimSettings
     progress : callable, optional
         Called with the simulated time now and then (every ~1 % of the run).
+    engine : str
+        ``"python"``: the loop below (the reference implementation);
+        ``"compiled"``: the same loop in machine code (:mod:`ftcreport.fast`),
+        for the controllers it knows; ``"auto"`` (default): compiled when the
+        controller has a compiled counterpart, else Python.
 
     Returns
     -------
@@ -320,6 +326,16 @@ def simulate(
     n_log = log_idx.shape[0]
     is_logged = np.zeros(n_steps + 1, dtype=bool)
     is_logged[log_idx] = True
+    if engine not in ("auto", "python", "compiled"):
+        raise ModelError(f"engine: must be 'auto', 'python' or 'compiled', got {engine!r}")
+    if engine != "python":
+        from .fast.engine import compiled_spec, simulate_compiled
+
+        spec = compiled_spec(controller)
+        if spec is not None:
+            return simulate_compiled(spec, plant, q0, eta0, settings, grid, log_idx, progress)
+        if engine == "compiled":
+            raise ModelError(f"engine: {type(controller).__name__} has no compiled counterpart")
 
     xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
     x = np.concatenate((q0, eta0, xc0))

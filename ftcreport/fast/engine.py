@@ -1,0 +1,381 @@
+r"""The compiled engine: sim.simulate's loop, run by ftcreport.fast.kernels.
+
+:func:`compiled_spec` reads a controller built by the Python modules (the
+reference implementation) into the plain arrays the kernels take, or returns
+None when the controller has no compiled counterpart (the UKF's discrete
+estimator, user-defined controllers): :func:`ftcreport.sim.simulate` then runs
+the Python loop.  :func:`simulate_compiled` runs the same steps in the same
+order (fault sampling, noise, checks, logging, RK4 or ROS2, discrete updates)
+and builds the same :class:`~ftcreport.sim.Run`; the signals that are plain
+functions of the logged state (switching costs, adaptive weights, the
+observer's P) are computed here, vectorized, from the log.
+
+The loop runs in chunks of about 1 % of the steps so that the progress
+callback is called as often as in the Python loop.  numba compiles the kernels
+on first use and caches the machine code beside the package (``__pycache__``):
+a fresh clone builds the cache on its first run (:func:`warm_up` does it
+explicitly and reports the time).
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from typing import NamedTuple
+
+import numpy as np
+
+from ..control.active import ActiveController
+from ..control.adaptive import AdaptiveController
+from ..control.baselines import OracleController
+from ..control.kinematic import ChainedBackstepping, TwoLinkKinematic
+from ..control.switching import SwitchingController
+from ..control.tracking import TrackingController
+from ..observers.farza import FarzaObserver
+from ..references import FlatReference, TrigPath
+from . import kernels as F
+
+__all__ = ["Spec", "compiled_spec", "simulate_compiled", "warm_up"]
+
+NAN = float("nan")
+
+
+class Spec(NamedTuple):
+    """Everything the kernels need of a controller (see ftcreport.fast.kernels)."""
+
+    kin: F.Kin
+    ref: F.Ref
+    law: F.Law
+    obs: F.Obs
+    chain: F.Chain
+    n_sig: int
+    controller: object
+
+
+def _chain(params) -> F.Chain:
+    return F.Chain(
+        int(params.n),
+        *(np.ascontiguousarray(v, dtype=float) for v in (params.a, params.b, params.r, params.m, params.I)),
+        np.ascontiguousarray(params.d, dtype=float).reshape(-1),
+        float(params.m_total),
+        np.ascontiguousarray(params.h, dtype=float),
+        np.ascontiguousarray(params.G, dtype=float),
+        np.ascontiguousarray(params.D, dtype=float),
+    )
+
+
+def _terms(terms) -> np.ndarray:
+    return np.array([list(t) for t in terms], dtype=float).reshape(-1, 3)
+
+
+def _ref(ref: FlatReference) -> F.Ref | None:
+    path = ref.path
+    if type(path) is not TrigPath:
+        return None
+    return F.Ref(
+        int(ref.n),
+        float(path.x0),
+        float(path.y0),
+        float(path.vx),
+        float(path.vy),
+        _terms(path.x_terms),
+        _terms(path.y_terms),
+        float(path.rotation),
+        float(path.origin[0]),
+        float(path.origin[1]),
+        np.ascontiguousarray(ref.d, dtype=float).reshape(-1),
+        int(ref.order),
+        float(ref.max_articulation),
+        float(ref.min_speed),
+    )
+
+
+def _kin(kin, h: float) -> F.Kin | None:
+    if type(kin) is TwoLinkKinematic:
+        e1 = np.zeros(1)
+        return F.Kin(
+            F.KIN_TWO_LINK, 2, kin.d, kin.k1, kin.k2, kin.k3, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
+            np.zeros((1, 1)), e1, e1, 1.0, float(h), 0,
+        )  # fmt: skip
+    if type(kin) is ChainedBackstepping:
+        return F.Kin(
+            F.KIN_CHAINED, kin.n, 0.0, 0.0, 0.0, 0.0, kin.c_alpha2, kin.c_xi1, kin.kappa, kin.band, kin.mu,
+            kin.singular_tol, np.ascontiguousarray(kin.L), np.ascontiguousarray(kin.LN_last, dtype=float),
+            np.ascontiguousarray(kin.Dscale, dtype=float), float(kin.rho), float(h), 1,
+        )  # fmt: skip
+    return None
+
+
+def _law(kind, ctrl, nw: int, **kw) -> F.Law:
+    base = dict(
+        kind=kind, k_v=float(ctrl.k_v), sigma=np.ones(nw), patterns=np.zeros((0, nw)), gamma=0.0, T_min=0.0,
+        c_inst=0.0, c_int=0.0, forgetting=0.0, hysteresis=0.0, u_limit=NAN, hat0=0, int0=0, n_int=0, sel=0,
+        tsw=0, chi0=0, uf0=0, Gamma_f=np.zeros((nw, nw)), adapt=0, n_states=int(ctrl.n_states),
+    )  # fmt: skip
+    base.update(kw)
+    return F.Law(**base)
+
+
+def _no_obs() -> F.Obs:
+    z = np.zeros((1, 1))
+    return F.Obs(1.0, 1.0, 1.0, NAN, 0, 0, 0, 1.0, NAN, z, z, 0, 0, 0)
+
+
+def compiled_spec(controller) -> Spec | None:
+    """The kernels' description of a controller, or None if it has no compiled counterpart."""
+    kin_obj = getattr(controller, "kin", None)
+    chain = getattr(controller, "chain", None)
+    if kin_obj is None or chain is None or not isinstance(getattr(kin_obj, "reference", None), FlatReference):
+        return None
+    ref = _ref(kin_obj.reference)
+    tracking = controller if isinstance(controller, TrackingController) else getattr(controller, "tracking", None)
+    if ref is None or tracking is None:
+        return None
+    kin = _kin(kin_obj, tracking.h)
+    if kin is None:
+        return None
+    nw = chain.n_wheels
+    N = chain.n_q
+    n_kin = 4 + len(kin_obj.z_names) + N + 2  # eta_c, eta_c_dot, z, q_d, eta_d
+    obs = _no_obs()
+    n_sig = n_kin
+    ulim = lambda v: NAN if v is None else float(v)  # noqa: E731
+    cls = type(controller)
+    if cls is OracleController:
+        law = _law(F.LAW_ORACLE, controller, nw)
+    elif cls is TrackingController:
+        law = _law(F.LAW_TRACKING, controller, nw, sigma=np.ascontiguousarray(controller.sigma, dtype=float))
+    elif cls is SwitchingController:
+        c = controller
+        law = _law(
+            F.LAW_SWITCHING, c, nw, patterns=np.ascontiguousarray(c.patterns), gamma=c.gamma, T_min=c.T_min,
+            c_inst=c.c_inst, c_int=c.c_int, forgetting=c.forgetting, hysteresis=c.hysteresis,
+            u_limit=ulim(c.u_limit), hat0=c._hat.start, int0=c._int.start, n_int=c._int.stop - c._int.start,
+            sel=c._sel, tsw=c._tsw,
+        )  # fmt: skip
+    elif cls is AdaptiveController:
+        c = controller
+        law = _law(
+            F.LAW_ADAPTIVE, c, nw, patterns=np.ascontiguousarray(c.patterns), gamma=c.gamma,
+            chi0=c._chi.start, uf0=c._uf.start, Gamma_f=np.ascontiguousarray(c.Gamma_f, dtype=float),
+            adapt=int(c.adapt),
+        )  # fmt: skip
+    elif cls is ActiveController and type(controller.est) is FarzaObserver:
+        c, o = controller, controller.est
+        law = _law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit))
+        obs = F.Obs(
+            o.Theta, o.k0, o.k1, NAN if o.p_max is None else float(o.p_max), int(o.est_rho), int(o.est_ubar),
+            o.p, o.sign, NAN if c.tau is None else float(c.tau), np.ascontiguousarray(o.AY),
+            np.ascontiguousarray(o.Soinv), c._est.start, c._est.stop - c._est.start, c._filt.start,
+        )  # fmt: skip
+        n_sig = n_kin + N + 2 + 4 * nw
+    else:
+        return None
+    return Spec(kin, ref, law, obs, _chain(chain.params), n_sig, controller)
+
+
+# --------------------------------------------------------------------------- signals from the log
+def _split_signals(spec: Spec, sg: np.ndarray, xc: np.ndarray, meas: np.ndarray, nq: int) -> dict[str, np.ndarray]:
+    """The controller's named signals (its ``signal_names``) from the compiled log."""
+    c = spec.controller
+    nz = len(c.kin.z_names)
+    cols = {"eta_c": (0, 2), "eta_c_dot": (2, 4), "z": (4, 4 + nz), "q_d": (4 + nz, 4 + nz + nq)}
+    cols["eta_d"] = (4 + nz + nq, 6 + nz + nq)
+    out: dict[str, np.ndarray] = {}
+    k = 6 + nz + nq
+    nw = c.chain.n_wheels
+    if isinstance(c, ActiveController):
+        for name, width in (("q_hat", nq), ("eta_hat", 2), ("rho_hat", nw), ("ubar_hat", nw)):
+            cols[name] = (k, k + width)
+            k += width
+        cols["sigma_used"] = (k, k + nw)
+        cols["ubar_used"] = (k + nw, k + 2 * nw)
+        o = c.est
+        P = xc[:, c._est][:, o._P].reshape(-1, o.p, o.p)
+        out["P_max"] = np.linalg.eigvalsh(P).max(axis=1) if len(P) else np.zeros(0)
+        out["param_std"] = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
+    for name, (a, b) in cols.items():
+        out[name] = sg[:, a:b].copy()
+    if isinstance(c, SwitchingController):
+        eta = meas[:, nq : nq + 2]
+        hat = xc[:, c._hat].reshape(len(xc), c.N, 2)
+        err = eta[:, None, :] - hat
+        J = c.c_inst * np.einsum("kij,kij->ki", err, err)
+        if c.c_int > 0:
+            J = J + c.c_int * xc[:, c._int]
+        out["selected"] = np.round(xc[:, c._sel]).astype(float)
+        out["cost"] = J
+    if isinstance(c, AdaptiveController):
+        out["chi_hat"] = xc[:, c._chi].reshape(len(xc), c.N, nw).copy()
+        out["uf_hat"] = xc[:, c._uf].copy()
+    return {name: out[name] for name in c.signal_names}
+
+
+# --------------------------------------------------------------------------- errors
+def _message(info: np.ndarray, t: float, settings, ref: F.Ref) -> tuple[str, str]:
+    """(status, reason) of the Python engine for a kernel error code."""
+    code = int(info[0])
+    a, b, c = (float(v) for v in info[1:4])
+    if code == F.E_STATE_SINGULAR:
+        i = int(a)
+        return "singular", (
+            f"articulation angle theta_{i + 1} - theta_{i + 2} reached {b:.2f} deg "
+            f"(within {math.degrees(settings.singularity_margin):.2g} deg of 90 deg)"
+        )
+    if code == F.E_NONFINITE_STATE:
+        return "diverged", f"non-finite state at t = {a:.6g} s"
+    if code == F.E_NONFINITE_DERIV:
+        return "diverged", f"non-finite control or derivative at t = {a:.6g} s"
+    if code == F.E_SPEED:
+        return "diverged", f"velocity {[a, b]} exceeds the bound {settings.max_speed}"
+    if code == F.E_POSITION:
+        return "diverged", f"position {[a, b]} exceeds the bound {settings.max_position} m"
+    if code == F.E_TWO_LINK_ETH:
+        return "singular", f"two-link controller singular: heading error e_theta = {a:.1f} deg"
+    if code == F.E_TWO_LINK_PHI:
+        return "singular", f"two-link controller singular: theta_1 - theta_2 = {a:.1f} deg"
+    if code == F.E_CHAINED_THN:
+        return "singular", f"chained form singular: theta_n = {a:.2f} deg in its frame"
+    if code == F.E_CHAINED_ART:
+        i = int(a)
+        return "singular", f"chained form singular: theta_{i + 1} - theta_{i + 2} = {b:.2f} deg"
+    if code == F.E_KAPPA:
+        return "singular", f"backstepping singular: kappa - Delta_1 = {a:.3g} (ERRATA E12d)"
+    if code == F.E_REF_SPEED:
+        return "error", (
+            f"infeasible reference at t = {a:.4g} s: the speed of P_{int(b)} is {c:.3g} m/s "
+            f"(below {ref.min_speed:g}); the chain needs v_d != 0"
+        )
+    if code == F.E_REF_ART:
+        i = int(b)
+        return "error", (
+            f"infeasible reference at t = {a:.4g} s: articulation angle theta_{i + 1} - theta_{i + 2} "
+            f"= {c:.1f} deg exceeds {math.degrees(ref.max_art):.0f} deg (path too curved for these link lengths)"
+        )
+    return "error", f"compiled engine: unknown error code {code} at t = {t:.6g} s"
+
+
+# --------------------------------------------------------------------------- the loop
+def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, progress=None):
+    """sim.simulate on the compiled kernels; returns a :class:`~ftcreport.sim.Run`."""
+    from ..sim import Run
+
+    controller = spec.controller
+    chain = plant.chain
+    nq, nw, nc = chain.n_q, chain.n_wheels, int(controller.n_states)
+    n_steps = grid.shape[0] - 1
+    n_log = log_idx.shape[0]
+    is_logged = np.zeros(n_steps + 1, dtype=np.bool_)
+    is_logged[log_idx] = True
+
+    # fault values held over each step: the schedule is piecewise constant between its event times
+    times = np.array(sorted(set(float(v) for v in plant.faults.times)), dtype=float)
+    seg = np.searchsorted(times, grid, side="right")
+    firsts = np.unique(seg, return_index=True)[1]
+    table = [plant.faults.at(float(grid[k])) for k in firsts]
+    fsig = np.array([np.asarray(s, float) for s, _ in table]).reshape(-1, nw)
+    fubar = np.array([np.asarray(u, float) for _, u in table]).reshape(-1, nw)
+    fidx = np.searchsorted(np.unique(seg), seg).astype(np.int64)
+    # one draw per step, in order: the same stream as the Python loop's per-step draws
+    if plant.noisy:
+        rng = np.random.default_rng(plant.seed)
+        noise = rng.standard_normal((n_steps + 1, nq + 2)) * plant.noise_std
+    else:
+        noise = np.zeros((1, nq + 2))
+
+    xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
+    x = np.concatenate((q0, eta0, xc0))
+    lq = np.full((n_log, nq), np.nan)
+    leta = np.full((n_log, 2), np.nan)
+    lu = np.full((n_log, nw), np.nan)
+    ltau = np.full((n_log, nw), np.nan)
+    lsig = np.full((n_log, nw), np.nan)
+    lubar = np.full((n_log, nw), np.nan)
+    lxc = np.full((n_log, nc), np.nan)
+    lmeas = np.full((n_log if plant.noisy else 0, nq + 2), np.nan)
+    lsg = np.full((n_log, spec.n_sig), np.nan)
+    lt = np.full(n_log, np.nan)
+    info = np.zeros(4)
+    sat = NAN if plant.saturation is None else float(plant.saturation)
+    diag = np.zeros(nq + 2 + nc)
+    stiff = getattr(controller, "stiff_diagonal", None)
+    if stiff is not None:
+        diag[nq + 2 :] = np.asarray(stiff, dtype=float)
+    method = 0 if settings.method == "rk4" else 1
+    lim = math.sin(settings.singularity_margin)
+    pp = _chain(chain.params)
+    chunk = max(1, n_steps // 100)
+    li = 0
+    k = 0
+    status, reason = "ok", ""
+    t_end = float(grid[0])
+    wall0 = _time.perf_counter()
+    with np.errstate(all="ignore"):
+        while True:
+            k1 = min(k + chunk - 1, n_steps)
+            x, k_last, li, next_ = F.run_steps(
+                spec.kin, spec.ref, spec.law, spec.obs, spec.chain, pp,
+                grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
+                x, k, k1, is_logged, li,
+                lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info,
+            )  # fmt: skip
+            if info[0] != 0:
+                t_end = float(grid[k_last + 1] if next_ else grid[k_last])
+                status, reason = _message(info, t_end, settings, spec.ref)
+                k = k_last
+                break
+            k = k_last
+            t_end = float(grid[k])
+            if k >= n_steps:
+                break
+            if progress is not None:
+                progress(float(grid[k + 1]))
+            k += 1
+    wall = _time.perf_counter() - wall0
+    if progress is not None:
+        progress(t_end)
+    logs = {
+        "q": lq[:li], "eta": leta[:li], "u": lu[:li], "tau": ltau[:li], "sigma": lsig[:li],
+        "ubar": lubar[:li], "xc": lxc[:li],
+    }  # fmt: skip
+    meas = lmeas[:li] if plant.noisy else np.concatenate((logs["q"], logs["eta"]), axis=1)
+    logs |= _split_signals(spec, lsg[:li], logs["xc"], meas, nq)
+    if plant.noisy:
+        logs["q_meas"] = meas[:, :nq].copy()
+    return Run(
+        t=lt[:li],
+        signals=logs,
+        status=status,
+        reason=reason,
+        t_end=t_end,
+        steps=int(k),
+        wall_time=wall,
+        meta={
+            "dt": settings.dt,
+            "duration": settings.duration,
+            "log_every": int(settings.log_every),
+            "engine": "compiled",
+        },
+    )
+
+
+def warm_up() -> float:
+    """Compile (or load from the cache) every kernel on a tiny run; returns the seconds it took."""
+    from ..control.kinematic import ChainedBackstepping, TwoLinkKinematic
+    from ..model import Chain
+    from ..references import FlatReference, circle
+    from ..sim import Plant, SimSettings, simulate
+
+    t0 = _time.perf_counter()
+    for n in (2, 3):
+        chain = Chain.uniform(n)
+        ref = FlatReference(circle(5.0, 0.5), chain.d)
+        if n == 2:
+            kin = TwoLinkKinematic(chain.d[0], ref, 1.0, 1.0, 1.0)
+        else:
+            kin = ChainedBackstepping(chain.d, ref, [0.3] * n, 1.0, 1.0, 5.0)
+        q0 = ref.at(0.0).q_d
+        for ctrl in (TrackingController(chain, kin, 5.0), SwitchingController(chain, kin, 5.0)):
+            for method in ("rk4", "ros2"):
+                simulate(Plant(chain), ctrl, q0, np.array([0.5, 0.0]), SimSettings(0.01, 0.03, method=method))
+    return _time.perf_counter() - t0

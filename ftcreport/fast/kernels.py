@@ -1,0 +1,1338 @@
+r"""Compiled (numba) closed loop: the equations of the Python engine in one machine-code loop.
+
+Every function here implements an equation that the pure-Python modules
+implement and document (model/kernels.py, references.py, control/*.py,
+observers/farza.py, sim.py); the docstrings name those.  The Python modules
+stay the reference implementation: tests/test_fast.py runs both on every
+scheme and compares them (golden runs).  Nothing here does I/O.
+
+Differences of method (not of equations):
+
+* The chained-form coordinates xi = phi(q) and T_alpha (Theorem 2.1, model/
+  chained.py derives them with sympy) are computed numerically: xi_(k-1) is the
+  derivative of xi_k with respect to x along g1 / cos(theta_n), so
+  ``xi_(m-j) = j! y_j`` where ``y_j`` are the Taylor coefficients in s = x of y
+  along the flow ``dtheta_(i+1)/ds = sec(theta_n) w_(i+1) tan(phi_i) / d_i``,
+  ``dy/ds = tan(theta_n)`` (theta_1 constant: g1 does not move it).  Those are
+  computed by Taylor-mode differentiation (one coefficient at a time).  Then
+  ``T21 = cos(theta_n) (n+1)! y_(n+1)`` and, because xi_2 depends on theta_1 only
+  through the newest coefficient of each robot in turn,
+  ``T22 = sec^2(theta_n) sec^(n-1)(theta_n) prod_(i=1)^(n-1) w_(i+1) sec^2(phi_i) / d_i``.
+  Both agree with the sympy derivation to round-off (tested for n = 2..6).
+* 2 x 2 systems are solved in closed form, small products by loops: results
+  differ from numpy/LAPACK in the last bits only.
+
+Errors are reported through ``info`` (a float array): ``info[0]`` is a code
+(``E_*`` below, 0 = none) and ``info[1:4]`` its numbers; the engine turns them
+into the messages of the Python engine.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+jit = njit(cache=True, nogil=True, error_model="numpy")
+
+# error codes (info[0])
+E_OK = 0
+E_STATE_SINGULAR = 1  # info: link index i (0-based), angle [deg]
+E_NONFINITE_STATE = 2
+E_NONFINITE_DERIV = 3
+E_SPEED = 4
+E_POSITION = 5
+E_TWO_LINK_ETH = 6  # info: e_theta [deg]
+E_TWO_LINK_PHI = 7  # info: phi [deg]
+E_CHAINED_THN = 8  # info: theta_n in frame [deg]
+E_CHAINED_ART = 9  # info: link index, angle [deg]
+E_KAPPA = 10  # info: kappa - Delta_1
+E_REF_SPEED = 11  # info: t, robot (1-based), speed
+E_REF_ART = 12  # info: t, link index, angle [deg]
+
+LAW_TRACKING = 0
+LAW_ORACLE = 1
+LAW_SWITCHING = 2
+LAW_ADAPTIVE = 3
+LAW_ACTIVE = 4
+
+KIN_TWO_LINK = 0
+KIN_CHAINED = 1
+
+
+class Chain(NamedTuple):
+    """Constant arrays of a chain (as model.kernels.ChainParams, numba-typed)."""
+
+    n: int
+    a: np.ndarray
+    b: np.ndarray
+    r: np.ndarray
+    m: np.ndarray
+    I: np.ndarray
+    d: np.ndarray
+    m_total: float
+    h: np.ndarray
+    G: np.ndarray
+    D: np.ndarray
+
+
+class Ref(NamedTuple):
+    """A FlatReference on a TrigPath (references.py)."""
+
+    n: int
+    x0: float
+    y0: float
+    vx: float
+    vy: float
+    xterms: np.ndarray  # (k, 3): amplitude, frequency, phase
+    yterms: np.ndarray
+    rot: float
+    ox: float
+    oy: float
+    d: np.ndarray
+    order: int
+    max_art: float
+    min_speed: float
+
+
+class Kin(NamedTuple):
+    """Kinematic controller: two-link (3.8-3.29) or chained backstepping (3.67-3.106)."""
+
+    kind: int
+    n: int
+    d2: float
+    k1: float
+    k2: float
+    k3: float
+    c_alpha2: float
+    c_xi1: float
+    kappa: float
+    band: float
+    mu: float
+    singular_tol: float
+    L: np.ndarray  # (p, p)
+    LN_last: np.ndarray  # (p,)
+    Dscale: np.ndarray  # (p,)
+    rho: float
+    h: float  # step of the etadot_c central difference
+    nk: int  # kinematic states (0 or 1)
+
+
+class Law(NamedTuple):
+    """Dynamic law and its state layout (tracking, oracle, switching, adaptive, active)."""
+
+    kind: int
+    k_v: float
+    sigma: np.ndarray  # (nw,) tracking pattern
+    patterns: np.ndarray  # (N, nw)
+    gamma: float
+    T_min: float
+    c_inst: float
+    c_int: float
+    forgetting: float
+    hysteresis: float
+    u_limit: float  # nan: none
+    hat0: int
+    int0: int
+    n_int: int
+    sel: int
+    tsw: int
+    chi0: int
+    uf0: int
+    Gamma_f: np.ndarray  # (nw, nw)
+    adapt: int
+    n_states: int
+
+
+class Obs(NamedTuple):
+    """Farza observer (observers/farza.py) and the active law's filters (control/active.py)."""
+
+    Theta: float
+    k0: float
+    k1: float
+    p_max: float  # nan: the printed law
+    est_rho: int
+    est_ubar: int
+    p: int
+    sign: float
+    tau: float  # nan: unfiltered
+    AY: np.ndarray  # (2N, 2N)
+    Soinv: np.ndarray  # (2N, 2N)
+    est0: int
+    est_n: int
+    filt0: int
+
+
+class Cache(NamedTuple):
+    """The reference side of the kinematic law at t, t + h, t - h (rows 0, 1, 2), memoized.
+
+    ``f = [t, psi, valid]``; rows hold q_d, eta_d, eta_d_dot, (v_d, omega_d, v_d_dot,
+    omega_d_dot) and, for the chained law, xi_d and T_d in the frame psi.  The RK4
+    stages k2, k3 and k4, the discrete update and the next k1 ask for the same
+    instants (the Python reference memoizes them the same way).
+    """
+
+    f: np.ndarray  # (3,)
+    QD: np.ndarray  # (3, N)
+    ED: np.ndarray  # (3, 2)
+    EDD: np.ndarray  # (3, 2)
+    SC: np.ndarray  # (3, 4)
+    XID: np.ndarray  # (3, m)
+    TD: np.ndarray  # (3, 2, 2)
+
+
+@jit
+def new_cache(n):
+    N = n + 2
+    return Cache(
+        np.zeros(3), np.zeros((3, N)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 4)), np.zeros((3, N)),
+        np.zeros((3, 2, 2)),
+    )  # fmt: skip
+
+
+# =========================================================================== helpers
+@jit
+def _wrap(a):
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@jit
+def _solve2(A, b):
+    """x with A x = b for a 2 x 2 A (closed form)."""
+    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    x = np.empty(2)
+    x[0] = (A[1, 1] * b[0] - A[0, 1] * b[1]) / det
+    x[1] = (A[0, 0] * b[1] - A[1, 0] * b[0]) / det
+    return x
+
+
+@jit
+def _inv2(A):
+    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    out = np.empty((2, 2))
+    out[0, 0] = A[1, 1] / det
+    out[0, 1] = -A[0, 1] / det
+    out[1, 0] = -A[1, 0] / det
+    out[1, 1] = A[0, 0] / det
+    return out
+
+
+# =========================================================================== model (model/kernels.py)
+@jit
+def s_column(p, q):
+    """(theta robot order, col = thetadot / v_n, tan phi, sec phi, w), thesis (2.64)."""
+    n = p.n
+    N = n + 2
+    th = np.empty(n)
+    for k in range(n):
+        th[k] = q[N - 1 - k]
+    tphi = np.empty(max(n - 1, 0))
+    sphi = np.empty(max(n - 1, 0))
+    for i in range(n - 1):
+        ph = th[i] - th[i + 1]
+        tphi[i] = math.tan(ph)
+        sphi[i] = 1.0 / math.cos(ph)
+    w = np.ones(n)
+    for i in range(n - 2, -1, -1):
+        w[i] = w[i + 1] * sphi[i]
+    col = np.zeros(n)
+    for i in range(1, n):
+        col[i] = tphi[i - 1] * w[i] / p.d[i - 1]
+    return th, col, tphi, sphi, w
+
+
+@jit
+def s_matrix(p, q):
+    """S(q), (2.63)-(2.64)."""
+    n = p.n
+    N = n + 2
+    th, col, _t, _s, _w = s_column(p, q)
+    S = np.zeros((N, 2))
+    S[0, 0] = math.cos(th[n - 1])
+    S[1, 0] = math.sin(th[n - 1])
+    for k in range(n):
+        S[N - 1 - k, 0] = col[k]
+    S[N - 1, 1] = 1.0
+    return S
+
+
+@jit
+def reduced(p, q, eta):
+    """(Mbar1, Mbar2, Cbar, Bbar, S, Sdot) of (2.70)-(2.74), M by (D.5), C by (D.9), B by (C.8)."""
+    n = p.n
+    N = n + 2
+    nw = 2 * n
+    th, col, tphi, sphi, w = s_column(p, q)
+    thdot = col * eta[0]
+    thdot[0] = eta[1]
+    S = np.zeros((N, 2))
+    Sd = np.zeros((N, 2))
+    cn, sn = math.cos(th[n - 1]), math.sin(th[n - 1])
+    S[0, 0], S[1, 0] = cn, sn
+    Sd[0, 0] = -sn * thdot[n - 1]
+    Sd[1, 0] = cn * thdot[n - 1]
+    # wdot[i] = w[i] sum_(j >= i) tan(phi_j) phidot_j
+    acc = 0.0
+    wdot = np.zeros(n)
+    for i in range(n - 2, -1, -1):
+        acc += tphi[i] * (thdot[i] - thdot[i + 1])
+        wdot[i] = w[i] * acc
+    for k in range(n):
+        S[N - 1 - k, 0] = col[k]
+        if k >= 1:
+            phidot = thdot[k - 1] - thdot[k]
+            Sd[N - 1 - k, 0] = (sphi[k - 1] ** 2 * phidot * w[k] + tphi[k - 1] * wdot[k]) / p.d[k - 1]
+    S[N - 1, 1] = 1.0
+    sth = np.empty(n)
+    cth = np.empty(n)
+    for k in range(n):
+        sth[k] = math.sin(th[k])
+        cth[k] = math.cos(th[k])
+    # M (D.5)
+    M = np.zeros((N, N))
+    M[0, 0] = p.m_total
+    M[1, 1] = p.m_total
+    for k in range(n):
+        ik = N - 1 - k
+        M[0, ik] = -p.h[k] * sth[k]
+        M[ik, 0] = M[0, ik]
+        M[1, ik] = p.h[k] * cth[k]
+        M[ik, 1] = M[1, ik]
+        for l in range(n):
+            M[ik, N - 1 - l] = p.G[k, l] * math.cos(th[k] - th[l])
+        M[ik, ik] += p.I[k]
+    # C (D.9) at qdot = S eta
+    C = np.zeros(N)
+    for k in range(n):
+        t2 = thdot[k] * thdot[k]
+        C[0] -= p.h[k] * t2 * cth[k]
+        C[1] -= p.h[k] * t2 * sth[k]
+    for l in range(n):
+        s = 0.0
+        for k in range(n):
+            s += p.G[l, k] * math.sin(th[l] - th[k]) * thdot[k] * thdot[k]
+        C[N - 1 - l] = s
+    # B (C.8): columns 2i (ir), 2i+1 (il)
+    B = np.zeros((N, nw))
+    for i in range(n):
+        ri = p.r[i]
+        for j in (2 * i, 2 * i + 1):
+            B[0, j] = cth[i] / ri
+            B[1, j] = sth[i] / ri
+            for k in range(n):
+                B[N - 1 - k, j] = p.D[i, k] * math.sin(th[i] - th[k]) / ri
+        B[N - 1 - i, 2 * i] += p.b[i] / ri
+        B[N - 1 - i, 2 * i + 1] -= p.b[i] / ri
+    # S^T (.) with S = [s0, e_(N-1)] and Sdot = [sd0, 0]
+    Ms0 = np.zeros(N)
+    Msd0 = np.zeros(N)
+    for i in range(N):
+        for j in range(N):
+            Ms0[i] += M[i, j] * S[j, 0]
+            Msd0[i] += M[i, j] * Sd[j, 0]
+    Mbar1 = np.zeros((2, 2))
+    Mbar2 = np.zeros((2, 2))
+    Cbar = np.zeros(2)
+    Bbar = np.zeros((2, nw))
+    for i in range(N):
+        Mbar1[0, 0] += S[i, 0] * Ms0[i]
+        Mbar1[0, 1] += S[i, 0] * M[i, N - 1]
+        Mbar2[0, 0] += S[i, 0] * Msd0[i]
+        Cbar[0] += S[i, 0] * C[i]
+        for j in range(nw):
+            Bbar[0, j] += S[i, 0] * B[i, j]
+    Mbar1[1, 0] = Ms0[N - 1]
+    Mbar1[1, 1] = M[N - 1, N - 1]
+    Mbar2[1, 0] = Msd0[N - 1]
+    Cbar[1] = C[N - 1]
+    for j in range(nw):
+        Bbar[1, j] = B[N - 1, j]
+    return Mbar1, Mbar2, Cbar, Bbar, S, Sd
+
+
+@jit
+def plant_rhs(p, q, eta, tau):
+    """qdot = S eta and etadot of (2.70)."""
+    Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(p, q, eta)
+    rhs = _mv(Bbar, tau) - _mv(Mbar2, eta) - Cbar
+    return _mv(S, eta), _solve2(Mbar1, rhs)
+
+
+# =========================================================================== references (references.py)
+@jit
+def _jmul(a, b, n):
+    out = np.zeros(n)
+    for k in range(n):
+        s = 0.0
+        for i in range(k + 1):
+            s += a[i] * b[k - i]
+        out[k] = s
+    return out
+
+
+@jit
+def _jdiv(a, b, n):
+    w = np.empty(n)
+    for k in range(n):
+        s = a[k]
+        for j in range(1, k + 1):
+            s -= b[j] * w[k - j]
+        w[k] = s / b[0]
+    return w
+
+
+@jit
+def _jsincos(u, n):
+    s = np.empty(n)
+    c = np.empty(n)
+    s[0] = math.sin(u[0])
+    c[0] = math.cos(u[0])
+    for k in range(1, n):
+        a = 0.0
+        b = 0.0
+        for j in range(1, k + 1):
+            a += j * u[j] * c[k - j]
+            b += j * u[j] * s[k - j]
+        s[k] = a / k
+        c[k] = -b / k
+    return s, c
+
+
+@jit
+def _jderiv(a, n):
+    out = np.empty(n - 1)
+    for k in range(1, n):
+        out[k - 1] = a[k] * k
+    return out
+
+
+@jit
+def path_jets(R, t):
+    """TrigPath.jets: normalized Taylor coefficients of x_d, y_d at t."""
+    K1 = R.order + 1
+    X = np.zeros(K1)
+    Y = np.zeros(K1)
+    X[0] = R.x0 + R.vx * t
+    Y[0] = R.y0 + R.vy * t
+    if K1 > 1:
+        X[1] += R.vx
+        Y[1] += R.vy
+    for which in range(2):
+        terms = R.xterms if which == 0 else R.yterms
+        arr = X if which == 0 else Y
+        for j in range(terms.shape[0]):
+            amp, w, ph = terms[j, 0], terms[j, 1], terms[j, 2]
+            fact = 1.0
+            for k in range(K1):
+                if k > 0:
+                    fact *= k
+                arr[k] += amp * w**k * math.sin(w * t + ph + k * np.pi / 2) / fact
+    c, s = math.cos(R.rot), math.sin(R.rot)
+    Xw = c * X - s * Y
+    Yw = s * X + c * Y
+    Xw[0] += R.ox
+    Yw[0] += R.oy
+    return Xw, Yw
+
+
+@jit
+def ref_jets(R, t, info):
+    """FlatReference._headings: jets of every heading (rows, robot order) and of v_n."""
+    X0, Y0 = path_jets(R, t)
+    n = R.n
+    K1 = R.order + 1
+    TH = np.zeros((n, K1))
+    LEN = np.zeros(n, dtype=np.int64)
+    V = np.zeros(K1)
+    X = X0.copy()
+    Y = Y0.copy()
+    L = K1
+    for i in range(n - 1, -1, -1):
+        Xd = _jderiv(X, L)
+        Yd = _jderiv(Y, L)
+        speed = math.hypot(Xd[0], Yd[0])
+        if speed < R.min_speed:
+            info[0] = E_REF_SPEED
+            info[1] = t
+            info[2] = i + 1
+            info[3] = speed
+            return X0, Y0, TH, LEN, V
+        Xdd = _jderiv(Xd, L - 1)
+        Ydd = _jderiv(Yd, L - 1)
+        m = L - 2
+        num = _jmul(Xd, Ydd, m) - _jmul(Yd, Xdd, m)
+        den = _jmul(Xd, Xd, m) + _jmul(Yd, Yd, m)
+        q = _jdiv(num, den, m)
+        th = np.empty(m + 1)
+        th[0] = math.atan2(Yd[0], Xd[0])
+        for k in range(m):
+            th[k + 1] = q[k] / (k + 1)
+        TH[i, : m + 1] = th
+        LEN[i] = m + 1
+        s, c = _jsincos(th, m + 1)
+        if i == n - 1:
+            V[: m + 1] = _jmul(Xd, c, m + 1) + _jmul(Yd, s, m + 1)
+        if i > 0:
+            L = m + 1
+            Xn = np.zeros(K1)
+            Yn = np.zeros(K1)
+            for k in range(L):
+                Xn[k] = X[k] + R.d[i - 1] * c[k]
+                Yn[k] = Y[k] + R.d[i - 1] * s[k]
+            X = Xn
+            Y = Yn
+    return X0, Y0, TH, LEN, V
+
+
+@jit
+def _shift3(a, length, delta):
+    """First 3 normalized Taylor coefficients at t0 + delta of the jet a at t0."""
+    out = np.zeros(3)
+    for i in range(3):
+        s = 0.0
+        for j in range(i, length):
+            comb = 1.0 if i == 0 else (float(j) if i == 1 else 0.5 * j * (j - 1))  # C(j, i), i <= 2
+            s += comb * a[j] * delta ** (j - i)
+        out[i] = s
+    return out
+
+
+@jit
+def ref_point(R, jets, t, delta, info):
+    """FlatReference._point: (q_d, eta_d, eta_d_dot, v_d, omega_d, v_d_dot, omega_d_dot) at t0 + delta."""
+    X0, Y0, TH, LEN, V = jets
+    n = R.n
+    K1 = R.order + 1
+    N = n + 2
+    th3 = np.zeros((n, 3))
+    if delta != 0.0:
+        X = _shift3(X0, K1, delta)
+        Y = _shift3(Y0, K1, delta)
+        v = _shift3(V, LEN[n - 1], delta)
+        for i in range(n):
+            th3[i] = _shift3(TH[i], LEN[i], delta)
+    else:
+        X = X0[:3].copy()
+        Y = Y0[:3].copy()
+        v = V[:3].copy()
+        for i in range(n):
+            th3[i] = TH[i, :3]
+    th = th3[:, 0].copy()
+    for i in range(n - 2, -1, -1):
+        th[i] = th[i + 1] + _wrap(th[i] - th[i + 1])
+    worst = -1.0
+    iw = 0
+    for i in range(n - 1):
+        a = abs(th[i] - th[i + 1])
+        if a > worst:
+            worst = a
+            iw = i
+    q_d = np.empty(N)
+    eta_d = np.empty(2)
+    eta_d_dot = np.empty(2)
+    if n > 1 and worst > R.max_art:
+        info[0] = E_REF_ART
+        info[1] = t
+        info[2] = iw
+        info[3] = math.degrees(th[iw] - th[iw + 1])
+        return q_d, eta_d, eta_d_dot, 0.0, 0.0, 0.0, 0.0
+    q_d[0] = X[0]
+    q_d[1] = Y[0]
+    for k in range(n):
+        q_d[N - 1 - k] = th[k]
+    eta_d[0] = v[0]
+    eta_d[1] = th3[0, 1]
+    eta_d_dot[0] = v[1]
+    eta_d_dot[1] = 2.0 * th3[0, 2]
+    return q_d, eta_d, eta_d_dot, v[0], th3[n - 1, 1], v[1], 2.0 * th3[n - 1, 2]
+
+
+@jit
+def ref_side(Kp, R, C, t, psi, info):
+    """Fill the cache for instant t and frame psi (a no-op when it already holds them)."""
+    if C.f[2] == 1.0 and C.f[0] == t and C.f[1] == psi:
+        return
+    C.f[2] = 0.0
+    jets = ref_jets(R, t, info)
+    if info[0] != 0:
+        return
+    h = Kp.h
+    for i in range(3):
+        ti = t if i == 0 else (t + h if i == 1 else t - h)
+        rp = ref_point(R, jets, ti, ti - t, info)
+        if info[0] != 0:
+            return
+        C.QD[i] = rp[0]
+        C.ED[i] = rp[1]
+        C.EDD[i] = rp[2]
+        C.SC[i, 0] = rp[3]
+        C.SC[i, 1] = rp[4]
+        C.SC[i, 2] = rp[5]
+        C.SC[i, 3] = rp[6]
+        if Kp.kind == KIN_CHAINED:
+            xi_d, T_d = _xi_T(to_frame(rp[0], psi), R.d)
+            C.XID[i] = xi_d
+            C.TD[i] = T_d
+    C.f[0] = t
+    C.f[1] = psi
+    C.f[2] = 1.0
+
+
+# =========================================================================== chained form
+@jit
+def chained_xi_T(th, d):
+    """(xi_2..xi_(m-1), T21, T22) of the chained form at headings th (robot order); see the module doc."""
+    n = th.shape[0]
+    K = n + 1
+    K1 = K + 1
+    nl = n - 1
+    work = np.zeros((4 * n + 5 * nl + 5, K1))  # one allocation for every jet below
+    TH = work[0:n]
+    W = work[n : 2 * n]
+    P1 = work[2 * n : 3 * n]
+    RHS = work[3 * n : 4 * n]
+    o = 4 * n
+    PHI = work[o : o + nl]
+    SP = work[o + nl : o + 2 * nl]
+    CP = work[o + 2 * nl : o + 3 * nl]
+    SEC = work[o + 3 * nl : o + 4 * nl]
+    TAN = work[o + 4 * nl : o + 5 * nl]
+    o += 5 * nl
+    Y = work[o]
+    STN = work[o + 1]
+    CTN = work[o + 2]
+    SECN = work[o + 3]
+    TANN = work[o + 4]
+    for k in range(n):
+        TH[k, 0] = th[k]
+    W[n - 1, 0] = 1.0
+    last = n - 1
+    for j in range(K):
+        # coefficient j of every intermediate (Taylor-mode recurrences)
+        for l in range(nl):
+            PHI[l, j] = TH[l, j] - TH[l + 1, j]
+            if j == 0:
+                SP[l, 0] = math.sin(PHI[l, 0])
+                CP[l, 0] = math.cos(PHI[l, 0])
+            else:
+                a = 0.0
+                b = 0.0
+                for i in range(1, j + 1):
+                    a += i * PHI[l, i] * CP[l, j - i]
+                    b += i * PHI[l, i] * SP[l, j - i]
+                SP[l, j] = a / j
+                CP[l, j] = -b / j
+            s = 1.0 if j == 0 else 0.0
+            for i in range(1, j + 1):
+                s -= CP[l, i] * SEC[l, j - i]
+            SEC[l, j] = s / CP[l, 0]
+            s = 0.0
+            for i in range(j + 1):
+                s += SP[l, i] * SEC[l, j - i]
+            TAN[l, j] = s
+        if j == 0:
+            STN[0] = math.sin(TH[last, 0])
+            CTN[0] = math.cos(TH[last, 0])
+        else:
+            a = 0.0
+            b = 0.0
+            for i in range(1, j + 1):
+                a += i * TH[last, i] * CTN[j - i]
+                b += i * TH[last, i] * STN[j - i]
+            STN[j] = a / j
+            CTN[j] = -b / j
+        s = 1.0 if j == 0 else 0.0
+        for i in range(1, j + 1):
+            s -= CTN[i] * SECN[j - i]
+        SECN[j] = s / CTN[0]
+        s = 0.0
+        for i in range(j + 1):
+            s += STN[i] * SECN[j - i]
+        TANN[j] = s
+        for k in range(n - 2, -1, -1):  # w_k = w_(k+1) sec(phi_k)
+            s = 0.0
+            for i in range(j + 1):
+                s += W[k + 1, i] * SEC[k, j - i]
+            W[k, j] = s
+        for k in range(1, n):  # dtheta_k/ds = sec(theta_n) w_k tan(phi_(k-1)) / d_(k-1)
+            s = 0.0
+            for i in range(j + 1):
+                s += SECN[i] * W[k, j - i]
+            P1[k, j] = s
+            s = 0.0
+            for i in range(j + 1):
+                s += P1[k, i] * TAN[k - 1, j - i]
+            RHS[k, j] = s / d[k - 1]
+            TH[k, j + 1] = RHS[k, j] / (j + 1)
+        Y[j + 1] = TANN[j] / (j + 1)
+    ang = np.empty(n)  # xi_2..xi_(m-1): xi_(m-jj) = jj! y_jj, m = n + 2
+    m = n + 2
+    fact = 1.0
+    for jj in range(1, n + 1):
+        fact *= jj
+        ang[m - jj - 2] = fact * Y[jj]
+    T21 = CTN[0] * fact * (n + 1) * Y[n + 1]
+    secn = SECN[0]
+    T22 = secn * secn * secn ** (n - 1)
+    for l in range(nl):
+        T22 *= W[l + 1, 0] * SEC[l, 0] * SEC[l, 0] / d[l]
+    return ang, T21, T22
+
+
+@jit
+def to_frame(q, psi):
+    """q in the frame rotated by psi (control/kinematic.py to_frame)."""
+    c, s = math.cos(psi), math.sin(psi)
+    out = np.empty_like(q)
+    out[0] = c * q[0] + s * q[1]
+    out[1] = -s * q[0] + c * q[1]
+    out[2] = _wrap(q[2] - psi)
+    acc = out[2]
+    for k in range(3, q.shape[0]):
+        acc = acc + _wrap(q[k] - q[k - 1])
+        out[k] = acc
+    return out
+
+
+@jit
+def _xi_T(qf, d):
+    n = qf.shape[0] - 2
+    th = np.empty(n)
+    for k in range(n):
+        th[k] = qf[n + 1 - k]
+    ang, T21, T22 = chained_xi_T(th, d)
+    m = n + 2
+    xi = np.empty(m)
+    xi[0] = qf[0]
+    xi[1 : m - 1] = ang
+    xi[m - 1] = qf[1]
+    T = np.zeros((2, 2))
+    T[0, 0] = math.cos(th[n - 1])
+    T[1, 0] = T21
+    T[1, 1] = T22
+    return xi, T
+
+
+@jit
+def _chained_law(Kp, R, C, ir, q, psi, info):
+    """ChainedBackstepping.law: (eta_c, T_alpha, f_eta, Z), (3.67)-(3.106) generalized."""
+    eta_d = C.ED[ir]
+    qf = to_frame(q, psi)
+    n = Kp.n
+    m = n + 2
+    p = m - 1
+    eta_c = np.zeros(2)
+    T = np.zeros((2, 2))
+    f_eta = np.zeros(2)
+    Z = np.zeros(m)
+    # check_domain
+    if abs(math.cos(qf[2])) <= Kp.singular_tol:
+        info[0] = E_CHAINED_THN
+        info[1] = math.degrees(qf[2])
+        return eta_c, T, f_eta, Z
+    worst = 2.0
+    iw = 0
+    for i in range(n - 1):  # robot order i, i+1: q index m-1-i, m-2-i
+        c = math.cos(qf[m - 1 - i] - qf[m - 2 - i])
+        if c < worst:
+            worst = c
+            iw = i
+    if n > 1 and worst <= Kp.singular_tol:
+        info[0] = E_CHAINED_ART
+        info[1] = iw
+        info[2] = math.degrees(qf[m - 1 - iw] - qf[m - 2 - iw])
+        return eta_c, T, f_eta, Z
+    xi, T = _xi_T(qf, R.d)
+    xi_d, T_d = C.XID[ir], C.TD[ir]
+    a1d = T_d[0, 0] * eta_d[0] + T_d[0, 1] * eta_d[1]
+    a2d = T_d[1, 0] * eta_d[0] + T_d[1, 1] * eta_d[1]
+    e = xi - xi_d
+    for j in range(1, m - 1):
+        Z[j - 1] = e[m - j] - xi[m - j - 1] * e[0]
+    Z[m - 2] = e[1]
+    Z[m - 1] = e[0]
+    mu = Kp.mu
+    Zh = Z[:p] * Kp.Dscale
+    z = Z[m - 1]
+    Zbar = np.zeros(p)
+    lnz = 0.0
+    for j in range(p):
+        lnz += Kp.LN_last[j] * Zh[j]
+        for i in range(j + 1):  # L is lower triangular
+            Zbar[j] += Kp.L[j, i] * Zh[i]
+    a2c = a2d + mu ** (p - 1) * (-Kp.c_alpha2 * Zbar[p - 1] - mu * a1d * (Zbar[p - 2] + lnz))
+    LtZ = np.zeros(p)
+    for i in range(p):
+        acc = 0.0
+        for j in range(i, p):
+            acc += Kp.L[j, i] * Zbar[j]
+        LtZ[i] = Kp.rho * acc * Kp.Dscale[i]
+    delta1 = 0.0
+    for j in range(1, p - 1):
+        delta1 += LtZ[j - 1] * xi[m - 2 - j]
+    gam = LtZ[p - 2]
+    kd = Kp.kappa - delta1
+    if abs(kd) < Kp.singular_tol * Kp.kappa:
+        info[0] = E_KAPPA
+        info[1] = kd
+        return eta_c, T, f_eta, Z
+    a1c = a1d + (-Kp.c_xi1 * z + gam * a2c) / kd
+    alpha_c = np.empty(2)
+    alpha_c[0] = a1c
+    alpha_c[1] = a2c
+    eta_c = _solve2(T, alpha_c)
+    f_eta[0] = z * kd
+    f_eta[1] = Kp.rho * Kp.Dscale[p - 1] * Zbar[p - 1] - z * gam
+    return eta_c, T, f_eta, Z
+
+
+@jit
+def _two_link_law(Kp, C, ir, q, info):
+    """TwoLinkKinematic._law: (eta_c, T_alpha, f_eta, z), (3.8)-(3.29) with E6-E11a."""
+    q_d = C.QD[ir]
+    vd, wd, vdd, wdd = C.SC[ir, 0], C.SC[ir, 1], C.SC[ir, 2], C.SC[ir, 3]
+    d = Kp.d2
+    thd = q_d[2]
+    ct, st = math.cos(thd), math.sin(thd)
+    exw, eyw = q[0] - q_d[0], q[1] - q_d[1]
+    ex = ct * exw + st * eyw
+    ey = -st * exw + ct * eyw
+    eth = _wrap(q[2] - thd)
+    c, s = math.cos(eth), math.sin(eth)
+    phi = q[3] - q[2]
+    cphi = math.cos(phi)
+    eta_c = np.zeros(2)
+    T = np.zeros((2, 2))
+    f_eta = np.zeros(2)
+    z = np.zeros(4)
+    if abs(c) < 1e-3:
+        info[0] = E_TWO_LINK_ETH
+        info[1] = math.degrees(eth)
+        return eta_c, T, f_eta, z
+    if abs(cphi) < 1e-3:
+        info[0] = E_TWO_LINK_PHI
+        info[1] = math.degrees(phi)
+        return eta_c, T, f_eta, z
+    tphi = math.tan(phi)
+    sec2 = 1.0 / cphi**2
+    z[0] = ex
+    z[1] = ey
+    z[2] = s / c
+    z[3] = tphi / (d * c**3) - wd / (vd * c**2) + ey
+    T21 = -sec2 * tphi / (d**2 * c**3) + 3.0 * tphi**2 * s / (d**2 * c**4) - 2.0 * wd * s * tphi / (d * vd * c**3) + s
+    T22 = sec2 / (d * c**3)
+    f2 = (
+        -3.0 * tphi * s * wd / (d * c**4)
+        - (wdd * vd - wd * vdd) / (vd**2 * c**2)
+        + 2.0 * wd**2 * s / (vd * c**3)
+        - wd * ex
+    )
+    T[0, 0] = c
+    T[1, 0] = T21
+    T[1, 1] = T22
+    z1, z3, z4 = z[0], z[2], z[3]
+    g = z1 + z3 * (z4 + (wd / vd) * (1.0 + z3**2))
+    rhs = np.empty(2)
+    rhs[0] = -Kp.k1 * g + vd
+    rhs[1] = -Kp.k2 * vd * z3 - Kp.k3 * z4 - f2
+    eta_c = _solve2(T, rhs)
+    f_eta[0] = g
+    f_eta[1] = z4 / Kp.k2
+    return eta_c, T, f_eta, z
+
+
+@jit
+def kin_law(Kp, R, C, ir, q, xk, info):
+    if Kp.kind == KIN_TWO_LINK:
+        return _two_link_law(Kp, C, ir, q, info)
+    return _chained_law(Kp, R, C, ir, q, xk[0], info)
+
+
+@jit
+def eta_c_and_dot(Kp, R, C, pc, t, q, eta, xk, info):
+    """TrackingController.eta_c_and_dot: law at t and the central difference along (S(q) eta, 1) (ERRATA P5)."""
+    z2 = np.zeros(2)
+    dummy = (z2, np.zeros((2, 2)), z2, np.zeros(1))
+    ref_side(Kp, R, C, t, xk[0] if Kp.nk > 0 else 0.0, info)
+    if info[0] != 0:
+        return dummy, z2
+    kin = kin_law(Kp, R, C, 0, q, xk, info)
+    if info[0] != 0:
+        return dummy, z2
+    h = Kp.h
+    qdot = _mv(s_matrix(pc, q), eta)
+    plus = kin_law(Kp, R, C, 1, q + h * qdot, xk, info)[0]
+    if info[0] != 0:
+        return dummy, z2
+    minus = kin_law(Kp, R, C, 2, q - h * qdot, xk, info)[0]
+    return kin, (plus - minus) / (2.0 * h)
+
+
+# =========================================================================== dynamic laws (control/tracking.py)
+@jit
+def _mv(A, x):
+    """A x for a small dense A (no BLAS call)."""
+    out = np.zeros(A.shape[0])
+    for i in range(A.shape[0]):
+        acc = 0.0
+        for j in range(A.shape[1]):
+            acc += A[i, j] * x[j]
+        out[i] = acc
+    return out
+
+
+@jit
+def _mtv(A, x):
+    """A^T x for a small dense A (no BLAS call)."""
+    out = np.zeros(A.shape[1])
+    for j in range(A.shape[1]):
+        acc = 0.0
+        for i in range(A.shape[0]):
+            acc += A[i, j] * x[i]
+        out[j] = acc
+    return out
+
+
+@jit
+def law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, T, f_eta, eta_c_dot, k_v):
+    """(w, Mbar1^-1 Bbar, g) of (3.35)/(3.107) with E8."""
+    Minv = _inv2(Mbar1)
+    g = -_mv(Minv, _mv(Mbar2, eta) + Cbar)
+    w = -k_v * eta_e - _mtv(T, f_eta) - g + eta_c_dot
+    nw = Bbar.shape[1]
+    MB = np.empty((2, nw))
+    for j in range(nw):
+        MB[0, j] = Minv[0, 0] * Bbar[0, j] + Minv[0, 1] * Bbar[1, j]
+        MB[1, j] = Minv[1, 0] * Bbar[0, j] + Minv[1, 1] * Bbar[1, j]
+    return w, MB, g
+
+
+@jit
+def _gram(MB, sigma):
+    """A A^T for A = MB diag(sigma)."""
+    G = np.zeros((2, 2))
+    for j in range(MB.shape[1]):
+        s2 = sigma[j] * sigma[j]
+        G[0, 0] += MB[0, j] * MB[0, j] * s2
+        G[0, 1] += MB[0, j] * MB[1, j] * s2
+        G[1, 1] += MB[1, j] * MB[1, j] * s2
+    G[1, 0] = G[0, 1]
+    return G
+
+
+@jit
+def _right_inverse(MB, sigma, AAt, w):
+    """A^T (A A^T)^-1 w for A = MB diag(sigma)."""
+    y = _solve2(AAt, w)
+    nw = MB.shape[1]
+    u = np.empty(nw)
+    for j in range(nw):
+        u[j] = sigma[j] * (MB[0, j] * y[0] + MB[1, j] * y[1])
+    return u
+
+
+@jit
+def law_for_pattern(MB, w, sigma):
+    """u = (MB diag(sigma))^+ w, A^+ = A^T (A A^T)^-1; least squares when cond(A A^T) > 1e12."""
+    AAt = _gram(MB, sigma)
+    tr = 0.5 * (AAt[0, 0] + AAt[1, 1])
+    det = AAt[0, 0] * AAt[1, 1] - AAt[0, 1] * AAt[1, 0]
+    lmax = tr + math.sqrt(max(tr * tr - det, 0.0))
+    if not det / lmax > lmax * 1e-12:  # cond(A A^T) = lmax / lmin, lmin = det / lmax
+        nw = MB.shape[1]
+        A = np.empty((2, nw))
+        for j in range(nw):
+            A[0, j] = MB[0, j] * sigma[j]
+            A[1, j] = MB[1, j] * sigma[j]
+        return np.linalg.pinv(A, rcond=1e-9) @ w
+    return _right_inverse(MB, sigma, AAt, w)
+
+
+@jit
+def _clip(x, lo, hi):
+    return np.minimum(np.maximum(x, lo), hi)
+
+
+# =========================================================================== Farza observer (observers/farza.py)
+@jit
+def farza_estimates(O, pc, s, y, nw):
+    """(q_hat, eta_hat = S^+(y) qdot_hat, rho, ubar) from the observer state."""
+    N = pc.n + 2
+    S = s_matrix(pc, y)
+    eta = _solve2(S.T @ S, S.T @ s[N : 2 * N])
+    rho = np.ones(nw)
+    ubar = np.zeros(nw)
+    k = 2 * N
+    if O.est_rho:
+        rho = s[k : k + nw].copy()
+        k += nw
+    if O.est_ubar:
+        ubar = s[k : k + nw].copy()
+    return s[:N].copy(), eta, rho, ubar
+
+
+@jit
+def farza_derivative(O, pc, u, y, s):
+    """Observer state derivative (4.4)-(4.11) with E15, E16 and the P guard."""
+    N = pc.n + 2
+    nw = 2 * pc.n
+    P_ = O.p
+    Th = O.Theta
+    xhat = s[: 2 * N]
+    rhohat = s[2 * N : 2 * N + P_]
+    Y = s[2 * N + P_ : 2 * N + P_ + 2 * N * P_].copy().reshape((2 * N, P_))
+    P = s[2 * N + P_ + 2 * N * P_ : 2 * N + P_ + 2 * N * P_ + P_ * P_].copy().reshape((P_, P_))
+    rho = np.ones(nw)
+    ubar = np.zeros(nw)
+    k = 0
+    if O.est_rho:
+        rho = rhohat[:nw].copy()
+        k = nw
+    if O.est_ubar:
+        ubar = rhohat[k : k + nw].copy()
+    q = xhat[:N].copy()
+    qdot = xhat[N:].copy()
+    S = s_matrix(pc, q)
+    eta = np.linalg.lstsq(S, qdot)[0]
+    Mbar1, Mbar2, Cbar, Bbar, S, Sdot = reduced(pc, q, eta)
+    MB = np.linalg.solve(Mbar1, Bbar)
+    acc = np.linalg.solve(Mbar1, -(Mbar2 @ eta) - Cbar) + MB @ (rho * u + ubar)
+    phi2 = S @ acc + Sdot @ eta
+    SMB = S @ MB
+    dphi2 = np.zeros((N, P_))
+    c0 = 0
+    if O.est_rho:
+        for j in range(nw):
+            dphi2[:, j] = SMB[:, j] * u[j]
+        c0 = nw
+    if O.est_ubar:
+        for j in range(nw):
+            dphi2[:, c0 + j] = SMB[:, j]
+    Kt = O.k1 * np.tanh(O.k0 * (y - xhat[:N]))
+    YN = Y[:N].copy()
+    corr = (O.Soinv[:, :N] + Y @ P @ YN.T) @ Kt
+    corr[N:] *= Th
+    ds = np.empty(s.shape[0])
+    ds[:N] = xhat[N:] + O.sign * Th * corr[:N]
+    ds[N : 2 * N] = phi2 + O.sign * Th * corr[N:]
+    ds[2 * N : 2 * N + P_] = O.sign * Th * (P @ (YN.T @ Kt))
+    dphi = np.zeros((2 * N, P_))
+    dphi[N:] = dphi2 / Th
+    ds[2 * N + P_ : 2 * N + P_ + 2 * N * P_] = (O.AY @ Y + dphi).ravel()
+    dP = Th * P - Th * P @ YN.T @ YN @ P
+    if not math.isnan(O.p_max):
+        dP -= Th * (P @ P) / O.p_max
+    ds[2 * N + P_ + 2 * N * P_ :] = dP.ravel()
+    return ds
+
+
+# =========================================================================== the closed loop
+@jit
+def controller(Kp, R, C, Lw, O, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
+    """(u, xcdot) of the controller; fills ``sig`` with the logged signals when it is not empty."""
+    nw = 2 * pc.n
+    N = pc.n + 2
+    xk = xc[: Kp.nk]
+    dx = np.zeros(xc.shape[0])
+    u = np.zeros(nw)
+    kind = Lw.kind
+    if kind == LAW_ACTIVE:
+        est_n = O.est_n
+        s = xc[O.est0 : O.est0 + est_n]
+        qh, eh, rho_e, ubar_e = farza_estimates(O, pc, s, q, nw)
+        rho, ubar = rho_e, ubar_e
+        if not math.isnan(O.tau):
+            rho = xc[O.filt0 : O.filt0 + nw].copy()
+            ubar = xc[O.filt0 + nw : O.filt0 + 2 * nw].copy()
+        if not math.isnan(Lw.u_limit):
+            ubar = _clip(ubar, -Lw.u_limit, Lw.u_limit)
+        sigma_hat = _clip(rho, 0.0, 1.0)
+        kin, ecd = eta_c_and_dot(Kp, R, C, pc, t, q, eh, xk, info)
+        if info[0] != 0:
+            return u, dx
+        Mbar1, Mbar2, Cbar, Bbar, _S, _Sd = reduced(pc, q, eh)
+        w, MB, g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eh, eh - kin[0], kin[1], kin[2], ecd, Lw.k_v)
+        u = law_for_pattern(MB, w - _mv(MB, ubar), sigma_hat)
+        if not math.isnan(Lw.u_limit):
+            u = _clip(u, -Lw.u_limit, Lw.u_limit)
+        dx[O.est0 : O.est0 + est_n] = farza_derivative(O, pc, u, q, s)
+        if not math.isnan(O.tau):
+            for j in range(nw):
+                dx[O.filt0 + j] = (rho_e[j] - xc[O.filt0 + j]) / O.tau
+                dx[O.filt0 + nw + j] = (ubar_e[j] - xc[O.filt0 + nw + j]) / O.tau
+        if sig.shape[0] > 0:
+            k = _kin_signals(sig, kin, ecd, C)
+            sig[k : k + N] = qh
+            sig[k + N : k + N + 2] = eh
+            k += N + 2
+            sig[k : k + nw] = rho_e
+            sig[k + nw : k + 2 * nw] = ubar_e
+            sig[k + 2 * nw : k + 3 * nw] = sigma_hat
+            sig[k + 3 * nw : k + 4 * nw] = ubar
+        return u, dx
+    kin, ecd = eta_c_and_dot(Kp, R, C, pc, t, q, eta, xk, info)
+    if info[0] != 0:
+        return u, dx
+    if sig.shape[0] > 0:
+        _kin_signals(sig, kin, ecd, C)
+    Mbar1, Mbar2, Cbar, Bbar, _S, _Sd = reduced(pc, q, eta)
+    eta_e = eta - kin[0]
+    w, MB, g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin[1], kin[2], ecd, Lw.k_v)
+    if kind == LAW_TRACKING:
+        u = law_for_pattern(MB, w, Lw.sigma)
+    elif kind == LAW_ORACLE:
+        u = law_for_pattern(MB, w - _mv(MB, ubar_true), sig_true)
+    elif kind == LAW_SWITCHING:
+        sel = int(round(xc[Lw.sel]))
+        u = law_for_pattern(MB, w, Lw.patterns[sel])
+        u_app = u if math.isnan(Lw.u_limit) else _clip(u, -Lw.u_limit, Lw.u_limit)
+        Nm = Lw.patterns.shape[0]
+        for k in range(Nm):
+            d0 = 0.0
+            d1 = 0.0
+            for j in range(nw):
+                pu = Lw.patterns[k, j] * u_app[j]
+                d0 += pu * MB[0, j]
+                d1 += pu * MB[1, j]
+            i0 = Lw.hat0 + 2 * k
+            h0, h1 = xc[i0], xc[i0 + 1]
+            dx[i0] = -Lw.gamma * h0 + Lw.gamma * eta[0] + g[0] + d0
+            dx[i0 + 1] = -Lw.gamma * h1 + Lw.gamma * eta[1] + g[1] + d1
+            if Lw.n_int > 0:
+                e0, e1 = eta[0] - h0, eta[1] - h1
+                dx[Lw.int0 + k] = -Lw.forgetting * xc[Lw.int0 + k] + (e0 * e0 + e1 * e1)
+    elif kind == LAW_ADAPTIVE:
+        Nm = Lw.patterns.shape[0]
+        uf = xc[Lw.uf0 : Lw.uf0 + nw]
+        w2 = w - _mv(MB, uf)
+        c = _mtv(MB, eta_e)
+        for k in range(Nm):
+            Uk = law_for_pattern_plain(MB, w2, Lw.patterns[k])
+            for j in range(nw):
+                chi = xc[Lw.chi0 + k * nw + j]
+                u[j] += chi * Uk[j]
+                if Lw.adapt:
+                    pk = -Lw.gamma * Uk[j] * c[j]
+                    frozen = (chi <= 0.0 and pk < 0.0) or (chi >= 1.0 and pk > 0.0)
+                    dx[Lw.chi0 + k * nw + j] = 0.0 if frozen else pk
+        if Lw.adapt:
+            dx[Lw.uf0 : Lw.uf0 + nw] = _mv(Lw.Gamma_f, _mtv(MB, eta_e))
+    return u, dx
+
+
+@jit
+def law_for_pattern_plain(MB, w, sigma):
+    """adaptive.pattern_laws for one pattern: A^T (A A^T)^-1 w, no rank test."""
+    return _right_inverse(MB, sigma, _gram(MB, sigma), w)
+
+
+@jit
+def _kin_signals(sig, kin, ecd, C):
+    """eta_c, eta_c_dot, z, q_d, eta_d into sig; returns the next free index."""
+    z = kin[3]
+    q_d = C.QD[0]
+    sig[0:2] = kin[0]
+    sig[2:4] = ecd
+    k = 4
+    sig[k : k + z.shape[0]] = z
+    k += z.shape[0]
+    sig[k : k + q_d.shape[0]] = q_d
+    k += q_d.shape[0]
+    sig[k : k + 2] = C.ED[0]
+    return k + 2
+
+
+@jit
+def discrete(Kp, R, C, Lw, t, q, eta, xc, info):
+    """Discrete updates after a step: re-anchoring (chained), switching (3.47)-(3.48), weight clip."""
+    xc = xc.copy()
+    if Kp.kind == KIN_CHAINED:
+        ref_side(Kp, R, C, t, xc[0], info)
+        if info[0] != 0:
+            return xc
+        thd = C.QD[0, 2]
+        if abs(_wrap(thd - xc[0])) > Kp.band:
+            xc[0] = thd
+    if Lw.kind == LAW_SWITCHING:
+        Nm = Lw.patterns.shape[0]
+        J = np.empty(Nm)
+        for k in range(Nm):
+            e0 = eta[0] - xc[Lw.hat0 + 2 * k]
+            e1 = eta[1] - xc[Lw.hat0 + 2 * k + 1]
+            J[k] = Lw.c_inst * (e0 * e0 + e1 * e1)
+            if Lw.n_int > 0:
+                J[k] = J[k] + Lw.c_int * xc[Lw.int0 + k]
+        cur = int(round(xc[Lw.sel]))
+        cand = int(np.argmin(J))
+        if cand != cur and t - xc[Lw.tsw] >= Lw.T_min - 1e-12 and J[cand] < J[cur] - Lw.hysteresis:
+            xc[Lw.sel] = cand
+            xc[Lw.tsw] = t
+    elif Lw.kind == LAW_ADAPTIVE:
+        nw = Lw.patterns.shape[1]
+        Nm = Lw.patterns.shape[0]
+        for i in range(Lw.chi0, Lw.chi0 + Nm * nw):
+            xc[i] = min(max(xc[i], 0.0), 1.0)
+    return xc
+
+
+@jit
+def _deriv(Kp, R, C, Lw, O, pc, pp, nq, t, x, sigma, ubar, nz, sat, info, sig):
+    """(f, u, tau) of the closed loop (sim.simulate's deriv)."""
+    q = x[:nq]
+    eta = x[nq : nq + 2]
+    xc = x[nq + 2 :]
+    u, xcdot = controller(Kp, R, C, Lw, O, pc, t, q + nz[:nq], eta + nz[nq:], xc, sigma, ubar, info, sig)
+    f = np.zeros(x.shape[0])
+    if info[0] != 0:
+        return f, u, u
+    us = u if math.isnan(sat) else _clip(u, -sat, sat)
+    tau = sigma * us + ubar
+    qdot, etadot = plant_rhs(pp, q, eta, tau)
+    f[:nq] = qdot
+    f[nq : nq + 2] = etadot
+    f[nq + 2 :] = xcdot
+    return f, u, tau
+
+
+@jit
+def _check_state(pp, x, nq, lim, max_speed, max_position, info):
+    n = pp.n
+    worst = 2.0
+    iw = 0
+    for i in range(n - 1):
+        c = abs(math.cos(x[nq - 1 - i] - x[nq - 2 - i]))
+        if c < worst:
+            worst = c
+            iw = i
+    if n > 1 and worst <= lim:
+        info[0] = E_STATE_SINGULAR
+        info[1] = iw
+        info[2] = math.degrees(math.acos(min(1.0, worst)))
+        return
+    if abs(x[nq]) > max_speed or abs(x[nq + 1]) > max_speed:
+        info[0] = E_SPEED
+        info[1] = x[nq]
+        info[2] = x[nq + 1]
+        return
+    if abs(x[0]) > max_position or abs(x[1]) > max_position:
+        info[0] = E_POSITION
+        info[1] = x[0]
+        info[2] = x[1]
+
+
+ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+
+
+@jit
+def run_steps(
+    Kp, R, Lw, O, pc, pp,
+    grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
+    x, k0, k1, is_logged, li,
+    lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info,
+):  # fmt: skip
+    """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, stopped_at_next)."""
+    nq = pp.n + 2
+    nx = x.shape[0]
+    sig_buf = np.zeros(n_sig)
+    C = new_cache(pp.n)
+    empty = np.zeros(0)
+    noisy = noise.shape[0] > 1
+    nz = noise[0]
+    for k in range(k0, k1 + 1):
+        t = grid[k]
+        sigma = fsig[fidx[k]]
+        ubar = fubar[fidx[k]]
+        if noisy:
+            nz = noise[k]
+        for i in range(nx):
+            if not math.isfinite(x[i]):
+                info[0] = E_NONFINITE_STATE
+                info[1] = t
+                return x, k, li, False
+        _check_state(pp, x, nq, lim, max_speed, max_position, info)
+        if info[0] != 0:
+            return x, k, li, False
+        want = is_logged[k]
+        f0, u, tau = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t, x, sigma, ubar, nz, sat, info, sig_buf if want else empty)
+        if info[0] != 0:
+            return x, k, li, False
+        ok = True
+        for i in range(nx):
+            if not math.isfinite(f0[i]):
+                ok = False
+        for i in range(u.shape[0]):
+            if not math.isfinite(u[i]):
+                ok = False
+        if not ok:
+            info[0] = E_NONFINITE_DERIV
+            info[1] = t
+            return x, k, li, False
+        if want:
+            lt[li] = t
+            lq[li] = x[:nq]
+            leta[li] = x[nq : nq + 2]
+            lu[li] = u
+            ltau[li] = tau
+            lsig[li] = sigma
+            lubar[li] = ubar
+            lxc[li] = x[nq + 2 :]
+            if lmeas.shape[0] > 0:
+                lmeas[li] = x[: nq + 2] + nz
+            lsg[li] = sig_buf
+            li += 1
+        if k == grid.shape[0] - 1:
+            return x, k, li, False
+        h = grid[k + 1] - t
+        if method == 0:
+            f2 = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, nz, sat, info, empty)[
+                0
+            ]
+            if info[0] != 0:
+                return x, k, li, True
+            f3 = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t + 0.5 * h, x + 0.5 * h * f2, sigma, ubar, nz, sat, info, empty)[
+                0
+            ]
+            if info[0] != 0:
+                return x, k, li, True
+            f4 = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t + h, x + h * f3, sigma, ubar, nz, sat, info, empty)[0]
+            if info[0] != 0:
+                return x, k, li, True
+            xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
+        else:
+            F = np.empty((nx, 2))
+            for j in range(2):
+                c = nq + j
+                delta = 1e-7 * max(1.0, abs(x[c]))
+                xp = x.copy()
+                xp[c] += delta
+                fp = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t, xp, sigma, ubar, nz, sat, info, empty)[0]
+                if info[0] != 0:
+                    return x, k, li, True
+                F[:, j] = (fp - f0) / delta
+            gh = ROS2_GAMMA * h
+            dinv = 1.0 / (1.0 - gh * diag)
+            DF = np.empty((nx, 2))
+            for i in range(nx):
+                DF[i, 0] = dinv[i] * F[i, 0]
+                DF[i, 1] = dinv[i] * F[i, 1]
+            small = np.empty((2, 2))
+            small[0, 0] = 1.0 - gh * DF[nq, 0]
+            small[0, 1] = -gh * DF[nq, 1]
+            small[1, 0] = -gh * DF[nq + 1, 0]
+            small[1, 1] = 1.0 - gh * DF[nq + 1, 1]
+            rd = dinv * f0
+            kk1 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
+            f2 = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t + h, x + h * kk1, sigma, ubar, nz, sat, info, empty)[0]
+            if info[0] != 0:
+                return x, k, li, True
+            rd = dinv * (f2 - 2.0 * kk1)
+            kk2 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
+            xn = x + 1.5 * h * kk1 + 0.5 * h * kk2
+        xcn = discrete(Kp, R, C, Lw, grid[k + 1], xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xn[nq + 2 :], info)
+        if info[0] != 0:
+            return x, k, li, True
+        x = xn.copy()
+        x[nq + 2 :] = xcn
+    return x, k1, li, False

@@ -304,6 +304,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     method = 0 if settings.method == "rk4" else 1
     lim = math.sin(settings.singularity_margin)
     pp = _chain(chain.params)
+    share = not plant.noisy and all(np.array_equal(a, b) for a, b in zip(pp, spec.chain, strict=True))
     chunk = max(1, n_steps // 100)
     li = 0
     k = 0
@@ -317,7 +318,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 spec.kin, spec.ref, spec.law, spec.obs, spec.chain, pp,
                 grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
                 x, k, k1, is_logged, li,
-                lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info,
+                lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share,
             )  # fmt: skip
             if info[0] != 0:
                 t_end = float(grid[k_last + 1] if next_ else grid[k_last])

@@ -181,14 +181,21 @@ class Cache(NamedTuple):
     SC: np.ndarray  # (3, 4)
     XID: np.ndarray  # (3, m)
     TD: np.ndarray  # (3, 2, 2)
+    # the controller's Mbar1, Mbar2, Cbar, Bbar, S at the measured (q, eta) of the last evaluation:
+    # without noise and with the plant's parameters they are the plant's (f[3] = 1: valid)
+    M1: np.ndarray  # (2, 2)
+    M2: np.ndarray  # (2, 2)
+    Cb: np.ndarray  # (2,)
+    Bb: np.ndarray  # (2, 2n)
+    Sm: np.ndarray  # (N, 2)
 
 
 @jit
 def new_cache(n):
     N = n + 2
     return Cache(
-        np.zeros(3), np.zeros((3, N)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 4)), np.zeros((3, N)),
-        np.zeros((3, 2, 2)),
+        np.zeros(4), np.zeros((3, N)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 4)), np.zeros((3, N)),
+        np.zeros((3, 2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), np.zeros(2), np.zeros((2, 2 * n)), np.zeros((N, 2)),
     )  # fmt: skip
 
 
@@ -438,6 +445,15 @@ def path_jets(R, t):
 
 
 @jit
+def _conv(a, b, k):
+    """Coefficient k of the product of two jets."""
+    acc = 0.0
+    for i in range(k + 1):
+        acc += a[i] * b[k - i]
+    return acc
+
+
+@jit
 def ref_jets(R, t, info):
     """FlatReference._headings: jets of every heading (rows, robot order) and of v_n."""
     X0, Y0 = path_jets(R, t)
@@ -446,12 +462,16 @@ def ref_jets(R, t, info):
     TH = np.zeros((n, K1))
     LEN = np.zeros(n, dtype=np.int64)
     V = np.zeros(K1)
-    X = X0.copy()
-    Y = Y0.copy()
+    wk = np.zeros((11, K1))  # one allocation for the work jets
+    X, Y, Xd, Yd, Xdd, Ydd, num, den, s, c = wk[0], wk[1], wk[2], wk[3], wk[4], wk[5], wk[6], wk[7], wk[8], wk[9]
+    w = wk[10]
+    X[:] = X0
+    Y[:] = Y0
     L = K1
     for i in range(n - 1, -1, -1):
-        Xd = _jderiv(X, L)
-        Yd = _jderiv(Y, L)
+        for k in range(L - 1):
+            Xd[k] = X[k + 1] * (k + 1)
+            Yd[k] = Y[k + 1] * (k + 1)
         speed = math.hypot(Xd[0], Yd[0])
         if speed < R.min_speed:
             info[0] = E_REF_SPEED
@@ -459,30 +479,40 @@ def ref_jets(R, t, info):
             info[2] = i + 1
             info[3] = speed
             return X0, Y0, TH, LEN, V
-        Xdd = _jderiv(Xd, L - 1)
-        Ydd = _jderiv(Yd, L - 1)
         m = L - 2
-        num = _jmul(Xd, Ydd, m) - _jmul(Yd, Xdd, m)
-        den = _jmul(Xd, Xd, m) + _jmul(Yd, Yd, m)
-        q = _jdiv(num, den, m)
-        th = np.empty(m + 1)
-        th[0] = math.atan2(Yd[0], Xd[0])
         for k in range(m):
-            th[k + 1] = q[k] / (k + 1)
-        TH[i, : m + 1] = th
+            Xdd[k] = Xd[k + 1] * (k + 1)
+            Ydd[k] = Yd[k + 1] * (k + 1)
+        for k in range(m):
+            num[k] = _conv(Xd, Ydd, k) - _conv(Yd, Xdd, k)
+            den[k] = _conv(Xd, Xd, k) + _conv(Yd, Yd, k)
+        th = TH[i]
+        th[0] = math.atan2(Yd[0], Xd[0])
+        for k in range(m):  # thetadot = num / den (jet quotient), integrated
+            acc = num[k]
+            for j in range(1, k + 1):
+                acc -= den[j] * w[k - j]
+            w[k] = acc / den[0]
+            th[k + 1] = w[k] / (k + 1)
         LEN[i] = m + 1
-        s, c = _jsincos(th, m + 1)
+        s[0] = math.sin(th[0])
+        c[0] = math.cos(th[0])
+        for k in range(1, m + 1):
+            a = 0.0
+            b = 0.0
+            for j in range(1, k + 1):
+                a += j * th[j] * c[k - j]
+                b += j * th[j] * s[k - j]
+            s[k] = a / k
+            c[k] = -b / k
         if i == n - 1:
-            V[: m + 1] = _jmul(Xd, c, m + 1) + _jmul(Yd, s, m + 1)
+            for k in range(m + 1):
+                V[k] = _conv(Xd, c, k) + _conv(Yd, s, k)
         if i > 0:
             L = m + 1
-            Xn = np.zeros(K1)
-            Yn = np.zeros(K1)
             for k in range(L):
-                Xn[k] = X[k] + R.d[i - 1] * c[k]
-                Yn[k] = Y[k] + R.d[i - 1] * s[k]
-            X = Xn
-            Y = Yn
+                X[k] = X[k] + R.d[i - 1] * c[k]
+                Y[k] = Y[k] + R.d[i - 1] * s[k]
     return X0, Y0, TH, LEN, V
 
 
@@ -1077,7 +1107,13 @@ def controller(Kp, R, C, Lw, O, pc, t, q, eta, xc, sig_true, ubar_true, info, si
         return u, dx
     if sig.shape[0] > 0:
         _kin_signals(sig, kin, ecd, C)
-    Mbar1, Mbar2, Cbar, Bbar, _S, _Sd = reduced(pc, q, eta)
+    Mbar1, Mbar2, Cbar, Bbar, S_, _Sd = reduced(pc, q, eta)
+    C.M1[:] = Mbar1
+    C.M2[:] = Mbar2
+    C.Cb[:] = Cbar
+    C.Bb[:] = Bbar
+    C.Sm[:] = S_
+    C.f[3] = 1.0
     eta_e = eta - kin[0]
     w, MB, g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin[1], kin[2], ecd, Lw.k_v)
     if kind == LAW_TRACKING:
@@ -1085,7 +1121,7 @@ def controller(Kp, R, C, Lw, O, pc, t, q, eta, xc, sig_true, ubar_true, info, si
     elif kind == LAW_ORACLE:
         u = law_for_pattern(MB, w - _mv(MB, ubar_true), sig_true)
     elif kind == LAW_SWITCHING:
-        sel = int(round(xc[Lw.sel]))
+        sel = round(xc[Lw.sel])
         u = law_for_pattern(MB, w, Lw.patterns[sel])
         u_app = u if math.isnan(Lw.u_limit) else _clip(u, -Lw.u_limit, Lw.u_limit)
         Nm = Lw.patterns.shape[0]
@@ -1164,7 +1200,7 @@ def discrete(Kp, R, C, Lw, t, q, eta, xc, info):
             J[k] = Lw.c_inst * (e0 * e0 + e1 * e1)
             if Lw.n_int > 0:
                 J[k] = J[k] + Lw.c_int * xc[Lw.int0 + k]
-        cur = int(round(xc[Lw.sel]))
+        cur = round(xc[Lw.sel])
         cand = int(np.argmin(J))
         if cand != cur and t - xc[Lw.tsw] >= Lw.T_min - 1e-12 and J[cand] < J[cur] - Lw.hysteresis:
             xc[Lw.sel] = cand
@@ -1178,18 +1214,29 @@ def discrete(Kp, R, C, Lw, t, q, eta, xc, info):
 
 
 @jit
-def _deriv(Kp, R, C, Lw, O, pc, pp, nq, t, x, sigma, ubar, nz, sat, info, sig):
-    """(f, u, tau) of the closed loop (sim.simulate's deriv)."""
+def _deriv(ctx, t, x, sigma, ubar, nz, info, sig):
+    """(f, u, tau) of the closed loop (sim.simulate's deriv).
+
+    ``ctx = (Kp, R, C, Lw, O, pc, pp, nq, sat, share)``; ``share``: the controller's
+    model is the plant's and there is no noise, so the reduced matrices the
+    controller computed at (q, eta) are the plant's.
+    """
+    Kp, R, C, Lw, O, pc, pp, nq, sat, share = ctx
     q = x[:nq]
     eta = x[nq : nq + 2]
     xc = x[nq + 2 :]
+    C.f[3] = 0.0
     u, xcdot = controller(Kp, R, C, Lw, O, pc, t, q + nz[:nq], eta + nz[nq:], xc, sigma, ubar, info, sig)
     f = np.zeros(x.shape[0])
     if info[0] != 0:
         return f, u, u
     us = u if math.isnan(sat) else _clip(u, -sat, sat)
     tau = sigma * us + ubar
-    qdot, etadot = plant_rhs(pp, q, eta, tau)
+    if share and C.f[3] == 1.0:
+        qdot = _mv(C.Sm, eta)
+        etadot = _solve2(C.M1, _mv(C.Bb, tau) - _mv(C.M2, eta) - C.Cb)
+    else:
+        qdot, etadot = plant_rhs(pp, q, eta, tau)
     f[:nq] = qdot
     f[nq : nq + 2] = etadot
     f[nq + 2 :] = xcdot
@@ -1230,13 +1277,14 @@ def run_steps(
     Kp, R, Lw, O, pc, pp,
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
     x, k0, k1, is_logged, li,
-    lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info,
+    lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share,
 ):  # fmt: skip
     """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, stopped_at_next)."""
     nq = pp.n + 2
     nx = x.shape[0]
     sig_buf = np.zeros(n_sig)
     C = new_cache(pp.n)
+    ctx = (Kp, R, C, Lw, O, pc, pp, nq, sat, share)
     empty = np.zeros(0)
     noisy = noise.shape[0] > 1
     nz = noise[0]
@@ -1255,7 +1303,7 @@ def run_steps(
         if info[0] != 0:
             return x, k, li, False
         want = is_logged[k]
-        f0, u, tau = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t, x, sigma, ubar, nz, sat, info, sig_buf if want else empty)
+        f0, u, tau = _deriv(ctx, t, x, sigma, ubar, nz, info, sig_buf if want else empty)
         if info[0] != 0:
             return x, k, li, False
         ok = True
@@ -1286,17 +1334,13 @@ def run_steps(
             return x, k, li, False
         h = grid[k + 1] - t
         if method == 0:
-            f2 = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, nz, sat, info, empty)[
-                0
-            ]
+            f2 = _deriv(ctx, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, nz, info, empty)[0]
             if info[0] != 0:
                 return x, k, li, True
-            f3 = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t + 0.5 * h, x + 0.5 * h * f2, sigma, ubar, nz, sat, info, empty)[
-                0
-            ]
+            f3 = _deriv(ctx, t + 0.5 * h, x + 0.5 * h * f2, sigma, ubar, nz, info, empty)[0]
             if info[0] != 0:
                 return x, k, li, True
-            f4 = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t + h, x + h * f3, sigma, ubar, nz, sat, info, empty)[0]
+            f4 = _deriv(ctx, t + h, x + h * f3, sigma, ubar, nz, info, empty)[0]
             if info[0] != 0:
                 return x, k, li, True
             xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
@@ -1307,7 +1351,7 @@ def run_steps(
                 delta = 1e-7 * max(1.0, abs(x[c]))
                 xp = x.copy()
                 xp[c] += delta
-                fp = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t, xp, sigma, ubar, nz, sat, info, empty)[0]
+                fp = _deriv(ctx, t, xp, sigma, ubar, nz, info, empty)[0]
                 if info[0] != 0:
                     return x, k, li, True
                 F[:, j] = (fp - f0) / delta
@@ -1324,7 +1368,7 @@ def run_steps(
             small[1, 1] = 1.0 - gh * DF[nq + 1, 1]
             rd = dinv * f0
             kk1 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
-            f2 = _deriv(Kp, R, C, Lw, O, pc, pp, nq, t + h, x + h * kk1, sigma, ubar, nz, sat, info, empty)[0]
+            f2 = _deriv(ctx, t + h, x + h * kk1, sigma, ubar, nz, info, empty)[0]
             if info[0] != 0:
                 return x, k, li, True
             rd = dinv * (f2 - 2.0 * kk1)

@@ -188,6 +188,16 @@ class Cache(NamedTuple):
     Cb: np.ndarray  # (2,)
     Bb: np.ndarray  # (2, 2n)
     Sm: np.ndarray  # (N, 2)
+    # the kinematic law's outputs at rows 0 (t), 1 (t + h), 2 (t - h), and its work space
+    KEC: np.ndarray  # (3, 2) eta_c
+    KT: np.ndarray  # (3, 2, 2) T_alpha
+    KF: np.ndarray  # (3, 2) f_eta
+    KZ: np.ndarray  # (3, m) error coordinates
+    WJ: np.ndarray  # jets of chained_xi_T
+    WQ: np.ndarray  # (N,) q in the frame
+    WP: np.ndarray  # (N,) q +/- h qdot
+    WXI: np.ndarray  # (m,) xi
+    WV: np.ndarray  # (3, m) Zhat, Zbar, L^T Zbar
 
 
 @jit
@@ -196,6 +206,8 @@ def new_cache(n):
     return Cache(
         np.zeros(4), np.zeros((3, N)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 4)), np.zeros((3, N)),
         np.zeros((3, 2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), np.zeros(2), np.zeros((2, 2 * n)), np.zeros((N, 2)),
+        np.zeros((3, 2)), np.zeros((3, 2, 2)), np.zeros((3, 2)), np.zeros((3, N)), np.zeros((9 * n, n + 2)),
+        np.zeros(N), np.zeros(N), np.zeros(N), np.zeros((3, N)),
     )  # fmt: skip
 
 
@@ -602,9 +614,7 @@ def ref_side(Kp, R, C, t, psi, info):
         C.SC[i, 2] = rp[5]
         C.SC[i, 3] = rp[6]
         if Kp.kind == KIN_CHAINED:
-            xi_d, T_d = _xi_T(to_frame(rp[0], psi), R.d)
-            C.XID[i] = xi_d
-            C.TD[i] = T_d
+            xi_T(to_frame(rp[0], psi, C.WQ), R.d, C.WJ, C.XID[i], C.TD[i])
     C.f[0] = t
     C.f[1] = psi
     C.f[2] = 1.0
@@ -612,13 +622,15 @@ def ref_side(Kp, R, C, t, psi, info):
 
 # =========================================================================== chained form
 @jit
-def chained_xi_T(th, d):
-    """(xi_2..xi_(m-1), T21, T22) of the chained form at headings th (robot order); see the module doc."""
+def chained_xi_T(th, d, work, ang):
+    """xi_2..xi_(m-1) into ang, and (T21, T22), at headings th (robot order); see the module doc.
+
+    ``work``: at least (9 n, n + 2) scratch (every jet below lives in it).
+    """
     n = th.shape[0]
     K = n + 1
-    K1 = K + 1
     nl = n - 1
-    work = np.zeros((4 * n + 5 * nl + 5, K1))  # one allocation for every jet below
+    work[:] = 0.0
     TH = work[0:n]
     W = work[n : 2 * n]
     P1 = work[2 * n : 3 * n]
@@ -697,8 +709,7 @@ def chained_xi_T(th, d):
             RHS[k, j] = s / d[k - 1]
             TH[k, j + 1] = RHS[k, j] / (j + 1)
         Y[j + 1] = TANN[j] / (j + 1)
-    ang = np.empty(n)  # xi_2..xi_(m-1): xi_(m-jj) = jj! y_jj, m = n + 2
-    m = n + 2
+    m = n + 2  # xi_2..xi_(m-1): xi_(m-jj) = jj! y_jj
     fact = 1.0
     for jj in range(1, n + 1):
         fact *= jj
@@ -708,14 +719,13 @@ def chained_xi_T(th, d):
     T22 = secn * secn * secn ** (n - 1)
     for l in range(nl):
         T22 *= W[l + 1, 0] * SEC[l, 0] * SEC[l, 0] / d[l]
-    return ang, T21, T22
+    return T21, T22
 
 
 @jit
-def to_frame(q, psi):
-    """q in the frame rotated by psi (control/kinematic.py to_frame)."""
+def to_frame(q, psi, out):
+    """q in the frame rotated by psi, into out (control/kinematic.py to_frame)."""
     c, s = math.cos(psi), math.sin(psi)
-    out = np.empty_like(q)
     out[0] = c * q[0] + s * q[1]
     out[1] = -s * q[0] + c * q[1]
     out[2] = _wrap(q[2] - psi)
@@ -727,41 +737,36 @@ def to_frame(q, psi):
 
 
 @jit
-def _xi_T(qf, d):
+def xi_T(qf, d, work, xi, T):
+    """Chained coordinates xi (m,) and T_alpha (2, 2) at q (in its frame), into xi and T."""
     n = qf.shape[0] - 2
     th = np.empty(n)
     for k in range(n):
         th[k] = qf[n + 1 - k]
-    ang, T21, T22 = chained_xi_T(th, d)
     m = n + 2
-    xi = np.empty(m)
+    T21, T22 = chained_xi_T(th, d, work, xi[1 : m - 1])
     xi[0] = qf[0]
-    xi[1 : m - 1] = ang
     xi[m - 1] = qf[1]
-    T = np.zeros((2, 2))
     T[0, 0] = math.cos(th[n - 1])
+    T[0, 1] = 0.0
     T[1, 0] = T21
     T[1, 1] = T22
-    return xi, T
 
 
 @jit
 def _chained_law(Kp, R, C, ir, q, psi, info):
-    """ChainedBackstepping.law: (eta_c, T_alpha, f_eta, Z), (3.67)-(3.106) generalized."""
+    """ChainedBackstepping.law into row ir of the cache: eta_c, T_alpha, f_eta, Z; (3.67)-(3.106) generalized."""
     eta_d = C.ED[ir]
-    qf = to_frame(q, psi)
+    qf = to_frame(q, psi, C.WQ)
     n = Kp.n
     m = n + 2
     p = m - 1
-    eta_c = np.zeros(2)
-    T = np.zeros((2, 2))
-    f_eta = np.zeros(2)
-    Z = np.zeros(m)
+    eta_c, T, f_eta, Z = C.KEC[ir], C.KT[ir], C.KF[ir], C.KZ[ir]
     # check_domain
     if abs(math.cos(qf[2])) <= Kp.singular_tol:
         info[0] = E_CHAINED_THN
         info[1] = math.degrees(qf[2])
-        return eta_c, T, f_eta, Z
+        return
     worst = 2.0
     iw = 0
     for i in range(n - 1):  # robot order i, i+1: q index m-1-i, m-2-i
@@ -773,27 +778,30 @@ def _chained_law(Kp, R, C, ir, q, psi, info):
         info[0] = E_CHAINED_ART
         info[1] = iw
         info[2] = math.degrees(qf[m - 1 - iw] - qf[m - 2 - iw])
-        return eta_c, T, f_eta, Z
-    xi, T = _xi_T(qf, R.d)
+        return
+    xi = C.WXI
+    xi_T(qf, R.d, C.WJ, xi, T)
     xi_d, T_d = C.XID[ir], C.TD[ir]
     a1d = T_d[0, 0] * eta_d[0] + T_d[0, 1] * eta_d[1]
     a2d = T_d[1, 0] * eta_d[0] + T_d[1, 1] * eta_d[1]
-    e = xi - xi_d
-    for j in range(1, m - 1):
-        Z[j - 1] = e[m - j] - xi[m - j - 1] * e[0]
-    Z[m - 2] = e[1]
-    Z[m - 1] = e[0]
+    e0 = xi[0] - xi_d[0]
+    for j in range(1, m - 1):  # Z_j = xi_e,(m+1-j) - xi_(m-j) xi_e,1
+        Z[j - 1] = (xi[m - j] - xi_d[m - j]) - xi[m - j - 1] * e0
+    Z[m - 2] = xi[1] - xi_d[1]
+    Z[m - 1] = e0
     mu = Kp.mu
-    Zh = Z[:p] * Kp.Dscale
+    Zh, Zbar, LtZ = C.WV[0], C.WV[1], C.WV[2]
+    for j in range(p):
+        Zh[j] = Z[j] * Kp.Dscale[j]
     z = Z[m - 1]
-    Zbar = np.zeros(p)
     lnz = 0.0
     for j in range(p):
         lnz += Kp.LN_last[j] * Zh[j]
+        acc = 0.0
         for i in range(j + 1):  # L is lower triangular
-            Zbar[j] += Kp.L[j, i] * Zh[i]
+            acc += Kp.L[j, i] * Zh[i]
+        Zbar[j] = acc
     a2c = a2d + mu ** (p - 1) * (-Kp.c_alpha2 * Zbar[p - 1] - mu * a1d * (Zbar[p - 2] + lnz))
-    LtZ = np.zeros(p)
     for i in range(p):
         acc = 0.0
         for j in range(i, p):
@@ -807,20 +815,18 @@ def _chained_law(Kp, R, C, ir, q, psi, info):
     if abs(kd) < Kp.singular_tol * Kp.kappa:
         info[0] = E_KAPPA
         info[1] = kd
-        return eta_c, T, f_eta, Z
+        return
     a1c = a1d + (-Kp.c_xi1 * z + gam * a2c) / kd
-    alpha_c = np.empty(2)
-    alpha_c[0] = a1c
-    alpha_c[1] = a2c
-    eta_c = _solve2(T, alpha_c)
+    det = T[0, 0] * T[1, 1] - T[0, 1] * T[1, 0]  # eta_c = T^-1 alpha_c
+    eta_c[0] = (T[1, 1] * a1c - T[0, 1] * a2c) / det
+    eta_c[1] = (T[0, 0] * a2c - T[1, 0] * a1c) / det
     f_eta[0] = z * kd
     f_eta[1] = Kp.rho * Kp.Dscale[p - 1] * Zbar[p - 1] - z * gam
-    return eta_c, T, f_eta, Z
 
 
 @jit
 def _two_link_law(Kp, C, ir, q, info):
-    """TwoLinkKinematic._law: (eta_c, T_alpha, f_eta, z), (3.8)-(3.29) with E6-E11a."""
+    """TwoLinkKinematic._law into row ir of the cache: eta_c, T_alpha, f_eta, z; (3.8)-(3.29) with E6-E11a."""
     q_d = C.QD[ir]
     vd, wd, vdd, wdd = C.SC[ir, 0], C.SC[ir, 1], C.SC[ir, 2], C.SC[ir, 3]
     d = Kp.d2
@@ -833,18 +839,15 @@ def _two_link_law(Kp, C, ir, q, info):
     c, s = math.cos(eth), math.sin(eth)
     phi = q[3] - q[2]
     cphi = math.cos(phi)
-    eta_c = np.zeros(2)
-    T = np.zeros((2, 2))
-    f_eta = np.zeros(2)
-    z = np.zeros(4)
+    eta_c, T, f_eta, z = C.KEC[ir], C.KT[ir], C.KF[ir], C.KZ[ir]
     if abs(c) < 1e-3:
         info[0] = E_TWO_LINK_ETH
         info[1] = math.degrees(eth)
-        return eta_c, T, f_eta, z
+        return
     if abs(cphi) < 1e-3:
         info[0] = E_TWO_LINK_PHI
         info[1] = math.degrees(phi)
-        return eta_c, T, f_eta, z
+        return
     tphi = math.tan(phi)
     sec2 = 1.0 / cphi**2
     z[0] = ex
@@ -860,44 +863,57 @@ def _two_link_law(Kp, C, ir, q, info):
         - wd * ex
     )
     T[0, 0] = c
+    T[0, 1] = 0.0
     T[1, 0] = T21
     T[1, 1] = T22
     z1, z3, z4 = z[0], z[2], z[3]
     g = z1 + z3 * (z4 + (wd / vd) * (1.0 + z3**2))
-    rhs = np.empty(2)
-    rhs[0] = -Kp.k1 * g + vd
-    rhs[1] = -Kp.k2 * vd * z3 - Kp.k3 * z4 - f2
-    eta_c = _solve2(T, rhs)
+    r0 = -Kp.k1 * g + vd
+    r1 = -Kp.k2 * vd * z3 - Kp.k3 * z4 - f2
+    det = T[0, 0] * T[1, 1] - T[0, 1] * T[1, 0]  # eta_c = T^-1 (alpha_c - f_alpha)   (3.29)
+    eta_c[0] = (T[1, 1] * r0 - T[0, 1] * r1) / det
+    eta_c[1] = (T[0, 0] * r1 - T[1, 0] * r0) / det
     f_eta[0] = g
     f_eta[1] = z4 / Kp.k2
-    return eta_c, T, f_eta, z
 
 
 @jit
 def kin_law(Kp, R, C, ir, q, xk, info):
+    """The kinematic law into row ir of the cache (ir: 0 at t, 1 at t + h, 2 at t - h)."""
     if Kp.kind == KIN_TWO_LINK:
-        return _two_link_law(Kp, C, ir, q, info)
-    return _chained_law(Kp, R, C, ir, q, xk[0], info)
+        _two_link_law(Kp, C, ir, q, info)
+    else:
+        _chained_law(Kp, R, C, ir, q, xk[0], info)
 
 
 @jit
 def eta_c_and_dot(Kp, R, C, pc, t, q, eta, xk, info):
-    """TrackingController.eta_c_and_dot: law at t and the central difference along (S(q) eta, 1) (ERRATA P5)."""
-    z2 = np.zeros(2)
-    dummy = (z2, np.zeros((2, 2)), z2, np.zeros(1))
+    """TrackingController.eta_c_and_dot: law at t and the central difference along (S(q) eta, 1) (ERRATA P5).
+
+    Returns ``((eta_c, T_alpha, f_eta, z), etadot_c)``; the first four are views of
+    cache row 0, valid until the next evaluation.
+    """
+    kin = (C.KEC[0], C.KT[0], C.KF[0], C.KZ[0])
+    ecd = np.zeros(2)
     ref_side(Kp, R, C, t, xk[0] if Kp.nk > 0 else 0.0, info)
     if info[0] != 0:
-        return dummy, z2
-    kin = kin_law(Kp, R, C, 0, q, xk, info)
+        return kin, ecd
+    kin_law(Kp, R, C, 0, q, xk, info)
     if info[0] != 0:
-        return dummy, z2
+        return kin, ecd
     h = Kp.h
-    qdot = _mv(s_matrix(pc, q), eta)
-    plus = kin_law(Kp, R, C, 1, q + h * qdot, xk, info)[0]
+    S = s_matrix(pc, q)
+    for i in range(q.shape[0]):
+        C.WP[i] = q[i] + h * (S[i, 0] * eta[0] + S[i, 1] * eta[1])
+    kin_law(Kp, R, C, 1, C.WP, xk, info)
     if info[0] != 0:
-        return dummy, z2
-    minus = kin_law(Kp, R, C, 2, q - h * qdot, xk, info)[0]
-    return kin, (plus - minus) / (2.0 * h)
+        return kin, ecd
+    for i in range(q.shape[0]):
+        C.WP[i] = q[i] - h * (S[i, 0] * eta[0] + S[i, 1] * eta[1])
+    kin_law(Kp, R, C, 2, C.WP, xk, info)
+    ecd[0] = (C.KEC[1, 0] - C.KEC[2, 0]) / (2.0 * h)
+    ecd[1] = (C.KEC[1, 1] - C.KEC[2, 1]) / (2.0 * h)
+    return kin, ecd
 
 
 # =========================================================================== dynamic laws (control/tracking.py)
@@ -1005,56 +1021,105 @@ def farza_estimates(O, pc, s, y, nw):
 
 @jit
 def farza_derivative(O, pc, u, y, s):
-    """Observer state derivative (4.4)-(4.11) with E15, E16 and the P guard."""
+    """Observer state derivative (4.4)-(4.11) with E15, E16 and the P guard.
+
+    Same equations as FarzaObserver.derivative, grouped for small dense loops:
+    (S_o^-1 + Y P Y^T) C^T K = S_o^-1 C^T K + Y (P v) with v = (C Y)^T K, and
+    P Y^T C^T C Y P = W^T W with W = C Y P.  eta = S^+ qdot by the normal equations.
+    """
     N = pc.n + 2
     nw = 2 * pc.n
     P_ = O.p
     Th = O.Theta
-    xhat = s[: 2 * N]
-    rhohat = s[2 * N : 2 * N + P_]
-    Y = s[2 * N + P_ : 2 * N + P_ + 2 * N * P_].copy().reshape((2 * N, P_))
-    P = s[2 * N + P_ + 2 * N * P_ : 2 * N + P_ + 2 * N * P_ + P_ * P_].copy().reshape((P_, P_))
+    o_rho = 2 * N
+    o_Y = o_rho + P_
+    o_P = o_Y + 2 * N * P_
+    Y = s[o_Y:o_P].reshape((2 * N, P_))
+    P = s[o_P : o_P + P_ * P_].reshape((P_, P_))
     rho = np.ones(nw)
     ubar = np.zeros(nw)
     k = 0
     if O.est_rho:
-        rho = rhohat[:nw].copy()
+        rho = s[o_rho : o_rho + nw]
         k = nw
     if O.est_ubar:
-        ubar = rhohat[k : k + nw].copy()
-    q = xhat[:N].copy()
-    qdot = xhat[N:].copy()
-    S = s_matrix(pc, q)
-    eta = np.linalg.lstsq(S, qdot)[0]
+        ubar = s[o_rho + k : o_rho + k + nw]
+    q = s[:N]
+    qdot = s[N : 2 * N]
+    S0 = s_matrix(pc, q)
+    eta = _solve2(S0.T @ S0, _mtv(S0, qdot))  # S^+ qdot (S has full column rank)
     Mbar1, Mbar2, Cbar, Bbar, S, Sdot = reduced(pc, q, eta)
-    MB = np.linalg.solve(Mbar1, Bbar)
-    acc = np.linalg.solve(Mbar1, -(Mbar2 @ eta) - Cbar) + MB @ (rho * u + ubar)
-    phi2 = S @ acc + Sdot @ eta
-    SMB = S @ MB
-    dphi2 = np.zeros((N, P_))
-    c0 = 0
-    if O.est_rho:
-        for j in range(nw):
-            dphi2[:, j] = SMB[:, j] * u[j]
-        c0 = nw
-    if O.est_ubar:
-        for j in range(nw):
-            dphi2[:, c0 + j] = SMB[:, j]
-    Kt = O.k1 * np.tanh(O.k0 * (y - xhat[:N]))
-    YN = Y[:N].copy()
-    corr = (O.Soinv[:, :N] + Y @ P @ YN.T) @ Kt
-    corr[N:] *= Th
+    Minv = _inv2(Mbar1)
+    MB = np.empty((2, nw))
+    for j in range(nw):
+        MB[0, j] = Minv[0, 0] * Bbar[0, j] + Minv[0, 1] * Bbar[1, j]
+        MB[1, j] = Minv[1, 0] * Bbar[0, j] + Minv[1, 1] * Bbar[1, j]
+    tq = rho * u + ubar
+    acc = -_mv(Minv, _mv(Mbar2, eta) + Cbar) + _mv(MB, tq)
     ds = np.empty(s.shape[0])
-    ds[:N] = xhat[N:] + O.sign * Th * corr[:N]
-    ds[N : 2 * N] = phi2 + O.sign * Th * corr[N:]
-    ds[2 * N : 2 * N + P_] = O.sign * Th * (P @ (YN.T @ Kt))
-    dphi = np.zeros((2 * N, P_))
-    dphi[N:] = dphi2 / Th
-    ds[2 * N + P_ : 2 * N + P_ + 2 * N * P_] = (O.AY @ Y + dphi).ravel()
-    dP = Th * P - Th * P @ YN.T @ YN @ P
-    if not math.isnan(O.p_max):
-        dP -= Th * (P @ P) / O.p_max
-    ds[2 * N + P_ + 2 * N * P_ :] = dP.ravel()
+    # correction terms
+    Kt = np.empty(N)
+    for i in range(N):
+        Kt[i] = O.k1 * math.tanh(O.k0 * (y[i] - s[i]))
+    v = np.zeros(P_)  # (C Y)^T K
+    for a in range(P_):
+        acc_v = 0.0
+        for i in range(N):
+            acc_v += Y[i, a] * Kt[i]
+        v[a] = acc_v
+    Pv = _mv(P, v)
+    YPv = _mv(Y, Pv)
+    SoK = _mv(O.Soinv[:, :N], Kt)
+    sgn = O.sign * Th
+    for i in range(N):
+        ds[i] = s[N + i] + sgn * (SoK[i] + YPv[i])
+        # phi_2 = S acc + Sdot eta
+        ds[N + i] = S[i, 0] * acc[0] + S[i, 1] * acc[1] + Sdot[i, 0] * eta[0] + Sdot[i, 1] * eta[1]
+        ds[N + i] += sgn * Th * (SoK[N + i] + YPv[N + i])
+    for a in range(P_):
+        ds[o_rho + a] = sgn * Pv[a]
+    # Y' = Theta (A - S_o^-1 C^T C) Y + Delta dphi/drho_bar, with dphi_2/drho_bar = S MB [diag(u), I]
+    AY = O.AY
+    dY = ds[o_Y:o_P].reshape((2 * N, P_))
+    for i in range(2 * N):
+        for a in range(P_):
+            dY[i, a] = 0.0
+        for kk in range(2 * N):
+            c = AY[i, kk]
+            if c != 0.0:
+                for a in range(P_):
+                    dY[i, a] += c * Y[kk, a]
+    for i in range(N):
+        for j in range(nw):
+            smb = S[i, 0] * MB[0, j] + S[i, 1] * MB[1, j]
+            c0 = 0
+            if O.est_rho:
+                dY[N + i, j] += smb * u[j] / Th
+                c0 = nw
+            if O.est_ubar:
+                dY[N + i, c0 + j] += smb / Th
+    # P' = Theta P - Theta W^T W - Theta P P / p_max,  W = C Y P
+    W = np.zeros((N, P_))
+    for i in range(N):
+        for b in range(P_):
+            acc_w = 0.0
+            for a in range(P_):
+                acc_w += Y[i, a] * P[a, b]
+            W[i, b] = acc_w
+    dP = ds[o_P : o_P + P_ * P_].reshape((P_, P_))
+    guard = not math.isnan(O.p_max)
+    for a in range(P_):
+        for b in range(P_):
+            acc_p = 0.0
+            for i in range(N):
+                acc_p += W[i, a] * W[i, b]
+            val = Th * P[a, b] - Th * acc_p
+            if guard:
+                acc_pp = 0.0
+                for c in range(P_):
+                    acc_pp += P[a, c] * P[c, b]
+                val -= Th * acc_pp / O.p_max
+            dP[a, b] = val
     return ds
 
 
@@ -1145,23 +1210,29 @@ def controller(Kp, R, C, Lw, O, pc, t, q, eta, xc, sig_true, ubar_true, info, si
         w2 = w - _mv(MB, uf)
         c = _mtv(MB, eta_e)
         for k in range(Nm):
-            Uk = law_for_pattern_plain(MB, w2, Lw.patterns[k])
+            # u_(k) = A^T (A A^T)^-1 w2, A = MB diag(sigma_(k)), in scalars (no temporaries)
+            g00 = 0.0
+            g01 = 0.0
+            g11 = 0.0
             for j in range(nw):
+                s2 = Lw.patterns[k, j] * Lw.patterns[k, j]
+                g00 += MB[0, j] * MB[0, j] * s2
+                g01 += MB[0, j] * MB[1, j] * s2
+                g11 += MB[1, j] * MB[1, j] * s2
+            det = g00 * g11 - g01 * g01
+            y0 = (g11 * w2[0] - g01 * w2[1]) / det
+            y1 = (g00 * w2[1] - g01 * w2[0]) / det
+            for j in range(nw):
+                Ukj = Lw.patterns[k, j] * (MB[0, j] * y0 + MB[1, j] * y1)
                 chi = xc[Lw.chi0 + k * nw + j]
-                u[j] += chi * Uk[j]
+                u[j] += chi * Ukj
                 if Lw.adapt:
-                    pk = -Lw.gamma * Uk[j] * c[j]
+                    pk = -Lw.gamma * Ukj * c[j]
                     frozen = (chi <= 0.0 and pk < 0.0) or (chi >= 1.0 and pk > 0.0)
                     dx[Lw.chi0 + k * nw + j] = 0.0 if frozen else pk
         if Lw.adapt:
             dx[Lw.uf0 : Lw.uf0 + nw] = _mv(Lw.Gamma_f, _mtv(MB, eta_e))
     return u, dx
-
-
-@jit
-def law_for_pattern_plain(MB, w, sigma):
-    """adaptive.pattern_laws for one pattern: A^T (A A^T)^-1 w, no rank test."""
-    return _right_inverse(MB, sigma, _gram(MB, sigma), w)
 
 
 @jit

@@ -1,0 +1,174 @@
+"""The compiled engine (ftcreport.fast) against the Python reference implementation.
+
+Piece by piece (chained form, reduced model, reference), then golden runs: the
+same case and scheme simulated by both engines, compared signal by signal.
+
+Tolerances.  Both engines evaluate the same equations in a different order of
+floating-point operations (closed-form 2 x 2 solves, loops instead of BLAS), so
+single evaluations agree to round-off (1e-12 relative here).  Along a run the
+closed loops are contracting, so differences stay near round-off: plant states
+within 1e-9 absolute.  The control signal multiplies state differences by the
+velocity gain (k4 = 3000 in the stiff two-link case) and ROS2's forward-difference
+Jacobian divides round-off by its increment (1e-7), so u is compared to 1e-8 of
+its largest value.  etadot_c is a central difference of step 1e-5: round-off in
+eta_c (1e-12) becomes 1e-7 there.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ftcreport.cases import load_case, with_duration
+from ftcreport.control import VelocityController, constant_command
+from ftcreport.errors import ModelError
+from ftcreport.fast import kernels as F
+from ftcreport.fast.engine import compiled_spec
+from ftcreport.model import Chain
+from ftcreport.model import kernels as K
+from ftcreport.model.chained import ChainedForm
+from ftcreport.references import FlatReference, circle, eight, sinusoid
+from ftcreport.runner import build, make_controller
+from ftcreport.sim import Plant, SimSettings, simulate
+
+CASES = Path(__file__).resolve().parents[1] / "cases"
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5])
+def test_numeric_chained_form_equals_the_sympy_derivation(n):
+    rng = np.random.default_rng(n)
+    d = rng.uniform(0.5, 1.5, n - 1)
+    cf = ChainedForm(d)
+    work = np.zeros((9 * n, n + 2))
+    for _ in range(30):
+        q = np.concatenate((rng.normal(size=2), rng.uniform(-1.0, 1.0, n)))
+        xi, T = cf.xi_and_T(q)
+        xi2, T2 = np.empty(n + 2), np.empty((2, 2))
+        F.xi_T(q, d, work, xi2, T2)
+        np.testing.assert_allclose(xi2, xi, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(T2, T, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [2, 3, 5])
+def test_compiled_reduced_model_equals_the_python_kernels(n):
+    rng = np.random.default_rng(10 + n)
+    chain = Chain.uniform(n, d=rng.uniform(0.6, 1.4, n - 1).tolist())
+    pc = F.Chain(*chain.params)
+    for _ in range(20):
+        q = np.concatenate((rng.normal(size=2), rng.uniform(-0.7, 0.7, n)))
+        eta, tau = rng.normal(size=2), rng.normal(size=2 * n)
+        for a, b in zip(K.reduced(chain.params, q, eta), F.reduced(pc, q, eta)[:4], strict=True):
+            np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12)
+        qd, ed = K.eta_dot(chain.params, q, eta, tau)
+        qd2, ed2 = F.plant_rhs(pc, q, eta, tau)
+        np.testing.assert_allclose(qd2, qd, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(ed2, ed, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("path", "d"),
+    [(circle(5.0, 0.5), [1.0]), (eight(), [0.6, 0.6]), (sinusoid(0.5, 1.0, 0.2), [1.0, 0.8, 0.9, 1.1])],
+)
+def test_compiled_reference_equals_the_flat_reference(path, d):
+    ref = FlatReference(path, d)
+    from ftcreport.fast.engine import _ref
+
+    R = _ref(ref)
+    info = np.zeros(4)
+    for t in np.linspace(0.0, 40.0, 23):
+        jets = F.ref_jets(R, t, info)
+        for delta in (0.0, 1e-5, -1e-5):
+            q_d, eta_d, eta_d_dot, vd, wd, vdd, wdd = F.ref_point(R, jets, t + delta, delta, info)
+            ref._at(t)  # the Python reference's jets at t, shifted as in FlatReference.at
+            r = ref._point(t + delta, ref._jets, delta)
+            np.testing.assert_allclose(q_d, r.q_d, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(eta_d, r.eta_d, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(eta_d_dot, r.eta_d_dot, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose([vd, wd, vdd, wdd], [r.v_d, r.omega_d, r.v_d_dot, r.omega_d_dot], atol=1e-12)
+    assert info[0] == 0
+
+
+# (case file, scheme, simulated seconds): every compiled law, both integrators, faults, noise, saturation
+GOLDEN = [
+    ("two_link_switching.toml", "switching", 3.0),  # ROS2, k4 = 3000
+    ("two_link_switching.toml", "nominal", 3.0),
+    ("three_link_switching.toml", "switching", 24.0),  # chained form, 46 models, a fault at 20 s
+    ("three_link_adaptive.toml", "adaptive", 8.0),
+    ("three_link_adaptive.toml", "adaptive_frozen", 4.0),
+    ("two_link_adaptive_eight.toml", "adaptive", 6.0),  # two-link law, friction estimate
+    ("two_link_active.toml", "active", 8.0),  # Farza observer, saturation
+    ("two_link_active.toml", "oracle", 40.0),  # faults at 35 s
+    ("three_link_active.toml", "active", 20.0),  # noise, filtered estimates
+    ("five_link_cascade.toml", "switching", 2.0),  # 766 models
+]
+
+
+def _both(case_file: str, scheme: str, seconds: float):
+    case = with_duration(load_case(CASES / case_file), seconds)
+    runs = []
+    for engine in ("python", "compiled"):
+        built = build(case)
+        runs.append(
+            simulate(built.plant, make_controller(built, scheme), built.q0, built.eta0, built.settings, engine=engine)
+        )
+    return runs
+
+
+@pytest.mark.parametrize(("case_file", "scheme", "seconds"), GOLDEN)
+def test_golden_run_compiled_equals_python(case_file, scheme, seconds):
+    py, fast = _both(case_file, scheme, seconds)
+    assert py.ok and fast.ok, (py.reason, fast.reason)
+    assert fast.meta.get("engine") == "compiled" and "engine" not in py.meta
+    assert (fast.steps, fast.t_end) == (py.steps, py.t_end)
+    np.testing.assert_array_equal(fast.t, py.t)
+    assert set(fast.signals) == set(py.signals)
+    for name in ("sigma", "ubar"):
+        np.testing.assert_array_equal(fast[name], py[name])
+    for name in ("q", "eta"):
+        np.testing.assert_allclose(fast[name], py[name], rtol=0, atol=1e-9, err_msg=name)
+    for name, a in py.signals.items():
+        b = fast[name]
+        assert b.shape == a.shape, name
+        if name in ("q", "eta", "sigma", "ubar"):
+            continue
+        scale = max(1.0, float(np.max(np.abs(a)))) if a.size else 1.0
+        tol = 1e-7 if name == "eta_c_dot" else 1e-8
+        np.testing.assert_allclose(b, a, rtol=0, atol=tol * scale, err_msg=name)
+
+
+def test_singular_stop_is_the_same_in_both_engines():
+    from ftcreport.control.kinematic import ChainedBackstepping
+
+    chain = Chain.uniform(3, d=1.0)
+    # a reference that turns harder than a 3-robot chain started 60 deg off can follow
+    ref = FlatReference(circle(2.0, 0.6), chain.d)
+    kin = ChainedBackstepping(chain.d, ref, [0.0, 0.0, 0.0], 1.0, 1.0, 5.0)
+    q0 = ref.at(0.0).q_d + np.array([0.0, 0.8, 1.0, 1.0, 1.0])
+    runs = []
+    for engine in ("python", "compiled"):
+        from ftcreport.control.tracking import TrackingController
+
+        ctrl = TrackingController(chain, kin, 5.0)
+        runs.append(simulate(Plant(chain), ctrl, q0, np.zeros(2), SimSettings(0.01, 30.0), engine=engine))
+    py, fast = runs
+    assert py.status == fast.status != "ok"
+    assert fast.reason == py.reason
+    assert fast.t_end == py.t_end and fast.steps == py.steps
+    np.testing.assert_allclose(fast["q"], py["q"], atol=1e-9)
+
+
+def test_controllers_without_a_compiled_counterpart_run_in_python():
+    chain = Chain.uniform(2)
+    ctrl = VelocityController(chain, constant_command(0.5, 0.1), k=4.0)
+    assert compiled_spec(ctrl) is None
+    run = simulate(Plant(chain), ctrl, np.zeros(4), np.zeros(2), SimSettings(0.01, 0.5))
+    assert run.ok and "engine" not in run.meta
+    with pytest.raises(ModelError, match="no compiled counterpart"):
+        simulate(Plant(chain), ctrl, np.zeros(4), np.zeros(2), SimSettings(0.01, 0.5), engine="compiled")
+    case = with_duration(load_case(CASES / "two_link_active.toml"), 0.1)
+    built = build(case)
+    assert compiled_spec(make_controller(built, "active_ukf")) is None  # the UKF stays in Python (filterpy)
+    assert math.isfinite(built.settings.dt)

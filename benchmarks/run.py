@@ -1,11 +1,16 @@
 """Speed and memory of the simulation core, measured (not asserted).
 
-    python benchmarks/run.py [--quick] [--json FILE]
+    python benchmarks/run.py [--quick] [--json FILE] [--no-batch]
 
-Prints, per scheme and chain size: wall seconds per simulated second (median of
-repeats), model evaluations per second, peak memory of the run (tracemalloc), and
-the same two-link closed loop run through python-control's
-``input_output_response`` (what a python-control user would write), side by side.
+Prints, for each scheme (nominal, switching, adaptive, active Farza, active UKF)
+and chain size n = 2, 3, 5: wall seconds per simulated second of the compiled
+engine (median of repeats) and of the Python reference engine (one shorter run,
+for the speed-up), evaluations per second of the model (compiled and Python),
+peak Python-heap memory of the run (tracemalloc: the logs and objects), the
+first-run compile time of the kernels (a fresh process with an empty numba
+cache), the same two-link closed loop run through python-control's
+``input_output_response`` side by side with ours, the peak resident memory of the
+400 s Table 4.2 run, and ``ftcreport batch cases/`` cold and warm.
 """
 
 from __future__ import annotations
@@ -13,7 +18,9 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 import tracemalloc
 from pathlib import Path
@@ -23,30 +30,57 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftcreport.cases import load_case, with_duration  # noqa: E402
+from ftcreport.cases import ActiveScheme, AdaptiveScheme, load_case, with_duration  # noqa: E402
 from ftcreport.control.kinematic import TwoLinkKinematic  # noqa: E402
 from ftcreport.control.tracking import TrackingController  # noqa: E402
 from ftcreport.model import Chain  # noqa: E402
 from ftcreport.model import kernels as K  # noqa: E402
 from ftcreport.references import FlatReference, unicycle  # noqa: E402
-from ftcreport.runner import build, run_scheme  # noqa: E402
+from ftcreport.runner import build, make_controller  # noqa: E402
+from ftcreport.sim import simulate  # noqa: E402
 
 CASES = ROOT / "cases"
+FIVE = "five_link_cascade.toml"
 SCENARIOS = [
-    # (label, case file, scheme, simulated seconds)
-    ("two-link switching (3.2.3, ROS2 5 ms)", "two_link_switching.toml", "switching", 20.0),
-    ("two-link nominal (3.2.3, ROS2 5 ms)", "two_link_switching.toml", "nominal", 20.0),
-    ("two-link adaptive (3.3.2.3 eight, RK4 5 ms)", "two_link_adaptive_eight.toml", "adaptive", 10.0),
-    ("three-link switching (3.3.1.4, RK4 10 ms)", "three_link_switching.toml", "switching", 20.0),
-    ("three-link adaptive (3.3.2.3, RK4 10 ms)", "three_link_adaptive.toml", "adaptive", 20.0),
-    ("five-link switching, 766 models (RK4 20 ms)", "five_link_cascade.toml", "switching", 20.0),
-    ("two-link active Farza (Table 4.1, RK4 10 ms)", "two_link_active.toml", "active", 20.0),
-    ("two-link active UKF (Table 4.1, 10 ms samples)", "two_link_active.toml", "active_ukf", 20.0),
-    ("three-link active Farza (Table 4.2, RK4 20 ms)", "three_link_active.toml", "active", 40.0),
+    # (n, scheme, case file, simulated seconds, note)
+    (2, "nominal", "two_link_switching.toml", 20.0, "3.2.3, k4 = 3000, ROS2 5 ms"),
+    (2, "switching", "two_link_switching.toml", 20.0, "3.2.3, 10 models, ROS2 5 ms"),
+    (2, "adaptive", "two_link_adaptive_eight.toml", 20.0, "3.3.2.3 eight, RK4 5 ms"),
+    (2, "active", "two_link_active.toml", 20.0, "Table 4.1, RK4 10 ms"),
+    (2, "active_ukf", "two_link_active.toml", 20.0, "Table 4.1, 10 ms samples"),
+    (3, "nominal", "three_link_switching.toml", 20.0, "3.3.1.4, RK4 10 ms"),
+    (3, "switching", "three_link_switching.toml", 20.0, "3.3.1.4, 46 models, RK4 10 ms"),
+    (3, "adaptive", "three_link_adaptive.toml", 20.0, "3.3.2.3, 46 designs, RK4 10 ms"),
+    (3, "active", "three_link_active.toml", 40.0, "Table 4.2, noise, RK4 20 ms"),
+    (3, "active_ukf", "three_link_active.toml", 40.0, "Table 4.2, noise, 20 ms samples"),
+    (5, "nominal", FIVE, 20.0, "chained form, RK4 20 ms"),
+    (5, "switching", FIVE, 20.0, "chained form, 766 models, RK4 20 ms"),
+    (5, "adaptive", FIVE, 20.0, "chained form, 766 designs, RK4 20 ms"),
+    (5, "active", FIVE, 20.0, "chained form, Farza on 20 parameters, RK4 20 ms"),
+    (5, "active_ukf", FIVE, 20.0, "chained form, UKF on 27 states, 20 ms samples"),
 ]
 
 
-def model_evals_per_second(n: int, count: int = 2000) -> float:
+def load(case_file: str, scheme: str, seconds: float):
+    """The case, with the schemes the five-link case does not configure added (same k_v)."""
+    case = with_duration(load_case(CASES / case_file), seconds)
+    if getattr(case.schemes, scheme) is None:
+        k_v = case.schemes.nominal.k_v
+        extra = {"adaptive": AdaptiveScheme(k_v=k_v), "active": ActiveScheme(k_v=k_v)}
+        if scheme == "active_ukf":
+            from ftcreport.cases import ActiveUKFScheme
+
+            extra["active_ukf"] = ActiveUKFScheme(k_v=k_v)
+        case = case.model_copy(update={"schemes": case.schemes.model_copy(update={scheme: extra[scheme]})})
+    return case
+
+
+def model_evals_per_second(n: int, count: int) -> dict:
+    """eta_dot evaluations per second: the Python kernel, and the compiled one called from compiled code."""
+    from numba import njit
+
+    from ftcreport.fast import kernels as F
+
     chain = Chain.uniform(n)
     p = chain.params
     q = chain.q_from_headings(0.0, 0.0, np.linspace(0.3, 0.0, n))
@@ -55,26 +89,74 @@ def model_evals_per_second(n: int, count: int = 2000) -> float:
     t0 = time.perf_counter()
     for _ in range(count):
         K.eta_dot(p, q, eta, tau)
-    return count / (time.perf_counter() - t0)
+    py = count / (time.perf_counter() - t0)
+
+    @njit
+    def loop(pc, q, eta, tau, count):
+        acc = 0.0
+        for i in range(count):
+            q[0] = 1e-9 * i  # a new state each time
+            acc += F.plant_rhs(pc, q, eta, tau)[1][0]
+        return acc
+
+    pc = F.Chain(*p)
+    loop(pc, q.copy(), eta, tau, 10)
+    big = 200 * count
+    t0 = time.perf_counter()
+    loop(pc, q.copy(), eta, tau, big)
+    return {"python": py, "compiled": big / (time.perf_counter() - t0)}
 
 
-def scenario(case_file: str, scheme: str, seconds: float, repeats: int) -> dict:
-    """Median wall time of untraced runs; peak memory from one extra run under tracemalloc
-    (tracemalloc slows Python several-fold, so it never overlaps a timed run)."""
-    case = with_duration(load_case(CASES / case_file), seconds)
-    walls = []
+def scenario(case_file: str, scheme: str, seconds: float, repeats: int, py_seconds: float) -> dict:
+    """Median wall time of the compiled engine, one Python-engine run, peak Python heap (tracemalloc)."""
+    case = load(case_file, scheme, seconds)
+    walls, engine = [], ""
     for _ in range(repeats):
         built = build(case)
+        ctrl = make_controller(built, scheme)
         t0 = time.perf_counter()
-        run, m = run_scheme(case, scheme, built)
+        run = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings)
         walls.append(time.perf_counter() - t0)
-        assert m["status"] == "ok", m["reason"]
+        assert run.ok, run.reason
+        engine = run.meta.get("engine", "python")
+    pcase = load(case_file, scheme, py_seconds)
+    built = build(pcase)
+    ctrl = make_controller(built, scheme)
+    t0 = time.perf_counter()
+    prun = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings, engine="python")
+    py = (time.perf_counter() - t0) / py_seconds
+    assert prun.ok, prun.reason
     built = build(case)
+    ctrl = make_controller(built, scheme)
     tracemalloc.start()
-    run_scheme(case, scheme, built)
+    simulate(built.plant, ctrl, built.q0, built.eta0, built.settings)
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    return {"wall_per_sim_s": statistics.median(walls) / seconds, "peak_mb": peak / 2**20, "steps": run.steps}
+    wall = statistics.median(walls) / seconds
+    return {
+        "engine": engine,
+        "wall_per_sim_s": wall,
+        "python_engine_wall_per_sim_s": py,
+        "speedup": py / wall,
+        "peak_mb": peak / 2**20,
+        "steps": run.steps,
+    }
+
+
+def compile_time() -> dict:
+    """First-run compile time (empty numba cache, fresh process) and the load time from the cache."""
+    code = (
+        f"import sys, time; sys.path.insert(0, {str(ROOT)!r}); t0 = time.perf_counter()\n"
+        "from ftcreport.fast.engine import warm_up\n"
+        "warm_up(); print(time.perf_counter() - t0)\n"
+    )
+    out = {}
+    with tempfile.TemporaryDirectory() as d:
+        env = dict(__import__("os").environ, NUMBA_CACHE_DIR=d)
+        for key in ("first_run_s", "cached_s"):
+            res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+            out[key] = float(res.stdout.split()[-1])
+    return out
 
 
 def peak_rss_400s() -> dict:
@@ -129,16 +211,20 @@ def io_response_comparison(seconds: float) -> dict:
     # default solve_ivp (RK45, rtol 1e-3): what a python-control user gets without tuning
     res = control.input_output_response(sys_cl, T, 0, np.concatenate((q0, eta0)))
     wall_ct = time.perf_counter() - t0
-    from ftcreport.sim import Plant, SimSettings, simulate
+    from ftcreport.sim import Plant, SimSettings
 
-    t0 = time.perf_counter()
-    run = simulate(Plant(chain), ctrl, q0, eta0, SimSettings(dt=0.01, duration=seconds))
-    wall_us = time.perf_counter() - t0
+    walls = {}
+    for engine in ("compiled", "python"):
+        t0 = time.perf_counter()
+        run = simulate(Plant(chain), ctrl, q0, eta0, SimSettings(dt=0.01, duration=seconds), engine=engine)
+        walls[engine] = time.perf_counter() - t0
     diff = float(np.abs(res.states[:2, -1] - run["q"][-1, :2]).max())
     return {
-        "ours_wall_per_sim_s": wall_us / seconds,
+        "ours_wall_per_sim_s": walls["compiled"] / seconds,
+        "ours_python_engine_wall_per_sim_s": walls["python"] / seconds,
         "python_control_wall_per_sim_s": wall_ct / seconds,
-        "ratio": wall_ct / wall_us,
+        "ratio": wall_ct / walls["compiled"],
+        "ratio_python_engine": wall_ct / walls["python"],
         "final_position_difference_m": diff,
     }
 
@@ -152,18 +238,31 @@ def main() -> None:
     repeats = 1 if args.quick else 3
     scale = 0.25 if args.quick else 1.0
     out: dict = {"model_evals_per_second": {}, "scenarios": {}}
+    ct = compile_time()
+    out["compile"] = ct
+    print(
+        f"numba kernels: first-run compile {ct['first_run_s']:.1f} s (empty cache), "
+        f"from the cache {ct['cached_s']:.1f} s"
+    )
     for n in (2, 3, 5):
-        out["model_evals_per_second"][n] = model_evals_per_second(n, 500 if args.quick else 2000)
-        print(f"model eta_dot, n = {n}: {out['model_evals_per_second'][n]:,.0f} evaluations/s")
-    for label, case_file, scheme, seconds in SCENARIOS:
-        r = scenario(case_file, scheme, seconds * scale, repeats)
-        out["scenarios"][label] = r
-        print(f"{label:48s} {r['wall_per_sim_s']:.3f} s per simulated s, peak {r['peak_mb']:.1f} MB")
+        r = model_evals_per_second(n, 500 if args.quick else 2000)
+        out["model_evals_per_second"][n] = r
+        print(f"model eta_dot, n = {n}: {r['compiled']:,.0f} evaluations/s compiled, {r['python']:,.0f} Python")
+    print(f"{'n':>2} {'scheme':11s} {'s/sim-s':>8s} {'Python':>7s} {'x':>5s} {'heap MB':>8s}  case")
+    for n, scheme, case_file, seconds, note in SCENARIOS:
+        r = scenario(case_file, scheme, seconds * scale, repeats, min(5.0, seconds * scale))
+        out["scenarios"][f"n={n} {scheme}"] = r | {"case": case_file, "note": note}
+        print(
+            f"{n:2d} {scheme:11s} {r['wall_per_sim_s']:8.4f} {r['python_engine_wall_per_sim_s']:7.3f} "
+            f"{r['speedup']:5.0f} {r['peak_mb']:8.1f}  {note} [{r['engine']}]"
+        )
     cmp_ = io_response_comparison(10.0 * scale)
     out["input_output_response"] = cmp_
     print(
-        f"two-link healthy loop: ours {cmp_['ours_wall_per_sim_s']:.3f} s/s, python-control "
-        f"input_output_response {cmp_['python_control_wall_per_sim_s']:.3f} s/s (ratio {cmp_['ratio']:.2f}); "
+        f"two-link healthy loop: ours {cmp_['ours_wall_per_sim_s']:.4f} s/s (Python engine "
+        f"{cmp_['ours_python_engine_wall_per_sim_s']:.3f}), python-control input_output_response "
+        f"{cmp_['python_control_wall_per_sim_s']:.3f} s/s: ratio {cmp_['ratio']:.0f} "
+        f"({cmp_['ratio_python_engine']:.1f} for the Python engine); "
         f"final positions differ by {cmp_['final_position_difference_m']:.1e} m"
     )
     if not args.no_batch:

@@ -162,6 +162,7 @@ def _identity(case: Case, scheme: str) -> dict:
 def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     """The metrics.json content of one run (see ftcreport.metrics for definitions)."""
     out = _identity(case, scheme) | {"status": run.status, "reason": run.reason, "t_end": run.t_end}
+    out["engine"] = run.meta.get("engine", "python")  # compiled (ftcreport.fast) or the Python loop
     if run.t.size < 2:
         return out
     phases = built.faults.phases(min(case.simulation.duration, run.t_end))

@@ -174,6 +174,36 @@ def compiled_spec(controller) -> Spec | None:
     return Spec(kin, ref, law, obs, _chain(chain.params), n_sig, controller)
 
 
+def compiled_active_law(controller):
+    """(t, q, eta_hat, xk, sigma_hat, ubar_hat) -> u: ActiveController's law (4.14) on the kernels, or None."""
+    from ..errors import FtcError, SingularityError
+
+    kin_obj = controller.kin
+    ref = _ref(kin_obj.reference) if isinstance(kin_obj.reference, FlatReference) else None
+    kin = _kin(kin_obj, controller.tracking.h)
+    if ref is None or kin is None:
+        return None
+    nw = controller.chain.n_wheels
+    law = _law(F.LAW_ACTIVE, controller, nw, u_limit=NAN if controller.u_limit is None else float(controller.u_limit))
+    pc = _chain(controller.chain.params)
+    cache = F.new_cache(pc.n)
+    info = np.zeros(4)
+
+    def law_at(t, q, eta_hat, xk, sigma_hat, ubar_hat):
+        u = F.active_law(
+            kin, ref, cache, law, pc, float(t), np.ascontiguousarray(q, dtype=float),
+            np.ascontiguousarray(eta_hat, dtype=float), np.ascontiguousarray(xk, dtype=float).reshape(-1),
+            np.ascontiguousarray(sigma_hat, dtype=float), np.ascontiguousarray(ubar_hat, dtype=float), info,
+        )  # fmt: skip
+        if info[0] != 0:
+            status, reason = _message(info, t, None, ref)
+            info[:] = 0.0
+            raise (SingularityError if status == "singular" else FtcError)(reason)
+        return u
+
+    return law_at
+
+
 # --------------------------------------------------------------------------- signals from the log
 def _split_signals(spec: Spec, sg: np.ndarray, xc: np.ndarray, meas: np.ndarray, nq: int) -> dict[str, np.ndarray]:
     """The controller's named signals (its ``signal_names``) from the compiled log."""

@@ -1144,14 +1144,9 @@ def controller(Kp, R, C, Lw, O, pc, t, q, eta, xc, sig_true, ubar_true, info, si
         if not math.isnan(Lw.u_limit):
             ubar = _clip(ubar, -Lw.u_limit, Lw.u_limit)
         sigma_hat = _clip(rho, 0.0, 1.0)
-        kin, ecd = eta_c_and_dot(Kp, R, C, pc, t, q, eh, xk, info)
+        u, kin, ecd = _active_u(Kp, R, C, Lw, pc, t, q, eh, xk, sigma_hat, ubar, info)
         if info[0] != 0:
             return u, dx
-        Mbar1, Mbar2, Cbar, Bbar, _S, _Sd = reduced(pc, q, eh)
-        w, MB, g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eh, eh - kin[0], kin[1], kin[2], ecd, Lw.k_v)
-        u = law_for_pattern(MB, w - _mv(MB, ubar), sigma_hat)
-        if not math.isnan(Lw.u_limit):
-            u = _clip(u, -Lw.u_limit, Lw.u_limit)
         dx[O.est0 : O.est0 + est_n] = farza_derivative(O, pc, u, q, s)
         if not math.isnan(O.tau):
             for j in range(nw):
@@ -1451,3 +1446,50 @@ def run_steps(
         x = xn.copy()
         x[nq + 2 :] = xcn
     return x, k1, li, False
+
+
+# =========================================================================== entry points for the Python engine
+@jit
+def midpoint_sigmas(pc, sigmas, u, dt, est_rho, est_ubar):
+    """UKFEstimator._fx for every sigma point: one midpoint step of the process model, u held."""
+    N = pc.n + 2
+    nw = 2 * pc.n
+    out = sigmas.copy()
+    for i in range(sigmas.shape[0]):
+        x = sigmas[i]
+        rho = np.ones(nw)
+        ubar = np.zeros(nw)
+        k = N + 2
+        if est_rho:
+            rho = x[k : k + nw]
+            k += nw
+        if est_ubar:
+            ubar = x[k : k + nw]
+        tau = rho * u + ubar
+        q = x[:N]
+        eta = x[N : N + 2]
+        qd1, ed1 = plant_rhs(pc, q, eta, tau)
+        qd2, ed2 = plant_rhs(pc, q + 0.5 * dt * qd1, eta + 0.5 * dt * ed1, tau)
+        out[i, :N] = q + dt * qd2
+        out[i, N : N + 2] = eta + dt * ed2
+    return out
+
+
+@jit
+def _active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info):
+    """(u, kinematic outputs, etadot_c): ActiveController._control's law (4.14), clipped to the limit."""
+    kin, ecd = eta_c_and_dot(Kp, R, C, pc, t, q, eta_hat, xk, info)
+    if info[0] != 0:
+        return np.zeros(2 * pc.n), kin, ecd
+    Mbar1, Mbar2, Cbar, Bbar, _S, _Sd = reduced(pc, q, eta_hat)
+    w, MB, _g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta_hat, eta_hat - kin[0], kin[1], kin[2], ecd, Lw.k_v)
+    u = law_for_pattern(MB, w - _mv(MB, ubar_hat), sigma_hat)
+    if not math.isnan(Lw.u_limit):
+        u = _clip(u, -Lw.u_limit, Lw.u_limit)
+    return u, kin, ecd
+
+
+@jit
+def active_law(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info):
+    """The active law alone (for a discrete estimator running in the Python loop)."""
+    return _active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info)[0]

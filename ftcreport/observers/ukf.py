@@ -86,6 +86,7 @@ class UKFEstimator:
         if np.any(R <= 0) or min(values) < 0 or not np.all(np.isfinite(values)):
             raise ModelError("UKF: meas_std must be > 0 and the noise intensities >= 0")
         self.chain = chain
+        self._fast_chain = None
         self.N = chain.n_q
         self.nw = chain.n_wheels
         self.est_rho = "rho" in estimate
@@ -103,7 +104,8 @@ class UKFEstimator:
         points = MerweScaledSigmaPoints(
             self.nx, alpha=alpha, beta=beta, kappa=(3.0 - self.nx) if kappa is None else kappa
         )
-        self._ukf = UnscentedKalmanFilter(dim_x=self.nx, dim_z=N, dt=0.01, fx=self._fx, hx=self._hx, points=points)
+        self._ukf = _BatchUKF(dim_x=self.nx, dim_z=N, dt=0.01, fx=self._fx, hx=self._hx, points=points)
+        self._ukf.batch_fx = self._fx_batch
         self._ukf.R = np.diag(R**2)
 
     # ------------------------------------------------------------------ model
@@ -126,6 +128,16 @@ class UKFEstimator:
         out[:N] = q + dt * qd2
         out[N : N + 2] = eta + dt * ed2
         return out
+
+    def _fx_batch(self, sigmas: np.ndarray, dt: float, u: np.ndarray) -> np.ndarray:
+        """_fx on every sigma point at once, by the compiled kernel (same midpoint step)."""
+        from ..fast import kernels as F
+
+        if self._fast_chain is None:
+            self._fast_chain = F.Chain(*self.chain.params)
+        return F.midpoint_sigmas(
+            self._fast_chain, np.ascontiguousarray(sigmas), np.asarray(u, float), float(dt), self.est_rho, self.est_ubar
+        )
 
     def _hx(self, x: np.ndarray) -> np.ndarray:
         return x[: self.N]
@@ -175,3 +187,16 @@ class UKFEstimator:
 
     def covariance_bound(self, s: np.ndarray) -> float:
         return float(np.linalg.eigvalsh(self.unpack(s)[1]).max())
+
+
+class _BatchUKF(UnscentedKalmanFilter):
+    """filterpy's UKF with the process model applied to all sigma points in one call."""
+
+    batch_fx = None
+
+    def compute_process_sigmas(self, dt, fx=None, **fx_args):
+        if fx is not None or self.batch_fx is None:
+            return super().compute_process_sigmas(dt, fx, **fx_args)
+        sigmas = self.points_fn.sigma_points(self.x, self.P)
+        self.sigmas_f[:] = self.batch_fx(sigmas, dt, **fx_args)
+        return None

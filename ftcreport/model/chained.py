@@ -84,7 +84,16 @@ class ChainedForm:
         if self.n < 2:
             raise ModelError("d: the chained form needs at least 2 robots")
         self.m = self.n + 2
-        self._xi, self._T = _derive(self.n)
+
+    # the sympy derivation runs on first use: the compiled engine never needs it (it computes
+    # the same map by Taylor-mode differentiation), and sympy costs ~30 MB and seconds to load
+    @property
+    def _xi(self):
+        return _derive(self.n)[0]
+
+    @property
+    def _T(self):
+        return _derive(self.n)[1]
 
     def _th(self, q: np.ndarray) -> np.ndarray:
         return np.asarray(q, dtype=float)[:1:-1]

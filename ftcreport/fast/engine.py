@@ -121,19 +121,28 @@ def _no_obs() -> F.Obs:
     return F.Obs(1.0, 1.0, 1.0, NAN, 0, 0, 0, 1.0, NAN, z, z, 0, 0, 0)
 
 
-def compiled_spec(controller) -> Spec | None:
-    """The kernels' description of a controller, or None if it has no compiled counterpart."""
+def _kin_ref(controller) -> tuple[F.Kin, F.Ref] | None:
+    """The kinematic controller and its reference on the kernels, or None if either has no counterpart."""
     kin_obj = getattr(controller, "kin", None)
-    chain = getattr(controller, "chain", None)
-    if kin_obj is None or chain is None or not isinstance(getattr(kin_obj, "reference", None), FlatReference):
+    if kin_obj is None or getattr(controller, "chain", None) is None:
+        return None
+    if not isinstance(getattr(kin_obj, "reference", None), FlatReference):
+        return None
+    tracking = controller if isinstance(controller, TrackingController) else getattr(controller, "tracking", None)
+    if tracking is None:
         return None
     ref = _ref(kin_obj.reference)
-    tracking = controller if isinstance(controller, TrackingController) else getattr(controller, "tracking", None)
-    if ref is None or tracking is None:
-        return None
     kin = _kin(kin_obj, tracking.h)
-    if kin is None:
+    return None if ref is None or kin is None else (kin, ref)
+
+
+def compiled_spec(controller) -> Spec | None:
+    """The kernels' description of a controller, or None if it has no compiled counterpart."""
+    parts = _kin_ref(controller)
+    if parts is None:
         return None
+    kin, ref = parts
+    kin_obj, chain = controller.kin, controller.chain
     nw = chain.n_wheels
     N = chain.n_q
     n_kin = 4 + len(kin_obj.z_names) + N + 2  # eta_c, eta_c_dot, z, q_d, eta_d
@@ -178,11 +187,10 @@ def compiled_active_law(controller):
     """(t, q, eta_hat, xk, sigma_hat, ubar_hat) -> u: ActiveController's law (4.14) on the kernels, or None."""
     from ..errors import FtcError, SingularityError
 
-    kin_obj = controller.kin
-    ref = _ref(kin_obj.reference) if isinstance(kin_obj.reference, FlatReference) else None
-    kin = _kin(kin_obj, controller.tracking.h)
-    if ref is None or kin is None:
+    parts = _kin_ref(controller)
+    if parts is None:
         return None
+    kin, ref = parts
     nw = controller.chain.n_wheels
     law = _law(F.LAW_ACTIVE, controller, nw, u_limit=NAN if controller.u_limit is None else float(controller.u_limit))
     pc = _chain(controller.chain.params)

@@ -38,7 +38,6 @@ from numba import njit
 jit = njit(cache=True, nogil=True, error_model="numpy")
 
 # error codes (info[0])
-E_OK = 0
 E_STATE_SINGULAR = 1  # info: link index i (0-based), angle [deg]
 E_NONFINITE_STATE = 2
 E_NONFINITE_DERIV = 3
@@ -380,53 +379,6 @@ def plant_rhs(p, q, eta, tau):
 
 
 # =========================================================================== references (references.py)
-@jit
-def _jmul(a, b, n):
-    out = np.zeros(n)
-    for k in range(n):
-        s = 0.0
-        for i in range(k + 1):
-            s += a[i] * b[k - i]
-        out[k] = s
-    return out
-
-
-@jit
-def _jdiv(a, b, n):
-    w = np.empty(n)
-    for k in range(n):
-        s = a[k]
-        for j in range(1, k + 1):
-            s -= b[j] * w[k - j]
-        w[k] = s / b[0]
-    return w
-
-
-@jit
-def _jsincos(u, n):
-    s = np.empty(n)
-    c = np.empty(n)
-    s[0] = math.sin(u[0])
-    c[0] = math.cos(u[0])
-    for k in range(1, n):
-        a = 0.0
-        b = 0.0
-        for j in range(1, k + 1):
-            a += j * u[j] * c[k - j]
-            b += j * u[j] * s[k - j]
-        s[k] = a / k
-        c[k] = -b / k
-    return s, c
-
-
-@jit
-def _jderiv(a, n):
-    out = np.empty(n - 1)
-    for k in range(1, n):
-        out[k - 1] = a[k] * k
-    return out
-
-
 @jit
 def path_jets(R, t):
     """TrigPath.jets: normalized Taylor coefficients of x_d, y_d at t."""
@@ -887,7 +839,7 @@ def kin_law(Kp, R, C, ir, q, xk, info):
 
 
 @jit
-def eta_c_and_dot(Kp, R, C, pc, t, q, eta, xk, info):
+def eta_c_and_dot(Kp, R, C, S, t, q, eta, xk, info):
     """TrackingController.eta_c_and_dot: law at t and the central difference along (S(q) eta, 1) (ERRATA P5).
 
     Returns ``((eta_c, T_alpha, f_eta, z), etadot_c)``; the first four are views of
@@ -902,7 +854,6 @@ def eta_c_and_dot(Kp, R, C, pc, t, q, eta, xk, info):
     if info[0] != 0:
         return kin, ecd
     h = Kp.h
-    S = s_matrix(pc, q)
     for i in range(q.shape[0]):
         C.WP[i] = q[i] + h * (S[i, 0] * eta[0] + S[i, 1] * eta[1])
     kin_law(Kp, R, C, 1, C.WP, xk, info)
@@ -930,23 +881,11 @@ def _mv(A, x):
 
 
 @jit
-def _mtv(A, x):
-    """A^T x for a small dense A (no BLAS call)."""
-    out = np.zeros(A.shape[1])
-    for j in range(A.shape[1]):
-        acc = 0.0
-        for i in range(A.shape[0]):
-            acc += A[i, j] * x[i]
-        out[j] = acc
-    return out
-
-
-@jit
 def law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, T, f_eta, eta_c_dot, k_v):
     """(w, Mbar1^-1 Bbar, g) of (3.35)/(3.107) with E8."""
     Minv = _inv2(Mbar1)
     g = -_mv(Minv, _mv(Mbar2, eta) + Cbar)
-    w = -k_v * eta_e - _mtv(T, f_eta) - g + eta_c_dot
+    w = -k_v * eta_e - _mv(T.T, f_eta) - g + eta_c_dot
     nw = Bbar.shape[1]
     MB = np.empty((2, nw))
     for j in range(nw):
@@ -1047,7 +986,7 @@ def farza_derivative(O, pc, u, y, s):
     q = s[:N]
     qdot = s[N : 2 * N]
     S0 = s_matrix(pc, q)
-    eta = _solve2(S0.T @ S0, _mtv(S0, qdot))  # S^+ qdot (S has full column rank)
+    eta = _solve2(S0.T @ S0, _mv(S0.T, qdot))  # S^+ qdot (S has full column rank)
     Mbar1, Mbar2, Cbar, Bbar, S, Sdot = reduced(pc, q, eta)
     Minv = _inv2(Mbar1)
     MB = np.empty((2, nw))
@@ -1162,12 +1101,12 @@ def controller(Kp, R, C, Lw, O, pc, t, q, eta, xc, sig_true, ubar_true, info, si
             sig[k + 2 * nw : k + 3 * nw] = sigma_hat
             sig[k + 3 * nw : k + 4 * nw] = ubar
         return u, dx
-    kin, ecd = eta_c_and_dot(Kp, R, C, pc, t, q, eta, xk, info)
+    Mbar1, Mbar2, Cbar, Bbar, S_, _Sd = reduced(pc, q, eta)
+    kin, ecd = eta_c_and_dot(Kp, R, C, S_, t, q, eta, xk, info)
     if info[0] != 0:
         return u, dx
     if sig.shape[0] > 0:
         _kin_signals(sig, kin, ecd, C)
-    Mbar1, Mbar2, Cbar, Bbar, S_, _Sd = reduced(pc, q, eta)
     C.M1[:] = Mbar1
     C.M2[:] = Mbar2
     C.Cb[:] = Cbar
@@ -1203,7 +1142,7 @@ def controller(Kp, R, C, Lw, O, pc, t, q, eta, xc, sig_true, ubar_true, info, si
         Nm = Lw.patterns.shape[0]
         uf = xc[Lw.uf0 : Lw.uf0 + nw]
         w2 = w - _mv(MB, uf)
-        c = _mtv(MB, eta_e)
+        c = _mv(MB.T, eta_e)
         for k in range(Nm):
             # u_(k) = A^T (A A^T)^-1 w2, A = MB diag(sigma_(k)), in scalars (no temporaries)
             g00 = 0.0
@@ -1226,7 +1165,7 @@ def controller(Kp, R, C, Lw, O, pc, t, q, eta, xc, sig_true, ubar_true, info, si
                     frozen = (chi <= 0.0 and pk < 0.0) or (chi >= 1.0 and pk > 0.0)
                     dx[Lw.chi0 + k * nw + j] = 0.0 if frozen else pk
         if Lw.adapt:
-            dx[Lw.uf0 : Lw.uf0 + nw] = _mv(Lw.Gamma_f, _mtv(MB, eta_e))
+            dx[Lw.uf0 : Lw.uf0 + nw] = _mv(Lw.Gamma_f, _mv(MB.T, eta_e))
     return u, dx
 
 
@@ -1478,10 +1417,10 @@ def midpoint_sigmas(pc, sigmas, u, dt, est_rho, est_ubar):
 @jit
 def _active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info):
     """(u, kinematic outputs, etadot_c): ActiveController._control's law (4.14), clipped to the limit."""
-    kin, ecd = eta_c_and_dot(Kp, R, C, pc, t, q, eta_hat, xk, info)
+    Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(pc, q, eta_hat)
+    kin, ecd = eta_c_and_dot(Kp, R, C, S, t, q, eta_hat, xk, info)
     if info[0] != 0:
         return np.zeros(2 * pc.n), kin, ecd
-    Mbar1, Mbar2, Cbar, Bbar, _S, _Sd = reduced(pc, q, eta_hat)
     w, MB, _g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta_hat, eta_hat - kin[0], kin[1], kin[2], ecd, Lw.k_v)
     u = law_for_pattern(MB, w - _mv(MB, ubar_hat), sigma_hat)
     if not math.isnan(Lw.u_limit):

@@ -194,3 +194,20 @@ def test_ukf_on_compiled_kernels_equals_pure_python():
         np.testing.assert_allclose(fast[name], py[name], rtol=0, atol=1e-9)
     for name in ("u", "rho_hat", "ubar_hat", "eta_hat"):
         np.testing.assert_allclose(fast[name], py[name], rtol=0, atol=1e-8 * max(1.0, np.abs(py[name]).max()))
+
+
+def test_a_run_without_the_ukf_does_not_load_filterpy_or_sympy():
+    """The simulation process stays lean (issue 9, peak RSS of a 400 s run <= 200 MB): filterpy pulls
+    scipy.stats (about 65 MB resident) and sympy about 30 MB; only the UKF and the derivations need them."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from ftcreport.cases import load_case, with_duration\n"
+        "from ftcreport.runner import run_scheme\n"
+        f"run_scheme(with_duration(load_case({str(CASES / 'three_link_active.toml')!r}), 1.0), 'active')\n"
+        "print(sorted(m for m in ('filterpy', 'sympy', 'scipy.stats', 'matplotlib') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

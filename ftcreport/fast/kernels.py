@@ -850,18 +850,18 @@ def eta_c_and_dot(Kp, R, C, S, t, q, eta, xk, info):
     ref_side(Kp, R, C, t, xk[0] if Kp.nk > 0 else 0.0, info)
     if info[0] != 0:
         return kin, ecd
-    kin_law(Kp, R, C, 0, q, xk, info)
-    if info[0] != 0:
-        return kin, ecd
     h = Kp.h
-    for i in range(q.shape[0]):
-        C.WP[i] = q[i] + h * (S[i, 0] * eta[0] + S[i, 1] * eta[1])
-    kin_law(Kp, R, C, 1, C.WP, xk, info)
-    if info[0] != 0:
-        return kin, ecd
-    for i in range(q.shape[0]):
-        C.WP[i] = q[i] - h * (S[i, 0] * eta[0] + S[i, 1] * eta[1])
-    kin_law(Kp, R, C, 2, C.WP, xk, info)
+    # one call site with a run-time row index: a literal 0, 1, 2 would make numba compile three copies
+    for ir in range(3):
+        if ir == 0:
+            C.WP[:] = q
+        else:
+            sgn = 1.0 if ir == 1 else -1.0
+            for i in range(q.shape[0]):
+                C.WP[i] = q[i] + sgn * h * (S[i, 0] * eta[0] + S[i, 1] * eta[1])
+        kin_law(Kp, R, C, ir, C.WP, xk, info)
+        if info[0] != 0:
+            return kin, ecd
     ecd[0] = (C.KEC[1, 0] - C.KEC[2, 0]) / (2.0 * h)
     ecd[1] = (C.KEC[1, 1] - C.KEC[2, 1]) / (2.0 * h)
     return kin, ecd

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +51,11 @@ def compare(path: str, scheme: str) -> dict:
     return out
 
 
+def _steps(path: str) -> float:
+    sim = load_case(path).simulation
+    return sim.duration / sim.dt
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("cases", nargs="*", type=Path)
@@ -65,20 +70,28 @@ def main() -> None:
         for scheme in SCHEME_NAMES:
             if getattr(case.schemes, scheme) is not None and compiled_spec(make_controller(built, scheme)):
                 jobs.append((str(p), scheme))
-    with ProcessPoolExecutor(args.jobs) as ex:
-        results = list(ex.map(compare, *zip(*jobs, strict=True)))
+    # longest runs first (steps), each line printed as soon as it is known
+    jobs.sort(key=lambda j: -_steps(j[0]))
     head = f"{'case':28s} {'scheme':16s} {'max|dq|':>9s} {'max|deta|':>9s} {'max|dtau|':>9s}"
-    print(head + "  final position error, Python / compiled [m]")
-    for r in results:
-        a, b = r["position_error_final"]
-        fin = f"{a:.6g} / {b:.6g}" if a is not None and b is not None else "-"
-        flag = "" if r["status"][0] == r["status"][1] else f"  status {r['status']}"
-        print(
-            f"{r['case']:28s} {r['scheme']:16s} {r['max_diff_q']:9.2e} {r['max_diff_eta']:9.2e} "
-            f"{r['max_diff_tau']:9.2e}  {fin}{flag}"
-        )
-    if args.json:
-        args.json.write_text(json.dumps(results, indent=2))
+    print(head + "  final position error, Python / compiled [m]", flush=True)
+    results = []
+    with ProcessPoolExecutor(args.jobs) as ex:
+        futures = [ex.submit(compare, p, s) for p, s in jobs]
+        for fut in as_completed(futures):
+            r = fut.result()
+            results.append(r)
+            a, b = r["position_error_final"]
+            fin = f"{a:.6g} / {b:.6g}" if a is not None and b is not None else "-"
+            flag = "" if r["status"][0] == r["status"][1] else f"  status {r['status']}"
+            print(
+                f"{r['case']:28s} {r['scheme']:16s} {r['max_diff_q']:9.2e} {r['max_diff_eta']:9.2e} "
+                f"{r['max_diff_tau']:9.2e}  {fin}{flag}",
+                flush=True,
+            )
+            if args.json:  # rewritten atomically after every run: an interrupted comparison keeps what it has
+                tmp = args.json.with_suffix(".tmp")
+                tmp.write_text(json.dumps(results, indent=2))
+                tmp.replace(args.json)
 
 
 if __name__ == "__main__":

@@ -77,11 +77,19 @@ def test_compiled_reference_equals_the_flat_reference(path, d):
     from ftcreport.fast.engine import _ref
 
     R = _ref(ref)
+    n = len(d) + 1
     info = np.zeros(4)
     for t in np.linspace(0.0, 40.0, 23):
         jets = F.ref_jets(R, t, info)
         for delta in (0.0, 1e-5, -1e-5):
-            q_d, eta_d, eta_d_dot, vd, wd, vdd, wdd = F.ref_point(R, jets, t + delta, delta, info)
+            q_d, eta_d, eta_d_dot, sc = (
+                np.full(n + 2, np.nan),
+                np.full(2, np.nan),
+                np.full(2, np.nan),
+                np.full(4, np.nan),
+            )
+            F.ref_point(R, jets, t + delta, delta, info, q_d, eta_d, eta_d_dot, sc, np.full((n + 4, max(n, 3)), np.nan))
+            vd, wd, vdd, wdd = sc
             ref._at(t)  # the Python reference's jets at t, shifted as in FlatReference.at
             r = ref._point(t + delta, ref._jets, delta)
             np.testing.assert_allclose(q_d, r.q_d, rtol=1e-12, atol=1e-12)

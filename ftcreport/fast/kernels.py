@@ -197,6 +197,7 @@ class Cache(NamedTuple):
     WP: np.ndarray  # (N,) q +/- h qdot
     WXI: np.ndarray  # (m,) xi
     WV: np.ndarray  # (3, m) Zhat, Zbar, L^T Zbar
+    WR: np.ndarray  # (n + 4, max(n, 3)) ref_point's work space
 
 
 @jit
@@ -206,7 +207,7 @@ def new_cache(n):
         np.zeros(4), np.zeros((3, N)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 4)), np.zeros((3, N)),
         np.zeros((3, 2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), np.zeros(2), np.zeros((2, 2 * n)), np.zeros((N, 2)),
         np.zeros((3, 2)), np.zeros((3, 2, 2)), np.zeros((3, 2)), np.zeros((3, N)), np.zeros((9 * n, n + 2)),
-        np.zeros(N), np.zeros(N), np.zeros(N), np.zeros((3, N)),
+        np.zeros(N), np.zeros(N), np.zeros(N), np.zeros((3, N)), np.zeros((n + 4, max(n, 3))),
     )  # fmt: skip
 
 
@@ -481,39 +482,42 @@ def ref_jets(R, t, info):
 
 
 @jit
-def _shift3(a, length, delta):
-    """First 3 normalized Taylor coefficients at t0 + delta of the jet a at t0."""
-    out = np.zeros(3)
+def _shift3(a, length, delta, out):
+    """First 3 normalized Taylor coefficients at t0 + delta of the jet a at t0, into out."""
     for i in range(3):
         s = 0.0
         for j in range(i, length):
             comb = 1.0 if i == 0 else (float(j) if i == 1 else 0.5 * j * (j - 1))  # C(j, i), i <= 2
             s += comb * a[j] * delta ** (j - i)
         out[i] = s
-    return out
 
 
 @jit
-def ref_point(R, jets, t, delta, info):
-    """FlatReference._point: (q_d, eta_d, eta_d_dot, v_d, omega_d, v_d_dot, omega_d_dot) at t0 + delta."""
+def ref_point(R, jets, t, delta, info, q_d, eta_d, eta_d_dot, sc, work):
+    """FlatReference._point at t0 + delta into q_d, eta_d, eta_d_dot and sc = (v_d, omega_d, v_d_dot, omega_d_dot).
+
+    ``work``: (n + 4, max(n, 3)) scratch (no allocation: this runs for three instants per new t).
+    """
     X0, Y0, TH, LEN, V = jets
     n = R.n
     K1 = R.order + 1
     N = n + 2
-    th3 = np.zeros((n, 3))
+    th3 = work[:n, :3]
+    X, Y, v, th = work[n, :3], work[n + 1, :3], work[n + 2, :3], work[n + 3, :n]
     if delta != 0.0:
-        X = _shift3(X0, K1, delta)
-        Y = _shift3(Y0, K1, delta)
-        v = _shift3(V, LEN[n - 1], delta)
+        _shift3(X0, K1, delta, X)
+        _shift3(Y0, K1, delta, Y)
+        _shift3(V, LEN[n - 1], delta, v)
         for i in range(n):
-            th3[i] = _shift3(TH[i], LEN[i], delta)
+            _shift3(TH[i], LEN[i], delta, th3[i])
     else:
-        X = X0[:3].copy()
-        Y = Y0[:3].copy()
-        v = V[:3].copy()
+        X[:] = X0[:3]
+        Y[:] = Y0[:3]
+        v[:] = V[:3]
         for i in range(n):
             th3[i] = TH[i, :3]
-    th = th3[:, 0].copy()
+    for i in range(n):
+        th[i] = th3[i, 0]
     for i in range(n - 2, -1, -1):
         th[i] = th[i + 1] + _wrap(th[i] - th[i + 1])
     worst = -1.0
@@ -523,15 +527,12 @@ def ref_point(R, jets, t, delta, info):
         if a > worst:
             worst = a
             iw = i
-    q_d = np.empty(N)
-    eta_d = np.empty(2)
-    eta_d_dot = np.empty(2)
     if n > 1 and worst > R.max_art:
         info[0] = E_REF_ART
         info[1] = t
         info[2] = iw
         info[3] = math.degrees(th[iw] - th[iw + 1])
-        return q_d, eta_d, eta_d_dot, 0.0, 0.0, 0.0, 0.0
+        return
     q_d[0] = X[0]
     q_d[1] = Y[0]
     for k in range(n):
@@ -540,7 +541,10 @@ def ref_point(R, jets, t, delta, info):
     eta_d[1] = th3[0, 1]
     eta_d_dot[0] = v[1]
     eta_d_dot[1] = 2.0 * th3[0, 2]
-    return q_d, eta_d, eta_d_dot, v[0], th3[n - 1, 1], v[1], 2.0 * th3[n - 1, 2]
+    sc[0] = v[0]
+    sc[1] = th3[n - 1, 1]
+    sc[2] = v[1]
+    sc[3] = 2.0 * th3[n - 1, 2]
 
 
 @jit
@@ -555,18 +559,11 @@ def ref_side(Kp, R, C, t, psi, info):
     h = Kp.h
     for i in range(3):
         ti = t if i == 0 else (t + h if i == 1 else t - h)
-        rp = ref_point(R, jets, ti, ti - t, info)
+        ref_point(R, jets, ti, ti - t, info, C.QD[i], C.ED[i], C.EDD[i], C.SC[i], C.WR)
         if info[0] != 0:
             return
-        C.QD[i] = rp[0]
-        C.ED[i] = rp[1]
-        C.EDD[i] = rp[2]
-        C.SC[i, 0] = rp[3]
-        C.SC[i, 1] = rp[4]
-        C.SC[i, 2] = rp[5]
-        C.SC[i, 3] = rp[6]
         if Kp.kind == KIN_CHAINED:
-            xi_T(to_frame(rp[0], psi, C.WQ), R.d, C.WJ, C.XID[i], C.TD[i])
+            xi_T(to_frame(C.QD[i], psi, C.WQ), R.d, C.WJ, C.XID[i], C.TD[i])
     C.f[0] = t
     C.f[1] = psi
     C.f[2] = 1.0
@@ -692,14 +689,11 @@ def to_frame(q, psi, out):
 def xi_T(qf, d, work, xi, T):
     """Chained coordinates xi (m,) and T_alpha (2, 2) at q (in its frame), into xi and T."""
     n = qf.shape[0] - 2
-    th = np.empty(n)
-    for k in range(n):
-        th[k] = qf[n + 1 - k]
     m = n + 2
-    T21, T22 = chained_xi_T(th, d, work, xi[1 : m - 1])
+    T21, T22 = chained_xi_T(qf[m - 1 : 1 : -1], d, work, xi[1 : m - 1])  # headings in robot order (a view)
     xi[0] = qf[0]
     xi[m - 1] = qf[1]
-    T[0, 0] = math.cos(th[n - 1])
+    T[0, 0] = math.cos(qf[2])  # theta_n, the last robot
     T[0, 1] = 0.0
     T[1, 0] = T21
     T[1, 1] = T22

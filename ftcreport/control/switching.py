@@ -24,7 +24,11 @@ Thesis sections 3.2.2.2-3.2.2.3 and 3.3.1 (3.33-3.48, 3.107), ERRATA E8, E12f, E
   only in wheels the applied law sends no torque to reconstruct identically, so
   their costs tie at round-off level; without the margin argmin + T_min chatters
   among them.  Ties resolve to the lowest index: patterns are ordered healthy
-  first, then by number of assumed failures.
+  first, then by number of assumed failures.  A tie is a cost within
+  ``TIE_RTOL`` (relative) of the smallest: round-off (about 1e-13 here) must not
+  decide between models that are equivalent, or the run depends on the order of
+  floating-point operations (the two engines, another BLAS) from the first such
+  tie on.
 
 The controller's state is ``[kinematic state, etahat (N x 2), I (N, if c_int > 0),
 selected index, time of the last switch]``; the last two are discrete (zero
@@ -44,7 +48,9 @@ from ..model.faults import model_patterns
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
 from .tracking import TrackingController, kinematic_signals, law_for_pattern, law_terms
 
-__all__ = ["SwitchingController"]
+__all__ = ["TIE_RTOL", "SwitchingController"]
+
+TIE_RTOL = 1e-9  # switching costs this close (relative) to the smallest are ties
 
 
 class SwitchingController:
@@ -166,7 +172,9 @@ class SwitchingController:
         xc[self._kin] = self.kin.discrete(t, q, xc[self._kin])
         J = self.costs(eta, xc)
         cur = self.selected(xc)
-        cand = int(np.argmin(J))  # (3.47), ties -> lowest index
+        lim = J.min() * (1.0 + TIE_RTOL)
+        ties = np.flatnonzero(np.less_equal(J, lim))  # (3.47), ties -> lowest index
+        cand = int(ties[0]) if ties.size else int(np.argmin(J))
         if cand != cur and t - xc[self._tsw] >= self.T_min - 1e-12 and J[cand] < J[cur] - self.hysteresis:
             xc[self._sel] = cand
             xc[self._tsw] = t

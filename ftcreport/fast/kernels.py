@@ -37,6 +37,8 @@ from numba import njit
 
 jit = njit(cache=True, nogil=True, error_model="numpy")
 
+TIE_RTOL = 1e-9  # control.switching.TIE_RTOL (tests/test_fast.py checks they agree)
+
 # error codes (info[0])
 E_STATE_SINGULAR = 1  # info: link index i (0-based), angle [deg]
 E_NONFINITE_STATE = 2
@@ -1200,7 +1202,14 @@ def discrete(Kp, R, C, Lw, t, q, eta, xc, info):
             if Lw.n_int > 0:
                 J[k] = J[k] + Lw.c_int * xc[Lw.int0 + k]
         cur = round(xc[Lw.sel])
-        cand = int(np.argmin(J))
+        lim = np.min(J) * (1.0 + TIE_RTOL)  # ties (round-off) -> lowest index, as SwitchingController.discrete
+        cand = -1
+        for k in range(Nm):
+            if J[k] <= lim:
+                cand = k
+                break
+        if cand < 0:
+            cand = int(np.argmin(J))
         if cand != cur and t - xc[Lw.tsw] >= Lw.T_min - 1e-12 and J[cand] < J[cur] - Lw.hysteresis:
             xc[Lw.sel] = cand
             xc[Lw.tsw] = t

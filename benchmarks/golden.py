@@ -1,6 +1,6 @@
 """Golden-run comparison: every case x scheme, full length, compiled engine against the Python engine.
 
-    python benchmarks/golden.py [--jobs 2] [--json FILE] [CASE ...]
+    python benchmarks/golden.py [--jobs 2] [--json FILE] [--schemes S ...] [CASE ...]
 
 For each run prints the largest difference of the plant state (q, eta) over the
 whole run, of the applied torque, and of the tracking metrics the thresholds use
@@ -61,13 +61,14 @@ def main() -> None:
     ap.add_argument("cases", nargs="*", type=Path)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--schemes", nargs="+", choices=SCHEME_NAMES, help="only these schemes (default: all)")
     args = ap.parse_args()
     paths = args.cases or sorted((ROOT / "cases").glob("*.toml"))
     jobs = []
     for p in paths:
         case = load_case(p)
         built = build(case)
-        for scheme in SCHEME_NAMES:
+        for scheme in args.schemes or SCHEME_NAMES:
             if getattr(case.schemes, scheme) is not None and compiled_spec(make_controller(built, scheme)):
                 jobs.append((str(p), scheme))
     # longest runs first (steps), each line printed as soon as it is known

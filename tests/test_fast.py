@@ -219,3 +219,33 @@ def test_a_run_without_the_ukf_does_not_load_filterpy_or_sympy():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_both_engines_break_switching_ties_alike():
+    """Costs within TIE_RTOL of the smallest are a tie and the lowest index wins, in both engines, whichever
+    of the tied models round-off made smaller: argmin alone split the engines at full length (golden.py)."""
+    from ftcreport.control.switching import TIE_RTOL
+
+    assert F.TIE_RTOL == TIE_RTOL
+    built = build(load_case(CASES / "three_link_switching.toml"))
+    ctrl = make_controller(built, "switching")
+    spec = compiled_spec(ctrl)
+    assert ctrl.N >= 4  # models
+    q, eta = built.q0, np.array([0.5, 0.1])
+    xc = np.asarray(ctrl.initial_state(0.0, q, eta), dtype=float)
+    hat = np.tile(eta + 1e-2, (ctrl.N, 1))  # every model far off, but 1 and 3 close and tied
+    hat[1] = eta + np.array([3e-5, 4e-5])
+    hat[3] = eta + np.array([3e-5, 4e-5 * (1.0 - 1e-11)])  # 3 smaller by 1e-11 relative: argmin would pick it
+
+    def selected(hat):
+        xc[ctrl._hat] = hat.ravel()
+        py = ctrl.discrete(1.0, q, eta, xc)
+        fast = F.discrete(spec.kin, spec.ref, F.new_cache(3), spec.law, 1.0, q, eta, xc, np.zeros(4))
+        return round(py[ctrl._sel]), round(fast[ctrl._sel])
+
+    xc[ctrl._hat] = hat.ravel()
+    J = ctrl.costs(eta, xc)
+    assert J[3] < J[1] < J[3] * (1.0 + TIE_RTOL)
+    assert selected(hat) == (1, 1)
+    hat[1] = eta + np.array([3e-5, 4.1e-5])  # a real difference (J[1] 3 % above J[3]): the smaller cost wins
+    assert selected(hat) == (3, 3)

@@ -6,6 +6,8 @@ CLI turns these into a one-line message and an exit code, never a traceback.
 
 from __future__ import annotations
 
+import math
+
 __all__ = [
     "CaseError",
     "DivergenceError",
@@ -15,6 +17,14 @@ __all__ = [
     "NotBuiltError",
     "SingularityError",
     "UncompensableError",
+    "articulation_reason",
+    "bound_reason",
+    "chained_reason",
+    "kappa_reason",
+    "nonfinite_reason",
+    "reference_articulation_reason",
+    "reference_speed_reason",
+    "two_link_reason",
 ]
 
 
@@ -58,3 +68,51 @@ class NotBuiltError(FtcError):
 
 class ReferenceError(FtcError, ValueError):
     """An infeasible reference (speed near 0, articulation angle near 90 deg)."""
+
+
+# --------------------------------------------------------------------------- reasons
+# One wording per stop. The Python modules raise with these; the compiled engine
+# (ftcreport.fast.engine), which reports the same stops as error codes, words them
+# with the same functions, so a run gives the same reason whichever engine ran it.
+def nonfinite_reason(what: str, t: float) -> str:
+    """``what``: "state" or "control or derivative"."""
+    return f"non-finite {what} at t = {t:.6g} s"
+
+
+def bound_reason(what: str, values: list[float], bound: float, unit: str = "") -> str:
+    return f"{what} {values} exceeds the bound {bound}{unit}"
+
+
+def articulation_reason(i: int, angle_deg: float, margin_rad: float) -> str:
+    """Articulation angle between robots i + 1 and i + 2 (0-based i) near 90 deg."""
+    return (
+        f"articulation angle theta_{i + 1} - theta_{i + 2} reached {angle_deg:.2f} deg "
+        f"(within {math.degrees(margin_rad):.2g} deg of 90 deg)"
+    )
+
+
+def two_link_reason(label: str, angle_deg: float) -> str:
+    return f"two-link controller singular: {label} = {angle_deg:.1f} deg"
+
+
+def chained_reason(label: str, angle_deg: float, where: str = "") -> str:
+    return f"chained form singular: {label} = {angle_deg:.2f} deg{where}"
+
+
+def kappa_reason(kd: float) -> str:
+    return f"backstepping singular: kappa - Delta_1 = {kd:.3g} (ERRATA E12d)"
+
+
+def reference_speed_reason(t: float, robot: int, speed: float, min_speed: float) -> str:
+    """``robot``: 1-based index of the robot whose reference speed vanishes."""
+    return (
+        f"infeasible reference at t = {t:.4g} s: the speed of P_{robot} is {speed:.3g} m/s "
+        f"(below {min_speed:g}); the chain needs v_d != 0"
+    )
+
+
+def reference_articulation_reason(t: float, i: int, angle_deg: float, max_rad: float) -> str:
+    return (
+        f"infeasible reference at t = {t:.4g} s: articulation angle theta_{i + 1} - theta_{i + 2} "
+        f"= {angle_deg:.1f} deg exceeds {math.degrees(max_rad):.0f} deg (path too curved for these link lengths)"
+    )

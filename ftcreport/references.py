@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ReferenceError
+from .errors import ReferenceError, reference_articulation_reason, reference_speed_reason
 
 __all__ = [
     "FlatReference",
@@ -311,11 +311,7 @@ class FlatReference:
             Xd, Yd = _jet_deriv(X), _jet_deriv(Y)
             speed = math.hypot(Xd[0], Yd[0])
             if speed < self.min_speed:
-                who = f"P_{i + 1}"
-                raise ReferenceError(
-                    f"infeasible reference at t = {t:.4g} s: the speed of {who} is {speed:.3g} m/s "
-                    f"(below {self.min_speed:g}); the chain needs v_d != 0"
-                )
+                raise ReferenceError(reference_speed_reason(t, i + 1, speed, self.min_speed))
             Xdd, Ydd = _jet_deriv(Xd), _jet_deriv(Yd)
             m = Xdd.shape[0]
             # thetadot = (xdot yddot - ydot xddot) / (xdot^2 + ydot^2)
@@ -371,11 +367,7 @@ class FlatReference:
         art = th[:-1] - th[1:]
         if np.any(np.abs(art) > self.max_articulation):
             i = int(np.argmax(np.abs(art)))
-            raise ReferenceError(
-                f"infeasible reference at t = {t:.4g} s: articulation angle theta_{i + 1} - theta_{i + 2} "
-                f"= {math.degrees(art[i]):.1f} deg exceeds {math.degrees(self.max_articulation):.0f} deg "
-                "(path too curved for these link lengths)"
-            )
+            raise ReferenceError(reference_articulation_reason(t, i, math.degrees(art[i]), self.max_articulation))
         thdot = np.array([j[1] for j in th_jets])
         q_d = np.concatenate(([X[0], Y[0]], th[::-1]))
         om1 = th_jets[0]

@@ -52,7 +52,15 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .errors import DivergenceError, FtcError, ModelError, SingularityError
+from .errors import (
+    DivergenceError,
+    FtcError,
+    ModelError,
+    SingularityError,
+    articulation_reason,
+    bound_reason,
+    nonfinite_reason,
+)
 from .model import kernels as K
 from .model.chain import Chain
 from .model.faults import FaultSchedule
@@ -391,11 +399,11 @@ def simulate(
                 observe(sigma, ubar)
             try:
                 if not np.all(np.isfinite(x)):
-                    raise DivergenceError(f"non-finite state at t = {t:.6g} s")
+                    raise DivergenceError(nonfinite_reason("state", t))
                 _check_state(chain, x, settings)
                 k1, u, tau = deriv(t, x, hold)
                 if not (np.all(np.isfinite(k1)) and np.all(np.isfinite(u))):
-                    raise DivergenceError(f"non-finite control or derivative at t = {t:.6g} s")
+                    raise DivergenceError(nonfinite_reason("control or derivative", t))
             except SingularityError as exc:
                 status, reason = STATUS_SINGULAR, str(exc)
                 break
@@ -512,11 +520,8 @@ def _check_state(chain: Chain, x: np.ndarray, settings: SimSettings) -> None:
     if np.any(c <= limit):
         i = int(np.argmin(c))
         ang = math.degrees(math.acos(min(1.0, c[i])))
-        raise SingularityError(
-            f"articulation angle theta_{i + 1} - theta_{i + 2} reached {ang:.2f} deg "
-            f"(within {math.degrees(settings.singularity_margin):.2g} deg of 90 deg)"
-        )
+        raise SingularityError(articulation_reason(i, ang, settings.singularity_margin))
     if np.any(np.abs(eta) > settings.max_speed):
-        raise DivergenceError(f"velocity {eta.tolist()} exceeds the bound {settings.max_speed}")
+        raise DivergenceError(bound_reason("velocity", eta.tolist(), settings.max_speed))
     if np.any(np.abs(q[:2]) > settings.max_position):
-        raise DivergenceError(f"position {q[:2].tolist()} exceeds the bound {settings.max_position} m")
+        raise DivergenceError(bound_reason("position", q[:2].tolist(), settings.max_position, " m"))

@@ -77,7 +77,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ModelError, SingularityError
+from ..errors import ModelError, SingularityError, kappa_reason, two_link_reason
 from ..model.chained import ChainedForm
 from ..references import FlatReference, RefPoint
 
@@ -186,9 +186,9 @@ class TwoLinkKinematic:
         phi = th1 - th2
         cphi = math.cos(phi)
         if abs(c) < 1e-3:
-            raise SingularityError(f"two-link controller singular: heading error e_theta = {math.degrees(eth):.1f} deg")
+            raise SingularityError(two_link_reason("heading error e_theta", math.degrees(eth)))
         if abs(cphi) < 1e-3:
-            raise SingularityError(f"two-link controller singular: theta_1 - theta_2 = {math.degrees(phi):.1f} deg")
+            raise SingularityError(two_link_reason("theta_1 - theta_2", math.degrees(phi)))
         tphi = math.tan(phi)
         vd, wd = r.v_d, r.omega_d
         z = np.array([ex, ey, s / c, tphi / (d * c**3) - wd / (vd * c**2) + ey])
@@ -357,7 +357,7 @@ class ChainedBackstepping:
         gamma = LtZ[p - 2]
         kd = self.kappa - delta1
         if abs(kd) < self.singular_tol * self.kappa:
-            raise SingularityError(f"backstepping singular: kappa - Delta_1 = {kd:.3g} (ERRATA E12d)")
+            raise SingularityError(kappa_reason(kd))
         a1c = a1d + (-self.c_xi1 * z + gamma * a2c) / kd  # (3.103) with E12a
         alpha_c = np.array([a1c, a2c])
         eta_c = np.linalg.solve(T, alpha_c)  # alpha = T_alpha eta (3.98)

@@ -31,6 +31,16 @@ from ..control.baselines import OracleController
 from ..control.kinematic import ChainedBackstepping, TwoLinkKinematic
 from ..control.switching import SwitchingController
 from ..control.tracking import TrackingController
+from ..errors import (
+    articulation_reason,
+    bound_reason,
+    chained_reason,
+    kappa_reason,
+    nonfinite_reason,
+    reference_articulation_reason,
+    reference_speed_reason,
+    two_link_reason,
+)
 from ..observers.farza import FarzaObserver
 from ..references import FlatReference, TrigPath
 from . import kernels as F
@@ -251,45 +261,31 @@ def _split_signals(spec: Spec, sg: np.ndarray, xc: np.ndarray, meas: np.ndarray,
 
 # --------------------------------------------------------------------------- errors
 def _message(info: np.ndarray, t: float, settings, ref: F.Ref) -> tuple[str, str]:
-    """(status, reason) of the Python engine for a kernel error code."""
+    """(status, reason) of the Python engine for a kernel error code (the same wording: ftcreport.errors)."""
     code = int(info[0])
     a, b, c = (float(v) for v in info[1:4])
     if code == F.E_STATE_SINGULAR:
-        i = int(a)
-        return "singular", (
-            f"articulation angle theta_{i + 1} - theta_{i + 2} reached {b:.2f} deg "
-            f"(within {math.degrees(settings.singularity_margin):.2g} deg of 90 deg)"
-        )
-    if code == F.E_NONFINITE_STATE:
-        return "diverged", f"non-finite state at t = {a:.6g} s"
-    if code == F.E_NONFINITE_DERIV:
-        return "diverged", f"non-finite control or derivative at t = {a:.6g} s"
+        return "singular", articulation_reason(int(a), b, settings.singularity_margin)
+    if code in (F.E_NONFINITE_STATE, F.E_NONFINITE_DERIV):
+        return "diverged", nonfinite_reason("state" if code == F.E_NONFINITE_STATE else "control or derivative", a)
     if code == F.E_SPEED:
-        return "diverged", f"velocity {[a, b]} exceeds the bound {settings.max_speed}"
+        return "diverged", bound_reason("velocity", [a, b], settings.max_speed)
     if code == F.E_POSITION:
-        return "diverged", f"position {[a, b]} exceeds the bound {settings.max_position} m"
+        return "diverged", bound_reason("position", [a, b], settings.max_position, " m")
     if code == F.E_TWO_LINK_ETH:
-        return "singular", f"two-link controller singular: heading error e_theta = {a:.1f} deg"
+        return "singular", two_link_reason("heading error e_theta", a)
     if code == F.E_TWO_LINK_PHI:
-        return "singular", f"two-link controller singular: theta_1 - theta_2 = {a:.1f} deg"
+        return "singular", two_link_reason("theta_1 - theta_2", a)
     if code == F.E_CHAINED_THN:
-        return "singular", f"chained form singular: theta_n = {a:.2f} deg in its frame"
+        return "singular", chained_reason(f"theta_{ref.n}", a, " in its frame")
     if code == F.E_CHAINED_ART:
-        i = int(a)
-        return "singular", f"chained form singular: theta_{i + 1} - theta_{i + 2} = {b:.2f} deg"
+        return "singular", chained_reason(f"theta_{int(a) + 1} - theta_{int(a) + 2}", b)
     if code == F.E_KAPPA:
-        return "singular", f"backstepping singular: kappa - Delta_1 = {a:.3g} (ERRATA E12d)"
+        return "singular", kappa_reason(a)
     if code == F.E_REF_SPEED:
-        return "error", (
-            f"infeasible reference at t = {a:.4g} s: the speed of P_{int(b)} is {c:.3g} m/s "
-            f"(below {ref.min_speed:g}); the chain needs v_d != 0"
-        )
+        return "error", reference_speed_reason(a, int(b), c, ref.min_speed)
     if code == F.E_REF_ART:
-        i = int(b)
-        return "error", (
-            f"infeasible reference at t = {a:.4g} s: articulation angle theta_{i + 1} - theta_{i + 2} "
-            f"= {c:.1f} deg exceeds {math.degrees(ref.max_art):.0f} deg (path too curved for these link lengths)"
-        )
+        return "error", reference_articulation_reason(a, int(b), c, ref.max_art)
     return "error", f"compiled engine: unknown error code {code} at t = {t:.6g} s"
 
 

@@ -1385,8 +1385,8 @@ def run_steps(
         xcn = discrete(Kp, R, C, Lw, grid[k + 1], xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xn[nq + 2 :], info)
         if info[0] != 0:
             return x, k, li, True
-        x = xn.copy()
-        x[nq + 2 :] = xcn
+        xn[nq + 2 :] = xcn  # xn is a new array: it becomes the state without a copy
+        x = xn
     return x, k1, li, False
 
 

@@ -29,7 +29,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..errors import ModelError, SingularityError
+from ..errors import ModelError, SingularityError, chained_reason
 
 __all__ = ["ChainedForm", "chained_form"]
 
@@ -102,15 +102,11 @@ class ChainedForm:
         """Raise SingularityError outside |theta_n| < 90 deg, |theta_i - theta_(i+1)| < 90 deg."""
         th = self._th(q)
         if abs(math.cos(th[-1])) <= margin:
-            raise SingularityError(
-                f"chained form singular: theta_{self.n} = {math.degrees(th[-1]):.2f} deg in its frame"
-            )
+            raise SingularityError(chained_reason(f"theta_{self.n}", math.degrees(th[-1]), " in its frame"))
         c = np.cos(th[:-1] - th[1:])
         if np.any(c <= margin):
             i = int(np.argmin(c))
-            raise SingularityError(
-                f"chained form singular: theta_{i + 1} - theta_{i + 2} = {math.degrees(th[i] - th[i + 1]):.2f} deg"
-            )
+            raise SingularityError(chained_reason(f"theta_{i + 1} - theta_{i + 2}", math.degrees(th[i] - th[i + 1])))
 
     def xi(self, q: np.ndarray) -> np.ndarray:
         r"""Chained coordinates xi = phi(q), (n + 2,), thesis numbering xi_1..xi_m."""

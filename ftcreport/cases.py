@@ -314,7 +314,7 @@ class Case(_Strict):
     plant: Plant = Plant()
     recovery_band: PosFloat = 0.01  # [m] band of the recovery time
     # run outcomes that are not failures for this case (a case built to lose tracking says so)
-    expected_status: list[Literal["ok", "singular", "diverged"]] = ["ok"]
+    expected_status: list[Literal["ok", "singular", "diverged", "step_unstable"]] = ["ok"]
     thresholds: dict[str, dict[str, Bound]] = {}
     campaign: CampaignSpec | None = None  # distributions for `ftcreport campaign` (ignored by batch)
 

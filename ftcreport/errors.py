@@ -24,7 +24,10 @@ __all__ = [
     "nonfinite_reason",
     "reference_articulation_reason",
     "reference_speed_reason",
+    "step_growth_reason",
+    "trial_stage_reason",
     "two_link_reason",
+    "with_step",
 ]
 
 
@@ -116,3 +119,26 @@ def reference_articulation_reason(t: float, i: int, angle_deg: float, max_rad: f
         f"infeasible reference at t = {t:.4g} s: articulation angle theta_{i + 1} - theta_{i + 2} "
         f"= {angle_deg:.1f} deg exceeds {math.degrees(max_rad):.0f} deg (path too curved for these link lengths)"
     )
+
+
+def step_growth_reason(t: float, g0: float, g1: float, steps: int, factor: float, dt: float, method: str) -> str:
+    """A geometric growth of the applied torque from step to step: the step does not resolve the loop."""
+    return (
+        f"step unstable at t = {t:.6g} s: max |tau| grew more than {factor:.3g}x per step for {steps} steps "
+        f"({g0:.3g} -> {g1:.3g} N m); dt = {dt:g} s ({method}) does not resolve the loop here: halve dt "
+        "(a stop that persists is the loop's own instability)"
+    )
+
+
+def trial_stage_reason(t: float, detail: str, dt: float, method: str, stage: bool = True) -> str:
+    """A trial stage of the integrator (or the new state of the step) left the domain from a regular state."""
+    where = f"a {method} trial stage left the domain" if stage else f"the {method} step blew up"
+    return (
+        f"step unstable at t = {t:.6g} s: {where} ({detail}) while the accepted state is regular; "
+        f"dt = {dt:g} s does not resolve the loop here: halve dt (a stop that persists is the loop's own instability)"
+    )
+
+
+def with_step(reason: str, dt: float, method: str) -> str:
+    """A divergence's reason with the step named: the user can tell a step problem from the loop's own."""
+    return f"{reason} (dt = {dt:g} s, {method}; halve dt to tell a step-size blow-up from the loop's own divergence)"

@@ -13,12 +13,12 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
 * ``recovery_time_max``: the largest recovery time over the phases that start
   with a fault event (``None`` when one of them never recovers);
 * ``position_error_iae`` (whole run and per phase): integral of the position
-  error over time [m s] (trapezoid on the logged samples);
+  error over time [m s] (trapezoid over every integration step);
 * torques: ``torque_peak`` = max |tau| over wheels and time [N m], ``torque_rms``
   = RMS over time of the per-wheel torques (largest wheel), ``saturation_fraction``
-  = fraction of logged instants with some |u_j| at the limit, ``energy`` = the
-  motors' absolute mechanical work int sum_j |tau_j omega_j| dt [J] (trapezoid on
-  the logged samples, so decimated logging approximates it);
+  = fraction of steps with some |u_j| at the limit, ``energy`` = the motors'
+  absolute mechanical work int sum_j |tau_j omega_j| dt [J] (trapezoid over every
+  step);
 * ``singularity_margin_min``: the smallest distance of an articulation angle
   |theta_i - theta_(i+1)| from 90 deg over the run [rad];
 * switching (ERRATA E12g): the true 0/1 pattern marks a wheel faulty when its
@@ -29,6 +29,12 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
   ``switching_exact_match_fraction`` the exact one, ``detection_delays`` per
   fault event the time until the applied model effectively matches (0 when the
   applied one already did: no switch needed), ``detection_delay_max`` their max.
+
+Every metric reads the run's metric stream (:attr:`ftcreport.sim.Run.stream`):
+the state, torques and estimates at every accepted integration step, taken at
+the start of the step (where the law is evaluated and the torque applied). So
+``log_every`` changes what is saved, never a metric: extrema, counts and delays
+are exact to the step, and integrals are trapezoids over the steps.
 """
 
 from __future__ import annotations

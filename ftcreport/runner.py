@@ -165,26 +165,28 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     """The metrics.json content of one run (see ftcreport.metrics for definitions)."""
     out = _identity(case, scheme) | {"status": run.status, "reason": run.reason, "t_end": run.t_end}
     out["engine"] = run.meta.get("engine", "python")  # compiled (ftcreport.fast) or the Python loop
-    if run.t.size < 2:
+    # every metric reads the metric stream (every accepted step), never the decimated log
+    t, S = (run.t_stream, run.stream) if run.stream else (run.t, run.signals)
+    out["metric_samples"] = int(t.size)
+    if t.size < 2:
         return out
     phases = built.faults.phases(min(case.simulation.duration, run.t_end))
-    out |= tracking_metrics(run.t, run["q"], run["q_d"], phases, case.recovery_band)
+    out |= tracking_metrics(t, S["q"], S["q_d"], phases, case.recovery_band)
     chain = built.plant.chain
-    omega = np.array([chain.wheel_speeds(q, e) for q, e in zip(run["q"], run["eta"], strict=True)])
-    out |= torque_metrics(run["tau"], run["u"], case.plant.saturation, run.t, omega)
-    out["singularity_margin_min"] = singularity_margin(run["q"])
+    omega = np.array([chain.wheel_speeds(q, e) for q, e in zip(S["q"], S["eta"], strict=True)])
+    out |= torque_metrics(S["tau"], S["u"], case.plant.saturation, t, omega)
+    out["singularity_margin_min"] = singularity_margin(S["q"])
     if scheme == "switching":
-        out |= switching_metrics(run.t, run["selected"], ctrl.patterns, run["sigma"], list(built.faults.times))
+        out |= switching_metrics(t, S["selected"], ctrl.patterns, S["sigma"], list(built.faults.times))
         out["patterns"] = ctrl.patterns.astype(int).tolist()
     if scheme in ("adaptive", "adaptive_frozen"):
-        chi = run["chi_hat"]
         out["patterns"] = ctrl.patterns.astype(int).tolist()
-        out["chi_hat_min"] = float(chi.min())
-        out["chi_hat_max"] = float(chi.max())
-        out["chi_hat_final"] = chi[-1].tolist()
+        out["chi_hat_min"] = float(np.min(S["chi_hat_min"])) if "chi_hat_min" in S else float(run["chi_hat"].min())
+        out["chi_hat_max"] = float(np.max(S["chi_hat_max"])) if "chi_hat_max" in S else float(run["chi_hat"].max())
+        out["chi_hat_final"] = run["chi_hat"][-1].tolist()
         # control variables, not a diagnosis (ERRATA P2)
-        out["friction_estimate_final"] = run["uf_hat"][-1].tolist()
-        out["friction_true_final"] = run["ubar"][-1].tolist()
+        out["friction_estimate_final"] = S["uf_hat"][-1].tolist()
+        out["friction_true_final"] = S["ubar"][-1].tolist()
         out["friction_estimate_note"] = "control variable of the adaptive law, not a fault diagnosis (ERRATA P2)"
     if scheme in ("active", "active_ukf"):
         cfg = getattr(case.schemes, scheme)
@@ -194,8 +196,8 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
             built.chain,
             built.faults,
             names,
-            run.t,
-            run.signals,
+            t,
+            S,
             case.plant.saturation,
             cfg.diagnosis.gain_band,
             cfg.diagnosis.friction_band,
@@ -203,7 +205,7 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
             run.t_end,
             cfg.diagnosis.settle_band,
         )
-        out["P_max"] = float(np.max(run["P_max"]))
-        out["rho_hat_final"] = run["rho_hat"][-1].tolist()
-        out["ubar_hat_final"] = run["ubar_hat"][-1].tolist()
+        out["P_max"] = float(np.max(S["P_max"]))
+        out["rho_hat_final"] = S["rho_hat"][-1].tolist()
+        out["ubar_hat_final"] = S["ubar_hat"][-1].tolist()
     return out

@@ -36,10 +36,28 @@ its start, so the fault model is exact.  After each step the controller's
 discrete hook runs (switching logic and the like).
 
 A run that approaches a singular configuration (an articulation angle
-within ``singularity_margin`` of 90 deg, ERRATA P4) stops with status
-``"singular"``; a non-finite or out-of-bounds state stops with ``"diverged"``.
-Either way the log up to that point is kept and the reason is recorded;
-a NaN is never returned silently.
+within ``singularity_margin`` of 90 deg, ERRATA P4, or a controller singular at
+the accepted state) stops with status ``"singular"``; a non-finite or
+out-of-bounds state stops with ``"diverged"``.  A step that blows up stops with
+``"step_unstable"`` and a reason naming ``dt``, never as a singularity: either a
+trial stage of the integrator left the domain (a controller singularity, a
+non-finite value) while the accepted state at the step's start is regular, or
+the new state fails a check that the accepted state was far from (a speed or
+position bound crossed from within ``JUMP_FRACTION`` of it, the singular set
+reached from ``JUMP_MARGINS`` margins away: a change no resolved step makes), or
+the applied torque grew geometrically from accepted step to accepted step
+(max_j |tau_j| more than ``GROWTH_FACTOR`` = e times larger than at the step
+before, ``GROWTH_STEPS`` = 3 steps in a row, ``GROWTH_TOTAL`` = 20 times larger
+overall, ending above ``GROWTH_FLOOR`` = 1 N m).  Growth by e per step is a rate
+of 1 / dt: a mode with lambda dt > 1 is not resolved by the step (RK4's local
+error on it is about (lambda dt)^5 / 120 per step, 1 % at lambda dt = 1 and
+growing fast), so either the integrator is unstable there or the run is not
+converged in dt.  A fault that makes the torque jump is one step of growth, not
+three.  A slower blow-up ends as ``"diverged"`` at the speed or position bound,
+with ``dt`` named in the reason: a resolved exponential growth, such as
+e^(50 t) at dt = 0.01 s (1.65x per step), is divergence, not a step problem.
+The log up to that point is kept and the reason is
+recorded; a NaN is never returned silently.
 """
 
 from __future__ import annotations
@@ -60,17 +78,40 @@ from .errors import (
     articulation_reason,
     bound_reason,
     nonfinite_reason,
+    step_growth_reason,
+    trial_stage_reason,
+    with_step,
 )
 from .model import kernels as K
 from .model.chain import Chain
 from .model.faults import FaultSchedule
 
-__all__ = ["Controller", "Plant", "Run", "SimSettings", "simulate", "time_grid"]
+__all__ = [
+    "REDUCED_SIGNALS",
+    "STREAM_SIGNALS",
+    "Controller",
+    "Plant",
+    "Run",
+    "SimSettings",
+    "simulate",
+    "stream_of",
+    "time_grid",
+]
 
 STATUS_OK = "ok"
 STATUS_SINGULAR = "singular"
 STATUS_DIVERGED = "diverged"
 STATUS_ERROR = "error"
+STATUS_STEP_UNSTABLE = "step_unstable"
+
+#: step-growth detector (see the module docstring); the compiled engine takes the same values
+GROWTH_FACTOR = math.e
+GROWTH_STEPS = 3
+GROWTH_TOTAL = 20.0
+GROWTH_FLOOR = 1.0  # N m
+JUMP_FRACTION = 0.1  # a bound crossed in one step from within this fraction of it is a step blow-up
+JUMP_MARGINS = 10.0  # ... and the singular set reached in one step from this many margins away
+_NUMERIC_ERRORS = (DivergenceError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError)
 
 
 @runtime_checkable
@@ -235,7 +276,7 @@ class Run:
         ``'tau'`` (K, 2n) applied torque, ``'sigma'``, ``'ubar'`` (K, 2n) true
         faults, ``'xc'`` (K, n_states), then the controller's own signals.
     status : str
-        ``'ok'``, ``'singular'``, ``'diverged'`` or ``'error'``.
+        ``'ok'``, ``'singular'``, ``'diverged'``, ``'step_unstable'`` or ``'error'``.
     reason : str
         Why the run stopped early ('' when it completed).
     t_end : float
@@ -244,6 +285,14 @@ class Run:
         RK4 steps taken.
     wall_time : float
         Wall-clock seconds spent in the loop.
+    t_stream : (S,) ndarray
+        Every accepted step's instant [s] (the metric stream; S >= K).
+    stream : dict of str to ndarray
+        The metric stream: the signals of :func:`stream_of` at every accepted
+        step, whatever ``log_every`` is.  Metrics read it (ftcreport.runner), so
+        ``log_every`` changes what is saved, never a metric.  It holds the names of
+        :data:`STREAM_SIGNALS` and the per-step minimum and maximum of the wide
+        ones of :data:`REDUCED_SIGNALS` (``cost_min``, ``chi_hat_max``, ...).
     """
 
     t: np.ndarray
@@ -254,6 +303,8 @@ class Run:
     steps: int = 0
     wall_time: float = 0.0
     meta: dict = field(default_factory=dict)
+    t_stream: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    stream: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.signals[name]
@@ -262,6 +313,33 @@ class Run:
     def ok(self) -> bool:
         """True when the run completed without stopping early."""
         return self.status == STATUS_OK
+
+
+#: the signals the metrics read (ftcreport.runner, metrics, diagnosis): kept at every accepted step
+STREAM_SIGNALS = (
+    "q", "eta", "u", "tau", "sigma", "ubar", "q_d", "selected", "uf_hat",
+    "q_hat", "eta_hat", "rho_hat", "ubar_hat", "P_max",
+)  # fmt: skip
+#: wide signals of which the stream keeps the per-step minimum and maximum only
+REDUCED_SIGNALS = ("chi_hat", "cost")
+
+
+def stream_of(signals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The metric-stream part of logged rows.
+
+    ``signals`` holds K rows of every logged name; the result holds the same K rows of the
+    names in :data:`STREAM_SIGNALS`, plus ``<name>_min`` and ``<name>_max`` (K,) for each name
+    of :data:`REDUCED_SIGNALS` present.
+    """
+    out = {name: signals[name] for name in STREAM_SIGNALS if name in signals}
+    for name in REDUCED_SIGNALS:
+        if name in signals:
+            v = signals[name]
+            flat = v.reshape(v.shape[0], -1)
+            empty = flat.shape[1] == 0
+            out[f"{name}_min"] = np.full(v.shape[0], np.nan) if empty else flat.min(axis=1)
+            out[f"{name}_max"] = np.full(v.shape[0], np.nan) if empty else flat.max(axis=1)
+    return out
 
 
 def time_grid(t0: float, duration: float, dt: float, breakpoints=()) -> np.ndarray:
@@ -384,6 +462,10 @@ def simulate(
     if plant.noisy:
         logs["q_meas"] = np.full((n_log, nq), np.nan)
     status, reason = STATUS_OK, ""
+    stream: dict[str, np.ndarray] = {}  # the metric stream: every accepted step
+    t_stream = np.full(n_steps + 1, np.nan)
+    si = 0
+    g_prev, g_start, streak = 0.0, 0.0, 0  # step-growth detector
     li = 0
     k = 0
     t = grid[0]
@@ -408,32 +490,61 @@ def simulate(
                 status, reason = STATUS_SINGULAR, str(exc)
                 break
             except (DivergenceError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError) as exc:
-                status, reason = STATUS_DIVERGED, str(exc)
+                status, reason = STATUS_DIVERGED, with_step(str(exc), settings.dt, settings.method)
                 break
             except FtcError as exc:
                 status, reason = STATUS_ERROR, str(exc)
                 break
+            g = float(np.max(np.abs(tau))) if tau.size else 0.0
+            if g_prev > 0.0 and g > GROWTH_FACTOR * g_prev:
+                if streak == 0:
+                    g_start = g_prev
+                streak += 1
+            else:
+                streak = 0
+            g_prev = g
+            if streak >= GROWTH_STEPS and g > GROWTH_FLOOR and g > GROWTH_TOTAL * g_start:
+                status = STATUS_STEP_UNSTABLE
+                reason = step_growth_reason(t, g_start, g, streak, GROWTH_FACTOR, settings.dt, settings.method)
+                break
+            q, eta, xc = x[:nq], x[nq : nq + 2], x[nq + 2 :]
+            row = {"q": q, "eta": eta, "u": u, "tau": tau, "sigma": sigma, "ubar": ubar, "xc": xc}
+            if plant.noisy:
+                row["q_meas"] = q + nz[:nq]
+            sig = controller.signals(t, q + nz[:nq], eta + nz[nq:], xc)
+            row |= {name: sig[name] for name in names}
+            srow = stream_of({name: np.asarray(v, dtype=float)[None] for name, v in row.items()})
+            if not stream:
+                stream = {name: np.full((n_steps + 1, *v.shape[1:]), np.nan) for name, v in srow.items()}
+            for name, v in srow.items():
+                stream[name][si] = v[0]
+            t_stream[si] = t
+            si += 1
             if is_logged[k]:
-                q, eta, xc = x[:nq], x[nq : nq + 2], x[nq + 2 :]
                 t_log[li] = t
-                logs["q"][li] = q
-                logs["eta"][li] = eta
-                logs["u"][li] = u
-                logs["tau"][li] = tau
-                logs["sigma"][li] = sigma
-                logs["ubar"][li] = ubar
-                logs["xc"][li] = xc
-                if plant.noisy:
-                    logs["q_meas"][li] = q + nz[:nq]
-                sig = controller.signals(t, q + nz[:nq], eta + nz[nq:], xc)
-                for name in names:
-                    logs[name][li] = sig[name]
+                for name in logs:
+                    logs[name][li] = row[name]
                 li += 1
             if k == n_steps:
                 break
             h = grid[k + 1] - t
             try:
                 xn = step(deriv, t, x, h, k1, hold)
+            except (SingularityError, *_NUMERIC_ERRORS) as e:
+                # a trial stage left the domain; the accepted state x passed every check above
+                status = STATUS_STEP_UNSTABLE
+                reason = trial_stage_reason(t, str(e), settings.dt, settings.method)
+                break
+            except FtcError as exc:
+                status, reason = STATUS_ERROR, str(exc)
+                t = grid[k + 1]
+                break
+            jump = _step_jump(chain, x, xn, settings)
+            if jump[0]:
+                status = STATUS_STEP_UNSTABLE
+                reason = trial_stage_reason(t, step_jump_words(*jump), settings.dt, settings.method, stage=False)
+                break
+            try:
                 x = np.asarray(
                     controller.discrete(grid[k + 1], xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xn[nq + 2 :]),
                     dtype=float,
@@ -444,7 +555,7 @@ def simulate(
                 t = grid[k + 1]
                 break
             except (DivergenceError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError) as exc:
-                status, reason = STATUS_DIVERGED, str(exc)
+                status, reason = STATUS_DIVERGED, with_step(str(exc), settings.dt, settings.method)
                 t = grid[k + 1]
                 break
             except FtcError as exc:
@@ -458,6 +569,7 @@ def simulate(
         progress(float(t))
     for name in logs:
         logs[name] = logs[name][:li]
+    stream = {name: v[:si] for name, v in stream.items()}
     return Run(
         t=t_log[:li],
         signals=logs,
@@ -467,6 +579,8 @@ def simulate(
         steps=int(k),
         wall_time=wall,
         meta={"dt": settings.dt, "duration": settings.duration, "log_every": every},
+        t_stream=t_stream[:si],
+        stream=stream,
     )
 
 
@@ -509,6 +623,44 @@ def _make_ros2(nq: int, diag: np.ndarray):
         return x + 1.5 * h * k1 + 0.5 * h * k2
 
     return step
+
+
+def _step_jump(chain: Chain, x: np.ndarray, xn: np.ndarray, settings: SimSettings) -> tuple[int, float, float]:
+    """(kind, before, after) when the step x -> xn is a numerical blow-up, else (0, 0, 0).
+
+    The new state is non-finite (kind 1), or fails a check of :func:`_check_state`
+    that the accepted state x was far from: speed (2) or position (3) beyond its
+    bound from within ``JUMP_FRACTION`` of it (a growth of more than 10x in one
+    step), or an articulation angle (4) within the margin of 90 deg from more
+    than ``JUMP_MARGINS`` margins away.  ``before``/``after``: the checked value.
+    The compiled engine's ``_step_jump`` kernel returns the same triple.
+    """
+    nq = chain.n_q
+    if not np.all(np.isfinite(xn)):
+        return 1, 0.0, 0.0
+    e0, e1 = float(np.max(np.abs(x[nq : nq + 2]))), float(np.max(np.abs(xn[nq : nq + 2])))
+    if e1 > settings.max_speed and e0 < JUMP_FRACTION * settings.max_speed:
+        return 2, e0, e1
+    p0, p1 = float(np.max(np.abs(x[:2]))), float(np.max(np.abs(xn[:2])))
+    if p1 > settings.max_position and p0 < JUMP_FRACTION * settings.max_position:
+        return 3, p0, p1
+    if chain.n > 1:
+        c0 = float(np.min(np.abs(K.articulation_cos(chain.params, x[:nq]))))
+        c1 = float(np.min(np.abs(K.articulation_cos(chain.params, xn[:nq]))))
+        if c1 <= math.sin(settings.singularity_margin) and c0 > math.sin(JUMP_MARGINS * settings.singularity_margin):
+            return 4, math.degrees(math.acos(min(1.0, c0))), math.degrees(math.acos(min(1.0, c1)))
+    return 0, 0.0, 0.0
+
+
+def step_jump_words(kind: int, before: float, after: float) -> str:
+    """The words of a :func:`_step_jump` triple (shared by both engines)."""
+    if kind == 1:
+        return "non-finite new state"
+    what = {2: ("velocity", ""), 3: ("position", " m"), 4: ("an articulation angle's distance from 90 deg", " deg")}
+    label, unit = what[kind]
+    if kind == 4:
+        before, after = 90.0 - before, 90.0 - after
+    return f"{label} jumped from {before:.3g}{unit} to {after:.3g}{unit} in one step"
 
 
 def _check_state(chain: Chain, x: np.ndarray, settings: SimSettings) -> None:

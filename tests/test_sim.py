@@ -88,8 +88,9 @@ class _Exploding:
 def test_divergence_stops_with_reason():
     chain = Chain.uniform(2)
     run = simulate(Plant(chain), _Exploding(), np.zeros(4), np.zeros(2), SimSettings(dt=0.01, duration=10.0))
+    # e^(50 t) at dt = 0.01 s grows 1.65x per step: a resolved divergence, not a step blow-up
     assert run.status == "diverged"
-    assert run.reason
+    assert "dt = 0.01 s" in run.reason
     assert run.t_end < 10.0
     assert np.all(np.isfinite(run["q"])) and np.all(np.isfinite(run["eta"]))
 

@@ -39,7 +39,10 @@ from ..errors import (
     nonfinite_reason,
     reference_articulation_reason,
     reference_speed_reason,
+    step_growth_reason,
+    trial_stage_reason,
     two_link_reason,
+    with_step,
 )
 from ..observers.farza import FarzaObserver
 from ..references import FlatReference, TrigPath
@@ -267,11 +270,13 @@ def _message(info: np.ndarray, t: float, settings, ref: F.Ref) -> tuple[str, str
     if code == F.E_STATE_SINGULAR:
         return "singular", articulation_reason(int(a), b, settings.singularity_margin)
     if code in (F.E_NONFINITE_STATE, F.E_NONFINITE_DERIV):
-        return "diverged", nonfinite_reason("state" if code == F.E_NONFINITE_STATE else "control or derivative", a)
+        reason = nonfinite_reason("state" if code == F.E_NONFINITE_STATE else "control or derivative", a)
+        return "diverged", with_step(reason, settings.dt, settings.method)
     if code == F.E_SPEED:
-        return "diverged", bound_reason("velocity", [a, b], settings.max_speed)
+        return "diverged", with_step(bound_reason("velocity", [a, b], settings.max_speed), settings.dt, settings.method)
     if code == F.E_POSITION:
-        return "diverged", bound_reason("position", [a, b], settings.max_position, " m")
+        reason = bound_reason("position", [a, b], settings.max_position, " m")
+        return "diverged", with_step(reason, settings.dt, settings.method)
     if code == F.E_TWO_LINK_ETH:
         return "singular", two_link_reason("heading error e_theta", a)
     if code == F.E_TWO_LINK_PHI:
@@ -286,19 +291,38 @@ def _message(info: np.ndarray, t: float, settings, ref: F.Ref) -> tuple[str, str
         return "error", reference_speed_reason(a, int(b), c, ref.min_speed)
     if code == F.E_REF_ART:
         return "error", reference_articulation_reason(a, int(b), c, ref.max_art)
+    if code == F.E_STEP_GROWTH:
+        from ..sim import GROWTH_FACTOR, GROWTH_STEPS
+
+        return "step_unstable", step_growth_reason(a, b, c, GROWTH_STEPS, GROWTH_FACTOR, settings.dt, settings.method)
     return "error", f"compiled engine: unknown error code {code} at t = {t:.6g} s"
+
+
+def _stop(info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: F.Ref) -> tuple[str, str, float]:
+    """(status, reason, t_end) of a stop: a failed trial stage is a step problem, not a singularity."""
+    if int(info[0]) == F.E_STEP_JUMP:
+        from ..sim import step_jump_words
+
+        words = step_jump_words(int(info[1]), float(info[2]), float(info[3]))
+        reason = trial_stage_reason(t_state, words, settings.dt, settings.method, stage=False)
+        return "step_unstable", reason, t_state
+    if where == F.AT_TRIAL and int(info[0]) not in (F.E_REF_SPEED, F.E_REF_ART):
+        _, detail = _message(info, t_state, settings, ref)
+        return "step_unstable", trial_stage_reason(t_state, detail, settings.dt, settings.method), t_state
+    if where == F.AT_STATE:
+        return (*_message(info, t_state, settings, ref), t_state)
+    return (*_message(info, t_next, settings, ref), t_next)
 
 
 # --------------------------------------------------------------------------- the loop
 def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, progress=None):
     """sim.simulate on the compiled kernels; returns a :class:`~ftcreport.sim.Run`."""
-    from ..sim import Run
+    from ..sim import GROWTH_FACTOR, GROWTH_FLOOR, GROWTH_STEPS, GROWTH_TOTAL, JUMP_FRACTION, JUMP_MARGINS, Run
 
     controller = spec.controller
     chain = plant.chain
     nq, nw, nc = chain.n_q, chain.n_wheels, int(controller.n_states)
     n_steps = grid.shape[0] - 1
-    n_log = log_idx.shape[0]
     is_logged = np.zeros(n_steps + 1, dtype=np.bool_)
     is_logged[log_idx] = True
 
@@ -319,17 +343,35 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
 
     xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
     x = np.concatenate((q0, eta0, xc0))
-    lq = np.full((n_log, nq), np.nan)
-    leta = np.full((n_log, 2), np.nan)
-    lu = np.full((n_log, nw), np.nan)
-    ltau = np.full((n_log, nw), np.nan)
-    lsig = np.full((n_log, nw), np.nan)
-    lubar = np.full((n_log, nw), np.nan)
-    lxc = np.full((n_log, nc), np.nan)
-    lmeas = np.full((n_log if plant.noisy else 0, nq + 2), np.nan)
-    lsg = np.full((n_log, spec.n_sig), np.nan)
-    lt = np.full(n_log, np.nan)
+    # The kernels log every step of a chunk (about 1 % of the run) into chunk buffers; after each chunk
+    # the light signals go to the full-rate metric stream and every signal of the logged steps
+    # (log_every) to the saved log, so the heavy ones (xc, switching costs, weights) are never held
+    # at full rate.
+    chunk = max(1, n_steps // 100)
+    rows = chunk + 1
+    every_step = np.ones(n_steps + 1, dtype=np.bool_)
+    lq = np.full((rows, nq), np.nan)
+    leta = np.full((rows, 2), np.nan)
+    lu = np.full((rows, nw), np.nan)
+    ltau = np.full((rows, nw), np.nan)
+    lsig = np.full((rows, nw), np.nan)
+    lubar = np.full((rows, nw), np.nan)
+    lxc = np.full((rows, nc), np.nan)
+    lmeas = np.full((rows if plant.noisy else 0, nq + 2), np.nan)
+    lsg = np.full((rows, spec.n_sig), np.nan)
+    lt = np.full(rows, np.nan)
     info = np.zeros(4)
+    grow = np.zeros(3)  # step-growth detector state, carried across chunks
+    growth = np.array(
+        [
+            GROWTH_FACTOR,
+            GROWTH_STEPS,
+            GROWTH_FLOOR,
+            JUMP_FRACTION,
+            math.sin(JUMP_MARGINS * settings.singularity_margin),
+            GROWTH_TOTAL,
+        ]
+    )
     sat = NAN if plant.saturation is None else float(plant.saturation)
     diag = np.zeros(nq + 2 + nc)
     stiff = getattr(controller, "stiff_diagonal", None)
@@ -339,8 +381,9 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     lim = math.sin(settings.singularity_margin)
     pp = _chain(chain.params)
     share = not plant.noisy and all(np.array_equal(a, b) for a, b in zip(pp, spec.chain, strict=True))
-    chunk = max(1, n_steps // 100)
-    li = 0
+    stream: dict[str, np.ndarray] = {}  # preallocated for every step on the first chunk
+    log_parts: list[dict[str, np.ndarray]] = []
+    si = 0
     k = 0
     status, reason = "ok", ""
     t_end = float(grid[0])
@@ -348,15 +391,19 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     with np.errstate(all="ignore"):
         while True:
             k1 = min(k + chunk - 1, n_steps)
-            x, k_last, li, next_ = F.run_steps(
+            x, k_last, li, where = F.run_steps(
                 spec.kin, spec.ref, spec.law, spec.obs, spec.chain, pp,
                 grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
-                x, k, k1, is_logged, li,
-                lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share,
+                x, k, k1, every_step, 0,
+                lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share, grow, growth,
             )  # fmt: skip
+            if li:
+                bufs = (lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg)
+                si = _collect(spec, plant, nq, k, li, is_logged, bufs, stream, si, n_steps + 1, log_parts)
             if info[0] != 0:
-                t_end = float(grid[k_last + 1] if next_ else grid[k_last])
-                status, reason = _message(info, t_end, settings, spec.ref)
+                status, reason, t_end = _stop(
+                    info, int(where), float(grid[k_last]), float(grid[min(k_last + 1, n_steps)]), settings, spec.ref
+                )
                 k = k_last
                 break
             k = k_last
@@ -369,16 +416,12 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     wall = _time.perf_counter() - wall0
     if progress is not None:
         progress(t_end)
-    logs = {
-        "q": lq[:li], "eta": leta[:li], "u": lu[:li], "tau": ltau[:li], "sigma": lsig[:li],
-        "ubar": lubar[:li], "xc": lxc[:li],
-    }  # fmt: skip
-    meas = lmeas[:li] if plant.noisy else np.concatenate((logs["q"], logs["eta"]), axis=1)
-    logs |= _split_signals(spec, lsg[:li], logs["xc"], meas, nq)
-    if plant.noisy:
-        logs["q_meas"] = meas[:, :nq].copy()
+    stream = {name: v[:si] for name, v in stream.items()}
+    logs = _concat(log_parts)
+    t_log = logs.pop("t", np.zeros(0))
+    t_stream = stream.pop("t", np.zeros(0))
     return Run(
-        t=lt[:li],
+        t=t_log,
         signals=logs,
         status=status,
         reason=reason,
@@ -391,7 +434,48 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
             "log_every": int(settings.log_every),
             "engine": "compiled",
         },
+        t_stream=t_stream,
+        stream=stream,
     )
+
+
+def _chunk_signals(spec: Spec, plant, nq: int, li: int, bufs) -> dict[str, np.ndarray]:
+    """Every logged array of the first ``li`` rows of the chunk buffers, by name (with ``t``)."""
+    lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg = bufs
+    out = {
+        "t": lt[:li], "q": lq[:li], "eta": leta[:li], "u": lu[:li], "tau": ltau[:li], "sigma": lsig[:li],
+        "ubar": lubar[:li], "xc": lxc[:li],
+    }  # fmt: skip
+    meas = lmeas[:li] if plant.noisy else np.concatenate((out["q"], out["eta"]), axis=1)
+    out |= _split_signals(spec, lsg[:li], out["xc"], meas, nq)
+    if plant.noisy:
+        out["q_meas"] = meas[:, :nq]
+    return out
+
+
+def _collect(spec, plant, nq, k0, li, is_logged, bufs, stream, si, rows, log_parts) -> int:
+    """Split one chunk (steps k0 .. k0 + li - 1) into the metric stream (rows si..) and the saved log.
+
+    Returns the stream's new length.
+    """
+    from ..sim import stream_of
+
+    sig = _chunk_signals(spec, plant, nq, li, bufs)
+    part = stream_of(sig) | {"t": sig["t"]}
+    if not stream:
+        stream.update({name: np.full((rows, *v.shape[1:]), np.nan) for name, v in part.items()})
+    for name, v in part.items():
+        stream[name][si : si + li] = v
+    keep = np.flatnonzero(is_logged[k0 : k0 + li])
+    if keep.size:
+        log_parts.append({name: v[keep].copy() for name, v in sig.items()})
+    return si + li
+
+
+def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    if not parts:
+        return {}
+    return {name: np.concatenate([p[name] for p in parts], axis=0) for name in parts[0]}
 
 
 def warm_up() -> float:

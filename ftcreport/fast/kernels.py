@@ -52,6 +52,13 @@ E_CHAINED_ART = 9  # info: link index, angle [deg]
 E_KAPPA = 10  # info: kappa - Delta_1
 E_REF_SPEED = 11  # info: t, robot (1-based), speed
 E_REF_ART = 12  # info: t, link index, angle [deg]
+E_STEP_GROWTH = 13  # info: t, max |tau| at the streak start, max |tau| now [N m]
+E_STEP_JUMP = 14  # info: kind, before, after (sim._step_jump: non-finite new state or a check failed in one step)
+
+# where run_steps stopped (its 4th return value)
+AT_STATE = 0  # at the accepted state of step k (checks, the law at the step start, growth)
+AT_TRIAL = 1  # in a trial stage of step k (RK4 k2..k4, ROS2's Jacobian and second stage)
+AT_DISCRETE = 2  # in the discrete update at the end of step k
 
 LAW_TRACKING = 0
 LAW_ORACLE = 1
@@ -1277,6 +1284,42 @@ def _check_state(pp, x, nq, lim, max_speed, max_position, info):
         info[2] = x[1]
 
 
+@jit
+def _min_art_cos(pp, x, nq):
+    worst = 2.0
+    for i in range(pp.n - 1):
+        worst = min(worst, abs(math.cos(x[nq - 1 - i] - x[nq - 2 - i])))
+    return worst
+
+
+@jit
+def _step_jump(pp, x, xn, nq, lim, max_speed, max_position, frac, lim_far, info):
+    """sim._step_jump: kind (0 = none) with before/after in info[2:4]."""
+    for i in range(xn.shape[0]):
+        if not math.isfinite(xn[i]):
+            return 1
+    e0 = max(abs(x[nq]), abs(x[nq + 1]))
+    e1 = max(abs(xn[nq]), abs(xn[nq + 1]))
+    if e1 > max_speed and e0 < frac * max_speed:
+        info[2] = e0
+        info[3] = e1
+        return 2
+    p0 = max(abs(x[0]), abs(x[1]))
+    p1 = max(abs(xn[0]), abs(xn[1]))
+    if p1 > max_position and p0 < frac * max_position:
+        info[2] = p0
+        info[3] = p1
+        return 3
+    if pp.n > 1:
+        c0 = _min_art_cos(pp, x, nq)
+        c1 = _min_art_cos(pp, xn, nq)
+        if c1 <= lim and c0 > lim_far:
+            info[2] = math.degrees(math.acos(min(1.0, c0)))
+            info[3] = math.degrees(math.acos(min(1.0, c1)))
+            return 4
+    return 0
+
+
 ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 
@@ -1285,9 +1328,15 @@ def run_steps(
     Kp, R, Lw, O, pc, pp,
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
     x, k0, k1, is_logged, li,
-    lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share,
+    lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
 ):  # fmt: skip
-    """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, stopped_at_next)."""
+    """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, where).
+
+    ``where`` says where an error stopped the loop (AT_STATE, AT_TRIAL, AT_DISCRETE).
+    ``grow`` = [max |tau| at the previous step, streak length, max |tau| at the streak start]
+    carries the step-growth detector of sim.simulate across calls; ``growth`` = [GROWTH_FACTOR,
+    GROWTH_STEPS, GROWTH_FLOOR, JUMP_FRACTION, sin(JUMP_MARGINS * margin), GROWTH_TOTAL] of ftcreport.sim.
+    """
     nq = pp.n + 2
     nx = x.shape[0]
     sig_buf = np.zeros(n_sig)
@@ -1306,14 +1355,14 @@ def run_steps(
             if not math.isfinite(x[i]):
                 info[0] = E_NONFINITE_STATE
                 info[1] = t
-                return x, k, li, False
+                return x, k, li, AT_STATE
         _check_state(pp, x, nq, lim, max_speed, max_position, info)
         if info[0] != 0:
-            return x, k, li, False
+            return x, k, li, AT_STATE
         want = is_logged[k]
         f0, u, tau = _deriv(ctx, t, x, sigma, ubar, nz, info, sig_buf if want else empty)
         if info[0] != 0:
-            return x, k, li, False
+            return x, k, li, AT_STATE
         ok = True
         for i in range(nx):
             if not math.isfinite(f0[i]):
@@ -1324,7 +1373,24 @@ def run_steps(
         if not ok:
             info[0] = E_NONFINITE_DERIV
             info[1] = t
-            return x, k, li, False
+            return x, k, li, AT_STATE
+        # step-growth detector (sim.simulate): max |tau| growing geometrically step after step
+        g = 0.0
+        for i in range(tau.shape[0]):
+            g = max(g, abs(tau[i]))
+        if grow[0] > 0.0 and g > growth[0] * grow[0]:
+            if grow[1] == 0.0:
+                grow[2] = grow[0]
+            grow[1] += 1.0
+        else:
+            grow[1] = 0.0
+        grow[0] = g
+        if grow[1] >= growth[1] and g > growth[2] and g > growth[5] * grow[2]:
+            info[0] = E_STEP_GROWTH
+            info[1] = t
+            info[2] = grow[2]
+            info[3] = g
+            return x, k, li, AT_STATE
         if want:
             lt[li] = t
             lq[li] = x[:nq]
@@ -1339,18 +1405,18 @@ def run_steps(
             lsg[li] = sig_buf
             li += 1
         if k == grid.shape[0] - 1:
-            return x, k, li, False
+            return x, k, li, AT_STATE
         h = grid[k + 1] - t
         if method == 0:
             f2 = _deriv(ctx, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, nz, info, empty)[0]
             if info[0] != 0:
-                return x, k, li, True
+                return x, k, li, AT_TRIAL
             f3 = _deriv(ctx, t + 0.5 * h, x + 0.5 * h * f2, sigma, ubar, nz, info, empty)[0]
             if info[0] != 0:
-                return x, k, li, True
+                return x, k, li, AT_TRIAL
             f4 = _deriv(ctx, t + h, x + h * f3, sigma, ubar, nz, info, empty)[0]
             if info[0] != 0:
-                return x, k, li, True
+                return x, k, li, AT_TRIAL
             xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
         else:
             F = np.empty((nx, 2))
@@ -1361,7 +1427,7 @@ def run_steps(
                 xp[c] += delta
                 fp = _deriv(ctx, t, xp, sigma, ubar, nz, info, empty)[0]
                 if info[0] != 0:
-                    return x, k, li, True
+                    return x, k, li, AT_TRIAL
                 F[:, j] = (fp - f0) / delta
             gh = ROS2_GAMMA * h
             dinv = 1.0 / (1.0 - gh * diag)
@@ -1378,16 +1444,21 @@ def run_steps(
             kk1 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
             f2 = _deriv(ctx, t + h, x + h * kk1, sigma, ubar, nz, info, empty)[0]
             if info[0] != 0:
-                return x, k, li, True
+                return x, k, li, AT_TRIAL
             rd = dinv * (f2 - 2.0 * kk1)
             kk2 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
             xn = x + 1.5 * h * kk1 + 0.5 * h * kk2
+        kind = _step_jump(pp, x, xn, nq, lim, max_speed, max_position, growth[3], growth[4], info)
+        if kind != 0:
+            info[0] = E_STEP_JUMP
+            info[1] = kind
+            return x, k, li, AT_TRIAL
         xcn = discrete(Kp, R, C, Lw, grid[k + 1], xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xn[nq + 2 :], info)
         if info[0] != 0:
-            return x, k, li, True
+            return x, k, li, AT_DISCRETE
         xn[nq + 2 :] = xcn  # xn is a new array: it becomes the state without a copy
         x = xn
-    return x, k1, li, False
+    return x, k1, li, AT_STATE
 
 
 # =========================================================================== entry points for the Python engine

@@ -193,6 +193,9 @@ class Diagnosis(_Strict):
     friction_band: PosFloat = 0.2  # [N m]
     dwell: PosFloat = 2.0  # [s] an estimate steady this long at a new value is declared
     settle_band: PosFloat | None = None  # "steady": within this of its window mean (default band / 4)
+    # a declared value within this of the true new value is a correct detection (issue 18)
+    gain_tolerance: PosFloat = 0.1
+    friction_tolerance: PosFloat = 0.2  # [N m]
 
 
 class ActiveScheme(_Strict):

@@ -202,6 +202,8 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
             cfg.diagnosis.dwell,
             run.t_end,
             cfg.diagnosis.settle_band,
+            cfg.diagnosis.gain_tolerance,
+            cfg.diagnosis.friction_tolerance,
         )
         out["P_max"] = float(np.max(run["P_max"]))
         out["rho_hat_final"] = run["rho_hat"][-1].tolist()

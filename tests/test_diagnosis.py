@@ -13,29 +13,29 @@ import pytest
 from ftcreport.diagnosis import detect, match_events, phase_combined_effect, true_events
 from ftcreport.model import FaultEvent, FaultSchedule
 
-T = np.arange(0.0, 60.0, 0.05)
+grid = np.arange(0.0, 60.0, 0.05)
 NAMES2 = ["rho_1r", "rho_1l", "rho_2r", "rho_2l", "ubar_1r", "ubar_1l", "ubar_2r", "ubar_2l"]
 
 
 def _settle(t0: float, start: float, value: float, tc: float = 0.5) -> np.ndarray:
     """start before t0, then start -> value with time constant tc."""
-    x = np.full_like(T, start)
-    k = T >= t0
-    x[k] = value + (start - value) * np.exp(-(T[k] - t0) / tc)
+    x = np.full_like(grid, start)
+    k = grid >= t0
+    x[k] = value + (start - value) * np.exp(-(grid[k] - t0) / tc)
     return x
 
 
 def _traces(**cols) -> np.ndarray:
     """(K, 8) estimates: nominal everywhere except the given columns."""
-    X = np.column_stack([np.ones_like(T)] * 4 + [np.zeros_like(T)] * 4)
+    X = np.column_stack([np.ones_like(grid)] * 4 + [np.zeros_like(grid)] * 4)
     for name, x in cols.items():
         X[:, NAMES2.index(name)] = x
     return X
 
 
 def _score(sched: FaultSchedule, X: np.ndarray, **kw):
-    decl = detect(T, X, NAMES2, gain_band=0.1, friction_band=0.2, dwell=2.0)
-    return match_events(decl, true_events(sched, NAMES2), float(T[-1]), boundaries=list(sched.times), **kw)
+    decl = detect(grid, X, NAMES2, gain_band=0.1, friction_band=0.2, dwell=2.0)
+    return match_events(decl, true_events(sched, NAMES2), float(grid[-1]), boundaries=list(sched.times), **kw)
 
 
 def test_right_value_is_a_detection_with_its_delay():
@@ -85,14 +85,14 @@ def test_recovery_needs_the_recovered_value():
     """A gain lost at 10 s recovers to 1.0 at 30 s: an estimate of -0.15 after 30 s is not a detection."""
     sched = FaultSchedule(2, [FaultEvent(10.0, "1r", sigma=0.0), FaultEvent(30.0, "1r", sigma=1.0)])
     wrong = _settle(10.0, 1.0, 0.0)
-    wrong[T >= 30.0] = _settle(30.0, 0.0, -0.15)[T >= 30.0]
+    wrong[grid >= 30.0] = _settle(30.0, 0.0, -0.15)[grid >= 30.0]
     res = _score(sched, _traces(rho_1r=wrong))
     loss, back = res["events"]
     assert loss["outcome"] == "detected"
     assert back["time"] == 30.0 and back["value"] == 1.0
     assert back["outcome"] == "wrong_estimate" and back["estimate"] == pytest.approx(-0.15, abs=0.01)
     right = _settle(10.0, 1.0, 0.0)
-    right[T >= 30.0] = _settle(30.0, 0.0, 1.02)[T >= 30.0]
+    right[grid >= 30.0] = _settle(30.0, 0.0, 1.02)[grid >= 30.0]
     res = _score(sched, _traces(rho_1r=right))
     assert [e["outcome"] for e in res["events"]] == ["detected", "detected"]
     assert 0.0 < res["events"][1]["delay"] < 5.0
@@ -125,7 +125,7 @@ def test_nothing_declared_is_missed_and_nothing_changed_is_a_false_alarm():
 
 def test_combined_effect_is_exact_when_the_individual_parameters_are_not():
     """Two wheels with identical input columns: swapping their gains leaves the combined effect exact (P3)."""
-    K = T.size
+    K = grid.size
     MB = np.zeros((K, 2, 4))
     MB[:, 0, 0] = MB[:, 0, 1] = 0.2  # wheels 0 and 1 act identically
     MB[:, 1, 2] = 0.3
@@ -136,7 +136,7 @@ def test_combined_effect_is_exact_when_the_individual_parameters_are_not():
 
     ce_t = combined_effect(MB, u, rho_true, np.zeros((K, 4)))
     ce_h = combined_effect(MB, u, rho_hat, np.zeros((K, 4)))
-    (ph,) = phase_combined_effect(T, ce_h, ce_t, rho_hat, rho_true, ["a", "b", "c", "d"], [(0.0, 60.0)], 2.0)
+    (ph,) = phase_combined_effect(grid, ce_h, ce_t, rho_hat, rho_true, ["a", "b", "c", "d"], [(0.0, 60.0)], 2.0)
     assert ph["combined_effect_error_rms"] == pytest.approx(0.0, abs=1e-15)
     assert ph["combined_effect_rms"] == pytest.approx(np.hypot(0.2, 0.3), rel=1e-12)
     assert ph["parameter_errors"] == {"a": 0.5, "b": 0.5, "c": 0.0, "d": 0.0}

@@ -276,6 +276,44 @@ class Bound(_Strict):
     max: Finite | None = None
 
 
+class Claim(_Strict):
+    """A thesis claim about the case, checked by ``ftcreport check`` (ftcreport.claims, issue 18)."""
+
+    id: str  # short name, unique in the case
+    source: str  # where the thesis says it: section, figure or table
+    words: str  # the thesis's words
+    expect: Literal["reproduced", "not reproduced", "not applicable"]  # the outcome check requires
+    note: str = ""  # what we measure beside it (shown on the page)
+    not_applicable: str | None = None  # why this simulation cannot check it (one sentence)
+    scheme: str | None = None  # whose metrics decide
+    metric: str | None = None  # a metrics.json name; "a.b" reads entry b of dict a
+    keys: list[str] | None = None  # dict metric: the entries compared (their largest)
+    min: Finite | None = None
+    max: Finite | None = None
+    relative_to: str | None = None  # bound on metric(scheme) / metric(relative_to)
+    sequence: list[int] | None = None  # switch_sequence: the applied models, 1-based, repeats merged
+
+    @model_validator(mode="after")
+    def _decidable(self) -> Claim:
+        if self.not_applicable is not None:
+            if self.expect != "not applicable":
+                raise ValueError("a claim marked not_applicable must expect 'not applicable'")
+            return self
+        if self.expect == "not applicable":
+            raise ValueError("expect = 'not applicable' needs not_applicable = '<why>'")
+        if self.scheme is None or self.metric is None:
+            raise ValueError("give scheme and metric (or not_applicable = '<why>')")
+        for key, val in (("scheme", self.scheme), ("relative_to", self.relative_to)):
+            if val is not None and val not in SCHEME_NAMES:
+                raise ValueError(f"{key}: unknown scheme '{val}' (known: {', '.join(SCHEME_NAMES)})")
+        has_bound = self.min is not None or self.max is not None
+        if has_bound == (self.sequence is not None):
+            raise ValueError("give either a bound (min, max) or a sequence")
+        if self.sequence is not None and self.relative_to is not None:
+            raise ValueError("a sequence is not compared relative to another scheme")
+        return self
+
+
 class CampaignSpec(_Strict):
     """Distributions a Monte Carlo campaign draws variants of the case from (ftcreport.campaign)."""
 
@@ -320,6 +358,7 @@ class Case(_Strict):
     expected_status: list[Literal["ok", "singular", "diverged"]] = ["ok"]
     thresholds: dict[str, dict[str, Bound]] = {}
     campaign: CampaignSpec | None = None  # distributions for `ftcreport campaign` (ignored by batch)
+    claims: list[Claim] = []  # thesis claims checked against the runs (ftcreport.claims)
 
     @field_validator("faults")
     @classmethod
@@ -397,6 +436,14 @@ class Case(_Strict):
                         raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
         if not any(getattr(self.schemes, s) is not None for s in SCHEME_NAMES):
             raise _FieldError("schemes", "no scheme to run (give at least one of " + ", ".join(SCHEME_NAMES) + ")")
+        ids = [c.id for c in self.claims]
+        for i, c in enumerate(self.claims):
+            if ids.count(c.id) > 1:
+                raise _FieldError(f"claims[{i}].id", f"'{c.id}' is used by more than one claim")
+            for key in ("scheme", "relative_to"):
+                s = getattr(c, key)
+                if s is not None and getattr(self.schemes, s) is None:
+                    raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not configured in this case")
         for scheme, metrics in self.thresholds.items():
             if scheme not in SCHEME_NAMES:
                 raise _FieldError(f"thresholds.{scheme}", f"unknown scheme (known: {', '.join(SCHEME_NAMES)})")

@@ -533,8 +533,11 @@ def load_case(path: str | Path) -> Case:
 
 
 def case_hash(case: Case, version: str) -> str:
-    """Content hash of a validated case and the package version (result cache key)."""
-    blob = case.model_dump_json() + "|" + version
+    """Content hash of a validated case and the package version (result cache key).
+
+    The thesis claims are left out: they are judged on stored metrics and change no run.
+    """
+    blob = case.model_dump_json(exclude={"claims"}) + "|" + version
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 

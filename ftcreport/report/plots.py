@@ -366,16 +366,24 @@ def control_torque_svg(ts: dict, wheels: list[str], events: list[float], scheme:
 
 
 def estimated_path_svg(ts: dict, scheme: str) -> str:
-    """Reference, true and estimated path of P_n in the plane (thesis Fig. 4.9a)."""
-    fig, ax = plt.subplots(figsize=(5.6, 4.0))
+    """Reference, true and estimated path of P_n in the plane (thesis Fig. 4.9a).
+
+    Equal axes unless the path is more than 4 times longer one way than the other (a long
+    sinusoid would be a flat line): then the axes are not to scale and the title says so.
+    """
+    span = np.ptp(ts["q_d"][:, :2], axis=0) + 1e-9
+    stretched = max(span) / min(span) > 4.0
+    fig, ax = plt.subplots(figsize=(6.4, 3.0) if stretched else (5.6, 4.0))
     ax.plot(ts["q_d"][:, 0], ts["q_d"][:, 1], "k--", lw=1, label="reference")
     ax.plot(ts["q"][:, 0], ts["q"][:, 1], color=SCHEME_COLORS.get(scheme), lw=1.4, label="true (simulated)")
     ax.plot(ts["q_hat"][:, 0], ts["q_hat"][:, 1], ":", color="0.2", lw=1.2, label="estimated")
     ax.plot(ts["q_hat"][0, 0], ts["q_hat"][0, 1], "o", color="0.2", ms=4)
     ax.plot(ts["q"][0, 0], ts["q"][0, 1], "o", color=SCHEME_COLORS.get(scheme), ms=4)
-    ax.set_aspect("equal", adjustable="datalim")
+    if not stretched:
+        ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"{scheme}: reference, true and estimated path of P_n (o: start)")
+    scale = " (axes not to scale)" if stretched else ""
+    ax.set_title(f"{scheme}: reference, true and estimated path of P_n (o: start){scale}")
     ax.legend(loc="best", fontsize=7)
     return _svg(fig)

@@ -210,6 +210,8 @@ class ActiveScheme(_Strict):
     estimate: list[Literal["rho", "ubar"]] = ["rho", "ubar"]
     tau: PosFloat | None = None  # [s] filter 1/(tau s + 1) on the estimates used by the law
     diagnosis: Diagnosis = Diagnosis()
+    # observer's initial q estimate: the first measurement, or 0 as in the thesis (4.2.4, x(0) = 0)
+    q_hat0: Literal["measured", "zero"] = "measured"
 
 
 class ActiveUKFScheme(_Strict):

@@ -108,7 +108,14 @@ def make_controller(built: Built, scheme: str):
         )
     if scheme == "active":
         obs = FarzaObserver(
-            built.chain, cfg.Theta, cfg.k0, cfg.k1, cfg.p0, cfg.p_max, estimate=tuple(dict.fromkeys(cfg.estimate))
+            built.chain,
+            cfg.Theta,
+            cfg.k0,
+            cfg.k1,
+            cfg.p0,
+            cfg.p_max,
+            estimate=tuple(dict.fromkeys(cfg.estimate)),
+            q_hat0=cfg.q_hat0,
         )
         return ActiveController(built.chain, kin, cfg.k_v, obs, u_limit=case.plant.saturation, tau=cfg.tau)
     if scheme == "active_ukf":

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ftcreport.diagnosis import detect, match_events, phase_combined_effect, true_events
-from ftcreport.model import FaultEvent, FaultSchedule
+from ftcreport.model import Chain, FaultEvent, FaultSchedule
 
 grid = np.arange(0.0, 60.0, 0.05)
 NAMES2 = ["rho_1r", "rho_1l", "rho_2r", "rho_2l", "ubar_1r", "ubar_1l", "ubar_2r", "ubar_2l"]
@@ -140,3 +140,30 @@ def test_combined_effect_is_exact_when_the_individual_parameters_are_not():
     assert ph["combined_effect_error_rms"] == pytest.approx(0.0, abs=1e-15)
     assert ph["combined_effect_rms"] == pytest.approx(np.hypot(0.2, 0.3), rel=1e-12)
     assert ph["parameter_errors"] == {"a": 0.5, "b": 0.5, "c": 0.0, "d": 0.0}
+
+
+def test_observer_initial_estimate_is_configurable():
+    """q_hat(0) = q(0) by default; the thesis's q_hat(0) = 0 (4.2.4) through the case field q_hat0."""
+    from pathlib import Path
+
+    from ftcreport.cases import load_case
+    from ftcreport.observers import FarzaObserver
+    from ftcreport.runner import build, make_controller
+
+    chain = Chain.uniform(2)
+    q0 = np.array([0.0, 1.0, 0.2, 0.1])
+    measured = FarzaObserver(chain, 1.6).initial_state(q0)
+    zero = FarzaObserver(chain, 1.6, q_hat0="zero").initial_state(q0)
+    np.testing.assert_array_equal(measured[:4], q0)
+    np.testing.assert_array_equal(zero[:4], np.zeros(4))
+    np.testing.assert_array_equal(zero[4:], measured[4:])  # velocities, parameters, Y and P alike
+    with pytest.raises(Exception, match="q_hat0"):
+        FarzaObserver(chain, 1.6, q_hat0="first")
+    case = load_case(Path(__file__).resolve().parents[1] / "cases" / "two_link_active.toml")
+    assert case.schemes.active.q_hat0 == "measured"
+    active = case.schemes.active.model_copy(update={"q_hat0": "zero"})
+    case = case.model_copy(update={"schemes": case.schemes.model_copy(update={"active": active})})
+    built = build(case)
+    ctrl = make_controller(built, "active")
+    xc = ctrl.initial_state(0.0, built.q0, built.eta0)
+    assert ctrl.signals(0.0, built.q0, built.eta0, xc)["q_hat"].tolist() == [0.0, 0.0, 0.0, 0.0]

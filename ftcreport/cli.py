@@ -258,7 +258,10 @@ def check(
     jobs: Annotated[int | None, typer.Option(help="Parallel processes.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only failures.")] = False,
 ) -> None:
-    """Compare each case's metrics with its thresholds: exit 0 if all hold, 1 if not, 2 for bad case files.
+    """Compare each case's metrics with its thresholds and thesis claims: exit 0 if all hold, 1 if not, 2 for bad files.
+
+    A thesis claim (the case's claims list) holds when its outcome (reproduced / not reproduced /
+    not applicable) is the one the case expects.
 
     Runs what is not cached first (as 'batch' does).
 

@@ -252,3 +252,7 @@ def test_every_thesis_case_page_has_its_claims_section(batch_dir):
         assert 'id="thesis-claim"' in html, path.stem
         for c in load_case(path).claims:
             assert f'id="claim-{c.id}"' in html, (path.stem, c.id)
+    # the thesis figures of the active schemes (Figs 4.5-4.9, 4.14-4.18)
+    html = (out / "two_link_active" / "index.html").read_text()
+    for fig in ("velocities", "active-control", "active-path", "active_ukf-control", "active_ukf-path"):
+        assert f'id="fig-{fig}"' in html, fig

@@ -260,8 +260,7 @@ def check(
 ) -> None:
     """Compare each case's metrics with its thresholds and thesis claims: exit 0 if all hold, 1 if not, 2 for bad files.
 
-    A thesis claim (the case's claims list) holds when its outcome (reproduced / not reproduced /
-    not applicable) is the one the case expects.
+    A thesis claim holds when its outcome (reproduced, not reproduced, not applicable) is the expected one.
 
     Runs what is not cached first (as 'batch' does).
 

@@ -78,6 +78,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
         "warnings": case.warnings(),
         "thresholds": thresholds,
         "duration_override": duration,
+        "claims": [c.model_dump() for c in case.claims],  # thesis claims that `check` gates on
     }
     _record(out, case.name, payload)
     return key

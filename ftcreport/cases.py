@@ -193,6 +193,9 @@ class Diagnosis(_Strict):
     friction_band: PosFloat = 0.2  # [N m]
     dwell: PosFloat = 2.0  # [s] an estimate steady this long at a new value is declared
     settle_band: PosFloat | None = None  # "steady": within this of its window mean (default band / 4)
+    # a declared value within this of the true new value is a correct detection (issue 18)
+    gain_tolerance: PosFloat = 0.1
+    friction_tolerance: PosFloat = 0.2  # [N m]
 
 
 class ActiveScheme(_Strict):
@@ -207,6 +210,8 @@ class ActiveScheme(_Strict):
     estimate: list[Literal["rho", "ubar"]] = ["rho", "ubar"]
     tau: PosFloat | None = None  # [s] filter 1/(tau s + 1) on the estimates used by the law
     diagnosis: Diagnosis = Diagnosis()
+    # observer's initial q estimate: the first measurement, or 0 as in the thesis (4.2.4, x(0) = 0)
+    q_hat0: Literal["measured", "zero"] = "measured"
 
 
 class ActiveUKFScheme(_Strict):
@@ -273,6 +278,44 @@ class Bound(_Strict):
     max: Finite | None = None
 
 
+class Claim(_Strict):
+    """A thesis claim about the case, checked by ``ftcreport check`` (ftcreport.claims, issue 18)."""
+
+    id: str  # short name, unique in the case
+    source: str  # where the thesis says it: section, figure or table
+    words: str  # the thesis's words
+    expect: Literal["reproduced", "not reproduced", "not applicable"]  # the outcome check requires
+    note: str = ""  # what we measure beside it (shown on the page)
+    not_applicable: str | None = None  # why this simulation cannot check it (one sentence)
+    scheme: str | None = None  # whose metrics decide
+    metric: str | None = None  # a metrics.json name; "a.b" reads entry b of dict a
+    keys: list[str] | None = None  # dict metric: the entries compared (their largest)
+    min: Finite | None = None
+    max: Finite | None = None
+    relative_to: str | None = None  # bound on metric(scheme) / metric(relative_to)
+    sequence: list[int] | None = None  # switch_sequence: the applied models, 1-based, repeats merged
+
+    @model_validator(mode="after")
+    def _decidable(self) -> Claim:
+        if self.not_applicable is not None:
+            if self.expect != "not applicable":
+                raise ValueError("a claim marked not_applicable must expect 'not applicable'")
+            return self
+        if self.expect == "not applicable":
+            raise ValueError("expect = 'not applicable' needs not_applicable = '<why>'")
+        if self.scheme is None or self.metric is None:
+            raise ValueError("give scheme and metric (or not_applicable = '<why>')")
+        for key, val in (("scheme", self.scheme), ("relative_to", self.relative_to)):
+            if val is not None and val not in SCHEME_NAMES:
+                raise ValueError(f"{key}: unknown scheme '{val}' (known: {', '.join(SCHEME_NAMES)})")
+        has_bound = self.min is not None or self.max is not None
+        if has_bound == (self.sequence is not None):
+            raise ValueError("give either a bound (min, max) or a sequence")
+        if self.sequence is not None and self.relative_to is not None:
+            raise ValueError("a sequence is not compared relative to another scheme")
+        return self
+
+
 class CampaignSpec(_Strict):
     """Distributions a Monte Carlo campaign draws variants of the case from (ftcreport.campaign)."""
 
@@ -317,6 +360,7 @@ class Case(_Strict):
     expected_status: list[Literal["ok", "singular", "diverged", "step_unstable"]] = ["ok"]
     thresholds: dict[str, dict[str, Bound]] = {}
     campaign: CampaignSpec | None = None  # distributions for `ftcreport campaign` (ignored by batch)
+    claims: list[Claim] = []  # thesis claims checked against the runs (ftcreport.claims)
 
     @field_validator("faults")
     @classmethod
@@ -394,6 +438,14 @@ class Case(_Strict):
                         raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
         if not any(getattr(self.schemes, s) is not None for s in SCHEME_NAMES):
             raise _FieldError("schemes", "no scheme to run (give at least one of " + ", ".join(SCHEME_NAMES) + ")")
+        ids = [c.id for c in self.claims]
+        for i, c in enumerate(self.claims):
+            if ids.count(c.id) > 1:
+                raise _FieldError(f"claims[{i}].id", f"'{c.id}' is used by more than one claim")
+            for key in ("scheme", "relative_to"):
+                s = getattr(c, key)
+                if s is not None and getattr(self.schemes, s) is None:
+                    raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not configured in this case")
         for scheme, metrics in self.thresholds.items():
             if scheme not in SCHEME_NAMES:
                 raise _FieldError(f"thresholds.{scheme}", f"unknown scheme (known: {', '.join(SCHEME_NAMES)})")
@@ -483,8 +535,11 @@ def load_case(path: str | Path) -> Case:
 
 
 def case_hash(case: Case, version: str) -> str:
-    """Content hash of a validated case and the package version (result cache key)."""
-    blob = case.model_dump_json() + "|" + version
+    """Content hash of a validated case and the package version (result cache key).
+
+    The thesis claims are left out: they are judged on stored metrics and change no run.
+    """
+    blob = case.model_dump_json(exclude={"claims"}) + "|" + version
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 

@@ -258,7 +258,9 @@ def check(
     jobs: Annotated[int | None, typer.Option(help="Parallel processes.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only failures.")] = False,
 ) -> None:
-    """Compare each case's metrics with its thresholds: exit 0 if all hold, 1 if not, 2 for bad case files.
+    """Compare each case's metrics with its thresholds and thesis claims: exit 0 if all hold, 1 if not, 2 for bad files.
+
+    A thesis claim holds when its outcome (reproduced, not reproduced, not applicable) is the expected one.
 
     Runs what is not cached first (as 'batch' does).
 
@@ -266,17 +268,20 @@ def check(
     """
     from .batch import run_batch
     from .check import evaluate
+    from .claims import evaluate_claims
     from .report.junit import write_junit
     from .store import load_metrics
 
     res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
     results = []
+    claims = []
     for name in res.cases:
         rec = json.loads((out / name / "case.json").read_text())
         metrics = {s: load_metrics(out, name, s) for s in rec.get("schemes", [])}
         results += evaluate(name, rec.get("thresholds", {}), metrics)
+        claims += evaluate_claims(name, rec.get("claims", []), metrics)
     if junit is not None:
-        write_junit(junit, results, res.case_errors)
+        write_junit(junit, results, res.case_errors, claims=claims)
     for r in results:
         if not r.ok or not quiet:
             mark = "pass" if r.ok else "FAIL"
@@ -284,13 +289,20 @@ def check(
                 f"{mark:4}  {r.case} / {r.scheme} / {r.metric}: actual {_fmt(r.actual, '.6g')} "
                 f"(min {_fmt(r.min, 'g')}, max {_fmt(r.max, 'g')}) {r.reason}".rstrip()
             )
+    for c in claims:
+        if not c.ok or not quiet:
+            mark = "pass" if c.ok else "FAIL"
+            typer.echo(f"{mark:4}  {c.case} / claim {c.id} ({c.source}): {c.outcome} (expected {c.expect}); {c.reason}")
     for msg in res.case_errors.values():
         typer.echo(f"error: {msg}", err=True)
     failed = sum(not r.ok for r in results)
+    failed_claims = sum(not c.ok for c in claims)
     typer.echo(f"{len(results) - failed}/{len(results)} thresholds hold")
+    if claims:
+        typer.echo(f"{len(claims) - failed_claims}/{len(claims)} thesis claims have their expected outcome")
     if res.case_errors:
         raise typer.Exit(code=2)
-    if failed:
+    if failed or failed_claims:
         raise typer.Exit(code=1)
 
 

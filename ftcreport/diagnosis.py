@@ -15,14 +15,40 @@ The reference starts at the nominal value (gain 1, friction 0) and becomes
 the declared value after each declaration.  A declaration names the
 parameter, hence the wheel (isolation) and the type (gain loss or friction),
 its time, the onset (when the estimate last left the reference band), and
-the estimated value (the window mean).  :func:`match_events` compares the
-declarations with the true fault schedule: delay per event, missed events,
-false alarms (declarations no true change explains), and whether anything
-was declared on a wheel before its first fault.
+the estimated value (the window mean).
+
+:func:`match_events` scores the declarations against the true fault schedule
+(issue 18).  The run is cut into phases at the schedule's event times; a true
+change of parameter j at t_e is judged only within its phase [t_e, t_next)
+(the next event of the schedule, or the end of the run), so a delay never
+runs past the next event.  Each true change gets one outcome:
+
+* ``detected``: a declaration on j (the right wheel and the right kind) in the
+  phase whose value is within the tolerance of the true new value (``gain_tol``
+  for gains, ``friction_tol`` [N m] for frictions); the delay is to the first
+  such declaration;
+* ``wrong_estimate``: declarations on j in the phase, none within the tolerance
+  (the estimate reported is the last of them);
+* ``wrong_isolation``: nothing declared on j in the phase, but a change was
+  declared on a parameter that did not change in it (another wheel, or the
+  other kind on the same wheel);
+* ``missed``: nothing declared in the phase that could stand for it.
+
+Only ``detected`` counts as a detection: ``missed_detections`` counts every
+other outcome (a fault not correctly diagnosed within its phase is missed), and
+``wrong_estimates``, ``wrong_isolations`` break it down.  Each declaration is
+classified as well: ``correct`` or ``wrong_estimate`` (on a parameter that
+changed in its phase), ``correction`` (on a parameter that did not change, at
+its true value within tolerance, after the previous declaration on it was
+wrong: the diagnosis recovers the truth late), or a false alarm (any other
+declaration on a parameter that did not change in its phase; ``early`` are
+those on a wheel before its first fault).
 
 The combined effect Mbar1^-1 Bbar (diag(rho) u + ubar), the acceleration the
 actuators produce, is what is identifiable at each instant (P3);
-:func:`combined_effect` evaluates it for estimated and true parameters.
+:func:`combined_effect` evaluates it for estimated and true parameters, and
+:func:`diagnosis_metrics` reports its error per phase beside the individual
+parameters' errors.
 """
 
 from __future__ import annotations
@@ -42,6 +68,7 @@ __all__ = [
     "diagnosis_metrics",
     "input_matrices",
     "match_events",
+    "phase_combined_effect",
     "true_events",
 ]
 
@@ -129,45 +156,128 @@ def true_events(schedule: FaultSchedule, names: list[str]) -> list[dict]:
     return out
 
 
-def match_events(declarations: list[Declaration], events: list[dict], t_end: float) -> dict:
-    """Compare declarations with the true changes.
+def _phase_end(t: float, boundaries: list[float], t_end: float) -> float:
+    """The first boundary after t (the end of t's phase), or t_end."""
+    later = [b for b in boundaries if b > t]
+    return min(later) if later else t_end
 
-    A true change of parameter j at t_e is detected by the first declaration on
-    j at or after t_e and before j's next true change.  Declarations left over
-    are false alarms; ``early`` are those on a wheel before its first fault.
+
+def _within(kind: str, value: float, truth: float, gain_tol: float, friction_tol: float) -> bool:
+    return abs(value - truth) <= (gain_tol if kind == "gain" else friction_tol)
+
+
+def match_events(
+    declarations: list[Declaration],
+    events: list[dict],
+    t_end: float,
+    gain_tol: float = 0.1,
+    friction_tol: float = 0.2,
+    boundaries: list[float] | None = None,
+) -> dict:
+    """Score declarations against the true changes (see the module docstring).
+
+    Parameters
+    ----------
+    declarations : list of Declaration
+        From :func:`detect`.
+    events : list of dict
+        True changes from :func:`true_events`.
+    t_end : float
+        End of the run [s] (end of the last phase).
+    gain_tol, friction_tol : float
+        A declared value within this of the true new value is right [1, N m].
+    boundaries : list of float, optional
+        Phase boundaries: the schedule's event times (default: the times in ``events``).
+        Pass every event time of the schedule, including events on parameters that are
+        not estimated: they end a phase all the same.
+
+    Returns
+    -------
+    dict
+        ``events`` (one row per true change: ``outcome``, ``detected``, ``delay``,
+        ``t_declared``, ``estimate``, ``estimate_error``, ``phase_end``, ``tolerance``,
+        ``declared_elsewhere``), ``declarations`` (each with its ``verdict``),
+        ``false_alarms``, ``early_declarations``, ``corrections``.
     """
-    used: set[int] = set()
+    bounds = sorted({float(e["time"]) for e in events} if boundaries is None else {float(b) for b in boundaries})
+    changed: dict[tuple[str, float], dict] = {}  # (parameter, phase start) -> event
+    for ev in events:
+        changed[(ev["parameter"], float(ev["time"]))] = ev
+
+    def phase_start(t: float) -> float:
+        earlier = [b for b in bounds if b <= t]
+        return max(earlier) if earlier else 0.0
+
+    def truth_at(param: str, t: float) -> float:
+        """True value of a parameter at t (nominal before its first change)."""
+        val = 1.0 if param.startswith("rho_") else 0.0
+        for ev in sorted(events, key=lambda e: e["time"]):
+            if ev["parameter"] == param and ev["time"] <= t:
+                val = float(ev["value"])
+        return val
+
+    verdicts: list[str] = []
+    standing: dict[str, float] = {}  # the diagnosed value of each parameter (last declaration)
+    for d in declarations:
+        start = phase_start(d.t_declared)
+        truth = truth_at(d.parameter, d.t_declared)
+        right = _within(d.kind, d.value, truth, gain_tol, friction_tol)
+        before = standing.get(d.parameter, 1.0 if d.kind == "gain" else 0.0)
+        if (d.parameter, start) in changed:
+            verdicts.append("correct" if right else "wrong_estimate")
+        elif right and not _within(d.kind, before, truth, gain_tol, friction_tol):
+            verdicts.append("correction")
+        else:
+            verdicts.append("false_alarm")
+        standing[d.parameter] = d.value
+
+    def in_phase(t: float, start: float, end: float) -> bool:
+        return start <= t and (t < end or (end >= t_end and t <= t_end))
+
     matched = []
     for ev in events:
-        later = [e["time"] for e in events if e["parameter"] == ev["parameter"] and e["time"] > ev["time"]]
-        until = min(later) if later else t_end + 1.0
-        hit = None
-        for i, d in enumerate(declarations):
-            if i in used or d.parameter != ev["parameter"]:
-                continue
-            if ev["time"] <= d.t_declared < until:
-                hit = i
-                break
-        row = dict(ev)
-        if hit is None:
-            row |= {"detected": False, "delay": None, "t_declared": None, "estimate": None}
-        else:
-            used.add(hit)
-            d = declarations[hit]
-            row |= {
-                "detected": True,
-                "delay": d.t_declared - ev["time"],
-                "t_declared": d.t_declared,
-                "estimate": d.value,
-                "estimate_error": abs(d.value - ev["value"]),
+        te = float(ev["time"])
+        end = _phase_end(te, bounds, t_end)
+        mine = [
+            i for i, d in enumerate(declarations) if d.parameter == ev["parameter"] and in_phase(d.t_declared, te, end)
+        ]
+        elsewhere = sorted(
+            {
+                declarations[i].parameter
+                for i, d in enumerate(declarations)
+                if verdicts[i] == "false_alarm" and in_phase(d.t_declared, te, end)
             }
+        )
+        tol = gain_tol if ev["kind"] == "gain" else friction_tol
+        row = dict(ev) | {"phase_end": end, "tolerance": tol, "declared_elsewhere": elsewhere}
+        right = [i for i in mine if verdicts[i] == "correct"]
+        if right:
+            d = declarations[right[0]]
+            row |= {"outcome": "detected", "detected": True, "delay": d.t_declared - te, "t_declared": d.t_declared}
+        elif mine:
+            d = declarations[mine[-1]]
+            row |= {"outcome": "wrong_estimate", "detected": False, "delay": None, "t_declared": d.t_declared}
+        else:
+            d = None
+            outcome = "wrong_isolation" if elsewhere else "missed"
+            row |= {"outcome": outcome, "detected": False, "delay": None, "t_declared": None}
+        row["estimate"] = None if d is None else d.value
+        row["estimate_error"] = None if d is None else abs(d.value - float(ev["value"]))
         matched.append(row)
-    first_fault = {}
-    for ev in events:
+    first_fault: dict[str, float] = {}
+    for ev in sorted(events, key=lambda e: e["time"]):
         first_fault.setdefault(ev["wheel"], ev["time"])
-    false = [asdict(d) for i, d in enumerate(declarations) if i not in used]
+    decl = [asdict(d) | {"verdict": v} for d, v in zip(declarations, verdicts, strict=True)]
+    false = [x for x in decl if x["verdict"] == "false_alarm"]
     early = [f for f in false if f["t_declared"] < first_fault.get(f["wheel"], np.inf)]
-    return {"events": matched, "false_alarms": false, "early_declarations": early}
+    corrections = [x for x in decl if x["verdict"] == "correction"]
+    return {
+        "events": matched,
+        "declarations": decl,
+        "false_alarms": false,
+        "early_declarations": early,
+        "corrections": corrections,
+    }
 
 
 def input_matrices(chain: Chain, q: np.ndarray) -> np.ndarray:
@@ -188,6 +298,48 @@ def combined_effect(MB: np.ndarray, u: np.ndarray, rho: np.ndarray, ubar: np.nda
     return np.einsum("kij,kj->ki", MB, rho * u + ubar)
 
 
+def phase_combined_effect(
+    t: np.ndarray,
+    ce_hat: np.ndarray,
+    ce_true: np.ndarray,
+    est: np.ndarray,
+    truth: np.ndarray,
+    names: list[str],
+    phases: list[tuple[float, float]],
+    window: float,
+) -> list[dict]:
+    """Per phase: the combined effect's error and the individual parameters' errors at its end.
+
+    Over the last ``window`` seconds of each phase (at most the phase): RMS of
+    |ce_hat - ce_true| (2-norm per instant) and of |ce_true|, and each
+    parameter's |estimate - truth| at the last sample of the phase (ERRATA P3:
+    the first is identifiable, the others need not be).
+    """
+    out = []
+    for start, end in phases:
+        last = end >= t[-1]
+        inside = (t >= start) & ((t <= end) if last else (t < end))
+        if not np.any(inside):
+            continue
+        tail = inside & (t >= max(start, t[inside][-1] - window))
+        err = np.linalg.norm(ce_hat[tail] - ce_true[tail], axis=1)
+        size = np.linalg.norm(ce_true[tail], axis=1)
+        k = int(np.flatnonzero(inside)[-1])
+        e_rms = float(np.sqrt(np.mean(err**2)))
+        s_rms = float(np.sqrt(np.mean(size**2)))
+        out.append(
+            {
+                "start": float(start),
+                "end": float(end),
+                "combined_effect_error_rms": e_rms,
+                "combined_effect_rms": s_rms,
+                "combined_effect_relative_error": e_rms / s_rms if s_rms > 0 else None,
+                "parameter_errors": dict(zip(names, np.abs(est[k] - truth[k]).tolist(), strict=True)),
+            }
+        )
+    return out
+
+
 def diagnosis_metrics(
     chain: Chain,
     schedule: FaultSchedule,
@@ -200,8 +352,20 @@ def diagnosis_metrics(
     dwell: float,
     t_end: float,
     settle_band: float | None = None,
+    gain_tol: float = 0.1,
+    friction_tol: float = 0.2,
 ) -> dict:
-    """Metrics of an active run: state and fault estimation, detection and isolation."""
+    """Metrics of an active run: state and fault estimation, detection and isolation.
+
+    Diagnosis counts (see the module docstring): ``correct_detections``,
+    ``missed_detections`` (true changes not correctly diagnosed within their
+    phase: ``wrong_estimates`` + ``wrong_isolations`` + nothing declared),
+    ``detection_delay_max`` (largest delay of a correct detection, ``None`` when
+    one is missed; never beyond the next event), ``false_alarms``,
+    ``early_declarations``, ``corrections``.  Per phase, ``diagnosis_phases``
+    gives the combined effect's error beside every parameter's error;
+    ``combined_effect_relative_error_final`` is its last phase's relative error.
+    """
     q, eta = signals["q"], signals["eta"]
     out: dict = {}
     after = t >= min(5.0, t[-1])
@@ -223,15 +387,32 @@ def diagnosis_metrics(
     ce_true = combined_effect(MB, u_applied, signals["sigma"], signals["ubar"])
     out["combined_effect_error_rms"] = float(np.sqrt(np.mean((ce_hat[after] - ce_true[after]) ** 2)))
     out["combined_effect_rms"] = float(np.sqrt(np.mean(ce_true[after] ** 2)))
+    phases = schedule.phases(float(t[-1]))
+    out["diagnosis_phases"] = phase_combined_effect(
+        t, ce_hat, ce_true, est[:, cols], truth[:, cols], names, phases, dwell
+    )
+    last = out["diagnosis_phases"][-1] if out["diagnosis_phases"] else {}
+    out["combined_effect_relative_error_final"] = last.get("combined_effect_relative_error")
     decl = detect(t, est[:, cols], names, gain_band, friction_band, dwell, settle_band)
-    res = match_events(decl, true_events(schedule, names), t_end)
-    delays = [e["delay"] for e in res["events"] if e["detected"]]
-    out["detection_events"] = res["events"]
-    out["detections"] = [asdict(d) for d in decl]
-    out["missed_detections"] = sum(not e["detected"] for e in res["events"])
+    res = match_events(
+        decl, true_events(schedule, names), t_end, gain_tol, friction_tol, boundaries=list(schedule.times)
+    )
+    events = res["events"]
+    for row in events:  # the combined effect of the event's phase, beside the parameter's estimate
+        ph = next((p for p in out["diagnosis_phases"] if p["start"] == row["time"]), None)
+        row["combined_effect_relative_error"] = None if ph is None else ph["combined_effect_relative_error"]
+    delays = [e["delay"] for e in events if e["outcome"] == "detected"]
+    out["detection_events"] = events
+    out["detections"] = res["declarations"]
+    out["diagnosis_tolerances"] = {"gain": gain_tol, "friction": friction_tol}
+    out["correct_detections"] = len(delays)
+    out["missed_detections"] = sum(e["outcome"] != "detected" for e in events)
+    out["wrong_estimates"] = sum(e["outcome"] == "wrong_estimate" for e in events)
+    out["wrong_isolations"] = sum(e["outcome"] == "wrong_isolation" for e in events)
     out["detection_delay_max"] = float(max(delays)) if delays and not out["missed_detections"] else None
     out["false_alarms"] = len(res["false_alarms"])
     out["early_declarations"] = len(res["early_declarations"])
+    out["corrections"] = len(res["corrections"])
     out["estimate_caveat"] = (
         "individual gains and frictions are weakly identifiable in steady tracking (ERRATA P3); "
         "the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is what the measurements determine"

@@ -28,7 +28,10 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
   ground).  ``switching_match_fraction`` is the effective fraction,
   ``switching_exact_match_fraction`` the exact one, ``detection_delays`` per
   fault event the time until the applied model effectively matches (0 when the
-  applied one already did: no switch needed), ``detection_delay_max`` their max.
+  applied one already did: no switch needed), searched only until the next fault
+  event (a match after it is not this event's detection: the delay is then
+  ``None`` and counted in ``switching_missed_detections``), ``detection_delay_max``
+  their max (``None`` when one is missed).
 
 Every metric reads the run's metric stream (:attr:`ftcreport.sim.Run.stream`):
 the state, torques and estimates at every accepted integration step, taken at
@@ -190,18 +193,22 @@ def switching_metrics(
     # effective: every wheel assumed working really works (assumed failures are a superset)
     effective = np.all(~assumed_ok | true_ok, axis=1)
     delays = []
-    for te in event_times:
+    times = sorted(float(x) for x in event_times)
+    for i, te in enumerate(times):
         k0 = int(np.searchsorted(t, te, side="left"))
         if k0 >= t.size:
             continue
-        ok = np.flatnonzero(effective[k0:])
+        # the search ends at the next fault event: a match after it is not this event's detection
+        k1 = int(np.searchsorted(t, times[i + 1], side="left")) if i + 1 < len(times) else t.size
+        ok = np.flatnonzero(effective[k0:k1])
         if ok.size == 0:
-            delays.append({"time": float(te), "needs_switch": True, "delay": None})
+            delays.append({"time": te, "needs_switch": True, "delay": None})
             continue
         first = k0 + int(ok[0])
-        delays.append({"time": float(te), "needs_switch": bool(first > k0), "delay": float(t[first] - t[k0])})
+        delays.append({"time": te, "needs_switch": bool(first > k0), "delay": float(t[first] - t[k0])})
     known = [d["delay"] for d in delays if d["delay"] is not None]
     return {
+        "switching_missed_detections": len(delays) - len(known),
         "switch_count": int(np.sum(sel[1:] != sel[:-1])),
         "switching_match_fraction": float(np.mean(effective)),
         "switching_exact_match_fraction": float(np.mean(exact)),

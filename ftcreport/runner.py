@@ -108,7 +108,14 @@ def make_controller(built: Built, scheme: str):
         )
     if scheme == "active":
         obs = FarzaObserver(
-            built.chain, cfg.Theta, cfg.k0, cfg.k1, cfg.p0, cfg.p_max, estimate=tuple(dict.fromkeys(cfg.estimate))
+            built.chain,
+            cfg.Theta,
+            cfg.k0,
+            cfg.k1,
+            cfg.p0,
+            cfg.p_max,
+            estimate=tuple(dict.fromkeys(cfg.estimate)),
+            q_hat0=cfg.q_hat0,
         )
         return ActiveController(built.chain, kin, cfg.k_v, obs, u_limit=case.plant.saturation, tau=cfg.tau)
     if scheme == "active_ukf":
@@ -204,6 +211,8 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
             cfg.diagnosis.dwell,
             run.t_end,
             cfg.diagnosis.settle_band,
+            cfg.diagnosis.gain_tolerance,
+            cfg.diagnosis.friction_tolerance,
         )
         out["P_max"] = float(np.max(S["P_max"]))
         out["rho_hat_final"] = S["rho_hat"][-1].tolist()

@@ -238,3 +238,21 @@ def test_expected_status_keeps_a_designed_loss_from_failing_the_batch(tmp_path):
         assert m["status"] in ("singular", "diverged"), m["status"]
         outcomes[len(expected)] = len(res.failed_runs)
     assert outcomes == {1: 1, 3: 0}
+
+
+def test_every_thesis_case_page_has_its_claims_section(batch_dir):
+    """Issue 18: each thesis case's page shows a 'Thesis claim' block with one row per claim of its file."""
+    from ftcreport.cases import load_case
+
+    out, _ = batch_dir
+    thesis = [p for p in CASES.glob("*.toml") if load_case(p).description.startswith("Thesis")]
+    assert len(thesis) == 7
+    for path in thesis:
+        html = (out / path.stem / "index.html").read_text()
+        assert 'id="thesis-claim"' in html, path.stem
+        for c in load_case(path).claims:
+            assert f'id="claim-{c.id}"' in html, (path.stem, c.id)
+    # the thesis figures of the active schemes (Figs 4.5-4.9, 4.14-4.18)
+    html = (out / "two_link_active" / "index.html").read_text()
+    for fig in ("velocities", "active-control", "active-path", "active_ukf-control", "active_ukf-path"):
+        assert f'id="fig-{fig}"' in html, fig

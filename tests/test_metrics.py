@@ -44,6 +44,24 @@ def test_switching_metrics_exact_effective_and_delays():
     assert m["switch_sequence"] == [(0.0, 0), (4.0, 1), (6.0, 2)]
 
 
+def test_switching_delay_stops_at_the_next_fault():
+    """A match reached only after the next fault is not the first fault's detection (issue 18)."""
+    t = np.arange(0.0, 30.0, 1.0)
+    patterns = np.array([[1, 1, 1, 1], [0, 1, 1, 1], [0, 1, 1, 0]])
+    sigma = np.ones((30, 4))
+    sigma[5:, 0] = 0.0  # 1r fails at 5 s
+    sigma[10:, 3] = 0.0  # 2l fails at 10 s as well
+    sel = np.zeros(30, dtype=int)
+    sel[22:] = 2  # the right model (1r + 2l) from 22 s only: 17 s after the first fault
+    m = switching_metrics(t, sel, patterns, sigma, [10.0, 5.0])
+    assert m["detection_delays"] == [
+        {"time": 5.0, "needs_switch": True, "delay": None},  # not 17 s: the 10 s fault came first
+        {"time": 10.0, "needs_switch": True, "delay": 12.0},
+    ]
+    assert m["switching_missed_detections"] == 1
+    assert m["detection_delay_max"] is None
+
+
 def test_energy_bounds_the_kinetic_energy_gained():
     """From rest, no friction: int tau.omega dt = T(end) exactly, so energy >= T(end)."""
     chain = Chain.uniform(2)

@@ -73,6 +73,12 @@ class FarzaObserver:
         Which parameters to estimate: any of ``"rho"`` (2n gains), ``"ubar"`` (2n frictions).
     printed_signs : bool
         Use the signs of (4.11) as printed (diverges, kept for the ERRATA E15 test).
+    q_hat0 : str
+        Initial estimate of q: ``"measured"`` (default) starts at the first measurement,
+        q_hat(0) = q(0); ``"zero"`` is the thesis's choice (4.2.4: x(0) = 0, so
+        q_hat(0) = 0).  qdot_hat(0) = 0 either way (only q is measured).  With
+        ``"zero"`` the output error starts at q(0) and the observer's transient is
+        longer (K = k1 tanh(k0 e) saturates while |e| is large).
     """
 
     def __init__(
@@ -85,6 +91,7 @@ class FarzaObserver:
         p_max: float | None = 1e3,
         estimate: Sequence[str] = ("rho", "ubar"),
         printed_signs: bool = False,
+        q_hat0: str = "measured",
     ) -> None:
         if not Theta > 0:
             raise ModelError(f"Theta: must be > 0, got {Theta}")
@@ -92,6 +99,9 @@ class FarzaObserver:
             raise ModelError("k0, k1 and p0 must be > 0")
         if p_max is not None and not p_max > 0:
             raise ModelError(f"p_max: must be > 0 (or None), got {p_max}")
+        if q_hat0 not in ("measured", "zero"):
+            raise ModelError(f"q_hat0: must be 'measured' or 'zero', got {q_hat0!r}")
+        self.q_hat0 = q_hat0
         unknown = set(estimate) - {"rho", "ubar"}
         if unknown or not estimate:
             raise ModelError(f"estimate: choose among 'rho', 'ubar', got {list(estimate)}")
@@ -134,8 +144,11 @@ class FarzaObserver:
         return rho, ubar
 
     def initial_state(self, q0: np.ndarray, qdot0: np.ndarray | None = None) -> np.ndarray:
+        """Observer state at t = 0: q_hat(0) per ``q_hat0``, qdot_hat(0) = qdot0 (default 0),
+        the parameters at their nominal values (gain 1, friction 0), Y(0) = 0, P(0) = p0 I."""
         s = np.zeros(self.n_states)
-        s[: self.N] = q0
+        if self.q_hat0 == "measured":
+            s[: self.N] = q0
         if qdot0 is not None:
             s[self.N : 2 * self.N] = qdot0
         rho0 = []

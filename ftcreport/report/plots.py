@@ -19,13 +19,17 @@ __all__ = [
     "SCHEME_COLORS",
     "active_svg",
     "articulation_svg",
+    "control_torque_svg",
     "decay_svg",
     "errors_svg",
+    "estimated_path_svg",
     "fitted_decay_rate",
     "paths_svg",
     "pole_loci_svg",
+    "robot_velocities",
     "switching_svg",
     "torques_svg",
+    "velocities_svg",
 ]
 
 SCHEME_COLORS = {
@@ -301,4 +305,85 @@ def pole_loci_svg(loci: list[tuple[float, list[list[float]]]], label: str) -> st
     ax.set_ylabel("imaginary part [1/s]")
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(lo, hi))
     fig.colorbar(sm, ax=ax, label=label)
+    return _svg(fig)
+
+
+def robot_velocities(chain, q: np.ndarray, eta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear and angular velocity of every robot, (K, n) each, robot 1 first.
+
+    From the logged q and eta through the chain kinematics: the wheel speeds
+    ``Bbar^T eta`` (:meth:`ftcreport.model.Chain.wheel_speeds`) give
+    v_i = r_i (w_ir + w_il) / 2 and omega_i = r_i (w_ir - w_il) / (2 b_i).
+    """
+    p = chain.params
+    w = np.array([chain.wheel_speeds(qk, ek) for qk, ek in zip(q, eta, strict=True)])
+    wr, wl = w[:, 0::2], w[:, 1::2]
+    return p.r * (wr + wl) / 2.0, p.r * (wr - wl) / (2.0 * p.b)
+
+
+def velocities_svg(ts: dict, chain, events: list[float], scheme: str) -> str:
+    """Linear (top) and angular (bottom) velocity of each robot (thesis Figs 4.7/4.8, 4.17/4.18)."""
+    v, w = robot_velocities(chain, ts["q"], ts["eta"])
+    fig, axes = plt.subplots(2, 1, figsize=(6.4, 4.2), sharex=True)
+    for i in range(v.shape[1]):
+        axes[0].plot(ts["t"], v[:, i], lw=1, label=f"robot {i + 1}")
+        axes[1].plot(ts["t"], w[:, i], lw=1, label=f"robot {i + 1}")
+    axes[0].set_ylabel("v_i [m/s]")
+    axes[1].set_ylabel("omega_i [rad/s]")
+    axes[1].set_xlabel("t [s]")
+    for ax in axes:
+        _shade_phases(ax, events)
+        ax.legend(loc="upper right", ncol=min(4, v.shape[1]), fontsize=6)
+    axes[0].set_title(f"linear and angular velocity of each robot, {scheme}")
+    return _svg(fig)
+
+
+def control_torque_svg(ts: dict, wheels: list[str], events: list[float], scheme: str, u_limit=None) -> str:
+    """Commanded control u (dashed) against the applied torque tau = sigma sat(u) + ubar (solid), per robot.
+
+    Thesis Figs 4.5/4.6 and 4.14-4.16; the axis is clipped at the 99.5th percentile of both.
+    """
+    n = len(wheels) // 2
+    fig, axes = plt.subplots(n, 1, figsize=(6.4, 1.5 * n + 0.6), sharex=True, squeeze=False)
+    u, tau = ts["u"], ts["tau"]
+    lim = np.percentile(np.abs(np.concatenate((u.ravel(), tau.ravel()))), 99.5) * 1.2 + 1e-9
+    for i in range(n):
+        ax = axes[i, 0]
+        for j in (2 * i, 2 * i + 1):
+            line = ax.plot(ts["t"], tau[:, j], lw=1, label=f"tau {wheels[j]}")[0]
+            ax.plot(ts["t"], u[:, j], "--", lw=0.9, color=line.get_color(), label=f"u {wheels[j]}")
+        if u_limit is not None:
+            for y in (u_limit, -u_limit):
+                ax.axhline(y, color="0.5", lw=0.6, ls="-.")
+        ax.set_ylim(-lim, lim)
+        ax.set_ylabel(f"robot {i + 1} [N m]")
+        ax.legend(loc="upper right", ncol=4, fontsize=6)
+        _shade_phases(ax, events)
+    axes[-1, 0].set_xlabel("t [s]")
+    sat = "" if u_limit is None else f"; dash-dot: the {u_limit:g} N m limit"
+    axes[0, 0].set_title(f"{scheme}: control u (dashed) and applied torque tau (solid){sat}")
+    return _svg(fig)
+
+
+def estimated_path_svg(ts: dict, scheme: str) -> str:
+    """Reference, true and estimated path of P_n in the plane (thesis Fig. 4.9a).
+
+    Equal axes unless the path is more than 4 times longer one way than the other (a long
+    sinusoid would be a flat line): then the axes are not to scale and the title says so.
+    """
+    span = np.ptp(ts["q_d"][:, :2], axis=0) + 1e-9
+    stretched = max(span) / min(span) > 4.0
+    fig, ax = plt.subplots(figsize=(6.4, 3.0) if stretched else (5.6, 4.0))
+    ax.plot(ts["q_d"][:, 0], ts["q_d"][:, 1], "k--", lw=1, label="reference")
+    ax.plot(ts["q"][:, 0], ts["q"][:, 1], color=SCHEME_COLORS.get(scheme), lw=1.4, label="true (simulated)")
+    ax.plot(ts["q_hat"][:, 0], ts["q_hat"][:, 1], ":", color="0.2", lw=1.2, label="estimated")
+    ax.plot(ts["q_hat"][0, 0], ts["q_hat"][0, 1], "o", color="0.2", ms=4)
+    ax.plot(ts["q"][0, 0], ts["q"][0, 1], "o", color=SCHEME_COLORS.get(scheme), ms=4)
+    if not stretched:
+        ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    scale = " (axes not to scale)" if stretched else ""
+    ax.set_title(f"{scheme}: reference, true and estimated path of P_n (o: start){scale}")
+    ax.legend(loc="best", fontsize=7)
     return _svg(fig)

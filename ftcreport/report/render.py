@@ -211,6 +211,7 @@ def render_case(out: Path, name: str) -> Path | None:
                         "the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is what the data determine (P3).",
                     }
                 )
+        figures.extend(_thesis_figures(case, series, list(names), events))
         figures.append(
             {
                 "id": "articulation",
@@ -222,6 +223,7 @@ def render_case(out: Path, name: str) -> Path | None:
     if analysis is not None:
         figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
+    claims = _claims(name, case, runs)
     html = env.get_template("case.html").render(
         root="../",
         version=__version__,
@@ -229,6 +231,7 @@ def render_case(out: Path, name: str) -> Path | None:
         name=name,
         analysis=analysis,
         diagnosis=diagnosis,
+        claims=claims,
         description=case.description,
         n=case.robots.n,
         reference=case.reference.kind,
@@ -252,6 +255,48 @@ def render_case(out: Path, name: str) -> Path | None:
     )
     write_atomic(page, html.encode())
     return page
+
+
+def _thesis_figures(case, series: dict, names: list[str], events: list[float]) -> list[dict]:
+    """Per-robot velocities (Figs 4.7/4.8, 4.17/4.18), u against tau and the estimated path for the
+    active schemes (Figs 4.5/4.6, 4.14-4.16, 4.9a)."""
+    from ..cases import build_plant_chain
+
+    figs = []
+    active = [s for s in ("active", "active_ukf") if s in series and "q_hat" in series[s]]
+    main = active[0] if active else ("switching" if "switching" in series else next(iter(series)))
+    figs.append(
+        {
+            "id": "velocities",
+            "svg": plots.velocities_svg(series[main], build_plant_chain(case), events, main),
+            "caption": f"Linear and angular velocity of each robot, {main} scheme, from the logged q and eta "
+            "through the chain kinematics (thesis Figs 4.7/4.8, 4.17/4.18).",
+        }
+    )
+    for act in active:
+        figs.append(
+            {
+                "id": f"{act}-control",
+                "svg": plots.control_torque_svg(series[act], names, events, act, case.plant.saturation),
+                "caption": f"{act}: commanded control u against the applied torque tau = sigma sat(u) + ubar, "
+                "per robot (thesis Figs 4.5/4.6, 4.14-4.16).",
+            }
+        )
+        figs.append(
+            {
+                "id": f"{act}-path",
+                "svg": plots.estimated_path_svg(series[act], act),
+                "caption": f"{act}: reference, true and estimated (q_hat) path of P_n (thesis Fig. 4.9a).",
+            }
+        )
+    return figs
+
+
+def _claims(name: str, case, runs: list[dict]) -> list:
+    """The case's thesis claims evaluated against its runs (ftcreport.claims), for the page."""
+    from ..claims import evaluate_claims
+
+    return evaluate_claims(name, case.claims, {m["scheme"]: m for m in runs})
 
 
 def _analysis(case, names) -> dict | None:

@@ -346,10 +346,14 @@ def campaign(
     schemes: Annotated[str | None, typer.Option(help="Comma-separated schemes (default: all in the case).")] = None,
     in_process: Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Re-run stored samples of another version or case content.")
+    ] = False,
 ) -> None:
     """Monte Carlo fault campaign: draw variants of CASE, run every scheme on Dask, write a table and report.
 
-    Resumable: re-running with the same --out skips the samples already there.
+    Resumable: re-running with the same --out skips the samples already there; samples stored by
+    another package version or from another case content are refused (--force re-runs them).
 
     Example: ftcreport campaign cases/two_link_campaign.toml --samples 200 --workers 2
     """
@@ -371,6 +375,7 @@ def campaign(
             workers=workers,
             in_process=in_process,
             show_progress=not quiet,
+            force=force,
         )
         page = render_campaign(out_dir, read_table(res.table))
     except FtcError as exc:

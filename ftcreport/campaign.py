@@ -50,6 +50,7 @@ from . import __version__
 from .cases import SCHEME_NAMES, Case, parse_case
 from .errors import CaseError, FtcError
 from .model import pattern_is_compensable, wheel_names
+from .stats import compare_metric, compare_success, wilson_interval
 from .store import _jsonable, write_atomic
 
 __all__ = [
@@ -57,6 +58,7 @@ __all__ = [
     "SampleSeeds",
     "campaign_hash",
     "case_content_hash",
+    "comparisons",
     "draw_variant",
     "read_table",
     "run_campaign",
@@ -293,21 +295,39 @@ def read_table(path: Path) -> list[dict]:
 
 
 # ---------------------------------------------------------------------- summary (pure)
-def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (95 % by default); (0, 1) when n = 0."""
-    if n == 0:
-        return 0.0, 1.0
-    p = successes / n
-    den = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    lo = 0.0 if successes == 0 else max(0.0, centre - half)  # exact ends (round-off would leave 1 - 1e-16)
-    hi = 1.0 if successes == n else min(1.0, centre + half)
-    return lo, hi
+#: Metrics compared pairwise between schemes (lower is better) and their units.
+COMPARED_METRICS: dict[str, str] = {
+    "position_error_final": "m",
+    "position_error_max": "m",
+    "recovery_time_max": "s",
+}
+
+
+def comparisons(rows: list[dict], schemes: list[str]) -> list[dict]:
+    """Paired comparisons of every pair of schemes on the samples both ran (ftcreport.stats).
+
+    Success: exact McNemar.  Each metric of :data:`COMPARED_METRICS`: bootstrap CI of the
+    mean per-sample difference on the samples where both values exist (a recovery time
+    exists when the scheme recovered).
+    """
+    by = {s: {r["sample"]: r for r in rows if r["scheme"] == s} for s in schemes}
+    out = []
+    for ia, a in enumerate(schemes):
+        for b in schemes[ia + 1 :]:
+            common = sorted(set(by[a]) & set(by[b]))
+            if not common:
+                continue
+            ra, rb = [by[a][i] for i in common], [by[b][i] for i in common]
+            out.append(compare_success(a, b, [bool(r["success"]) for r in ra], [bool(r["success"]) for r in rb]))
+            for m, unit in COMPARED_METRICS.items():
+                va = [r.get(m) if isinstance(r.get(m), int | float) else None for r in ra]
+                vb = [r.get(m) if isinstance(r.get(m), int | float) else None for r in rb]
+                out.append(compare_metric(a, b, m, va, vb, unit))
+    return out
 
 
 def summarize(rows: list[dict]) -> dict:
-    """Success rates with Wilson intervals, distributions, worst patterns, comparison with the baselines."""
+    """Success rates with Wilson intervals, distributions, worst patterns, paired comparisons between schemes."""
     schemes = [s for s in SCHEME_NAMES if any(r["scheme"] == s for r in rows)]
     by = {s: [r for r in rows if r["scheme"] == s] for s in schemes}
     out: dict = {"n_samples": len({r["sample"] for r in rows}), "schemes": {}}
@@ -344,6 +364,7 @@ def summarize(rows: list[dict]) -> dict:
                     "worse": sum(success[base][i] and not success[s][i] for i in common),
                 }
         out["schemes"][s] = entry
+    out["comparisons"] = comparisons(rows, schemes)
     return out
 
 

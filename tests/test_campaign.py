@@ -287,6 +287,12 @@ def test_report_rates_come_from_the_table(tmp_path):
     page = render_campaign(tmp_path, table)
     html = page.read_text()
     assert "0.500" in html and "[0.150, 0.850]" in html and "<svg" in html
+    # paired comparison: 0 samples only nominal succeeds, 1 only oracle: McNemar p = 1 (by hand)
+    mc = next(c for c in s["comparisons"] if c["metric"] == "success")
+    assert (mc["a"], mc["b"], mc["a_only"], mc["b_only"], mc["p"]) == ("nominal", "oracle", 0, 1, 1.0)
+    assert "nominal vs oracle on success: no significant difference (exact McNemar p = 1;" in html
+    rc = next(c for c in s["comparisons"] if c["metric"] == "recovery_time_max")
+    assert rc["n"] == 2 and rc["mean"] == pytest.approx(((2.0 - 1.0) + (3.0 - 1.0)) / 2)  # samples 0 and 3
     assert json.loads((tmp_path / "summary.json").read_text())["schemes"]["oracle"]["successes"] == 3
 
 

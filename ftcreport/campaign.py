@@ -68,6 +68,8 @@ __all__ = [
     "summarize",
     "task_key",
     "wilson_interval",
+    "write_parquet",
+    "write_table",
 ]
 
 LEAD_COLUMNS = (
@@ -259,7 +261,7 @@ def _sample_path(out: Path, index: int) -> Path:
 
 
 def write_table(out: Path, records: Iterable[dict]) -> Path:
-    """Rewrite ``results.csv`` atomically from sample records (sorted by sample, then scheme order)."""
+    """Rewrite ``results.csv`` and ``results.parquet`` atomically from sample records (by sample, then scheme)."""
     rows = [r for rec in sorted(records, key=lambda r: r["sample"]) for r in rec["rows"]]
     keys = sorted({k for r in rows for k in r} - set(LEAD_COLUMNS))
     cols = list(LEAD_COLUMNS) + keys
@@ -270,6 +272,42 @@ def write_table(out: Path, records: Iterable[dict]) -> Path:
         w.writerow({k: ("" if r.get(k) is None else (repr(r[k]) if isinstance(r[k], float) else r[k])) for k in cols})
     path = out / "results.csv"
     write_atomic(path, buf.getvalue().encode())
+    write_parquet(out / "results.parquet", rows, cols)
+    return path
+
+
+def _column_type(values: list) -> str:
+    present = [v for v in values if v is not None]
+    if present and all(isinstance(v, bool) for v in present):
+        return "boolean"
+    if present and all(isinstance(v, int) and not isinstance(v, bool) for v in present):
+        return "Int64"
+    if present and all(isinstance(v, int | float) and not isinstance(v, bool) for v in present):
+        return "float64"
+    return "string"
+
+
+def write_parquet(path: Path, rows: list[dict], cols: list[str]) -> Path:
+    """Write ``rows`` as a typed Parquet table (pandas + pyarrow) atomically.
+
+    Each column's type comes from its values: booleans (nullable), 64-bit integers
+    (nullable), floats (missing = NaN) or strings; an empty cell stays missing.
+    """
+    import pandas as pd
+
+    data = {}
+    for c in cols:
+        values = [r.get(c) for r in rows]
+        kind = _column_type(values)
+        if kind == "float64":
+            data[c] = pd.array([np.nan if v is None else float(v) for v in values], dtype="float64")
+        elif kind == "string":
+            data[c] = pd.array([None if v is None else str(v) for v in values], dtype="string")
+        else:
+            data[c] = pd.array(values, dtype=kind)
+    buf = io.BytesIO()
+    pd.DataFrame(data, columns=cols).to_parquet(buf, engine="pyarrow", index=False)
+    write_atomic(path, buf.getvalue())
     return path
 
 

@@ -17,12 +17,14 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import tomli_w
 
 from ftcreport import __version__
 from ftcreport.campaign import (
     campaign_hash,
+    case_content_hash,
     draw_variant,
     read_table,
     run_campaign,
@@ -148,7 +150,9 @@ def test_resume_refuses_another_version_or_case_content(base, tmp_path):
     man = json.loads((tmp_path / "manifest.json").read_text())
     assert man["kind"] == "campaign" and man["seeds"]["campaign"] == 1
     assert man["seeds"]["samples"]["1"]["noise"] == sample_seeds(1, 1).noise
-    assert man["dependencies"]["numpy"] == np.__version__
+    assert man["dependencies"]["numpy"] == np.__version__ and man["dependencies"]["pyarrow"] is not None
+    assert man["cases"] == {base.name: case_content_hash(base)} and man["platform"]["cores"] >= 1
+    assert man["campaign"] == campaign_hash(base, ["oracle"], 1) and "git" in man["ftcreport"]
 
 
 class _FakeClient:
@@ -270,6 +274,13 @@ def test_report_rates_come_from_the_table(tmp_path):
     write_table(tmp_path, records.values())
     table = read_table(tmp_path / "results.csv")
     assert len(table) == 8
+    # the Parquet table beside it: the same rows with typed columns (missing stays missing)
+    pq = pd.read_parquet(tmp_path / "results.parquet")
+    assert list(pq.columns) == list(table[0].keys()) and len(pq) == 8
+    assert str(pq["sample"].dtype) == "Int64" and str(pq["success"].dtype) == "boolean"
+    assert pq["position_error_max"].dtype == np.float64 and str(pq["faulted_wheels"].dtype).startswith("string")
+    assert pq["recovery_time_max"].isna().sum() == 3 and pq["recovery_time_max"].sum() == pytest.approx(8.5)
+    assert pq["success"].tolist() == [r["success"] for r in table]
     nominal_1 = next(r for r in table if r["sample"] == 1 and r["scheme"] == "nominal")
     assert nominal_1["recovery_time_max"] is None and nominal_1["success"] is False
     s = summarize(table)

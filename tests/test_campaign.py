@@ -427,3 +427,19 @@ def test_killed_campaign_resumes_on_a_real_scheduler(scheduler, tmp_path):
     assert sorted(r["sample"] for r in rows) == list(range(n))
     fresh = run_campaign(base, n, tmp_path / "fresh", schemes=["oracle"], in_process=True, show_progress=False)
     assert _metric_rows(fresh.table) == _metric_rows(out / "results.csv")
+
+
+def test_coverage_runs_on_the_real_scheduler(scheduler, tmp_path):
+    """The coverage map takes the same Dask path: equal to in-process, keys from its own hash."""
+    from ftcreport.coverage import run_coverage
+
+    data = _base_data()
+    data["simulation"]["duration"] = 6.0
+    data["campaign"]["fault_time"] = [1.0, 4.0]
+    base = parse_case(data, "cov")
+    kw = {"schemes": ["oracle"], "kinds": ("loss",), "times": [3.0], "show_progress": False}
+    a = run_coverage(base, tmp_path / "dask", scheduler=scheduler, **kw)
+    b = run_coverage(base, tmp_path / "inproc", in_process=True, **kw)
+    assert len(a.completed) == 4 and not a.failed and len(a.workers) == 2
+    ra = read_table(a.table)
+    assert ra == read_table(b.table) and all(r["recovered"] for r in ra)

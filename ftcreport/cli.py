@@ -507,5 +507,51 @@ def coverage(
         raise typer.Exit(1)
 
 
+@app.command()
+def fdi(
+    case: Annotated[Path, typer.Argument(help="Base case with a [campaign] table and an active scheme.")],
+    samples: Annotated[int, typer.Option("--samples", "-n", help="Campaign samples per active scheme.")] = 50,
+    seed: Annotated[int, typer.Option(help="Campaign seed (the same samples as campaign --seed).")] = 0,
+    schemes: Annotated[str | None, typer.Option(help="Active schemes, comma-separated (default: all).")] = None,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")
+    ] = None,
+    workers: Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")] = 2,
+    out: Annotated[Path | None, typer.Option(help="Output directory (default reports/fdi/<case>).")] = None,
+    in_process: Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Re-run stored traces of another version or case.")] = False,
+) -> None:
+    """FDI evaluation: ROC, delay and isolation of the estimate-based and a CUSUM residual detector.
+
+    Example: ftcreport fdi my_active_campaign.toml -n 100
+    """
+    from .cases import load_case
+    from .fdi import run_fdi
+    from .report.fdi import render_fdi
+
+    try:
+        base = load_case(case)
+        out_dir = out or Path("reports") / "fdi" / base.name
+        res = run_fdi(
+            base,
+            samples,
+            out_dir,
+            seed=seed,
+            schemes=None if schemes is None else [s.strip() for s in schemes.split(",") if s.strip()],
+            scheduler=scheduler,
+            workers=workers,
+            in_process=in_process,
+            show_progress=not quiet,
+            force=force,
+        )
+        page = render_fdi(out_dir)
+    except FtcError as exc:
+        _fail(exc)
+    typer.echo(f"{len(res['failed'])} failed; results {out_dir / 'fdi.json'}; report {page}")
+    if res["failed"]:
+        raise typer.Exit(1)
+
+
 if __name__ == "__main__":  # pragma: no cover
     app()

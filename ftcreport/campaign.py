@@ -529,6 +529,7 @@ def run_campaign(
     res.rerun_stale = stale
     base_json = base.model_dump_json()
     _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
+    write_table(out, records.values())  # the stored samples' table (and pandas loaded before samples arrive)
     wall0 = time.perf_counter()
 
     last_table = [0.0]

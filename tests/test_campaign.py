@@ -203,7 +203,7 @@ def test_killed_campaign_resumes_to_exactly_n_unique_samples(tmp_path):
     proc = subprocess.Popen(cmd, cwd=tmp_path, start_new_session=True)
     deadline = time.time() + 240
     while time.time() < deadline and len(list((out / "samples").glob("*.json"))) < 3:
-        time.sleep(0.2)
+        time.sleep(0.02)
     os.killpg(proc.pid, signal.SIGKILL)  # the client, the cluster and its workers, mid-campaign
     proc.wait()
     before = len(list((out / "samples").glob("*.json")))

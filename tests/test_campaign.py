@@ -403,6 +403,12 @@ def test_two_campaigns_on_one_scheduler_do_not_mix(scheduler, tmp_path):
     assert all(r["n_faults"] == 2 for r in rows_b)  # b's own draws, not a's (1 or 2 faults)
     man = json.loads((tmp_path / "a" / "manifest.json").read_text())
     assert len(man["workers"]) == 2 and all(v["ftcreport"] == __version__ for v in man["workers"].values())
+    # the warm-up plugin ran once on each worker (the kernels loaded before any sample)
+    from distributed import Client
+
+    with Client(scheduler, timeout=30) as c:
+        secs = c.run(lambda dask_worker: getattr(dask_worker.plugins.get("ftcreport-warm-up"), "seconds", None))
+    assert len(secs) == 2 and all(isinstance(v, float) and v > 0 for v in secs.values())
 
 
 def test_killed_campaign_resumes_on_a_real_scheduler(scheduler, tmp_path):

@@ -121,3 +121,15 @@ def test_coverage_times_are_checked():
     base = parse_case(_two_link(), "x")
     with pytest.raises(FtcError, match=r"--times: onset times must lie in \[0, 12\)"):
         run_coverage(base, Path("unused"), times=[13.0], in_process=True, show_progress=False)
+
+
+def test_coverage_cli_errors_are_one_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+
+    r = CliRunner().invoke(app, ["coverage", str(ROOT / "cases" / "two_link_campaign.toml"), "--times", "5,x"])
+    assert r.exit_code == 2 and "--times: expected comma-separated numbers, got '5,x'" in r.output
+    r = CliRunner().invoke(app, ["coverage", str(ROOT / "cases" / "two_link_campaign.toml"), "--kinds", "melt"])
+    assert r.exit_code == 2 and "--kinds: unknown ['melt']" in r.output
+    assert "Traceback" not in r.output

@@ -56,7 +56,18 @@ def coverage_grids(summary: dict, n: int) -> dict:
 
 def _heat(ax, grid, pred, xlabels, ylabels, title) -> None:
     cmap = plt.get_cmap("RdYlGn").with_extremes(bad="#eeeeee")
-    im = ax.imshow(np.ma.masked_invalid(grid), vmin=0.0, vmax=1.0, cmap=cmap, aspect="auto")
+    rows, cols = grid.shape
+    im = ax.imshow(
+        np.ma.masked_invalid(grid),
+        vmin=0.0,
+        vmax=1.0,
+        cmap=cmap,
+        aspect="auto",
+        origin="upper",
+        interpolation="nearest",
+        extent=(-0.5, cols - 0.5, rows - 0.5, -0.5),
+    )
+    ax.grid(False)
     for i in range(grid.shape[0]):
         for j in range(grid.shape[1]):
             if np.isfinite(pred[i, j]) and pred[i, j] == 0.0:

@@ -1,20 +1,29 @@
 r"""Monte Carlo fault campaigns: many drawn variants of a base case, run on Dask (issue 10).
 
-base case + ``[campaign]`` distributions --draw(seed(campaign seed, index))--> variant case
+base case + ``[campaign]`` distributions --draw(seeds(campaign seed, index))--> variant case
 variant --run every scheme (runner.run_scheme)--> one row per scheme (metrics.json names)
-rows --atomic per-sample files--> samples/<index>.json --atomic rewrite--> results.csv
-results.csv --summarize--> success rates (Wilson intervals), distributions, worst patterns --> index.html
+rows --atomic per-sample files--> samples/<index>.json --atomic rewrite--> results.csv + results.parquet
+results.csv --summarize--> success rates (Wilson intervals), distributions, worst patterns,
+                           paired comparisons (McNemar, bootstrap; ftcreport.stats) --> index.html
+provenance --> manifest.json (ftcreport.manifest: versions, platform, git, seeds, case hash)
 
-Execution goes through ``dask.distributed``: by default a ``LocalCluster`` of
-processes on the loopback interface, or an existing scheduler given by
-address; the same ``client.submit`` path serves both.  ``in_process=True``
-runs the same sample function in this process (the reference the cluster
-run is compared with).
+Execution goes through ``dask.distributed`` (:mod:`ftcreport.cluster`): by default a
+``LocalCluster`` of processes on the loopback interface, or an existing scheduler
+given by address; the same ``client.submit`` path serves both.  ``in_process=True``
+runs the same sample function in this process (the reference the cluster run is
+compared with).  Task keys derive from the campaign hash (base case content,
+schemes, seed, package version) and the sample index, so two campaigns sharing a
+scheduler cannot receive each other's samples; worker versions are checked
+before anything is submitted.
 
-Reproducible and resumable: sample ``i``'s seed is derived from (campaign seed,
-i) with ``numpy.random.SeedSequence``, so a sample is the same wherever and
-whenever it runs; every finished sample is written atomically to its own file
-and a re-run skips the samples already there.  A worker that dies loses only
+Reproducible and resumable: sample ``i``'s seeds come from
+``SeedSequence(campaign seed, spawn_key=(i,)).spawn(2)``: one child for the
+draw of the variant, one for the sensor noise (independent streams, 63 bits
+each), so a sample is the same wherever and whenever it runs.  Every finished
+sample is written atomically to its own file, carrying the package version and
+the campaign hash computed where it ran; a re-run skips the samples already
+there and refuses samples of another version or another case content (``force``
+re-runs them).  A worker that dies loses only
 its in-flight samples, which the scheduler resubmits (``retries``).  The table
 ``results.csv`` is rewritten atomically from the sample files, so an
 interruption never leaves it half-written.
@@ -26,6 +35,7 @@ The drawing and the summary are pure; files and the cluster are at the edge
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import math
@@ -36,26 +46,38 @@ from pathlib import Path
 
 import numpy as np
 
+from . import __version__
 from .cases import SCHEME_NAMES, Case, parse_case
 from .errors import CaseError, FtcError
 from .model import pattern_is_compensable, wheel_names
+from .stats import compare_metric, compare_success, wilson_interval
 from .store import _jsonable, write_atomic
 
 __all__ = [
     "CampaignResult",
+    "SampleSeeds",
+    "campaign_hash",
+    "case_content_hash",
+    "comparisons",
     "draw_variant",
     "read_table",
     "run_campaign",
+    "run_hash",
     "run_sample",
-    "sample_seed",
+    "sample_seeds",
     "summarize",
+    "task_key",
     "wilson_interval",
+    "write_parquet",
+    "write_table",
 ]
 
 LEAD_COLUMNS = (
     "sample",
     "scheme",
-    "seed",
+    "draw_seed",
+    "noise_seed",
+    "version",
     "status",
     "success",
     "faulted_wheels",
@@ -66,17 +88,63 @@ LEAD_COLUMNS = (
 
 
 # ---------------------------------------------------------------------- drawing (pure)
-def sample_seed(campaign_seed: int, index: int) -> int:
-    """The seed of sample ``index``: a pure function of (campaign seed, index)."""
-    return int(np.random.SeedSequence(int(campaign_seed), spawn_key=(int(index),)).generate_state(1)[0])
+@dataclass(frozen=True)
+class SampleSeeds:
+    """The two seeds of one sample: the variant's draw and the sensor noise (independent streams)."""
+
+    draw: int
+    noise: int
 
 
-def draw_variant(base: Case, seed: int) -> Case:
-    """A variant of ``base`` drawn from its ``[campaign]`` distributions with generator ``seed``."""
+def _int63(ss: np.random.SeedSequence) -> int:
+    # 63 bits: a non-negative int64 (typed Parquet column), 2**63 values
+    return int(ss.generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def sample_seeds(campaign_seed: int, index: int) -> SampleSeeds:
+    """Seeds of sample ``index``: ``SeedSequence(campaign_seed, spawn_key=(index,)).spawn(2)`` -> (draw, noise)."""
+    if int(campaign_seed) < 0:
+        raise FtcError(f"--seed: must be >= 0, got {campaign_seed}")
+    draw, noise = np.random.SeedSequence(int(campaign_seed), spawn_key=(int(index),)).spawn(2)
+    return SampleSeeds(_int63(draw), _int63(noise))
+
+
+def case_content_hash(base: Case) -> str:
+    """Hash (16 hex digits) of a case's validated content (campaign table included, its name excluded)."""
+    return hashlib.sha256(base.model_dump_json(exclude={"name"}).encode()).hexdigest()[:16]
+
+
+def run_hash(kind: str, content: dict, version: str = __version__) -> str:
+    """Hash (20 hex digits) of a run's whole content: base case, schemes, settings, package version."""
+    blob = json.dumps({"kind": kind, "content": content, "version": version}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:20]
+
+
+def task_key(kind: str, rhash: str, index: int) -> str:
+    """The Dask key of task ``index`` of run ``rhash``: unique to what it computes (issue 22).
+
+    The old rule ``sample-{seed}-{i}`` was the same for two campaigns on one seed, and the
+    scheduler hands a second client the result already held under a key.
+    """
+    return f"ftcreport-{kind}-{rhash}-{int(index)}"
+
+
+def campaign_hash(base: Case, schemes: list[str], seed: int, version: str = __version__) -> str:
+    """The campaign's identity: base case content, schemes, seed and package version (task keys, records)."""
+    content = {"case": case_content_hash(base), "schemes": list(schemes), "seed": int(seed)}
+    return run_hash("campaign", content, version)
+
+
+def draw_variant(base: Case, seeds: SampleSeeds) -> Case:
+    """A variant of ``base`` drawn from its ``[campaign]`` distributions with ``seeds.draw``.
+
+    The variant's sensor noise is seeded with ``seeds.noise`` (a separate child of the
+    sample's seed sequence: the draws and the noise never share a stream).
+    """
     spec = base.campaign
     if spec is None:
         raise CaseError(f"{base.name}: no [campaign] table: nothing to draw")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(seeds.draw)
     n = base.robots.n
     data = json.loads(base.model_dump_json())
     data.pop("campaign", None)
@@ -111,9 +179,9 @@ def draw_variant(base: Case, seed: int) -> Case:
     noise = data["plant"]["noise"]
     noise["position"] = float(rng.uniform(*spec.noise_position))
     noise["heading"] = float(rng.uniform(*spec.noise_heading))
-    noise["seed"] = int(seed % (2**31))
-    data["name"] = f"{base.name}#{seed}"
-    return parse_case(data, f"{base.name} (campaign draw, seed {seed})")
+    noise["seed"] = int(seeds.noise)
+    data["name"] = f"{base.name}#{seeds.draw}"
+    return parse_case(data, f"{base.name} (campaign draw, seed {seeds.draw})")
 
 
 def _scalar_metrics(m: dict) -> dict:
@@ -138,15 +206,18 @@ def _success(m: dict, criteria: dict) -> bool:
     return True
 
 
-def run_sample(base_json: str, index: int, seed: int, schemes: list[str]) -> dict:
+def run_sample(base_json: str, index: int, campaign_seed: int, schemes: list[str]) -> dict:
     """Draw sample ``index`` and run every scheme on it; the sample's record (rows per scheme).
 
-    Runs in a Dask worker or in-process; pure apart from the simulation itself.
+    Runs in a Dask worker or in-process; pure apart from the simulation itself.  The record
+    carries the package version and the campaign hash *of the process that ran it*, so the
+    client can tell a foreign or stale result from its own.
     """
     from .runner import build, run_scheme
 
     base = parse_case(json.loads(base_json), "campaign base")
-    variant = draw_variant(base, seed)
+    seeds = sample_seeds(campaign_seed, index)
+    variant = draw_variant(base, seeds)
     criteria = {k: v.model_dump() for k, v in base.campaign.success.items()}
     sched = variant.fault_schedule()
     final = sched.pattern(variant.simulation.duration)
@@ -156,7 +227,9 @@ def run_sample(base_json: str, index: int, seed: int, schemes: list[str]) -> dic
     faulted = [w for w, g, f in zip(names, sigma, ubar, strict=True) if g < 1.0 or f != 0.0]
     common = {
         "sample": int(index),
-        "seed": int(seed),
+        "draw_seed": seeds.draw,
+        "noise_seed": seeds.noise,
+        "version": __version__,
         "faulted_wheels": "+".join(faulted) if faulted else "none",
         "failed_wheels": "+".join(failed) if failed else "none",
         "compensable": bool(pattern_is_compensable(final)),
@@ -169,7 +242,17 @@ def run_sample(base_json: str, index: int, seed: int, schemes: list[str]) -> dic
         row = common | {"scheme": s, "success": _success(m, criteria)} | _scalar_metrics(m)
         row.pop("case", None)
         rows.append(_jsonable(row))
-    return {"sample": int(index), "seed": int(seed), "rows": rows, "faults": [f.model_dump() for f in variant.faults]}
+    return {
+        "sample": int(index),
+        "version": __version__,
+        "case_hash": case_content_hash(base),
+        "campaign": campaign_hash(base, schemes, campaign_seed),
+        "campaign_seed": int(campaign_seed),
+        "draw_seed": seeds.draw,
+        "noise_seed": seeds.noise,
+        "rows": rows,
+        "faults": [f.model_dump() for f in variant.faults],
+    }
 
 
 # ---------------------------------------------------------------------- table (edge)
@@ -177,20 +260,8 @@ def _sample_path(out: Path, index: int) -> Path:
     return out / "samples" / f"{index:08d}.json"
 
 
-def done_samples(out: Path) -> dict[int, dict]:
-    """Samples already stored under ``out`` (a corrupt or partial file counts as not done)."""
-    got = {}
-    for p in sorted((out / "samples").glob("*.json")):
-        try:
-            rec = json.loads(p.read_text())
-            got[int(rec["sample"])] = rec
-        except (OSError, ValueError, KeyError):
-            continue
-    return got
-
-
 def write_table(out: Path, records: Iterable[dict]) -> Path:
-    """Rewrite ``results.csv`` atomically from sample records (sorted by sample, then scheme order)."""
+    """Rewrite ``results.csv`` and ``results.parquet`` atomically from sample records (by sample, then scheme)."""
     rows = [r for rec in sorted(records, key=lambda r: r["sample"]) for r in rec["rows"]]
     keys = sorted({k for r in rows for k in r} - set(LEAD_COLUMNS))
     cols = list(LEAD_COLUMNS) + keys
@@ -201,6 +272,42 @@ def write_table(out: Path, records: Iterable[dict]) -> Path:
         w.writerow({k: ("" if r.get(k) is None else (repr(r[k]) if isinstance(r[k], float) else r[k])) for k in cols})
     path = out / "results.csv"
     write_atomic(path, buf.getvalue().encode())
+    write_parquet(out / "results.parquet", rows, cols)
+    return path
+
+
+def _column_type(values: list) -> str:
+    present = [v for v in values if v is not None]
+    if present and all(isinstance(v, bool) for v in present):
+        return "boolean"
+    if present and all(isinstance(v, int) and not isinstance(v, bool) for v in present):
+        return "Int64"
+    if present and all(isinstance(v, int | float) and not isinstance(v, bool) for v in present):
+        return "float64"
+    return "string"
+
+
+def write_parquet(path: Path, rows: list[dict], cols: list[str]) -> Path:
+    """Write ``rows`` as a typed Parquet table (pandas + pyarrow) atomically.
+
+    Each column's type comes from its values: booleans (nullable), 64-bit integers
+    (nullable), floats (missing = NaN) or strings; an empty cell stays missing.
+    """
+    import pandas as pd
+
+    data = {}
+    for c in cols:
+        values = [r.get(c) for r in rows]
+        kind = _column_type(values)
+        if kind == "float64":
+            data[c] = pd.array([np.nan if v is None else float(v) for v in values], dtype="float64")
+        elif kind == "string":
+            data[c] = pd.array([None if v is None else str(v) for v in values], dtype="string")
+        else:
+            data[c] = pd.array(values, dtype=kind)
+    buf = io.BytesIO()
+    pd.DataFrame(data, columns=cols).to_parquet(buf, engine="pyarrow", index=False)
+    write_atomic(path, buf.getvalue())
     return path
 
 
@@ -226,21 +333,39 @@ def read_table(path: Path) -> list[dict]:
 
 
 # ---------------------------------------------------------------------- summary (pure)
-def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (95 % by default); (0, 1) when n = 0."""
-    if n == 0:
-        return 0.0, 1.0
-    p = successes / n
-    den = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    lo = 0.0 if successes == 0 else max(0.0, centre - half)  # exact ends (round-off would leave 1 - 1e-16)
-    hi = 1.0 if successes == n else min(1.0, centre + half)
-    return lo, hi
+#: Metrics compared pairwise between schemes (lower is better) and their units.
+COMPARED_METRICS: dict[str, str] = {
+    "position_error_final": "m",
+    "position_error_max": "m",
+    "recovery_time_max": "s",
+}
+
+
+def comparisons(rows: list[dict], schemes: list[str]) -> list[dict]:
+    """Paired comparisons of every pair of schemes on the samples both ran (ftcreport.stats).
+
+    Success: exact McNemar.  Each metric of :data:`COMPARED_METRICS`: bootstrap CI of the
+    mean per-sample difference on the samples where both values exist (a recovery time
+    exists when the scheme recovered).
+    """
+    by = {s: {r["sample"]: r for r in rows if r["scheme"] == s} for s in schemes}
+    out = []
+    for ia, a in enumerate(schemes):
+        for b in schemes[ia + 1 :]:
+            common = sorted(set(by[a]) & set(by[b]))
+            if not common:
+                continue
+            ra, rb = [by[a][i] for i in common], [by[b][i] for i in common]
+            out.append(compare_success(a, b, [bool(r["success"]) for r in ra], [bool(r["success"]) for r in rb]))
+            for m, unit in COMPARED_METRICS.items():
+                va = [r.get(m) if isinstance(r.get(m), int | float) else None for r in ra]
+                vb = [r.get(m) if isinstance(r.get(m), int | float) else None for r in rb]
+                out.append(compare_metric(a, b, m, va, vb, unit))
+    return out
 
 
 def summarize(rows: list[dict]) -> dict:
-    """Success rates with Wilson intervals, distributions, worst patterns, comparison with the baselines."""
+    """Success rates with Wilson intervals, distributions, worst patterns, paired comparisons between schemes."""
     schemes = [s for s in SCHEME_NAMES if any(r["scheme"] == s for r in rows)]
     by = {s: [r for r in rows if r["scheme"] == s] for s in schemes}
     out: dict = {"n_samples": len({r["sample"] for r in rows}), "schemes": {}}
@@ -277,6 +402,7 @@ def summarize(rows: list[dict]) -> dict:
                     "worse": sum(success[base][i] and not success[s][i] for i in common),
                 }
         out["schemes"][s] = entry
+    out["comparisons"] = comparisons(rows, schemes)
     return out
 
 
@@ -290,6 +416,49 @@ class CampaignResult:
     completed: list[int] = field(default_factory=list)
     failed: dict[int, str] = field(default_factory=dict)
     wall_time: float = 0.0
+    rerun_stale: int = 0
+    workers: dict = field(default_factory=dict)
+
+
+def stale_reason(rec: dict, expected: dict) -> str | None:
+    """Why a stored record cannot join this run (another version, case content or settings), or None."""
+    if rec.get("version") is None:
+        return "records no package version (written before versions were recorded)"
+    if rec["version"] != expected["version"]:
+        return f"was computed by ftcreport {rec['version']}, this is {expected['version']}"
+    if "case_hash" in expected and rec.get("case_hash") != expected["case_hash"]:
+        return f"comes from another base case content (hash {rec.get('case_hash')}, now {expected['case_hash']})"
+    if rec.get("campaign") != expected["campaign"]:
+        return f"belongs to another run (hash {rec.get('campaign')}, now {expected['campaign']})"
+    return None
+
+
+def load_records(folder: Path, expected: dict, force: bool, what: str = "sample") -> tuple[dict[int, dict], int]:
+    """Stored records under ``folder`` that belong to this run; refuses stale ones unless ``force``.
+
+    With ``force`` the stale files are deleted (their tasks run again); returns (records, stale count).
+    A corrupt or partial file counts as not done.
+    """
+    got: dict[int, dict] = {}
+    stale = 0
+    for p in sorted(folder.glob("*.json")):
+        try:
+            rec = json.loads(p.read_text())
+            index = int(rec[what])
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        why = stale_reason(rec, expected)
+        if why is None:
+            got[index] = rec
+            continue
+        if not force:
+            raise FtcError(
+                f"{p}: {why}; results of two versions or cases must not mix: "
+                "choose another --out, or re-run them with --force"
+            )
+        p.unlink(missing_ok=True)
+        stale += 1
+    return got, stale
 
 
 def run_campaign(
@@ -305,18 +474,23 @@ def run_campaign(
     retries: int = 2,
     on_sample: Callable[[int], None] | None = None,
     table_every: float = 2.0,
+    force: bool = False,
 ) -> CampaignResult:
     """Run (or resume) a campaign of ``samples`` samples; results under ``out``.
 
     ``scheduler``: address of an existing Dask scheduler; otherwise a LocalCluster
     of ``workers`` processes on 127.0.0.1 (or this process when ``in_process``).
-    ``results.csv`` is rewritten (atomically) at most every ``table_every`` seconds
-    while samples finish, and once at the end; the per-sample files are written at once.
+    ``results.csv`` and ``results.parquet`` are rewritten (atomically) at most every
+    ``table_every`` seconds while samples finish, and once at the end; the per-sample
+    files are written at once.  Stored samples of another package version, case
+    content or campaign settings are refused, or with ``force`` run again.
     """
     if base.campaign is None:
         raise CaseError(f"{base.name}: no [campaign] table: add the distributions to draw from (cases/README.md)")
     if samples < 1:
         raise FtcError(f"--samples: must be >= 1, got {samples}")
+    if seed < 0:
+        raise FtcError(f"--seed: must be >= 0, got {seed}")
     configured = [s for s in SCHEME_NAMES if getattr(base.schemes, s) is not None]
     schemes = configured if schemes is None else list(schemes)
     unknown = [s for s in schemes if s not in configured]
@@ -324,22 +498,46 @@ def run_campaign(
         raise FtcError(f"schemes {unknown} are not configured in {base.name} (configured: {', '.join(configured)})")
     out = Path(out)
     (out / "samples").mkdir(parents=True, exist_ok=True)
-    meta = {"case": base.name, "seed": int(seed), "schemes": schemes, "base": json.loads(base.model_dump_json())}
+    chash = campaign_hash(base, schemes, seed)
+    expected = {"version": __version__, "case_hash": case_content_hash(base), "campaign": chash}
+    meta = {
+        "case": base.name,
+        "seed": int(seed),
+        "schemes": schemes,
+        "version": __version__,
+        "case_hash": expected["case_hash"],
+        "campaign": chash,
+        "base": json.loads(base.model_dump_json()),
+    }
     meta_path = out / "campaign.json"
-    if meta_path.exists():
+    if meta_path.exists() and not force:
         old = json.loads(meta_path.read_text())
         if old.get("seed") != meta["seed"] or old.get("schemes") != schemes or old.get("base") != meta["base"]:
-            raise FtcError(f"{out}: holds a campaign with another seed, scheme list or base case; choose another --out")
+            raise FtcError(
+                f"{out}: holds a campaign with another seed, scheme list or base case; "
+                "choose another --out (or --force to replace it)"
+            )
+        if old.get("version") != __version__:
+            raise FtcError(
+                f"{meta_path}: campaign started by ftcreport {old.get('version') or '(unrecorded version)'}, "
+                f"this is {__version__}; choose another --out, or re-run its samples with --force"
+            )
     write_atomic(meta_path, json.dumps(meta, indent=1).encode())
-    records = done_samples(out)
+    records, stale = load_records(out / "samples", expected, force)
     todo = [i for i in range(samples) if i not in records]
     res = CampaignResult(out=out, table=out / "results.csv", requested=samples, skipped=samples - len(todo))
+    res.rerun_stale = stale
     base_json = base.model_dump_json()
+    _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
+    write_table(out, records.values())  # the stored samples' table (and pandas loaded before samples arrive)
     wall0 = time.perf_counter()
 
     last_table = [0.0]
 
     def store(rec: dict) -> None:
+        why = stale_reason(rec, expected)
+        if why is not None:  # never store a result that is not this campaign's (a foreign key, a stale worker)
+            raise ValueError(f"result {why}")
         write_atomic(_sample_path(out, rec["sample"]), json.dumps(_jsonable(rec)).encode())
         records[rec["sample"]] = rec
         res.completed.append(rec["sample"])
@@ -350,56 +548,65 @@ def run_campaign(
         if on_sample is not None:
             on_sample(rec["sample"])
 
+    def fail(i: int, message: str) -> None:
+        res.failed[i] = message
+
+    from .cluster import execute
+
     with _Progress(show_progress, len(todo)) as bar:
-        if in_process:
-            for i in todo:
-                try:
-                    store(run_sample(base_json, i, sample_seed(seed, i), schemes))
-                except Exception as exc:  # a sample that cannot run is recorded, the campaign goes on
-                    res.failed[i] = f"{type(exc).__name__}: {exc}"
-                bar(len(res.completed), len(res.failed))
-        else:
-            _run_dask(base_json, todo, seed, schemes, scheduler, workers, retries, store, res, bar)
+        info = execute(
+            run_sample,
+            {i: (base_json, i, int(seed), schemes) for i in todo},
+            {i: task_key("campaign", chash, i) for i in todo},
+            store,
+            fail,
+            scheduler=scheduler,
+            workers=workers,
+            in_process=in_process,
+            retries=retries,
+            tick=lambda: bar(len(res.completed), len(res.failed)),
+        )
+    res.workers = info["workers"]
     write_table(out, records.values())
     if res.failed:
         write_atomic(out / "failed.json", json.dumps(res.failed, indent=1).encode())
     res.wall_time = time.perf_counter() - wall0
+    _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
     return res
 
 
-def _run_dask(base_json, todo, seed, schemes, scheduler, workers, retries, store, res, bar) -> None:
-    from dask.distributed import Client, LocalCluster, as_completed
+def _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process) -> None:
+    from .manifest import build_manifest, write_manifest
 
-    cluster = None
-    if scheduler is None:
-        cluster = LocalCluster(
-            n_workers=max(1, workers),
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-        )
-        client = Client(cluster)
-    else:
-        client = Client(scheduler)
-    try:
-        futures = {
-            client.submit(
-                run_sample, base_json, i, sample_seed(seed, i), schemes, key=f"sample-{seed}-{i}", retries=retries
-            ): i
-            for i in todo
-        }
-        for fut in as_completed(futures):
-            i = futures[fut]
-            try:
-                store(fut.result())
-            except Exception as exc:
-                res.failed[i] = f"{type(exc).__name__}: {exc}"
-            bar(len(res.completed), len(res.failed))
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    m = build_manifest(
+        "campaign",
+        cases={str(base.name): expected["case_hash"]},
+        campaign=expected["campaign"],
+        seeds={
+            "campaign": int(seed),
+            "rule": "SeedSequence(campaign, spawn_key=(sample,)).spawn(2) -> draw, noise (63 bits each)",
+            "samples": {
+                str(i): {"draw": r.get("draw_seed"), "noise": r.get("noise_seed")} for i, r in sorted(records.items())
+            },
+        },
+        settings={
+            "samples": int(samples),
+            "schemes": list(schemes),
+            "scheduler": scheduler,
+            "workers": None if scheduler else int(workers),
+            "in_process": bool(in_process),
+        },
+        workers=res.workers,
+        result={
+            "stored": len(records),
+            "completed_now": len(res.completed),
+            "skipped": res.skipped,
+            "rerun_stale": res.rerun_stale,
+            "failed": {str(k): v for k, v in res.failed.items()},
+            "wall_time": res.wall_time,
+        },
+    )
+    write_manifest(out / "manifest.json", m)
 
 
 class _Progress:

@@ -358,10 +358,14 @@ def campaign(
     schemes: Annotated[str | None, typer.Option(help="Comma-separated schemes (default: all in the case).")] = None,
     in_process: Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Re-run stored samples of another version or case content.")
+    ] = False,
 ) -> None:
     """Monte Carlo fault campaign: draw variants of CASE, run every scheme on Dask, write a table and report.
 
-    Resumable: re-running with the same --out skips the samples already there.
+    Resumable: re-running with the same --out skips the samples already there; samples stored by
+    another package version or from another case content are refused (--force re-runs them).
 
     Example: ftcreport campaign cases/two_link_campaign.toml --samples 200 --workers 2
     """
@@ -383,6 +387,7 @@ def campaign(
             workers=workers,
             in_process=in_process,
             show_progress=not quiet,
+            force=force,
         )
         page = render_campaign(out_dir, read_table(res.table))
     except FtcError as exc:
@@ -444,6 +449,120 @@ def cases_new(
     path.write_text(TEMPLATE)
     load_case(path)  # the template itself is valid
     typer.echo(f"wrote {path}")
+
+
+def _floats(text: str | None, option: str) -> list[float] | None:
+    if text is None:
+        return None
+    try:
+        return [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        _fail(FtcError(f"{option}: expected comma-separated numbers, got '{text}'"))
+
+
+@app.command()
+def coverage(
+    case: Annotated[Path, typer.Argument(help="Case file (its faults are replaced by the fault set).")],
+    times: Annotated[
+        str | None, typer.Option(help="Comma-separated onset times [s] (default: 3 along the curvature).")
+    ] = None,
+    schemes: Annotated[str | None, typer.Option(help="Comma-separated schemes (default: all in the case).")] = None,
+    sigmas: Annotated[str, typer.Option(help="Partial-loss gains, comma-separated, in (0, 1).")] = "0.25,0.5",
+    friction: Annotated[float, typer.Option(help="Friction of the friction faults [N m].")] = 0.5,
+    kinds: Annotated[str, typer.Option(help="Fault kinds: loss,pair,partial,friction.")] = "loss,pair,partial,friction",
+    scheduler: Annotated[
+        str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")
+    ] = None,
+    workers: Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")] = 2,
+    out: Annotated[Path | None, typer.Option(help="Output directory (default reports/coverage/<case>).")] = None,
+    in_process: Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Re-run stored items of another version or case.")] = False,
+) -> None:
+    """Fault-coverage map: every scheme on every single and paired wheel loss, partial loss and friction.
+
+    Each fault runs at several onset times; the page shows per scheme which faults it survives beside
+    the redundancy rule's prediction (heatmaps). Same Dask path and resumption as campaign.
+
+    Example: ftcreport coverage cases/two_link_campaign.toml --times 5,10,15
+    """
+    from .cases import load_case
+    from .coverage import run_coverage
+    from .report.coverage import render_coverage
+
+    try:
+        base = load_case(case)
+        out_dir = out or Path("reports") / "coverage" / base.name
+        res = run_coverage(
+            base,
+            out_dir,
+            times=_floats(times, "--times"),
+            schemes=None if schemes is None else [s.strip() for s in schemes.split(",") if s.strip()],
+            sigmas=tuple(_floats(sigmas, "--sigmas") or ()),
+            friction=friction,
+            kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()),
+            scheduler=scheduler,
+            workers=workers,
+            in_process=in_process,
+            show_progress=not quiet,
+            force=force,
+        )
+        page = render_coverage(out_dir)
+    except FtcError as exc:
+        _fail(exc)
+    typer.echo(
+        f"{len(res.completed)} fault runs, {res.skipped} already done, {len(res.failed)} failed "
+        f"in {res.wall_time:.1f} s (onsets {', '.join(f'{t:g}' for t in res.times)} s); "
+        f"table {res.table}; report {page}"
+    )
+    if res.failed:
+        raise typer.Exit(1)
+
+
+@app.command()
+def fdi(
+    case: Annotated[Path, typer.Argument(help="Base case with a [campaign] table and an active scheme.")],
+    samples: Annotated[int, typer.Option("--samples", "-n", help="Campaign samples per active scheme.")] = 50,
+    seed: Annotated[int, typer.Option(help="Campaign seed (the same samples as campaign --seed).")] = 0,
+    schemes: Annotated[str | None, typer.Option(help="Active schemes, comma-separated (default: all).")] = None,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")
+    ] = None,
+    workers: Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")] = 2,
+    out: Annotated[Path | None, typer.Option(help="Output directory (default reports/fdi/<case>).")] = None,
+    in_process: Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Re-run stored traces of another version or case.")] = False,
+) -> None:
+    """FDI evaluation: ROC, delay and isolation of the estimate-based and a CUSUM residual detector.
+
+    Example: ftcreport fdi my_active_campaign.toml -n 100
+    """
+    from .cases import load_case
+    from .fdi import run_fdi
+    from .report.fdi import render_fdi
+
+    try:
+        base = load_case(case)
+        out_dir = out or Path("reports") / "fdi" / base.name
+        res = run_fdi(
+            base,
+            samples,
+            out_dir,
+            seed=seed,
+            schemes=None if schemes is None else [s.strip() for s in schemes.split(",") if s.strip()],
+            scheduler=scheduler,
+            workers=workers,
+            in_process=in_process,
+            show_progress=not quiet,
+            force=force,
+        )
+        page = render_fdi(out_dir)
+    except FtcError as exc:
+        _fail(exc)
+    typer.echo(f"{len(res['failed'])} failed; results {out_dir / 'fdi.json'}; report {page}")
+    if res["failed"]:
+        raise typer.Exit(1)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,30 +1,42 @@
-"""Monte Carlo campaigns (issue 10): Dask LocalCluster = in-process, kill and resume, the report's numbers."""
+"""Monte Carlo campaigns (issues 10, 22): Dask LocalCluster and a real scheduler = in-process, kill and
+resume, shared-scheduler isolation, seeds, versions, the report's numbers."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import operator
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
 import tomllib
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
 import tomli_w
 
+from ftcreport import __version__
 from ftcreport.campaign import (
+    campaign_hash,
+    case_content_hash,
     draw_variant,
     read_table,
     run_campaign,
-    sample_seed,
+    run_sample,
+    sample_seeds,
     summarize,
+    task_key,
     wilson_interval,
     write_table,
 )
 from ftcreport.cases import parse_case
+from ftcreport.cluster import check_versions
 from ftcreport.errors import CaseError, FtcError
 from ftcreport.report.campaign import render_campaign
 
@@ -50,17 +62,115 @@ def _metric_rows(path: Path) -> list[dict]:
 
 
 def test_seeds_and_draws_are_reproducible(base):
-    assert sample_seed(7, 3) == sample_seed(7, 3)
-    assert len({sample_seed(7, i) for i in range(1000)}) == 1000
-    a, b = draw_variant(base, sample_seed(7, 3)), draw_variant(base, sample_seed(7, 3))
+    assert sample_seeds(7, 3) == sample_seeds(7, 3)
+    assert len({sample_seeds(7, i).draw for i in range(1000)}) == 1000
+    a, b = draw_variant(base, sample_seeds(7, 3)), draw_variant(base, sample_seeds(7, 3))
     assert a.model_dump() == b.model_dump()
-    c = draw_variant(base, sample_seed(7, 4))
+    c = draw_variant(base, sample_seeds(7, 4))
     assert c.model_dump() != a.model_dump()
+    assert a.plant.noise.seed == sample_seeds(7, 3).noise
     for i in range(50):
-        v = draw_variant(base, sample_seed(1, i))
+        v = draw_variant(base, sample_seeds(1, i))
         assert 1 <= len(v.faults) <= 2
         assert all(2.0 <= f.time <= 5.0 and 0.0 <= f.sigma <= 0.5 for f in v.faults)
         assert len({f.wheel for f in v.faults}) == len(v.faults)
+
+
+def test_noise_and_draw_streams_differ_for_every_seed():
+    """The old rule seeded the noise with seed % 2**31 and the draws with seed: the same stream for half
+    of all (32-bit) seeds.  Now two SeedSequence children: different seeds and different first numbers."""
+    for campaign_seed in range(40):
+        for i in range(25):
+            s = sample_seeds(campaign_seed, i)
+            assert 0 <= s.draw < 2**63 and 0 <= s.noise < 2**63
+            assert s.draw != s.noise
+            d = np.random.default_rng(s.draw).random(4)
+            n = np.random.default_rng(s.noise).random(4)
+            assert not np.any(d == n)
+    # seeds use 63 bits: far more than 2**32 values are reachable
+    assert max(sample_seeds(0, i).draw for i in range(200)) > 2**40
+    with pytest.raises(FtcError, match="--seed: must be >= 0"):
+        sample_seeds(-1, 0)
+
+
+def test_identical_seeds_give_identical_samples(base):
+    a = run_sample(base.model_dump_json(), 2, 9, ["oracle"])
+    b = run_sample(base.model_dump_json(), 2, 9, ["oracle"])
+    for rec in (a, b):
+        for r in rec["rows"]:
+            r.pop("wall_time")
+    assert a == b
+    assert a["version"] == __version__ and a["campaign"] == campaign_hash(base, ["oracle"], 9)
+    assert a["rows"][0]["noise_seed"] == sample_seeds(9, 2).noise
+
+
+def test_task_keys_depend_on_case_schemes_seed_and_version(base):
+    other = parse_case(_base_data() | {"description": "another campaign"}, "other")
+    h = campaign_hash(base, SCHEMES, 0)
+    assert h == campaign_hash(parse_case(_base_data(), "again"), SCHEMES, 0)
+    variants = {
+        h,
+        campaign_hash(other, SCHEMES, 0),
+        campaign_hash(base, ["oracle"], 0),
+        campaign_hash(base, SCHEMES, 1),
+        campaign_hash(base, SCHEMES, 0, version="0.0.0"),
+    }
+    assert len(variants) == 5
+    assert task_key("campaign", h, 3) != task_key("campaign", h, 4)
+    assert task_key("campaign", h, 0) != task_key("campaign", campaign_hash(other, SCHEMES, 0), 0)
+
+
+def _record_path(out: Path, i: int) -> Path:
+    return out / "samples" / f"{i:08d}.json"
+
+
+def test_resume_refuses_another_version_or_case_content(base, tmp_path):
+    run_campaign(base, 2, tmp_path, seed=1, schemes=["oracle"], in_process=True, show_progress=False)
+    p = _record_path(tmp_path, 1)
+    rec = json.loads(p.read_text())
+    p.write_text(json.dumps(rec | {"version": "0.0.1"}))
+    with pytest.raises(FtcError, match=r"00000001.json: was computed by ftcreport 0.0.1, this is "):
+        run_campaign(base, 2, tmp_path, seed=1, schemes=["oracle"], in_process=True, show_progress=False)
+    p.write_text(json.dumps(rec | {"case_hash": "0" * 16}))
+    with pytest.raises(FtcError, match="another base case content"):
+        run_campaign(base, 2, tmp_path, seed=1, schemes=["oracle"], in_process=True, show_progress=False)
+    p.write_text(json.dumps({k: v for k, v in rec.items() if k != "version"}))
+    with pytest.raises(FtcError, match="records no package version"):
+        run_campaign(base, 2, tmp_path, seed=1, schemes=["oracle"], in_process=True, show_progress=False)
+    res = run_campaign(base, 2, tmp_path, seed=1, schemes=["oracle"], in_process=True, show_progress=False, force=True)
+    assert (res.rerun_stale, res.skipped, res.completed) == (1, 1, [1])
+    again = json.loads(p.read_text())
+    assert again["version"] == __version__
+    assert again["rows"][0]["position_error_final"] == rec["rows"][0]["position_error_final"]
+    # the campaign directory itself records its version
+    meta = tmp_path / "campaign.json"
+    meta.write_text(json.dumps(json.loads(meta.read_text()) | {"version": "0.0.1"}))
+    with pytest.raises(FtcError, match=r"campaign started by ftcreport 0\.0\.1"):
+        run_campaign(base, 2, tmp_path, seed=1, schemes=["oracle"], in_process=True, show_progress=False)
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["kind"] == "campaign" and man["seeds"]["campaign"] == 1
+    assert man["seeds"]["samples"]["1"]["noise"] == sample_seeds(1, 1).noise
+    assert man["dependencies"]["numpy"] == np.__version__ and man["dependencies"]["pyarrow"] is not None
+    assert man["cases"] == {base.name: case_content_hash(base)} and man["platform"]["cores"] >= 1
+    assert man["campaign"] == campaign_hash(base, ["oracle"], 1) and "git" in man["ftcreport"]
+
+
+class _FakeClient:
+    def __init__(self, worker_version):
+        self.worker_version = worker_version
+
+    def get_versions(self, check, packages):
+        mine = {"python": "3.11.7", **{p: "1.0" for p in packages}}
+        theirs = dict(mine, ftcreport=self.worker_version)
+        return {"client": {"packages": mine}, "workers": {"tcp://10.0.0.2:4000": {"packages": theirs}}}
+
+
+def test_worker_versions_are_checked():
+    assert check_versions(_FakeClient("1.0"))["tcp://10.0.0.2:4000"]["ftcreport"] == "1.0"
+    with pytest.raises(FtcError, match=r"worker tcp://10.0.0.2:4000: versions differ .*ftcreport 0.9 \(client: 1.0\)"):
+        check_versions(_FakeClient("0.9"))
+    with pytest.raises(FtcError, match="ftcreport missing"):
+        check_versions(_FakeClient(None))
 
 
 @pytest.mark.slow
@@ -93,7 +203,7 @@ def test_killed_campaign_resumes_to_exactly_n_unique_samples(tmp_path):
     proc = subprocess.Popen(cmd, cwd=tmp_path, start_new_session=True)
     deadline = time.time() + 240
     while time.time() < deadline and len(list((out / "samples").glob("*.json"))) < 3:
-        time.sleep(0.2)
+        time.sleep(0.02)
     os.killpg(proc.pid, signal.SIGKILL)  # the client, the cluster and its workers, mid-campaign
     proc.wait()
     before = len(list((out / "samples").glob("*.json")))
@@ -164,6 +274,13 @@ def test_report_rates_come_from_the_table(tmp_path):
     write_table(tmp_path, records.values())
     table = read_table(tmp_path / "results.csv")
     assert len(table) == 8
+    # the Parquet table beside it: the same rows with typed columns (missing stays missing)
+    pq = pd.read_parquet(tmp_path / "results.parquet")
+    assert list(pq.columns) == list(table[0].keys()) and len(pq) == 8
+    assert str(pq["sample"].dtype) == "Int64" and str(pq["success"].dtype) == "boolean"
+    assert pq["position_error_max"].dtype == np.float64 and str(pq["faulted_wheels"].dtype).startswith("string")
+    assert pq["recovery_time_max"].isna().sum() == 3 and pq["recovery_time_max"].sum() == pytest.approx(8.5)
+    assert pq["success"].tolist() == [r["success"] for r in table]
     nominal_1 = next(r for r in table if r["sample"] == 1 and r["scheme"] == "nominal")
     assert nominal_1["recovery_time_max"] is None and nominal_1["success"] is False
     s = summarize(table)
@@ -181,6 +298,12 @@ def test_report_rates_come_from_the_table(tmp_path):
     page = render_campaign(tmp_path, table)
     html = page.read_text()
     assert "0.500" in html and "[0.150, 0.850]" in html and "<svg" in html
+    # paired comparison: 0 samples only nominal succeeds, 1 only oracle: McNemar p = 1 (by hand)
+    mc = next(c for c in s["comparisons"] if c["metric"] == "success")
+    assert (mc["a"], mc["b"], mc["a_only"], mc["b_only"], mc["p"]) == ("nominal", "oracle", 0, 1, 1.0)
+    assert "nominal vs oracle on success: no significant difference (exact McNemar p = 1;" in html
+    rc = next(c for c in s["comparisons"] if c["metric"] == "recovery_time_max")
+    assert rc["n"] == 2 and rc["mean"] == pytest.approx(((2.0 - 1.0) + (3.0 - 1.0)) / 2)  # samples 0 and 3
     assert json.loads((tmp_path / "summary.json").read_text())["schemes"]["oracle"]["successes"] == 3
 
 
@@ -190,3 +313,139 @@ def test_wilson_interval_edges():
     assert hi == 1.0 and lo == pytest.approx(10 / (10 + 1.959963984540054**2), rel=1e-12)
     lo, hi = wilson_interval(0, 10)
     assert lo == 0.0 and math.isclose(hi, 1 - wilson_interval(10, 10)[0], rel_tol=1e-12)
+
+
+# ---------------------------------------------------------------------- a real cluster: dask scheduler + 2 workers
+WORKER_FLAGS = ("--no-nanny", "--no-dashboard", "--death-timeout", "60")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    """``dask scheduler`` and two ``dask worker`` processes on 127.0.0.1 (random free port), killed at teardown."""
+    from distributed import Client
+
+    dask = str(Path(sys.executable).parent / "dask")
+    addr = f"tcp://127.0.0.1:{_free_port()}"
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "start_new_session": True}
+    procs = [
+        subprocess.Popen(
+            [dask, "scheduler", "--host", "127.0.0.1", "--port", addr.rsplit(":", 1)[1], "--no-dashboard"], **quiet
+        )
+    ]
+    try:
+        for _ in range(2):
+            procs.append(
+                subprocess.Popen(
+                    [dask, "worker", addr, "--host", "127.0.0.1", "--nthreads", "1", *WORKER_FLAGS],
+                    **quiet,
+                )
+            )
+        with Client(addr, timeout=60) as c:
+            c.wait_for_workers(2, timeout=120)
+        yield addr
+    finally:
+        for p in procs:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGKILL)
+            p.wait(timeout=30)
+
+
+def test_old_key_rule_collides_and_the_new_one_does_not(scheduler, base):
+    """Two clients, two different functions under one key: the scheduler hands the second client the
+    first one's result.  The old key ``sample-{seed}-{i}`` was one key for two campaigns on seed 0."""
+    from distributed import Client
+
+    with Client(scheduler, timeout=30) as a, Client(scheduler, timeout=30) as b:
+        old = "sample-0-0"  # the old rule for two campaigns on the default seed
+        fa = a.submit(operator.add, 2, 3, key=old)
+        assert fa.result(timeout=60) == 5
+        fb = b.submit(operator.mul, 2, 3, key=old)
+        assert fb.result(timeout=60) == 5  # the wrong answer, silently: 2 * 3 = 6
+        other = parse_case(_base_data() | {"description": "another campaign"}, "other")
+        ka = task_key("campaign", campaign_hash(base, SCHEMES, 0), 0)
+        kb = task_key("campaign", campaign_hash(other, SCHEMES, 0), 0)
+        ga = a.submit(operator.add, 2, 3, key=ka)
+        gb = b.submit(operator.mul, 2, 3, key=kb)
+        assert (ga.result(timeout=60), gb.result(timeout=60)) == (5, 6)
+
+
+def _cli(case: Path, out: Path, n: int, scheduler: str, schemes: str) -> list[str]:
+    cmd = [sys.executable, "-m", "ftcreport.cli", "campaign", str(case), "-n", str(n), "--quiet"]
+    return [*cmd, "--scheduler", scheduler, "--schemes", schemes, "--out", str(out)]
+
+
+def test_two_campaigns_on_one_scheduler_do_not_mix(scheduler, tmp_path):
+    """Two different campaigns, both on the default seed 0, at the same time from two client processes."""
+    da = _base_data()
+    db = _base_data()
+    db["campaign"]["sigma"] = [0.6, 0.9]  # another campaign: other gains, another scheme list
+    db["campaign"]["faults"] = [2, 2]
+    procs = []
+    for name, data, schemes in (("a", da, "nominal,oracle"), ("b", db, "oracle,nominal")):
+        (tmp_path / f"{name}.toml").write_text(tomli_w.dumps(data))
+        cmd = _cli(tmp_path / f"{name}.toml", tmp_path / name, 4, scheduler, schemes)
+        procs.append(subprocess.Popen(cmd, cwd=tmp_path))
+    assert [p.wait(timeout=300) for p in procs] == [0, 0]
+    for name, data, schemes in (("a", da, SCHEMES), ("b", db, ["oracle", "nominal"])):
+        ref = run_campaign(
+            parse_case(data, name), 4, tmp_path / f"{name}-ref", schemes=schemes, in_process=True, show_progress=False
+        )
+        assert _metric_rows(tmp_path / name / "results.csv") == _metric_rows(ref.table), name
+        h = campaign_hash(parse_case(data, name), schemes, 0)
+        assert {json.loads(p.read_text())["campaign"] for p in (tmp_path / name / "samples").glob("*.json")} == {h}
+    rows_b = read_table(tmp_path / "b" / "results.csv")
+    assert all(r["n_faults"] == 2 for r in rows_b)  # b's own draws, not a's (1 or 2 faults)
+    man = json.loads((tmp_path / "a" / "manifest.json").read_text())
+    assert len(man["workers"]) == 2 and all(v["ftcreport"] == __version__ for v in man["workers"].values())
+    # the warm-up plugin ran once on each worker (the kernels loaded before any sample)
+    from distributed import Client
+
+    with Client(scheduler, timeout=30) as c:
+        secs = c.run(lambda dask_worker: getattr(dask_worker.plugins.get("ftcreport-warm-up"), "seconds", None))
+    assert len(secs) == 2 and all(isinstance(v, float) and v > 0 for v in secs.values())
+
+
+def test_killed_campaign_resumes_on_a_real_scheduler(scheduler, tmp_path):
+    """The client killed mid-way (the workers stay); resumed on the same scheduler to exactly N samples."""
+    data = _base_data()
+    data["simulation"]["duration"] = 6.0
+    case = tmp_path / "short.toml"
+    case.write_text(tomli_w.dumps(data))
+    out, n = tmp_path / "camp", 30
+    proc = subprocess.Popen(_cli(case, out, n, scheduler, "oracle"), cwd=tmp_path, start_new_session=True)
+    deadline = time.time() + 240
+    while time.time() < deadline and len(list((out / "samples").glob("*.json"))) < 3 and proc.poll() is None:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = len(list((out / "samples").glob("*.json")))
+    assert 3 <= before < n
+    base = parse_case(data, str(case))
+    res = run_campaign(base, n, out, schemes=["oracle"], scheduler=scheduler, show_progress=False)
+    assert res.skipped == before and len(res.completed) == n - before and not res.failed
+    rows = read_table(out / "results.csv")
+    assert sorted(r["sample"] for r in rows) == list(range(n))
+    fresh = run_campaign(base, n, tmp_path / "fresh", schemes=["oracle"], in_process=True, show_progress=False)
+    assert _metric_rows(fresh.table) == _metric_rows(out / "results.csv")
+
+
+def test_coverage_runs_on_the_real_scheduler(scheduler, tmp_path):
+    """The coverage map takes the same Dask path: equal to in-process, keys from its own hash."""
+    from ftcreport.coverage import run_coverage
+
+    data = _base_data()
+    data["simulation"]["duration"] = 6.0
+    data["campaign"]["fault_time"] = [1.0, 4.0]
+    base = parse_case(data, "cov")
+    kw = {"schemes": ["oracle"], "kinds": ("loss",), "times": [3.0], "show_progress": False}
+    a = run_coverage(base, tmp_path / "dask", scheduler=scheduler, **kw)
+    b = run_coverage(base, tmp_path / "inproc", in_process=True, **kw)
+    assert len(a.completed) == 4 and not a.failed and len(a.workers) == 2
+    ra = read_table(a.table)
+    assert ra == read_table(b.table) and all(r["recovered"] for r in ra)

@@ -1,0 +1,137 @@
+r"""The Dask edge shared by campaigns and coverage maps: task keys, version check, warm-up, execution.
+
+A task's key names what it computes, so that two clients on one scheduler can
+never receive each other's results (issue 22).  The Dask scheduler identifies a
+task by its key only: a second client submitting *another* function under a
+key that is already held receives the first client's result.  The old key
+``sample-{seed}-{i}`` was the same for two campaigns on the default seed; the
+key is ``ftcreport-{kind}-{run hash}-{index}`` where the run hash covers
+the base case content, the schemes, the settings and the package version
+(:func:`ftcreport.campaign.run_hash`, :func:`ftcreport.campaign.task_key`).
+
+Before submitting, :func:`check_versions` compares the versions the workers
+report through Dask's own version report (``Client.get_versions``, which also
+warns on Dask's own mismatches) with the client's, for the package and every
+dependency that can change a simulated number; a mismatch is refused.  A
+worker plugin (:class:`WarmUp`) loads the compiled kernels once per worker
+(``ftcreport.fast.engine.warm_up``), so no sample pays the numba load.
+
+:func:`execute` runs ``func(*args)`` for every index, in this process or on a
+``LocalCluster`` / existing scheduler through the same ``client.submit`` path,
+and hands each result to ``store`` as it finishes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from distributed import WorkerPlugin
+
+from .errors import FtcError
+from .manifest import NUMERIC_DEPENDENCIES
+
+__all__ = ["CHECKED_PACKAGES", "WarmUp", "check_versions", "execute"]
+
+#: Packages whose version must be the same on the client and every worker (besides Python).
+CHECKED_PACKAGES: tuple[str, ...] = ("ftcreport", "dask", "distributed", "cloudpickle", *NUMERIC_DEPENDENCIES)
+
+
+class WarmUp(WorkerPlugin):
+    """Loads (or compiles once) the numba kernels on each worker when it joins; off the event loop."""
+
+    name = "ftcreport-warm-up"
+
+    async def setup(self, worker) -> None:
+        from .fast.engine import warm_up
+
+        loop = asyncio.get_running_loop()
+        self.seconds = await loop.run_in_executor(None, warm_up)
+
+
+def check_versions(client) -> dict[str, dict[str, str | None]]:
+    """Refuse workers whose Python, package or numeric-dependency versions differ from the client's.
+
+    Uses Dask's version report (``Client.get_versions(check=True, packages=...)``: it warns itself
+    on Dask's own mismatches); returns ``{worker address: {package: version}}``.
+    """
+    got = client.get_versions(check=True, packages=list(CHECKED_PACKAGES))
+    mine = got["client"]["packages"]
+    keys = ("python", *CHECKED_PACKAGES)
+    out: dict[str, dict[str, str | None]] = {}
+    for addr, info in sorted(got["workers"].items()):
+        pk = (info or {}).get("packages", {}) if isinstance(info, dict) else {}
+        out[addr] = {k: pk.get(k) for k in keys}
+        bad = [f"{k} {pk.get(k) or 'missing'} (client: {mine.get(k)})" for k in keys if pk.get(k) != mine.get(k)]
+        if bad:
+            raise FtcError(
+                f"worker {addr}: versions differ from this client's: {', '.join(bad)}; "
+                "install the same versions on every worker (results of two versions must not mix)"
+            )
+    return out
+
+
+def execute(
+    func: Callable[..., dict],
+    tasks: Mapping[int, tuple],
+    keys: Mapping[int, str],
+    store: Callable[[dict], None],
+    fail: Callable[[int, str], None],
+    *,
+    scheduler: str | None = None,
+    workers: int = 2,
+    in_process: bool = False,
+    retries: int = 2,
+    tick: Callable[[], None] = lambda: None,
+) -> dict[str, Any]:
+    """Run ``func(*tasks[i])`` for every ``i``; ``store(result)`` or ``fail(i, message)`` as each finishes.
+
+    ``scheduler``: address of an existing Dask scheduler; otherwise a LocalCluster of ``workers``
+    processes on 127.0.0.1 (or this process when ``in_process``).  Returns what the cluster
+    reported: ``{"workers": {address: versions}}`` (empty in-process).
+    """
+    info: dict[str, Any] = {"workers": {}}
+    if in_process:
+        for i, args in tasks.items():
+            try:
+                store(func(*args))
+            except Exception as exc:  # a task that cannot run is recorded, the run goes on
+                fail(i, f"{type(exc).__name__}: {exc}")
+            tick()
+        return info
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(
+            n_workers=max(1, workers),
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+        )
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(scheduler, timeout=30)
+        except (OSError, TimeoutError) as exc:
+            raise FtcError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+    try:
+        info["workers"] = check_versions(client)
+        client.register_plugin(WarmUp(), name=WarmUp.name)
+        futures = {client.submit(func, *args, key=keys[i], retries=retries, pure=False): i for i, args in tasks.items()}
+        for fut in as_completed(futures):
+            i = futures[fut]
+            try:
+                store(fut.result())
+            except FtcError:
+                raise
+            except Exception as exc:
+                fail(i, f"{type(exc).__name__}: {exc}")
+            tick()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return info

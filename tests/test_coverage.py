@@ -1,0 +1,135 @@
+"""Fault-coverage maps (issue 22): the two-link oracle agrees with the redundancy rule (2.103)."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ftcreport import __version__
+from ftcreport.cases import parse_case
+from ftcreport.coverage import (
+    CoverageFault,
+    _curvature,
+    fault_set,
+    onset_times,
+    predicted_compensable,
+    run_coverage,
+)
+from ftcreport.errors import FtcError
+from ftcreport.model import pattern_is_compensable
+from ftcreport.report.coverage import coverage_grids, render_coverage
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _two_link(duration: float = 12.0) -> dict:
+    data = tomllib.loads((ROOT / "cases" / "two_link_campaign.toml").read_text())
+    data["simulation"]["duration"] = duration
+    data.pop("campaign")  # success: the default final position error <= 0.05 m (the campaign's own)
+    return data
+
+
+def test_fault_set_and_prediction_by_hand():
+    fs = fault_set(2)
+    assert len(fs) == 4 + 6 + 2 * 4 + 4  # losses, pairs C(4, 2), two partial gains, frictions
+    assert len(fault_set(3)) == 6 + 15 + 12 + 6
+    # n = 2: the only uncompensable single or pair is losing both leader wheels
+    lost = [f.wheels for f in fs if not predicted_compensable(2, f)]
+    assert lost == [("1r", "1l")]
+    # n = 3: likewise, and the rule agrees with the model's own pattern test
+    for f in fault_set(3, kinds=("pair",)):
+        pattern = [0 if w in f.wheels else 1 for w in ("1r", "1l", "2r", "2l", "3r", "3l")]
+        assert predicted_compensable(3, f) == pattern_is_compensable(pattern) == (f.wheels != ("1r", "1l"))
+    # partial losses and frictions leave every wheel working
+    assert predicted_compensable(2, CoverageFault("partial", ("1r",), 0.25))
+    with pytest.raises(FtcError, match="--kinds: unknown"):
+        fault_set(2, kinds=("melt",))
+    with pytest.raises(FtcError, match="--sigmas"):
+        fault_set(2, sigmas=(0.0,))
+
+
+def test_onset_times_follow_the_curvature():
+    # the unicycle reference has constant curvature: evenly spaced over 20-50 % of the run
+    assert onset_times(parse_case(_two_link(12.0), "u")) == [2.4, 4.2, 6.0]
+    data = _two_link(40.0)
+    data["reference"] = {"kind": "eight", "scale": 4.0}
+    data["kinematic"] = {"kind": "chained"}
+    case = parse_case(data, "eight")
+    times = onset_times(case, 3)
+    path = case.reference.path()
+    grid = np.linspace(8.0, 20.0, 201)
+    k = np.array([_curvature(path, t) for t in grid])
+    got = [_curvature(path, t) for t in times]
+    # the smallest and the largest curvature of the window (to the grid's resolution and the 20 ms rounding)
+    tol = 0.02 * np.ptp(k)
+    assert min(got) == pytest.approx(k.min(), abs=tol) and max(got) == pytest.approx(k.max(), abs=tol)
+    assert len(set(times)) == 3 and all(8.0 <= t <= 20.0 for t in times)
+
+
+@pytest.fixture(scope="module")
+def oracle_map(tmp_path_factory):
+    out = tmp_path_factory.mktemp("coverage")
+    base = parse_case(_two_link(), "two_link_campaign_short")
+    res = run_coverage(base, out, schemes=["oracle"], kinds=("loss", "pair"), in_process=True, show_progress=False)
+    return base, out, res
+
+
+def test_oracle_coverage_agrees_with_the_redundancy_rule(oracle_map):
+    _, out, res = oracle_map
+    assert res.times == [2.4, 4.2, 6.0] and not res.failed
+    assert len(res.completed) == (4 + 6) * 3
+    summary = json.loads((out / "summary.json").read_text())
+    faults = summary["schemes"]["oracle"]["faults"]
+    for key, e in faults.items():
+        if e["kind"] == "loss":  # every single loss is compensable and recovers at every onset
+            assert e["predicted_compensable"] and e["recovered"] == [True] * 3, key
+        if not e["predicted_compensable"]:  # marked, and lost at every onset
+            assert e["recovered"] == [False] * 3, key
+            assert min(e["final_error"]) > 0.05, key
+    assert [k for k, e in faults.items() if not e["predicted_compensable"]] == ["pair 1r+1l"]
+    o = summary["schemes"]["oracle"]
+    assert (o["agree"], o["n_faults"], o["lost_but_compensable"], o["recovered_but_uncompensable"]) == (10, 10, [], [])
+    # the map marks the uncompensable cell and shows the simulated outcome beside it
+    g = coverage_grids(summary, 2)
+    assert g["predicted_pairs"][0, 1] == 0.0 and g["pairs"]["oracle"][0, 1] == 0.0
+    assert np.nansum(g["predicted_pairs"] == 0.0) == 2  # (1r, 1l) and its mirror
+    assert np.all(g["single"]["oracle"][:, 0] == 1.0)
+    html = render_coverage(out).read_text()
+    assert "predicted (2.103)" in html and "<svg" in html and "pair 1r+1l" in html
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["kind"] == "coverage" and man["settings"]["times"] == [2.4, 4.2, 6.0]
+
+
+def test_coverage_resumes_and_refuses_another_version(oracle_map):
+    base, out, _ = oracle_map
+    again = run_coverage(base, out, schemes=["oracle"], kinds=("loss", "pair"), in_process=True, show_progress=False)
+    assert again.skipped == 30 and again.completed == []
+    p = out / "items" / "000004.json"
+    rec = json.loads(p.read_text())
+    p.write_text(json.dumps(rec | {"version": "0.0.1"}))
+    with pytest.raises(FtcError, match=r"000004.json: was computed by ftcreport 0\.0\.1"):
+        run_coverage(base, out, schemes=["oracle"], kinds=("loss", "pair"), in_process=True, show_progress=False)
+    p.write_text(json.dumps(rec))
+    assert rec["version"] == __version__
+
+
+def test_coverage_times_are_checked():
+    base = parse_case(_two_link(), "x")
+    with pytest.raises(FtcError, match=r"--times: onset times must lie in \[0, 12\)"):
+        run_coverage(base, Path("unused"), times=[13.0], in_process=True, show_progress=False)
+
+
+def test_coverage_cli_errors_are_one_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+
+    r = CliRunner().invoke(app, ["coverage", str(ROOT / "cases" / "two_link_campaign.toml"), "--times", "5,x"])
+    assert r.exit_code == 2 and "--times: expected comma-separated numbers, got '5,x'" in r.output
+    r = CliRunner().invoke(app, ["coverage", str(ROOT / "cases" / "two_link_campaign.toml"), "--kinds", "melt"])
+    assert r.exit_code == 2 and "--kinds: unknown ['melt']" in r.output
+    assert "Traceback" not in r.output

@@ -157,17 +157,48 @@ def pole_table(A: np.ndarray) -> list[dict]:
     return out
 
 
-def pattern_controllability(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float) -> list[dict]:
+#: chains with at most this many wheels get every 0/1 pattern enumerated (2^8 = 256 for 4 robots);
+#: longer ones the patterns with at most MAX_FAILED failed wheels (issue 20 item 6)
+FULL_ENUMERATION_WHEELS = 8
+MAX_FAILED = 2
+
+
+def fault_patterns(n_wheels: int, max_failed: int | None = None) -> list[tuple[int, ...]]:
+    """0/1 patterns (1 = the wheel works), healthy first, then by number of failed wheels.
+
+    Every pattern (2^(2n)) when ``max_failed`` is None, else those with at most
+    ``max_failed`` failed wheels: 1 + 2n + C(2n, 2) for two (301 for 12 robots, against 2^24).
+    """
+    k_max = n_wheels if max_failed is None else min(max_failed, n_wheels)
+    out = []
+    for k in range(k_max + 1):
+        for failed in itertools.combinations(range(n_wheels), k):
+            pat = [1] * n_wheels
+            for j in failed:
+                pat[j] = 0
+            out.append(tuple(pat))
+    return out
+
+
+def default_max_failed(n_wheels: int) -> int | None:
+    """Every pattern up to :data:`FULL_ENUMERATION_WHEELS` wheels, else :data:`MAX_FAILED` failed wheels at most."""
+    return None if n_wheels <= FULL_ENUMERATION_WHEELS else MAX_FAILED
+
+
+def pattern_controllability(
+    chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, max_failed: int | None = None
+) -> list[dict]:
     """Rank of ctrb(A, B sigma) and the Gramian's smallest eigenvalue for every 0/1 pattern.
 
     ``A = -k_v I`` (the velocity loop closed by the dynamic law), ``B = Mbar1^-1 Bbar``
-    at the state (q, eta); sorted from best to worst conditioned.
+    at the state (q, eta); sorted from best to worst conditioned.  ``max_failed``: see
+    :func:`fault_patterns`.
     """
     Mbar1, _, _, Bbar = chain.reduced(q, eta)
     MB = np.linalg.solve(Mbar1, Bbar)
     A = -float(k_v) * np.eye(2)
     rows = []
-    for pat in itertools.product((1, 0), repeat=chain.n_wheels):
+    for pat in fault_patterns(chain.n_wheels, max_failed):
         B = MB * np.asarray(pat, dtype=float)[None, :]
         rank = int(np.linalg.matrix_rank(control.ctrb(A, B), tol=1e-9 * max(1.0, np.abs(MB).max())))
         sys = control.ss(A, B, np.eye(2), 0)
@@ -218,7 +249,9 @@ def frozen_time_poles(
     return _frozen_summary(times, np.array(poles))
 
 
-def velocity_loop(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, law: np.ndarray) -> list[dict]:
+def velocity_loop(
+    chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, law: np.ndarray, max_failed: int | None = None
+) -> list[dict]:
     r"""Velocity loop of the law for pattern ``law`` against every true 0/1 pattern.
 
     With the minimum-norm law u = (MB sigma_k)^+ w on a plant with effectiveness sigma_a,
@@ -228,7 +261,9 @@ def velocity_loop(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, law:
     >= 0, and positive exactly when the wheels working in both patterns are compensable.
     Each eigen-direction is the loop L(s) = k_v lambda / s: python-control's
     stability_margins give its gain and phase margins (infinite and 90 deg while
-    lambda > 0; the margin that matters is the rate k_v lambda_min).
+    lambda > 0, whatever lambda: they are computed once, on the first stable pattern;
+    the margin that matters is the rate k_v lambda_min).  ``max_failed``: see
+    :func:`fault_patterns`.
     """
     Mbar1, _, _, Bbar = chain.reduced(q, eta)
     MB = np.linalg.solve(Mbar1, Bbar)
@@ -236,12 +271,15 @@ def velocity_loop(chain: Chain, q: np.ndarray, eta: np.ndarray, k_v: float, law:
     Ak = MB * law[None, :]
     Wk = Ak @ Ak.T
     rows = []
-    for pat in itertools.product((1, 0), repeat=chain.n_wheels):
+    margins: tuple[float, float] | None = None  # of k_v lambda / s: the same for every lambda > 0
+    for pat in fault_patterns(chain.n_wheels, max_failed):
         G = (MB * np.asarray(pat, float)[None, :]) @ np.linalg.solve(Wk, Ak).T
         lam = np.linalg.eigvals(G)
         lmin = float(lam.real.min())
         if lmin > 1e-12:
-            gm, pm, *_ = control.stability_margins(control.tf([k_v * lmin], [1, 0]))
+            if margins is None:
+                margins = tuple(control.stability_margins(control.tf([k_v * lmin], [1, 0]))[:2])
+            gm, pm = margins
         else:
             gm, pm = 0.0, 0.0
         rows.append(
@@ -535,11 +573,19 @@ def analyze_case(case) -> dict:
         out["frozen_time"] = chained_frozen_time_poles(chain, _chained(case, chain, ref), k_v0, span, samples=60)
     q0 = ref.at(0.0).q_d
     k_v = next(getattr(case.schemes, s).k_v for s in schemes)
-    out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v)
+    mf = default_max_failed(chain.n_wheels)
+    out["patterns_enumerated"] = {
+        "max_failed": mf,
+        "count": len(fault_patterns(chain.n_wheels, mf)),
+        "total": 2**chain.n_wheels,
+        "compensable_total": 3 * 2 ** (chain.n_wheels - 2) - 2,  # the rule of (2.103), ftcreport patterns
+    }
+    out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v, mf)
     # passive robustness of the healthy (nominal) law: the true patterns it keeps stable, and how fast
-    vl = velocity_loop(chain, q0, ref.at(0.0).eta_d, k_v, np.ones(chain.n_wheels))
+    vl = velocity_loop(chain, q0, ref.at(0.0).eta_d, k_v, np.ones(chain.n_wheels), mf)
     stable = [r for r in vl if r["stable"]]
     out["nominal_velocity_loop"] = {
+        "enumerated_patterns": len(vl),
         "stable_patterns": len(stable),
         "compensable_patterns": sum(pattern_is_compensable(r["pattern"]) for r in vl),
         "slowest_rate": min(r["rate"] for r in stable),

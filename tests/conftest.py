@@ -31,3 +31,12 @@ def random_q(rng: np.random.Generator, n: int, max_art: float = np.radians(60)) 
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20181)
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--regen-golden",
+        action="store_true",
+        default=False,
+        help="rewrite tests/data/golden/*.npz from the current engine (tests/test_golden.py)",
+    )

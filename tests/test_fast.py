@@ -29,7 +29,7 @@ from ftcreport.fast import kernels as F
 from ftcreport.fast.engine import compiled_spec
 from ftcreport.model import Chain
 from ftcreport.model import kernels as K
-from ftcreport.model.chained import ChainedForm
+from ftcreport.model.chained import symbolic_chained_form
 from ftcreport.references import FlatReference, circle, eight, sinusoid
 from ftcreport.runner import build, make_controller
 from ftcreport.sim import Plant, SimSettings, simulate
@@ -41,11 +41,14 @@ CASES = Path(__file__).resolve().parents[1] / "cases"
 def test_numeric_chained_form_equals_the_sympy_derivation(n):
     rng = np.random.default_rng(n)
     d = rng.uniform(0.5, 1.5, n - 1)
-    cf = ChainedForm(d)
+    f_xi, f_T = symbolic_chained_form(n)
     work = np.zeros((9 * n, n + 2))
     for _ in range(30):
         q = np.concatenate((rng.normal(size=2), rng.uniform(-1.0, 1.0, n)))
-        xi, T = cf.xi_and_T(q)
+        th = q[:1:-1]
+        xi = np.array([q[0], *f_xi(th, tuple(d)), q[1]])
+        T21, T22 = f_T(th, tuple(d))
+        T = np.array([[np.cos(th[-1]), 0.0], [T21, T22]])
         xi2, T2 = np.empty(n + 2), np.empty((2, 2))
         F.xi_T(q, d, work, xi2, T2)
         np.testing.assert_allclose(xi2, xi, rtol=1e-12, atol=1e-12)

@@ -11,10 +11,15 @@ the derivative of ``xi_k`` with respect to x along the motion.  Then::
     xi_1' = alpha_1,  xi_2' = alpha_2,  xi_k' = xi_(k-1) alpha_1  (k >= 3)
     alpha = T_alpha(q) eta,   T_alpha = [[cos theta_n, 0], [L_g1 xi_2, d xi_2 / d theta_1]]
 
-The derivation is done once per n with sympy (in the link lengths as symbols),
-common subexpressions eliminated and compiled to numpy; the result is cached.
-It replaces the thesis's hand-printed three-link formulas, which ERRATA
-E5e-E5g list as wrong.  Valid while |theta_n| < 90 deg and every articulation
+The map is computed numerically, for any n, by Taylor-mode differentiation
+along the flow of g1 (``ftcreport.fast.kernels.chained_xi_T``, compiled; its
+docstring and the kernels' module docstring give the recursion): one
+implementation, used by the compiled engine and by this class alike.
+:func:`symbolic_chained_form` derives the same map with sympy (in the link
+lengths as symbols); it is the independent check the tests compare against
+(tests/test_fast.py, to 1e-12 for n = 2..5), never a run-time path.  Both
+replace the thesis's hand-printed three-link formulas, which ERRATA E5e-E5g
+list as wrong.  Valid while |theta_n| < 90 deg and every articulation
 angle |theta_i - theta_(i+1)| < 90 deg.
 
 The inverse map uses that ``xi_(m-1-j)`` is the first coordinate to depend on
@@ -31,12 +36,16 @@ import numpy as np
 
 from ..errors import ModelError, SingularityError, chained_reason
 
-__all__ = ["ChainedForm", "chained_form"]
+__all__ = ["ChainedForm", "chained_form", "symbolic_chained_form"]
 
 
 @lru_cache(maxsize=16)
-def _derive(n: int):
-    """Symbolic derivation for n robots: compiled xi(th, d), T_alpha(th, d)."""
+def symbolic_chained_form(n: int):
+    """Symbolic derivation for n robots, lambdified: ``(f_xi(th, d), f_T(th, d))`` (tests only).
+
+    ``f_xi`` gives xi_2..xi_(m-1) and ``f_T`` gives (T21, T22) at headings ``th`` in robot
+    order; the independent check of the numeric map (Theorem 2.1, Appendix E).
+    """
     import sympy as sp
 
     th = sp.symbols(f"th1:{n + 1}", real=True)  # robot order theta_1..theta_n
@@ -84,16 +93,16 @@ class ChainedForm:
         if self.n < 2:
             raise ModelError("d: the chained form needs at least 2 robots")
         self.m = self.n + 2
+        self._d = np.asarray(self.d, dtype=float).reshape(-1)
 
-    # the sympy derivation runs on first use: the compiled engine never needs it (it computes
-    # the same map by Taylor-mode differentiation), and sympy costs ~30 MB and seconds to load
-    @property
-    def _xi(self):
-        return _derive(self.n)[0]
+    def _ang(self, th: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """xi_2..xi_(m-1) and (T21, T22) at headings th (robot order): the compiled kernel."""
+        from ..fast.kernels import chained_xi_T  # numba: loaded on first use, not with the model
 
-    @property
-    def _T(self):
-        return _derive(self.n)[1]
+        ang = np.empty(self.n)
+        work = np.zeros((9 * self.n, self.n + 2))
+        T21, T22 = chained_xi_T(np.ascontiguousarray(th, dtype=float), self._d, work, ang)
+        return ang, float(T21), float(T22)
 
     def _th(self, q: np.ndarray) -> np.ndarray:
         return np.asarray(q, dtype=float)[:1:-1]
@@ -111,18 +120,19 @@ class ChainedForm:
     def xi(self, q: np.ndarray) -> np.ndarray:
         r"""Chained coordinates xi = phi(q), (n + 2,), thesis numbering xi_1..xi_m."""
         q = np.asarray(q, dtype=float)
-        ang = self._xi(self._th(q), self.d)
+        ang = self._ang(self._th(q))[0]
         return np.array([q[0], *ang, q[1]], dtype=float)
 
     def T_alpha(self, q: np.ndarray) -> np.ndarray:
         """Input map alpha = T_alpha(q) eta, (2, 2)."""
-        th = self._th(q)
-        T21, T22 = self._T(th, self.d)
-        return np.array([[math.cos(th[-1]), 0.0], [float(T21), float(T22)]])
+        return self.xi_and_T(q)[1]
 
     def xi_and_T(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(xi(q), T_alpha(q))`` in one call."""
-        return self.xi(q), self.T_alpha(q)
+        q = np.asarray(q, dtype=float)
+        th = self._th(q)
+        ang, T21, T22 = self._ang(th)
+        return np.array([q[0], *ang, q[1]], dtype=float), np.array([[math.cos(th[-1]), 0.0], [T21, T22]])
 
     def inverse(self, xi: np.ndarray) -> np.ndarray:
         """q = phi^-1(xi) on the domain |theta_n|, |articulations| < 90 deg."""
@@ -136,9 +146,9 @@ class ChainedForm:
             i = n - 1 - j  # 0-based robot index of the new angle theta_(n-j)
             k = m - 1 - j  # thesis index of the coordinate that first depends on it
             th[i] = th[i + 1]
-            a0 = self._xi(th, self.d)[k - 2]
+            a0 = self._ang(th)[0][k - 2]
             th[i] = th[i + 1] + math.pi / 4
-            a1 = self._xi(th, self.d)[k - 2] - a0  # coefficient of tan(phi)
+            a1 = self._ang(th)[0][k - 2] - a0  # coefficient of tan(phi)
             if a1 == 0:
                 raise SingularityError("chained form inverse: degenerate coefficient")
             th[i] = th[i + 1] + math.atan((xi[k - 1] - a0) / a1)

@@ -434,5 +434,27 @@ def cases_new(
     typer.echo(f"wrote {path}")
 
 
+@cases_app.command("schema")
+def cases_schema(
+    markdown: Annotated[
+        bool, typer.Option("--markdown", help="Print the field tables of cases/README.md instead.")
+    ] = False,
+) -> None:
+    """Print the JSON Schema of case files (descriptions, units, ranges), generated from the models.
+
+    Editors validate cases with it (taplo: the repository's .taplo.toml points at cases/case.schema.json).
+
+    Example: ftcreport cases schema > case.schema.json
+    """
+    if markdown:
+        from .schema_doc import markdown_tables
+
+        typer.echo(markdown_tables(), nl=False)
+        return
+    from .schema_doc import schema_json
+
+    typer.echo(schema_json(), nl=False)
+
+
 if __name__ == "__main__":  # pragma: no cover
     app()

@@ -89,7 +89,7 @@ def run_html(run: Run) -> str:
         rows.append(("case / scheme", f"{meta.get('case')} / {meta.get('scheme', '?')}"))
     rows += [
         ("status", run.status + (f": {run.reason}" if run.reason else "")),
-        ("simulated", f"{run.t_end:g} s, {run.t.size} logged instants, {run.steps} steps"),
+        ("simulated", f"{run.t_end:g} s, {run.t.size} logged instants" + (f", {run.steps} steps" if run.steps else "")),
         ("engine", meta.get("engine", "python")),
         ("wall time [s]", run.wall_time),
     ]

@@ -18,7 +18,7 @@ import hashlib
 import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal, get_args, get_origin
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -483,7 +483,10 @@ class Case(_Strict):
             raise _FieldError("schemes", "no scheme to run (give at least one of " + ", ".join(SCHEME_NAMES) + ")")
         for scheme, metrics in self.thresholds.items():
             if scheme not in SCHEME_NAMES:
-                raise _FieldError(f"thresholds.{scheme}", f"unknown scheme (known: {', '.join(SCHEME_NAMES)})")
+                raise _FieldError(
+                    f"thresholds.{scheme}",
+                    f"unknown scheme{did_you_mean(scheme, list(SCHEME_NAMES))} (known: {', '.join(SCHEME_NAMES)})",
+                )
             for metric, bound in metrics.items():
                 if bound.min is None and bound.max is None:
                     raise _FieldError(f"thresholds.{scheme}.{metric}", "give min, max or both")
@@ -563,15 +566,29 @@ def _submodel(annotation: Any) -> type[BaseModel] | None:
 def known_fields(loc: tuple[Any, ...]) -> list[str]:
     """Field names of the table at ``loc`` (a pydantic location inside a case), [] when it is not a table."""
     model: type[BaseModel] = Case
+    skip = 0  # keys of dict-valued fields (thresholds.<scheme>.<metric>) are not field names
     for part in loc:
         if isinstance(part, int) or _is_tag(part):
+            continue
+        if skip:
+            skip -= 1
             continue
         field = model.model_fields.get(part)
         sub = None if field is None else _submodel(field.annotation)
         if sub is None:
             return []
+        skip = _dict_depth(field.annotation)
         model = sub
     return list(model.model_fields)
+
+
+def _dict_depth(annotation: Any) -> int:
+    """How many dict levels wrap the model of a field (``dict[str, dict[str, Bound]]``: 2)."""
+    depth = 0
+    while get_origin(annotation) is dict:
+        depth += 1
+        annotation = get_args(annotation)[1]
+    return depth
 
 
 def did_you_mean(key: str, candidates: list[str]) -> str:

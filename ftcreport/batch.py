@@ -4,20 +4,29 @@ Edge module (files, processes, progress).  For each case file:
 
 * it is validated; a broken file is recorded (``<out>/<stem>/case.json`` with the
   error) and the batch goes on;
-* each scheme's run is skipped when ``<out>/<case>/<scheme>/key`` equals the hash of
-  (case content, package version) (``force`` re-runs); otherwise it is simulated
+* each scheme's run is skipped when ``<out>/<case>/<scheme>/key`` equals :func:`run_key`, the
+  hash of (case content, package version, scheme, the engine that runs it, the versions that
+  can change numbers: numpy, scipy, numba, ...) (``force`` re-runs); otherwise it is simulated
   in a worker process and stored atomically as soon as it finishes, so an
   interrupted batch keeps every finished run;
 * a run that fails (singular, diverged, error, or an exception in the worker) is
   stored with its status and reason.
 
 Progress: one line per running job with case, scheme and simulated time (rich).
+
+Provenance: ``<out>/manifest.json`` describes the batch (:mod:`ftcreport.manifest`: package,
+git revision, dependency versions, Python, platform, CPU; per run the engine, status, cache key
+and noise seed; per case its content hash); ``<out>/<case>/manifest.json`` the same for one case
+(its page shows it).  ``<out>/metrics.parquet`` holds every run's metrics, one row per
+(case, scheme, phase) (:func:`ftcreport.tidy.metrics_table`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import hashlib
+import json
 import multiprocessing as mp
 import os
 import queue as _queue
@@ -32,7 +41,16 @@ from .cases import SCHEME_NAMES, Case, case_hash, load_case, with_duration
 from .errors import CaseError
 from .store import cached_key, save_run, write_atomic, write_json
 
-__all__ = ["BatchResult", "discover", "failures_summary", "record_case", "run_batch"]
+__all__ = [
+    "BatchResult",
+    "discover",
+    "failures_summary",
+    "record_case",
+    "run_batch",
+    "run_key",
+    "write_case_manifest",
+    "write_manifests",
+]
 
 
 @dataclass
@@ -63,7 +81,7 @@ def _record(out: Path, name: str, payload: dict) -> None:
 
 
 def record_case(out: Path, case: Case, path: Path, duration: float | None = None) -> str:
-    """Store the case record and a copy of the case file (provenance); returns the cache key."""
+    """Store the case record and a copy of the case file (provenance); returns the case content hash."""
     key = case_hash(case, __version__)
     write_atomic(out / case.name / "case.toml", Path(path).read_bytes())
     schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
@@ -82,6 +100,79 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
     }
     _record(out, case.name, payload)
     return key
+
+
+def run_key(case: Case, scheme: str) -> str:
+    """Result cache key of one scheme of a case: case content, package version, scheme, engine and
+    the dependency versions that can change numbers (:func:`ftcreport.manifest.numeric_versions`)."""
+    from .manifest import numeric_versions
+    from .runner import expected_engine
+
+    blob = {
+        "case": case_hash(case, __version__),
+        "scheme": scheme,
+        "engine": expected_engine(scheme),
+        "versions": numeric_versions(),
+    }
+    return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _run_record(out: Path, case: Case, scheme: str, cached: bool) -> dict:
+    from .store import load_metrics
+
+    m = load_metrics(out, case.name, scheme) or {}
+    key = (
+        (out / case.name / scheme / "key").read_text().strip() if (out / case.name / scheme / "key").exists() else None
+    )
+    return {
+        "case": case.name,
+        "scheme": scheme,
+        "engine": m.get("engine"),
+        "status": m.get("status"),
+        "cached": cached,
+        "key": key,
+        "seed": case.plant.noise.seed,
+        "wall_time": m.get("wall_time"),
+    }
+
+
+def write_case_manifest(out: Path, case: Case, settings: dict, runs: list[dict] | None = None) -> Path:
+    """``<out>/<case>/manifest.json``: the environment, the case's content hash and its runs."""
+    from .manifest import build_manifest, write_manifest
+
+    out = Path(out)
+    if runs is None:
+        schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+        runs = [_run_record(out, case, s, False) for s in schemes if (out / case.name / s / "metrics.json").exists()]
+    one = build_manifest(
+        "case",
+        cases={case.name: case_hash(case, __version__)},
+        runs=runs,
+        seeds={case.name: case.plant.noise.seed},
+        settings=settings,
+    )
+    return write_manifest(out / case.name / "manifest.json", one)
+
+
+def write_manifests(out: Path, cases: list[Case], cached: set[tuple[str, str]], settings: dict) -> Path:
+    """``<out>/manifest.json`` for the batch and ``<out>/<case>/manifest.json`` per case; returns the first."""
+    from .manifest import build_manifest, write_manifest
+
+    out = Path(out)
+    all_runs = []
+    for case in cases:
+        schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+        runs = [_run_record(out, case, s, (case.name, s) in cached) for s in schemes]
+        all_runs += runs
+        write_case_manifest(out, case, settings, runs)
+    m = build_manifest(
+        "batch",
+        cases={c.name: case_hash(c, __version__) for c in cases},
+        runs=all_runs,
+        seeds={c.name: c.plant.noise.seed for c in cases},
+        settings=settings,
+    )
+    return write_manifest(out / "manifest.json", m)
 
 
 def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> dict:
@@ -132,6 +223,7 @@ def run_batch(
     res = BatchResult()
     todo: list[tuple[Case, str, str, str]] = []  # case, source, scheme, key
     expected: dict[str, set[str]] = {}  # case name -> run statuses that are not failures
+    loaded: list[Case] = []
     for path in discover(paths):
         try:
             case = load_case(path)
@@ -148,21 +240,38 @@ def run_batch(
             )
             continue
         res.cases.append(case.name)
-        key = record_case(out, case, Path(path), duration)
+        loaded.append(case)
+        record_case(out, case, Path(path), duration)
         expected[case.name] = set(case.expected_status)
         schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
         for s in schemes:
+            key = run_key(case, s)
             if not force and cached_key(out, case.name, s) == key:
                 res.cached.append((case.name, s))
             else:
                 todo.append((case, str(path), s, key))
     if todo:
         _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected)
+    settings = {"jobs": jobs, "force": force, "duration": duration}
+    write_manifests(out, loaded, set(res.cached), settings)
+    if _parquet_stale(out):
+        from .tidy import write_metrics_parquet
+
+        write_metrics_parquet(out)
     if render:
         from .report.render import render_all
 
         render_all(out)
     return res
+
+
+def _parquet_stale(out: Path) -> bool:
+    """metrics.parquet is missing or older than some run's metrics.json (a warm batch skips pandas)."""
+    pq = out / "metrics.parquet"
+    if not pq.exists():
+        return True
+    stamp = pq.stat().st_mtime_ns
+    return any(p.stat().st_mtime_ns > stamp for p in out.glob("*/*/metrics.json"))
 
 
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict) -> None:

@@ -13,11 +13,12 @@ can build variants in memory.
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args, get_origin
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -26,12 +27,41 @@ from .errors import CaseError, FtcError
 from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
 from .model.chain import THESIS_ROBOT
 
-__all__ = ["SCHEME_NAMES", "Case", "case_hash", "load_case", "parse_case"]
+__all__ = ["SCHEME_NAMES", "Case", "case_hash", "case_schema", "did_you_mean", "load_case", "parse_case"]
 
 SCHEME_NAMES = ("nominal", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf", "oracle")
 
-PosFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+def _f(default: Any, description: str, unit: str, **kw: Any) -> Any:
+    """A documented field: its description and unit appear in the JSON Schema and cases/README.md.
+
+    ``unit`` is an SI unit, ``"1"`` for a dimensionless number, ``"-"`` for a name, flag or table.
+    """
+    return Field(default, description=description, json_schema_extra={"unit": unit}, **kw)
+
+
+def _num(lo: float | None = None, hi: float | None = None, *, gt: float | None = None, lt: float | None = None):
+    """A finite float in a documented range (ge ``lo`` or gt ``gt``; le ``hi`` or lt ``lt``)."""
+    return Annotated[float, Field(ge=lo, gt=gt, le=hi, lt=lt, allow_inf_nan=False)]
+
+
+#: Documented ranges (issue 23 asks for one on every numeric field; the fuzzer relies on them).
+Coord = _num(-1e6, 1e6)  # a position [m]; the engine stops a run beyond 1e6 m
+Length = _num(None, 100.0, gt=0)  # a robot dimension [m]
+Signed = _num(-100.0, 100.0)  # a signed robot dimension [m]
+Mass = _num(None, 1e5, gt=0)
+Inertia = _num(0.0, 1e6)
+Angle = _num(-360.0, 360.0)  # [deg]
+Speed = _num(None, 100.0, gt=0)  # [m/s]
+Rate = _num(-100.0, 100.0)  # [rad/s]
+Gain = _num(None, 1e6, gt=0)
+Gain0 = _num(0.0, 1e6)
+Torque = _num(-1e4, 1e4)  # [N m]
+Time = _num(0.0, 1e6)  # [s]
+Unit = _num(0.0, 1.0)
+Std = _num(0.0, 1e3)
+Factor = _num(None, 1e3, gt=0)
+Limit = _num(-1e18, 1e18)  # a threshold on any metric
 
 
 class _Strict(BaseModel):
@@ -41,29 +71,24 @@ class _Strict(BaseModel):
 class Robots(_Strict):
     """Per-robot parameters: a scalar applies to every robot, a list is leader first."""
 
-    n: int = Field(ge=2, le=12)
-    a: Finite | list[Finite] = THESIS_ROBOT["a"]
-    b: Finite | list[Finite] = THESIS_ROBOT["b"]
-    r: Finite | list[Finite] = THESIS_ROBOT["r"]
-    m: Finite | list[Finite] = THESIS_ROBOT["m"]
-    I: Finite | list[Finite] = THESIS_ROBOT["I"]
-    d: Finite | list[Finite] = 1.0
+    n: int = _f(..., "number of robots (robot 1 is the leader)", "1", ge=2, le=12)
+    a: Signed | list[Signed] = _f(
+        THESIS_ROBOT["a"], "signed distance from the axle midpoint P_i to the centre of mass C_i", "m"
+    )
+    b: Length | list[Length] = _f(THESIS_ROBOT["b"], "half the distance between the driven wheels", "m")
+    r: Length | list[Length] = _f(THESIS_ROBOT["r"], "wheel radius", "m")
+    m: Mass | list[Mass] = _f(THESIS_ROBOT["m"], "mass", "kg")
+    I: Inertia | list[Inertia] = _f(THESIS_ROBOT["I"], "yaw inertia about C_i", "kg m^2")
+    d: Length | list[Length] = _f(1.0, "link lengths d_i = |P_i P_(i+1)|, n - 1 values leader first", "m")
 
     @model_validator(mode="after")
     def _lengths(self) -> Robots:
-        sign = {"b": "> 0", "r": "> 0", "m": "> 0", "d": "> 0", "I": ">= 0"}
         for key in ("a", "b", "r", "m", "I", "d"):
             v = getattr(self, key)
             count = self.n - 1 if key == "d" else self.n
             what = "link lengths" if key == "d" else "values"
             if isinstance(v, list) and len(v) != count:
                 raise _FieldError(f"robots.{key}", f"{len(v)} {what} given, a {self.n}-robot chain needs {count}")
-            vals = v if isinstance(v, list) else [v]
-            for i, x in enumerate(vals):
-                bad = (sign.get(key) == "> 0" and x <= 0) or (sign.get(key) == ">= 0" and x < 0)
-                if bad:
-                    where = f"robots.{key}[{i}]" if isinstance(v, list) else f"robots.{key}"
-                    raise _FieldError(where, f"must be {sign[key]}, got {x}")
         return self
 
     def values(self, key: str) -> list[float]:
@@ -73,25 +98,25 @@ class Robots(_Strict):
 
 
 class Reference(_Strict):
-    """Path of the last robot (a flat output of the chain)."""
+    """Path of the last robot's axle midpoint P_n (a flat output of the chain)."""
 
-    kind: Literal["unicycle", "circle", "eight", "line", "sinusoid"]
-    v_d: PosFloat | None = None  # unicycle [m/s]
-    omega_d: Finite | None = None  # unicycle [rad/s]
-    x0: Finite = 0.0  # unicycle start [m]
-    y0: Finite = 0.0
-    theta0_deg: Finite | None = None  # unicycle start heading, eight start heading [deg]
-    radius: PosFloat | None = None  # circle [m]
-    speed: PosFloat | None = None  # circle, line, sinusoid [m/s]
-    center: tuple[Finite, Finite] = (0.0, 0.0)  # circle [m]
-    start_angle_deg: Finite = -90.0  # circle: polar angle of the start point [deg]
-    ccw: bool = True
-    heading_deg: Finite = 0.0  # line, sinusoid [deg]
-    start: tuple[Finite, Finite] = (0.0, 0.0)  # line, sinusoid [m]
-    amplitude: Finite | None = None  # sinusoid [m]
-    frequency: PosFloat | None = None  # sinusoid [rad/s]
-    phase_deg: Finite = 0.0  # sinusoid phase [deg]; -90 starts along the heading
-    scale: PosFloat = 1.0  # eight
+    kind: Literal["unicycle", "circle", "eight", "line", "sinusoid"] = _f(..., "shape of the path", "-")
+    v_d: Speed | None = _f(None, "unicycle: forward speed (required)", "m/s")
+    omega_d: Rate | None = _f(None, "unicycle: turn rate (required)", "rad/s")
+    x0: Coord = _f(0.0, "unicycle: start x", "m")
+    y0: Coord = _f(0.0, "unicycle: start y", "m")
+    theta0_deg: Angle | None = _f(None, "unicycle, eight: start heading (eight: 45 as in the thesis)", "deg")
+    radius: _num(None, 1e5, gt=0) | None = _f(None, "circle: radius (required)", "m")
+    speed: Speed | None = _f(None, "circle, line, sinusoid: path speed (required)", "m/s")
+    center: tuple[Coord, Coord] = _f((0.0, 0.0), "circle: centre [x, y]", "m")
+    start_angle_deg: Angle = _f(-90.0, "circle: polar angle of the start point (-90: bottom, heading +x)", "deg")
+    ccw: bool = _f(True, "circle: counter-clockwise", "-")
+    heading_deg: Angle = _f(0.0, "line, sinusoid: direction of travel", "deg")
+    start: tuple[Coord, Coord] = _f((0.0, 0.0), "line, sinusoid: start point [x, y]", "m")
+    amplitude: _num(-1e4, 1e4) | None = _f(None, "sinusoid: amplitude (required)", "m")
+    frequency: _num(None, 100.0, gt=0) | None = _f(None, "sinusoid: angular frequency (required)", "rad/s")
+    phase_deg: Angle = _f(0.0, "sinusoid: phase (-90: y = A (1 - cos wt), starts along the heading)", "deg")
+    scale: _num(None, 1e3, gt=0) = _f(1.0, "eight: size factor (1: the thesis's 3 sin 0.3t, 5 sin 0.15t)", "1")
 
     @model_validator(mode="after")
     def _needed(self) -> Reference:
@@ -128,172 +153,227 @@ class Reference(_Strict):
 class Initial(_Strict):
     """Initial state: absolute, or as offsets from the reference at t = 0."""
 
-    mode: Literal["absolute", "offset"] = "offset"
-    x: Finite = 0.0  # absolute: P_n [m]; offset: added to x_d(0)
-    y: Finite = 0.0
-    headings_deg: list[Finite] | None = None  # absolute: theta_1..theta_n [deg]; offset: added per robot
-    heading_offset_deg: Finite = 0.0  # offset mode: added to every heading [deg]
-    eta: tuple[Finite, Finite] | None = None  # [v_n, omega_1]; default: the reference's (offset) or 0 (absolute)
+    mode: Literal["absolute", "offset"] = _f("offset", "offsets from the reference at t = 0, or absolute", "-")
+    x: Coord = _f(0.0, "P_n's x (absolute) or its offset from x_d(0)", "m")
+    y: Coord = _f(0.0, "P_n's y (absolute) or its offset from y_d(0)", "m")
+    headings_deg: list[Angle] | None = _f(None, "theta_1..theta_n, n values (absolute) or per-robot offsets", "deg")
+    heading_offset_deg: Angle = _f(0.0, "offset mode: added to every heading", "deg")
+    eta: tuple[_num(-1e3, 1e3), _num(-1e3, 1e3)] | None = _f(
+        None, "[v_n, omega_1]; default: the reference's (offset mode) or zero (absolute mode)", "m/s, rad/s"
+    )
 
 
 class Fault(_Strict):
-    """From ``time`` on, ``wheel`` has effectiveness ``sigma`` and friction ``ubar``."""
+    """From ``time`` on, ``wheel`` has effectiveness ``sigma`` and friction ``ubar``: tau = sigma u + ubar (2.101)."""
 
-    time: Annotated[float, Field(ge=0, allow_inf_nan=False)]
-    wheel: str
-    sigma: Annotated[float, Field(ge=0, le=1)] = 0.0
-    ubar: Finite = 0.0
+    time: Time = _f(..., "event time, before the end of the run (lands exactly on a step boundary)", "s")
+    wheel: str = _f(..., 'the wheel: "1r", "1l", ..., "nr", "nl"', "-")
+    sigma: Unit = _f(0.0, "effectiveness after the event (0: the motor gives no torque)", "1")
+    ubar: Torque = _f(0.0, "additive friction torque after the event", "N m")
 
 
 class Kinematic(_Strict):
     """Kinematic controller shared by every scheme."""
 
-    kind: Literal["two_link", "chained"]
-    k1: PosFloat | None = None
-    k2: PosFloat | None = None
-    k3: PosFloat | None = None
-    c_chain: Annotated[float, Field(ge=0)] | list[Annotated[float, Field(ge=0)]] = 0.3
-    c_alpha2: PosFloat = 2.0
-    c_xi1: PosFloat = 2.0
-    kappa: PosFloat = 5.0
-    mu: PosFloat = 1.0
-    band_deg: Annotated[float, Field(gt=0, lt=90)] = 45.0
+    kind: Literal["two_link", "chained"] = _f(
+        ..., '"two_link" (n = 2 only, thesis 3.2) or "chained" (any n, thesis 3.3)', "-"
+    )
+    k1: Gain | None = _f(None, "two_link: gain k1 of (3.27)-(3.28) (required)", "1/s")
+    k2: Gain | None = _f(None, "two_link: gain k2 of (3.27)-(3.28) (required)", "see (3.28)")
+    k3: Gain | None = _f(None, "two_link: gain k3 of (3.27)-(3.28) (required)", "1/s")
+    c_chain: Gain0 | list[Gain0] = _f(
+        0.3, "chained: gain of every virtual control, scalar or n values (ERRATA E12d)", "1/s"
+    )
+    c_alpha2: Gain = _f(2.0, "chained: the thesis's c4", "1/s")
+    c_xi1: Gain = _f(2.0, "chained: the thesis's c5", "1/s")
+    kappa: Gain = _f(5.0, "chained: weight of the x error in the Lyapunov function", "1")
+    mu: Gain = _f(1.0, "chained: length scale of the chain dynamics (1: the thesis design)", "1/m")
+    band_deg: _num(gt=0, lt=90) = _f(
+        45.0, "chained: re-anchor the chained-form frame when the reference heading leaves +/- band", "deg"
+    )
+
+
+_K_V = "velocity-error gain of the dynamic law (the thesis's k4 or c6)"
+_PATTERNS = (
+    '"all" (every compensable pattern) or a list of the wheels each model assumes failed, '
+    'e.g. [[], ["1r"], ["1r", "2l"]]'
+)
 
 
 class NominalScheme(_Strict):
-    k_v: PosFloat
+    """The law assuming healthy wheels (no FTC)."""
+
+    k_v: Gain = _f(..., _K_V, "1/s")
 
 
 class OracleScheme(_Strict):
-    k_v: PosFloat
+    """The law told the true sigma and ubar at every instant."""
+
+    k_v: Gain = _f(..., _K_V, "1/s")
 
 
 class SwitchingScheme(_Strict):
-    k_v: PosFloat
-    gamma: PosFloat = 10.0
-    T_min: Annotated[float, Field(ge=0)] = 0.01
-    c_inst: Annotated[float, Field(ge=0)] = 1.0
-    c_int: Annotated[float, Field(ge=0)] = 0.0
-    forgetting: PosFloat = 1.0
-    hysteresis: Annotated[float, Field(ge=0)] = 1e-10
-    patterns: Literal["all"] | list[list[str]] = "all"  # each entry: the wheels assumed failed
+    """Multiple models and switching (thesis 3.2, 3.3.1)."""
+
+    k_v: Gain = _f(..., _K_V, "1/s")
+    gamma: Gain = _f(10.0, "pole of the reconstruction filters", "1/s")
+    T_min: _num(0.0, 1e3) = _f(0.01, "waiting time between switches", "s")
+    c_inst: Gain0 = _f(1.0, "weight of the instantaneous cost", "1")
+    c_int: Gain0 = _f(0.0, "weight of the integral cost", "1")
+    forgetting: Gain = _f(1.0, "forgetting rate of the integral cost", "1/s")
+    hysteresis: Gain0 = _f(
+        1e-10,
+        "cost margin a new model must win by (costs within 1e-9 relative of the smallest are ties, "
+        "resolved to the lowest pattern index)",
+        "(m/s)^2",
+    )
+    patterns: Literal["all"] | list[list[str]] = _f("all", _PATTERNS, "-")
 
 
 class AdaptiveScheme(_Strict):
-    k_v: PosFloat
-    gamma: PosFloat = 1.0  # adaptation gain of every weight
-    Gamma_f: PosFloat = 1.0  # friction estimate gain (times the identity)
-    patterns: Literal["all"] | list[list[str]] = "all"
+    """Adaptive weights and friction estimate (thesis 3.3.2); weights start at 1 for the first pattern."""
+
+    k_v: Gain = _f(..., _K_V, "1/s")
+    gamma: Gain = _f(1.0, "adaptation gain of every weight", "1")
+    Gamma_f: Gain = _f(1.0, "friction estimate gain (times the identity)", "1")
+    patterns: Literal["all"] | list[list[str]] = _f("all", _PATTERNS, "-")
 
 
 class Diagnosis(_Strict):
     """Fault detection on the estimated gains and frictions (ftcreport.diagnosis)."""
 
-    gain_band: PosFloat = 0.1  # |rho_hat - reference| beyond this is an excursion
-    friction_band: PosFloat = 0.2  # [N m]
-    dwell: PosFloat = 2.0  # [s] an estimate steady this long at a new value is declared
-    settle_band: PosFloat | None = None  # "steady": within this of its window mean (default band / 4)
-    # a declared value within this of the true new value is a correct detection (issue 18)
-    gain_tolerance: PosFloat = 0.1
-    friction_tolerance: PosFloat = 0.2  # [N m]
+    gain_band: Gain = _f(0.1, "a gain estimate beyond this from the last declared value is an excursion", "1")
+    friction_band: Gain = _f(0.2, "the same for a friction estimate", "N m")
+    dwell: Gain = _f(2.0, "an estimate steady this long at a new value is declared", "s")
+    settle_band: Gain | None = _f(
+        None, "steady: within this of its window mean (default: a quarter of the band)", "1 or N m"
+    )
+    gain_tolerance: Gain = _f(0.1, "a declared gain within this of the true new value is a correct detection", "1")
+    friction_tolerance: Gain = _f(
+        0.2, "a declared friction within this of the true new value is a correct detection", "N m"
+    )
+
+
+_ESTIMATE = 'what the estimator identifies: "rho" (gains) and/or "ubar" (frictions)'
+_TAU = "filter 1/(tau s + 1) on the estimates the law uses (none by default)"
 
 
 class ActiveScheme(_Strict):
-    """Active FTC with the Farza et al. (2009) adaptive observer (thesis chapter 4)."""
+    """Active FTC with the Farza et al. (2009) adaptive observer (thesis chapter 4); only q is measured."""
 
-    k_v: PosFloat
-    Theta: PosFloat = 1.6
-    k0: PosFloat = 1.0
-    k1: PosFloat = 1.0
-    p0: PosFloat = 0.1
-    p_max: PosFloat = 1e3  # P guard: bound of P (the printed law has none; P grows like exp(Theta t))
-    estimate: list[Literal["rho", "ubar"]] = ["rho", "ubar"]
-    tau: PosFloat | None = None  # [s] filter 1/(tau s + 1) on the estimates used by the law
-    diagnosis: Diagnosis = Diagnosis()
-    # observer's initial q estimate: the first measurement, or 0 as in the thesis (4.2.4, x(0) = 0)
-    q_hat0: Literal["measured", "zero"] = "measured"
+    k_v: Gain = _f(..., _K_V, "1/s")
+    Theta: _num(None, 1e3, gt=0) = _f(1.6, "observer tuning parameter Theta", "1/s")
+    k0: Gain = _f(1.0, "observer gain k0", "1")
+    k1: Gain = _f(1.0, "observer gain k1", "1")
+    p0: _num(None, 1e12, gt=0) = _f(0.1, "P(0) = p0 I", "1")
+    p_max: _num(None, 1e15, gt=0) = _f(
+        1e3, "P guard: bound of P (ERRATA P3; the printed law has none, P grows like exp(Theta t))", "1"
+    )
+    estimate: list[Literal["rho", "ubar"]] = _f(["rho", "ubar"], _ESTIMATE, "-")
+    tau: Gain | None = _f(None, _TAU, "s")
+    diagnosis: Diagnosis = _f(Diagnosis(), "fault detection settings ([...diagnosis])", "-")
+    q_hat0: Literal["measured", "zero"] = _f(
+        "measured", "observer's initial q estimate: the first measurement, or 0 as in the thesis (4.2.4)", "-"
+    )
 
 
 class ActiveUKFScheme(_Strict):
-    """Active FTC with the augmented-state unscented Kalman filter (filterpy)."""
+    """Active FTC with the augmented-state unscented Kalman filter (filterpy); runs at the samples."""
 
-    k_v: PosFloat
-    meas_std: PosFloat = 1e-3  # [m, rad] R of the filter
-    eta_noise: Annotated[float, Field(ge=0)] = 1e-4  # [(m/s)^2/s]
-    rho_noise: Annotated[float, Field(ge=0)] = 1e-2  # random-walk intensity of the gains [1/s]
-    ubar_noise: Annotated[float, Field(ge=0)] = 1e-2  # [(N m)^2/s]
-    rho_std0: PosFloat = 0.3
-    ubar_std0: PosFloat = 0.5
-    estimate: list[Literal["rho", "ubar"]] = ["rho", "ubar"]
-    tau: PosFloat | None = None
-    diagnosis: Diagnosis = Diagnosis()
+    k_v: Gain = _f(..., _K_V, "1/s")
+    meas_std: _num(None, 1e3, gt=0) = _f(1e-3, "measurement standard deviation (R of the filter)", "m, rad")
+    eta_noise: Gain0 = _f(1e-4, "process noise intensity of the velocities", "(m/s)^2/s")
+    rho_noise: Gain0 = _f(1e-2, "random-walk intensity of the gains", "1/s")
+    ubar_noise: Gain0 = _f(1e-2, "random-walk intensity of the frictions", "(N m)^2/s")
+    rho_std0: Gain = _f(0.3, "initial standard deviation of the gains", "1")
+    ubar_std0: Gain = _f(0.5, "initial standard deviation of the frictions", "N m")
+    estimate: list[Literal["rho", "ubar"]] = _f(["rho", "ubar"], _ESTIMATE, "-")
+    tau: Gain | None = _f(None, _TAU, "s")
+    diagnosis: Diagnosis = _f(Diagnosis(), "fault detection settings ([...diagnosis])", "-")
 
 
 class Schemes(_Strict):
-    nominal: NominalScheme | None = None
-    switching: SwitchingScheme | None = None
-    adaptive: AdaptiveScheme | None = None
-    adaptive_frozen: AdaptiveScheme | None = None  # the same law with weights and friction frozen
-    active: ActiveScheme | None = None  # Farza observer + (4.14)
-    active_ukf: ActiveUKFScheme | None = None  # UKF + (4.14)
-    oracle: OracleScheme | None = None
+    """The schemes to run; every scheme present is run with the shared kinematic controller."""
+
+    nominal: NominalScheme | None = _f(None, "no FTC", "-")
+    switching: SwitchingScheme | None = _f(None, "multiple models + switching", "-")
+    adaptive: AdaptiveScheme | None = _f(None, "adaptive weights + friction estimate", "-")
+    adaptive_frozen: AdaptiveScheme | None = _f(None, "the adaptive law with weights and friction frozen", "-")
+    active: ActiveScheme | None = _f(None, "Farza observer + (4.14)", "-")
+    active_ukf: ActiveUKFScheme | None = _f(None, "UKF + (4.14)", "-")
+    oracle: OracleScheme | None = _f(None, "told the true faults", "-")
 
 
 class Simulation(_Strict):
-    dt: PosFloat
-    duration: PosFloat
-    method: Literal["rk4", "ros2"] = "rk4"
-    log_every: Annotated[int, Field(ge=1)] = 1
-    singularity_margin_deg: Annotated[float, Field(ge=0, lt=90)] = 2.0
+    """Integration settings."""
+
+    dt: _num(None, 10.0, gt=0) = _f(..., "step", "s")
+    duration: _num(None, 1e6, gt=0) = _f(..., "simulated time", "s")
+    method: Literal["rk4", "ros2"] = _f(
+        "rk4", "RK4, or the stiff-capable Rosenbrock W-method (for k_v in the thousands)", "-"
+    )
+    log_every: int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
+    singularity_margin_deg: _num(0.0, lt=90) = _f(
+        2.0, "stop (status singular) when an articulation angle comes this close to 90 deg", "deg"
+    )
 
 
 class Noise(_Strict):
-    """Measurement noise (standard deviations), drawn once per step, seeded."""
+    """Measurement noise (standard deviations) the controllers see, drawn once per step, seeded."""
 
-    position: Annotated[float, Field(ge=0)] = 0.0  # on x, y [m]
-    heading: Annotated[float, Field(ge=0)] = 0.0  # on every theta [rad]
-    velocity: Annotated[float, Field(ge=0)] = 0.0  # on v_n [m/s] and omega_1 [rad/s]
-    seed: int = 0
+    position: Std = _f(0.0, "on x and y", "m")
+    heading: Std = _f(0.0, "on every theta", "rad")
+    velocity: Std = _f(0.0, "on v_n and omega_1", "m/s, rad/s")
+    seed: int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**32 - 1)
 
 
 class Mismatch(_Strict):
     """Plant parameters = [robots] x these factors (the controllers keep [robots])."""
 
-    a: Finite | list[Finite] = 1.0
-    b: PosFloat | list[PosFloat] = 1.0
-    r: PosFloat | list[PosFloat] = 1.0
-    m: PosFloat | list[PosFloat] = 1.0
-    I: PosFloat | list[PosFloat] = 1.0
-    d: PosFloat | list[PosFloat] = 1.0
+    a: Signed | list[Signed] = _f(1.0, "factor on a", "1")
+    b: Factor | list[Factor] = _f(1.0, "factor on b", "1")
+    r: Factor | list[Factor] = _f(1.0, "factor on r", "1")
+    m: Factor | list[Factor] = _f(1.0, "factor on m", "1")
+    I: Factor | list[Factor] = _f(1.0, "factor on I", "1")
+    d: Factor | list[Factor] = _f(1.0, "factor on d", "1")
 
 
 class Plant(_Strict):
-    saturation: PosFloat | None = None  # |u| limit per wheel [N m]
-    noise: Noise = Noise()
-    mismatch: Mismatch = Mismatch()
+    """The simulated plant beyond [robots]: saturation, sensor noise, parameter mismatch."""
+
+    saturation: _num(None, 1e6, gt=0) | None = _f(
+        None, "limit on every wheel's control signal, applied before the fault model", "N m"
+    )
+    noise: Noise = _f(Noise(), "measurement noise ([plant.noise])", "-")
+    mismatch: Mismatch = _f(Mismatch(), "true parameters = [robots] x these factors ([plant.mismatch])", "-")
 
 
 class Bound(_Strict):
-    min: Finite | None = None
-    max: Finite | None = None
+    """Bounds on one metric."""
+
+    min: Limit | None = _f(None, "lower bound", "unit of the metric")
+    max: Limit | None = _f(None, "upper bound", "unit of the metric")
+
+
+_Count = Annotated[int, Field(ge=0, le=100)]
 
 
 class Claim(_Strict):
     """A thesis claim about the case, checked by ``ftcreport check`` (ftcreport.claims, issue 18)."""
 
-    id: str  # short name, unique in the case
-    source: str  # where the thesis says it: section, figure or table
-    words: str  # the thesis's words
-    expect: Literal["reproduced", "not reproduced", "not applicable"]  # the outcome check requires
-    note: str = ""  # what we measure beside it (shown on the page)
-    not_applicable: str | None = None  # why this simulation cannot check it (one sentence)
-    scheme: str | None = None  # whose metrics decide
-    metric: str | None = None  # a metrics.json name; "a.b" reads entry b of dict a
-    keys: list[str] | None = None  # dict metric: the entries compared (their largest)
-    min: Finite | None = None
-    max: Finite | None = None
-    relative_to: str | None = None  # bound on metric(scheme) / metric(relative_to)
-    sequence: list[int] | None = None  # switch_sequence: the applied models, 1-based, repeats merged
+    id: str = _f(..., "short name, unique in the case", "-")
+    source: str = _f(..., "where the thesis says it: section, figure or table", "-")
+    words: str = _f(..., "the thesis's words", "-")
+    expect: Literal["reproduced", "not reproduced", "not applicable"] = _f(..., "the outcome check requires", "-")
+    note: str = _f("", "what we measure beside it (shown on the page)", "-")
+    not_applicable: str | None = _f(None, "why this simulation cannot check it (one sentence)", "-")
+    scheme: str | None = _f(None, "whose metrics decide", "-")
+    metric: str | None = _f(None, 'a metrics.json name; "a.b" reads entry b of dict a', "-")
+    keys: list[str] | None = _f(None, "dict metric: the entries compared (their largest)", "-")
+    min: Limit | None = _f(None, "lower bound on the metric (or on the ratio with relative_to)", "metric's")
+    max: Limit | None = _f(None, "upper bound on the metric (or on the ratio with relative_to)", "metric's")
+    relative_to: str | None = _f(None, "bound on metric(scheme) / metric(relative_to)", "-")
+    sequence: list[int] | None = _f(None, "switch_sequence: the applied models, 1-based, repeats merged", "-")
 
     @model_validator(mode="after")
     def _decidable(self) -> Claim:
@@ -319,19 +399,23 @@ class Claim(_Strict):
 class CampaignSpec(_Strict):
     """Distributions a Monte Carlo campaign draws variants of the case from (ftcreport.campaign)."""
 
-    faults: tuple[Annotated[int, Field(ge=0)], Annotated[int, Field(ge=0)]] = (1, 2)  # events per sample
-    fault_time: tuple[Annotated[float, Field(ge=0)], Annotated[float, Field(ge=0)]]  # [s] uniform
-    wheels: Literal["any"] | list[str] = "any"  # wheels a fault may hit (distinct per sample)
-    sigma: tuple[Annotated[float, Field(ge=0, le=1)], Annotated[float, Field(ge=0, le=1)]] = (0.0, 0.0)
-    friction_probability: Annotated[float, Field(ge=0, le=1)] = 0.0  # a fault also adds a friction
-    ubar: tuple[Finite, Finite] = (0.0, 0.0)  # [N m] uniform
-    offset_position: Annotated[float, Field(ge=0)] = 0.0  # [m] uniform +/- on the initial x, y
-    offset_heading_deg: Annotated[float, Field(ge=0)] = 0.0  # [deg] uniform +/- on every initial heading
-    mismatch: Annotated[float, Field(ge=0, lt=1)] = 0.0  # relative +/- on the plant's m and I
-    noise_position: tuple[Annotated[float, Field(ge=0)], Annotated[float, Field(ge=0)]] = (0.0, 0.0)  # [m]
-    noise_heading: tuple[Annotated[float, Field(ge=0)], Annotated[float, Field(ge=0)]] = (0.0, 0.0)  # [rad]
-    keep_base_faults: bool = False
-    success: dict[str, Bound] = {"position_error_final": Bound(max=0.05)}  # a sample succeeds if all hold
+    faults: tuple[_Count, _Count] = _f((1, 2), "number of fault events per sample, each on a distinct wheel", "1")
+    fault_time: tuple[Time, Time] = _f(..., "event times; the upper bound must be before the end of the run", "s")
+    wheels: Literal["any"] | list[str] = _f("any", "wheels a fault may hit", "-")
+    sigma: tuple[Unit, Unit] = _f((0.0, 0.0), "effectiveness after the fault (0: motor lost)", "1")
+    friction_probability: Unit = _f(0.0, "probability that a fault also adds a friction", "1")
+    ubar: tuple[Torque, Torque] = _f((0.0, 0.0), "that friction", "N m")
+    offset_position: Std = _f(0.0, "+/- added to the initial x and y", "m")
+    offset_heading_deg: _num(0.0, 180.0) = _f(0.0, "+/- added to every initial heading", "deg")
+    mismatch: _num(0.0, lt=1) = _f(0.0, "+/- relative error of the plant's mass and inertia", "1")
+    noise_position: tuple[Std, Std] = _f((0.0, 0.0), "sensor-noise standard deviation on x, y", "m")
+    noise_heading: tuple[Std, Std] = _f((0.0, 0.0), "sensor-noise standard deviation on the headings", "rad")
+    keep_base_faults: bool = _f(False, "keep the case's own faults and add the drawn ones", "-")
+    success: dict[str, Bound] = _f(
+        {"position_error_final": Bound(max=0.05)},
+        "a sample succeeds for a scheme when its run completes and every bound holds",
+        "-",
+    )
 
     @model_validator(mode="after")
     def _ranges(self) -> CampaignSpec:
@@ -343,24 +427,29 @@ class CampaignSpec(_Strict):
 
 
 class Case(_Strict):
-    """A validated case (see cases/README.md for every field and unit)."""
+    """A validated case (cases/README.md documents every field; its tables are generated from these models)."""
 
-    name: str | None = None
-    description: str = ""
-    robots: Robots
-    reference: Reference
-    initial: Initial = Initial()
-    faults: list[Fault] = []
-    kinematic: Kinematic
-    schemes: Schemes
-    simulation: Simulation
-    plant: Plant = Plant()
-    recovery_band: PosFloat = 0.01  # [m] band of the recovery time
-    # run outcomes that are not failures for this case (a case built to lose tracking says so)
-    expected_status: list[Literal["ok", "singular", "diverged", "step_unstable"]] = ["ok"]
-    thresholds: dict[str, dict[str, Bound]] = {}
-    campaign: CampaignSpec | None = None  # distributions for `ftcreport campaign` (ignored by batch)
-    claims: list[Claim] = []  # thesis claims checked against the runs (ftcreport.claims)
+    name: str | None = _f(None, "defaults to the file name without .toml", "-")
+    description: str = _f("", "one line shown in reports", "-")
+    robots: Robots = _f(..., "the chain ([robots])", "-")
+    reference: Reference = _f(..., "the last robot's path ([reference])", "-")
+    initial: Initial = _f(Initial(), "initial state ([initial])", "-")
+    faults: list[Fault] = _f([], "fault events sorted by time ([[faults]])", "-")
+    kinematic: Kinematic = _f(..., "kinematic controller ([kinematic])", "-")
+    schemes: Schemes = _f(..., "the schemes to run ([schemes.<name>])", "-")
+    simulation: Simulation = _f(..., "integration settings ([simulation])", "-")
+    plant: Plant = _f(Plant(), "saturation, noise, mismatch ([plant])", "-")
+    recovery_band: _num(None, 1e3, gt=0) = _f(0.01, "the band of the recovery-time metric", "m")
+    expected_status: list[Literal["ok", "singular", "diverged", "step_unstable"]] = _f(
+        ["ok"],
+        "run outcomes that are not failures for batch/run exit codes (a case built to lose tracking lists them)",
+        "-",
+    )
+    thresholds: dict[str, dict[str, Bound]] = _f(
+        {}, "[thresholds.<scheme>] metric = { min, max } for ftcreport check", "-"
+    )
+    campaign: CampaignSpec | None = _f(None, "distributions for ftcreport campaign (ignored by batch)", "-")
+    claims: list[Claim] = _f([], "thesis claims checked against the runs ([[claims]], ftcreport.claims)", "-")
 
     @field_validator("faults")
     @classmethod
@@ -448,7 +537,10 @@ class Case(_Strict):
                     raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not configured in this case")
         for scheme, metrics in self.thresholds.items():
             if scheme not in SCHEME_NAMES:
-                raise _FieldError(f"thresholds.{scheme}", f"unknown scheme (known: {', '.join(SCHEME_NAMES)})")
+                raise _FieldError(
+                    f"thresholds.{scheme}",
+                    f"unknown scheme{did_you_mean(scheme, list(SCHEME_NAMES))} (known: {', '.join(SCHEME_NAMES)})",
+                )
             for metric, bound in metrics.items():
                 if bound.min is None and bound.max is None:
                     raise _FieldError(f"thresholds.{scheme}.{metric}", "give min, max or both")
@@ -490,9 +582,23 @@ class _FieldError(ValueError):
         self.msg = msg
 
 
+def _is_tag(part: Any) -> bool:
+    """A union member's tag in a pydantic error location (``constrained-float``, ``list[...]``, a model name)."""
+    if not isinstance(part, str):
+        return False
+    return "[" in part or part.startswith(("constrained-", "function-")) or part in _TAGS
+
+
+_TAGS = {"float", "int", "str", "bool", "list", "tuple", "dict", "none"} | {
+    cls.__name__ for cls in _Strict.__subclasses__()
+}
+
+
 def _format_loc(loc: tuple[Any, ...]) -> str:
     out = ""
     for part in loc:
+        if _is_tag(part):
+            continue
         if isinstance(part, int):
             out += f"[{part}]"
         else:
@@ -500,24 +606,111 @@ def _format_loc(loc: tuple[Any, ...]) -> str:
     return out
 
 
+def _submodel(annotation: Any) -> type[BaseModel] | None:
+    """The model class inside an annotation (``X | None``, ``list[X]``), or None."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in get_args(annotation):
+        found = _submodel(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def known_fields(loc: tuple[Any, ...]) -> list[str]:
+    """Field names of the table at ``loc`` (a pydantic location inside a case), [] when it is not a table."""
+    model: type[BaseModel] = Case
+    skip = 0  # keys of dict-valued fields (thresholds.<scheme>.<metric>) are not field names
+    for part in loc:
+        if isinstance(part, int) or _is_tag(part):
+            continue
+        if skip:
+            skip -= 1
+            continue
+        field = model.model_fields.get(part)
+        sub = None if field is None else _submodel(field.annotation)
+        if sub is None:
+            return []
+        skip = _dict_depth(field.annotation)
+        model = sub
+    return list(model.model_fields)
+
+
+def _dict_depth(annotation: Any) -> int:
+    """How many dict levels wrap the model of a field (``dict[str, dict[str, Bound]]``: 2)."""
+    depth = 0
+    while get_origin(annotation) is dict:
+        depth += 1
+        annotation = get_args(annotation)[1]
+    return depth
+
+
+def did_you_mean(key: str, candidates: list[str]) -> str:
+    """`` (did you mean 'k_v'?)`` for the closest of ``candidates`` (difflib), or ''."""
+    close = difflib.get_close_matches(key, candidates, n=1, cutoff=0.6)
+    if not close:
+        close = [c for c in candidates if c.lower() == key.lower()]
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+_BOUND_OPS = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", ">="), "less_than": ("lt", "<")}
+_BOUND_OPS["less_than_equal"] = ("le", "<=")
+
+
+def _message(err: dict) -> str:
+    """One reason for one pydantic error: ranges as 'must be >= 0, got -1', unknown keys with a suggestion."""
+    kind = err["type"]
+    if kind == "extra_forbidden":
+        key = str(err["loc"][-1])
+        return "unknown field" + did_you_mean(key, known_fields(tuple(err["loc"][:-1])))
+    if kind in _BOUND_OPS:
+        name, op = _BOUND_OPS[kind]
+        return f"must be {op} {err['ctx'][name]:g}, got {err['input']}"
+    return err["msg"].removeprefix("Value error, ")
+
+
+def _rank(err: dict) -> int:
+    """Errors of the union member that matches the input's type first (a type mismatch is the other member)."""
+    kind = err["type"]
+    if kind == "extra_forbidden":  # a misspelt key also makes its field "missing": name the typo first
+        return -1
+    return int(kind.endswith("_type") or kind == "literal_error" or kind.endswith("_parsing"))
+
+
 def parse_case(data: dict, source: str = "<case>") -> Case:
     """Validate a case given as a dict (parsed TOML); raise CaseError naming the field."""
     try:
         case = Case.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
+        errors = exc.errors()
+        err = min(errors, key=_rank)  # stable: the first of the best rank
         ctx_err = (err.get("ctx") or {}).get("error")
         if isinstance(ctx_err, _FieldError):
             raise CaseError(f"{source}: {ctx_err.loc}: {ctx_err.msg}") from None
-        loc = _format_loc(tuple(p for p in err["loc"] if not (isinstance(p, str) and p.startswith("function-"))))
-        msg = err["msg"].removeprefix("Value error, ")
-        if err["type"] == "extra_forbidden":
-            msg = "unknown field"
-        more = f" (and {len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
-        raise CaseError(f"{source}: {loc or '<root>'}: {msg}{more}") from None
+        loc = _format_loc(tuple(err["loc"]))
+        # other fields in error (the other members of a union at this field are not others)
+        others = {_format_loc(e["loc"]) for e in errors}
+        others = {o for o in others if not (loc == o or loc.startswith(o + ".") or loc.startswith(o + "["))}
+        more = f" (and {len(others)} more)" if others else ""
+        raise CaseError(f"{source}: {loc or '<root>'}: {_message(err)}{more}") from None
     if case.name is None:
         case = case.model_copy(update={"name": Path(source).stem})
     return case
+
+
+def case_schema() -> dict[str, Any]:
+    """The JSON Schema of a case file, generated from the models (descriptions, units, ranges).
+
+    ``ftcreport cases schema`` prints it; ``cases/case.schema.json`` is this, written by
+    ``python -m ftcreport.schema_doc`` (a test fails when it drifts).
+    """
+    schema = Case.model_json_schema(mode="validation")
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "$id": "https://ftcreport.invalid/case.schema.json",
+        **schema,
+        "title": "ftcreport case file",
+    }
 
 
 def load_case(path: str | Path) -> Case:

@@ -194,15 +194,16 @@ def run(
     if not quiet:
         for w in c.warnings():
             typer.echo(f"warning: {case}: {w}", err=True)
-    from .batch import record_case
+    from .batch import record_case, run_key, write_case_manifest
     from .report.render import render_case, render_index
 
-    key = record_case(out, c, case, duration)
+    record_case(out, c, case, duration)
     rows = []
     for s in schemes:
         r, m = run_scheme(c, s, built)
-        save_run(out, c.name, s, r, m, key)
+        save_run(out, c.name, s, r, m, run_key(c, s))
         rows.append(m)
+    write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
     page = render_case(out, c.name)
     render_index(out)
     if not quiet:
@@ -266,22 +267,42 @@ def check(
 
     Example: ftcreport check cases/ --junit reports/junit.xml
     """
+    import datetime as _dt
+    import time as _time
+
     from .batch import run_batch
     from .check import evaluate
     from .claims import evaluate_claims
     from .report.junit import write_junit
     from .store import load_metrics
 
+    started = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
+    wall0 = _time.perf_counter()
     res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
     results = []
     claims = []
+    run_times = {}
     for name in res.cases:
         rec = json.loads((out / name / "case.json").read_text())
         metrics = {s: load_metrics(out, name, s) for s in rec.get("schemes", [])}
+        run_times |= {(name, s): (m or {}).get("wall_time") or 0.0 for s, m in metrics.items()}
         results += evaluate(name, rec.get("thresholds", {}), metrics)
         claims += evaluate_claims(name, rec.get("claims", []), metrics)
     if junit is not None:
-        write_junit(junit, results, res.case_errors, claims=claims)
+        try:
+            manifest = json.loads((out / "manifest.json").read_text())
+        except (OSError, ValueError):
+            manifest = None
+        write_junit(
+            junit,
+            results,
+            res.case_errors,
+            claims=claims,
+            properties=manifest,
+            time=_time.perf_counter() - wall0,
+            timestamp=started,
+            run_times=run_times,
+        )
     for r in results:
         if not r.ok or not quiet:
             mark = "pass" if r.ok else "FAIL"
@@ -398,6 +419,29 @@ def campaign(
     )
     if res.failed:
         raise typer.Exit(1)
+
+
+@app.command()
+def export(
+    out: Annotated[Path, typer.Option(help="Output directory holding stored results.")] = Path("reports"),
+    dest: Annotated[Path | None, typer.Option(help="Where to write (default: beside the results, in OUT).")] = None,
+) -> None:
+    """Tidy files of stored results: netCDF per run and metrics.parquet (one row per case, scheme, phase).
+
+    Writes DEST/<case>/<scheme>/timeseries.nc (xarray/h5netcdf: dimensions time, coordinate,
+    velocity, wheel, robot, parameter, pattern; units in attributes; fault schedule and case hash
+    as metadata) and DEST/metrics.parquet.
+
+    Example: ftcreport export --out reports
+    """
+    from .tidy import export as _export
+
+    try:
+        paths = _export(out, dest)
+    except FtcError as exc:
+        _fail(exc)
+    n_nc = sum(p.suffix == ".nc" for p in paths)
+    typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")
 
 
 @cases_app.command("validate")
@@ -563,6 +607,28 @@ def fdi(
     typer.echo(f"{len(res['failed'])} failed; results {out_dir / 'fdi.json'}; report {page}")
     if res["failed"]:
         raise typer.Exit(1)
+
+
+@cases_app.command("schema")
+def cases_schema(
+    markdown: Annotated[
+        bool, typer.Option("--markdown", help="Print the field tables of cases/README.md instead.")
+    ] = False,
+) -> None:
+    """Print the JSON Schema of case files (descriptions, units, ranges), generated from the models.
+
+    Editors validate cases with it (taplo: the repository's .taplo.toml points at cases/case.schema.json).
+
+    Example: ftcreport cases schema > case.schema.json
+    """
+    if markdown:
+        from .schema_doc import markdown_tables
+
+        typer.echo(markdown_tables(), nl=False)
+        return
+    from .schema_doc import schema_json
+
+    typer.echo(schema_json(), nl=False)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from . import __version__
-from .cases import Case, build_chain, build_plant_chain, initial_state, switching_patterns
+from .cases import Case, build_chain, build_plant_chain, case_hash, initial_state, switching_patterns
 from .control.active import ActiveController
 from .control.adaptive import AdaptiveController
 from .control.baselines import OracleController, nominal
@@ -25,7 +25,19 @@ from .observers import FarzaObserver
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
-__all__ = ["Built", "build", "make_controller", "run_metrics", "run_scheme"]
+__all__ = ["Built", "build", "expected_engine", "make_controller", "run_metrics", "run_scheme"]
+
+#: Schemes whose controller the compiled engine does not know (they run in the Python loop).
+PYTHON_ENGINE_SCHEMES = ("active_ukf",)
+
+
+def expected_engine(scheme: str) -> str:
+    """The engine ``simulate(engine="auto")`` uses for a scheme built by :func:`make_controller`.
+
+    Part of the result cache key (``ftcreport.batch.run_key``), so it is known before the run;
+    ``tests/test_tidy.py`` checks it against the engine each run records.
+    """
+    return "python" if scheme in PYTHON_ENGINE_SCHEMES else "compiled"
 
 
 class Built:
@@ -152,6 +164,16 @@ def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=Non
         return empty, _identity(case, scheme) | {"status": "error", "reason": str(exc), "wall_time": 0.0}
     metrics = run_metrics(case, scheme, run, built, ctrl)
     metrics["wall_time"] = time.perf_counter() - wall0
+    run.meta |= {  # what the arrays do not carry (Run.to_xarray, notebook views)
+        "case": case.name,
+        "scheme": scheme,
+        "case_hash": metrics["case_hash"],
+        "n_robots": case.robots.n,
+        "package_version": __version__,
+    }
+    for key in ("estimated_parameters", "patterns"):
+        if key in metrics:
+            run.meta[key] = metrics[key]
     return run, metrics
 
 
@@ -165,6 +187,7 @@ def _identity(case: Case, scheme: str) -> dict:
         "dt": case.simulation.dt,
         "method": case.simulation.method,
         "package_version": __version__,
+        "case_hash": case_hash(case, __version__),  # content hash of the case (tidy exports, manifest)
     }
 
 

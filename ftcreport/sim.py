@@ -314,6 +314,31 @@ class Run:
         """True when the run completed without stopping early."""
         return self.status == STATUS_OK
 
+    def to_xarray(self):
+        """The run as an ``xarray.Dataset``: dimensions time, coordinate, velocity, wheel, robot, ...
+
+        Units in each variable's ``units`` attribute; status, engine, case hash and the fault
+        schedule as metadata (:func:`ftcreport.tidy.run_dataset`; xarray is imported only here).
+        """
+        from .tidy import run_dataset
+
+        return run_dataset(self)
+
+    def to_pandas(self):
+        """The run as a wide ``pandas.DataFrame`` indexed by time, columns ``q[x]``, ``tau[2l]``, ...
+
+        (:func:`ftcreport.tidy.run_frame`; pandas is imported only here).
+        """
+        from .tidy import run_frame
+
+        return run_frame(self)
+
+    def _repr_html_(self) -> str:
+        """Notebook view: summary table and a small figure (:mod:`ftcreport.report.notebook`)."""
+        from .report.notebook import run_html
+
+        return run_html(self)
+
 
 #: the signals the metrics read (ftcreport.runner, metrics, diagnosis): kept at every accepted step
 STREAM_SIGNALS = (
@@ -419,7 +444,9 @@ def simulate(
 
         spec = compiled_spec(controller)
         if spec is not None:
-            return simulate_compiled(spec, plant, q0, eta0, settings, grid, log_idx, progress)
+            run = simulate_compiled(spec, plant, q0, eta0, settings, grid, log_idx, progress)
+            run.meta["fault_schedule"] = _fault_records(plant)
+            return run
         if engine == "compiled":
             raise ModelError(f"engine: {type(controller).__name__} has no compiled counterpart")
 
@@ -578,10 +605,23 @@ def simulate(
         t_end=float(t),
         steps=int(k),
         wall_time=wall,
-        meta={"dt": settings.dt, "duration": settings.duration, "log_every": every},
+        meta={
+            "dt": settings.dt,
+            "duration": settings.duration,
+            "log_every": every,
+            "fault_schedule": _fault_records(plant),
+        },
         t_stream=t_stream[:si],
         stream=stream,
     )
+
+
+def _fault_records(plant: Plant) -> list[dict]:
+    """The plant's fault events as plain records (run metadata: exports and notebook views)."""
+    return [
+        {"time": float(e.time), "wheel": str(e.wheel), "sigma": float(e.sigma), "ubar": float(e.ubar)}
+        for e in plant.faults.events
+    ]
 
 
 def _step_rk4(deriv, t, x, h, k1, hold):

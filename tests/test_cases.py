@@ -37,7 +37,7 @@ def _base() -> dict:
         (lambda c: c["robots"].update(colour="red"), "robots.colour", "unknown field"),
         (lambda c: c["faults"].reverse(), "faults", "sorted by time"),
         (lambda c: c["simulation"].update(dt="fast"), "simulation.dt", "valid number"),
-        (lambda c: c["faults"][0].update(sigma=1.5), "faults[0].sigma", "less than or equal to 1"),
+        (lambda c: c["faults"][0].update(sigma=1.5), "faults[0].sigma", "must be <= 1, got 1.5"),
         (lambda c: c["robots"].update(d=[1.0]), "robots.d", "1 link lengths given, a 3-robot chain needs 2"),
         (lambda c: c["faults"][-1].update(time=500.0), "faults[9].time", "before the end"),
         (lambda c: c["kinematic"].update(kind="two_link"), "kinematic.kind", "needs 2 robots"),

@@ -16,3 +16,7 @@ def test_readme_python_blocks_run():
         exec(compile(code, f"README.md python block {i}", "exec"), ns)
     run = ns["run"]
     assert run.ok and run["rho_hat"].shape[1] == ns["chain"].n_wheels
+    # the tidy-data tour: a Dataset with units, a DataFrame, stored results read back
+    assert ns["ds"]["tau"].attrs["units"] == "N m" and ns["ds"].sizes["wheel"] == 4
+    assert list(ns["res"]["scheme"]) == ["nominal", "switching"]
+    assert (ns["stored"]["q"] == ns["sw"]["q"]).all() and (ns["reports"] / "switching.nc").exists()

@@ -1,24 +1,66 @@
-"""JUnit XML of threshold checks (one testcase per case x scheme x threshold)."""
+"""JUnit XML of threshold checks (one testcase per case x scheme x threshold).
+
+The suite carries ``time`` (seconds the check took), ``timestamp`` (when it started, ISO 8601
+UTC) and the provenance manifest as ``<properties>`` (flattened: ``ftcreport.git.revision``,
+``dependencies.numba``, ``platform.cpu``, ...); a testcase's ``time`` is its run's wall time.
+"""
 
 from __future__ import annotations
 
+import json
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 from xml.etree import ElementTree as ET
 
 from ..check import ThresholdResult
 from ..store import write_atomic
 
-__all__ = ["junit_xml", "write_junit"]
+__all__ = ["flatten", "junit_xml", "write_junit"]
 
 
-def junit_xml(results: list[ThresholdResult], errors: dict[str, str] | None = None, claims=None) -> bytes:
+def flatten(obj: Any, prefix: str = "") -> dict[str, str]:
+    """A nested manifest as ``{"a.b.c": "value"}`` (lists of records as JSON text)."""
+    out: dict[str, str] = {}
+    if isinstance(obj, Mapping):
+        for k, v in obj.items():
+            out |= flatten(v, f"{prefix}{k}.")
+        return out
+    key = prefix.removesuffix(".")
+    if isinstance(obj, list | tuple):
+        out[key] = json.dumps(obj, default=str)
+    else:
+        out[key] = "" if obj is None else str(obj)
+    return out
+
+
+def junit_xml(
+    results: list[ThresholdResult],
+    errors: dict[str, str] | None = None,
+    claims=None,
+    *,
+    properties: Mapping[str, Any] | None = None,
+    time: float | None = None,
+    timestamp: str | None = None,
+    run_times: Mapping[tuple[str, str], float] | None = None,
+) -> bytes:
     """JUnit XML; case files that failed to load appear as errored testcases.
 
     ``claims`` (ftcreport.claims.ClaimResult): one testcase per thesis claim, classname
     ``<case>.claims``, failed when its outcome differs from the expected one.
+
+    ``properties``: the manifest (nested; flattened into ``<property name value>``); ``time`` [s] and
+    ``timestamp`` of the suite; ``run_times``: wall time per (case, scheme) for the testcases.
     """
     errors = errors or {}
+    run_times = run_times or {}
     suite = ET.Element("testsuite", name="ftcreport.check")
+    if timestamp is not None:
+        suite.set("timestamp", timestamp)
+    if properties:
+        props = ET.SubElement(suite, "properties")
+        for name, value in flatten(properties).items():
+            ET.SubElement(props, "property", name=name, value=value)
     n_fail = 0
     for r in results:
         tc = ET.SubElement(
@@ -26,6 +68,7 @@ def junit_xml(results: list[ThresholdResult], errors: dict[str, str] | None = No
             "testcase",
             classname=f"{r.case}.{r.scheme}",
             name=r.metric,
+            time=f"{float(run_times.get((r.case, r.scheme)) or 0.0):.3f}",
         )
         expected = " and ".join(
             x for x in (f">= {r.min:g}" if r.min is not None else "", f"<= {r.max:g}" if r.max is not None else "") if x
@@ -50,8 +93,12 @@ def junit_xml(results: list[ThresholdResult], errors: dict[str, str] | None = No
     suite.set("tests", str(len(results) + len(claims) + len(errors)))
     suite.set("failures", str(n_fail))
     suite.set("errors", str(len(errors)))
+    suite.set("time", f"{0.0 if time is None else float(time):.3f}")
     return ET.tostring(suite, encoding="utf-8", xml_declaration=True)
 
 
-def write_junit(path: Path, results: list[ThresholdResult], errors: dict[str, str] | None = None, claims=None) -> None:
-    write_atomic(Path(path), junit_xml(results, errors, claims))
+def write_junit(
+    path: Path, results: list[ThresholdResult], errors: dict[str, str] | None = None, claims=None, **suite: Any
+) -> None:
+    """Write :func:`junit_xml` atomically (``suite``: its keyword arguments)."""
+    write_atomic(Path(path), junit_xml(results, errors, claims, **suite))

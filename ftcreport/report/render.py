@@ -252,6 +252,7 @@ def render_case(out: Path, name: str) -> Path | None:
         versions=dependency_versions(),
         simulated=rec.get("time", "-"),
         case_text=text,
+        manifest=_manifest(out, name),
     )
     write_atomic(page, html.encode())
     return page
@@ -297,6 +298,25 @@ def _claims(name: str, case, runs: list[dict]) -> list:
     from ..claims import evaluate_claims
 
     return evaluate_claims(name, case.claims, {m["scheme"]: m for m in runs})
+
+
+def _manifest(out: Path, name: str) -> dict | None:
+    """The case's provenance manifest (``<case>/manifest.json``, written by batch and run), or None."""
+    try:
+        m = json.loads((out / name / "manifest.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return m if isinstance(m, dict) and "ftcreport" in m else None
+
+
+def _manifest_stamp(out: Path, name: str) -> bytes:
+    """What of the manifest a page shows, without the times and cache flags that change every batch."""
+    m = _manifest(out, name)
+    if m is None:
+        return b"-"
+    keep = {k: v for k, v in m.items() if k not in ("created", "runs", "settings")}
+    keep["runs"] = [{k: r.get(k) for k in ("scheme", "engine", "status", "key", "seed")} for r in m.get("runs", [])]
+    return json.dumps(keep, sort_keys=True).encode()
 
 
 def _analysis(case, names) -> dict | None:
@@ -429,6 +449,7 @@ def _page_stamp(out: Path, name: str) -> str:
             if p.exists():
                 st = p.stat()
                 h.update(f"{s}/{f}:{st.st_size}:{st.st_mtime_ns}".encode())
+    h.update(_manifest_stamp(out, name))
     for t in sorted(resources.files("ftcreport.templates").iterdir(), key=lambda p: p.name):
         if t.name.endswith(".html"):
             h.update(t.read_bytes())

@@ -1,0 +1,401 @@
+"""Tidy views of results: xarray Datasets, pandas DataFrames, netCDF and Parquet files.
+
+A :class:`~ftcreport.sim.Run` becomes an ``xarray.Dataset`` with named dimensions
+
+* ``time`` [s] (the logged instants),
+* ``coordinate`` (``x, y, theta_n, ..., theta_1``: the order of q),
+* ``velocity`` (``v_n, omega_1``: the order of eta),
+* ``wheel`` (``1r, 1l, ..., nr, nl``) with the auxiliary coordinate ``robot_of_wheel``,
+* ``robot`` (1..n, leader first) for the derived ``heading``,
+* ``parameter`` (the estimated gains and frictions of an active scheme),
+* ``pattern`` (the models of the switching and adaptive schemes),
+
+units in each variable's ``units`` attribute, and as metadata the case, the scheme, the case
+content hash (the result cache key), the status and reason, the engine, and the fault schedule
+(both as the ``fault_*`` variables along ``fault_event`` and as the JSON attribute
+``fault_schedule``).  :func:`write_netcdf` stores it (h5netcdf); :func:`read_run` reads a stored
+run back.  :func:`metrics_table` gives the batch's metrics, one row per (case, scheme, phase), with
+the dtypes of :data:`METRICS_DTYPES`; :func:`write_metrics_parquet` stores it as
+``metrics.parquet`` beside the JSON.  :func:`export` does both for a whole output directory
+(``ftcreport export``).
+
+pandas and xarray are imported inside the functions: the numeric core does not load them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .model.faults import wheel_names
+
+if TYPE_CHECKING:  # pragma: no cover
+    import pandas as pd
+    import xarray as xr
+
+    from .sim import Run
+
+__all__ = [
+    "METRICS_DTYPES",
+    "UNITS",
+    "export",
+    "metrics_table",
+    "read_run",
+    "run_dataset",
+    "run_frame",
+    "write_metrics_parquet",
+    "write_netcdf",
+]
+
+_Q = "m (x, y), rad (theta_i)"
+_ETA = "m/s (v_n), rad/s (omega_1)"
+#: signal name -> (dimensions after time, units, long name); others get generic dimensions.
+UNITS: dict[str, tuple[tuple[str, ...], str, str]] = {
+    "q": (("coordinate",), _Q, "configuration q = [x, y, theta_n, ..., theta_1]"),
+    "q_d": (("coordinate",), _Q, "reference configuration"),
+    "q_hat": (("coordinate",), _Q, "estimated configuration"),
+    "q_meas": (("coordinate",), _Q, "measured configuration (with sensor noise)"),
+    "eta": (("velocity",), _ETA, "velocities eta = [v_n, omega_1]"),
+    "eta_c": (("velocity",), _ETA, "velocity command of the kinematic controller"),
+    "eta_c_dot": (("velocity",), "m/s^2 (v_n), rad/s^2 (omega_1)", "derivative of the velocity command"),
+    "eta_d": (("velocity",), _ETA, "reference velocities"),
+    "eta_hat": (("velocity",), _ETA, "estimated velocities"),
+    "u": (("wheel",), "N m", "commanded torque"),
+    "tau": (("wheel",), "N m", "applied torque tau = sigma sat(u) + ubar"),
+    "sigma": (("wheel",), "1", "true effectiveness"),
+    "ubar": (("wheel",), "N m", "true additive friction"),
+    "sigma_used": (("wheel",), "1", "effectiveness the law uses"),
+    "ubar_used": (("wheel",), "N m", "friction the law uses"),
+    "rho_hat": (("wheel",), "1", "estimated effectiveness"),
+    "ubar_hat": (("wheel",), "N m", "estimated friction"),
+    "uf_hat": (("wheel",), "N m", "friction estimate of the adaptive law (a control variable)"),
+    "param_std": (("parameter",), "1 (rho), N m (ubar)", "standard deviation of the estimated parameters"),
+    "P_max": ((), "1", "largest entry of the observer's P"),
+    "selected": ((), "1", "index of the applied model"),
+    "cost": (("pattern",), "(m/s)^2", "switching cost of every model"),
+    "chi_hat": (("pattern", "wheel"), "1", "adaptive weights"),
+    "z": (("chained",), "chained-form coordinates", "chained-form coordinates of the kinematic controller"),
+    "xc": (("controller_state",), "mixed", "controller state"),
+}
+
+
+def _labels(n: int) -> dict[str, list[str]]:
+    return {
+        "coordinate": ["x", "y", *[f"theta_{i}" for i in range(n, 0, -1)]],
+        "velocity": ["v_n", "omega_1"],
+        "wheel": list(wheel_names(n)),
+    }
+
+
+def _n_robots(run: Run) -> int:
+    if "q" in run.signals:
+        return int(run.signals["q"].shape[1]) - 2
+    return int(run.meta.get("n_robots", 0))
+
+
+def run_dataset(run: Run) -> xr.Dataset:
+    """The run as an ``xarray.Dataset`` (see the module docstring for dimensions and metadata).
+
+    ``run.meta`` supplies what the arrays do not carry: ``case``, ``scheme``, ``case_hash``,
+    ``engine``, ``fault_schedule`` (list of {time, wheel, sigma, ubar}), ``estimated_parameters``,
+    ``patterns``; runs made by :func:`ftcreport.runner.run_scheme` or read by :func:`read_run` have them.
+    """
+    import xarray as xr
+
+    n = _n_robots(run)
+    labels = _labels(n) if n > 0 else {}
+    meta = run.meta
+    data_vars: dict[str, Any] = {}
+    coords: dict[str, Any] = {"time": ("time", np.asarray(run.t, dtype=float), {"units": "s", "long_name": "time"})}
+    sizes: dict[str, int] = {}
+    for name, arr in run.signals.items():
+        arr = np.asarray(arr)
+        known = UNITS.get(name)
+        dims: tuple[str, ...]
+        if known is not None and len(known[0]) == arr.ndim - 1:
+            dims = known[0]
+        else:
+            dims = tuple(f"{name}_dim{i}" for i in range(1, arr.ndim))
+        for d, size in zip(dims, arr.shape[1:], strict=True):
+            if d in sizes and sizes[d] != size:  # a signal whose width differs from the shared dimension
+                dims = tuple(f"{name}_dim{i}" for i in range(1, arr.ndim))
+                break
+        for d, size in zip(dims, arr.shape[1:], strict=True):
+            sizes[d] = size
+        attrs = {"units": known[1], "long_name": known[2]} if known is not None else {"units": "unknown"}
+        data_vars[name] = (("time", *dims), arr, attrs)
+    for dim, labs in labels.items():
+        if sizes.get(dim) == len(labs):
+            coords[dim] = (dim, labs)
+    if "wheel" in coords:
+        coords["robot_of_wheel"] = ("wheel", np.repeat(np.arange(1, n + 1), 2), {"long_name": "robot of the wheel"})
+    if "coordinate" in coords:
+        units = ["m", "m"] + ["rad"] * n
+        coords["coordinate_unit"] = ("coordinate", units)
+    if "q" in run.signals and n > 0:
+        heading = np.asarray(run.signals["q"])[:, 2:][:, ::-1]  # theta_1..theta_n
+        data_vars["heading"] = (("time", "robot"), heading, {"units": "rad", "long_name": "heading of robot i"})
+        coords["robot"] = ("robot", np.arange(1, n + 1), {"long_name": "robot (1 = leader)"})
+    params = meta.get("estimated_parameters")
+    if params and sizes.get("parameter") == len(params):
+        coords["parameter"] = ("parameter", list(params))
+    patterns = meta.get("patterns")
+    if patterns is not None and sizes.get("pattern") == len(patterns):
+        coords["pattern"] = ("pattern", np.arange(len(patterns)))
+        coords["pattern_failed"] = (
+            "pattern",
+            [",".join(w for w, s in zip(labels.get("wheel", []), p, strict=False) if s == 0) for p in patterns],
+            {"long_name": "wheels the model assumes failed"},
+        )
+    faults = list(meta.get("fault_schedule") or [])
+    data_vars["fault_time"] = (("fault_event",), np.array([f["time"] for f in faults], dtype=float), {"units": "s"})
+    data_vars["fault_wheel"] = (("fault_event",), np.array([str(f["wheel"]) for f in faults], dtype=str))
+    data_vars["fault_sigma"] = (("fault_event",), np.array([f["sigma"] for f in faults], dtype=float), {"units": "1"})
+    data_vars["fault_ubar"] = (("fault_event",), np.array([f["ubar"] for f in faults], dtype=float), {"units": "N m"})
+    attrs = {
+        "title": f"ftcreport run {meta.get('case', '?')} / {meta.get('scheme', '?')}",
+        "case": str(meta.get("case", "")),
+        "scheme": str(meta.get("scheme", "")),
+        "case_hash": str(meta.get("case_hash", "")),
+        "status": run.status,
+        "reason": run.reason,
+        "t_end": float(run.t_end),
+        "steps": int(run.steps),
+        "wall_time": float(run.wall_time),
+        "engine": str(meta.get("engine", "python")),
+        "n_robots": n,
+        "fault_schedule": json.dumps(faults),
+        "package_version": str(meta.get("package_version", "")),
+    }
+    for key in ("dt", "duration", "log_every"):
+        if key in meta:
+            attrs[key] = meta[key]
+    return xr.Dataset(data_vars, coords=coords, attrs=attrs)
+
+
+def run_frame(run: Run) -> pd.DataFrame:
+    """The run as a wide ``pandas.DataFrame``: index ``time`` [s], one column per signal component.
+
+    Columns are ``name[label]`` (``q[x]``, ``tau[2l]``, ``chi_hat[3,1r]``); a scalar signal keeps its
+    name.  ``df.attrs`` holds the metadata and ``df.attrs["units"]`` the unit of every column.
+    """
+    import pandas as pd
+
+    ds = run_dataset(run)
+    cols: dict[str, np.ndarray] = {}
+    units: dict[str, str] = {}
+    for name, var in ds.data_vars.items():
+        if var.dims[:1] != ("time",):
+            continue
+        arr = var.values.reshape(var.shape[0], -1)
+        if var.ndim == 1:
+            keys = [name]
+        else:
+            axes = [
+                [str(v) for v in ds[d].values] if d in ds.coords else [str(i) for i in range(ds.sizes[d])]
+                for d in var.dims[1:]
+            ]
+            combos = [[]]
+            for ax in axes:
+                combos = [[*c, a] for c in combos for a in ax]
+            keys = [f"{name}[{','.join(c)}]" for c in combos]
+        for k, col in zip(keys, arr.T, strict=True):
+            cols[k] = col
+            units[k] = var.attrs.get("units", "")
+    df = pd.DataFrame(cols, index=pd.Index(ds["time"].values, name="time"))
+    df.attrs = {**{k: v for k, v in ds.attrs.items()}, "units": units}
+    return df
+
+
+def write_netcdf(path: Path, run: Run) -> Path:
+    """Store the run's Dataset as netCDF-4 (h5netcdf, deflated), atomically."""
+    from .store import write_atomic
+
+    ds = run_dataset(run)
+    # deflate the numeric arrays of a long run (Table 4.2, 2001 samples: 2.9 MB instead of 3.5 MB; the
+    # .npz is 2.6 MB); a short run's arrays are smaller than the chunk and filter overhead
+    enc = {}
+    if ds.sizes.get("time", 0) >= 256:
+        enc = {k: {"zlib": True, "complevel": 4} for k, v in ds.variables.items() if v.dtype.kind in "fiu" and v.size}
+    data = ds.to_netcdf(engine="h5netcdf", encoding=enc)
+    write_atomic(Path(path), bytes(data))
+    return Path(path)
+
+
+def read_run(out: Path, case: str, scheme: str) -> Run | None:
+    """A stored run (``<out>/<case>/<scheme>/``) as a :class:`Run` with its metadata, or None."""
+    import tomllib
+
+    from .cases import parse_case
+    from .sim import Run
+    from .store import load_metrics, load_timeseries
+
+    out = Path(out)
+    ts = load_timeseries(out, case, scheme)
+    m = load_metrics(out, case, scheme)
+    if ts is None or m is None:
+        return None
+    t = ts.pop("t")
+    meta: dict[str, Any] = {
+        "case": case,
+        "scheme": scheme,
+        "engine": m.get("engine", "python"),
+        "dt": m.get("dt"),
+        "duration": m.get("duration"),
+        "n_robots": m.get("n_robots"),
+        "package_version": m.get("package_version", ""),
+    }
+    if m.get("estimated_parameters"):
+        meta["estimated_parameters"] = m["estimated_parameters"]
+    if m.get("patterns") is not None:
+        meta["patterns"] = m["patterns"]
+    meta["case_hash"] = m.get("case_hash", "")
+    toml = out / case / "case.toml"
+    if toml.exists():
+        try:
+            c = parse_case(tomllib.loads(toml.read_text()), str(toml))
+            meta["fault_schedule"] = [f.model_dump() for f in c.faults if f.time < (m.get("duration") or math.inf)]
+        except Exception:  # a record whose case no longer validates still gives its arrays
+            meta["fault_schedule"] = []
+    meta = {k: v for k, v in meta.items() if v is not None}
+    return Run(
+        t=t,
+        signals=ts,
+        status=m.get("status", "ok"),
+        reason=m.get("reason", "") or "",
+        t_end=float(m.get("t_end") or (t[-1] if t.size else 0.0)),
+        wall_time=float(m.get("wall_time") or 0.0),
+        meta=meta,
+    )
+
+
+#: Columns of metrics.parquet and their pandas dtypes (nullable where a run may lack the value).
+METRICS_DTYPES: dict[str, str] = {
+    "case": "string",
+    "scheme": "string",
+    "phase": "Int32",  # 0 for the interval before the first event; <NA> for a run without phases
+    "phase_start": "float64",  # [s]
+    "phase_end": "float64",  # [s]
+    "phase_position_error_max": "float64",  # [m]
+    "phase_position_error_rms": "float64",  # [m]
+    "phase_position_error_final": "float64",  # [m]
+    "phase_position_error_iae": "float64",  # [m s]
+    "phase_recovery_time": "float64",  # [s]; NaN when the error never re-enters the band
+    "status": "string",
+    "reason": "string",
+    "engine": "string",
+    "case_hash": "string",
+    "n_robots": "Int32",
+    "reference_kind": "string",
+    "method": "string",
+    "dt": "float64",  # [s]
+    "duration": "float64",  # [s]
+    "t_end": "float64",  # [s]
+    "position_error_max": "float64",  # [m]
+    "position_error_final": "float64",  # [m]
+    "position_error_rms": "float64",  # [m]
+    "position_error_iae": "float64",  # [m s]
+    "heading_error_max": "float64",  # [rad]
+    "heading_error_final": "float64",  # [rad]
+    "recovery_time_max": "float64",  # [s]
+    "torque_peak": "float64",  # [N m]
+    "torque_rms": "float64",  # [N m]
+    "saturation_fraction": "float64",
+    "energy": "float64",  # [J]
+    "singularity_margin_min": "float64",  # [rad]
+    "switch_count": "Int32",
+    "switching_match_fraction": "float64",
+    "detection_delay_max": "float64",  # [s]
+    "missed_detections": "Int32",
+    "false_alarms": "Int32",
+    "wall_time": "float64",  # [s]
+    "package_version": "string",
+}
+
+
+def _phase_rows(m: dict, key: str) -> list[dict]:
+    base = {c: m.get(c) for c in METRICS_DTYPES if not c.startswith("phase")}
+    base["case_hash"] = m.get("case_hash") or key
+    phases = m.get("phases") or []
+    if not phases:
+        return [base | {"phase": None}]
+    rows = []
+    for i, p in enumerate(phases):
+        row = dict(base)
+        row["phase"] = i
+        row["phase_start"] = p.get("start")
+        row["phase_end"] = p.get("end")
+        for k in ("position_error_max", "position_error_rms", "position_error_final", "position_error_iae"):
+            row[f"phase_{k}"] = p.get(k)
+        row["phase_recovery_time"] = p.get("recovery_time")
+        rows.append(row)
+    return rows
+
+
+def metrics_table(out: Path) -> pd.DataFrame:
+    """Every stored run's metrics under ``out``: one row per (case, scheme, phase), :data:`METRICS_DTYPES`."""
+    import pandas as pd
+
+    from .cases import SCHEME_NAMES
+    from .store import load_metrics
+
+    out = Path(out)
+    rows: list[dict] = []
+    for rec in sorted(out.glob("*/case.json")):
+        name = rec.parent.name
+        for s in SCHEME_NAMES:
+            m = load_metrics(out, name, s)
+            if m is None:
+                continue
+            key_path = out / name / s / "key"
+            key = key_path.read_text().strip() if key_path.exists() else ""
+            rows += _phase_rows({"case": name, "scheme": s} | m, key)
+    df = pd.DataFrame(rows, columns=list(METRICS_DTYPES))
+    for col, dtype in METRICS_DTYPES.items():
+        if dtype == "float64":
+            df[col] = pd.to_numeric(df[col], errors="coerce").astype("float64")
+        else:
+            df[col] = df[col].astype(dtype)
+    return df
+
+
+def write_metrics_parquet(out: Path, path: Path | None = None) -> Path:
+    """``metrics.parquet`` (pyarrow) beside the runs' JSON, atomically; returns its path."""
+    import io
+
+    from .store import write_atomic
+
+    out = Path(out)
+    path = Path(path) if path is not None else out / "metrics.parquet"
+    buf = io.BytesIO()
+    metrics_table(out).to_parquet(buf, engine="pyarrow", index=False)
+    write_atomic(path, buf.getvalue())
+    return path
+
+
+def export(out: Path, dest: Path | None = None) -> list[Path]:
+    """netCDF of every stored run (``<dest>/<case>/<scheme>/timeseries.nc``) and ``<dest>/metrics.parquet``.
+
+    ``dest`` defaults to ``out`` (the files go beside the JSON and ``.npz``).
+    """
+    from .cases import SCHEME_NAMES
+    from .errors import FtcError
+
+    out = Path(out)
+    dest = Path(dest) if dest is not None else out
+    if not out.is_dir() or not any(out.glob("*/case.json")):
+        raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
+    written = []
+    for rec in sorted(out.glob("*/case.json")):
+        name = rec.parent.name
+        for s in SCHEME_NAMES:
+            run = read_run(out, name, s)
+            if run is None:
+                continue
+            written.append(write_netcdf(dest / name / s / "timeseries.nc", run))
+    written.append(write_metrics_parquet(out, dest / "metrics.parquet"))
+    return written

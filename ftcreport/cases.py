@@ -373,7 +373,9 @@ class Claim(_Strict):
     min: Limit | None = _f(None, "lower bound on the metric (or on the ratio with relative_to)", "metric's")
     max: Limit | None = _f(None, "upper bound on the metric (or on the ratio with relative_to)", "metric's")
     relative_to: str | None = _f(None, "bound on metric(scheme) / metric(relative_to)", "-")
-    sequence: list[int] | None = _f(None, "switch_sequence: the applied models, 1-based, repeats merged", "-")
+    sequence: list[Annotated[int, Field(ge=1, le=10**6)]] | None = _f(
+        None, "switch_sequence: the applied models, 1-based, repeats merged", "-"
+    )
 
     @model_validator(mode="after")
     def _decidable(self) -> Claim:

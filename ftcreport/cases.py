@@ -225,6 +225,10 @@ class ActiveUKFScheme(_Strict):
 
 
 class Schemes(_Strict):
+    # issue 21: every family runs unless `run` narrows the list; a family without its table gets the
+    # defaults of ftcreport.families (k_v: this value, else the first table's, else the thesis's)
+    run: list[Literal[SCHEME_NAMES]] | None = None
+    k_v: PosFloat | None = None
     nominal: NominalScheme | None = None
     switching: SwitchingScheme | None = None
     adaptive: AdaptiveScheme | None = None
@@ -392,8 +396,14 @@ class Case(_Strict):
                         wheel_index(w, n)
                     except FtcError as exc:
                         raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
-        if not any(getattr(self.schemes, s) is not None for s in SCHEME_NAMES):
-            raise _FieldError("schemes", "no scheme to run (give at least one of " + ", ".join(SCHEME_NAMES) + ")")
+        run = self.schemes.run
+        if run is not None and not run:
+            raise _FieldError(
+                "schemes", "no scheme to run: schemes.run is empty (list some of " + ", ".join(SCHEME_NAMES) + ")"
+            )
+        for s in SCHEME_NAMES:
+            if run is not None and getattr(self.schemes, s) is not None and s not in run:
+                raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")
         for scheme, metrics in self.thresholds.items():
             if scheme not in SCHEME_NAMES:
                 raise _FieldError(f"thresholds.{scheme}", f"unknown scheme (known: {', '.join(SCHEME_NAMES)})")
@@ -465,7 +475,9 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         raise CaseError(f"{source}: {loc or '<root>'}: {msg}{more}") from None
     if case.name is None:
         case = case.model_copy(update={"name": Path(source).stem})
-    return case
+    from .families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
+
+    return fill_defaults(case)
 
 
 def load_case(path: str | Path) -> Case:

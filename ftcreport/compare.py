@@ -231,13 +231,15 @@ def compare_metric(rows: Sequence[Row], spec: MetricSpec) -> MetricVerdict:
     ]
     field_ = [r for r in ranking if r.scheme != "oracle"]
     best = field_[0].value if field_ else None
-    winners = [r.scheme for r in field_ if tied(r.value, best, spec)] if field_ else []
+    # nobody wins when the best is "never" (every contestant never settles / misses a change)
+    winners = [r.scheme for r in field_ if tied(r.value, best, spec)] if field_ and math.isfinite(best) else []
     oracle = next((r.value for r in ranking if r.scheme == "oracle"), None)
     nominal = next((r.value for r in ranking if r.scheme == "nominal"), None)
     regret, regret_tie = ratio(best, oracle, spec)
     benefit, benefit_tie = ratio(nominal, best, spec)
-    return MetricVerdict(spec, ranking, winners, best, oracle, nominal, regret, regret_tie, benefit, benefit_tie,
-                         failed, missing)  # fmt: skip
+    return MetricVerdict(
+        spec, ranking, winners, best, oracle, nominal, regret, regret_tie, benefit, benefit_tie, failed, missing
+    )
 
 
 # ---------------------------------------------------------------------- one case
@@ -283,10 +285,16 @@ def compare_case(
         if mine:
             verdicts[spec.key] = compare_metric(mine, spec)
     expected = set(expected_status)
-    outside = [(s, str(m.get("status", "error"))) for s, m in metrics_by_scheme.items()
-               if str(m.get("status", "error")) not in expected]  # fmt: skip
-    failed = [(s, str(m.get("status", "error")), _num(m.get("t_end"))) for s, m in metrics_by_scheme.items()
-              if m.get("status") != "ok"]  # fmt: skip
+    outside = [
+        (s, str(m.get("status", "error")))
+        for s, m in metrics_by_scheme.items()
+        if str(m.get("status", "error")) not in expected
+    ]
+    failed = [
+        (s, str(m.get("status", "error")), _num(m.get("t_end")))
+        for s, m in metrics_by_scheme.items()
+        if m.get("status") != "ok"
+    ]
     sentences = _sentences(verdicts, metrics_by_scheme, list(fault_times), facts, failed)
     return CaseVerdict(case, list(metrics_by_scheme), verdicts, sentences, outside, failed)
 
@@ -331,8 +339,10 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         longest = max(failed, key=lambda f: f[2] or 0.0)
         stops = ", ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)
         why = " The fault pattern is uncompensable: no law can keep tracking." if facts.get("uncompensable") else ""
-        out.append(f"No scheme completes the run: every one stops ({stops}); {LABEL.get(longest[0], longest[0])} "
-                   f"lasts longest.{why}")  # fmt: skip
+        out.append(
+            f"No scheme completes the run: every one stops ({stops}); {LABEL.get(longest[0], longest[0])} "
+            f"lasts longest.{why}"
+        )
         return out
     after = verdicts.get("after_fault_error_max")
     if after and after.winners:
@@ -368,10 +378,13 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         settled = [r for r in rec.ranking if r.scheme in CONTESTANTS and not math.isinf(r.value)]
         never = [r.scheme for r in rec.ranking if r.scheme in CONTESTANTS and math.isinf(r.value)]
         if settled:
-            r0 = settled[0]
-            bits.append(
-                f"{LABEL.get(r0.scheme, r0.scheme)} settles within the band in {fmt_value(r0.value, 's')} at worst"
-            )
+            first = [r.scheme for r in settled if tied(r.value, settled[0].value, rec.spec)]
+            who, v0 = _names(first), settled[0].value
+            verb = "s" if len(first) == 1 else ""
+            if v0 == 0.0:
+                bits.append(f"{who} never leave{verb} the recovery band")
+            else:
+                bits.append(f"{who} settle{verb} within the recovery band in {fmt_value(v0, 's')} at worst")
         for s in never:
             m = metrics.get(s, {})
             extra = ""
@@ -379,8 +392,16 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
                 extra = f" (wrong model {100 * (1 - float(m['switching_match_fraction'])):.0f} % of the time)"
             bits.append(f"{LABEL.get(s, s)} never settles{extra}")
         if rec.oracle is not None and bits:
+            o = rec.oracle
             bits.append(
-                "the oracle " + ("never settles" if math.isinf(rec.oracle) else f"takes {fmt_value(rec.oracle, 's')}")
+                "the oracle "
+                + (
+                    "never settles"
+                    if math.isinf(o)
+                    else "never leaves it"
+                    if o == 0.0
+                    else f"takes {fmt_value(o, 's')}"
+                )
             )
         if bits:
             out.append(_cap("; ".join(bits)) + ".")

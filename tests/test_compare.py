@@ -90,7 +90,7 @@ def test_never_settling_ranks_last_and_missing_is_listed():
     assert energy.missing == [("nominal", "not computed")]
     assert "nominal" not in [r.scheme for r in energy.ranking]
     text = " ".join(v.sentences)
-    assert "Adaptive settles within the band in 4.1 s at worst" in text
+    assert "Adaptive settles within the recovery band in 4.1 s at worst" in text
     assert "switching never settles (wrong model 59 % of the time)" in text
 
 

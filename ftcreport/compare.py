@@ -370,7 +370,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
                 else f"{fmt_ratio(after.benefit)} times smaller than nominal's"
             )
         out.append(", ".join(parts) + ".")
-        if "nominal" in after.winners and any(s in ok for s in CONTESTANTS):
+        if "nominal" in after.winners and not whole and any(s in ok for s in CONTESTANTS):
             out.append(_why_nominal(facts, after))
     rec = verdicts.get("recovery_time_max")
     if rec:

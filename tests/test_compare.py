@@ -160,6 +160,8 @@ def test_no_fault_uses_the_whole_run():
     m["phases"] = [{"start": 0.0, "end": 30.0, "position_error_max": 0.25}]
     (row,) = [r for r in tidy("c", {"nominal": m}) if r.metric == "after_fault_error_max"]
     assert row.value == 0.25 and row.note == "no fault: whole run"
+    v = compare_case("c", {"nominal": m, "switching": m | {}})
+    assert v.sentences[0].startswith("With no fault in the run") and not any("Surprise" in x for x in v.sentences)
     mv = compare_metric([row], SPECS["after_fault_error_max"])
     assert mv.winners == ["nominal"] and mv.oracle is None and mv.regret is None
 

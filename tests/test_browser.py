@@ -99,8 +99,11 @@ def test_case_page(reports, driver, tmp_path):
     driver.get((reports / "two_link_switching" / "index.html").as_uri())
     for tid in ("faults", "schemes", "phases", "thresholds"):
         assert driver.find_element(By.ID, tid).is_displayed(), tid
-    figures = driver.find_elements(By.CSS_SELECTOR, "figure svg")
+    # static figures (paths, articulation, poles) are inline SVG; the time series are plotly figures
+    figures = driver.find_elements(By.CSS_SELECTOR, "figure > svg")
+    figures += driver.find_elements(By.CSS_SELECTOR, "figure div.plotly-fig svg.main-svg:first-child")
     assert len(figures) >= 5
+    assert len(driver.find_elements(By.CSS_SELECTOR, "figure div.plotly-fig")) >= 3  # errors, torques, switching
     for f in figures:
         size = f.size
         assert size["width"] > 200 and size["height"] > 100

@@ -372,6 +372,9 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         out.append(", ".join(parts) + ".")
         if "nominal" in after.winners and not whole and any(s in ok for s in CONTESTANTS):
             out.append(_why_nominal(facts, after))
+    if failed:
+        stops = "; ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)
+        out.append(f"Not ranked, the run stopped: {stops}.")
     rec = verdicts.get("recovery_time_max")
     if rec:
         bits = []

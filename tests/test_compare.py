@@ -106,6 +106,7 @@ def test_failed_runs_are_not_ranked_and_never_win():
     assert mv.winners == ["adaptive"]
     assert ("switching", "singular") in mv.failed
     assert v.outside_expected == [("switching", "singular")]
+    assert "Not ranked, the run stopped: switching singular at 23 s." in v.sentences
     # a case whose runs are all expected to stop: nothing outside expected_status, sentence says so
     stop = {s: _run(status="singular", t_end=t) for s, t in (("nominal", 31.0), ("switching", 35.5), ("oracle", 33.0))}
     v2 = compare_case("u", stop, expected_status=["ok", "singular"], facts={"uncompensable": True})

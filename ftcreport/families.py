@@ -125,6 +125,10 @@ def fill_defaults(case: Case) -> Case:
             nz = case.plant.noise
             std = max(nz.position, nz.heading)
             add[s] = ActiveUKFScheme(k_v=k_v, **({"meas_std": std} if std > 0 else {}))
+    run = case.schemes.run or ()
+    if "adaptive_frozen" in run and case.schemes.adaptive_frozen is None:
+        pats = _patterns(case, "adaptive") if case.schemes.adaptive is not None else _patterns(case, "switching")
+        add["adaptive_frozen"] = AdaptiveScheme(k_v=k_v, gamma=1.0, Gamma_f=1.0, patterns=pats)
     if not add:
         return case
     return case.model_copy(update={"schemes": case.schemes.model_copy(update=add)})

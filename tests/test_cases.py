@@ -105,5 +105,7 @@ def test_default_tables_follow_the_case_and_the_thesis():
     two["schemes"] = {"run": ["nominal", "oracle"], "oracle": {"k_v": 4.0}}
     c3 = parse_case(two, "w.toml")
     assert c3.schemes.nominal.k_v == 4.0 and c3.schemes.switching is None and c3.schemes.active_ukf is None
+    two["schemes"] = {"run": ["adaptive_frozen"]}
+    assert parse_case(two, "v.toml").schemes.adaptive_frozen.k_v == 10.0  # listed: the adaptive defaults
     # parsing the dump of a filled case gives the same case (the batch's workers re-parse it)
     assert parse_case(c3.model_dump(mode="json"), "w.toml") == c3

@@ -97,6 +97,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
         "thresholds": thresholds,
         "duration_override": duration,
         "claims": [c.model_dump() for c in case.claims],  # thesis claims that `check` gates on
+        "not_run": _not_run(case),  # families the case does not run, each with its reason (issue 21)
     }
     _record(out, case.name, payload)
     return key
@@ -175,6 +176,21 @@ def write_manifests(out: Path, cases: list[Case], cached: set[tuple[str, str]], 
     return write_manifest(out / "manifest.json", m)
 
 
+def _not_run(case: Case) -> dict[str, str]:
+    from .families import not_applicable
+
+    return not_applicable(case)
+
+
+def _cost(case: Case, scheme: str) -> float:
+    """A rough relative cost of a run (steps x per-step weight): the longest start first, so the
+    last worker does not start a long run when the others are done."""
+    steps = case.simulation.duration / case.simulation.dt
+    n = case.robots.n
+    # the UKF runs in the Python loop with 2 (n + 2 + 4n) + 1 sigma points; the rest is compiled
+    return steps * (5.0 * (2 * (n + 2 + 4 * n) + 1) if scheme == "active_ukf" else 1.0)
+
+
 def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> dict:
     """Run one scheme in a worker process and store it; returns its metrics."""
     from .cases import parse_case
@@ -250,6 +266,7 @@ def run_batch(
                 res.cached.append((case.name, s))
             else:
                 todo.append((case, str(path), s, key))
+    todo.sort(key=lambda job: -_cost(job[0], job[2]))
     if todo:
         _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected)
     settings = {"jobs": jobs, "force": force, "duration": duration}

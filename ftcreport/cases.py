@@ -293,8 +293,17 @@ class ActiveUKFScheme(_Strict):
 
 
 class Schemes(_Strict):
-    """The schemes to run; every scheme present is run with the shared kinematic controller."""
+    """The schemes to run; every scheme present is run with the shared kinematic controller.
 
+    Issue 21: every family runs unless ``run`` narrows the list; a family without its table gets
+    the defaults of :mod:`ftcreport.families` (k_v: this table's ``k_v``, else the first table's,
+    else the thesis's).
+    """
+
+    run: list[Literal[SCHEME_NAMES]] | None = _f(
+        None, "the schemes to run (default: every family, adaptive_frozen only when its table is given)", "-"
+    )
+    k_v: Gain | None = _f(None, "velocity-error gain of the default tables (default: the first table's)", "1/s")
     nominal: NominalScheme | None = _f(None, "no FTC", "-")
     switching: SwitchingScheme | None = _f(None, "multiple models + switching", "-")
     adaptive: AdaptiveScheme | None = _f(None, "adaptive weights + friction estimate", "-")
@@ -527,16 +536,22 @@ class Case(_Strict):
                         wheel_index(w, n)
                     except FtcError as exc:
                         raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
-        if not any(getattr(self.schemes, s) is not None for s in SCHEME_NAMES):
-            raise _FieldError("schemes", "no scheme to run (give at least one of " + ", ".join(SCHEME_NAMES) + ")")
+        run = self.schemes.run
+        if run is not None and not run:
+            raise _FieldError(
+                "schemes", "no scheme to run: schemes.run is empty (list some of " + ", ".join(SCHEME_NAMES) + ")"
+            )
+        for s in SCHEME_NAMES:
+            if run is not None and getattr(self.schemes, s) is not None and s not in run:
+                raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")
         ids = [c.id for c in self.claims]
         for i, c in enumerate(self.claims):
             if ids.count(c.id) > 1:
                 raise _FieldError(f"claims[{i}].id", f"'{c.id}' is used by more than one claim")
             for key in ("scheme", "relative_to"):
                 s = getattr(c, key)
-                if s is not None and getattr(self.schemes, s) is None:
-                    raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not configured in this case")
+                if s is not None and run is not None and s not in run:
+                    raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not run by this case (schemes.run)")
         for scheme, metrics in self.thresholds.items():
             if scheme not in SCHEME_NAMES:
                 raise _FieldError(
@@ -697,7 +712,9 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         raise CaseError(f"{source}: {loc or '<root>'}: {_message(err)}{more}") from None
     if case.name is None:
         case = case.model_copy(update={"name": Path(source).stem})
-    return case
+    from .families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
+
+    return fill_defaults(case)
 
 
 def case_schema() -> dict[str, Any]:

@@ -30,12 +30,17 @@ def batch_dir(tmp_path_factory):
 
 
 def test_every_case_runs_through_every_scheme(batch_dir):
+    from ftcreport.families import FAMILIES
+
     out, res = batch_dir
     names = {p.stem for p in CASES.glob("*.toml")}
     assert set(res.cases) == names and not res.case_errors
     assert not res.failed_runs, res.failed_runs
     for name in names:
         rec = json.loads((out / name / "case.json").read_text())
+        # every family ran, or the record says in one line why it cannot apply (issue 21)
+        assert set(FAMILIES) <= set(rec["schemes"]) | set(rec["not_run"]), name
+        assert all(len(why) > 20 and "\n" not in why for why in rec["not_run"].values()), rec["not_run"]
         for s in rec["schemes"]:
             m = json.loads((out / name / s / "metrics.json").read_text())
             assert m["status"] == "ok" and m["duration"] == 2.0
@@ -69,16 +74,17 @@ def test_rerun_simulates_nothing(batch_dir):
     forced = run_batch(
         [CASES / "two_link_uncompensable.toml"], out, jobs=1, duration=2.0, force=True, show_progress=False
     )
-    assert len(forced.simulated) == 3
+    assert len(forced.simulated) == 6  # every family (issue 21)
     assert page.stat().st_mtime_ns > before  # new runs: the page is rendered again
 
 
 def test_changed_case_is_resimulated(tmp_path):
     src = tmp_path / "c.toml"
-    shutil.copy(CASES / "two_link_uncompensable.toml", src)
+    data = tomllib.loads((CASES / "two_link_uncompensable.toml").read_text())
+    data["schemes"]["run"] = ["nominal", "switching", "oracle"]  # narrowed: three runs
+    src.write_text(tomli_w.dumps(data))
     out = tmp_path / "r"
     assert len(run_batch([src], out, jobs=1, duration=1.0, show_progress=False).simulated) == 3
-    data = tomllib.loads(src.read_text())
     data["schemes"]["oracle"]["k_v"] = 6.0
     src.write_text(tomli_w.dumps(data))
     res = run_batch([src], out, jobs=1, duration=1.0, show_progress=False)
@@ -147,6 +153,10 @@ def test_report_rerenders_from_stored_results(batch_dir):
     assert res.exit_code == 0
     html = page.read_text()
     assert "No faults." in html  # the 2 s override drops the events at 20 s and later
+    # no repeated content: the four schemes share the matched law, so their pole table appears once
+    poles = html[html.index('id="poles"') : html.index("</table>", html.index('id="poles"'))]
+    assert poles.count("nominal, switching, adaptive, oracle") == 6  # six poles (z1..z4, eta_e), each row once
+    assert all(f">{s}<" not in poles for s in ("nominal", "switching", "adaptive", "oracle"))
     for marker in (
         'id="schemes"',
         'id="phases"',
@@ -157,6 +167,9 @@ def test_report_rerenders_from_stored_results(batch_dir):
         'id="fig-articulation"',
         'id="controllability"',
         'id="poles"',  # a two-link case on a constant-velocity reference: linearized poles shown
+        'id="verdict"',
+        'id="replay"',
+        'class="not-run"',  # active and active_ukf cannot apply at k_v = 3000: one line each says why
         "<svg",
         "Provenance",
     ):
@@ -227,7 +240,7 @@ def test_expected_status_keeps_a_designed_loss_from_failing_the_batch(tmp_path):
     data = tomllib.loads((CASES / "two_link_uncompensable.toml").read_text())
     data["faults"] = [{"time": 1.0, "wheel": "1r"}, {"time": 2.0, "wheel": "1l"}]
     data["simulation"]["duration"] = 30.0
-    data["schemes"] = {"oracle": {"k_v": 5.0}}
+    data["schemes"] = {"run": ["oracle"], "oracle": {"k_v": 5.0}}
     outcomes = {}
     for expected in (["ok"], ["ok", "singular", "diverged"]):
         data["expected_status"] = expected

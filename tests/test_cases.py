@@ -46,7 +46,9 @@ def _base() -> dict:
             "schemes.switching.patterns[0]",
             "uncompensable",
         ),
-        (lambda c: c.update(schemes={}), "schemes", "no scheme"),
+        (lambda c: c["schemes"].update(run=[]), "schemes", "no scheme"),
+        (lambda c: c["schemes"].update(run=["nominal"]), "schemes.switching", "not listed in schemes.run"),
+        (lambda c: c["schemes"].update(run=["nominal", "magic"]), "schemes.run[1]", "Input should be"),
         (lambda c: c.pop("reference"), "reference", "Field required"),
     ],
 )
@@ -68,3 +70,42 @@ def test_unreadable_and_invalid_toml(tmp_path):
     bad.write_text("[robots\nn = 2")
     with pytest.raises(CaseError, match=r"bad\.toml: not valid TOML"):
         load_case(bad)
+
+
+# ------------------------------------------------------------------ every family by default (issue 21)
+def test_every_shipped_case_runs_every_family_or_says_why():
+    from ftcreport.families import FAMILIES, not_applicable
+
+    for path in ALL:
+        case = load_case(path)
+        missing = not_applicable(case)
+        for s in FAMILIES:
+            assert (getattr(case.schemes, s) is not None) != (s in missing), (path.stem, s)
+        # a family is left out only for a stated physical reason, never silently
+        for s, why in missing.items():
+            assert "k_v" in why and ("unstable" in why or "diverges" in why), (path.stem, s, why)
+    assert set(not_applicable(load_case(CASES / "two_link_switching.toml"))) == {"active", "active_ukf"}
+
+
+def test_default_tables_follow_the_case_and_the_thesis():
+    data = _base()  # three links (chained form), nominal/switching/oracle with k_v = 2 and five models
+    case = parse_case(data, "x.toml")
+    assert case.schemes.adaptive.k_v == 2.0 and case.schemes.adaptive.gamma == 1.0
+    assert case.schemes.adaptive.patterns == case.schemes.switching.patterns  # the same model bank
+    assert case.schemes.active.Theta == 0.9 and case.schemes.active.k_v == 2.0  # Table 4.2 (chained form)
+    assert case.schemes.active_ukf.k_v == 2.0
+    two = tomllib.loads((CASES / "two_link_intermittent.toml").read_text())
+    two["schemes"] = {"k_v": 7.0}
+    c2 = parse_case(two, "y.toml")
+    assert c2.schemes.nominal.k_v == c2.schemes.oracle.k_v == 7.0
+    assert c2.schemes.active.Theta == 1.6  # Table 4.1 (two links)
+    assert c2.schemes.switching.patterns == "all" and c2.schemes.switching.gamma == 10.0
+    two["schemes"] = {}
+    assert parse_case(two, "z.toml").schemes.nominal.k_v == 10.0  # thesis 3.3.2.3 (k4 = 10)
+    two["schemes"] = {"run": ["nominal", "oracle"], "oracle": {"k_v": 4.0}}
+    c3 = parse_case(two, "w.toml")
+    assert c3.schemes.nominal.k_v == 4.0 and c3.schemes.switching is None and c3.schemes.active_ukf is None
+    two["schemes"] = {"run": ["adaptive_frozen"]}
+    assert parse_case(two, "v.toml").schemes.adaptive_frozen.k_v == 10.0  # listed: the adaptive defaults
+    # parsing the dump of a filled case gives the same case (the batch's workers re-parse it)
+    assert parse_case(c3.model_dump(mode="json"), "w.toml") == c3

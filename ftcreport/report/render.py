@@ -23,12 +23,13 @@ from pathlib import Path
 import jinja2
 import numpy as np
 
-from .. import __version__
+from .. import __version__, compare
 from ..cases import SCHEME_NAMES, parse_case, with_duration
 from ..check import evaluate
 from ..model.faults import wheel_names
 from ..store import load_metrics, load_timeseries, write_atomic
-from . import plots
+from . import interactive, plots
+from .replay import replay_data
 
 __all__ = ["dependency_versions", "render_all", "render_case", "render_index"]
 
@@ -161,20 +162,21 @@ def render_case(out: Path, name: str) -> Path | None:
                 "caption": "Path of the last robot's axle midpoint P_n for every scheme over the reference.",
             }
         )
+        interactive.ensure_plotly(out)
         figures.append(
             {
                 "id": "errors",
-                "svg": plots.errors_svg(series, events),
-                "caption": "Tracking errors (log scale): per scheme, then every coordinate of the main FTC scheme; "
-                "fault phases shaded.",
+                "plotly": interactive.errors_fig(series, events),
+                "caption": "Tracking errors per scheme (log scale; hover for values, drag to zoom, double-click to "
+                "reset); fault phases shaded, events dotted.",
             }
         )
-        main = "switching" if "switching" in series else next(iter(series))
+        main = next((s for s in (*compare.CONTESTANTS, "oracle") if s in series), next(iter(series)))
         figures.append(
             {
                 "id": "torques",
-                "svg": plots.torques_svg(series[main], list(names), events, main),
-                "caption": f"Wheel torques per robot, {main} scheme.",
+                "plotly": interactive.torques_fig(series, list(names), events, main),
+                "caption": "Applied wheel torques; the menu at the top right picks the scheme.",
             }
         )
         if "switching" in series and "selected" in series["switching"]:
@@ -183,34 +185,26 @@ def render_case(out: Path, name: str) -> Path | None:
                 figures.append(
                     {
                         "id": "switching",
-                        "svg": plots.switching_svg(series["switching"], pats, events),
+                        "plotly": interactive.switching_fig(series["switching"], pats, events),
                         "caption": "Applied model index against the true failure pattern.",
                     }
                 )
-        for ad in ("adaptive", "adaptive_frozen"):
-            if ad in series and "chi_hat" in series[ad]:
-                pats = next((m.get("patterns") for m in runs if m["scheme"] == ad), None)
-                if pats:
-                    figures.append(
-                        {
-                            "id": ad,
-                            "svg": plots.adaptive_svg(series[ad], pats, list(names), events, ad),
-                            "caption": f"{ad}: weights and friction estimate; they are control variables of the "
-                            "adaptive law, not a fault diagnosis (ERRATA P2).",
-                        }
-                    )
-        for act in ("active", "active_ukf"):
-            if act in series and "rho_hat" in series[act]:
-                est = next((m.get("estimated_parameters") for m in runs if m["scheme"] == act), None) or []
-                figures.append(
-                    {
-                        "id": act,
-                        "svg": plots.active_svg(series[act], list(names), events, act, est),
-                        "caption": f"{act}: estimated gains and frictions against the truth, and the state "
-                        "estimation error. Individual parameters are weakly identifiable in steady tracking; "
-                        "the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is what the data determine (P3).",
-                    }
-                )
+        for est in ("adaptive", "adaptive_frozen", "active", "active_ukf"):
+            if est not in series:
+                continue
+            pats = next((m.get("patterns") for m in runs if m["scheme"] == est), None)
+            spec = interactive.estimates_fig(series[est], est, list(names), events, pats)
+            if spec is None:
+                continue
+            cap = (
+                f"{est}: weights and friction estimate against the true ubar (dashed); they are control variables "
+                "of the adaptive law, not a fault diagnosis (ERRATA P2)."
+                if est.startswith("adaptive")
+                else f"{est}: estimated gains and frictions against the truth (dashed). Individual parameters are "
+                "weakly identifiable in steady tracking; the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is "
+                "what the data determine (P3)."
+            )
+            figures.append({"id": est, "plotly": spec, "caption": cap})
         figures.extend(_thesis_figures(case, series, list(names), events))
         figures.append(
             {
@@ -224,7 +218,24 @@ def render_case(out: Path, name: str) -> Path | None:
         figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
     claims = _claims(name, case, runs)
+    verdict = _verdict(case, name, runs)
+    replay = None
+    if series:
+        from ..cases import build_plant_chain
+
+        replay = replay_data(
+            series, build_plant_chain(case), faults, list(names), {m["scheme"]: m["status"] for m in runs}
+        )
+    if analysis is not None and analysis.get("pole_tables"):
+        analysis["pole_groups"] = _group_tables(analysis["pole_tables"])
     html = env.get_template("case.html").render(
+        verdict=verdict,
+        verdict_rows=_verdict_rows(verdict) if verdict else [],
+        not_run=rec.get("not_run", {}),
+        replay_json=_script_json(replay) if replay else None,
+        replay_schemes=list(replay["schemes"]) if replay else [],
+        scheme_colors=plots.SCHEME_COLORS,
+        plotly_src="../" + interactive.ASSET,
         root="../",
         version=__version__,
         rendered=_now(),
@@ -384,10 +395,76 @@ def _analysis_figures(analysis: dict, series: dict, events: list[float], duratio
     return figs
 
 
+def _facts(case) -> dict:
+    """Facts of a case the verdict's sentences may explain with (compare.compare_case)."""
+    return {
+        "friction": any(f.ubar != 0 for f in case.faults),
+        "fractional": any(0 < f.sigma < 1 for f in case.faults),
+        "uncompensable": bool(case.warnings()),
+        "follower_only": bool(case.faults) and all(not f.wheel.strip().startswith("1") for f in case.faults),
+    }
+
+
+def _verdict(case, name: str, runs: list[dict]):
+    if not runs:
+        return None
+    events = sorted({float(f.time) for f in case.faults})
+    return compare.compare_case(name, {m["scheme"]: m for m in runs}, case.expected_status, events, _facts(case))
+
+
+def _verdict_rows(v) -> list[dict]:
+    """One row per headline metric: winners, their value, regret, benefit, the ranking in words."""
+    rows = []
+    for spec in compare.HEADLINE:
+        mv = v.metrics.get(spec.key)
+        if mv is None:
+            continue
+        rank = "; ".join(
+            f"{r.rank}. {r.scheme} {compare.fmt_value(r.value)}" + (f" ({r.note})" if r.note and r.scheme else "")
+            for r in mv.ranking
+        )
+        extra = [f"{s}: {st}" for s, st in mv.failed] + [f"{s}: {why}" for s, why in mv.missing]
+        rows.append(
+            {
+                "key": spec.key,
+                "label": spec.label + (f" [{spec.unit}]" if spec.unit else ""),
+                "winners": ", ".join(mv.winners) or "none",
+                "tie": len(mv.winners) > 1,
+                "best": compare.fmt_value(mv.best),
+                "regret": compare.fmt_ratio(mv.regret, mv.regret_tie),
+                "benefit": compare.fmt_ratio(mv.benefit, mv.benefit_tie),
+                "ranking": rank,
+                "unranked": "; ".join(extra),
+                "tolerance": f"{100 * spec.rel_tol:g} % or {spec.abs_tol:g}" if spec.rel_tol else "exact",
+            }
+        )
+    return rows
+
+
+def _group_tables(tables: dict) -> list[dict]:
+    """Identical tables (to 4 significant digits) once, labelled with every scheme they cover."""
+    groups: list[dict] = []
+    for scheme, rows in tables.items():
+        key = json.dumps([{k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in r.items()} for r in rows])
+        for g in groups:
+            if g["key"] == key:
+                g["schemes"].append(scheme)
+                break
+        else:
+            groups.append({"key": key, "schemes": [scheme], "rows": rows})
+    return groups
+
+
+def _script_json(obj) -> str:
+    """JSON safe inside a <script> element."""
+    return json.dumps(obj, separators=(",", ":")).replace("</", "<\\/")
+
+
 def render_index(out: Path) -> Path:
     """Render ``<out>/index.html`` from every case record under ``out``."""
     out = Path(out)
     cases = []
+    verdicts = []
     n_runs = n_ok = n_pass = n_fail = 0
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
@@ -414,7 +491,17 @@ def render_index(out: Path) -> Path:
             n_pass += len(mine) - failed
             n_fail += failed
             entry["runs"][s] = {**m, "after_max": _after_max(m), "checks_total": len(mine), "checks_failed": failed}
+        entry["not_run"] = rec.get("not_run", {})
+        if metrics:
+            case = _stored_case(out, name, rec)
+            if case is not None:
+                v = _verdict(case, name, [metrics[s] | {"scheme": s} for s in metrics])
+            else:
+                v = compare.compare_case(name, metrics)
+            verdicts.append(v)
+            entry["verdict"] = v
         cases.append(entry)
+    board = compare.scoreboard(verdicts, [s for s in SCHEME_NAMES if any(s in c["runs"] for c in cases)])
     html = (
         _env()
         .get_template("index.html")
@@ -423,7 +510,10 @@ def render_index(out: Path) -> Path:
             version=__version__,
             rendered=_now(),
             cases=cases,
-            schemes=list(SCHEME_NAMES),
+            board=board,
+            specs=compare.HEADLINE,
+            fmt_ratio=compare.fmt_ratio,
+            schemes=[s for s in SCHEME_NAMES if any(s in c["runs"] or s in c.get("not_run", {}) for c in cases)],
             n_runs=n_runs,
             n_ok=n_ok,
             n_bad=n_runs - n_ok,
@@ -434,6 +524,19 @@ def render_index(out: Path) -> Path:
     page = out / "index.html"
     write_atomic(page, html.encode())
     return page
+
+
+def _stored_case(out: Path, name: str, rec: dict):
+    """The case as stored beside its runs (None when it cannot be read)."""
+    from ..errors import FtcError
+
+    try:
+        case = parse_case(tomllib.loads((out / name / "case.toml").read_text()), rec.get("source", name))
+        if rec.get("duration_override"):
+            case = with_duration(case, rec["duration_override"])
+        return case
+    except (OSError, ValueError, FtcError):
+        return None
 
 
 def _page_stamp(out: Path, name: str) -> str:

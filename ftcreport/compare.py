@@ -1,0 +1,501 @@
+r"""Who wins, by how much, and why: the comparison of schemes on one case and across cases (pure).
+
+Input is a tidy table of metrics, one :class:`Row` per (case, scheme, metric), built from the
+``metrics.json`` dicts of the runs by :func:`tidy` (names of :mod:`ftcreport.metrics` and
+:mod:`ftcreport.diagnosis`).  No I/O, no plotting: the report renders what this module returns.
+
+Definitions (every headline metric is "lower is better"):
+
+* **Headline metrics** (:data:`HEADLINE`): the largest position error after the first fault
+  (the largest ``phases[k].position_error_max`` over the phases that start with a fault; the
+  whole run's ``position_error_max`` when the run has no fault), ``position_error_final``,
+  ``recovery_time_max`` (``None`` in metrics.json, "never settles", ranks last), ``torque_peak``,
+  ``energy``, and for the active schemes ``detection_delay_max`` (a missed change ranks last)
+  and ``false_alarms``.
+* **Ties.**  Two values tie when ``|a - b| <= max(abs_tol, rel_tol * max(|a|, |b|))`` with the
+  metric's tolerances (:class:`MetricSpec`; 5 % relative, and an absolute floor such as 0.1 mm
+  for position errors, below which differences are numerical rather than physical).
+* **Ranking.**  Competition ranking: a scheme's rank is one plus the number of schemes whose
+  value is smaller beyond the tolerance.  A run that did not complete (``status`` other than
+  ``ok``) is not ranked on that case (its metrics cover only the simulated part); it is listed
+  as failed.  A scheme without the metric is listed as missing.
+* **Winner.**  The oracle knows the true faults: it is the bound, not a contestant.  Every other
+  ranked scheme (nominal included) competes; the winners are those tied with the best of them.
+* **Regret against the oracle** = winner / oracle and **benefit against nominal** = nominal /
+  winner, both ratios (regret 1.12: 12 % worse than the oracle; benefit 4: a quarter of
+  nominal's value).  Values tied within the tolerance give the ratio 1 (flagged ``tie``); a zero
+  denominator with a non-zero numerator gives ``inf``.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+__all__ = [
+    "ACTIVE",
+    "CONTESTANTS",
+    "HEADLINE",
+    "CaseVerdict",
+    "MetricSpec",
+    "MetricVerdict",
+    "Row",
+    "Scoreboard",
+    "compare_case",
+    "compare_metric",
+    "ratio",
+    "scoreboard",
+    "tidy",
+    "tied",
+]
+
+ACTIVE = ("active", "active_ukf")
+# display names of the schemes in sentences
+LABEL = {
+    "nominal": "nominal (no FTC)",
+    "switching": "switching",
+    "adaptive": "adaptive",
+    "adaptive_frozen": "adaptive with frozen weights",
+    "active": "active (Farza)",
+    "active_ukf": "active (UKF)",
+    "oracle": "the oracle",
+}
+CONTESTANTS = ("switching", "adaptive", "active", "active_ukf")  # the three FTC families
+
+
+@dataclass(frozen=True)
+class MetricSpec:
+    """A headline metric: key, label, unit and tie tolerances (see the module docstring)."""
+
+    key: str
+    label: str
+    unit: str
+    rel_tol: float
+    abs_tol: float
+    only: tuple[str, ...] | None = None  # schemes the metric exists for (None: every scheme)
+
+
+HEADLINE: tuple[MetricSpec, ...] = (
+    MetricSpec("after_fault_error_max", "max error after faults", "m", 0.05, 1e-4),
+    MetricSpec("position_error_final", "final error", "m", 0.05, 1e-4),
+    MetricSpec("recovery_time_max", "worst recovery time", "s", 0.05, 0.1),
+    MetricSpec("torque_peak", "peak torque", "N m", 0.05, 0.1),
+    MetricSpec("energy", "energy", "J", 0.05, 0.1),
+    MetricSpec("detection_delay_max", "worst detection delay", "s", 0.05, 0.1, ACTIVE),
+    MetricSpec("false_alarms", "false alarms", "", 0.0, 0.0, ACTIVE),
+)
+SPECS = {s.key: s for s in HEADLINE}
+
+
+@dataclass(frozen=True)
+class Row:
+    """One value of the tidy table.
+
+    ``value`` is a float (``inf`` = the worst outcome: never settles, a missed detection) or
+    ``None`` (the metric is missing for this run); ``note`` says why in words.
+    """
+
+    case: str
+    scheme: str
+    status: str
+    metric: str
+    value: float | None
+    note: str = ""
+    t_end: float | None = None
+
+
+def _num(x) -> float | None:
+    if isinstance(x, bool) or x is None:
+        return None
+    if isinstance(x, int | float):
+        return float(x)
+    return None
+
+
+def tidy(case: str, metrics_by_scheme: Mapping[str, Mapping]) -> list[Row]:
+    """The headline rows of one case from its runs' metrics.json dicts."""
+    rows = []
+    for scheme, m in metrics_by_scheme.items():
+        status = str(m.get("status", "error"))
+        t_end = _num(m.get("t_end"))
+        for spec in HEADLINE:
+            if spec.only is not None and scheme not in spec.only:
+                continue
+            value, note = _extract(spec.key, m)
+            rows.append(Row(case, scheme, status, spec.key, value, note, t_end))
+    return rows
+
+
+def _extract(key: str, m: Mapping) -> tuple[float | None, str]:
+    if key == "after_fault_error_max":
+        phases = m.get("phases")
+        if not phases:
+            return _num(m.get("position_error_max")), "" if "position_error_max" in m else "not computed"
+        if len(phases) == 1:
+            return _num(phases[0].get("position_error_max")), "no fault: whole run"
+        vals = [_num(p.get("position_error_max")) for p in phases[1:]]
+        vals = [v for v in vals if v is not None]
+        return (max(vals), "") if vals else (None, "no sample after the faults")
+    if key == "recovery_time_max":
+        if key not in m:
+            return None, "not computed"
+        v = _num(m[key])
+        return (math.inf, "never settles") if v is None else (v, "")
+    if key == "detection_delay_max":
+        events = m.get("detection_events")
+        if events is None:
+            return None, "not computed"
+        if not events:
+            return None, "no fault to detect"
+        if m.get("missed_detections"):
+            return math.inf, f"misses {m['missed_detections']} of {len(events)} changes"
+        v = _num(m.get(key))
+        return (v, "") if v is not None else (None, "not computed")
+    if key not in m:
+        return None, "not computed"
+    return _num(m[key]), ""
+
+
+# ---------------------------------------------------------------------- one metric, one case
+def tied(a: float, b: float, spec: MetricSpec) -> bool:
+    """Whether two values of a metric are equal within its tolerance (inf ties only with inf)."""
+    if math.isinf(a) or math.isinf(b):
+        return a == b
+    return abs(a - b) <= max(spec.abs_tol, spec.rel_tol * max(abs(a), abs(b)))
+
+
+def ratio(num: float | None, den: float | None, spec: MetricSpec) -> tuple[float | None, bool]:
+    """(num / den, tie): 1 when tied within tolerance, inf when only den is 0 or num is inf."""
+    if num is None or den is None:
+        return None, False
+    if tied(num, den, spec):
+        return 1.0, True
+    if math.isinf(num):
+        return math.inf, False
+    if math.isinf(den):
+        return 0.0, False
+    if den == 0.0:
+        return math.inf, False
+    return num / den, False
+
+
+@dataclass
+class Ranked:
+    scheme: str
+    value: float
+    rank: int
+    note: str = ""
+
+
+@dataclass
+class MetricVerdict:
+    """The comparison of one metric on one case."""
+
+    spec: MetricSpec
+    ranking: list[Ranked]  # completed runs, best first
+    winners: list[str]  # non-oracle schemes tied with the best non-oracle value
+    best: float | None
+    oracle: float | None
+    nominal: float | None
+    regret: float | None  # best / oracle
+    regret_tie: bool
+    benefit: float | None  # nominal / best
+    benefit_tie: bool
+    failed: list[tuple[str, str]] = field(default_factory=list)  # (scheme, status)
+    missing: list[tuple[str, str]] = field(default_factory=list)  # (scheme, why)
+
+    def value(self, scheme: str) -> float | None:
+        return next((r.value for r in self.ranking if r.scheme == scheme), None)
+
+    def regret_of(self, scheme: str) -> float | None:
+        """scheme / oracle (None when either is missing)."""
+        return ratio(self.value(scheme), self.oracle, self.spec)[0]
+
+
+def compare_metric(rows: Sequence[Row], spec: MetricSpec) -> MetricVerdict:
+    """Rank the schemes of one case on one metric (rows of that case and metric)."""
+    done, failed, missing = [], [], []
+    for r in rows:
+        if r.status != "ok":
+            failed.append((r.scheme, r.status))
+        elif r.value is None:
+            missing.append((r.scheme, r.note or "not computed"))
+        else:
+            done.append(r)
+    done.sort(key=lambda r: r.value)
+    ranking = [
+        Ranked(r.scheme, r.value, 1 + sum(o.value < r.value and not tied(o.value, r.value, spec) for o in done), r.note)
+        for r in done
+    ]
+    field_ = [r for r in ranking if r.scheme != "oracle"]
+    best = field_[0].value if field_ else None
+    # nobody wins when the best is "never" (every contestant never settles / misses a change)
+    winners = [r.scheme for r in field_ if tied(r.value, best, spec)] if field_ and math.isfinite(best) else []
+    oracle = next((r.value for r in ranking if r.scheme == "oracle"), None)
+    nominal = next((r.value for r in ranking if r.scheme == "nominal"), None)
+    regret, regret_tie = ratio(best, oracle, spec)
+    benefit, benefit_tie = ratio(nominal, best, spec)
+    return MetricVerdict(
+        spec, ranking, winners, best, oracle, nominal, regret, regret_tie, benefit, benefit_tie, failed, missing
+    )
+
+
+# ---------------------------------------------------------------------- one case
+@dataclass
+class CaseVerdict:
+    """Every headline metric of one case, and the generated sentences."""
+
+    case: str
+    schemes: list[str]
+    metrics: dict[str, MetricVerdict]
+    sentences: list[str]
+    outside_expected: list[tuple[str, str]]  # (scheme, status) of runs outside expected_status
+    failed: list[tuple[str, str, float | None]]  # (scheme, status, t_end) of runs that did not complete
+
+
+def compare_case(
+    case: str,
+    metrics_by_scheme: Mapping[str, Mapping],
+    expected_status: Iterable[str] = ("ok",),
+    fault_times: Sequence[float] = (),
+    facts: Mapping[str, object] | None = None,
+) -> CaseVerdict:
+    """The verdict of one case.
+
+    Parameters
+    ----------
+    metrics_by_scheme : mapping
+        ``{scheme: metrics.json dict}`` of the runs that exist.
+    expected_status : iterable of str
+        The case's ``expected_status``.
+    fault_times : sequence of float
+        Event times (for the sentences).
+    facts : mapping, optional
+        Facts of the case the sentences may explain with: ``friction`` (a fault adds a friction
+        torque), ``fractional`` (a gain strictly between 0 and 1), ``uncompensable`` (a phase with
+        rank(Bbar sigma) < 2).
+    """
+    facts = dict(facts or {})
+    rows = tidy(case, metrics_by_scheme)
+    verdicts = {}
+    for spec in HEADLINE:
+        mine = [r for r in rows if r.metric == spec.key]
+        if mine:
+            verdicts[spec.key] = compare_metric(mine, spec)
+    expected = set(expected_status)
+    outside = [
+        (s, str(m.get("status", "error")))
+        for s, m in metrics_by_scheme.items()
+        if str(m.get("status", "error")) not in expected
+    ]
+    failed = [
+        (s, str(m.get("status", "error")), _num(m.get("t_end")))
+        for s, m in metrics_by_scheme.items()
+        if m.get("status") != "ok"
+    ]
+    sentences = _sentences(verdicts, metrics_by_scheme, list(fault_times), facts, failed)
+    return CaseVerdict(case, list(metrics_by_scheme), verdicts, sentences, outside, failed)
+
+
+def fmt_value(x: float | None, unit: str = "") -> str:
+    """A value for a sentence: 3 significant digits, 'never' for inf."""
+    if x is None:
+        return "n/a"
+    if math.isinf(x):
+        return "never"
+    s = f"{x:.3g}"
+    return f"{s} {unit}".strip() if unit else s
+
+
+def fmt_ratio(x: float | None, tie: bool = False) -> str:
+    if x is None:
+        return "n/a"
+    if tie:
+        return "1 (tie)"
+    if math.isinf(x):
+        return "inf"
+    return f"{x:.3g}"
+
+
+def _names(schemes: Sequence[str]) -> str:
+    names = [LABEL.get(s, s) for s in schemes]
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def _times(ts: Sequence[float]) -> str:
+    ts = sorted({round(float(t), 6) for t in ts})
+    if not ts:
+        return ""
+    s = [f"{t:g}" for t in ts]
+    return (s[0] if len(s) == 1 else ", ".join(s[:-1]) + " and " + s[-1]) + " s"
+
+
+def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
+    out = []
+    ok = [s for s, m in metrics.items() if m.get("status") == "ok"]
+    if failed and not any(s != "oracle" for s in ok):
+        longest = max(failed, key=lambda f: f[2] or 0.0)
+        stops = ", ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)
+        why = " The fault pattern is uncompensable: no law can keep tracking." if facts.get("uncompensable") else ""
+        out.append(
+            f"No scheme completes the run: every one stops ({stops}); {LABEL.get(longest[0], longest[0])} "
+            f"lasts longest.{why}"
+        )
+        return out
+    after = verdicts.get("after_fault_error_max")
+    if after and after.winners:
+        whole = any(r.note == "no fault: whole run" for r in after.ranking)
+        if whole or not fault_times:
+            when = "With no fault in the run" if whole else "After the faults"
+        else:
+            when = f"After the faults at {_times([t for t in fault_times if t > 0] or fault_times)}"
+        w = _names(after.winners)
+        tie = " (a tie)" if len(after.winners) > 1 else ""
+        parts = [
+            f"{when}, {w} keep{'s' if len(after.winners) == 1 else ''} the smallest peak error{tie}, "
+            f"{fmt_value(after.best, 'm')}"
+        ]
+        if after.oracle is not None:
+            parts.append(
+                "matching the oracle within the tolerance"
+                if after.regret_tie
+                else f"{fmt_ratio(after.regret)} times the oracle's {fmt_value(after.oracle, 'm')}"
+            )
+        if after.nominal is not None and "nominal" not in after.winners:
+            parts.append(
+                "no better than nominal"
+                if after.benefit_tie
+                else f"{fmt_ratio(after.benefit)} times smaller than nominal's"
+            )
+        out.append(", ".join(parts) + ".")
+        if "nominal" in after.winners and not whole and any(s in ok for s in CONTESTANTS):
+            out.append(_why_nominal(facts, after))
+    if failed:
+        stops = "; ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)
+        out.append(f"Not ranked, the run stopped: {stops}.")
+    rec = verdicts.get("recovery_time_max")
+    if rec:
+        bits = []
+        settled = [r for r in rec.ranking if r.scheme in CONTESTANTS and not math.isinf(r.value)]
+        never = [r.scheme for r in rec.ranking if r.scheme in CONTESTANTS and math.isinf(r.value)]
+        if settled:
+            first = [r.scheme for r in settled if tied(r.value, settled[0].value, rec.spec)]
+            who, v0 = _names(first), settled[0].value
+            verb = "s" if len(first) == 1 else ""
+            if v0 == 0.0:
+                bits.append(f"{who} never leave{verb} the recovery band")
+            else:
+                bits.append(f"{who} settle{verb} within the recovery band in {fmt_value(v0, 's')} at worst")
+        for s in never:
+            m = metrics.get(s, {})
+            extra = ""
+            if s == "switching" and _num(m.get("switching_match_fraction")) is not None:
+                extra = f" (wrong model {100 * (1 - float(m['switching_match_fraction'])):.0f} % of the time)"
+            bits.append(f"{LABEL.get(s, s)} never settles{extra}")
+        if rec.oracle is not None and bits:
+            o = rec.oracle
+            bits.append(
+                "the oracle "
+                + (
+                    "never settles"
+                    if math.isinf(o)
+                    else "never leaves it"
+                    if o == 0.0
+                    else f"takes {fmt_value(o, 's')}"
+                )
+            )
+        if bits:
+            out.append(_cap("; ".join(bits)) + ".")
+    det = verdicts.get("detection_delay_max")
+    fa = verdicts.get("false_alarms")
+    if det and (det.ranking or det.missing):
+        bits = []
+        for s in ACTIVE:
+            v = det.value(s)
+            if v is None:
+                continue
+            f = fa.value(s) if fa else None
+            alarms = "" if f is None else f", {int(f)} false alarm{'s' if f != 1 else ''}"
+            if math.isinf(v):
+                note = next((r.note for r in det.ranking if r.scheme == s), "")
+                bits.append(f"{LABEL[s]} {note}{alarms}")
+            else:
+                bits.append(f"{LABEL[s]} detects every change within {fmt_value(v, 's')}{alarms}")
+        if bits:
+            out.append(_cap("; ".join(bits)) + ".")
+    elif (tq := verdicts.get("torque_peak")) and tq.winners:
+        out.append(
+            f"Smallest peak torque: {_names(tq.winners)}, {fmt_value(tq.best, 'N m')}"
+            + (f" (the oracle needs {fmt_value(tq.oracle, 'N m')})" if tq.oracle is not None else "")
+            + "."
+        )
+    return out[:4]
+
+
+def _why_nominal(facts, after: MetricVerdict) -> str:
+    why = []
+    if facts.get("fractional"):
+        why.append("partial gain losses lie between the 0/1 models of switching and adaptive")
+    if facts.get("friction"):
+        why.append("a friction torque biases the fault models (the switching laws have no friction term)")
+    if facts.get("follower_only"):
+        why.append("the faults hit followers only, which need little torque redistribution")
+    if not why:
+        why.append(
+            "the healthy law's velocity loop stays stable under these patterns, so redistributing torque buys little"
+        )
+    return "Surprise: the baseline without FTC is among the best here; " + "; ".join(why) + "."
+
+
+def _cap(s: str) -> str:
+    return s[:1].upper() + s[1:]
+
+
+# ---------------------------------------------------------------------- across cases
+@dataclass
+class Scoreboard:
+    """Wins per metric per scheme across cases, median regret, runs outside expected_status."""
+
+    schemes: list[str]
+    metrics: list[MetricSpec]
+    wins: dict[str, dict[str, int]]  # scheme -> metric -> number of cases won (ties count for each)
+    contests: dict[str, int]  # metric -> number of cases with a winner
+    median_regret: dict[str, dict[str, float | None]]  # scheme -> metric -> median of scheme / oracle
+    outside_expected: dict[str, int]  # scheme -> runs whose status is not in the case's expected_status
+    runs: dict[str, int]  # scheme -> runs
+    cases: list[dict]  # one row per case: name, winners per metric, outside expected
+
+
+def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Scoreboard:
+    """Aggregate case verdicts (the index page's scoreboard)."""
+    wins = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
+    regrets: dict[str, dict[str, list[float]]] = {s: {m.key: [] for m in HEADLINE} for s in schemes}
+    outside = dict.fromkeys(schemes, 0)
+    runs = dict.fromkeys(schemes, 0)
+    contests = {m.key: 0 for m in HEADLINE}
+    cases = []
+    for v in verdicts:
+        for s in v.schemes:
+            if s in runs:
+                runs[s] += 1
+        for s, _ in v.outside_expected:
+            if s in outside:
+                outside[s] += 1
+        row = {"case": v.case, "winners": {}, "outside_expected": list(v.outside_expected)}
+        for key, mv in v.metrics.items():
+            row["winners"][key] = list(mv.winners)
+            if mv.winners:
+                contests[key] += 1
+            for s in mv.winners:
+                if s in wins:
+                    wins[s][key] += 1
+            for r in mv.ranking:
+                if r.scheme in regrets and r.scheme != "oracle":
+                    g = mv.regret_of(r.scheme)
+                    if g is not None:
+                        regrets[r.scheme][key].append(g)
+        cases.append(row)
+    med = {s: {k: (statistics.median(v) if v else None) for k, v in d.items()} for s, d in regrets.items()}
+    return Scoreboard(list(schemes), list(HEADLINE), wins, contests, med, outside, runs, cases)

@@ -1,0 +1,199 @@
+"""The comparison logic (ftcreport.compare) on hand-made metrics: ranking, ties, regret, failures."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from ftcreport.compare import SPECS, compare_case, compare_metric, ratio, scoreboard, tidy, tied
+
+
+def _run(after=None, final=0.01, rec=1.0, peak=10.0, energy=100.0, status="ok", **extra) -> dict:
+    """A metrics.json-like dict with one fault at 20 s (two phases)."""
+    m = {
+        "status": status,
+        "t_end": 40.0,
+        "position_error_max": 0.5,
+        "position_error_final": final,
+        "recovery_time_max": rec,
+        "torque_peak": peak,
+        "energy": energy,
+        "phases": [
+            {"start": 0.0, "end": 20.0, "position_error_max": 0.5},
+            {"start": 20.0, "end": 40.0, "position_error_max": after},
+        ],
+    }
+    return m | extra
+
+
+def _active(delay=1.0, missed=0, false=0, **kw) -> dict:
+    events = [{"parameter": "rho_1l", "time": 20.0, "detected": not missed, "delay": None if missed else delay}]
+    return _run(**kw) | {
+        "detection_events": events,
+        "missed_detections": missed,
+        "detection_delay_max": None if missed else delay,
+        "false_alarms": false,
+    }
+
+
+def test_ranking_winner_regret_and_benefit():
+    runs = {
+        "nominal": _run(after=0.40),
+        "switching": _run(after=0.10),
+        "adaptive": _run(after=0.20),
+        "oracle": _run(after=0.05),
+    }
+    v = compare_case("c", runs, fault_times=[20.0])
+    mv = v.metrics["after_fault_error_max"]
+    assert [r.scheme for r in mv.ranking] == ["oracle", "switching", "adaptive", "nominal"]
+    assert [r.rank for r in mv.ranking] == [1, 2, 3, 4]
+    assert mv.winners == ["switching"]  # the oracle is the bound, not a contestant
+    assert mv.regret == pytest.approx(0.10 / 0.05) and not mv.regret_tie
+    assert mv.benefit == pytest.approx(0.40 / 0.10) and not mv.benefit_tie
+    # the sentence carries the numbers
+    assert "switching keeps the smallest peak error" in v.sentences[0]
+    assert "2 times the oracle's 0.05 m" in v.sentences[0] and "4 times smaller than nominal's" in v.sentences[0]
+
+
+def test_ties_within_the_stated_tolerance():
+    spec = SPECS["after_fault_error_max"]  # 5 % relative, 0.1 mm absolute
+    assert tied(0.100, 0.104, spec) and not tied(0.100, 0.106, spec)
+    assert tied(1e-9, 5e-5, spec)  # both below the 0.1 mm floor
+    runs = {"switching": _run(after=0.100), "adaptive": _run(after=0.104), "oracle": _run(after=0.1001)}
+    mv = compare_case("c", runs).metrics["after_fault_error_max"]
+    assert sorted(mv.winners) == ["adaptive", "switching"]
+    assert {r.scheme: r.rank for r in mv.ranking} == {"oracle": 1, "switching": 1, "adaptive": 1}
+    assert mv.regret == 1.0 and mv.regret_tie
+    assert "(a tie)" in compare_case("c", runs, fault_times=[20.0]).sentences[0]
+
+
+def test_counts_tie_only_when_equal():
+    spec = SPECS["false_alarms"]
+    assert tied(0.0, 0.0, spec) and not tied(0.0, 1.0, spec)
+
+
+def test_never_settling_ranks_last_and_missing_is_listed():
+    runs = {
+        "nominal": _run(rec=None),
+        "switching": _run(rec=None, switching_match_fraction=0.41),
+        "adaptive": _run(rec=4.1),
+        "oracle": _run(rec=2.0),
+    }
+    del runs["nominal"]["energy"]  # an older metrics.json without energy
+    v = compare_case("c", runs, fault_times=[20.0])
+    rec = v.metrics["recovery_time_max"]
+    assert [r.scheme for r in rec.ranking][-2:] in (["nominal", "switching"], ["switching", "nominal"])
+    assert math.isinf(rec.value("switching")) and rec.winners == ["adaptive"]
+    assert rec.regret == pytest.approx(4.1 / 2.0) and rec.benefit == math.inf
+    energy = v.metrics["energy"]
+    assert energy.missing == [("nominal", "not computed")]
+    assert "nominal" not in [r.scheme for r in energy.ranking]
+    text = " ".join(v.sentences)
+    assert "Adaptive settles within the recovery band in 4.1 s at worst" in text
+    assert "switching never settles (wrong model 59 % of the time)" in text
+
+
+def test_failed_runs_are_not_ranked_and_never_win():
+    runs = {
+        "nominal": _run(after=0.3),
+        "switching": _run(after=0.001, status="singular", t_end=23.0),
+        "adaptive": _run(after=0.2),
+        "oracle": _run(after=0.1),
+    }
+    v = compare_case("c", runs, expected_status=["ok"])
+    mv = v.metrics["after_fault_error_max"]
+    assert mv.winners == ["adaptive"]
+    assert ("switching", "singular") in mv.failed
+    assert v.outside_expected == [("switching", "singular")]
+    assert "Not ranked, the run stopped: switching singular at 23 s." in v.sentences
+    # a case whose runs are all expected to stop: nothing outside expected_status, sentence says so
+    stop = {s: _run(status="singular", t_end=t) for s, t in (("nominal", 31.0), ("switching", 35.5), ("oracle", 33.0))}
+    v2 = compare_case("u", stop, expected_status=["ok", "singular"], facts={"uncompensable": True})
+    assert v2.outside_expected == [] and v2.metrics["after_fault_error_max"].winners == []
+    assert "No scheme completes the run" in v2.sentences[0] and "switching lasts longest" in v2.sentences[0]
+    assert "uncompensable" in v2.sentences[0]
+
+
+def test_detection_metrics_only_for_active_schemes():
+    runs = {
+        "switching": _run(after=0.1),
+        "active": _active(delay=3.2, false=0),
+        "active_ukf": _active(missed=1, false=2),
+        "oracle": _run(after=0.05),
+    }
+    rows = tidy("c", runs)
+    assert {r.scheme for r in rows if r.metric == "detection_delay_max"} == {"active", "active_ukf"}
+    v = compare_case("c", runs)
+    det, fa = v.metrics["detection_delay_max"], v.metrics["false_alarms"]
+    assert det.winners == ["active"] and math.isinf(det.value("active_ukf"))
+    assert det.oracle is None and det.regret is None  # no oracle value: no regret
+    assert fa.winners == ["active"] and fa.value("active_ukf") == 2.0
+    text = " ".join(v.sentences)
+    assert "Active (Farza) detects every change within 3.2 s, 0 false alarms" in text
+    assert "active (UKF) misses 1 of 1 changes, 2 false alarms" in text
+
+
+def test_ratio_edge_cases():
+    spec = SPECS["position_error_final"]
+    assert ratio(None, 1.0, spec) == (None, False)
+    assert ratio(0.5, 0.0, spec) == (math.inf, False)
+    assert ratio(math.inf, 0.2, spec) == (math.inf, False)
+    assert ratio(0.2, math.inf, spec) == (0.0, False)
+    assert ratio(0.3, 0.1, spec) == (pytest.approx(3.0), False)
+    assert ratio(5e-9, 1e-10, spec) == (1.0, True)  # below the floor: a tie, not a ratio of 50
+
+
+def test_nominal_beating_every_ftc_scheme_is_flagged():
+    runs = {
+        "nominal": _run(after=0.05),
+        "switching": _run(after=0.2),
+        "adaptive": _run(after=0.3),
+        "oracle": _run(after=0.04),
+    }
+    v = compare_case("c", runs, fault_times=[20.0], facts={"friction": True})
+    assert v.metrics["after_fault_error_max"].winners == ["nominal"]
+    assert any(s.startswith("Surprise") and "friction" in s for s in v.sentences)
+
+
+def test_no_fault_uses_the_whole_run():
+    m = _run()
+    m["phases"] = [{"start": 0.0, "end": 30.0, "position_error_max": 0.25}]
+    (row,) = [r for r in tidy("c", {"nominal": m}) if r.metric == "after_fault_error_max"]
+    assert row.value == 0.25 and row.note == "no fault: whole run"
+    v = compare_case("c", {"nominal": m, "switching": m | {}})
+    assert v.sentences[0].startswith("With no fault in the run") and not any("Surprise" in x for x in v.sentences)
+    mv = compare_metric([row], SPECS["after_fault_error_max"])
+    assert mv.winners == ["nominal"] and mv.oracle is None and mv.regret is None
+
+
+def test_scoreboard_counts_wins_regret_and_unexpected_statuses():
+    a = compare_case(
+        "a",
+        {
+            "nominal": _run(after=0.4),
+            "switching": _run(after=0.1),
+            "adaptive": _run(after=0.1),
+            "oracle": _run(after=0.05),
+        },
+    )
+    b = compare_case(
+        "b",
+        {
+            "nominal": _run(after=0.4),
+            "switching": _run(after=0.3, status="diverged"),
+            "adaptive": _run(after=0.2),
+            "oracle": _run(after=0.1),
+        },
+    )
+    sb = scoreboard([a, b], ["nominal", "switching", "adaptive", "oracle"])
+    key = "after_fault_error_max"
+    assert sb.wins["switching"][key] == 1 and sb.wins["adaptive"][key] == 2 and sb.wins["nominal"][key] == 0
+    assert sb.contests[key] == 2
+    assert sb.median_regret["adaptive"][key] == pytest.approx((2.0 + 2.0) / 2)
+    assert sb.median_regret["nominal"][key] == pytest.approx((8.0 + 4.0) / 2)
+    assert sb.median_regret["switching"][key] == pytest.approx(2.0)  # the failed run has no regret
+    assert sb.outside_expected == {"nominal": 0, "switching": 1, "adaptive": 0, "oracle": 0}
+    assert sb.runs == {"nominal": 2, "switching": 2, "adaptive": 2, "oracle": 2}
+    assert [c["case"] for c in sb.cases] == ["a", "b"]
+    assert sb.cases[1]["winners"][key] == ["adaptive"]

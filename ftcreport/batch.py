@@ -238,7 +238,7 @@ def run_batch(
     out.mkdir(parents=True, exist_ok=True)
     res = BatchResult()
     todo: list[tuple[Case, str, str, str]] = []  # case, source, scheme, key
-    expected: dict[str, set[str]] = {}  # case name -> run statuses that are not failures
+    expected: dict[str, Case] = {}  # case name -> the case (its expected_for(scheme): statuses that are not failures)
     loaded: list[Case] = []
     for path in discover(paths):
         try:
@@ -258,7 +258,7 @@ def run_batch(
         res.cases.append(case.name)
         loaded.append(case)
         record_case(out, case, Path(path), duration)
-        expected[case.name] = set(case.expected_status)
+        expected[case.name] = case
         schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
         for s in schemes:
             key = run_key(case, s)
@@ -329,7 +329,7 @@ def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, 
                         {"case": name, "scheme": scheme, "status": "error", "reason": reason},
                     )
                 res.simulated.append((name, scheme))
-                if status not in expected.get(name, {"ok"}):
+                if name not in expected or status not in expected[name].expected_for(scheme):
                     res.failed_runs.append((name, scheme, f"{status}: {reason}"))
                 task = tasks[(name, scheme)]
                 progress.update(task, completed=progress.tasks[task].total, description=f"{name} / {scheme} [{status}]")

@@ -64,6 +64,9 @@ Factor = _num(None, 1e3, gt=0)
 Limit = _num(-1e18, 1e18)  # a threshold on any metric
 
 
+Status = Literal["ok", "singular", "diverged", "step_unstable"]  # run outcomes (ftcreport.sim)
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -451,9 +454,14 @@ class Case(_Strict):
     simulation: Simulation = _f(..., "integration settings ([simulation])", "-")
     plant: Plant = _f(Plant(), "saturation, noise, mismatch ([plant])", "-")
     recovery_band: _num(None, 1e3, gt=0) = _f(0.01, "the band of the recovery-time metric", "m")
-    expected_status: list[Literal["ok", "singular", "diverged", "step_unstable"]] = _f(
+    expected_status: list[Status] = _f(
         ["ok"],
         "run outcomes that are not failures for batch/run exit codes (a case built to lose tracking lists them)",
+        "-",
+    )
+    expected_status_of: dict[str, list[Status]] = _f(
+        {},
+        "per scheme: its outcomes that are not failures, in place of expected_status (say why in a comment)",
         "-",
     )
     thresholds: dict[str, dict[str, Bound]] = _f(
@@ -544,6 +552,12 @@ class Case(_Strict):
         for s in SCHEME_NAMES:
             if run is not None and getattr(self.schemes, s) is not None and s not in run:
                 raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")
+        for s in self.expected_status_of:
+            if s not in SCHEME_NAMES:
+                raise _FieldError(
+                    f"expected_status_of.{s}",
+                    f"unknown scheme{did_you_mean(s, list(SCHEME_NAMES))} (known: {', '.join(SCHEME_NAMES)})",
+                )
         ids = [c.id for c in self.claims]
         for i, c in enumerate(self.claims):
             if ids.count(c.id) > 1:
@@ -564,6 +578,10 @@ class Case(_Strict):
         return self
 
     # ------------------------------------------------------------------ derived
+    def expected_for(self, scheme: str) -> set[str]:
+        """Outcomes of ``scheme``'s run that are not failures (expected_status_of, else expected_status)."""
+        return set(self.expected_status_of.get(scheme, self.expected_status))
+
     def fault_schedule(self) -> FaultSchedule:
         return FaultSchedule(
             self.robots.n, [FaultEvent(f.time, f.wheel.strip().lower(), f.sigma, f.ubar) for f in self.faults]

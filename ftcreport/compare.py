@@ -258,7 +258,7 @@ class CaseVerdict:
 def compare_case(
     case: str,
     metrics_by_scheme: Mapping[str, Mapping],
-    expected_status: Iterable[str] = ("ok",),
+    expected_status: Iterable[str] | Mapping[str, Iterable[str]] = ("ok",),
     fault_times: Sequence[float] = (),
     facts: Mapping[str, object] | None = None,
 ) -> CaseVerdict:
@@ -268,8 +268,9 @@ def compare_case(
     ----------
     metrics_by_scheme : mapping
         ``{scheme: metrics.json dict}`` of the runs that exist.
-    expected_status : iterable of str
-        The case's ``expected_status``.
+    expected_status : iterable of str, or mapping of scheme to iterable of str
+        The statuses that are not failures: the case's ``expected_status``, or per scheme
+        (``Case.expected_for``).
     fault_times : sequence of float
         Event times (for the sentences).
     facts : mapping, optional
@@ -284,11 +285,14 @@ def compare_case(
         mine = [r for r in rows if r.metric == spec.key]
         if mine:
             verdicts[spec.key] = compare_metric(mine, spec)
-    expected = set(expected_status)
+    if isinstance(expected_status, Mapping):
+        expected = {s: set(v) for s, v in expected_status.items()}
+    else:
+        expected = {s: set(expected_status) for s in metrics_by_scheme}
     outside = [
         (s, str(m.get("status", "error")))
         for s, m in metrics_by_scheme.items()
-        if str(m.get("status", "error")) not in expected
+        if str(m.get("status", "error")) not in expected.get(s, {"ok"})
     ]
     failed = [
         (s, str(m.get("status", "error")), _num(m.get("t_end")))

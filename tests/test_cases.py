@@ -50,6 +50,7 @@ def _base() -> dict:
         (lambda c: c["schemes"].update(run=["nominal"]), "schemes.switching", "not listed in schemes.run"),
         (lambda c: c["schemes"].update(run=["nominal", "magic"]), "schemes.run[1]", "Input should be"),
         (lambda c: c.pop("reference"), "reference", "Field required"),
+        (lambda c: c.update(expected_status_of={"adaptiv": ["ok"]}), "expected_status_of.adaptiv", "'adaptive'"),
     ],
 )
 def test_malformed_cases_name_file_field_and_reason(mutate, where, why):
@@ -109,3 +110,11 @@ def test_default_tables_follow_the_case_and_the_thesis():
     assert parse_case(two, "v.toml").schemes.adaptive_frozen.k_v == 10.0  # listed: the adaptive defaults
     # parsing the dump of a filled case gives the same case (the batch's workers re-parse it)
     assert parse_case(c3.model_dump(mode="json"), "w.toml") == c3
+
+
+def test_expected_status_per_scheme():
+    data = _base()
+    data["expected_status_of"] = {"adaptive": ["ok", "step_unstable"]}
+    case = parse_case(data, "x.toml")
+    assert case.expected_for("adaptive") == {"ok", "step_unstable"}
+    assert case.expected_for("switching") == {"ok"}  # the case-wide expected_status elsewhere

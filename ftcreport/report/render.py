@@ -409,7 +409,9 @@ def _verdict(case, name: str, runs: list[dict]):
     if not runs:
         return None
     events = sorted({float(f.time) for f in case.faults})
-    return compare.compare_case(name, {m["scheme"]: m for m in runs}, case.expected_status, events, _facts(case))
+    by_scheme = {m["scheme"]: m for m in runs}
+    expected = {s: case.expected_for(s) for s in by_scheme}
+    return compare.compare_case(name, by_scheme, expected, events, _facts(case))
 
 
 def _verdict_rows(v) -> list[dict]:

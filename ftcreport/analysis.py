@@ -34,6 +34,7 @@ import control
 import numpy as np
 
 from .control.kinematic import TwoLinkKinematic
+from .errors import FtcError
 from .model import kernels as K
 from .model.chain import Chain
 from .model.faults import pattern_is_compensable
@@ -570,7 +571,11 @@ def analyze_case(case) -> dict:
         out["note"] = "time-varying reference: see the frozen-time poles"
         k_v0 = getattr(case.schemes, schemes[0]).k_v
         span = min(case.simulation.duration, 60.0)
-        out["frozen_time"] = chained_frozen_time_poles(chain, _chained(case, chain, ref), k_v0, span, samples=60)
+        try:
+            out["frozen_time"] = chained_frozen_time_poles(chain, _chained(case, chain, ref), k_v0, span, samples=60)
+        except FtcError as exc:  # the law is singular on the reference itself: say so, do not crash the page
+            out["frozen_time"] = None
+            out["note"] = f"frozen-time poles not computed: the law is singular on the reference ({exc})"
     q0 = ref.at(0.0).q_d
     k_v = next(getattr(case.schemes, s).k_v for s in schemes)
     mf = default_max_failed(chain.n_wheels)

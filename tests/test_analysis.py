@@ -260,3 +260,40 @@ def test_chained_frozen_time_poles_on_the_sinusoid():
     assert ft["positive_fraction"] == 0.0
     assert -0.2 < ft["worst"] < -0.05
     assert len(ft["poles"][0]) == 3 + 4  # n + 4 error states
+
+
+def test_fault_patterns_enumeration_scales():
+    """Every pattern up to 8 wheels; beyond, healthy + single + double losses (issue 20 item 6)."""
+    import itertools
+
+    from ftcreport.analysis import default_max_failed, fault_patterns
+
+    assert sorted(fault_patterns(6)) == sorted(itertools.product((1, 0), repeat=6))
+    assert default_max_failed(8) is None and default_max_failed(10) == 2
+    for n in (5, 12):
+        pats = fault_patterns(2 * n, 2)
+        assert len(pats) == 1 + 2 * n + math.comb(2 * n, 2) == len(set(pats))
+        assert pats[0] == (1,) * (2 * n)
+        assert all(sum(1 - v for v in p) <= 2 for p in pats)
+
+
+def test_twelve_robot_analysis_enumerates_what_the_page_shows(tmp_path):
+    """A 12-robot case (the schema's largest) analyses 301 patterns, not 2^24; counts by the rule of (2.103)."""
+    from ftcreport.analysis import analyze_case
+    from ftcreport.cases import load_case
+
+    text = (Path(__file__).resolve().parents[1] / "cases" / "three_link_circle_faults.toml").read_text()
+    text = text.replace("n = 3", "n = 12", 1).replace("radius = 5.0", "radius = 30.0", 1)
+    path = tmp_path / "twelve.toml"
+    path.write_text(text)
+    res = analyze_case(load_case(path))
+    assert res["patterns_enumerated"] == {
+        "max_failed": 2,
+        "count": 301,
+        "total": 2**24,
+        "compensable_total": 3 * 2**22 - 2,
+    }
+    assert len(res["controllability"]) == 301
+    # the healthy law keeps every compensable enumerated pattern stable and no other (see velocity_loop)
+    vl = res["nominal_velocity_loop"]
+    assert vl["stable_patterns"] == vl["compensable_patterns"]

@@ -336,7 +336,8 @@ class Noise(_Strict):
     position: Std = _f(0.0, "on x and y", "m")
     heading: Std = _f(0.0, "on every theta", "rad")
     velocity: Std = _f(0.0, "on v_n and omega_1", "m/s, rad/s")
-    seed: int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**32 - 1)
+    # 63 bits: campaigns give each sample a SeedSequence child of 63 bits (ftcreport.campaign.sample_seeds)
+    seed: int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**63 - 1)
 
 
 class Mismatch(_Strict):

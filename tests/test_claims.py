@@ -83,12 +83,13 @@ def test_ratio_not_applicable_and_not_evaluated():
         (_claim(scheme="nominal", metric="m", max=1.0, sequence=[1]), "either a bound"),
         (_claim(scheme="wizard", metric="m", max=1.0), "unknown scheme"),
         (_claim(not_applicable="why"), "must expect 'not applicable'"),
-        (_claim(scheme="oracle", metric="m", max=1.0), "not configured"),
+        (_claim(scheme="oracle", metric="m", max=1.0), "not run by this case"),
     ],
 )
 def test_bad_claims_are_refused_with_the_field(claim, msg):
     data = tomllib.loads((CASES / "two_link_switching.toml").read_text())
     del data["schemes"]["oracle"]
+    data["schemes"]["run"] = [s for s in data["schemes"] if s != "oracle"]  # every family runs unless narrowed
     data["claims"] = [claim]
     with pytest.raises(CaseError, match=msg) as info:
         parse_case(data, "x.toml")

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 import ftcreport
 from ftcreport.batch import record_case, run_batch, run_key
-from ftcreport.cases import case_hash, load_case, with_duration
+from ftcreport.cases import SCHEME_NAMES, case_hash, load_case, with_duration
 from ftcreport.check import ThresholdResult
 from ftcreport.cli import app
 from ftcreport.report.junit import junit_xml
@@ -194,8 +194,10 @@ def test_batch_writes_manifest_parquet_and_page_provenance(tmp_path):
         assert m["dependencies"][dep], dep
     case = with_duration(load_case(CASES / "two_link_uncompensable.toml"), 1.0)
     assert m["cases"] == {case.name: case_hash(case, ftcreport.__version__)}
+    # every family runs (issue 21); the UKF in the Python loop, the others compiled
+    schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
     assert {(r["scheme"], r["engine"], r["key"]) for r in m["runs"]} == {
-        (s, "compiled", run_key(case, s)) for s in ("nominal", "switching", "oracle")
+        (s, "python" if s == "active_ukf" else "compiled", run_key(case, s)) for s in schemes
     }
     assert m["seeds"] == {case.name: 0}
     assert pd.read_parquet(out / "metrics.parquet")["case"].unique().tolist() == [case.name]

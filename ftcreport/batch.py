@@ -83,6 +83,30 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
     return key
 
 
+def error_record_name(path: Path) -> str:
+    """Directory of a rejected case file's record: its stem when that is a safe name, else a hash of the path."""
+    import hashlib
+
+    from .limits import name_problem
+
+    stem = Path(path).stem
+    if name_problem(stem) is None:
+        return stem
+    return "rejected-" + hashlib.sha256(str(path).encode("utf-8", "surrogateescape")).hexdigest()[:12]
+
+
+def _record_error(out: Path, path: Path, error: str) -> None:
+    """Record a rejected case file (shown on the index) without letting its name escape ``out``."""
+    try:
+        raw = path.read_bytes()[:200_000]
+    except OSError:
+        raw = b""
+    text = raw.decode("utf-8", errors="replace")
+    _record(
+        out, error_record_name(path), {"source": str(path), "status": "error", "error": error, "source_text": text}
+    )
+
+
 def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> dict:
     """Run one scheme in a worker process and store it; returns its metrics."""
     from .cases import parse_case
@@ -131,20 +155,21 @@ def run_batch(
     res = BatchResult()
     todo: list[tuple[Case, str, str, str]] = []  # case, source, scheme, key
     expected: dict[str, set[str]] = {}  # case name -> run statuses that are not failures
+    taken: dict[str, str] = {}  # lower-case case name -> the file that has it
     for path in discover(paths):
         try:
             case = load_case(path)
             if duration is not None:
                 case = with_duration(case, duration)
+            first = taken.setdefault(case.name.lower(), str(path))
+            if first != str(path):
+                raise CaseError(
+                    f"{path}: name: '{case.name}' is already the name of {first} (names must differ in more than "
+                    "letter case: each is a directory of the report)"
+                )
         except CaseError as exc:
             res.case_errors[str(path)] = str(exc)
-            try:
-                text = Path(path).read_text()
-            except OSError:
-                text = ""
-            _record(
-                out, Path(path).stem, {"source": str(path), "status": "error", "error": str(exc), "source_text": text}
-            )
+            _record_error(out, Path(path), str(exc))
             continue
         res.cases.append(case.name)
         key = record_case(out, case, Path(path), duration)
@@ -221,6 +246,6 @@ def _drain(q, progress, tasks) -> None:
 
 
 def failures_summary(res: BatchResult) -> str:  # pragma: no cover - CLI text helper
-    lines = [f"{p}: {e}" for p, e in res.case_errors.items()]
-    lines += [f"{c} / {s}: {r}" for c, s, r in res.failed_runs]
+    lines = [f"ftcreport: error: {e if e.startswith(p) else f'{p}: {e}'}" for p, e in res.case_errors.items()]
+    lines += [f"ftcreport: error: {c} / {s}: {r}" for c, s, r in res.failed_runs]
     return "\n".join(lines)

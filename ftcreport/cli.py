@@ -12,12 +12,96 @@ import math
 from pathlib import Path
 from typing import Annotated
 
+import click
 import typer
+from typer.core import TyperGroup
 
 from . import __version__
 from .errors import FtcError
 
+
+class _ErrorBoundary(TyperGroup):
+    """The one error boundary of every command (issue 23).
+
+    Expected failures become ``ftcreport: error: <file>: <field>: <reason>`` on stderr:
+    bad input (case files, arguments, unreadable or unwritable paths) exits 2, a numeric
+    failure exits 1.  Anything else is a bug: one line naming a log file that holds the
+    traceback, exit 3.  ``ftcreport --debug`` re-raises instead (full traceback).
+    """
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except (typer.Exit, click.exceptions.Exit, click.ClickException, click.Abort, SystemExit):
+            raise
+        except BaseException as exc:
+            if ctx.params.get("debug") and not isinstance(exc, KeyboardInterrupt):
+                raise
+            line, code = _classify(exc)
+            if code == 3:
+                line += f" (a bug: traceback in {_crash_log(exc)}; --debug shows it)"
+            typer.echo(f"ftcreport: error: {line}", err=True)
+            raise typer.Exit(code=code) from None
+
+
+def _classify(exc: BaseException) -> tuple[str, int]:
+    """(message, exit code) of an exception reaching the boundary."""
+    import errno
+
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted; finished runs are stored, re-run the same command to resume", 130
+    if isinstance(exc, FtcError):
+        return str(exc), getattr(exc, "exit_code", 2)
+    if isinstance(exc, UnicodeDecodeError):
+        return f"<input>: not UTF-8 text ({exc.reason} at byte {exc.start})", 2
+    if isinstance(exc, OSError):
+        where = exc.filename if exc.filename is not None else "<output>"
+        why = {
+            errno.ENOSPC: "no space left on the device",
+            errno.ENAMETOOLONG: "file name too long",
+            errno.EROFS: "read-only file system",
+            errno.EACCES: "permission denied",
+            errno.EPERM: "operation not permitted",
+        }.get(exc.errno, exc.strerror or type(exc).__name__)
+        return f"{where}: {why}", 2
+    if isinstance(exc, MemoryError):
+        return "<run>: out of memory (see the limits in cases/README.md)", 1
+    if isinstance(exc, ArithmeticError | FloatingPointError):
+        return f"<run>: numeric error: {type(exc).__name__}: {exc}", 1
+    try:
+        import numpy as np
+
+        if isinstance(exc, np.linalg.LinAlgError):
+            return f"<run>: numeric error: LinAlgError: {exc}", 1
+    except ImportError:  # pragma: no cover
+        pass
+    return f"unexpected {type(exc).__name__}: {str(exc)[:200]}", 3
+
+
+def _crash_log(exc: BaseException) -> str:
+    """Write the traceback to a log file (FTCREPORT_LOG_DIR or the temp directory); return its path."""
+    import datetime as _dt
+    import os
+    import tempfile
+    import traceback
+
+    text = "".join(traceback.format_exception(exc))
+    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    for d in (os.environ.get("FTCREPORT_LOG_DIR"), tempfile.gettempdir()):
+        if not d:
+            continue
+        try:
+            path = Path(d) / f"ftcreport-crash-{stamp}-{os.getpid()}.log"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(f"ftcreport {__version__}\n{text}")
+            return str(path)
+        except OSError:
+            continue
+    return "<no writable log directory>"
+
+
 app = typer.Typer(
+    cls=_ErrorBoundary,
     name="ftcreport",
     help=(
         "Fault-tolerant control of linked 2WD robots: simulate fault cases through "
@@ -44,6 +128,9 @@ def _version(value: bool) -> None:
 def main(
     version: Annotated[
         bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the full traceback of an unexpected error instead of logging it.")
     ] = False,
 ) -> None:
     """ftcreport command-line interface."""
@@ -98,6 +185,13 @@ def demo(
     from .model import Chain, FaultEvent, FaultSchedule
     from .sim import Plant, SimSettings, simulate
 
+    from .limits import budget_problem
+
+    if not 2 <= robots <= 12:
+        _fail(FtcError(f"--robots: must be between 2 and 12, got {robots}"))
+    if (problem := budget_problem(robots, duration, dt, 1)) is not None:
+        opt = "--dt" if problem[0] == "simulation.dt" else "--duration"  # demo logs every step
+        _fail(FtcError(f"demo: {opt}: {problem[1]}"))
     try:
         chain = Chain.uniform(robots, d=1.0)
         faults = FaultSchedule(robots, [FaultEvent(fault_time, "2l", sigma=0.0, ubar=0.0)])
@@ -285,7 +379,7 @@ def check(
                 f"(min {_fmt(r.min, 'g')}, max {_fmt(r.max, 'g')}) {r.reason}".rstrip()
             )
     for msg in res.case_errors.values():
-        typer.echo(f"error: {msg}", err=True)
+        typer.echo(f"ftcreport: error: {msg}", err=True)
     failed = sum(not r.ok for r in results)
     typer.echo(f"{len(results) - failed}/{len(results)} thresholds hold")
     if res.case_errors:
@@ -403,7 +497,7 @@ def cases_validate(
             c = load_case(f)
         except FtcError as exc:
             bad += 1
-            typer.echo(f"error: {exc}", err=True)
+            typer.echo(f"ftcreport: error: {exc}", err=True)
             continue
         typer.echo(f"ok     {f}")
         for w in c.warnings():
@@ -421,15 +515,27 @@ def cases_new(
 
     Example: ftcreport cases new my_case
     """
-    from .cases import TEMPLATE, load_case
+    import os
 
-    if not name.replace("_", "").replace("-", "").isalnum():
-        _fail(FtcError(f"name: '{name}' must be letters, digits, '_' or '-'"))
+    from .cases import TEMPLATE, load_case
+    from .limits import name_problem
+
+    if (why := name_problem(name)) is not None:
+        _fail(FtcError(f"{directory}: name: {why}"))
     path = directory / f"{name}.toml"
-    if path.exists():
-        _fail(FtcError(f"{path}: exists already; not overwritten"))
+    if directory.exists() and not directory.is_dir():
+        _fail(FtcError(f"{directory}: --dir: exists and is not a directory"))
     directory.mkdir(parents=True, exist_ok=True)
-    path.write_text(TEMPLATE)
+    try:  # O_EXCL: never overwrite, even when another process creates the file meanwhile
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except FileExistsError:
+        _fail(FtcError(f"{path}: exists already; not overwritten"))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(TEMPLATE)
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
     load_case(path)  # the template itself is valid
     typer.echo(f"wrote {path}")
 

@@ -30,7 +30,7 @@ from pathlib import Path
 from . import __version__
 from .cases import SCHEME_NAMES, Case, case_hash, load_case, with_duration
 from .errors import CaseError
-from .store import cached_key, save_run, write_atomic, write_json
+from .store import cached_key, output_lock, save_run, write_atomic, write_json
 
 __all__ = ["BatchResult", "discover", "failures_summary", "record_case", "run_batch"]
 
@@ -102,9 +102,7 @@ def _record_error(out: Path, path: Path, error: str) -> None:
     except OSError:
         raw = b""
     text = raw.decode("utf-8", errors="replace")
-    _record(
-        out, error_record_name(path), {"source": str(path), "status": "error", "error": error, "source_text": text}
-    )
+    _record(out, error_record_name(path), {"source": str(path), "status": "error", "error": error, "source_text": text})
 
 
 def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> dict:
@@ -149,9 +147,17 @@ def run_batch(
     show_progress: bool = True,
     render: bool = True,
 ) -> BatchResult:
-    """Run every case x scheme not already cached, then render the reports."""
+    """Run every case x scheme not already cached, then render the reports.
+
+    Holds the output directory's lock (:func:`ftcreport.store.output_lock`) throughout:
+    a second batch, run, report or check on the same ``out`` fails at once with a message.
+    """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    with output_lock(out, "batch"):
+        return _run_batch(paths, out, jobs, force, duration, show_progress, render)
+
+
+def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -> BatchResult:
     res = BatchResult()
     todo: list[tuple[Case, str, str, str]] = []  # case, source, scheme, key
     expected: dict[str, set[str]] = {}  # case name -> run statuses that are not failures
@@ -212,26 +218,43 @@ def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, 
             futures[fut] = (case.name, scheme)
             tasks[(case.name, scheme)] = progress.add_task(f"{case.name} / {scheme}", total=case.simulation.duration)
         pending = set(futures)
-        while pending:
-            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            _drain(q, progress, tasks)
-            for fut in done:
-                name, scheme = futures[fut]
-                try:
-                    m = fut.result()
-                    status, reason = m.get("status", "error"), m.get("reason", "")
-                except Exception as exc:
-                    status, reason = "error", f"worker failed: {type(exc).__name__}: {exc}"
-                    write_json(
-                        out / name / scheme / "metrics.json",
-                        {"case": name, "scheme": scheme, "status": "error", "reason": reason},
-                    )
-                res.simulated.append((name, scheme))
-                if status not in expected.get(name, {"ok"}):
-                    res.failed_runs.append((name, scheme, f"{status}: {reason}"))
-                task = tasks[(name, scheme)]
-                progress.update(task, completed=progress.tasks[task].total, description=f"{name} / {scheme} [{status}]")
+        try:
+            _collect(pending, futures, q, progress, tasks, out, res, expected)
+        except BaseException:  # Ctrl-C, SIGTERM: stop the workers now; every stored run is complete
+            for fut in pending:
+                fut.cancel()
+            for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                with contextlib.suppress(Exception):
+                    proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            with contextlib.suppress(Exception):
+                manager.shutdown()
+            raise
     manager.shutdown()
+
+
+def _collect(pending, futures, q, progress, tasks, out: Path, res: BatchResult, expected: dict) -> None:
+    """Wait for the runs, recording each as it finishes."""
+    while pending:
+        done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+        _drain(q, progress, tasks)
+        for fut in done:
+            name, scheme = futures[fut]
+            try:
+                m = fut.result()
+                status, reason = m.get("status", "error"), m.get("reason", "")
+            except Exception as exc:
+                status, reason = "error", f"worker failed: {type(exc).__name__}: {exc}"
+                (out / name / scheme / "key").unlink(missing_ok=True)  # not a complete, cached run
+                write_json(
+                    out / name / scheme / "metrics.json",
+                    {"case": name, "scheme": scheme, "status": "error", "reason": reason},
+                )
+            res.simulated.append((name, scheme))
+            if status not in expected.get(name, {"ok"}):
+                res.failed_runs.append((name, scheme, f"{status}: {reason}"))
+            task = tasks[(name, scheme)]
+            progress.update(task, completed=progress.tasks[task].total, description=f"{name} / {scheme} [{status}]")
 
 
 def _drain(q, progress, tasks) -> None:

@@ -182,10 +182,9 @@ def demo(
     import numpy as np
 
     from .control import VelocityController, constant_command
+    from .limits import budget_problem
     from .model import Chain, FaultEvent, FaultSchedule
     from .sim import Plant, SimSettings, simulate
-
-    from .limits import budget_problem
 
     if not 2 <= robots <= 12:
         _fail(FtcError(f"--robots: must be between 2 and 12, got {robots}"))
@@ -290,15 +289,17 @@ def run(
             typer.echo(f"warning: {case}: {w}", err=True)
     from .batch import record_case
     from .report.render import render_case, render_index
+    from .store import output_lock
 
-    key = record_case(out, c, case, duration)
     rows = []
-    for s in schemes:
-        r, m = run_scheme(c, s, built)
-        save_run(out, c.name, s, r, m, key)
-        rows.append(m)
-    page = render_case(out, c.name)
-    render_index(out)
+    with output_lock(out, "run"):
+        key = record_case(out, c, case, duration)
+        for s in schemes:
+            r, m = run_scheme(c, s, built)
+            save_run(out, c.name, s, r, m, key)
+            rows.append(m)
+        page = render_case(out, c.name)
+        render_index(out)
     if not quiet:
         typer.echo(_table(rows))
         typer.echo(f"results in {out / c.name}/, report {page}")
@@ -341,7 +342,11 @@ def report(
 
     if not out.is_dir():
         _fail(FtcError(f"{out}: no stored results (run 'ftcreport batch' first)"))
-    typer.echo(f"report: {render_all(out, force=True)}")
+    from .store import output_lock
+
+    with output_lock(out, "report"):
+        page = render_all(out, force=True)
+    typer.echo(f"report: {page}")
 
 
 @app.command()
@@ -450,23 +455,25 @@ def campaign(
     from .campaign import read_table, run_campaign
     from .cases import load_case
     from .report.campaign import render_campaign
+    from .store import output_lock
 
     try:
         base = load_case(case)
         out_dir = out or Path("reports") / "campaigns" / base.name
         chosen = None if schemes is None else [s.strip() for s in schemes.split(",") if s.strip()]
-        res = run_campaign(
-            base,
-            samples,
-            out_dir,
-            seed=seed,
-            schemes=chosen,
-            scheduler=scheduler,
-            workers=workers,
-            in_process=in_process,
-            show_progress=not quiet,
-        )
-        page = render_campaign(out_dir, read_table(res.table))
+        with output_lock(out_dir, "campaign"):
+            res = run_campaign(
+                base,
+                samples,
+                out_dir,
+                seed=seed,
+                schemes=chosen,
+                scheduler=scheduler,
+                workers=workers,
+                in_process=in_process,
+                show_progress=not quiet,
+            )
+            page = render_campaign(out_dir, read_table(res.table))
     except FtcError as exc:
         _fail(exc)
     typer.echo(

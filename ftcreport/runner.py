@@ -25,7 +25,7 @@ from .observers import FarzaObserver
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
-__all__ = ["Built", "build", "make_controller", "run_metrics", "run_scheme"]
+__all__ = ["Built", "build", "explain_nulls", "make_controller", "run_metrics", "run_scheme"]
 
 
 class Built:
@@ -142,10 +142,10 @@ def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=Non
         run = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings, progress=progress)
     except FtcError as exc:
         empty = Run(t=np.zeros(0), signals={}, status="error", reason=str(exc))
-        return empty, _identity(case, scheme) | {"status": "error", "reason": str(exc), "wall_time": 0.0}
+        return empty, explain_nulls(_identity(case, scheme) | {"status": "error", "reason": str(exc), "wall_time": 0.0})
     metrics = run_metrics(case, scheme, run, built, ctrl)
     metrics["wall_time"] = time.perf_counter() - wall0
-    return run, metrics
+    return run, explain_nulls(metrics)
 
 
 def _identity(case: Case, scheme: str) -> dict:
@@ -206,4 +206,46 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
         out["P_max"] = float(np.max(run["P_max"]))
         out["rho_hat_final"] = run["rho_hat"][-1].tolist()
         out["ubar_hat_final"] = run["ubar_hat"][-1].tolist()
+    return out
+
+
+# Why a metric can be null, by its key (the last part of its path in metrics.json).
+_NULL_WHY = {
+    "recovery_time": "the position error did not enter the recovery band and stay in it before the phase ended",
+    "recovery_time_max": "some phase that starts with a fault never recovers (see phases[*].recovery_time)",
+    "delay": "the applied model never matched the true pattern after this event",
+    "detection_delay_max": "some fault was never detected (see the per-event delays)",
+    "t_declared": "the fault was never declared",
+    "estimate": "the fault was never declared",
+    "position_error_max": "no logged sample in this phase (the run stopped before it)",
+    "position_error_rms": "no logged sample in this phase (the run stopped before it)",
+    "position_error_final": "no logged sample in this phase (the run stopped before it)",
+    "position_error_iae": "fewer than two logged samples in this phase",
+}
+_NOT_METRICS = {"reason", "traceback", "name", "description", "null_reasons"}
+
+
+def explain_nulls(metrics: dict) -> dict:
+    """Every metric finite or null with its reason: non-finite floats become None, and
+    ``null_reasons`` maps the path of every null (e.g. ``phases[2].recovery_time``) to why."""
+    reasons: dict[str, str] = {}
+    status = metrics.get("status", "?")
+    stopped = "" if status == "ok" else f" (the run ended '{status}': {metrics.get('reason') or 'no reason given'})"
+
+    def walk(v, path: str, key: str):
+        if isinstance(v, dict):
+            return {k: (x if k in _NOT_METRICS else walk(x, f"{path}.{k}" if path else k, k)) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [walk(x, f"{path}[{i}]", key) for i, x in enumerate(v)]
+        if isinstance(v, np.generic):
+            v = v.item()
+        if isinstance(v, float) and not math.isfinite(v):
+            reasons[path] = f"non-finite value ({v}) computed from the logged run{stopped}"
+            return None
+        if v is None:
+            reasons[path] = _NULL_WHY.get(key, "not defined for this run") + stopped
+        return v
+
+    out = walk({k: v for k, v in metrics.items() if k != "null_reasons"}, "", "")
+    out["null_reasons"] = reasons
     return out

@@ -112,7 +112,7 @@ def draw_variant(base: Case, seed: int) -> Case:
     noise["position"] = float(rng.uniform(*spec.noise_position))
     noise["heading"] = float(rng.uniform(*spec.noise_heading))
     noise["seed"] = int(seed % (2**31))
-    data["name"] = f"{base.name}#{seed}"
+    data["name"] = f"{base.name[:52]}.s{seed}"  # a safe case name (ftcreport.limits): at most 64 characters
     return parse_case(data, f"{base.name} (campaign draw, seed {seed})")
 
 

@@ -259,16 +259,28 @@ def run(
     scheme: Annotated[list[str] | None, typer.Option(help="Run only these schemes (repeatable).")] = None,
     duration: Annotated[float | None, typer.Option(help="Override the simulated time [s].")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only errors.")] = False,
+    verify_dt: Annotated[
+        bool,
+        typer.Option(
+            "--verify-dt",
+            help="Run each scheme again at dt/2 and print the change of the headline metrics "
+            "(stored as verify_dt in metrics.json); exit 1 if a change exceeds 1 %% (+1e-6 absolute).",
+        ),
+    ] = False,
+    no_report: Annotated[
+        bool, typer.Option("--no-report", help="Store the results only (render later with 'ftcreport report').")
+    ] = False,
 ) -> None:
     """Run one case through its schemes; store metrics.json and time series under OUT/<case>/<scheme>/.
 
     Prints a comparison table.  Exit 0 when every run completed, 1 when a run
-    stopped early (singular, diverged, error), 2 for a bad case file.
+    stopped early (singular, diverged, error) or --verify-dt finds the step not
+    converged, 2 for a bad case file.
 
-    Example: ftcreport run cases/two_link_switching.toml --scheme switching
+    Example: ftcreport run cases/two_link_switching.toml --scheme switching --verify-dt
     """
     from .cases import SCHEME_NAMES, load_case, with_duration
-    from .runner import build, run_scheme
+    from .runner import build, dt_sensitivity, halve_dt, run_scheme
     from .store import save_run
 
     try:
@@ -282,8 +294,9 @@ def run(
                 raise FtcError(f"{case}: schemes.{unknown[0]}: not configured in this case (has {', '.join(schemes)})")
             schemes = [s for s in schemes if s in scheme]
         built = build(c)
+        half = halve_dt(c, str(case)) if verify_dt else None
     except FtcError as exc:
-        _fail(exc)
+        _fail(exc if str(exc).startswith(str(case)) else FtcError(f"{case}: {exc}"))
     if not quiet:
         for w in c.warnings():
             typer.echo(f"warning: {case}: {w}", err=True)
@@ -296,15 +309,46 @@ def run(
         key = record_case(out, c, case, duration)
         for s in schemes:
             r, m = run_scheme(c, s, built)
+            if half is not None:
+                m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
             save_run(out, c.name, s, r, m, key)
             rows.append(m)
-        page = render_case(out, c.name)
-        render_index(out)
+        page = None if no_report else render_case(out, c.name)
+        if not no_report:
+            render_index(out)
     if not quiet:
         typer.echo(_table(rows))
-        typer.echo(f"results in {out / c.name}/, report {page}")
-    if any(m["status"] not in c.expected_status for m in rows):
+        if half is not None:
+            typer.echo(_dt_table(rows))
+        typer.echo(f"results in {out / c.name}/" + (f", report {page}" if page else ""))
+    failed = [m for m in rows if m["status"] not in c.expected_status]
+    for m in failed:
+        typer.echo(f"ftcreport: error: {case}: {m['scheme']}: {m['status']}: {m.get('reason') or '-'}", err=True)
+    loose = [m for m in rows if not m.get("verify_dt", {}).get("converged", True)]
+    for m in loose:
+        v = m["verify_dt"]
+        typer.echo(
+            f"ftcreport: error: {case}: simulation.dt: {m['scheme']}: not converged at dt = {v['dt']:g} s "
+            f"({v['worst']} changes by {v['worst_rel_change']:.3g} relative at dt/2)",
+            err=True,
+        )
+    if failed or loose:
         raise typer.Exit(code=1)
+
+
+def _dt_table(rows: list[dict]) -> str:
+    """The change of each headline metric from dt to dt/2, per scheme (run --verify-dt)."""
+    lines = [f"{'dt check':<10} {'metric':<22} {'at dt':>11} {'at dt/2':>11} {'change':>10} {'relative':>9}"]
+    for m in rows:
+        v = m["verify_dt"]
+        verdict = "converged" if v["converged"] else "NOT converged"
+        lines.append(f"{m['scheme']:<10} dt = {v['dt']:g} s vs {v['dt_half']:g} s: {verdict} (status {v['status']})")
+        for k, r in v["metrics"].items():
+            lines.append(
+                f"{'':<10} {k:<22} {_fmt(r['dt']):>11} {_fmt(r['dt_half']):>11} {_fmt(r['abs_change']):>10} "
+                f"{_fmt(r['rel_change'], '.2%'):>9}"
+            )
+    return "\n".join(lines)
 
 
 def _fmt(x, spec: str = ".3g") -> str:

@@ -25,7 +25,17 @@ from .observers import FarzaObserver
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
-__all__ = ["Built", "build", "explain_nulls", "make_controller", "run_metrics", "run_scheme"]
+__all__ = [
+    "HEADLINE_METRICS",
+    "Built",
+    "build",
+    "dt_sensitivity",
+    "explain_nulls",
+    "halve_dt",
+    "make_controller",
+    "run_metrics",
+    "run_scheme",
+]
 
 
 class Built:
@@ -249,3 +259,73 @@ def explain_nulls(metrics: dict) -> dict:
     out = walk({k: v for k, v in metrics.items() if k != "null_reasons"}, "", "")
     out["null_reasons"] = reasons
     return out
+
+
+# ---------------------------------------------------------------------- step-size check (run --verify-dt)
+HEADLINE_METRICS = (
+    "position_error_max",
+    "position_error_rms",
+    "position_error_final",
+    "heading_error_max",
+    "recovery_time_max",
+    "torque_peak",
+    "torque_rms",
+    "energy",
+)
+
+
+def halve_dt(case: Case, source: str = "") -> Case:
+    """The same case at half the step (logged every 2 * log_every steps: the same instants).
+
+    Raises CaseError when the halved run is over the limits of ftcreport.limits.
+    """
+    from .cases import _check_budget, _FieldError
+    from .errors import CaseError
+
+    sim = case.simulation
+    half = case.model_copy(
+        update={"simulation": sim.model_copy(update={"dt": sim.dt / 2, "log_every": sim.log_every * 2})}
+    )
+    try:
+        _check_budget(half)
+    except _FieldError as exc:
+        raise CaseError(f"{source or case.name}: --verify-dt: at dt/2, {exc.loc}: {exc.msg}") from None
+    return half
+
+
+def dt_sensitivity(full: dict, half: dict, rtol: float = 0.01, atol: float = 1e-6) -> dict:
+    """Change of the headline metrics from dt to dt/2.
+
+    Converged when both runs end with the same status and every headline metric
+    changes by at most ``atol + rtol * max(|a|, |b|)`` (a metric null in exactly one
+    run is a change).  A fixed-step method's error at dt is about the change
+    from dt to dt/2 times 2^p / (2^p - 1) (p = 4 for RK4), so the change bounds it.
+    """
+    rows, ok, worst, worst_rel = {}, full.get("status") == half.get("status"), "status", 0.0
+    for k in HEADLINE_METRICS:
+        a, b = full.get(k), half.get(k)
+        if a is None and b is None:
+            continue
+        if a is None or b is None:
+            rows[k] = {"dt": a, "dt_half": b, "abs_change": None, "rel_change": None}
+            ok, worst, worst_rel = False, k, math.inf
+            continue
+        d = abs(float(a) - float(b))
+        scale = max(abs(float(a)), abs(float(b)))
+        rel = d / scale if scale > 0 else 0.0
+        rows[k] = {"dt": a, "dt_half": b, "abs_change": d, "rel_change": rel}
+        if d > atol + rtol * scale:
+            ok = False
+        if rel > worst_rel and d > atol:
+            worst, worst_rel = k, rel
+    return {
+        "dt": full.get("dt"),
+        "dt_half": half.get("dt"),
+        "status": f"{full.get('status')} / {half.get('status')}",
+        "metrics": rows,
+        "rtol": rtol,
+        "atol": atol,
+        "converged": ok,
+        "worst": worst,
+        "worst_rel_change": worst_rel if math.isfinite(worst_rel) else None,
+    }

@@ -170,12 +170,12 @@ def _get(data, path):
     return node
 
 
-class _Hang(Exception):
+class _HangError(Exception):
     pass
 
 
 def _alarm(signum, frame):
-    raise _Hang(f"example took longer than {DEADLINE_S} s")
+    raise _HangError(f"example took longer than {DEADLINE_S} s")
 
 
 def _check_failure_message(res, path: Path, label: str) -> None:
@@ -243,7 +243,7 @@ def test_mutated_cases_never_crash(mutant, tmp_path_factory):
         if name in SLOW_PAGES and not LONG:
             args.append("--no-report")
         run = runner.invoke(app, args)
-        if isinstance(run.exception, _Hang):
+        if isinstance(run.exception, _HangError):
             raise run.exception
         assert run.exit_code in RUN_CODES, (label, run.exit_code, run.output, run.exception)
         if run.exit_code != 0:

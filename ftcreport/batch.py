@@ -133,6 +133,7 @@ def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progr
             "status": "error",
             "reason": f"{type(exc).__name__}: {exc}",
             "traceback": traceback.format_exc(),
+            "null_reasons": {},  # no metric was computed
         }
     save_run(Path(out), case.name, scheme, run, metrics, key)
     return metrics
@@ -248,7 +249,7 @@ def _collect(pending, futures, q, progress, tasks, out: Path, res: BatchResult, 
                 (out / name / scheme / "key").unlink(missing_ok=True)  # not a complete, cached run
                 write_json(
                     out / name / scheme / "metrics.json",
-                    {"case": name, "scheme": scheme, "status": "error", "reason": reason},
+                    {"case": name, "scheme": scheme, "status": "error", "reason": reason, "null_reasons": {}},
                 )
             res.simulated.append((name, scheme))
             if status not in expected.get(name, {"ok"}):

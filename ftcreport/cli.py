@@ -12,7 +12,6 @@ import math
 from pathlib import Path
 from typing import Annotated
 
-import click
 import typer
 from typer.core import TyperGroup
 
@@ -29,10 +28,15 @@ class _ErrorBoundary(TyperGroup):
     traceback, exit 3.  ``ftcreport --debug`` re-raises instead (full traceback).
     """
 
-    def invoke(self, ctx: click.Context):
+    def invoke(self, ctx: typer.Context):
         try:
             return super().invoke(ctx)
-        except (typer.Exit, click.exceptions.Exit, click.ClickException, click.Abort, SystemExit):
+        except _CLI_FLOW as exc:  # --help, Exit, usage errors: the CLI framework's own exits
+            names = [c.__name__ for c in type(exc).__mro__]
+            if "UsageError" in names and "NoArgsIsHelpError" not in names:  # one line, not a box
+                sub = getattr(getattr(exc, "ctx", None), "command_path", None) or ctx.command_path
+                typer.echo(f"ftcreport: error: {sub}: {exc.format_message()} (see '{sub} --help')", err=True)
+                raise typer.Exit(code=2) from None
             raise
         except BaseException as exc:
             if ctx.params.get("debug") and not isinstance(exc, KeyboardInterrupt):
@@ -42,6 +46,24 @@ class _ErrorBoundary(TyperGroup):
                 line += f" (a bug: traceback in {_crash_log(exc)}; --debug shows it)"
             typer.echo(f"ftcreport: error: {line}", err=True)
             raise typer.Exit(code=code) from None
+
+
+def _cli_flow() -> tuple[type[BaseException], ...]:
+    """Exceptions the CLI framework turns into its own message and exit code (typer vendors click)."""
+    flow: list[type[BaseException]] = [SystemExit, typer.Exit, typer.Abort]
+    for name in ("TyperException",):
+        if hasattr(typer, name):
+            flow.append(getattr(typer, name))
+    try:
+        import click
+
+        flow += [click.exceptions.Exit, click.ClickException, click.Abort]
+    except ImportError:  # pragma: no cover - typer without click
+        pass
+    return tuple(flow)
+
+
+_CLI_FLOW = _cli_flow()
 
 
 def _classify(exc: BaseException) -> tuple[str, int]:

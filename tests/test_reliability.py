@@ -344,3 +344,17 @@ def test_second_writer_on_the_same_out_fails_with_a_clear_message(tmp_path, comm
         holder.kill()
         holder.wait()
     assert not (out / "c").exists()  # nothing written by the refused command
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["patterns", "-3"], "No such option: -3"),
+        (["run"], "Missing argument 'case'"),
+        (["run", "x.toml", "--duration", "abc"], "'--duration'"),
+        (["cases", "new"], "Missing argument 'name'"),
+    ],
+)
+def test_usage_errors_are_one_line(args, needle):
+    res = runner.invoke(app, args)
+    _one_error_line(res, 2, "ftcreport", needle, "--help")

@@ -127,7 +127,7 @@ def test_names_differing_only_in_case_collide_in_a_batch(tmp_path):
     b = _case(tmp_path, fname="b.toml", name="alpha")
     assert name_collisions(["Alpha", "beta", "alpha"]) == {2: 0}
     out = tmp_path / "o"
-    res = runner.invoke(app, ["batch", str(a), str(b), "--out", str(out), "--duration", "0.2", "-q"])
+    res = runner.invoke(app, ["batch", str(a), str(b), "--out", str(out), "--duration", "0.2", "-q", "--jobs", "1"])
     assert res.exit_code == 1 and "Traceback" not in res.output
     assert "b.toml: name: 'alpha' is already the name of" in res.stderr
     assert json.loads((out / "Alpha" / "nominal" / "metrics.json").read_text())["status"] == "ok"
@@ -161,7 +161,7 @@ def test_markup_in_case_text_is_escaped_on_every_page(tmp_path):
     good = _case(tmp_path, fname="good.toml", description=evil)
     bad = _case(tmp_path, fname="bad.toml", name=evil)  # rejected, its error shown on the index
     out = tmp_path / "o"
-    res = runner.invoke(app, ["batch", str(good), str(bad), "--out", str(out), "--duration", "0.2", "-q"])
+    res = runner.invoke(app, ["batch", str(good), str(bad), "--out", str(out), "--duration", "0.2", "-q", "--jobs", "1"])
     assert res.exit_code == 1
     pages = [out / "index.html", out / "good" / "index.html", out / "bad" / "index.html"]
     for page in pages:

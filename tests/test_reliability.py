@@ -161,7 +161,9 @@ def test_markup_in_case_text_is_escaped_on_every_page(tmp_path):
     good = _case(tmp_path, fname="good.toml", description=evil)
     bad = _case(tmp_path, fname="bad.toml", name=evil)  # rejected, its error shown on the index
     out = tmp_path / "o"
-    res = runner.invoke(app, ["batch", str(good), str(bad), "--out", str(out), "--duration", "0.2", "-q", "--jobs", "1"])
+    res = runner.invoke(
+        app, ["batch", str(good), str(bad), "--out", str(out), "--duration", "0.2", "-q", "--jobs", "1"]
+    )
     assert res.exit_code == 1
     pages = [out / "index.html", out / "good" / "index.html", out / "bad" / "index.html"]
     for page in pages:
@@ -358,3 +360,49 @@ def test_second_writer_on_the_same_out_fails_with_a_clear_message(tmp_path, comm
 def test_usage_errors_are_one_line(args, needle):
     res = runner.invoke(app, args)
     _one_error_line(res, 2, "ftcreport", needle, "--help")
+
+
+# ------------------------------------------------------------------ run --verify-dt
+def test_verify_dt_reports_a_converged_step(tmp_path):
+    out = tmp_path / "o"
+    args = ["run", str(CASES / "two_link_uncompensable.toml"), "--scheme", "oracle", "--duration", "3"]
+    res = runner.invoke(app, [*args, "--out", str(out), "--verify-dt", "--no-report"])
+    assert res.exit_code == 0, res.output
+    assert "dt = 0.01 s vs 0.005 s: converged" in res.stdout
+    v = json.loads((out / "two_link_uncompensable" / "oracle" / "metrics.json").read_text())["verify_dt"]
+    assert v["dt"] == 0.01 and v["dt_half"] == 0.005 and v["converged"]
+    # the oracle holds a zero error: torques are set by the reference and agree to < 1e-6 relative
+    assert v["metrics"]["torque_peak"]["rel_change"] < 1e-6
+    assert not (out / "index.html").exists()  # --no-report
+
+
+def test_verify_dt_flags_a_step_that_is_not_converged(tmp_path):
+    """two_link_switching at its 5 ms step: the start-up torque transient's energy halves with dt."""
+    from ftcreport.cases import load_case, with_duration
+    from ftcreport.runner import halve_dt, run_scheme
+
+    out = tmp_path / "o"
+    case = CASES / "two_link_switching.toml"
+    res = runner.invoke(
+        app, ["run", str(case), "--scheme", "nominal", "--duration", "2", "--out", str(out), "--verify-dt", "-q"]
+    )
+    line = _one_error_line(res, 1, str(case), "simulation.dt", "not converged at dt = 0.005 s")
+    assert "energy" in line
+    v = json.loads((out / "two_link_switching" / "nominal" / "metrics.json").read_text())["verify_dt"]
+    assert not v["converged"] and v["worst"] == "energy" and v["worst_rel_change"] > 0.1
+    # the dt/2 column is exactly an independent run at dt/2
+    _, half = run_scheme(halve_dt(with_duration(load_case(case), 2.0)), "nominal")
+    assert v["metrics"]["energy"]["dt_half"] == half["energy"]
+    assert v["metrics"]["position_error_max"]["dt_half"] == half["position_error_max"]
+
+
+def test_dt_sensitivity_rules():
+    from ftcreport.runner import dt_sensitivity
+
+    a = {"status": "ok", "dt": 0.01, "torque_peak": 10.0, "position_error_max": 1e-9}
+    assert dt_sensitivity(a, a | {"dt": 0.005, "torque_peak": 10.09})["converged"]  # 0.9 % change
+    v = dt_sensitivity(a, a | {"dt": 0.005, "torque_peak": 10.2})  # 2 %
+    assert not v["converged"] and v["worst"] == "torque_peak"
+    assert v["worst_rel_change"] == pytest.approx(0.2 / 10.2)
+    assert not dt_sensitivity(a, a | {"status": "diverged"})["converged"]
+    assert not dt_sensitivity(a, a | {"torque_peak": None})["converged"]

@@ -187,8 +187,12 @@ def output_lock(out: Path, command: str):
 def clean_partial(out: Path) -> int:
     """Remove the temporary files a killed writer left (call with the lock held); returns how many."""
     n = 0
-    for p in Path(out).rglob(f".*{TMP_SUFFIX}"):
-        with contextlib.suppress(OSError):
-            p.unlink()
-            n += 1
+    for root, dirs, files in os.walk(out):
+        # a nested output directory (reports/campaigns/<case>) has its own lock and writer: not ours
+        dirs[:] = [d for d in dirs if not (Path(root) / d / LOCK_NAME).exists()]
+        for f in files:
+            if f.startswith(".") and f.endswith(TMP_SUFFIX):
+                with contextlib.suppress(OSError):
+                    (Path(root) / f).unlink()
+                    n += 1
     return n

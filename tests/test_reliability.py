@@ -406,3 +406,19 @@ def test_dt_sensitivity_rules():
     assert v["worst_rel_change"] == pytest.approx(0.2 / 10.2)
     assert not dt_sensitivity(a, a | {"status": "diverged"})["converged"]
     assert not dt_sensitivity(a, a | {"torque_peak": None})["converged"]
+
+
+def test_partial_files_are_cleaned_except_in_nested_output_directories(tmp_path):
+    from ftcreport.store import output_lock
+
+    out = tmp_path / "o"
+    (out / "c" / "nominal").mkdir(parents=True)
+    (out / "campaigns" / "x" / "samples").mkdir(parents=True)
+    stale = out / "c" / "nominal" / ".metrics.json.abc123.partial"
+    stale.write_text('{"trunc')
+    (out / "campaigns" / "x" / ".ftcreport.lock").write_text("")
+    busy = out / "campaigns" / "x" / "samples" / ".000001.json.def456.partial"  # another writer's
+    busy.write_text("{")
+    with output_lock(out, "batch"):
+        assert not stale.exists() and busy.exists()
+    assert (out / ".ftcreport.lock").read_text() == ""  # released: no holder named

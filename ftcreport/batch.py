@@ -83,26 +83,29 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
     return key
 
 
-def error_record_name(path: Path) -> str:
-    """Directory of a rejected case file's record: its stem when that is a safe name, else a hash of the path."""
+def error_record_name(path: Path, avoid: Iterable[str] = ()) -> str:
+    """Directory of a rejected case file's record: its stem when that is a safe name not in ``avoid``
+    (lower-case names of the batch's valid cases), else a hash of the path."""
     import hashlib
 
     from .limits import name_problem
 
     stem = Path(path).stem
-    if name_problem(stem) is None:
+    if name_problem(stem) is None and stem.lower() not in set(avoid):
         return stem
     return "rejected-" + hashlib.sha256(str(path).encode("utf-8", "surrogateescape")).hexdigest()[:12]
 
 
-def _record_error(out: Path, path: Path, error: str) -> None:
-    """Record a rejected case file (shown on the index) without letting its name escape ``out``."""
+def _record_error(out: Path, path: Path, error: str, avoid: Iterable[str] = ()) -> None:
+    """Record a rejected case file (shown on the index) without letting its name escape ``out``
+    or overwrite a valid case's record."""
     try:
         raw = path.read_bytes()[:200_000]
     except OSError:
         raw = b""
     text = raw.decode("utf-8", errors="replace")
-    _record(out, error_record_name(path), {"source": str(path), "status": "error", "error": error, "source_text": text})
+    record = {"source": str(path), "status": "error", "error": error, "source_text": text}
+    _record(out, error_record_name(path, avoid), record)
 
 
 def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> dict:
@@ -176,7 +179,6 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -
                 )
         except CaseError as exc:
             res.case_errors[str(path)] = str(exc)
-            _record_error(out, Path(path), str(exc))
             continue
         res.cases.append(case.name)
         key = record_case(out, case, Path(path), duration)
@@ -187,6 +189,8 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -
                 res.cached.append((case.name, s))
             else:
                 todo.append((case, str(path), s, key))
+    for path, error in res.case_errors.items():  # after every valid name is known
+        _record_error(out, Path(path), error, taken)
     if todo:
         _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected)
     if render:

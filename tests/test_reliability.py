@@ -132,6 +132,16 @@ def test_names_differing_only_in_case_collide_in_a_batch(tmp_path):
     assert "b.toml: name: 'alpha' is already the name of" in res.stderr
     assert json.loads((out / "Alpha" / "nominal" / "metrics.json").read_text())["status"] == "ok"
     assert not (out / "alpha" / "nominal").exists()
+    # a rejected file whose stem is a valid case's name does not overwrite that case's record
+    c = tmp_path / "sub"
+    c.mkdir()
+    broken = c / "alpha.toml"
+    broken.write_text("[robots]\nn = 1\n")
+    res = runner.invoke(app, ["batch", str(a), str(broken), "--out", str(out), "--duration", "0.2", "-q"])
+    assert res.exit_code == 1 and "robots.n" in res.stderr
+    assert json.loads((out / "Alpha" / "case.json").read_text())["status"] == "ok"
+    rejected = [p for p in out.glob("rejected-*/case.json") if "sub/alpha.toml" in p.read_text()]
+    assert len(rejected) == 1
 
 
 def test_cases_new_onto_an_existing_file_is_one_line(tmp_path):

@@ -23,6 +23,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .errors import CaseError, FtcError
+from .limits import budget_problem, name_problem
 from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
 from .model.chain import THESIS_ROBOT
 
@@ -441,8 +442,6 @@ class Case(_Strict):
 
 def _check_name(v: str | None) -> str | None:
     """A case name is a directory name and a page title: the safe set of ftcreport.limits."""
-    from .limits import name_problem
-
     if v is not None and (why := name_problem(v)) is not None:
         raise ValueError(why)
     return v
@@ -450,8 +449,6 @@ def _check_name(v: str | None) -> str | None:
 
 def _check_budget(case: Case) -> None:
     """Refuse, before it starts, a run over the step limit or memory budget (ftcreport.limits)."""
-    from .limits import budget_problem
-
     s = case.simulation
     for scheme in SCHEME_NAMES:
         cfg = getattr(case.schemes, scheme)
@@ -500,16 +497,10 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         raise CaseError(f"{source}: {loc or '<root>'}: {msg}{more}") from None
     if case.name is None:
         stem = Path(source).stem
-        if (why := _name_problem(stem)) is not None:
+        if (why := name_problem(stem)) is not None:
             raise CaseError(f'{source}: name: taken from the file name: {why}; set name = "..." in the file')
         case = case.model_copy(update={"name": stem})
     return case
-
-
-def _name_problem(name: str) -> str | None:
-    from .limits import name_problem
-
-    return name_problem(name)
 
 
 def load_case(path: str | Path) -> Case:
@@ -523,8 +514,7 @@ def load_case(path: str | Path) -> Case:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise CaseError(
-            f"{path}: <file>: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
-            "a case file is TOML text"
+            f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); a case file is TOML text"
         ) from None
     try:
         data = tomllib.loads(text)

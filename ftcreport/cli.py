@@ -29,6 +29,28 @@ class _ErrorBoundary(TyperGroup):
     """
 
     def invoke(self, ctx: typer.Context):
+        argv = [*getattr(ctx, "_protected_args", []), *getattr(ctx, "protected_args", []), *ctx.args]
+        if ctx.params.get("debug"):
+            return self._invoke(ctx, argv)
+        import warnings
+
+        with warnings.catch_warnings(record=True) as caught:  # library warnings: one summary line, not a dump
+            warnings.simplefilter("default")
+            for quiet in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
+                warnings.simplefilter("ignore", quiet)  # Python's own default for these
+            try:
+                return self._invoke(ctx, argv)
+            finally:
+                if caught:
+                    w = caught[0]
+                    more = f" (and {len(caught) - 1} more)" if len(caught) > 1 else ""
+                    typer.echo(
+                        f"ftcreport: warning: {w.category.__name__} in {Path(w.filename).name}: "
+                        f"{str(w.message).splitlines()[0][:160]}{more}; --debug shows every warning",
+                        err=True,
+                    )
+
+    def _invoke(self, ctx: typer.Context, argv: list):
         try:
             return super().invoke(ctx)
         except _CLI_FLOW as exc:  # --help, Exit, usage errors: the CLI framework's own exits
@@ -42,6 +64,9 @@ class _ErrorBoundary(TyperGroup):
             if ctx.params.get("debug") and not isinstance(exc, KeyboardInterrupt):
                 raise
             line, code = _classify(exc)
+            files = [a for a in argv if isinstance(a, str) and a.endswith(".toml")]
+            if line.startswith("<run>: ") and files:  # name the case file the failing command was given
+                line = f"{files[0]}: " + line.removeprefix("<run>: ")
             if code == 3:
                 line += f" (a bug: traceback in {_crash_log(exc)}; --debug shows it)"
             typer.echo(f"ftcreport: error: {line}", err=True)

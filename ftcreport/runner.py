@@ -150,7 +150,10 @@ def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=Non
         built = built or build(case)
         ctrl = make_controller(built, scheme)
         run = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings, progress=progress)
-    except FtcError as exc:
+    except (FtcError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        # a numeric failure inside the engine (e.g. a linear solve on non-finite values) is a failed run
+        why = str(exc) if isinstance(exc, FtcError) else f"numeric error in the simulation: {type(exc).__name__}: {exc}"
+        exc = FtcError(why)
         empty = Run(t=np.zeros(0), signals={}, status="error", reason=str(exc))
         return empty, explain_nulls(_identity(case, scheme) | {"status": "error", "reason": str(exc), "wall_time": 0.0})
     metrics = run_metrics(case, scheme, run, built, ctrl)

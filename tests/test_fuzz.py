@@ -272,3 +272,32 @@ def _report_counts():
     if COUNTS:
         total = sum(v for k, v in COUNTS.items() if k.startswith("validate="))
         print(f"\nfuzz: {total} examples; " + ", ".join(f"{k}: {v}" for k, v in sorted(COUNTS.items())))
+
+
+@pytest.mark.slow
+@settings(
+    max_examples=max(1, EXAMPLES // 100),
+    deadline=None,
+    derandomize=not LONG,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large],
+    database=None,
+)
+@given(batch=st.lists(mutants(), min_size=8, max_size=8))
+def test_mutated_cases_through_one_batch(batch, tmp_path_factory):
+    """Eight mutants in one ``batch`` (worker processes): exit 0 or 1, every rejected file named once."""
+    d = tmp_path_factory.mktemp("fuzzbatch")
+    paths = []
+    for i, (name, raw, _) in enumerate(batch):
+        p = d / f"m{i}_{name}.toml"
+        p.write_bytes(raw)
+        paths.append(p)
+    out = d / "out"
+    res = runner.invoke(app, ["batch", *map(str, paths), "--out", str(out), "--duration", "1", "--jobs", "1", "-q"])
+    labels = [b[2] for b in batch]
+    assert res.exit_code in (0, 1), (labels, res.exit_code, res.output, res.exception)
+    assert "Traceback" not in res.output, labels
+    for p in paths:
+        if runner.invoke(app, ["cases", "validate", str(p)]).exit_code != 0:
+            assert f"ftcreport: error: {p}" in res.stderr, (p, res.stderr)
+    _check_metrics(out, "; ".join(labels))
+    assert (out / "index.html").exists()

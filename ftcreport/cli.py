@@ -1,7 +1,9 @@
 """Command-line interface (Typer): thin commands over the library.
 
 Every command parses its arguments, calls the library and turns an
-:class:`~ftcreport.errors.FtcError` into one line on stderr and an exit code.
+:class:`~ftcreport.errors.FtcError` into one line on stderr and an exit code;
+:class:`_ErrorBoundary` does the same for every other exception (README, "Errors,
+exit codes, interruptions").
 Commands of DESIGN.md that are not built yet say so and exit 2.
 """
 
@@ -29,7 +31,8 @@ class _ErrorBoundary(TyperGroup):
     """
 
     def invoke(self, ctx: typer.Context):
-        argv = [*getattr(ctx, "_protected_args", []), *getattr(ctx, "protected_args", []), *ctx.args]
+        protected = ctx._protected_args if hasattr(ctx, "_protected_args") else getattr(ctx, "protected_args", [])
+        argv = [*protected, *ctx.args]
         if ctx.params.get("debug"):
             return self._invoke(ctx, argv)
         import warnings
@@ -65,8 +68,9 @@ class _ErrorBoundary(TyperGroup):
                 raise
             line, code = _classify(exc)
             files = [a for a in argv if isinstance(a, str) and a.endswith(".toml")]
-            if line.startswith("<run>: ") and files:  # name the case file the failing command was given
-                line = f"{files[0]}: " + line.removeprefix("<run>: ")
+            for unnamed in ("<run>: ", "<input>: "):  # name the case file the failing command was given
+                if line.startswith(unnamed) and files:
+                    line = f"{files[0]}: " + line.removeprefix(unnamed)
             if code == 3:
                 line += f" (a bug: traceback in {_crash_log(exc)}; --debug shows it)"
             typer.echo(f"ftcreport: error: {line}", err=True)

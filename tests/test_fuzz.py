@@ -11,7 +11,7 @@ in this process (typer's CliRunner).  Every mutant must end
 * within a per-example deadline (a hang fails the test through SIGALRM);
 * with every written ``metrics.json`` free of NaN/inf and every null explained in ``null_reasons``.
 
-CI runs ``FUZZ_EXAMPLES`` examples (default 30, derandomized so CI is reproducible; about
+CI runs ``FUZZ_EXAMPLES`` examples (default 60, derandomized so CI is reproducible; about
 a minute on one core).  ``FUZZ_EXAMPLES=2000 pytest -n 0 tests/test_fuzz.py -s`` runs more,
 with fresh random draws (``FUZZ_LOG=file`` appends one JSON line per example;
 ``FUZZ_RENDER_ALL=1`` also renders the slow pages of the five-link and Table 4.2 cases).
@@ -37,7 +37,7 @@ from ftcreport.cli import app
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 SHIPPED = {p.stem: tomllib.loads(p.read_text()) for p in sorted(CASES.glob("*.toml"))}
-EXAMPLES = int(os.environ.get("FUZZ_EXAMPLES", "30"))
+EXAMPLES = int(os.environ.get("FUZZ_EXAMPLES", "60"))
 LONG = "FUZZ_EXAMPLES" in os.environ
 DEADLINE_S = 120  # per example: validate + a 1 s run (+ its page)
 # pages whose render derives the chained form for n = 5 (sympy, ~30 s once) and its frozen-pole

@@ -447,3 +447,19 @@ def test_numeric_failure_inside_a_run_is_a_recorded_failed_run(tmp_path):
     assert m["status"] in ("error", "diverged") and m["reason"] in line
     for w in [ln for ln in res.stderr.splitlines() if "warning" in ln]:
         assert w.startswith(("warning: ", "ftcreport: warning: ")), w  # a summary line, not a warnings dump
+
+
+def test_fuzz_finding_link_of_1e_minus_300_is_a_failed_run(tmp_path):
+    """Found by tests/test_fuzz.py: three_link_active with robots.d = 1e-300 made the active scheme's
+    engine solve on inf (LinAlgError), which escaped as '<run>: numeric error' without the file."""
+    data = tomllib.loads((CASES / "three_link_active.toml").read_text())
+    data["robots"]["d"] = 1e-300
+    p = tmp_path / "tiny_link.toml"
+    p.write_text(tomli_w.dumps(data))
+    out = tmp_path / "o"
+    res = runner.invoke(
+        app, ["run", str(p), "--scheme", "active", "--duration", "1", "--out", str(out), "-q", "--no-report"]
+    )
+    line = _one_error_line(res, 1, "tiny_link.toml", "active")
+    m = json.loads((out / "tiny_link" / "active" / "metrics.json").read_text())
+    assert m["status"] != "ok" and m["reason"] in line

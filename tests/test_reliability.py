@@ -463,3 +463,14 @@ def test_fuzz_finding_link_of_1e_minus_300_is_a_failed_run(tmp_path):
     line = _one_error_line(res, 1, "tiny_link.toml", "active")
     m = json.loads((out / "tiny_link" / "active" / "metrics.json").read_text())
     assert m["status"] != "ok" and m["reason"] in line
+
+
+def test_report_names_a_damaged_stored_case_copy(tmp_path):
+    p = _case(tmp_path)
+    out = tmp_path / "o"
+    assert runner.invoke(app, ["run", str(p), "--duration", "0.2", "--out", str(out), "-q"]).exit_code == 0
+    (out / "c" / "case.toml").write_bytes(b"\xff\xfe[robots")
+    res = runner.invoke(app, ["report", "--out", str(out)])
+    _one_error_line(res, 2, str(out / "c" / "case.toml"), "stored copy of", "damaged", "store it again")
+    assert runner.invoke(app, ["run", str(p), "--duration", "0.2", "--out", str(out), "-q"]).exit_code == 0
+    assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0

@@ -331,7 +331,8 @@ def run_campaign(
             old = json.loads(meta_path.read_text(encoding="utf-8"))
             old.get("seed")
         except (ValueError, AttributeError) as exc:
-            raise FtcError(f"{meta_path}: damaged ({str(exc)[:120]}); remove it to start over, or choose another --out") from None
+            why = f"damaged ({str(exc)[:120]}); remove it to start over, or choose another --out"
+            raise FtcError(f"{meta_path}: {why}") from None
         if old.get("seed") != meta["seed"] or old.get("schemes") != schemes or old.get("base") != meta["base"]:
             raise FtcError(f"{out}: holds a campaign with another seed, scheme list or base case; choose another --out")
     write_atomic(meta_path, json.dumps(meta, indent=1).encode())

@@ -474,3 +474,13 @@ def test_report_names_a_damaged_stored_case_copy(tmp_path):
     _one_error_line(res, 2, str(out / "c" / "case.toml"), "stored copy of", "damaged", "store it again")
     assert runner.invoke(app, ["run", str(p), "--duration", "0.2", "--out", str(out), "-q"]).exit_code == 0
     assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0
+
+
+def test_campaign_with_a_damaged_record_is_one_line(tmp_path):
+    out = tmp_path / "camp"
+    out.mkdir()
+    (out / "campaign.json").write_text('{"seed": 0, "sche')
+    res = runner.invoke(
+        app, ["campaign", str(CASES / "two_link_campaign.toml"), "-n", "1", "--in-process", "--out", str(out), "-q"]
+    )
+    _one_error_line(res, 2, "campaign.json", "damaged", "remove it")

@@ -39,7 +39,7 @@ from pathlib import Path
 from . import __version__
 from .cases import SCHEME_NAMES, Case, case_hash, load_case, with_duration
 from .errors import CaseError
-from .store import cached_key, save_run, write_atomic, write_json
+from .store import cached_key, output_lock, save_run, write_atomic, write_json
 
 __all__ = [
     "BatchResult",
@@ -191,6 +191,31 @@ def _cost(case: Case, scheme: str) -> float:
     return steps * (5.0 * (2 * (n + 2 + 4 * n) + 1) if scheme == "active_ukf" else 1.0)
 
 
+def error_record_name(path: Path, avoid: Iterable[str] = ()) -> str:
+    """Directory of a rejected case file's record: its stem when that is a safe name not in ``avoid``
+    (lower-case names of the batch's valid cases), else a hash of the path."""
+    import hashlib
+
+    from .limits import name_problem
+
+    stem = Path(path).stem
+    if name_problem(stem) is None and stem.lower() not in set(avoid):
+        return stem
+    return "rejected-" + hashlib.sha256(str(path).encode("utf-8", "surrogateescape")).hexdigest()[:12]
+
+
+def _record_error(out: Path, path: Path, error: str, avoid: Iterable[str] = ()) -> None:
+    """Record a rejected case file (shown on the index) without letting its name escape ``out``
+    or overwrite a valid case's record."""
+    try:
+        raw = path.read_bytes()[:200_000]
+    except OSError:
+        raw = b""
+    text = raw.decode("utf-8", errors="replace")
+    record = {"source": str(path), "status": "error", "error": error, "source_text": text}
+    _record(out, error_record_name(path, avoid), record)
+
+
 def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> dict:
     """Run one scheme in a worker process and store it; returns its metrics."""
     from .cases import parse_case
@@ -219,6 +244,7 @@ def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progr
             "status": "error",
             "reason": f"{type(exc).__name__}: {exc}",
             "traceback": traceback.format_exc(),
+            "null_reasons": {},  # no metric was computed
         }
     save_run(Path(out), case.name, scheme, run, metrics, key)
     return metrics
@@ -233,27 +259,35 @@ def run_batch(
     show_progress: bool = True,
     render: bool = True,
 ) -> BatchResult:
-    """Run every case x scheme not already cached, then render the reports."""
+    """Run every case x scheme not already cached, then render the reports.
+
+    Holds the output directory's lock (:func:`ftcreport.store.output_lock`) throughout:
+    a second batch, run, report or check on the same ``out`` fails at once with a message.
+    """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    with output_lock(out, "batch"):
+        return _run_batch(paths, out, jobs, force, duration, show_progress, render)
+
+
+def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -> BatchResult:
     res = BatchResult()
     todo: list[tuple[Case, str, str, str]] = []  # case, source, scheme, key
     expected: dict[str, Case] = {}  # case name -> the case (its expected_for(scheme): statuses that are not failures)
     loaded: list[Case] = []
+    taken: dict[str, str] = {}  # lower-case case name -> the file that has it
     for path in discover(paths):
         try:
             case = load_case(path)
             if duration is not None:
                 case = with_duration(case, duration)
+            first = taken.setdefault(case.name.lower(), str(path))
+            if first != str(path):
+                raise CaseError(
+                    f"{path}: name: '{case.name}' is already the name of {first} (names must differ in more than "
+                    "letter case: each is a directory of the report)"
+                )
         except CaseError as exc:
             res.case_errors[str(path)] = str(exc)
-            try:
-                text = Path(path).read_text()
-            except OSError:
-                text = ""
-            _record(
-                out, Path(path).stem, {"source": str(path), "status": "error", "error": str(exc), "source_text": text}
-            )
             continue
         res.cases.append(case.name)
         loaded.append(case)
@@ -266,6 +300,8 @@ def run_batch(
                 res.cached.append((case.name, s))
             else:
                 todo.append((case, str(path), s, key))
+    for path, error in res.case_errors.items():  # after every valid name is known
+        _record_error(out, Path(path), error, taken)
     todo.sort(key=lambda job: -_cost(job[0], job[2]))
     if todo:
         _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected)
@@ -314,26 +350,43 @@ def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, 
             futures[fut] = (case.name, scheme)
             tasks[(case.name, scheme)] = progress.add_task(f"{case.name} / {scheme}", total=case.simulation.duration)
         pending = set(futures)
-        while pending:
-            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            _drain(q, progress, tasks)
-            for fut in done:
-                name, scheme = futures[fut]
-                try:
-                    m = fut.result()
-                    status, reason = m.get("status", "error"), m.get("reason", "")
-                except Exception as exc:
-                    status, reason = "error", f"worker failed: {type(exc).__name__}: {exc}"
-                    write_json(
-                        out / name / scheme / "metrics.json",
-                        {"case": name, "scheme": scheme, "status": "error", "reason": reason},
-                    )
-                res.simulated.append((name, scheme))
-                if name not in expected or status not in expected[name].expected_for(scheme):
-                    res.failed_runs.append((name, scheme, f"{status}: {reason}"))
-                task = tasks[(name, scheme)]
-                progress.update(task, completed=progress.tasks[task].total, description=f"{name} / {scheme} [{status}]")
+        try:
+            _collect(pending, futures, q, progress, tasks, out, res, expected)
+        except BaseException:  # Ctrl-C, SIGTERM: stop the workers now; every stored run is complete
+            for fut in pending:
+                fut.cancel()
+            for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                with contextlib.suppress(Exception):
+                    proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            with contextlib.suppress(Exception):
+                manager.shutdown()
+            raise
     manager.shutdown()
+
+
+def _collect(pending, futures, q, progress, tasks, out: Path, res: BatchResult, expected: dict) -> None:
+    """Wait for the runs, recording each as it finishes."""
+    while pending:
+        done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+        _drain(q, progress, tasks)
+        for fut in done:
+            name, scheme = futures[fut]
+            try:
+                m = fut.result()
+                status, reason = m.get("status", "error"), m.get("reason", "")
+            except Exception as exc:
+                status, reason = "error", f"worker failed: {type(exc).__name__}: {exc}"
+                (out / name / scheme / "key").unlink(missing_ok=True)  # not a complete, cached run
+                write_json(
+                    out / name / scheme / "metrics.json",
+                    {"case": name, "scheme": scheme, "status": "error", "reason": reason, "null_reasons": {}},
+                )
+            res.simulated.append((name, scheme))
+            if name not in expected or status not in expected[name].expected_for(scheme):
+                res.failed_runs.append((name, scheme, f"{status}: {reason}"))
+            task = tasks[(name, scheme)]
+            progress.update(task, completed=progress.tasks[task].total, description=f"{name} / {scheme} [{status}]")
 
 
 def _drain(q, progress, tasks) -> None:
@@ -348,6 +401,6 @@ def _drain(q, progress, tasks) -> None:
 
 
 def failures_summary(res: BatchResult) -> str:  # pragma: no cover - CLI text helper
-    lines = [f"{p}: {e}" for p, e in res.case_errors.items()]
-    lines += [f"{c} / {s}: {r}" for c, s, r in res.failed_runs]
+    lines = [f"ftcreport: error: {e if e.startswith(p) else f'{p}: {e}'}" for p, e in res.case_errors.items()]
+    lines += [f"ftcreport: error: {c} / {s}: {r}" for c, s, r in res.failed_runs]
     return "\n".join(lines)

@@ -180,7 +180,7 @@ def draw_variant(base: Case, seeds: SampleSeeds) -> Case:
     noise["position"] = float(rng.uniform(*spec.noise_position))
     noise["heading"] = float(rng.uniform(*spec.noise_heading))
     noise["seed"] = int(seeds.noise)
-    data["name"] = f"{base.name}#{seeds.draw}"
+    data["name"] = f"{base.name[:40]}.s{seeds.draw}"  # a safe case name (ftcreport.limits): at most 64 characters
     return parse_case(data, f"{base.name} (campaign draw, seed {seeds.draw})")
 
 
@@ -511,7 +511,12 @@ def run_campaign(
     }
     meta_path = out / "campaign.json"
     if meta_path.exists() and not force:
-        old = json.loads(meta_path.read_text())
+        try:
+            old = json.loads(meta_path.read_text(encoding="utf-8"))
+            old.get("seed")
+        except (ValueError, AttributeError) as exc:
+            why = f"damaged ({str(exc)[:120]}); remove it to start over, or choose another --out"
+            raise FtcError(f"{meta_path}: {why}") from None
         if old.get("seed") != meta["seed"] or old.get("schemes") != schemes or old.get("base") != meta["base"]:
             raise FtcError(
                 f"{out}: holds a campaign with another seed, scheme list or base case; "

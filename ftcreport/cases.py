@@ -24,6 +24,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .errors import CaseError, FtcError
+from .limits import budget_problem, name_problem
 from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
 from .model.chain import THESIS_ROBOT
 
@@ -444,7 +445,12 @@ class CampaignSpec(_Strict):
 class Case(_Strict):
     """A validated case (cases/README.md documents every field; its tables are generated from these models)."""
 
-    name: str | None = _f(None, "defaults to the file name without .toml", "-")
+    name: str | None = _f(
+        None,
+        "defaults to the file name without .toml; a safe name: [A-Za-z0-9][A-Za-z0-9_.-]{0,63}, not a name the "
+        "report uses itself (index, assets, ...), unique within a batch ignoring letter case (see Limits)",
+        "-",
+    )
     description: str = _f("", "one line shown in reports", "-")
     robots: Robots = _f(..., "the chain ([robots])", "-")
     reference: Reference = _f(..., "the last robot's path ([reference])", "-")
@@ -470,6 +476,16 @@ class Case(_Strict):
     )
     campaign: CampaignSpec | None = _f(None, "distributions for ftcreport campaign (ignored by batch)", "-")
     claims: list[Claim] = _f([], "thesis claims checked against the runs ([[claims]], ftcreport.claims)", "-")
+
+    @field_validator("name")
+    @classmethod
+    def _safe_name(cls, v: str | None) -> str | None:
+        return _check_name(v)
+
+    @model_validator(mode="after")
+    def _budget(self) -> Case:
+        _check_budget(self)
+        return self
 
     @field_validator("faults")
     @classmethod
@@ -609,6 +625,27 @@ class Case(_Strict):
         return out
 
 
+def _check_name(v: str | None) -> str | None:
+    """A case name is a directory name and a page title: the safe set of ftcreport.limits."""
+    if v is not None and (why := name_problem(v)) is not None:
+        raise ValueError(why)
+    return v
+
+
+def _check_budget(case: Case) -> None:
+    """Refuse, before it starts, a run over the step limit or memory budget (ftcreport.limits)."""
+    s = case.simulation
+    for scheme in SCHEME_NAMES:
+        cfg = getattr(case.schemes, scheme)
+        if cfg is None:
+            continue
+        pats = getattr(cfg, "patterns", "all")
+        models = None if pats == "all" else len(pats)
+        problem = budget_problem(case.robots.n, s.duration, s.dt, s.log_every, scheme, models)
+        if problem is not None:
+            raise _FieldError(*problem)
+
+
 class _FieldError(ValueError):
     """A validation error with an explicit field path (raised inside validators)."""
 
@@ -730,7 +767,10 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         more = f" (and {len(others)} more)" if others else ""
         raise CaseError(f"{source}: {loc or '<root>'}: {_message(err)}{more}") from None
     if case.name is None:
-        case = case.model_copy(update={"name": Path(source).stem})
+        stem = Path(source).stem
+        if (why := name_problem(stem)) is not None:
+            raise CaseError(f'{source}: name: taken from the file name: {why}; set name = "..." in the file')
+        case = case.model_copy(update={"name": stem})
     from .families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
 
     return fill_defaults(case)
@@ -755,13 +795,21 @@ def load_case(path: str | Path) -> Case:
     """Read and validate a TOML case file."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as exc:
-        raise CaseError(f"{path}: cannot read ({exc.strerror})") from None
+        raise CaseError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CaseError(
+            f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); a case file is TOML text"
+        ) from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CaseError(f"{path}: not valid TOML ({exc})") from None
+    except RecursionError:
+        raise CaseError(f"{path}: not valid TOML (nested too deeply)") from None
     return parse_case(data, str(path))
 
 
@@ -827,12 +875,17 @@ def switching_patterns(case: Case, chain: Chain, scheme: str = "switching") -> l
 
 def with_duration(case: Case, duration: float) -> Case:
     """The same case simulated for ``duration`` s (events at or after it dropped)."""
-    if not duration > 0:
-        raise CaseError(f"{case.name}: duration override must be > 0 s, got {duration}")
+    if not (math.isfinite(duration) and duration > 0):
+        raise CaseError(f"{case.name}: --duration: must be a finite number of seconds > 0, got {duration}")
     sim = case.simulation.model_copy(update={"duration": float(duration), "dt": min(case.simulation.dt, duration)})
     faults = [f for f in case.faults if f.time < duration]
     # the campaign table's ranges refer to the full duration; a shortened run is not a campaign base
-    return case.model_copy(update={"simulation": sim, "faults": faults, "campaign": None})
+    short = case.model_copy(update={"simulation": sim, "faults": faults, "campaign": None})
+    try:
+        _check_budget(short)
+    except _FieldError as exc:
+        raise CaseError(f"{case.name}: --duration {duration:g}: {exc.loc}: {exc.msg}") from None
+    return short
 
 
 TEMPLATE = """# A case file for ftcreport (documented field by field in cases/README.md).

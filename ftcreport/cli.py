@@ -1,7 +1,9 @@
 """Command-line interface (Typer): thin commands over the library.
 
 Every command parses its arguments, calls the library and turns an
-:class:`~ftcreport.errors.FtcError` into one line on stderr and an exit code.
+:class:`~ftcreport.errors.FtcError` into one line on stderr and an exit code;
+:class:`_ErrorBoundary` does the same for every other exception (README, "Errors,
+exit codes, interruptions").
 Commands of DESIGN.md that are not built yet say so and exit 2.
 """
 
@@ -13,11 +15,144 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from typer.core import TyperGroup
 
 from . import __version__
 from .errors import FtcError
 
+
+class _ErrorBoundary(TyperGroup):
+    """The one error boundary of every command (issue 23).
+
+    Expected failures become ``ftcreport: error: <file>: <field>: <reason>`` on stderr:
+    bad input (case files, arguments, unreadable or unwritable paths) exits 2, a numeric
+    failure exits 1.  Anything else is a bug: one line naming a log file that holds the
+    traceback, exit 3.  ``ftcreport --debug`` re-raises instead (full traceback).
+    """
+
+    def invoke(self, ctx: typer.Context):
+        protected = ctx._protected_args if hasattr(ctx, "_protected_args") else getattr(ctx, "protected_args", [])
+        argv = [*protected, *ctx.args]
+        if ctx.params.get("debug"):
+            return self._invoke(ctx, argv)
+        import warnings
+
+        with warnings.catch_warnings(record=True) as caught:  # library warnings: one summary line, not a dump
+            warnings.simplefilter("default")
+            for quiet in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
+                warnings.simplefilter("ignore", quiet)  # Python's own default for these
+            try:
+                return self._invoke(ctx, argv)
+            finally:
+                if caught:
+                    w = caught[0]
+                    more = f" (and {len(caught) - 1} more)" if len(caught) > 1 else ""
+                    typer.echo(
+                        f"ftcreport: warning: {w.category.__name__} in {Path(w.filename).name}: "
+                        f"{str(w.message).splitlines()[0][:160]}{more}; --debug shows every warning",
+                        err=True,
+                    )
+
+    def _invoke(self, ctx: typer.Context, argv: list):
+        try:
+            return super().invoke(ctx)
+        except _CLI_FLOW as exc:  # --help, Exit, usage errors: the CLI framework's own exits
+            names = [c.__name__ for c in type(exc).__mro__]
+            if "UsageError" in names and "NoArgsIsHelpError" not in names:  # one line, not a box
+                sub = getattr(getattr(exc, "ctx", None), "command_path", None) or ctx.command_path
+                typer.echo(f"ftcreport: error: {sub}: {exc.format_message()} (see '{sub} --help')", err=True)
+                raise typer.Exit(code=2) from None
+            raise
+        except BaseException as exc:
+            if ctx.params.get("debug") and not isinstance(exc, KeyboardInterrupt):
+                raise
+            line, code = _classify(exc)
+            files = [a for a in argv if isinstance(a, str) and a.endswith(".toml")]
+            for unnamed in ("<run>: ", "<input>: "):  # name the case file the failing command was given
+                if line.startswith(unnamed) and files:
+                    line = f"{files[0]}: " + line.removeprefix(unnamed)
+            if code == 3:
+                line += f" (a bug: traceback in {_crash_log(exc)}; --debug shows it)"
+            typer.echo(f"ftcreport: error: {line}", err=True)
+            raise typer.Exit(code=code) from None
+
+
+def _cli_flow() -> tuple[type[BaseException], ...]:
+    """Exceptions the CLI framework turns into its own message and exit code (typer vendors click)."""
+    flow: list[type[BaseException]] = [SystemExit, typer.Exit, typer.Abort]
+    for name in ("TyperException",):
+        if hasattr(typer, name):
+            flow.append(getattr(typer, name))
+    try:
+        import click
+
+        flow += [click.exceptions.Exit, click.ClickException, click.Abort]
+    except ImportError:  # pragma: no cover - typer without click
+        pass
+    return tuple(flow)
+
+
+_CLI_FLOW = _cli_flow()
+
+
+def _classify(exc: BaseException) -> tuple[str, int]:
+    """(message, exit code) of an exception reaching the boundary."""
+    import errno
+
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted; finished runs are stored, re-run the same command to resume", 130
+    if isinstance(exc, FtcError):
+        return str(exc), getattr(exc, "exit_code", 2)
+    if isinstance(exc, UnicodeDecodeError):
+        return f"<input>: not UTF-8 text ({exc.reason} at byte {exc.start})", 2
+    if isinstance(exc, OSError):
+        where = exc.filename if exc.filename is not None else "<output>"
+        why = {
+            errno.ENOSPC: "no space left on the device",
+            errno.ENAMETOOLONG: "file name too long",
+            errno.EROFS: "read-only file system",
+            errno.EACCES: "permission denied",
+            errno.EPERM: "operation not permitted",
+        }.get(exc.errno, exc.strerror or type(exc).__name__)
+        return f"{where}: {why}", 2
+    if isinstance(exc, MemoryError):
+        return "<run>: out of memory (see the limits in cases/README.md)", 1
+    if isinstance(exc, ArithmeticError | FloatingPointError):
+        return f"<run>: numeric error: {type(exc).__name__}: {exc}", 1
+    try:
+        import numpy as np
+
+        if isinstance(exc, np.linalg.LinAlgError):
+            return f"<run>: numeric error: LinAlgError: {exc}", 1
+    except ImportError:  # pragma: no cover
+        pass
+    return f"unexpected {type(exc).__name__}: {str(exc)[:200]}", 3
+
+
+def _crash_log(exc: BaseException) -> str:
+    """Write the traceback to a log file (FTCREPORT_LOG_DIR or the temp directory); return its path."""
+    import datetime as _dt
+    import os
+    import tempfile
+    import traceback
+
+    text = "".join(traceback.format_exception(exc))
+    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    for d in (os.environ.get("FTCREPORT_LOG_DIR"), tempfile.gettempdir()):
+        if not d:
+            continue
+        try:
+            path = Path(d) / f"ftcreport-crash-{stamp}-{os.getpid()}.log"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(f"ftcreport {__version__}\n{text}")
+            return str(path)
+        except OSError:
+            continue
+    return "<no writable log directory>"
+
+
 app = typer.Typer(
+    cls=_ErrorBoundary,
     name="ftcreport",
     help=(
         "Fault-tolerant control of linked 2WD robots: simulate fault cases through "
@@ -44,6 +179,9 @@ def _version(value: bool) -> None:
 def main(
     version: Annotated[
         bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the full traceback of an unexpected error instead of logging it.")
     ] = False,
 ) -> None:
     """ftcreport command-line interface."""
@@ -95,9 +233,15 @@ def demo(
     import numpy as np
 
     from .control import VelocityController, constant_command
+    from .limits import budget_problem
     from .model import Chain, FaultEvent, FaultSchedule
     from .sim import Plant, SimSettings, simulate
 
+    if not 2 <= robots <= 12:
+        _fail(FtcError(f"--robots: must be between 2 and 12, got {robots}"))
+    if (problem := budget_problem(robots, duration, dt, 1)) is not None:
+        opt = "--dt" if problem[0] == "simulation.dt" else "--duration"  # demo logs every step
+        _fail(FtcError(f"demo: {opt}: {problem[1]}"))
     try:
         chain = Chain.uniform(robots, d=1.0)
         faults = FaultSchedule(robots, [FaultEvent(fault_time, "2l", sigma=0.0, ubar=0.0)])
@@ -166,16 +310,28 @@ def run(
     scheme: Annotated[list[str] | None, typer.Option(help="Run only these schemes (repeatable).")] = None,
     duration: Annotated[float | None, typer.Option(help="Override the simulated time [s].")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only errors.")] = False,
+    verify_dt: Annotated[
+        bool,
+        typer.Option(
+            "--verify-dt",
+            help="Run each scheme again at dt/2 and print the change of the headline metrics "
+            "(stored as verify_dt in metrics.json); exit 1 if a change exceeds 1 %% (+1e-6 absolute).",
+        ),
+    ] = False,
+    no_report: Annotated[
+        bool, typer.Option("--no-report", help="Store the results only (render later with 'ftcreport report').")
+    ] = False,
 ) -> None:
     """Run one case through its schemes; store metrics.json and time series under OUT/<case>/<scheme>/.
 
     Prints a comparison table.  Exit 0 when every run completed, 1 when a run
-    stopped early (singular, diverged, error), 2 for a bad case file.
+    stopped early (singular, diverged, error) or --verify-dt finds the step not
+    converged, 2 for a bad case file.
 
-    Example: ftcreport run cases/two_link_switching.toml --scheme switching
+    Example: ftcreport run cases/two_link_switching.toml --scheme switching --verify-dt
     """
     from .cases import SCHEME_NAMES, load_case, with_duration
-    from .runner import build, run_scheme
+    from .runner import build, dt_sensitivity, halve_dt, run_scheme
     from .store import save_run
 
     try:
@@ -189,28 +345,62 @@ def run(
                 raise FtcError(f"{case}: schemes.{unknown[0]}: not configured in this case (has {', '.join(schemes)})")
             schemes = [s for s in schemes if s in scheme]
         built = build(c)
+        half = halve_dt(c, str(case)) if verify_dt else None
     except FtcError as exc:
-        _fail(exc)
+        _fail(exc if str(exc).startswith(str(case)) else FtcError(f"{case}: {exc}"))
     if not quiet:
         for w in c.warnings():
             typer.echo(f"warning: {case}: {w}", err=True)
     from .batch import record_case, run_key, write_case_manifest
     from .report.render import render_case, render_index
+    from .store import output_lock
 
-    record_case(out, c, case, duration)
     rows = []
-    for s in schemes:
-        r, m = run_scheme(c, s, built)
-        save_run(out, c.name, s, r, m, run_key(c, s))
-        rows.append(m)
-    write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
-    page = render_case(out, c.name)
-    render_index(out)
+    with output_lock(out, "run"):
+        record_case(out, c, case, duration)
+        for s in schemes:
+            r, m = run_scheme(c, s, built)
+            if half is not None:
+                m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
+            save_run(out, c.name, s, r, m, run_key(c, s))
+            rows.append(m)
+        write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
+        page = None if no_report else render_case(out, c.name)
+        if not no_report:
+            render_index(out)
     if not quiet:
         typer.echo(_table(rows))
-        typer.echo(f"results in {out / c.name}/, report {page}")
-    if any(m["status"] not in c.expected_for(m["scheme"]) for m in rows):
+        if half is not None:
+            typer.echo(_dt_table(rows))
+        typer.echo(f"results in {out / c.name}/" + (f", report {page}" if page else ""))
+    failed = [m for m in rows if m["status"] not in c.expected_for(m["scheme"])]
+    for m in failed:
+        typer.echo(f"ftcreport: error: {case}: {m['scheme']}: {m['status']}: {m.get('reason') or '-'}", err=True)
+    loose = [m for m in rows if not m.get("verify_dt", {}).get("converged", True)]
+    for m in loose:
+        v = m["verify_dt"]
+        typer.echo(
+            f"ftcreport: error: {case}: simulation.dt: {m['scheme']}: not converged at dt = {v['dt']:g} s "
+            f"({v['worst']} changes by {v['worst_rel_change']:.3g} relative at dt/2)",
+            err=True,
+        )
+    if failed or loose:
         raise typer.Exit(code=1)
+
+
+def _dt_table(rows: list[dict]) -> str:
+    """The change of each headline metric from dt to dt/2, per scheme (run --verify-dt)."""
+    lines = [f"{'dt check':<10} {'metric':<22} {'at dt':>11} {'at dt/2':>11} {'change':>10} {'relative':>9}"]
+    for m in rows:
+        v = m["verify_dt"]
+        verdict = "converged" if v["converged"] else "NOT converged"
+        lines.append(f"{m['scheme']:<10} dt = {v['dt']:g} s vs {v['dt_half']:g} s: {verdict} (status {v['status']})")
+        for k, r in v["metrics"].items():
+            lines.append(
+                f"{'':<10} {k:<22} {_fmt(r['dt']):>11} {_fmt(r['dt_half']):>11} {_fmt(r['abs_change']):>10} "
+                f"{_fmt(r['rel_change'], '.2%'):>9}"
+            )
+    return "\n".join(lines)
 
 
 def _fmt(x, spec: str = ".3g") -> str:
@@ -248,7 +438,11 @@ def report(
 
     if not out.is_dir():
         _fail(FtcError(f"{out}: no stored results (run 'ftcreport batch' first)"))
-    typer.echo(f"report: {render_all(out, force=True)}")
+    from .store import output_lock
+
+    with output_lock(out, "report"):
+        page = render_all(out, force=True)
+    typer.echo(f"report: {page}")
 
 
 @app.command()
@@ -315,7 +509,7 @@ def check(
             mark = "pass" if c.ok else "FAIL"
             typer.echo(f"{mark:4}  {c.case} / claim {c.id} ({c.source}): {c.outcome} (expected {c.expect}); {c.reason}")
     for msg in res.case_errors.values():
-        typer.echo(f"error: {msg}", err=True)
+        typer.echo(f"ftcreport: error: {msg}", err=True)
     failed = sum(not r.ok for r in results)
     failed_claims = sum(not c.ok for c in claims)
     typer.echo(f"{len(results) - failed}/{len(results)} thresholds hold")
@@ -393,24 +587,26 @@ def campaign(
     from .campaign import read_table, run_campaign
     from .cases import load_case
     from .report.campaign import render_campaign
+    from .store import output_lock
 
     try:
         base = load_case(case)
         out_dir = out or Path("reports") / "campaigns" / base.name
         chosen = None if schemes is None else [s.strip() for s in schemes.split(",") if s.strip()]
-        res = run_campaign(
-            base,
-            samples,
-            out_dir,
-            seed=seed,
-            schemes=chosen,
-            scheduler=scheduler,
-            workers=workers,
-            in_process=in_process,
-            show_progress=not quiet,
-            force=force,
-        )
-        page = render_campaign(out_dir, read_table(res.table))
+        with output_lock(out_dir, "campaign"):
+            res = run_campaign(
+                base,
+                samples,
+                out_dir,
+                seed=seed,
+                schemes=chosen,
+                scheduler=scheduler,
+                workers=workers,
+                in_process=in_process,
+                show_progress=not quiet,
+                force=force,
+            )
+            page = render_campaign(out_dir, read_table(res.table))
     except FtcError as exc:
         _fail(exc)
     typer.echo(
@@ -464,7 +660,7 @@ def cases_validate(
             c = load_case(f)
         except FtcError as exc:
             bad += 1
-            typer.echo(f"error: {exc}", err=True)
+            typer.echo(f"ftcreport: error: {exc}", err=True)
             continue
         typer.echo(f"ok     {f}")
         for w in c.warnings():
@@ -482,15 +678,27 @@ def cases_new(
 
     Example: ftcreport cases new my_case
     """
-    from .cases import TEMPLATE, load_case
+    import os
 
-    if not name.replace("_", "").replace("-", "").isalnum():
-        _fail(FtcError(f"name: '{name}' must be letters, digits, '_' or '-'"))
+    from .cases import TEMPLATE, load_case
+    from .limits import name_problem
+
+    if (why := name_problem(name)) is not None:
+        _fail(FtcError(f"{directory}: name: {why}"))
     path = directory / f"{name}.toml"
-    if path.exists():
-        _fail(FtcError(f"{path}: exists already; not overwritten"))
+    if directory.exists() and not directory.is_dir():
+        _fail(FtcError(f"{directory}: --dir: exists and is not a directory"))
     directory.mkdir(parents=True, exist_ok=True)
-    path.write_text(TEMPLATE)
+    try:  # O_EXCL: never overwrite, even when another process creates the file meanwhile
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except FileExistsError:
+        _fail(FtcError(f"{path}: exists already; not overwritten"))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(TEMPLATE)
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
     load_case(path)  # the template itself is valid
     typer.echo(f"wrote {path}")
 

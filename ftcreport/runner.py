@@ -25,7 +25,18 @@ from .observers import FarzaObserver
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
-__all__ = ["Built", "build", "expected_engine", "make_controller", "run_metrics", "run_scheme"]
+__all__ = [
+    "HEADLINE_METRICS",
+    "Built",
+    "build",
+    "dt_sensitivity",
+    "expected_engine",
+    "explain_nulls",
+    "halve_dt",
+    "make_controller",
+    "run_metrics",
+    "run_scheme",
+]
 
 #: Schemes whose controller the compiled engine does not know (they run in the Python loop).
 PYTHON_ENGINE_SCHEMES = ("active_ukf",)
@@ -159,9 +170,12 @@ def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=Non
         built = built or build(case)
         ctrl = make_controller(built, scheme)
         run = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings, progress=progress)
-    except FtcError as exc:
+    except (FtcError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        # a numeric failure inside the engine (e.g. a linear solve on non-finite values) is a failed run
+        why = str(exc) if isinstance(exc, FtcError) else f"numeric error in the simulation: {type(exc).__name__}: {exc}"
+        exc = FtcError(why)
         empty = Run(t=np.zeros(0), signals={}, status="error", reason=str(exc))
-        return empty, _identity(case, scheme) | {"status": "error", "reason": str(exc), "wall_time": 0.0}
+        return empty, explain_nulls(_identity(case, scheme) | {"status": "error", "reason": str(exc), "wall_time": 0.0})
     metrics = run_metrics(case, scheme, run, built, ctrl)
     metrics["wall_time"] = time.perf_counter() - wall0
     run.meta |= {  # what the arrays do not carry (Run.to_xarray, notebook views)
@@ -174,7 +188,7 @@ def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=Non
     for key in ("estimated_parameters", "patterns"):
         if key in metrics:
             run.meta[key] = metrics[key]
-    return run, metrics
+    return run, explain_nulls(metrics)
 
 
 def _identity(case: Case, scheme: str) -> dict:
@@ -241,3 +255,115 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
         out["rho_hat_final"] = S["rho_hat"][-1].tolist()
         out["ubar_hat_final"] = S["ubar_hat"][-1].tolist()
     return out
+
+
+# Why a metric can be null, by its key (the last part of its path in metrics.json).
+_NULL_WHY = {
+    "recovery_time": "the position error did not enter the recovery band and stay in it before the phase ended",
+    "recovery_time_max": "some phase that starts with a fault never recovers (see phases[*].recovery_time)",
+    "delay": "the applied model never matched the true pattern after this event",
+    "detection_delay_max": "some fault was never detected (see the per-event delays)",
+    "t_declared": "the fault was never declared",
+    "estimate": "the fault was never declared",
+    "position_error_max": "no logged sample in this phase (the run stopped before it)",
+    "position_error_rms": "no logged sample in this phase (the run stopped before it)",
+    "position_error_final": "no logged sample in this phase (the run stopped before it)",
+    "position_error_iae": "fewer than two logged samples in this phase",
+}
+_NOT_METRICS = {"reason", "traceback", "name", "description", "null_reasons"}
+
+
+def explain_nulls(metrics: dict) -> dict:
+    """Every metric finite or null with its reason: non-finite floats become None, and
+    ``null_reasons`` maps the path of every null (e.g. ``phases[2].recovery_time``) to why."""
+    reasons: dict[str, str] = {}
+    status = metrics.get("status", "?")
+    stopped = "" if status == "ok" else f" (the run ended '{status}': {metrics.get('reason') or 'no reason given'})"
+
+    def walk(v, path: str, key: str):
+        if isinstance(v, dict):
+            return {k: (x if k in _NOT_METRICS else walk(x, f"{path}.{k}" if path else k, k)) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [walk(x, f"{path}[{i}]", key) for i, x in enumerate(v)]
+        if isinstance(v, np.generic):
+            v = v.item()
+        if isinstance(v, float) and not math.isfinite(v):
+            reasons[path] = f"non-finite value ({v}) computed from the logged run{stopped}"
+            return None
+        if v is None:
+            reasons[path] = _NULL_WHY.get(key, "not defined for this run") + stopped
+        return v
+
+    out = walk({k: v for k, v in metrics.items() if k != "null_reasons"}, "", "")
+    out["null_reasons"] = reasons
+    return out
+
+
+# ---------------------------------------------------------------------- step-size check (run --verify-dt)
+HEADLINE_METRICS = (
+    "position_error_max",
+    "position_error_rms",
+    "position_error_final",
+    "heading_error_max",
+    "recovery_time_max",
+    "torque_peak",
+    "torque_rms",
+    "energy",
+)
+
+
+def halve_dt(case: Case, source: str = "") -> Case:
+    """The same case at half the step (logged every 2 * log_every steps: the same instants).
+
+    Raises CaseError when the halved run is over the limits of ftcreport.limits.
+    """
+    from .cases import _check_budget, _FieldError
+    from .errors import CaseError
+
+    sim = case.simulation
+    half = case.model_copy(
+        update={"simulation": sim.model_copy(update={"dt": sim.dt / 2, "log_every": sim.log_every * 2})}
+    )
+    try:
+        _check_budget(half)
+    except _FieldError as exc:
+        raise CaseError(f"{source or case.name}: --verify-dt: at dt/2, {exc.loc}: {exc.msg}") from None
+    return half
+
+
+def dt_sensitivity(full: dict, half: dict, rtol: float = 0.01, atol: float = 1e-6) -> dict:
+    """Change of the headline metrics from dt to dt/2.
+
+    Converged when both runs end with the same status and every headline metric
+    changes by at most ``atol + rtol * max(|a|, |b|)`` (a metric null in exactly one
+    run is a change).  A fixed-step method's error at dt is about the change
+    from dt to dt/2 times 2^p / (2^p - 1) (p = 4 for RK4), so the change bounds it.
+    """
+    rows, ok, worst, worst_rel = {}, full.get("status") == half.get("status"), "status", 0.0
+    for k in HEADLINE_METRICS:
+        a, b = full.get(k), half.get(k)
+        if a is None and b is None:
+            continue
+        if a is None or b is None:
+            rows[k] = {"dt": a, "dt_half": b, "abs_change": None, "rel_change": None}
+            ok, worst, worst_rel = False, k, math.inf
+            continue
+        d = abs(float(a) - float(b))
+        scale = max(abs(float(a)), abs(float(b)))
+        rel = d / scale if scale > 0 else 0.0
+        rows[k] = {"dt": a, "dt_half": b, "abs_change": d, "rel_change": rel}
+        if d > atol + rtol * scale:
+            ok = False
+        if rel > worst_rel and d > atol:
+            worst, worst_rel = k, rel
+    return {
+        "dt": full.get("dt"),
+        "dt_half": half.get("dt"),
+        "status": f"{full.get('status')} / {half.get('status')}",
+        "metrics": rows,
+        "rtol": rtol,
+        "atol": atol,
+        "converged": ok,
+        "worst": worst,
+        "worst_rel_change": worst_rel if math.isfinite(worst_rel) else None,
+    }

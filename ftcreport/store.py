@@ -13,6 +13,7 @@ interrupted run loses nothing already stored.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
@@ -23,17 +24,32 @@ from typing import Any
 
 import numpy as np
 
+from .errors import FtcError
 from .sim import Run
 
-__all__ = ["cached_key", "load_metrics", "load_timeseries", "save_run", "write_atomic", "write_json"]
+__all__ = [
+    "OutputBusyError",
+    "cached_key",
+    "clean_partial",
+    "load_metrics",
+    "load_timeseries",
+    "output_lock",
+    "save_run",
+    "write_atomic",
+    "write_json",
+]
+
+TMP_SUFFIX = ".partial"  # a temporary file of write_atomic; only a killed process leaves one behind
+LOCK_NAME = ".ftcreport.lock"
 
 
 def write_atomic(path: Path, data: bytes) -> None:
     """Write bytes to ``path`` atomically (temporary file + rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())  # what open() would give, not mkstemp's 0600
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
@@ -42,6 +58,12 @@ def write_atomic(path: Path, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _jsonable(obj: Any) -> Any:
@@ -66,6 +88,7 @@ def write_json(path: Path, obj: Any) -> None:
 def save_run(out: Path, case_name: str, scheme: str, run: Run, metrics: dict, key: str) -> Path:
     """Store one run; the key file is written last so a complete directory has it."""
     d = Path(out) / case_name / scheme
+    (d / "key").unlink(missing_ok=True)  # the directory is incomplete until the new key is written
     buf = io.BytesIO()
     arrays = {"t": run.t, **{k: v for k, v in run.signals.items()}}
     np.savez_compressed(buf, **arrays)
@@ -100,3 +123,76 @@ def load_timeseries(out: Path, case_name: str, scheme: str) -> dict[str, np.ndar
             return {k: data[k] for k in data.files}
     except (OSError, ValueError):
         return None
+
+
+# ------------------------------------------------------------------ one writer per output directory
+class OutputBusyError(FtcError):
+    """Another ftcreport process is writing to the same output directory."""
+
+    exit_code = 2
+
+
+_held: dict[str, list] = {}  # resolved directory -> [open lock file, depth] (re-entrant in one process)
+
+
+@contextlib.contextmanager
+def output_lock(out: Path, command: str):
+    """Hold the exclusive lock of an output directory (``<out>/.ftcreport.lock``, ``flock``).
+
+    Two processes never write to the same directory at once: the second one fails at
+    once with :class:`OutputBusyError` naming the holder.  The kernel drops the lock when
+    its holder exits, however it exits (SIGKILL included), so no stale lock remains.
+    Re-entrant within one process (``batch`` renders the report under its own lock).
+    """
+    import fcntl
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    key = str(out.resolve())
+    if key in _held:
+        _held[key][1] += 1
+        try:
+            yield
+        finally:
+            _held[key][1] -= 1
+        return
+    path = out / LOCK_NAME
+    fh = open(path, "a+")  # noqa: SIM115 - held open for the lock's lifetime
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip() or "another process"
+        fh.close()
+        raise OutputBusyError(
+            f"{out}: --out: in use by {holder}; wait for it to finish or choose another --out "
+            "(one ftcreport process writes to an output directory at a time)"
+        ) from None
+    try:
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"ftcreport {command} (pid {os.getpid()})")
+        fh.flush()
+        _held[key] = [fh, 1]
+        clean_partial(out)
+        yield
+    finally:
+        _held.pop(key, None)
+        with contextlib.suppress(OSError):
+            fh.seek(0)
+            fh.truncate()
+        fh.close()  # releases the flock
+
+
+def clean_partial(out: Path) -> int:
+    """Remove the temporary files a killed writer left (call with the lock held); returns how many."""
+    n = 0
+    for root, dirs, files in os.walk(out):
+        # a nested output directory (reports/campaigns/<case>) has its own lock and writer: not ours
+        dirs[:] = [d for d in dirs if not (Path(root) / d / LOCK_NAME).exists()]
+        for f in files:
+            if f.startswith(".") and f.endswith(TMP_SUFFIX):
+                with contextlib.suppress(OSError):
+                    (Path(root) / f).unlink()
+                    n += 1
+    return n

@@ -218,7 +218,7 @@ def test_fuzzed_bad_cases_give_one_clear_error(tmp_path, where, value, extra):
         assert "ok" in res.output
         return
     assert res.exit_code == 2
-    lines = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("ftcreport: error:")]
     assert len(lines) == 1, res.output
     assert "fz.toml: " in lines[0] and "Traceback" not in res.output
 

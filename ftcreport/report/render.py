@@ -26,6 +26,7 @@ import numpy as np
 from .. import __version__, compare
 from ..cases import SCHEME_NAMES, parse_case, with_duration
 from ..check import evaluate
+from ..errors import FtcError
 from ..model.faults import wheel_names
 from ..store import load_metrics, load_timeseries, write_atomic
 from . import interactive, plots
@@ -115,8 +116,15 @@ def render_case(out: Path, name: str) -> Path | None:
         )
         write_atomic(page, html.encode())
         return page
-    text = (out / name / "case.toml").read_text()
-    case = parse_case(tomllib.loads(text), rec.get("source", name))
+    stored = out / name / "case.toml"
+    try:
+        text = stored.read_text(encoding="utf-8")
+        case = parse_case(tomllib.loads(text), rec.get("source", name))
+    except (FtcError, ValueError) as exc:  # the stored copy, not the user's file, is damaged
+        raise FtcError(
+            f"{stored}: the stored copy of {rec.get('source', name)} is damaged ({str(exc)[:200]}); "
+            "re-run 'ftcreport batch' or 'ftcreport run' on the case to store it again"
+        ) from None
     case = case.model_copy(update={"name": name})
     if rec.get("duration_override"):
         case = with_duration(case, rec["duration_override"])

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import json
 import math
+import signal
+import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -44,6 +46,10 @@ class _ErrorBoundary(TyperGroup):
             try:
                 return self._invoke(ctx, argv)
             finally:
+                # the command is over (done or already reported): an interrupt from here to the exit has
+                # nothing left to stop, and uncaught it would end the process by SIGINT (-2) with no message
+                if threading.current_thread() is threading.main_thread():
+                    signal.signal(signal.SIGINT, signal.SIG_IGN)
                 if caught:
                     w = caught[0]
                     more = f" (and {len(caught) - 1} more)" if len(caught) > 1 else ""

@@ -168,7 +168,9 @@ def _variant(base: Case, fault: CoverageFault, onset: float) -> Case:
     data = json.loads(base.model_dump_json())
     data.pop("campaign", None)
     data["faults"] = [{"time": onset, "wheel": w, "sigma": fault.sigma, "ubar": fault.ubar} for w in fault.wheels]
-    data["name"] = f"{base.name}/{fault.label}@{onset:g}"
+    # a safe case name (ftcreport.limits: [A-Za-z0-9][A-Za-z0-9_.-]{0,63}); the label stays in the table
+    slug = f"{fault.kind}-{'-'.join(fault.wheels)}-{fault.sigma:g}-{fault.ubar:g}-t{onset:g}"
+    data["name"] = f"{base.name[:24]}.{slug}"[:64]
     return parse_case(data, f"{base.name} (coverage {fault.label} at {onset:g} s)")
 
 

@@ -434,21 +434,6 @@ def test_partial_files_are_cleaned_except_in_nested_output_directories(tmp_path)
     assert (out / ".ftcreport.lock").read_text() == ""  # released: no holder named
 
 
-def test_numeric_failure_inside_a_run_is_a_recorded_failed_run(tmp_path):
-    """k_v = 1e300 on a 1e-300 kg robot: the engine's solves meet inf; the run is stored as failed, exit 1."""
-    p = _case(tmp_path, robots={"n": 2, "d": 1.7, "m": 1e-300})
-    data = tomllib.loads(p.read_text())
-    data["schemes"]["nominal"]["k_v"] = 1e300
-    p.write_text(tomli_w.dumps(data))
-    out = tmp_path / "o"
-    res = runner.invoke(app, ["run", str(p), "--duration", "1", "--out", str(out), "-q"])
-    line = _one_error_line(res, 1, "c.toml", "nominal")
-    m = json.loads((out / "c" / "nominal" / "metrics.json").read_text())
-    assert m["status"] in ("error", "diverged") and m["reason"] in line
-    for w in [ln for ln in res.stderr.splitlines() if "warning" in ln]:
-        assert w.startswith(("warning: ", "ftcreport: warning: ")), w  # a summary line, not a warnings dump
-
-
 def test_fuzz_finding_link_of_1e_minus_300_is_a_failed_run(tmp_path):
     """Found by tests/test_fuzz.py: three_link_active with robots.d = 1e-300 made the active scheme's
     engine solve on inf (LinAlgError), which escaped as '<run>: numeric error' without the file."""

@@ -39,6 +39,8 @@ class _ErrorBoundary(TyperGroup):
             return self._invoke(ctx, argv)
         import warnings
 
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, _on_interrupt)
         with warnings.catch_warnings(record=True) as caught:  # library warnings: one summary line, not a dump
             warnings.simplefilter("default")
             for quiet in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
@@ -81,6 +83,24 @@ class _ErrorBoundary(TyperGroup):
                 line += f" (a bug: traceback in {_crash_log(exc)}; --debug shows it)"
             typer.echo(f"ftcreport: error: {line}", err=True)
             raise typer.Exit(code=code) from None
+
+
+def _on_interrupt(signum, frame) -> None:
+    """Ctrl-C: KeyboardInterrupt, except inside a finaliser or a weakref callback.
+
+    Python runs signal handlers between bytecodes, also inside garbage-collection callbacks, where
+    an exception is printed ("Exception ignored in ...", with a traceback) and dropped: the command
+    would go on as if nothing happened. There the interrupt is sent again 50 ms later instead.
+    """
+    f, depth = frame, 0
+    while f is not None and depth < 8:
+        if f.f_code.co_name == "__del__" or f.f_code.co_filename.endswith("weakref.py"):
+            import os
+
+            threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()
+            return
+        f, depth = f.f_back, depth + 1
+    raise KeyboardInterrupt
 
 
 def _cli_flow() -> tuple[type[BaseException], ...]:

@@ -217,7 +217,9 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     phases = built.faults.phases(min(case.simulation.duration, run.t_end))
     out |= tracking_metrics(t, S["q"], S["q_d"], phases, case.recovery_band)
     chain = built.plant.chain
-    omega = np.array([chain.wheel_speeds(q, e) for q, e in zip(S["q"], S["eta"], strict=True)])
+    from .fast.engine import wheel_speeds_rows
+
+    omega = wheel_speeds_rows(chain, S["q"], S["eta"])  # every step: compiled, one call
     out |= torque_metrics(S["tau"], S["u"], case.plant.saturation, t, omega)
     out["singularity_margin_min"] = singularity_margin(S["q"])
     if scheme == "switching":

@@ -252,3 +252,17 @@ def test_both_engines_break_switching_ties_alike():
     assert selected(hat) == (1, 1)
     hat[1] = eta + np.array([3e-5, 4.1e-5])  # a real difference (J[1] 3 % above J[3]): the smaller cost wins
     assert selected(hat) == (3, 3)
+
+
+@pytest.mark.parametrize("n", [2, 3, 5])
+def test_compiled_wheel_speeds_rows_equal_the_model(n):
+    """The metrics' wheel speeds (one compiled call over every step) equal Chain.wheel_speeds row by row."""
+    from ftcreport.fast.engine import wheel_speeds_rows
+
+    rng = np.random.default_rng(40 + n)
+    chain = Chain.uniform(n, d=rng.uniform(0.6, 1.4, n - 1).tolist())
+    Q = np.array([np.concatenate((rng.normal(size=2), rng.uniform(-0.6, 0.6, n))) for _ in range(25)])
+    ETA = rng.normal(size=(25, 2))
+    got = wheel_speeds_rows(chain, Q, ETA)
+    want = np.array([chain.wheel_speeds(q, e) for q, e in zip(Q, ETA, strict=True)])
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)

@@ -196,6 +196,13 @@ def compiled_spec(controller) -> Spec | None:
     return Spec(kin, ref, law, obs, _chain(chain.params), n_sig, controller)
 
 
+def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
+    """Wheel speeds (K, 2n) at K states: the compiled reduced model's Bbar(q)^T eta, row by row."""
+    Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)
+    ETA = np.ascontiguousarray(ETA, dtype=float).reshape(-1, 2)
+    return F.wheel_speeds_rows(_chain(chain.params), Q, ETA)
+
+
 def compiled_active_law(controller):
     """(t, q, eta_hat, xk, sigma_hat, ubar_hat) -> u: ActiveController's law (4.14) on the kernels, or None."""
     from ..errors import FtcError, SingularityError

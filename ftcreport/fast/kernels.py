@@ -381,6 +381,19 @@ def reduced(p, q, eta):
 
 
 @jit
+def wheel_speeds_rows(p, Q, ETA):
+    """Wheel angular velocities Bbar(q)^T eta at every row (wheel order); model.kernels.wheel_speeds."""
+    nw = 2 * p.n
+    out = np.empty((Q.shape[0], nw))
+    for k in range(Q.shape[0]):
+        Bbar = reduced(p, Q[k], ETA[k])[3]
+        for j in range(nw):
+            # omega_wheel = Bbar^T eta (virtual work: tau . omega is the power into the chain)
+            out[k, j] = Bbar[0, j] * ETA[k, 0] + Bbar[1, j] * ETA[k, 1]
+    return out
+
+
+@jit
 def plant_rhs(p, q, eta, tau):
     """qdot = S eta and etadot of (2.70)."""
     Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(p, q, eta)

@@ -292,7 +292,7 @@ class Run:
         step, whatever ``log_every`` is.  Metrics read it (ftcreport.runner), so
         ``log_every`` changes what is saved, never a metric.  It holds the names of
         :data:`STREAM_SIGNALS` and the per-step minimum and maximum of the wide
-        ones of :data:`REDUCED_SIGNALS` (``cost_min``, ``chi_hat_max``, ...).
+        ones of :data:`REDUCED_SIGNALS` (``chi_hat_min``, ``chi_hat_max``).
     """
 
     t: np.ndarray
@@ -345,8 +345,9 @@ STREAM_SIGNALS = (
     "q", "eta", "u", "tau", "sigma", "ubar", "q_d", "selected", "uf_hat",
     "q_hat", "eta_hat", "rho_hat", "ubar_hat", "P_max",
 )  # fmt: skip
-#: wide signals of which the stream keeps the per-step minimum and maximum only
-REDUCED_SIGNALS = ("chi_hat", "cost")
+#: wide signals of which the stream keeps the per-step minimum and maximum only (the metrics read
+#: chi_hat_min/max; the switching costs, one per model, are in the saved log only)
+REDUCED_SIGNALS = ("chi_hat",)
 
 
 def stream_of(signals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

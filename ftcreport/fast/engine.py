@@ -233,8 +233,14 @@ def compiled_active_law(controller):
 
 
 # --------------------------------------------------------------------------- signals from the log
-def _split_signals(spec: Spec, sg: np.ndarray, xc: np.ndarray, meas: np.ndarray, nq: int) -> dict[str, np.ndarray]:
-    """The controller's named signals (its ``signal_names``) from the compiled log."""
+def _split_signals(
+    spec: Spec, sg: np.ndarray, xc: np.ndarray, meas: np.ndarray, nq: int, costs: bool = True
+) -> dict[str, np.ndarray]:
+    """The controller's named signals (its ``signal_names``) from the compiled log.
+
+    ``costs=False`` leaves out the switching costs (one per model and row): no metric reads them,
+    so the metric stream does not compute them at every step, only the saved log does.
+    """
     c = spec.controller
     nz = len(c.kin.z_names)
     cols = {"eta_c": (0, 2), "eta_c_dot": (2, 4), "z": (4, 4 + nz), "q_d": (4 + nz, 4 + nz + nq)}
@@ -255,18 +261,19 @@ def _split_signals(spec: Spec, sg: np.ndarray, xc: np.ndarray, meas: np.ndarray,
     for name, (a, b) in cols.items():
         out[name] = sg[:, a:b].copy()
     if isinstance(c, SwitchingController):
+        out["selected"] = np.round(xc[:, c._sel]).astype(float)
+    if isinstance(c, SwitchingController) and costs:
         eta = meas[:, nq : nq + 2]
         hat = xc[:, c._hat].reshape(len(xc), c.N, 2)
         err = eta[:, None, :] - hat
         J = c.c_inst * np.einsum("kij,kij->ki", err, err)
         if c.c_int > 0:
             J = J + c.c_int * xc[:, c._int]
-        out["selected"] = np.round(xc[:, c._sel]).astype(float)
         out["cost"] = J
     if isinstance(c, AdaptiveController):
         out["chi_hat"] = xc[:, c._chi].reshape(len(xc), c.N, nw).copy()
         out["uf_hat"] = xc[:, c._uf].copy()
-    return {name: out[name] for name in c.signal_names}
+    return {name: out[name] for name in c.signal_names if name in out}
 
 
 # --------------------------------------------------------------------------- errors
@@ -446,15 +453,15 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     )
 
 
-def _chunk_signals(spec: Spec, plant, nq: int, li: int, bufs) -> dict[str, np.ndarray]:
-    """Every logged array of the first ``li`` rows of the chunk buffers, by name (with ``t``)."""
+def _chunk_signals(spec: Spec, plant, nq: int, rows, bufs, costs: bool = True) -> dict[str, np.ndarray]:
+    """Every logged array of the chunk buffers' ``rows`` (a slice: views; an index array: copies), by name."""
     lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg = bufs
     out = {
-        "t": lt[:li], "q": lq[:li], "eta": leta[:li], "u": lu[:li], "tau": ltau[:li], "sigma": lsig[:li],
-        "ubar": lubar[:li], "xc": lxc[:li],
+        "t": lt[rows], "q": lq[rows], "eta": leta[rows], "u": lu[rows], "tau": ltau[rows], "sigma": lsig[rows],
+        "ubar": lubar[rows], "xc": lxc[rows],
     }  # fmt: skip
-    meas = lmeas[:li] if plant.noisy else np.concatenate((out["q"], out["eta"]), axis=1)
-    out |= _split_signals(spec, lsg[:li], out["xc"], meas, nq)
+    meas = lmeas[rows] if plant.noisy else np.concatenate((out["q"], out["eta"]), axis=1)
+    out |= _split_signals(spec, lsg[rows], out["xc"], meas, nq, costs)
     if plant.noisy:
         out["q_meas"] = meas[:, :nq]
     return out
@@ -467,15 +474,15 @@ def _collect(spec, plant, nq, k0, li, is_logged, bufs, stream, si, rows, log_par
     """
     from ..sim import stream_of
 
-    sig = _chunk_signals(spec, plant, nq, li, bufs)
+    sig = _chunk_signals(spec, plant, nq, slice(0, li), bufs, costs=False)
     part = stream_of(sig) | {"t": sig["t"]}
     if not stream:
         stream.update({name: np.full((rows, *v.shape[1:]), np.nan) for name, v in part.items()})
     for name, v in part.items():
         stream[name][si : si + li] = v
     keep = np.flatnonzero(is_logged[k0 : k0 + li])
-    if keep.size:
-        log_parts.append({name: v[keep].copy() for name, v in sig.items()})
+    if keep.size:  # every signal of the saved steps (fancy indexing copies them out of the chunk buffers)
+        log_parts.append(_chunk_signals(spec, plant, nq, keep, bufs))
     return si + li
 
 

@@ -218,6 +218,12 @@ def _fail(exc: FtcError) -> None:
     raise typer.Exit(code=getattr(exc, "exit_code", 2))
 
 
+# options shared by the commands that run on Dask (campaign, coverage, fdi)
+SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")]
+WorkersOpt = Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")]
+InProcessOpt = Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")]
+
+
 @app.command()
 def patterns(
     robots: Annotated[int, typer.Argument(help="Number of robots in the chain (>= 2).")],
@@ -591,13 +597,11 @@ def campaign(
     case: Annotated[Path, typer.Argument(help="Base case file with a [campaign] table.")],
     samples: Annotated[int, typer.Option("--samples", "-n", help="Number of samples (variants).")] = 100,
     seed: Annotated[int, typer.Option(help="Campaign seed; sample i uses a seed derived from (seed, i).")] = 0,
-    scheduler: Annotated[
-        str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")
-    ] = None,
-    workers: Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")] = 2,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = 2,
     out: Annotated[Path | None, typer.Option(help="Output directory (default reports/campaigns/<case>).")] = None,
     schemes: Annotated[str | None, typer.Option(help="Comma-separated schemes (default: all in the case).")] = None,
-    in_process: Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")] = False,
+    in_process: InProcessOpt = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
     force: Annotated[
         bool, typer.Option("--force", help="Re-run stored samples of another version or case content.")
@@ -618,7 +622,7 @@ def campaign(
     try:
         base = load_case(case)
         out_dir = out or Path("reports") / "campaigns" / base.name
-        chosen = None if schemes is None else [s.strip() for s in schemes.split(",") if s.strip()]
+        chosen = _names(schemes)
         with output_lock(out_dir, "campaign"):
             res = run_campaign(
                 base,
@@ -729,6 +733,11 @@ def cases_new(
     typer.echo(f"wrote {path}")
 
 
+def _names(text: str | None) -> list[str] | None:
+    """A comma-separated option as a list of names (None when the option is not given)."""
+    return None if text is None else [x.strip() for x in text.split(",") if x.strip()]
+
+
 def _floats(text: str | None, option: str) -> list[float] | None:
     if text is None:
         return None
@@ -748,12 +757,10 @@ def coverage(
     sigmas: Annotated[str, typer.Option(help="Partial-loss gains, comma-separated, in (0, 1).")] = "0.25,0.5",
     friction: Annotated[float, typer.Option(help="Friction of the friction faults [N m].")] = 0.5,
     kinds: Annotated[str, typer.Option(help="Fault kinds: loss,pair,partial,friction.")] = "loss,pair,partial,friction",
-    scheduler: Annotated[
-        str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")
-    ] = None,
-    workers: Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")] = 2,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = 2,
     out: Annotated[Path | None, typer.Option(help="Output directory (default reports/coverage/<case>).")] = None,
-    in_process: Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")] = False,
+    in_process: InProcessOpt = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
     force: Annotated[bool, typer.Option("--force", help="Re-run stored items of another version or case.")] = False,
 ) -> None:
@@ -775,10 +782,10 @@ def coverage(
             base,
             out_dir,
             times=_floats(times, "--times"),
-            schemes=None if schemes is None else [s.strip() for s in schemes.split(",") if s.strip()],
+            schemes=_names(schemes),
             sigmas=tuple(_floats(sigmas, "--sigmas") or ()),
             friction=friction,
-            kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()),
+            kinds=tuple(_names(kinds) or ()),
             scheduler=scheduler,
             workers=workers,
             in_process=in_process,
@@ -803,12 +810,10 @@ def fdi(
     samples: Annotated[int, typer.Option("--samples", "-n", help="Campaign samples per active scheme.")] = 50,
     seed: Annotated[int, typer.Option(help="Campaign seed (the same samples as campaign --seed).")] = 0,
     schemes: Annotated[str | None, typer.Option(help="Active schemes, comma-separated (default: all).")] = None,
-    scheduler: Annotated[
-        str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")
-    ] = None,
-    workers: Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")] = 2,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = 2,
     out: Annotated[Path | None, typer.Option(help="Output directory (default reports/fdi/<case>).")] = None,
-    in_process: Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")] = False,
+    in_process: InProcessOpt = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
     force: Annotated[bool, typer.Option("--force", help="Re-run stored traces of another version or case.")] = False,
 ) -> None:
@@ -828,7 +833,7 @@ def fdi(
             samples,
             out_dir,
             seed=seed,
-            schemes=None if schemes is None else [s.strip() for s in schemes.split(",") if s.strip()],
+            schemes=_names(schemes),
             scheduler=scheduler,
             workers=workers,
             in_process=in_process,

@@ -31,6 +31,7 @@ import numpy as np
 
 from . import __version__
 from .campaign import (
+    CampaignResult,
     _Progress,
     _scalar_metrics,
     _success,
@@ -279,17 +280,10 @@ def summarize_coverage(rows: list[dict]) -> dict:
 
 # ---------------------------------------------------------------------- execution (edge)
 @dataclass
-class CoverageResult:
-    out: Path
-    table: Path
-    requested: int
-    skipped: int = 0
-    completed: list[int] = field(default_factory=list)
-    failed: dict[int, str] = field(default_factory=dict)
-    wall_time: float = 0.0
-    rerun_stale: int = 0
+class CoverageResult(CampaignResult):
+    """A campaign's result plus the fault onset times used."""
+
     times: list[float] = field(default_factory=list)
-    workers: dict = field(default_factory=dict)
 
 
 def run_coverage(

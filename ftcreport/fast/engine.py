@@ -20,7 +20,9 @@ explicitly and reports the time).
 from __future__ import annotations
 
 import math
+import os
 import time as _time
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -46,6 +48,7 @@ from ..errors import (
 )
 from ..observers.farza import FarzaObserver
 from ..references import FlatReference, TrigPath
+from ..schemes import SchemeController
 from . import kernels as F
 
 __all__ = ["Spec", "compiled_spec", "simulate_compiled", "warm_up"]
@@ -58,8 +61,9 @@ class Spec(NamedTuple):
 
     kin: F.Kin
     ref: F.Ref
-    law: F.Law
-    obs: F.Obs
+    law: object  # the scheme's compiled law (see ftcreport.fast.kernels, "the schemes' laws")
+    disc: object  # its discrete update
+    P: tuple  # its packed parameters
     chain: F.Chain
     n_sig: int
     controller: object
@@ -129,11 +133,6 @@ def _law(kind, ctrl, nw: int, **kw) -> F.Law:
     return F.Law(**base)
 
 
-def _no_obs() -> F.Obs:
-    z = np.zeros((1, 1))
-    return F.Obs(1.0, 1.0, 1.0, NAN, 0, 0, 0, 1.0, NAN, z, z, 0, 0, 0)
-
-
 def _kin_ref(controller) -> tuple[F.Kin, F.Ref] | None:
     """The kinematic controller and its reference on the kernels, or None if either has no counterpart."""
     kin_obj = getattr(controller, "kin", None)
@@ -159,41 +158,48 @@ def compiled_spec(controller) -> Spec | None:
     nw = chain.n_wheels
     N = chain.n_q
     n_kin = 4 + len(kin_obj.z_names) + N + 2  # eta_c, eta_c_dot, z, q_d, eta_d
-    obs = _no_obs()
     n_sig = n_kin
+    disc = F.no_discrete
     ulim = lambda v: NAN if v is None else float(v)  # noqa: E731
     cls = type(controller)
     if cls is OracleController:
-        law = _law(F.LAW_ORACLE, controller, nw)
+        law, P = F.oracle_law, _law(F.LAW_ORACLE, controller, nw)
     elif cls is TrackingController:
-        law = _law(F.LAW_TRACKING, controller, nw, sigma=np.ascontiguousarray(controller.sigma, dtype=float))
+        P = _law(F.LAW_TRACKING, controller, nw, sigma=np.ascontiguousarray(controller.sigma, dtype=float))
+        law = F.tracking_law
     elif cls is SwitchingController:
         c = controller
-        law = _law(
+        P = _law(
             F.LAW_SWITCHING, c, nw, patterns=np.ascontiguousarray(c.patterns), gamma=c.gamma, T_min=c.T_min,
             c_inst=c.c_inst, c_int=c.c_int, forgetting=c.forgetting, hysteresis=c.hysteresis,
             u_limit=ulim(c.u_limit), hat0=c._hat.start, int0=c._int.start, n_int=c._int.stop - c._int.start,
             sel=c._sel, tsw=c._tsw,
         )  # fmt: skip
+        law, disc = F.switching_law, F.switching_discrete
     elif cls is AdaptiveController:
         c = controller
-        law = _law(
+        P = _law(
             F.LAW_ADAPTIVE, c, nw, patterns=np.ascontiguousarray(c.patterns), gamma=c.gamma,
             chi0=c._chi.start, uf0=c._uf.start, Gamma_f=np.ascontiguousarray(c.Gamma_f, dtype=float),
             adapt=int(c.adapt),
         )  # fmt: skip
+        law, disc = F.adaptive_law, F.adaptive_discrete
     elif cls is ActiveController and type(controller.est) is FarzaObserver:
         c, o = controller, controller.est
-        law = _law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit))
         obs = F.Obs(
             o.Theta, o.k0, o.k1, NAN if o.p_max is None else float(o.p_max), int(o.est_rho), int(o.est_ubar),
             o.p, o.sign, NAN if c.tau is None else float(c.tau), np.ascontiguousarray(o.AY),
             np.ascontiguousarray(o.Soinv), c._est.start, c._est.stop - c._est.start, c._filt.start,
         )  # fmt: skip
+        law, P = F.active_law, (_law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit)), obs)
         n_sig = n_kin + N + 2 + 4 * nw
+    elif isinstance(controller, SchemeController):  # a registered scheme (ftcreport.schemes)
+        law, P = controller.scheme.law, controller.P
+        disc = controller.scheme.discrete or F.no_discrete
+        n_sig = n_kin + sum(controller.widths.values())
     else:
         return None
-    return Spec(kin, ref, law, obs, _chain(chain.params), n_sig, controller)
+    return Spec(kin, ref, law, disc, P, _chain(chain.params), n_sig, controller)
 
 
 def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
@@ -218,7 +224,7 @@ def compiled_active_law(controller):
     info = np.zeros(4)
 
     def law_at(t, q, eta_hat, xk, sigma_hat, ubar_hat):
-        u = F.active_law(
+        u = F.active_u(
             kin, ref, cache, law, pc, float(t), np.ascontiguousarray(q, dtype=float),
             np.ascontiguousarray(eta_hat, dtype=float), np.ascontiguousarray(xk, dtype=float).reshape(-1),
             np.ascontiguousarray(sigma_hat, dtype=float), np.ascontiguousarray(ubar_hat, dtype=float), info,
@@ -258,6 +264,10 @@ def _split_signals(
         P = xc[:, c._est][:, o._P].reshape(-1, o.p, o.p)
         out["P_max"] = np.linalg.eigvalsh(P).max(axis=1) if len(P) else np.zeros(0)
         out["param_std"] = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
+    if isinstance(c, SchemeController):
+        for name, width in c.widths.items():
+            cols[name] = (k, k + width)
+            k += width
     for name, (a, b) in cols.items():
         out[name] = sg[:, a:b].copy()
     if isinstance(c, SwitchingController):
@@ -329,6 +339,74 @@ def _stop(info: np.ndarray, where: int, t_state: float, t_next: float, settings,
 
 
 # --------------------------------------------------------------------------- the loop
+def _cache_dir() -> Path:
+    """Where the generated loop modules live: $FTCREPORT_CACHE, else beside the package, else ~/.cache."""
+    env = os.environ.get("FTCREPORT_CACHE")
+    if env:
+        return Path(env) / "loops"
+    here = Path(__file__).resolve().parent / "_loops"
+    try:
+        here.mkdir(exist_ok=True)
+        if os.access(here, os.W_OK):
+            return here
+    except OSError:
+        pass
+    return Path.home() / ".cache" / "ftcreport" / "loops"
+
+
+_LOOPS: dict[tuple, object] = {}
+
+
+def loop_for(law, disc):
+    """The compiled loop (``run_steps`` of ftcreport.fast.loop) bound to a scheme's law and discrete update.
+
+    The loop's module is written once per (law, discrete update) from ftcreport/fast/loop.py, with
+    its LOOP-BINDING line importing them, and imported under a name that is the same in every
+    process, so numba's cache of it is found by the next run.  The module is written again when
+    the template or the law's source file changes (its text carries a hash of both), which also
+    renews numba's cache: numba alone does not see a change in a function another file calls.
+    """
+    key = (law, disc)
+    loop = _LOOPS.get(key)
+    if loop is not None:
+        return loop
+    import hashlib
+    import importlib.util
+    import inspect
+    import sys
+
+    from . import loop as template
+
+    text = Path(template.__file__).read_text()
+    binding = "LAW, DISC = tracking_law, no_discrete  # LOOP-BINDING"
+    if binding not in text:
+        raise RuntimeError("ftcreport/fast/loop.py: the LOOP-BINDING line is missing")
+    parts = []
+    for fn, alias in ((law, "LAW"), (disc, "DISC")):
+        py = fn.py_func
+        source = Path(inspect.getfile(py)).read_bytes()
+        parts.append((py.__module__, py.__qualname__, alias, hashlib.sha1(source).hexdigest()[:12]))
+    lines = [f"from {m} import {q} as {a}  # source {h}" for m, q, a, h in parts]
+    text = text.replace(binding, "\n".join(lines))
+    tag = "__".join(f"{m}.{q}" for m, q, _, _ in parts)
+    name = "ftcreport_loop_" + "".join(c if c.isalnum() else "_" for c in tag)
+    folder = _cache_dir()
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.py"
+    if not path.exists() or path.read_text() != text:
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(text)
+        os.replace(tmp, path)  # atomic: a concurrent process sees the old or the new file, whole
+    module = sys.modules.get(name)
+    if module is None or getattr(module, "__file__", None) != str(path):
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    loop = _LOOPS[key] = module.run_steps
+    return loop
+
+
 def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, progress=None):
     """sim.simulate on the compiled kernels; returns a :class:`~ftcreport.sim.Run`."""
     from ..sim import GROWTH_FACTOR, GROWTH_FLOOR, GROWTH_STEPS, GROWTH_TOTAL, JUMP_FRACTION, JUMP_MARGINS, Run
@@ -401,12 +479,13 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     k = 0
     status, reason = "ok", ""
     t_end = float(grid[0])
+    loop = loop_for(spec.law, spec.disc)
     wall0 = _time.perf_counter()
     with np.errstate(all="ignore"):
         while True:
             k1 = min(k + chunk - 1, n_steps)
-            x, k_last, li, where = F.run_steps(
-                spec.kin, spec.ref, spec.law, spec.obs, spec.chain, pp,
+            x, k_last, li, where = loop(
+                spec.P, spec.kin, spec.ref, spec.chain, pp,
                 grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
                 x, k, k1, every_step, 0,
                 lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share, grow, growth,

@@ -1080,112 +1080,6 @@ def farza_derivative(O, pc, u, y, s):
 
 # =========================================================================== the closed loop
 @jit
-def controller(Kp, R, C, Lw, O, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    """(u, xcdot) of the controller; fills ``sig`` with the logged signals when it is not empty."""
-    nw = 2 * pc.n
-    N = pc.n + 2
-    xk = xc[: Kp.nk]
-    dx = np.zeros(xc.shape[0])
-    u = np.zeros(nw)
-    kind = Lw.kind
-    if kind == LAW_ACTIVE:
-        est_n = O.est_n
-        s = xc[O.est0 : O.est0 + est_n]
-        qh, eh, rho_e, ubar_e = farza_estimates(O, pc, s, q, nw)
-        rho, ubar = rho_e, ubar_e
-        if not math.isnan(O.tau):
-            rho = xc[O.filt0 : O.filt0 + nw].copy()
-            ubar = xc[O.filt0 + nw : O.filt0 + 2 * nw].copy()
-        if not math.isnan(Lw.u_limit):
-            ubar = _clip(ubar, -Lw.u_limit, Lw.u_limit)
-        sigma_hat = _clip(rho, 0.0, 1.0)
-        u, kin, ecd = _active_u(Kp, R, C, Lw, pc, t, q, eh, xk, sigma_hat, ubar, info)
-        if info[0] != 0:
-            return u, dx
-        dx[O.est0 : O.est0 + est_n] = farza_derivative(O, pc, u, q, s)
-        if not math.isnan(O.tau):
-            for j in range(nw):
-                dx[O.filt0 + j] = (rho_e[j] - xc[O.filt0 + j]) / O.tau
-                dx[O.filt0 + nw + j] = (ubar_e[j] - xc[O.filt0 + nw + j]) / O.tau
-        if sig.shape[0] > 0:
-            k = _kin_signals(sig, kin, ecd, C)
-            sig[k : k + N] = qh
-            sig[k + N : k + N + 2] = eh
-            k += N + 2
-            sig[k : k + nw] = rho_e
-            sig[k + nw : k + 2 * nw] = ubar_e
-            sig[k + 2 * nw : k + 3 * nw] = sigma_hat
-            sig[k + 3 * nw : k + 4 * nw] = ubar
-        return u, dx
-    Mbar1, Mbar2, Cbar, Bbar, S_, _Sd = reduced(pc, q, eta)
-    kin, ecd = eta_c_and_dot(Kp, R, C, S_, t, q, eta, xk, info)
-    if info[0] != 0:
-        return u, dx
-    if sig.shape[0] > 0:
-        _kin_signals(sig, kin, ecd, C)
-    C.M1[:] = Mbar1
-    C.M2[:] = Mbar2
-    C.Cb[:] = Cbar
-    C.Bb[:] = Bbar
-    C.Sm[:] = S_
-    C.f[3] = 1.0
-    eta_e = eta - kin[0]
-    w, MB, g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin[1], kin[2], ecd, Lw.k_v)
-    if kind == LAW_TRACKING:
-        u = law_for_pattern(MB, w, Lw.sigma)
-    elif kind == LAW_ORACLE:
-        u = law_for_pattern(MB, w - _mv(MB, ubar_true), sig_true)
-    elif kind == LAW_SWITCHING:
-        sel = round(xc[Lw.sel])
-        u = law_for_pattern(MB, w, Lw.patterns[sel])
-        u_app = u if math.isnan(Lw.u_limit) else _clip(u, -Lw.u_limit, Lw.u_limit)
-        Nm = Lw.patterns.shape[0]
-        for k in range(Nm):
-            d0 = 0.0
-            d1 = 0.0
-            for j in range(nw):
-                pu = Lw.patterns[k, j] * u_app[j]
-                d0 += pu * MB[0, j]
-                d1 += pu * MB[1, j]
-            i0 = Lw.hat0 + 2 * k
-            h0, h1 = xc[i0], xc[i0 + 1]
-            dx[i0] = -Lw.gamma * h0 + Lw.gamma * eta[0] + g[0] + d0
-            dx[i0 + 1] = -Lw.gamma * h1 + Lw.gamma * eta[1] + g[1] + d1
-            if Lw.n_int > 0:
-                e0, e1 = eta[0] - h0, eta[1] - h1
-                dx[Lw.int0 + k] = -Lw.forgetting * xc[Lw.int0 + k] + (e0 * e0 + e1 * e1)
-    elif kind == LAW_ADAPTIVE:
-        Nm = Lw.patterns.shape[0]
-        uf = xc[Lw.uf0 : Lw.uf0 + nw]
-        w2 = w - _mv(MB, uf)
-        c = _mv(MB.T, eta_e)
-        for k in range(Nm):
-            # u_(k) = A^T (A A^T)^-1 w2, A = MB diag(sigma_(k)), in scalars (no temporaries)
-            g00 = 0.0
-            g01 = 0.0
-            g11 = 0.0
-            for j in range(nw):
-                s2 = Lw.patterns[k, j] * Lw.patterns[k, j]
-                g00 += MB[0, j] * MB[0, j] * s2
-                g01 += MB[0, j] * MB[1, j] * s2
-                g11 += MB[1, j] * MB[1, j] * s2
-            det = g00 * g11 - g01 * g01
-            y0 = (g11 * w2[0] - g01 * w2[1]) / det
-            y1 = (g00 * w2[1] - g01 * w2[0]) / det
-            for j in range(nw):
-                Ukj = Lw.patterns[k, j] * (MB[0, j] * y0 + MB[1, j] * y1)
-                chi = xc[Lw.chi0 + k * nw + j]
-                u[j] += chi * Ukj
-                if Lw.adapt:
-                    pk = -Lw.gamma * Ukj * c[j]
-                    frozen = (chi <= 0.0 and pk < 0.0) or (chi >= 1.0 and pk > 0.0)
-                    dx[Lw.chi0 + k * nw + j] = 0.0 if frozen else pk
-        if Lw.adapt:
-            dx[Lw.uf0 : Lw.uf0 + nw] = _mv(Lw.Gamma_f, _mv(MB.T, eta_e))
-    return u, dx
-
-
-@jit
 def _kin_signals(sig, kin, ecd, C):
     """eta_c, eta_c_dot, z, q_d, eta_d into sig; returns the next free index."""
     z = kin[3]
@@ -1202,73 +1096,238 @@ def _kin_signals(sig, kin, ecd, C):
 
 
 @jit
-def discrete(Kp, R, C, Lw, t, q, eta, xc, info):
-    """Discrete updates after a step: re-anchoring (chained), switching (3.47)-(3.48), weight clip."""
-    xc = xc.copy()
+def kin_discrete(Kp, R, C, t, xc, info):
+    """After each step, the chained law's re-anchoring: psi jumps to theta_d when it leaves the band."""
     if Kp.kind == KIN_CHAINED:
         ref_side(Kp, R, C, t, xc[0], info)
         if info[0] != 0:
-            return xc
+            return
         thd = C.QD[0, 2]
         if abs(_wrap(thd - xc[0])) > Kp.band:
             xc[0] = thd
-    if Lw.kind == LAW_SWITCHING:
-        Nm = Lw.patterns.shape[0]
-        J = np.empty(Nm)
-        for k in range(Nm):
-            e0 = eta[0] - xc[Lw.hat0 + 2 * k]
-            e1 = eta[1] - xc[Lw.hat0 + 2 * k + 1]
-            J[k] = Lw.c_inst * (e0 * e0 + e1 * e1)
-            if Lw.n_int > 0:
-                J[k] = J[k] + Lw.c_int * xc[Lw.int0 + k]
-        cur = round(xc[Lw.sel])
-        lim = np.min(J) * (1.0 + TIE_RTOL)  # ties (round-off) -> lowest index, as SwitchingController.discrete
-        cand = -1
-        for k in range(Nm):
-            if J[k] <= lim:
-                cand = k
-                break
-        if cand < 0:
-            cand = int(np.argmin(J))
-        if cand != cur and t - xc[Lw.tsw] >= Lw.T_min - 1e-12 and J[cand] < J[cur] - Lw.hysteresis:
-            xc[Lw.sel] = cand
-            xc[Lw.tsw] = t
-    elif Lw.kind == LAW_ADAPTIVE:
-        nw = Lw.patterns.shape[1]
-        Nm = Lw.patterns.shape[0]
-        for i in range(Lw.chi0, Lw.chi0 + Nm * nw):
-            xc[i] = min(max(xc[i], 0.0), 1.0)
-    return xc
+
+
+# =========================================================================== the schemes' laws
+# Every law has the signature of the scheme API (ftcreport.schemes):
+#   law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig) -> (u, xcdot)
+#   disc(P, Kp, R, C, t, q, eta, xc, info) -> None   (updates xc in place; the loop hands it a copy)
+# P is the scheme's own packed parameters (a NamedTuple of arrays and numbers), passed through the
+# loop untouched; numba compiles the loop once per law it is given, on the law's first use.
 
 
 @jit
-def _deriv(ctx, t, x, sigma, ubar, nz, info, sig):
-    """(f, u, tau) of the closed loop (sim.simulate's deriv).
+def matched_terms(Kp, R, C, pc, t, q, eta, xc, k_v, info, sig):
+    """The kinematic law and the matched dynamic law's terms at (q, eta): (w, MB, g, eta_e).
 
-    ``ctx = (Kp, R, C, Lw, O, pc, pp, nq, sat, share)``; ``share``: the controller's
-    model is the plant's and there is no noise, so the reduced matrices the
-    controller computed at (q, eta) are the plant's.
+    eta_c and etadot_c come from the kinematic controller, (3.29) or (3.67)-(3.106); w, MB and g
+    are those of (3.37) (``law_terms``): Mbar1 etadot_c + Mbar2 eta + Cbar - k_v Mbar1 eta_e - T^T f
+    = MB tau.  ``sig`` gets eta_c, etadot_c, z, q_d, eta_d when it is not empty.  The reduced
+    matrices are left in C, for the plant to reuse when it shares the controller's model.
     """
-    Kp, R, C, Lw, O, pc, pp, nq, sat, share = ctx
-    q = x[:nq]
-    eta = x[nq : nq + 2]
-    xc = x[nq + 2 :]
-    C.f[3] = 0.0
-    u, xcdot = controller(Kp, R, C, Lw, O, pc, t, q + nz[:nq], eta + nz[nq:], xc, sigma, ubar, info, sig)
-    f = np.zeros(x.shape[0])
+    Mbar1, Mbar2, Cbar, Bbar, S_, _Sd = reduced(pc, q, eta)
+    kin, ecd = eta_c_and_dot(Kp, R, C, S_, t, q, eta, xc[: Kp.nk], info)
     if info[0] != 0:
-        return f, u, u
-    us = u if math.isnan(sat) else _clip(u, -sat, sat)
-    tau = sigma * us + ubar
-    if share and C.f[3] == 1.0:
-        qdot = _mv(C.Sm, eta)
-        etadot = _solve2(C.M1, _mv(C.Bb, tau) - _mv(C.M2, eta) - C.Cb)
-    else:
-        qdot, etadot = plant_rhs(pp, q, eta, tau)
-    f[:nq] = qdot
-    f[nq : nq + 2] = etadot
-    f[nq + 2 :] = xcdot
-    return f, u, tau
+        z = np.zeros(2)
+        return z, np.zeros((2, 2 * pc.n)), z, z
+    if sig.shape[0] > 0:
+        _kin_signals(sig, kin, ecd, C)
+    C.M1[:] = Mbar1
+    C.M2[:] = Mbar2
+    C.Cb[:] = Cbar
+    C.Bb[:] = Bbar
+    C.Sm[:] = S_
+    C.f[3] = 1.0
+    eta_e = eta - kin[0]
+    w, MB, g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin[1], kin[2], ecd, k_v)
+    return w, MB, g, eta_e
+
+
+@njit(nogil=True, error_model="numpy")  # not cached: it takes any scheme's P (a plug-in's types too)
+def no_discrete(P, Kp, R, C, t, q, eta, xc, info):
+    """The discrete update of a scheme that has none."""
+    return
+
+
+@jit
+def tracking_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
+    """(3.37) for the fixed pattern ``P.sigma`` (the nominal scheme: every wheel healthy)."""
+    dx = np.zeros(xc.shape[0])
+    w, MB, _g, _e = matched_terms(Kp, R, C, pc, t, q, eta, xc, P.k_v, info, sig)
+    if info[0] != 0:
+        return np.zeros(2 * pc.n), dx
+    return law_for_pattern(MB, w, P.sigma), dx
+
+
+@jit
+def oracle_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
+    """(3.37) told the true faults: u = (MB diag(sigma))^+ (w - MB ubar)."""
+    dx = np.zeros(xc.shape[0])
+    w, MB, _g, _e = matched_terms(Kp, R, C, pc, t, q, eta, xc, P.k_v, info, sig)
+    if info[0] != 0:
+        return np.zeros(2 * pc.n), dx
+    return law_for_pattern(MB, w - _mv(MB, ubar_true), sig_true), dx
+
+
+@jit
+def switching_rates(Lw, MB, u, g, eta, xc, dx):
+    """The model bank's estimator rates (3.45)-(3.46) and cost integrals (3.47), into dx.
+
+    Model k: hatdot_k = -gamma hat_k + gamma eta + g + MB diag(sigma_k) u_applied;
+    Jdot_k = -forgetting J_k + |eta - hat_k|^2 (when the integral cost is on).
+    """
+    nw = u.shape[0]
+    u_app = u if math.isnan(Lw.u_limit) else _clip(u, -Lw.u_limit, Lw.u_limit)
+    Nm = Lw.patterns.shape[0]
+    for k in range(Nm):
+        d0 = 0.0
+        d1 = 0.0
+        for j in range(nw):
+            pu = Lw.patterns[k, j] * u_app[j]
+            d0 += pu * MB[0, j]
+            d1 += pu * MB[1, j]
+        i0 = Lw.hat0 + 2 * k
+        h0, h1 = xc[i0], xc[i0 + 1]
+        dx[i0] = -Lw.gamma * h0 + Lw.gamma * eta[0] + g[0] + d0
+        dx[i0 + 1] = -Lw.gamma * h1 + Lw.gamma * eta[1] + g[1] + d1
+        if Lw.n_int > 0:
+            e0, e1 = eta[0] - h0, eta[1] - h1
+            dx[Lw.int0 + k] = -Lw.forgetting * xc[Lw.int0 + k] + (e0 * e0 + e1 * e1)
+
+
+@jit
+def switching_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
+    """(3.37) for the selected model's pattern, and the model bank's rates (switching_rates)."""
+    dx = np.zeros(xc.shape[0])
+    w, MB, g, _e = matched_terms(Kp, R, C, pc, t, q, eta, xc, P.k_v, info, sig)
+    if info[0] != 0:
+        return np.zeros(2 * pc.n), dx
+    u = law_for_pattern(MB, w, P.patterns[round(xc[P.sel])])
+    switching_rates(P, MB, u, g, eta, xc, dx)
+    return u, dx
+
+
+@jit
+def switching_select(Lw, t, eta, xc):
+    """The switching rule (3.47)-(3.48): the model of least cost J_k, with dwell time and hysteresis.
+
+    J_k = c_inst |eta - hat_k|^2 + c_int int_k; ties within TIE_RTOL go to the lowest index.  The
+    selection changes only after T_min since the last switch and when it lowers J by the hysteresis.
+    """
+    Nm = Lw.patterns.shape[0]
+    J = np.empty(Nm)
+    for k in range(Nm):
+        e0 = eta[0] - xc[Lw.hat0 + 2 * k]
+        e1 = eta[1] - xc[Lw.hat0 + 2 * k + 1]
+        J[k] = Lw.c_inst * (e0 * e0 + e1 * e1)
+        if Lw.n_int > 0:
+            J[k] = J[k] + Lw.c_int * xc[Lw.int0 + k]
+    cur = round(xc[Lw.sel])
+    lim = np.min(J) * (1.0 + TIE_RTOL)  # ties (round-off) -> lowest index
+    cand = -1
+    for k in range(Nm):
+        if J[k] <= lim:
+            cand = k
+            break
+    if cand < 0:
+        cand = int(np.argmin(J))
+    if cand != cur and t - xc[Lw.tsw] >= Lw.T_min - 1e-12 and J[cand] < J[cur] - Lw.hysteresis:
+        xc[Lw.sel] = cand
+        xc[Lw.tsw] = t
+
+
+@jit
+def switching_discrete(P, Kp, R, C, t, q, eta, xc, info):
+    """After each step: the switching rule (switching_select)."""
+    switching_select(P, t, eta, xc)
+
+
+@jit
+def adaptive_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
+    """Multi-design integration (3.113)-(3.120): u = sum_k chi_k o u_(k), projected weight and friction laws."""
+    Lw = P
+    nw = 2 * pc.n
+    dx = np.zeros(xc.shape[0])
+    u = np.zeros(nw)
+    w, MB, _g, eta_e = matched_terms(Kp, R, C, pc, t, q, eta, xc, Lw.k_v, info, sig)
+    if info[0] != 0:
+        return u, dx
+    Nm = Lw.patterns.shape[0]
+    uf = xc[Lw.uf0 : Lw.uf0 + nw]
+    w2 = w - _mv(MB, uf)
+    c = _mv(MB.T, eta_e)
+    for k in range(Nm):
+        # u_(k) = A^T (A A^T)^-1 w2, A = MB diag(sigma_(k)), in scalars (no temporaries)
+        g00 = 0.0
+        g01 = 0.0
+        g11 = 0.0
+        for j in range(nw):
+            s2 = Lw.patterns[k, j] * Lw.patterns[k, j]
+            g00 += MB[0, j] * MB[0, j] * s2
+            g01 += MB[0, j] * MB[1, j] * s2
+            g11 += MB[1, j] * MB[1, j] * s2
+        det = g00 * g11 - g01 * g01
+        y0 = (g11 * w2[0] - g01 * w2[1]) / det
+        y1 = (g00 * w2[1] - g01 * w2[0]) / det
+        for j in range(nw):
+            Ukj = Lw.patterns[k, j] * (MB[0, j] * y0 + MB[1, j] * y1)
+            chi = xc[Lw.chi0 + k * nw + j]
+            u[j] += chi * Ukj
+            if Lw.adapt:
+                # chidot = Proj(-gamma U_kj (MB^T eta_e)_j): frozen at the bounds 0 and 1 when pushing out
+                pk = -Lw.gamma * Ukj * c[j]
+                frozen = (chi <= 0.0 and pk < 0.0) or (chi >= 1.0 and pk > 0.0)
+                dx[Lw.chi0 + k * nw + j] = 0.0 if frozen else pk
+    if Lw.adapt:
+        # friction estimate: ufdot = Gamma_f MB^T eta_e
+        dx[Lw.uf0 : Lw.uf0 + nw] = _mv(Lw.Gamma_f, _mv(MB.T, eta_e))
+    return u, dx
+
+
+@jit
+def adaptive_discrete(P, Kp, R, C, t, q, eta, xc, info):
+    """After each step: the weights clipped to [0, 1] (the projection's bounds)."""
+    nw = P.patterns.shape[1]
+    for i in range(P.chi0, P.chi0 + P.patterns.shape[0] * nw):
+        xc[i] = min(max(xc[i], 0.0), 1.0)
+
+
+@jit
+def active_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
+    """Active FTC (4.14) on the Farza observer's estimates (4.3)-(4.9); eta is not used (only q is)."""
+    Lw, O = P
+    nw = 2 * pc.n
+    N = pc.n + 2
+    xk = xc[: Kp.nk]
+    dx = np.zeros(xc.shape[0])
+    est_n = O.est_n
+    s = xc[O.est0 : O.est0 + est_n]
+    qh, eh, rho_e, ubar_e = farza_estimates(O, pc, s, q, nw)
+    rho, ubar = rho_e, ubar_e
+    if not math.isnan(O.tau):
+        rho = xc[O.filt0 : O.filt0 + nw].copy()
+        ubar = xc[O.filt0 + nw : O.filt0 + 2 * nw].copy()
+    if not math.isnan(Lw.u_limit):
+        ubar = _clip(ubar, -Lw.u_limit, Lw.u_limit)
+    sigma_hat = _clip(rho, 0.0, 1.0)
+    u, kin, ecd = _active_u(Kp, R, C, Lw, pc, t, q, eh, xk, sigma_hat, ubar, info)
+    if info[0] != 0:
+        return u, dx
+    dx[O.est0 : O.est0 + est_n] = farza_derivative(O, pc, u, q, s)
+    if not math.isnan(O.tau):
+        # first-order filters of the estimates: tau xdot = x_est - x
+        for j in range(nw):
+            dx[O.filt0 + j] = (rho_e[j] - xc[O.filt0 + j]) / O.tau
+            dx[O.filt0 + nw + j] = (ubar_e[j] - xc[O.filt0 + nw + j]) / O.tau
+    if sig.shape[0] > 0:
+        k = _kin_signals(sig, kin, ecd, C)
+        sig[k : k + N] = qh
+        sig[k + N : k + N + 2] = eh
+        k += N + 2
+        sig[k : k + nw] = rho_e
+        sig[k + nw : k + 2 * nw] = ubar_e
+        sig[k + 2 * nw : k + 3 * nw] = sigma_hat
+        sig[k + 3 * nw : k + 4 * nw] = ubar
+    return u, dx
 
 
 @jit
@@ -1333,147 +1392,6 @@ def _step_jump(pp, x, xn, nq, lim, max_speed, max_position, frac, lim_far, info)
     return 0
 
 
-ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
-
-
-@jit
-def run_steps(
-    Kp, R, Lw, O, pc, pp,
-    grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
-    x, k0, k1, is_logged, li,
-    lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
-):  # fmt: skip
-    """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, where).
-
-    ``where`` says where an error stopped the loop (AT_STATE, AT_TRIAL, AT_DISCRETE).
-    ``grow`` = [max |tau| at the previous step, streak length, max |tau| at the streak start]
-    carries the step-growth detector of sim.simulate across calls; ``growth`` = [GROWTH_FACTOR,
-    GROWTH_STEPS, GROWTH_FLOOR, JUMP_FRACTION, sin(JUMP_MARGINS * margin), GROWTH_TOTAL] of ftcreport.sim.
-    """
-    nq = pp.n + 2
-    nx = x.shape[0]
-    sig_buf = np.zeros(n_sig)
-    C = new_cache(pp.n)
-    ctx = (Kp, R, C, Lw, O, pc, pp, nq, sat, share)
-    empty = np.zeros(0)
-    noisy = noise.shape[0] > 1
-    nz = noise[0]
-    for k in range(k0, k1 + 1):
-        t = grid[k]
-        sigma = fsig[fidx[k]]
-        ubar = fubar[fidx[k]]
-        if noisy:
-            nz = noise[k]
-        for i in range(nx):
-            if not math.isfinite(x[i]):
-                info[0] = E_NONFINITE_STATE
-                info[1] = t
-                return x, k, li, AT_STATE
-        _check_state(pp, x, nq, lim, max_speed, max_position, info)
-        if info[0] != 0:
-            return x, k, li, AT_STATE
-        want = is_logged[k]
-        f0, u, tau = _deriv(ctx, t, x, sigma, ubar, nz, info, sig_buf if want else empty)
-        if info[0] != 0:
-            return x, k, li, AT_STATE
-        ok = True
-        for i in range(nx):
-            if not math.isfinite(f0[i]):
-                ok = False
-        for i in range(u.shape[0]):
-            if not math.isfinite(u[i]):
-                ok = False
-        if not ok:
-            info[0] = E_NONFINITE_DERIV
-            info[1] = t
-            return x, k, li, AT_STATE
-        # step-growth detector (sim.simulate): max |tau| growing geometrically step after step
-        g = 0.0
-        for i in range(tau.shape[0]):
-            g = max(g, abs(tau[i]))
-        if grow[0] > 0.0 and g > growth[0] * grow[0]:
-            if grow[1] == 0.0:
-                grow[2] = grow[0]
-            grow[1] += 1.0
-        else:
-            grow[1] = 0.0
-        grow[0] = g
-        if grow[1] >= growth[1] and g > growth[2] and g > growth[5] * grow[2]:
-            info[0] = E_STEP_GROWTH
-            info[1] = t
-            info[2] = grow[2]
-            info[3] = g
-            return x, k, li, AT_STATE
-        if want:
-            lt[li] = t
-            lq[li] = x[:nq]
-            leta[li] = x[nq : nq + 2]
-            lu[li] = u
-            ltau[li] = tau
-            lsig[li] = sigma
-            lubar[li] = ubar
-            lxc[li] = x[nq + 2 :]
-            if lmeas.shape[0] > 0:
-                lmeas[li] = x[: nq + 2] + nz
-            lsg[li] = sig_buf
-            li += 1
-        if k == grid.shape[0] - 1:
-            return x, k, li, AT_STATE
-        h = grid[k + 1] - t
-        if method == 0:
-            f2 = _deriv(ctx, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, nz, info, empty)[0]
-            if info[0] != 0:
-                return x, k, li, AT_TRIAL
-            f3 = _deriv(ctx, t + 0.5 * h, x + 0.5 * h * f2, sigma, ubar, nz, info, empty)[0]
-            if info[0] != 0:
-                return x, k, li, AT_TRIAL
-            f4 = _deriv(ctx, t + h, x + h * f3, sigma, ubar, nz, info, empty)[0]
-            if info[0] != 0:
-                return x, k, li, AT_TRIAL
-            xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
-        else:
-            F = np.empty((nx, 2))
-            for j in range(2):
-                c = nq + j
-                delta = 1e-7 * max(1.0, abs(x[c]))
-                xp = x.copy()
-                xp[c] += delta
-                fp = _deriv(ctx, t, xp, sigma, ubar, nz, info, empty)[0]
-                if info[0] != 0:
-                    return x, k, li, AT_TRIAL
-                F[:, j] = (fp - f0) / delta
-            gh = ROS2_GAMMA * h
-            dinv = 1.0 / (1.0 - gh * diag)
-            DF = np.empty((nx, 2))
-            for i in range(nx):
-                DF[i, 0] = dinv[i] * F[i, 0]
-                DF[i, 1] = dinv[i] * F[i, 1]
-            small = np.empty((2, 2))
-            small[0, 0] = 1.0 - gh * DF[nq, 0]
-            small[0, 1] = -gh * DF[nq, 1]
-            small[1, 0] = -gh * DF[nq + 1, 0]
-            small[1, 1] = 1.0 - gh * DF[nq + 1, 1]
-            rd = dinv * f0
-            kk1 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
-            f2 = _deriv(ctx, t + h, x + h * kk1, sigma, ubar, nz, info, empty)[0]
-            if info[0] != 0:
-                return x, k, li, AT_TRIAL
-            rd = dinv * (f2 - 2.0 * kk1)
-            kk2 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
-            xn = x + 1.5 * h * kk1 + 0.5 * h * kk2
-        kind = _step_jump(pp, x, xn, nq, lim, max_speed, max_position, growth[3], growth[4], info)
-        if kind != 0:
-            info[0] = E_STEP_JUMP
-            info[1] = kind
-            return x, k, li, AT_TRIAL
-        xcn = discrete(Kp, R, C, Lw, grid[k + 1], xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xn[nq + 2 :], info)
-        if info[0] != 0:
-            return x, k, li, AT_DISCRETE
-        xn[nq + 2 :] = xcn  # xn is a new array: it becomes the state without a copy
-        x = xn
-    return x, k1, li, AT_STATE
-
-
 # =========================================================================== entry points for the Python engine
 @jit
 def midpoint_sigmas(pc, sigmas, u, dt, est_rho, est_ubar):
@@ -1516,6 +1434,6 @@ def _active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info):
 
 
 @jit
-def active_law(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info):
+def active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info):
     """The active law alone (for a discrete estimator running in the Python loop)."""
     return _active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info)[0]

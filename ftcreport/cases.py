@@ -329,6 +329,22 @@ class Simulation(_Strict):
     singularity_margin_deg: _num(0.0, lt=90) = _f(
         2.0, "stop (status singular) when an articulation angle comes this close to 90 deg", "deg"
     )
+    sample_time: _num(None, 10.0, gt=0) | None = _f(
+        None,
+        "sampled (digital) control: the controller's period, a whole number of steps dt; its command is held "
+        "between samples (zero-order hold). Absent: continuous-time control",
+        "s",
+    )
+
+    @model_validator(mode="after")
+    def _whole_steps(self) -> Simulation:
+        if self.sample_time is not None:
+            ratio = self.sample_time / self.dt
+            if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+                raise _FieldError(
+                    "sample_time", f"{self.sample_time} s is not a whole number of steps dt = {self.dt} s"
+                )
+        return self
 
 
 class Noise(_Strict):

@@ -77,6 +77,7 @@ class Built:
             method=s.method,
             log_every=s.log_every,
             singularity_margin=math.radians(s.singularity_margin_deg),
+            sample_time=s.sample_time,
         )
 
     def kinematic(self) -> TwoLinkKinematic | ChainedBackstepping:

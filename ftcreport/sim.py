@@ -65,7 +65,7 @@ from __future__ import annotations
 import math
 import time as _time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -85,6 +85,24 @@ from .errors import (
 from .model import kernels as K
 from .model.chain import Chain
 from .model.faults import FaultSchedule
+from .runs import (
+    GROWTH_FACTOR,
+    GROWTH_FLOOR,
+    GROWTH_STEPS,
+    GROWTH_TOTAL,
+    JUMP_FRACTION,
+    JUMP_MARGINS,
+    REDUCED_SIGNALS,
+    STATUS_DIVERGED,
+    STATUS_ERROR,
+    STATUS_OK,
+    STATUS_SINGULAR,
+    STATUS_STEP_UNSTABLE,
+    STREAM_SIGNALS,
+    Run,
+    step_jump_words,
+    stream_of,
+)
 
 __all__ = [
     "REDUCED_SIGNALS",
@@ -98,19 +116,6 @@ __all__ = [
     "time_grid",
 ]
 
-STATUS_OK = "ok"
-STATUS_SINGULAR = "singular"
-STATUS_DIVERGED = "diverged"
-STATUS_ERROR = "error"
-STATUS_STEP_UNSTABLE = "step_unstable"
-
-#: step-growth detector (see the module docstring); the compiled engine takes the same values
-GROWTH_FACTOR = math.e
-GROWTH_STEPS = 3
-GROWTH_TOTAL = 20.0
-GROWTH_FLOOR = 1.0  # N m
-JUMP_FRACTION = 0.1  # a bound crossed in one step from within this fraction of it is a step blow-up
-JUMP_MARGINS = 10.0  # ... and the singular set reached in one step from this many margins away
 _NUMERIC_ERRORS = (DivergenceError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError)
 
 
@@ -168,6 +173,11 @@ class SimSettings:
         Stop (diverged) when |x| or |y| exceeds this [m].
     method : str
         ``"rk4"`` (classical, fixed step) or ``"ros2"`` (Rosenbrock W-method, stiff-capable).
+    sample_time : float or None
+        Sampled (digital) control: the controller runs every ``sample_time`` [s], a whole number
+        of steps, its command held in between (zero-order hold) and its own state advanced by a
+        forward-Euler step per sample; the plant integrates at ``dt``.  None: continuous-time
+        control (the law evaluated at every stage of the step).
     """
 
     dt: float
@@ -178,6 +188,7 @@ class SimSettings:
     max_speed: float = 1e3
     max_position: float = 1e6
     method: str = "rk4"
+    sample_time: float | None = None
 
     def __post_init__(self) -> None:
         if self.method not in ("rk4", "ros2"):
@@ -192,6 +203,13 @@ class SimSettings:
             raise ModelError(f"log_every: must be >= 1, got {self.log_every}")
         if not 0 <= self.singularity_margin < math.pi / 2:
             raise ModelError(f"singularity_margin: must be in [0, pi/2) rad, got {self.singularity_margin}")
+        if self.sample_time is not None:
+            ratio = self.sample_time / self.dt
+            if not (math.isfinite(ratio) and ratio >= 1 - 1e-9 and abs(ratio - round(ratio)) <= 1e-9 * ratio):
+                raise ModelError(
+                    f"sample_time: {self.sample_time} s is not a whole number of steps dt = {self.dt} s "
+                    "(the plant integrates at dt between the controller's samples)"
+                )
 
 
 class Plant:
@@ -261,111 +279,6 @@ class Plant:
         tau = self.torque(u, *params)
         qdot, etadot = K.eta_dot(self.chain.params, x[:nq], x[nq:], tau)
         return np.concatenate((qdot, etadot))
-
-
-@dataclass
-class Run:
-    """Result of one simulation: logged time series and outcome.
-
-    Attributes
-    ----------
-    t : (K,) ndarray
-        Logged instants [s].
-    signals : dict of str to ndarray
-        ``'q'`` (K, n+2), ``'eta'`` (K, 2), ``'u'`` (K, 2n) commanded control,
-        ``'tau'`` (K, 2n) applied torque, ``'sigma'``, ``'ubar'`` (K, 2n) true
-        faults, ``'xc'`` (K, n_states), then the controller's own signals.
-    status : str
-        ``'ok'``, ``'singular'``, ``'diverged'``, ``'step_unstable'`` or ``'error'``.
-    reason : str
-        Why the run stopped early ('' when it completed).
-    t_end : float
-        Last simulated instant [s].
-    steps : int
-        RK4 steps taken.
-    wall_time : float
-        Wall-clock seconds spent in the loop.
-    t_stream : (S,) ndarray
-        Every accepted step's instant [s] (the metric stream; S >= K).
-    stream : dict of str to ndarray
-        The metric stream: the signals of :func:`stream_of` at every accepted
-        step, whatever ``log_every`` is.  Metrics read it (ftcreport.runner), so
-        ``log_every`` changes what is saved, never a metric.  It holds the names of
-        :data:`STREAM_SIGNALS` and the per-step minimum and maximum of the wide
-        ones of :data:`REDUCED_SIGNALS` (``chi_hat_min``, ``chi_hat_max``).
-    """
-
-    t: np.ndarray
-    signals: dict[str, np.ndarray]
-    status: str = STATUS_OK
-    reason: str = ""
-    t_end: float = 0.0
-    steps: int = 0
-    wall_time: float = 0.0
-    meta: dict = field(default_factory=dict)
-    t_stream: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    stream: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.signals[name]
-
-    @property
-    def ok(self) -> bool:
-        """True when the run completed without stopping early."""
-        return self.status == STATUS_OK
-
-    def to_xarray(self):
-        """The run as an ``xarray.Dataset``: dimensions time, coordinate, velocity, wheel, robot, ...
-
-        Units in each variable's ``units`` attribute; status, engine, case hash and the fault
-        schedule as metadata (:func:`ftcreport.tidy.run_dataset`; xarray is imported only here).
-        """
-        from .tidy import run_dataset
-
-        return run_dataset(self)
-
-    def to_pandas(self):
-        """The run as a wide ``pandas.DataFrame`` indexed by time, columns ``q[x]``, ``tau[2l]``, ...
-
-        (:func:`ftcreport.tidy.run_frame`; pandas is imported only here).
-        """
-        from .tidy import run_frame
-
-        return run_frame(self)
-
-    def _repr_html_(self) -> str:
-        """Notebook view: summary table and a small figure (:mod:`ftcreport.report.notebook`)."""
-        from .report.notebook import run_html
-
-        return run_html(self)
-
-
-#: the signals the metrics read (ftcreport.runner, metrics, diagnosis): kept at every accepted step
-STREAM_SIGNALS = (
-    "q", "eta", "u", "tau", "sigma", "ubar", "q_d", "selected", "uf_hat",
-    "q_hat", "eta_hat", "rho_hat", "ubar_hat", "P_max",
-)  # fmt: skip
-#: wide signals of which the stream keeps the per-step minimum and maximum only (the metrics read
-#: chi_hat_min/max; the switching costs, one per model, are in the saved log only)
-REDUCED_SIGNALS = ("chi_hat",)
-
-
-def stream_of(signals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """The metric-stream part of logged rows.
-
-    ``signals`` holds K rows of every logged name; the result holds the same K rows of the
-    names in :data:`STREAM_SIGNALS`, plus ``<name>_min`` and ``<name>_max`` (K,) for each name
-    of :data:`REDUCED_SIGNALS` present.
-    """
-    out = {name: signals[name] for name in STREAM_SIGNALS if name in signals}
-    for name in REDUCED_SIGNALS:
-        if name in signals:
-            v = signals[name]
-            flat = v.reshape(v.shape[0], -1)
-            empty = flat.shape[1] == 0
-            out[f"{name}_min"] = np.full(v.shape[0], np.nan) if empty else flat.min(axis=1)
-            out[f"{name}_max"] = np.full(v.shape[0], np.nan) if empty else flat.max(axis=1)
-    return out
 
 
 def time_grid(t0: float, duration: float, dt: float, breakpoints=()) -> np.ndarray:
@@ -450,6 +363,11 @@ def simulate(
             return run
         if engine == "compiled":
             raise ModelError(f"engine: {type(controller).__name__} has no compiled counterpart")
+    if settings.sample_time is not None:
+        raise ModelError(
+            f"sample_time: sampled control runs on the compiled engine; {type(controller).__name__} "
+            f"{'has no compiled counterpart' if engine != 'python' else 'was asked to run in the Python loop'}"
+        )
 
     xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
     x = np.concatenate((q0, eta0, xc0))
@@ -691,17 +609,6 @@ def _step_jump(chain: Chain, x: np.ndarray, xn: np.ndarray, settings: SimSetting
         if c1 <= math.sin(settings.singularity_margin) and c0 > math.sin(JUMP_MARGINS * settings.singularity_margin):
             return 4, math.degrees(math.acos(min(1.0, c0))), math.degrees(math.acos(min(1.0, c1)))
     return 0, 0.0, 0.0
-
-
-def step_jump_words(kind: int, before: float, after: float) -> str:
-    """The words of a :func:`_step_jump` triple (shared by both engines)."""
-    if kind == 1:
-        return "non-finite new state"
-    what = {2: ("velocity", ""), 3: ("position", " m"), 4: ("an articulation angle's distance from 90 deg", " deg")}
-    label, unit = what[kind]
-    if kind == 4:
-        before, after = 90.0 - before, 90.0 - after
-    return f"{label} jumped from {before:.3g}{unit} to {after:.3g}{unit} in one step"
 
 
 def _check_state(chain: Chain, x: np.ndarray, settings: SimSettings) -> None:

@@ -243,7 +243,8 @@ def test_both_engines_break_switching_ties_alike():
     def selected(hat):
         xc[ctrl._hat] = hat.ravel()
         py = ctrl.discrete(1.0, q, eta, xc)
-        fast = F.discrete(spec.kin, spec.ref, F.new_cache(3), spec.law, 1.0, q, eta, xc, np.zeros(4))
+        fast = xc.copy()
+        F.switching_discrete(spec.P, spec.kin, spec.ref, F.new_cache(3), 1.0, q, eta, fast, np.zeros(4))
         return round(py[ctrl._sel]), round(fast[ctrl._sel])
 
     xc[ctrl._hat] = hat.ravel()

@@ -316,7 +316,7 @@ def _message(info: np.ndarray, t: float, settings, ref: F.Ref) -> tuple[str, str
     if code == F.E_REF_ART:
         return "error", reference_articulation_reason(a, int(b), c, ref.max_art)
     if code == F.E_STEP_GROWTH:
-        from ..sim import GROWTH_FACTOR, GROWTH_STEPS
+        from ..runs import GROWTH_FACTOR, GROWTH_STEPS
 
         return "step_unstable", step_growth_reason(a, b, c, GROWTH_STEPS, GROWTH_FACTOR, settings.dt, settings.method)
     return "error", f"compiled engine: unknown error code {code} at t = {t:.6g} s"
@@ -325,7 +325,7 @@ def _message(info: np.ndarray, t: float, settings, ref: F.Ref) -> tuple[str, str
 def _stop(info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: F.Ref) -> tuple[str, str, float]:
     """(status, reason, t_end) of a stop: a failed trial stage is a step problem, not a singularity."""
     if int(info[0]) == F.E_STEP_JUMP:
-        from ..sim import step_jump_words
+        from ..runs import step_jump_words
 
         words = step_jump_words(int(info[1]), float(info[2]), float(info[3]))
         reason = trial_stage_reason(t_state, words, settings.dt, settings.method, stage=False)
@@ -409,7 +409,7 @@ def loop_for(law, disc):
 
 def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, progress=None):
     """sim.simulate on the compiled kernels; returns a :class:`~ftcreport.sim.Run`."""
-    from ..sim import GROWTH_FACTOR, GROWTH_FLOOR, GROWTH_STEPS, GROWTH_TOTAL, JUMP_FRACTION, JUMP_MARGINS, Run
+    from ..runs import GROWTH_FACTOR, GROWTH_FLOOR, GROWTH_STEPS, GROWTH_TOTAL, JUMP_FRACTION, JUMP_MARGINS, Run
 
     controller = spec.controller
     chain = plant.chain
@@ -479,6 +479,12 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     k = 0
     status, reason = "ok", ""
     t_end = float(grid[0])
+    # sampled control: [next sample time, last sample time, T_s] and the held u, rates and signals
+    ts = settings.sample_time
+    hold_t = np.array([float(grid[0]), NAN, NAN if ts is None else float(ts)])
+    u_h = np.zeros(0 if ts is None else nw)
+    dx_h = np.zeros(nc)
+    sig_h = np.zeros(spec.n_sig)
     loop = loop_for(spec.law, spec.disc)
     wall0 = _time.perf_counter()
     with np.errstate(all="ignore"):
@@ -489,6 +495,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
                 x, k, k1, every_step, 0,
                 lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share, grow, growth,
+                hold_t, u_h, dx_h, sig_h,
             )  # fmt: skip
             if li:
                 bufs = (lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg)
@@ -525,6 +532,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
             "dt": settings.dt,
             "duration": settings.duration,
             "log_every": int(settings.log_every),
+            "sample_time": settings.sample_time,
             "engine": "compiled",
         },
         t_stream=t_stream,
@@ -551,7 +559,7 @@ def _collect(spec, plant, nq, k0, li, is_logged, bufs, stream, si, rows, log_par
 
     Returns the stream's new length.
     """
-    from ..sim import stream_of
+    from ..runs import stream_of
 
     sig = _chunk_signals(spec, plant, nq, slice(0, li), bufs, costs=False)
     part = stream_of(sig) | {"t": sig["t"]}
@@ -576,7 +584,7 @@ def warm_up() -> float:
     from ..control.kinematic import ChainedBackstepping, TwoLinkKinematic
     from ..model import Chain
     from ..references import FlatReference, circle
-    from ..sim import Plant, SimSettings, simulate
+    from ..runs import Plant, SimSettings, simulate
 
     t0 = _time.perf_counter()
     for n in (2, 3):

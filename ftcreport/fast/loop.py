@@ -78,11 +78,67 @@ ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 
 @jit
+def _plant_deriv(ctx, x, u, sigma, ubar):
+    """(f, u, tau) with the control held (sampled control): the plant's rates, the controller's frozen.
+
+    tau = sigma o sat(u) + ubar (2.102); qdot = S(q) eta, Mbar1 etadot = Bbar tau - Mbar2 eta - Cbar (2.70).
+    """
+    pp, nq, sat = ctx[4], ctx[5], ctx[6]
+    us = u if math.isnan(sat) else _clip(u, -sat, sat)
+    tau = sigma * us + ubar
+    qdot, etadot = plant_rhs(pp, x[:nq], x[nq : nq + 2], tau)
+    f = np.zeros(x.shape[0])
+    f[:nq] = qdot
+    f[nq : nq + 2] = etadot
+    return f, u, tau
+
+
+@jit
+def _stage(P, ctx, t, x, sigma, ubar, nz, info, u_h):
+    """The rates at a trial stage: the whole loop's (continuous control) or the plant's with u held."""
+    if u_h.shape[0] > 0:
+        return _plant_deriv(ctx, x, u_h, sigma, ubar)[0]
+    return _deriv(P, ctx, t, x, sigma, ubar, nz, info, np.zeros(0))[0]
+
+
+@jit
+def sample(P, ctx, t, x, sigma, ubar, nz, info, hold_t, u_h, dx_h, sig_h):
+    """One sample of a discrete-time controller at t (sampled control, period T_s = hold_t[2]).
+
+    The controller's state is advanced over the last sample by a forward-Euler step of its rates
+    (held since that sample), then its discrete updates run, then the law: its u is held (zero-order
+    hold) until the next sample, its rates and logged signals too.  Measurements: q + noise, eta + noise.
+    """
+    Kp, R, C, pc, nq = ctx[0], ctx[1], ctx[2], ctx[3], ctx[5]
+    xc = x[nq + 2 :]
+    q = x[:nq] + nz[:nq]
+    eta = x[nq : nq + 2] + nz[nq:]
+    if not math.isnan(hold_t[1]):
+        h = t - hold_t[1]
+        for i in range(xc.shape[0]):
+            # xc(t_j+1) = xc(t_j) + T_s xcdot(t_j)
+            xc[i] += h * dx_h[i]
+        kin_discrete(Kp, R, C, t, xc, info)
+        if info[0] != 0:
+            return
+        DISC(P, Kp, R, C, t, q, eta, xc, info)
+        if info[0] != 0:
+            return
+    C.f[3] = 0.0
+    u, dx = LAW(P, Kp, R, C, pc, t, q, eta, xc, sigma, ubar, info, sig_h)
+    u_h[:] = u
+    dx_h[:] = dx
+    hold_t[0] = t + hold_t[2]
+    hold_t[1] = t
+
+
+@jit
 def run_steps(
     P, Kp, R, pc, pp,
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
     x, k0, k1, is_logged, li,
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
+    hold_t, u_h, dx_h, sig_h,
 ):  # fmt: skip
     """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, where).
 
@@ -90,6 +146,10 @@ def run_steps(
     ``grow`` = [max |tau| at the previous step, streak length, max |tau| at the streak start]
     carries the step-growth detector of sim.simulate across calls; ``growth`` = [GROWTH_FACTOR,
     GROWTH_STEPS, GROWTH_FLOOR, JUMP_FRACTION, sin(JUMP_MARGINS * margin), GROWTH_TOTAL] of ftcreport.sim.
+
+    Sampled control when ``u_h`` is not empty: ``hold_t = [next sample time, last sample time (nan:
+    none yet), T_s]``; the law runs at the samples (:func:`sample`) and the plant integrates with
+    its u held; ``u_h, dx_h, sig_h`` carry the held control, rates and signals across calls.
     """
     nq = pp.n + 2
     nx = x.shape[0]
@@ -99,6 +159,7 @@ def run_steps(
     empty = np.zeros(0)
     noisy = noise.shape[0] > 1
     nz = noise[0]
+    sampled = u_h.shape[0] > 0
     for k in range(k0, k1 + 1):
         t = grid[k]
         sigma = fsig[fidx[k]]
@@ -114,7 +175,15 @@ def run_steps(
         if info[0] != 0:
             return x, k, li, AT_STATE
         want = is_logged[k]
-        f0, u, tau = _deriv(P, ctx, t, x, sigma, ubar, nz, info, sig_buf if want else empty)
+        if sampled:
+            if t >= hold_t[0] - 1e-9 * hold_t[2]:
+                sample(P, ctx, t, x, sigma, ubar, nz, info, hold_t, u_h, dx_h, sig_h)
+                if info[0] != 0:
+                    return x, k, li, AT_STATE
+            f0, u, tau = _plant_deriv(ctx, x, u_h, sigma, ubar)
+            sig_buf[:] = sig_h
+        else:
+            f0, u, tau = _deriv(P, ctx, t, x, sigma, ubar, nz, info, sig_buf if want else empty)
         if info[0] != 0:
             return x, k, li, AT_STATE
         ok = True
@@ -162,13 +231,13 @@ def run_steps(
             return x, k, li, AT_STATE
         h = grid[k + 1] - t
         if method == 0:
-            f2 = _deriv(P, ctx, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, nz, info, empty)[0]
+            f2 = _stage(P, ctx, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, nz, info, u_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
-            f3 = _deriv(P, ctx, t + 0.5 * h, x + 0.5 * h * f2, sigma, ubar, nz, info, empty)[0]
+            f3 = _stage(P, ctx, t + 0.5 * h, x + 0.5 * h * f2, sigma, ubar, nz, info, u_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
-            f4 = _deriv(P, ctx, t + h, x + h * f3, sigma, ubar, nz, info, empty)[0]
+            f4 = _stage(P, ctx, t + h, x + h * f3, sigma, ubar, nz, info, u_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
             xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
@@ -179,7 +248,7 @@ def run_steps(
                 delta = 1e-7 * max(1.0, abs(x[c]))
                 xp = x.copy()
                 xp[c] += delta
-                fp = _deriv(P, ctx, t, xp, sigma, ubar, nz, info, empty)[0]
+                fp = _stage(P, ctx, t, xp, sigma, ubar, nz, info, u_h)
                 if info[0] != 0:
                     return x, k, li, AT_TRIAL
                 F[:, j] = (fp - f0) / delta
@@ -196,7 +265,7 @@ def run_steps(
             small[1, 1] = 1.0 - gh * DF[nq + 1, 1]
             rd = dinv * f0
             kk1 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
-            f2 = _deriv(P, ctx, t + h, x + h * kk1, sigma, ubar, nz, info, empty)[0]
+            f2 = _stage(P, ctx, t + h, x + h * kk1, sigma, ubar, nz, info, u_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
             rd = dinv * (f2 - 2.0 * kk1)
@@ -207,6 +276,9 @@ def run_steps(
             info[0] = E_STEP_JUMP
             info[1] = kind
             return x, k, li, AT_TRIAL
+        if sampled:  # the controller's discrete updates run at its samples
+            x = xn
+            continue
         # discrete updates on the new state (xn is a new array: updated in place, it becomes the state)
         xcn = xn[nq + 2 :]
         kin_discrete(Kp, R, C, grid[k + 1], xcn, info)

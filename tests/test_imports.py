@@ -1,0 +1,149 @@
+"""The package reads top-down (DESIGN.md: model -> control -> sim -> metrics -> report -> cli).
+
+Every import statement of ftcreport/ counts, module level and inside functions alike (a lazy
+import is still a dependency): the graph has no cycle, and the numeric core imports nothing from
+the edges (reports, CLI, storage, file formats).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1] / "ftcreport"
+
+#: the numeric core: pure, no I/O, no plotting
+CORE = ("ftcreport.model", "ftcreport.control", "ftcreport.observers", "ftcreport.sim", "ftcreport.references")
+CORE += ("ftcreport.fast.kernels", "ftcreport.fast.loop", "ftcreport.fast.ukf", "ftcreport.fast.motor")
+#: the edges the core must not reach
+EDGES = ("ftcreport.report", "ftcreport.cli", "ftcreport.tidy", "ftcreport.store", "ftcreport.manifest")
+EDGES += ("ftcreport.results", "ftcreport.batch", "ftcreport.campaign", "ftcreport.coverage", "ftcreport.fdi")
+EDGES += ("ftcreport.cluster", "ftcreport.cases", "ftcreport.schema_doc", "ftcreport.runner", "ftcreport.check")
+#: standard modules that read or write files or the network, and plotting
+IO_MODULES = ("json", "pickle", "shutil", "tomllib", "csv", "sqlite3", "socket", "urllib", "matplotlib", "plotly")
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _imports(path: Path) -> set[str]:
+    """Every module this file imports (relative imports resolved), at any depth of the file."""
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            out.add(mod)
+            # "from . import x" / "from .fast import kernels": x may be a module
+            out.update(f"{mod}.{alias.name}" for alias in node.names)
+    return out
+
+
+def _graph() -> dict[str, set[str]]:
+    files = {_module_name(p): p for p in ROOT.rglob("*.py") if ".venv" not in p.parts and "_loops" not in p.parts}
+    graph = {}
+    for name, path in files.items():
+        deps = {d for d in _imports(path) if d in files and d != name}
+        graph[name] = deps
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_import_graph_has_no_cycle():
+    graph = _graph()
+    # the package root wires the edges' conversions of a Run (ftcreport/__init__.py): every
+    # submodule is imported with the package, so the root's own imports are not dependencies of
+    # the modules below it
+    graph.pop("ftcreport", None)
+    for deps in graph.values():
+        deps.discard("ftcreport")
+    assert _cycles(graph) == []
+
+
+def _under(name: str, prefixes: tuple[str, ...]) -> bool:
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+@pytest.mark.parametrize("core", CORE)
+def test_the_core_imports_no_edge_and_no_file_io(core):
+    graph = _graph()
+    modules = [m for m in graph if _under(m, (core,))]
+    if not modules:
+        pytest.skip(f"{core} does not exist")
+    for m in modules:
+        # everything the module reaches, transitively
+        seen, todo = set(), [m]
+        while todo:
+            v = todo.pop()
+            for w in graph.get(v, ()):
+                if w not in seen:
+                    seen.add(w)
+                    todo.append(w)
+        assert not [w for w in seen if _under(w, EDGES)], m
+        path = ROOT.parent / (m.replace(".", "/") + ".py")
+        if not path.exists():
+            path = ROOT.parent / m.replace(".", "/") / "__init__.py"
+        stdlib = {d.split(".")[0] for d in _imports(path)}
+        assert not stdlib & set(IO_MODULES), (m, stdlib & set(IO_MODULES))
+
+
+def test_the_graph_sees_lazy_imports():
+    """The check can fail: a function-level import is an edge of the graph."""
+    src = "def f():\n    from .report import render\n"
+    tmp = ROOT / "sim.py"
+    deps = set()
+    for node in ast.walk(ast.parse(src)):
+        if isinstance(node, ast.ImportFrom):
+            deps.add(node.module)
+    assert deps == {"report"}
+    assert "ftcreport.fast.engine" in _graph()["ftcreport.sim"]
+    assert tmp.exists()

@@ -169,7 +169,7 @@ def winding_voltage(mo, v_a, fault):
     out = np.empty(nw)
     for j in range(nw):
         mode = int(fault[j, F_MODE])
-        if mode == MODE_SHORT or mode == MODE_OPEN:
+        if mode in (MODE_SHORT, MODE_OPEN):
             out[j] = 0.0
         elif mode == MODE_STUCK:
             out[j] = _clip(fault[j, F_VSTUCK], mo.V_max[j])

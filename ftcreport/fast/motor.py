@@ -179,6 +179,23 @@ def winding_voltage(mo, v_a, fault):
 
 
 @jit
+def rotor_mass(Mbar1, Bbar, Jw):
+    """Mbar1 + Bbar diag(Jw) Bbar^T: the reduced inertia with the rotors on the wheel axes, (2, 2)."""
+    A = Mbar1.copy()
+    for j in range(Bbar.shape[1]):
+        for a in range(2):
+            for b in range(2):
+                A[a, b] += Jw[j] * Bbar[a, j] * Bbar[b, j]
+    return A
+
+
+@jit
+def rotor_inertia_wheel(mo):
+    """eta_g N^2 J_m per wheel [kg m^2]: the rotor inertia seen on the wheel axis (ERRATA E19)."""
+    return mo.eta_g * mo.N * mo.N * mo.J_m
+
+
+@jit
 def motor_plant_rhs(pc, mo, q, eta, i_a, v_a, fault):
     r"""Chain + motors: (qdot, etadot, i_dot, tau_w), thesis (2.28)-(2.29), (2.70) with E19.
 
@@ -212,11 +229,12 @@ def motor_plant_rhs(pc, mo, q, eta, i_a, v_a, fault):
     Mbar1, Mbar2, Cbar, _Bb, S, _Sd = reduced(pc, q, eta)
     Bbar, Bbd = bbar_and_rate(pc, q, eta)
     v = winding_voltage(mo, v_a, fault)
-    A = Mbar1.copy()
+    Jw = rotor_inertia_wheel(mo)
+    # (Mbar1 + Bbar Jw Bbar^T) etadot = Bbar (tau0 - Jw Bbardot^T eta) - Mbar2 eta - Cbar
+    A = rotor_mass(Mbar1, Bbar, Jw)
     rhs = -_mv(Mbar2, eta) - Cbar
     i_dot = np.zeros(nw)
     tau0 = np.empty(nw)  # wheel torque without the rotor-inertia term
-    Jw = np.empty(nw)
     wdot0 = np.empty(nw)  # Bbardot^T eta
     for j in range(nw):
         s = fault[j, F_KM]
@@ -232,12 +250,9 @@ def motor_plant_rhs(pc, mo, q, eta, i_a, v_a, fault):
             i_dot[j] = (v[j] - R * i - s * mo.k_b[j] * mo.N[j] * omega_w) / mo.L_a[j]
         # eta_g N (k_m i - b_m N omega_w)                                 (2.29) without J_m
         tau0[j] = gN * (s * mo.k_m[j] * i - mo.b_m[j] * mo.N[j] * omega_w)
-        Jw[j] = gN * mo.N[j] * mo.J_m[j]
         wdot0[j] = Bbd[0, j] * eta[0] + Bbd[1, j] * eta[1]
         for a in range(2):
             rhs[a] += Bbar[a, j] * (tau0[j] - Jw[j] * wdot0[j])
-            for b in range(2):
-                A[a, b] += Jw[j] * Bbar[a, j] * Bbar[b, j]
     etadot = _solve2(A, rhs)
     tau_w = np.empty(nw)
     for j in range(nw):

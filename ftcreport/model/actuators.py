@@ -9,9 +9,12 @@ size for the thesis robots (30 kg, wheel radius 0.15 m, ``chain.THESIS_ROBOT``):
   inertia 1340 g cm^2, no-load current 289 mA at 3670 rpm, nominal voltage 48 V, nominal
   (continuous) torque 800 mNm at 6.8 A, stall torque 16100 mNm at 131 A, mechanical time constant
   3.25 ms.  The source is a copy of the datasheet, not maxon's own page; the numbers are
-  self-consistent (k_b = 60 / (2 pi 77.8) = 0.1227 V s/rad against k_m = 0.123 N m/A;
-  R_a J_m / (k_m k_b) = 3.24 ms against the quoted 3.25 ms; 48 V / 0.365 ohm = 131.5 A against the
+  self-consistent (the speed constant gives k_b = 60 / (2 pi 77.8) = 0.1227 V s/rad against
+  k_m = 0.123 N m/A;
+  R_a J_m / (k_m k_b) = 3.23 ms against the quoted 3.25 ms; 48 V / 0.365 ohm = 131.5 A against the
   quoted stall current), which is why we trust them.
+* k_b = k_m = 0.123: in SI units they are the same constant (the motor converts power losslessly);
+  the 0.2 % the speed constant differs by is the datasheet's rounding.
 * b_m from the no-load point: k_m I_0 / omega_0 = 0.123 * 0.289 / (3670 * 2 pi / 60) =
   9.25e-5 N m s/rad (the datasheet's friction modelled as viscous).
 * Gear: N = 20, eta_g = 0.75.  These are our choice, not from a datasheet: 20:1 puts the wheel's
@@ -20,7 +23,7 @@ size for the thesis robots (30 kg, wheel radius 0.15 m, ``chain.THESIS_ROBOT``):
 * V_max = 48 V (the nominal voltage); no current limit by default (I_max = inf).
 
 Time constants of these defaults: electrical L_a / R_a = 0.44 ms, mechanical (motor alone)
-R_a J_m / (k_m k_b) = 3.24 ms.
+R_a J_m / (k_m k_b) = 3.23 ms.
 """
 
 from __future__ import annotations
@@ -67,7 +70,7 @@ class MotorParams:
     R_a: float = 0.365
     L_a: float = 0.161e-3
     k_m: float = 0.123
-    k_b: float = 60.0 / (2.0 * math.pi * 77.8)
+    k_b: float = 0.123
     N: float = 20.0
     eta_g: float = 0.75
     J_m: float = 1340e-7

@@ -448,3 +448,47 @@ def test_schedule_motor_table_and_intermittent_motor_faults():
     ]:
         with pytest.raises(FaultError, match=msg):
             FaultSchedule(2, [ev])
+
+
+# ------------------------------------------------------------------ the case file
+def _case(**extra):
+    import tomllib
+    from pathlib import Path
+
+    from ftcreport.cases import parse_case
+
+    data = tomllib.loads((Path(__file__).resolve().parents[1] / "cases" / "three_link_switching.toml").read_text())
+    t_last = data["faults"][-1]["time"]
+    for key, val in extra.items():
+        if key == "fault":
+            data["faults"].append({"time": t_last + 0.5, "wheel": "2r", **val})
+        else:
+            data[key] = val
+    return parse_case(data, "x.toml")
+
+
+def test_case_actuators_table_and_motor_faults():
+    from ftcreport.errors import CaseError
+
+    plain = _case()
+    assert plain.actuators is None and plain.motor_params() is None
+    assert not plain.fault_schedule().has_motor
+    case = _case(actuators={"N": [20.0, 15.0, 15.0], "I_max": 30.0}, fault={"motor": "km_loss", "value": 0.5})
+    mps = case.motor_params()
+    assert [m.N for m in mps] == [20.0, 15.0, 15.0] and all(m.I_max == 30.0 for m in mps)
+    assert mps[0].R_a == MAXON_RE65.R_a
+    sched = case.fault_schedule()
+    t = case.faults[-1].time
+    np.testing.assert_array_equal(sched.motor(t)[2], [0.5, 1.0, M.MODE_NORMAL, 0.0])
+    np.testing.assert_array_equal(sched.motor(t - 1e-9), M.healthy_faults(6))
+    for extra, where in [
+        ({"fault": {"motor": "open"}}, r"faults\[\d+\]\.motor: motor fault 'open' needs the \[actuators\] table"),
+        ({"actuators": {}, "fault": {"motor": "short", "sigma": 1.0}}, r"faults\[\d+\]\.sigma: a motor event"),
+        ({"actuators": {}, "fault": {"motor": "stuck"}}, r"faults\[\d+\]\.value: a motor fault 'stuck' needs"),
+        ({"actuators": {}, "fault": {"motor": "km_loss", "value": 0.0}}, r"faults\[\d+\]\.value: km_loss value"),
+        ({"actuators": {}, "fault": {"value": 2.0}}, r"faults\[\d+\]\.value: a value belongs to a motor fault"),
+        ({"actuators": {"R_a": [1.0, 2.0]}}, r"actuators\.R_a: 2 values given, a 3-robot chain needs 3"),
+        ({"actuators": {"eta_g": 1.2}}, r"actuators\.eta_g"),
+    ]:
+        with pytest.raises(CaseError, match=where):
+            _case(**extra)

@@ -134,17 +134,12 @@ def _b_and_rate(p, q, thdot):
 
 
 @jit
-def bbar_and_rate(p, q, eta):
-    r"""(Bbar, Bbardot): Bbar = S^T B (2.74) and d/dt Bbar = Sdot^T B + S^T Bdot along qdot = S eta.
-
-    Both (2, nw).  Bdot: the entries of B (C.8) are cos/sin of headings and of heading differences
-    over r_i, so their rates are the thetadot of S eta (2.63)-(2.64) times the other function.
-    """
+def _bbar_rate(p, q, eta, S, Sd):
+    """Bbardot = Sdot^T B + S^T Bdot along qdot = S eta, given S and Sdot of ``kernels.reduced``."""
     n = p.n
     _th, col, _t, _s, _w = s_column(p, q)
     thdot = col * eta[0]
     thdot[0] = eta[1]
-    _M1, _M2, _C, Bbar, S, Sd = reduced(p, q, eta)
     B, Bd = _b_and_rate(p, q, thdot)
     nw = 2 * n
     Bbd = np.zeros((2, nw))
@@ -154,7 +149,18 @@ def bbar_and_rate(p, q, eta):
             for i in range(n + 2):
                 acc += Sd[i, a] * B[i, j] + S[i, a] * Bd[i, j]
             Bbd[a, j] = acc
-    return Bbar, Bbd
+    return Bbd
+
+
+@jit
+def bbar_and_rate(p, q, eta):
+    r"""(Bbar, Bbardot): Bbar = S^T B (2.74) and d/dt Bbar = Sdot^T B + S^T Bdot along qdot = S eta.
+
+    Both (2, nw).  Bdot: the entries of B (C.8) are cos/sin of headings and of heading differences
+    over r_i, so their rates are the thetadot of S eta (2.63)-(2.64) times the other function.
+    """
+    _M1, _M2, _C, Bbar, S, Sd = reduced(p, q, eta)
+    return Bbar, _bbar_rate(p, q, eta, S, Sd)
 
 
 @jit
@@ -226,8 +232,8 @@ def motor_plant_rhs(pc, mo, q, eta, i_a, v_a, fault):
         Wheel torques [N m], eta_g N tau_l.
     """
     nw = 2 * pc.n
-    Mbar1, Mbar2, Cbar, _Bb, S, _Sd = reduced(pc, q, eta)
-    Bbar, Bbd = bbar_and_rate(pc, q, eta)
+    Mbar1, Mbar2, Cbar, Bbar, S, Sd = reduced(pc, q, eta)
+    Bbd = _bbar_rate(pc, q, eta, S, Sd)
     v = winding_voltage(mo, v_a, fault)
     Jw = rotor_inertia_wheel(mo)
     # (Mbar1 + Bbar Jw Bbar^T) etadot = Bbar (tau0 - Jw Bbardot^T eta) - Mbar2 eta - Cbar

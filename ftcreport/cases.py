@@ -26,7 +26,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from .errors import CaseError, FtcError
 from .limits import budget_problem, name_problem
 from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
+from .model.actuators import MAXON_RE65, MotorParams
 from .model.chain import THESIS_ROBOT
+from .model.faults import MOTOR_KINDS, motor_row
 
 __all__ = ["SCHEME_NAMES", "Case", "case_hash", "case_schema", "did_you_mean", "load_case", "parse_case"]
 
@@ -174,6 +176,70 @@ class Fault(_Strict):
     wheel: str = _f(..., 'the wheel: "1r", "1l", ..., "nr", "nl"', "-")
     sigma: Unit = _f(0.0, "effectiveness after the event (0: the motor gives no torque)", "1")
     ubar: Torque = _f(0.0, "additive friction torque after the event", "N m")
+    motor: Literal[MOTOR_KINDS] | None = _f(
+        None,
+        "a motor fault instead of (sigma, ubar), needs [actuators]: km_loss (k_m and k_b scaled), resistance "
+        "(R_a scaled), open (no current), short (winding shorted: braking), stuck (driver stuck at a voltage), "
+        "none (motor repaired)",
+        "-",
+    )
+    value: _num(-1e4, 1e4) | None = _f(
+        None,
+        "the motor fault's value: km_loss: remaining fraction of k_m in (0, 1]; resistance: factor on R_a in "
+        "[1, 1000]; stuck: the driver's voltage (saturated at V_max); none for the other kinds",
+        "1 or V",
+    )
+
+
+_ACT = "a scalar applies to every robot, a list is leader first"
+
+
+class Actuators(_Strict):
+    """DC motors of the wheels (thesis 2.3.3, issue 19): both wheels of a robot get the robot's values.
+
+    Defaults: maxon RE 65 48 V with a 20:1 gear of efficiency 0.75 and a 48 V supply
+    (ftcreport.model.actuators gives the datasheet source).  With this table the plant integrates
+    the armature currents; without it the wheel torque is the command (today's ideal plant).
+    """
+
+    R_a: _num(None, 1e3, gt=0) | list[_num(None, 1e3, gt=0)] = _f(MAXON_RE65.R_a, f"armature resistance; {_ACT}", "ohm")
+    L_a: _num(None, 10.0, gt=0) | list[_num(None, 10.0, gt=0)] = _f(
+        MAXON_RE65.L_a, f"armature inductance (> 0); {_ACT}", "H"
+    )
+    k_m: _num(None, 100.0, gt=0) | list[_num(None, 100.0, gt=0)] = _f(
+        MAXON_RE65.k_m, f"torque constant; {_ACT}", "N m/A"
+    )
+    k_b: _num(None, 100.0, gt=0) | list[_num(None, 100.0, gt=0)] = _f(
+        MAXON_RE65.k_b, f"back-EMF constant (= k_m in SI units); {_ACT}", "V s/rad"
+    )
+    N: _num(None, 1e4, gt=0) | list[_num(None, 1e4, gt=0)] = _f(
+        MAXON_RE65.N, f"gear ratio motor speed / wheel speed; {_ACT}", "1"
+    )
+    eta_g: _num(None, 1.0, gt=0) | list[_num(None, 1.0, gt=0)] = _f(
+        MAXON_RE65.eta_g, f"gear efficiency (wheel torque = eta_g N motor torque); {_ACT}", "1"
+    )
+    J_m: _num(0.0, 10.0) | list[_num(0.0, 10.0)] = _f(
+        MAXON_RE65.J_m, f"rotor inertia (eta_g N^2 J_m on the wheel axis); {_ACT}", "kg m^2"
+    )
+    b_m: _num(0.0, 100.0) | list[_num(0.0, 100.0)] = _f(MAXON_RE65.b_m, f"rotor viscous damping; {_ACT}", "N m s/rad")
+    V_max: _num(None, 1e5, gt=0) | list[_num(None, 1e5, gt=0)] = _f(
+        MAXON_RE65.V_max, f"supply voltage: the driver saturates at +-V_max; {_ACT}", "V"
+    )
+    I_max: _num(None, 1e6, gt=0) | list[_num(None, 1e6, gt=0)] | None = _f(
+        None, f"limit on the driver's target current (none by default); {_ACT}", "A"
+    )
+
+    def params(self, n: int) -> list[MotorParams]:
+        """One MotorParams per robot, leader first (a scalar applies to every robot)."""
+        out = []
+        for i in range(n):
+            kw = {}
+            for key in MotorParams.__dataclass_fields__:
+                v = getattr(self, key)
+                v = v[i] if isinstance(v, list) else v
+                kw[key] = math.inf if v is None else float(v)
+            out.append(MotorParams(**kw))
+        return out
 
 
 class Kinematic(_Strict):
@@ -472,6 +538,9 @@ class Case(_Strict):
     reference: Reference = _f(..., "the last robot's path ([reference])", "-")
     initial: Initial = _f(Initial(), "initial state ([initial])", "-")
     faults: list[Fault] = _f([], "fault events sorted by time ([[faults]])", "-")
+    actuators: Actuators | None = _f(
+        None, "DC motors on the wheels ([actuators]); absent: the wheel torque is the command", "-"
+    )
     kinematic: Kinematic = _f(..., "kinematic controller ([kinematic])", "-")
     schemes: Schemes = _f(..., "the schemes to run ([schemes.<name>])", "-")
     simulation: Simulation = _f(..., "integration settings ([simulation])", "-")
@@ -526,6 +595,13 @@ class Case(_Strict):
                 raise _FieldError(
                     f"faults[{i}].time", f"{f.time} s is not before the end of the run ({self.simulation.duration} s)"
                 )
+        for i, f in enumerate(self.faults):
+            _check_motor_fault(i, f, self.actuators is not None)
+        if self.actuators is not None:
+            for key in Actuators.model_fields:
+                v = getattr(self.actuators, key)
+                if isinstance(v, list) and len(v) != n:
+                    raise _FieldError(f"actuators.{key}", f"{len(v)} values given, a {n}-robot chain needs {n}")
         seen: set[tuple[float, int]] = set()
         for i, f in enumerate(self.faults):
             key = (f.time, wheel_index(f.wheel, n))
@@ -617,8 +693,13 @@ class Case(_Strict):
 
     def fault_schedule(self) -> FaultSchedule:
         return FaultSchedule(
-            self.robots.n, [FaultEvent(f.time, f.wheel.strip().lower(), f.sigma, f.ubar) for f in self.faults]
+            self.robots.n,
+            [FaultEvent(f.time, f.wheel.strip().lower(), f.sigma, f.ubar, f.motor, f.value) for f in self.faults],
         )
+
+    def motor_params(self) -> list[MotorParams] | None:
+        """The wheels' motors per robot, leader first ([actuators]), or None without the table."""
+        return None if self.actuators is None else self.actuators.params(self.robots.n)
 
     def warnings(self) -> list[str]:
         """Uncompensable phases, naming the event that makes them so."""
@@ -639,6 +720,27 @@ class Case(_Strict):
                 f"until {end:g} s ({why}); tracking is expected to be lost"
             )
         return out
+
+
+def _check_motor_fault(i: int, f: Fault, has_actuators: bool) -> None:
+    """A [[faults]] entry's motor fields: the kind needs [actuators], its value its range."""
+    if f.motor is None:
+        if f.value is not None:
+            raise _FieldError(f"faults[{i}].value", "a value belongs to a motor fault: set motor (or remove value)")
+        return
+    if not has_actuators:
+        raise _FieldError(
+            f"faults[{i}].motor", f"motor fault {f.motor!r} needs the [actuators] table (the plant has no motors)"
+        )
+    for key in ("sigma", "ubar"):
+        if key in f.model_fields_set:
+            raise _FieldError(
+                f"faults[{i}].{key}", f"a motor event sets the motor only; give {key} in an event of its own"
+            )
+    try:
+        motor_row(f.motor, f.value)
+    except FtcError as exc:
+        raise _FieldError(f"faults[{i}].value", str(exc)) from None
 
 
 def _check_name(v: str | None) -> str | None:
@@ -834,7 +936,14 @@ def case_hash(case: Case, version: str) -> str:
 
     The thesis claims are left out: they are judged on stored metrics and change no run.
     """
-    blob = case.model_dump_json(exclude={"claims"}) + "|" + version
+    # the motor fields (issue 19) are left out when unused, so older cases keep their hashes
+    exclude: dict[str, Any] = {"claims": True}
+    if case.actuators is None:
+        exclude["actuators"] = True
+    plain = {i: {"motor", "value"} for i, f in enumerate(case.faults) if f.motor is None and f.value is None}
+    if plain:
+        exclude["faults"] = plain
+    blob = case.model_dump_json(exclude=exclude) + "|" + version
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 

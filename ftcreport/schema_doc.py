@@ -26,11 +26,12 @@ __all__ = ["SECTIONS", "markdown_tables", "schema_json", "table", "update_readme
 #: marker key -> (TOML table shown in the heading, model, fields to leave out)
 SECTIONS: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {
     "top": ("top level", C.Case, ("robots", "reference", "initial", "faults", "kinematic", "schemes", "simulation",
-                                  "plant", "campaign", "thresholds")),
+                                  "plant", "campaign", "thresholds", "actuators")),
     "robots": ("[robots]", C.Robots, ()),
     "reference": ("[reference]", C.Reference, ()),
     "initial": ("[initial]", C.Initial, ()),
     "faults": ("[[faults]]", C.Fault, ()),
+    "actuators": ("[actuators]", C.Actuators, ()),
     "kinematic": ("[kinematic]", C.Kinematic, ()),
     "schemes": ("[schemes]", C.Schemes, ()),
     "nominal": ("[schemes.nominal]", C.NominalScheme, ()),

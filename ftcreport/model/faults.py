@@ -9,6 +9,11 @@ A :class:`FaultSchedule` holds time-stamped events, each setting (sigma, ubar)
 of one wheel from its time on; a later event on the same wheel replaces it,
 so intermittent faults (a wheel that recovers) are two events.
 
+Motor faults (issue 19, plants with DC motors: ``fast.motor``) sit in the same schedule: an event
+with ``motor`` set (one of :data:`MOTOR_KINDS`) sets that wheel's motor state instead of its
+(sigma, ubar); ``motor = "none"`` repairs the motor.  :meth:`FaultSchedule.motor` gives the table
+``(2n, 4)`` of ``[k_m scale, R_a scale, mode, v_stuck]`` rows that ``fast.motor`` reads.
+
 Redundancy rule (2.103), derived from the structure of Bbar = S^T B
 ------------------------------------------------------------------
 Row 2 of Bbar is the omega_1 row of B: only robot 1's wheels enter it, with
@@ -40,15 +45,23 @@ import numpy as np
 from ..errors import FaultError
 
 __all__ = [
+    "MOTOR_KINDS",
     "FaultEvent",
     "FaultSchedule",
     "apply_faults",
     "compensable_patterns",
     "is_compensable_at",
+    "motor_row",
     "pattern_is_compensable",
     "wheel_index",
     "wheel_names",
 ]
+
+#: Motor-fault kinds of a FaultEvent and their value: "none" (repaired), "km_loss" (k_m and k_b
+#: scaled by value in (0, 1]), "resistance" (R_a scaled by value >= 1), "open", "short" (no value),
+#: "stuck" (driver stuck at value [V]).
+MOTOR_KINDS = ("none", "km_loss", "resistance", "open", "short", "stuck")
+_MOTOR_MODE = {"none": 0, "km_loss": 0, "resistance": 0, "open": 1, "short": 2, "stuck": 3}
 
 _WHEEL_RE = re.compile(r"^\s*(\d+)\s*([rlRL])\s*$")
 
@@ -149,12 +162,19 @@ class FaultEvent:
         Effectiveness in [0, 1] (1 healthy, 0 no torque).
     ubar : float
         Additive torque (friction) [N m].
+    motor : str or None
+        A motor fault (one of :data:`MOTOR_KINDS`) instead of (sigma, ubar), which it leaves as
+        they are: a motor event sets only the wheel's motor state.
+    value : float or None
+        The motor fault's value: k_m scale (km_loss), R_a scale (resistance), voltage [V] (stuck).
     """
 
     time: float
     wheel: str
     sigma: float = 0.0
     ubar: float = 0.0
+    motor: str | None = None
+    value: float | None = None
 
 
 class FaultSchedule:
@@ -193,24 +213,39 @@ class FaultSchedule:
             if (t, j) in seen:
                 raise FaultError(f"{where}: a second event on the same wheel at the same time")
             seen.add((t, j))
-            parsed.append((t, j, s, ub))
+            try:
+                row = None if ev.motor is None else motor_row(ev.motor, ev.value)
+            except FaultError as exc:
+                raise FaultError(f"{where}: {exc}") from None
+            parsed.append((t, j, s, ub, row, ev))
         parsed.sort(key=lambda e: e[0])
         self.events: tuple[FaultEvent, ...] = tuple(
-            FaultEvent(t, wheel_names(self.n)[j], s, ub) for t, j, s, ub in parsed
+            FaultEvent(t, wheel_names(self.n)[j], s, ub, ev.motor, None if ev.value is None else float(ev.value))
+            for t, j, s, ub, _row, ev in parsed
         )
         self.times = np.array(sorted({e[0] for e in parsed}), dtype=float)
         k = self.times.shape[0]
         self._sigma = np.ones((k + 1, nw))
         self._ubar = np.zeros((k + 1, nw))
+        #: True when some event is a motor fault (the plant then needs motors).
+        self.has_motor = any(e[4] is not None for e in parsed)
+        self._motor = np.zeros((k + 1, nw, 4))
+        self._motor[:, :, 0] = 1.0
+        self._motor[:, :, 1] = 1.0
         cur_s, cur_u = np.ones(nw), np.zeros(nw)
+        cur_m = self._motor[0].copy()
         idx = 0
         for row, tk in enumerate(self.times, start=1):
             while idx < len(parsed) and parsed[idx][0] == tk:
-                _, j, s, ub = parsed[idx]
-                cur_s[j], cur_u[j] = s, ub
+                _, j, s, ub, mrow, _ev = parsed[idx]
+                if mrow is None:
+                    cur_s[j], cur_u[j] = s, ub
+                else:
+                    cur_m[j] = mrow
                 idx += 1
             self._sigma[row] = cur_s
             self._ubar[row] = cur_u
+            self._motor[row] = cur_m
 
     def _row(self, t: float) -> int:
         return int(np.searchsorted(self.times, t, side="right"))
@@ -227,6 +262,14 @@ class FaultSchedule:
         """``(sigma, ubar)`` at time t."""
         row = self._row(t)
         return self._sigma[row], self._ubar[row]
+
+    def motor(self, t: float) -> np.ndarray:
+        """Motor-fault table at time t, (2n, 4): rows ``[k_m scale, R_a scale, mode, v_stuck]``.
+
+        mode: 0 normal, 1 open circuit, 2 shorted winding, 3 driver stuck (``fast.motor``).
+        Healthy rows are ``[1, 1, 0, 0]``; without motor events every row is.
+        """
+        return self._motor[self._row(t)]
 
     def pattern(self, t: float) -> tuple[int, ...]:
         """0/1 failure pattern at time t: 0 where sigma = 0 (the wheel gives no torque)."""
@@ -248,3 +291,31 @@ class FaultSchedule:
 
     def __repr__(self) -> str:
         return f"FaultSchedule(n={self.n}, events={list(self.events)!r})"
+
+
+def motor_row(kind: str, value: float | None) -> np.ndarray:
+    """The fault-table row ``[k_m scale, R_a scale, mode, v_stuck]`` of one motor event.
+
+    Raises
+    ------
+    FaultError
+        An unknown kind, or a value missing, superfluous or out of range.
+    """
+    if kind not in MOTOR_KINDS:
+        raise FaultError(f"motor must be one of {', '.join(MOTOR_KINDS)}, got {kind!r}")
+    row = np.array([1.0, 1.0, float(_MOTOR_MODE[kind]), 0.0])
+    if kind in ("none", "open", "short"):
+        if value is not None:
+            raise FaultError(f"a motor fault {kind!r} takes no value, got {value}")
+        return row
+    if value is None:
+        raise FaultError(f"a motor fault {kind!r} needs a value")
+    v = float(value)
+    if kind == "km_loss" and not 0.0 < v <= 1.0:
+        raise FaultError(f"km_loss value is the remaining fraction of k_m, in (0, 1], got {value}")
+    if kind == "resistance" and not 1.0 <= v <= 1e3:
+        raise FaultError(f"resistance value is the factor on R_a, in [1, 1000], got {value}")
+    if kind == "stuck" and not math.isfinite(v):
+        raise FaultError(f"stuck value is a voltage and must be finite, got {value}")
+    row[{"km_loss": 0, "resistance": 1, "stuck": 3}[kind]] = v
+    return row

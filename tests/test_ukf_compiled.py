@@ -149,3 +149,26 @@ def test_non_finite_state_gives_the_status():
     assert status == UKF_NONFINITE
     assert np.isnan(out[0])
     assert ukf_message(status) and ukf_message(UKF_OK) == ""
+
+
+@pytest.mark.parametrize("estimate", [("rho",), ("ubar",), ("rho", "ubar")])
+@pytest.mark.parametrize("n", [2, 3])
+def test_sigma_propagation_is_midpoint_sigmas_bitwise(n, estimate):
+    """_propagate shares the first stage among the parameter-direction points: same numbers, bit for bit."""
+    from ftcreport.fast.ukf import _propagate, _sigma_points
+
+    chain = Chain.uniform(n)
+    pc = F.Chain(*chain.params)
+    est = UKFEstimator(chain, meas_std=1e-3, estimate=estimate)
+    params = ukf_params(est)
+    rng = np.random.default_rng(7)
+    x = est.unpack(est.initial_state(rng.normal(scale=0.3, size=chain.n_q), rng.normal(size=2)))[0]
+    x[chain.n_q + 2 :] += rng.normal(scale=0.2, size=est.nx - chain.n_q - 2)
+    A = rng.normal(size=(est.nx, est.nx))
+    P = 0.01 * A @ A.T + 0.01 * np.eye(est.nx)
+    X = np.empty((2 * est.nx + 1, est.nx))
+    assert _sigma_points(x, P, params.c, np.empty_like(P), np.empty_like(P), X) == 0
+    u = rng.normal(size=chain.n_wheels)
+    Xf = np.empty_like(X)
+    _propagate(pc, X, u, 0.02, params.est_rho, params.est_ubar, Xf)
+    np.testing.assert_array_equal(Xf, F.midpoint_sigmas(pc, X, u, 0.02, params.est_rho, params.est_ubar))

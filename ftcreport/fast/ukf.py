@@ -247,6 +247,67 @@ def _lu_inverse(A, Ainv):
 
 
 @jit
+def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
+    """kernels.midpoint_sigmas(pc, X, u, h, est_rho, est_ubar) into Xf, bitwise, with fewer model evaluations.
+
+    One midpoint step of (2.63), (2.70), (2.102) per sigma point, u held::
+
+        tau = diag(rho) u + ubar,   (qd1, ed1) = f(q, eta),   (qd2, ed2) = f(q + h/2 qd1, eta + h/2 ed1)
+        q <- q + h qd2,   eta <- eta + h ed2,   rho, ubar unchanged
+
+    The sigma points along the parameter directions (rows N + 2.. of the
+    triangular factor) keep sigma 0's (q, eta) exactly, so the first stage's
+    model terms (kernels.reduced: Mbar1, Mbar2, Cbar, Bbar, S) are evaluated
+    once for all of them; ``f`` is then formed as kernels.plant_rhs forms it.
+    """
+    m = X.shape[0]
+    N = pc.n + 2
+    nw = 2 * pc.n
+    tau = np.empty(nw)
+    qm = np.empty(N)
+    em = np.empty(2)
+    terms0 = F.reduced(pc, X[0, :N], X[0, N : N + 2])
+    half = 0.5 * h
+    for i in range(m):
+        x = X[i]
+        q = x[:N]
+        eta = x[N : N + 2]
+        k = N + 2
+        for j in range(nw):
+            rho = 1.0
+            if est_rho:
+                rho = x[k + j]
+            ubar = 0.0
+            if est_ubar:
+                ubar = x[k + (nw if est_rho else 0) + j]
+            # tau = rho u + ubar   (2.102)
+            tau[j] = rho * u[j] + ubar
+        same = True
+        for j in range(N + 2):
+            if x[j] != X[0, j]:
+                same = False
+                break
+        if same:
+            Mbar1, Mbar2, Cbar, Bbar, S, _Sd = terms0
+        else:
+            Mbar1, Mbar2, Cbar, Bbar, S, _Sd = F.reduced(pc, q, eta)
+        # qd1 = S eta;  Mbar1 ed1 = Bbar tau - Mbar2 eta - Cbar   (2.63), (2.70), as kernels.plant_rhs
+        qd1 = F._mv(S, eta)
+        ed1 = F._solve2(Mbar1, F._mv(Bbar, tau) - F._mv(Mbar2, eta) - Cbar)
+        for j in range(N):
+            qm[j] = q[j] + half * qd1[j]
+        for j in range(2):
+            em[j] = eta[j] + half * ed1[j]
+        qd2, ed2 = F.plant_rhs(pc, qm, em, tau)
+        for j in range(N):
+            Xf[i, j] = q[j] + h * qd2[j]
+        for j in range(2):
+            Xf[i, N + j] = eta[j] + h * ed2[j]
+        for j in range(N + 2, x.shape[0]):
+            Xf[i, j] = x[j]
+
+
+@jit
 def _all_finite(a):
     return np.isfinite(a).all()
 
@@ -296,7 +357,8 @@ def ukf_step(pc, U, s, u, y, h):
     # ---- predict: sigma points of (x, P), each through one midpoint step of (2.63), (2.70), (2.102)
     if _sigma_points(x, P, U.c, work, Uc, X):
         return s.copy(), UKF_PRIOR_NOT_PD
-    Xf = F.midpoint_sigmas(pc, X, u, h, U.est_rho, U.est_ubar)
+    Xf = np.empty((m, nx))
+    _propagate(pc, X, u, h, U.est_rho, U.est_ubar, Xf)
     # x = sum Wm_k X_k;  P = sum Wc_k (X_k - x)(X_k - x)^T + Qc h
     Q = U.Qc * h
     _unscented_transform(Xf, U.Wm, U.Wc, Q, x, P, dev)

@@ -25,11 +25,15 @@ One step over the sample h with the control u held:
 
 * predict: ``X_k <- f(X_k)``, f one midpoint (RK2) step of the process model
   ``q' = S(q) eta``, ``Mbar1 eta' = -Mbar2 eta - Cbar + Bbar (diag(rho) u + ubar)``
-  (thesis (2.63), (2.70) with the fault model (2.102)), rho' = ubar' = 0
-  (kernels.midpoint_sigmas, the kernel the Python estimator calls too);
+  (thesis (2.63), (2.70) with the fault model (2.102)), rho' = ubar' = 0: the
+  numbers of kernels.midpoint_sigmas, the kernel the Python estimator calls,
+  bit for bit (:func:`_propagate` shares the first stage among the points
+  that differ from X_0 in the parameters only);
   ``x = sum Wm_k X_k``, ``P = sum Wc_k (X_k - x)(X_k - x)^T + Qc h``;
 * sigma points redrawn from the predicted (x, P), as filterpy's ``predict``
-  does (its line ``self.sigmas_f = self.points_fn.sigma_points(self.x, self.P)``);
+  does (filterpy 2.0.0, UKF.py: ``self.sigmas_f = self.points_fn.sigma_points(self.x,
+  self.P)`` after the transform): the update sees X_k of the predicted P, not
+  the propagated points (the difference is ~1e-3 posterior standard deviations);
 * update with y = q + v, measurement model ``Z_k = X_k[:N]``::
 
       zp = sum Wm_k Z_k,   S = sum Wc_k (Z_k - zp)(Z_k - zp)^T + R

@@ -1,11 +1,10 @@
 """The compiled UKF step (ftcreport.fast.ukf) against filterpy's (UKFEstimator.step, the reference).
 
 Tolerances.  Both run the same equations in the same order; they differ in the
-order of the sums (loops here, BLAS there), in round-off only.  Along 300
-steps the differences are
-amplified by the filter itself: the estimate of q is ~1e4 of its posterior
-standard deviation sd (q ~ 1 m, sd ~ 1e-4 m) and the parameter directions are
-weakly observable (they forget slowly).  The reference fed a 1-ulp perturbation
+order of the sums (loops here, BLAS there), in round-off only.  Along 300 steps
+the differences are amplified by the filter itself: the estimate of q is ~1e4
+of its posterior standard deviation sd (q ~ 1 m, sd ~ 1e-4 m) and the parameter
+directions are weakly observable (they forget slowly).  The reference fed a 1-ulp perturbation
 of its state at every step drifts from itself by as much as the compiled step
 does (measured on these six runs, 3 seeds of the perturbation: x up to 2.3e-10
 sd, P up to 3.7e-12 sd_i sd_j; the compiled step: 2.8e-10 and 5.0e-12, both

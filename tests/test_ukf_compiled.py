@@ -172,3 +172,26 @@ def test_sigma_propagation_is_midpoint_sigmas_bitwise(n, estimate):
     Xf = np.empty_like(X)
     _propagate(pc, X, u, 0.02, params.est_rho, params.est_ubar, Xf)
     np.testing.assert_array_equal(Xf, F.midpoint_sigmas(pc, X, u, 0.02, params.est_rho, params.est_ubar))
+
+
+def test_factorisations_match_lapack():
+    """Cholesky (upper) and the LU inverse against scipy / numpy: round-off of a 19 x 19 SPD matrix."""
+    import scipy.linalg
+
+    from ftcreport.fast.ukf import _cholesky_upper, _lu_inverse
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(19, 19))
+    P = A @ A.T + 0.1 * np.eye(19)  # condition ~1e4
+    U = np.empty_like(P)
+    assert _cholesky_upper(P, U) == 0
+    # backward-stable factorisations: entries agree to cond * eps ~ 1e-12 relative to the largest
+    np.testing.assert_allclose(U, scipy.linalg.cholesky(P), rtol=0, atol=1e-12 * np.abs(U).max())
+    S = P[:5, :5] + np.diag(rng.uniform(0.1, 1.0, 5))
+    SI = np.empty_like(S)
+    assert _lu_inverse(S, SI)
+    np.testing.assert_allclose(SI, np.linalg.inv(S), rtol=0, atol=1e-12 * np.abs(SI).max())
+    # non-positive-definite: the failing pivot (1-based), as LAPACK's info
+    P[4, 4] = -1.0
+    assert _cholesky_upper(P, U) == 5
+    assert not _lu_inverse(np.array([[1.0, 2.0], [2.0, 4.0]]), np.empty((2, 2)))  # singular: zero pivot

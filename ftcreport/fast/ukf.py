@@ -125,7 +125,11 @@ def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[np.n
 
 
 def ukf_params(est: UKFEstimator) -> Ukf:
-    """The :class:`Ukf` of a UKFEstimator (its sigma-point parameters, Qc and R)."""
+    """The :class:`Ukf` of a UKFEstimator (its sigma-point parameters, Qc and R).
+
+    :func:`ukf_step`'s model is ``kernels.Chain(*est.chain.params)``: the
+    filter's chain, which is not the plant's in the model-mismatch cases.
+    """
     pts = est.points
     Wm, Wc, c = merwe_weights(est.nx, pts.alpha, pts.beta, pts.kappa)
     return Ukf(

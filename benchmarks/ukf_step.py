@@ -81,7 +81,9 @@ def measure(n: int, steps: int, repeats: int) -> dict:
         "compiled_cpu_s_per_step": c_fast,
         "filterpy_cpu_s_per_step": c_ref,
         "speedup": t_ref / t_fast,
-        "s_per_simulated_s": {f"dt={dt:g}": {"compiled": t_fast / dt, "filterpy": t_ref / dt} for dt in DTS},
+        "s_per_simulated_s": {
+            f"dt={dt:g}": {"compiled": t_fast / dt, "filterpy": t_ref / dt, "compiled_cpu": c_fast / dt} for dt in DTS
+        },
     }
 
 
@@ -94,12 +96,15 @@ def main() -> None:
     args = ap.parse_args()
     rows = [measure(int(n), args.steps, args.repeats) for n in args.n.split(",")]
     for r in rows:
-        per = ", ".join(f"{k}: {v['compiled']:.4f} ({v['filterpy']:.3f})" for k, v in r["s_per_simulated_s"].items())
+        per = ", ".join(
+            f"{k}: {v['compiled']:.4f} [CPU {v['compiled_cpu']:.4f}] ({v['filterpy']:.3f})"
+            for k, v in r["s_per_simulated_s"].items()
+        )
         print(
             f"n = {r['n']} (nx = {r['nx']}): compiled {1e6 * r['compiled_s_per_step']:.1f} us/step, "
             f"filterpy {1e6 * r['filterpy_s_per_step']:.0f} us/step, x{r['speedup']:.0f} (CPU: "
             f"{1e6 * r['compiled_cpu_s_per_step']:.1f} and {1e6 * r['filterpy_cpu_s_per_step']:.0f} us/step); "
-            f"s per simulated s, compiled (filterpy): {per}; first call {r['first_call_s']:.2f} s"
+            f"s per simulated s, compiled [CPU] (filterpy): {per}; first call {r['first_call_s']:.2f} s"
         )
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2))

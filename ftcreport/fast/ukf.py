@@ -255,6 +255,37 @@ def _lu_inverse(A, Ainv):
 
 
 @jit
+def _rhs(Mbar1, Mbar2, Cbar, Bbar, S, eta, tau, qd, ed):
+    """kernels.plant_rhs from the model terms into qd, ed, with its operations in its order (no allocation).
+
+    ``qd = S eta`` (2.63);  ``Mbar1 ed = Bbar tau - Mbar2 eta - Cbar`` (2.70), solved in closed form.
+    """
+    for i in range(S.shape[0]):
+        acc = 0.0
+        for j in range(2):
+            acc += S[i, j] * eta[j]
+        qd[i] = acc
+    # r = Bbar tau - Mbar2 eta - Cbar, then Cramer's rule as kernels._solve2
+    r0 = _rhs_row(Mbar2, Cbar, Bbar, eta, tau, 0)
+    r1 = _rhs_row(Mbar2, Cbar, Bbar, eta, tau, 1)
+    det = Mbar1[0, 0] * Mbar1[1, 1] - Mbar1[0, 1] * Mbar1[1, 0]
+    ed[0] = (Mbar1[1, 1] * r0 - Mbar1[0, 1] * r1) / det
+    ed[1] = (Mbar1[0, 0] * r1 - Mbar1[1, 0] * r0) / det
+
+
+@jit
+def _rhs_row(Mbar2, Cbar, Bbar, eta, tau, i):
+    """Row i of Bbar tau - Mbar2 eta - Cbar, each product summed from 0 as kernels._mv."""
+    bt = 0.0
+    for j in range(tau.shape[0]):
+        bt += Bbar[i, j] * tau[j]
+    me = 0.0
+    for j in range(2):
+        me += Mbar2[i, j] * eta[j]
+    return bt - me - Cbar[i]
+
+
+@jit
 def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
     """kernels.midpoint_sigmas(pc, X, u, h, est_rho, est_ubar) into Xf, bitwise, with fewer model evaluations.
 
@@ -266,7 +297,9 @@ def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
     The sigma points along the parameter directions (rows N + 2.. of the
     triangular factor) keep sigma 0's (q, eta) exactly, so the first stage's
     model terms (kernels.reduced: Mbar1, Mbar2, Cbar, Bbar, S) are evaluated
-    once for all of them; ``f`` is then formed as kernels.plant_rhs forms it.
+    once for all of them; ``f`` is then formed as kernels.plant_rhs forms it
+    (:func:`_rhs`, the same operations without allocating).  Tested bitwise
+    against kernels.midpoint_sigmas.
     """
     m = X.shape[0]
     N = pc.n + 2
@@ -274,6 +307,10 @@ def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
     tau = np.empty(nw)
     qm = np.empty(N)
     em = np.empty(2)
+    qd1 = np.empty(N)
+    qd2 = np.empty(N)
+    ed1 = np.empty(2)
+    ed2 = np.empty(2)
     terms0 = F.reduced(pc, X[0, :N], X[0, N : N + 2])
     half = 0.5 * h
     for i in range(m):
@@ -299,14 +336,13 @@ def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
             Mbar1, Mbar2, Cbar, Bbar, S, _Sd = terms0
         else:
             Mbar1, Mbar2, Cbar, Bbar, S, _Sd = F.reduced(pc, q, eta)
-        # qd1 = S eta;  Mbar1 ed1 = Bbar tau - Mbar2 eta - Cbar   (2.63), (2.70), as kernels.plant_rhs
-        qd1 = F._mv(S, eta)
-        ed1 = F._solve2(Mbar1, F._mv(Bbar, tau) - F._mv(Mbar2, eta) - Cbar)
+        _rhs(Mbar1, Mbar2, Cbar, Bbar, S, eta, tau, qd1, ed1)
         for j in range(N):
             qm[j] = q[j] + half * qd1[j]
         for j in range(2):
             em[j] = eta[j] + half * ed1[j]
-        qd2, ed2 = F.plant_rhs(pc, qm, em, tau)
+        Mbar1, Mbar2, Cbar, Bbar, S, _Sd = F.reduced(pc, qm, em)
+        _rhs(Mbar1, Mbar2, Cbar, Bbar, S, em, tau, qd2, ed2)
         for j in range(N):
             Xf[i, j] = q[j] + h * qd2[j]
         for j in range(2):

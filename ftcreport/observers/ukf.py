@@ -104,9 +104,11 @@ class UKFEstimator:
         points = MerweScaledSigmaPoints(
             self.nx, alpha=alpha, beta=beta, kappa=(3.0 - self.nx) if kappa is None else kappa
         )
+        self.points = points  # alpha, beta, kappa and the weights Wm, Wc (fast/ukf.py reads them)
+        self.R = np.diag(R**2)  # measurement covariance
         self._ukf = _BatchUKF(dim_x=self.nx, dim_z=N, dt=0.01, fx=self._fx, hx=self._hx, points=points)
         self._ukf.batch_fx = self._fx_batch
-        self._ukf.R = np.diag(R**2)
+        self._ukf.R = self.R
 
     # ------------------------------------------------------------------ model
     def _split_params(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,472 @@
+r"""Compiled (numba) step of the augmented-state UKF of observers/ukf.py.
+
+:func:`ukf_step` does what :meth:`ftcreport.observers.ukf.UKFEstimator.step`
+does through filterpy (``UnscentedKalmanFilter.predict`` then ``update`` with
+``MerweScaledSigmaPoints``), in the same order of operations, so the two agree
+to round-off (tests/test_ukf_compiled.py).  The Python estimator stays the
+reference implementation.
+
+Filter state: x = [q (N = n + 2), eta (2), rho (2n, when estimated), ubar (2n,
+when estimated)], nx entries, carried with its covariance P as the flat array
+``s = [x, P.ravel()]`` (row-major), the layout of ``UKFEstimator.pack``.
+
+Scaled sigma points and weights (S. J. Julier, "The scaled unscented
+transformation", ACC 2002; E. A. Wan and R. van der Merwe, "The unscented
+Kalman filter for nonlinear estimation", AS-SPCC 2000, the UKF algorithm;
+R. van der Merwe, "Sigma-point Kalman filters for probabilistic inference in
+dynamic state-space models", PhD thesis, OGI/OHSU 2004), with
+``lambda = alpha^2 (nx + kappa) - nx`` and ``c = lambda + nx``::
+
+    U = chol(c P)               upper triangular, U^T U = c P
+    X_0 = x,  X_k = x + U[k-1],  X_(nx+k) = x - U[k-1]        k = 1..nx (rows of U)
+    Wm_0 = lambda / c,  Wc_0 = lambda / c + 1 - alpha^2 + beta,  Wm_k = Wc_k = 1 / (2 c)
+
+One step over the sample h with the control u held:
+
+* predict: ``X_k <- f(X_k)``, f one midpoint (RK2) step of the process model
+  ``q' = S(q) eta``, ``Mbar1 eta' = -Mbar2 eta - Cbar + Bbar (diag(rho) u + ubar)``
+  (thesis (2.63), (2.70) with the fault model (2.102)), rho' = ubar' = 0: the
+  numbers of kernels.midpoint_sigmas, the kernel the Python estimator calls,
+  bit for bit (:func:`_propagate` shares the first stage among the points
+  that differ from X_0 in the parameters only);
+  ``x = sum Wm_k X_k``, ``P = sum Wc_k (X_k - x)(X_k - x)^T + Qc h``;
+* sigma points redrawn from the predicted (x, P), as filterpy's ``predict``
+  does (filterpy 2.0.0, UKF.py: ``self.sigmas_f = self.points_fn.sigma_points(self.x,
+  self.P)`` after the transform): the update sees X_k of the predicted P, not
+  the propagated points (the difference is ~1e-3 posterior standard deviations);
+* update with y = q + v, measurement model ``Z_k = X_k[:N]``::
+
+      zp = sum Wm_k Z_k,   S = sum Wc_k (Z_k - zp)(Z_k - zp)^T + R
+      Pxz = sum Wc_k (X_k - x)(Z_k - zp)^T,   K = Pxz S^-1
+      x <- x + K (y - zp),   P <- P - K (S K^T)
+
+  S^-1 is formed by LU with partial pivoting (numpy's ``inv``, which filterpy
+  calls, is LAPACK gesv on the identity: the same factorisation);
+* ``P <- (P + P^T) / 2`` (UKFEstimator.step).
+
+Cholesky reads the upper triangle of c P, as LAPACK potrf (scipy's
+``cholesky``) does.  Sums run in index order; BLAS may sum in another order,
+hence the round-off differences.
+
+Failures do not raise: :func:`ukf_step` returns a status (``UKF_*`` below, 0 =
+none) and then the unchanged input state; :func:`ukf_message` turns the status
+into the message for the user.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from . import kernels as F
+from .kernels import jit
+
+if TYPE_CHECKING:
+    from ..observers.ukf import UKFEstimator
+
+__all__ = [
+    "UKF_NONFINITE",
+    "UKF_OK",
+    "UKF_PREDICTED_NOT_PD",
+    "UKF_PRIOR_NOT_PD",
+    "UKF_S_SINGULAR",
+    "Ukf",
+    "merwe_weights",
+    "ukf_message",
+    "ukf_params",
+    "ukf_step",
+]
+
+# status of ukf_step
+UKF_OK = 0
+UKF_NONFINITE = 1  # x or P (input, predicted or updated) has a non-finite entry
+UKF_PRIOR_NOT_PD = 2  # the input P is not positive definite (Cholesky of c P fails)
+UKF_PREDICTED_NOT_PD = 3  # the predicted P is not positive definite (the redraw before the update)
+UKF_S_SINGULAR = 4  # the innovation covariance S is singular (zero pivot)
+
+_MESSAGES = {
+    UKF_NONFINITE: "the UKF's state or covariance became non-finite",
+    UKF_PRIOR_NOT_PD: "the UKF's covariance P is not positive definite (Cholesky of (lambda + n) P failed)",
+    UKF_PREDICTED_NOT_PD: "the UKF's predicted covariance is not positive definite (Cholesky failed)",
+    UKF_S_SINGULAR: "the UKF's innovation covariance S is singular",
+}
+
+
+class Ukf(NamedTuple):
+    """What :func:`ukf_step` needs of a UKFEstimator (numba-typed)."""
+
+    nx: int  # augmented state size N + 2 + p
+    N: int  # n + 2: measured q
+    est_rho: bool  # gains in the state (after eta)
+    est_ubar: bool  # frictions in the state (after the gains)
+    Qc: np.ndarray  # (nx, nx) process-noise intensities [per second]; Q = Qc h
+    R: np.ndarray  # (N, N) measurement covariance
+    Wm: np.ndarray  # (2 nx + 1,) mean weights
+    Wc: np.ndarray  # (2 nx + 1,) covariance weights
+    c: float  # lambda + nx: sigma points from chol(c P)
+
+
+def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[np.ndarray, np.ndarray, float]:
+    r"""Scaled sigma-point weights (Wm, Wc) and c = lambda + n (Wan & van der Merwe 2000).
+
+    ``lambda = alpha^2 (n + kappa) - n``; ``Wm_0 = lambda / c``,
+    ``Wc_0 = Wm_0 + 1 - alpha^2 + beta``, the 2n others ``1 / (2 c)``.
+    Computed with the same operations as filterpy (tested: bitwise equal).
+    """
+    lam = alpha**2 * (n + kappa) - n
+    c = lam + n
+    Wm = np.full(2 * n + 1, 0.5 / (n + lam))
+    Wc = Wm.copy()
+    Wm[0] = lam / (n + lam)
+    Wc[0] = lam / (n + lam) + (1 - alpha**2 + beta)
+    return Wm, Wc, float(c)
+
+
+def ukf_params(est: UKFEstimator) -> Ukf:
+    """The :class:`Ukf` of a UKFEstimator (its sigma-point parameters, Qc and R).
+
+    :func:`ukf_step`'s model is ``kernels.Chain(*est.chain.params)``: the
+    filter's chain, which is not the plant's in the model-mismatch cases.
+    """
+    pts = est.points
+    Wm, Wc, c = merwe_weights(est.nx, pts.alpha, pts.beta, pts.kappa)
+    return Ukf(
+        int(est.nx),
+        int(est.N),
+        bool(est.est_rho),
+        bool(est.est_ubar),
+        np.ascontiguousarray(est.Qc, dtype=float),
+        np.ascontiguousarray(est.R, dtype=float),
+        Wm,
+        Wc,
+        c,
+    )
+
+
+def ukf_message(status: int) -> str:
+    """The user's message for a status of :func:`ukf_step` ("" for UKF_OK)."""
+    return _MESSAGES.get(int(status), "") if status else ""
+
+
+# =========================================================================== kernels
+@jit
+def _cholesky_upper(A, U):
+    """U upper triangular with U^T U = A, from A's upper triangle (LAPACK potf2, uplo = 'U').
+
+    Returns 0, or j + 1 when the j-th (0-based) pivot is not positive (or NaN):
+    A is not positive definite.  The lower triangle of U is zeroed.
+    """
+    n = A.shape[0]
+    for j in range(n):
+        for i in range(j):
+            U[j, i] = 0.0
+        # U_jj = sqrt(A_jj - sum_(k<j) U_kj^2)
+        d = A[j, j]
+        for k in range(j):
+            d -= U[k, j] * U[k, j]
+        if not d > 0.0:
+            return j + 1
+        d = math.sqrt(d)
+        U[j, j] = d
+        # U_ji = (A_ji - sum_(k<j) U_kj U_ki) / U_jj,  i > j
+        for i in range(j + 1, n):
+            v = A[j, i]
+            for k in range(j):
+                v -= U[k, j] * U[k, i]
+            U[j, i] = v / d
+    return 0
+
+
+@jit
+def _sigma_points(x, P, c, work, U, X):
+    """Merwe's scaled sigma points of (x, P) into X (2 nx + 1, nx); returns the Cholesky status."""
+    nx = x.shape[0]
+    for i in range(nx):
+        for j in range(nx):
+            work[i, j] = c * P[i, j]
+    info = _cholesky_upper(work, U)
+    if info:
+        return info
+    for j in range(nx):
+        X[0, j] = x[j]
+    for k in range(nx):
+        for j in range(nx):
+            X[k + 1, j] = x[j] + U[k, j]
+            X[nx + k + 1, j] = x[j] - U[k, j]
+    return 0
+
+
+@jit
+def _unscented_transform(X, Wm, Wc, noise, mean, cov, dev):
+    """mean = sum Wm_k X_k;  cov = sum Wc_k (X_k - mean)(X_k - mean)^T + noise;  dev = X - mean."""
+    m, n = X.shape
+    for j in range(n):
+        v = 0.0
+        for k in range(m):
+            v += Wm[k] * X[k, j]
+        mean[j] = v
+    for k in range(m):
+        for j in range(n):
+            dev[k, j] = X[k, j] - mean[j]
+    for i in range(n):
+        for j in range(n):
+            v = 0.0
+            for k in range(m):
+                v += dev[k, i] * (Wc[k] * dev[k, j])
+            cov[i, j] = v + noise[i, j]
+
+
+@jit
+def _lu_inverse(A, Ainv):
+    """A^-1 by LU with partial pivoting (LAPACK getrf + getrs on I); False when a pivot is zero."""
+    n = A.shape[0]
+    LU = A.copy()
+    perm = np.arange(n)
+    for j in range(n):
+        p = j
+        for i in range(j + 1, n):
+            if abs(LU[i, j]) > abs(LU[p, j]):
+                p = i
+        if LU[p, j] == 0.0 or not math.isfinite(LU[p, j]):
+            return False
+        if p != j:
+            for k in range(n):
+                LU[j, k], LU[p, k] = LU[p, k], LU[j, k]
+            perm[j], perm[p] = perm[p], perm[j]
+        for i in range(j + 1, n):
+            LU[i, j] /= LU[j, j]
+            for k in range(j + 1, n):
+                LU[i, k] -= LU[i, j] * LU[j, k]
+    # columns of P I, then L z = e, U x = z
+    for col in range(n):
+        for i in range(n):
+            v = 1.0 if perm[i] == col else 0.0
+            for k in range(i):
+                v -= LU[i, k] * Ainv[k, col]
+            Ainv[i, col] = v
+        for i in range(n - 1, -1, -1):
+            v = Ainv[i, col]
+            for k in range(i + 1, n):
+                v -= LU[i, k] * Ainv[k, col]
+            Ainv[i, col] = v / LU[i, i]
+    return True
+
+
+@jit
+def _rhs(Mbar1, Mbar2, Cbar, Bbar, S, eta, tau, qd, ed):
+    """kernels.plant_rhs from the model terms into qd, ed, with its operations in its order (no allocation).
+
+    ``qd = S eta`` (2.63);  ``Mbar1 ed = Bbar tau - Mbar2 eta - Cbar`` (2.70), solved in closed form.
+    """
+    for i in range(S.shape[0]):
+        acc = 0.0
+        for j in range(2):
+            acc += S[i, j] * eta[j]
+        qd[i] = acc
+    # r = Bbar tau - Mbar2 eta - Cbar, then Cramer's rule as kernels._solve2
+    r0 = _rhs_row(Mbar2, Cbar, Bbar, eta, tau, 0)
+    r1 = _rhs_row(Mbar2, Cbar, Bbar, eta, tau, 1)
+    det = Mbar1[0, 0] * Mbar1[1, 1] - Mbar1[0, 1] * Mbar1[1, 0]
+    ed[0] = (Mbar1[1, 1] * r0 - Mbar1[0, 1] * r1) / det
+    ed[1] = (Mbar1[0, 0] * r1 - Mbar1[1, 0] * r0) / det
+
+
+@jit
+def _rhs_row(Mbar2, Cbar, Bbar, eta, tau, i):
+    """Row i of Bbar tau - Mbar2 eta - Cbar, each product summed from 0 as kernels._mv."""
+    bt = 0.0
+    for j in range(tau.shape[0]):
+        bt += Bbar[i, j] * tau[j]
+    me = 0.0
+    for j in range(2):
+        me += Mbar2[i, j] * eta[j]
+    return bt - me - Cbar[i]
+
+
+@jit
+def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
+    """kernels.midpoint_sigmas(pc, X, u, h, est_rho, est_ubar) into Xf, bitwise, with fewer model evaluations.
+
+    One midpoint step of (2.63), (2.70), (2.102) per sigma point, u held::
+
+        tau = diag(rho) u + ubar,   (qd1, ed1) = f(q, eta),   (qd2, ed2) = f(q + h/2 qd1, eta + h/2 ed1)
+        q <- q + h qd2,   eta <- eta + h ed2,   rho, ubar unchanged
+
+    The sigma points along the parameter directions (rows N + 2.. of the
+    triangular factor) keep sigma 0's (q, eta) exactly, so the first stage's
+    model terms (kernels.reduced: Mbar1, Mbar2, Cbar, Bbar, S) are evaluated
+    once for all of them; ``f`` is then formed as kernels.plant_rhs forms it
+    (:func:`_rhs`, the same operations without allocating).  Tested bitwise
+    against kernels.midpoint_sigmas.
+    """
+    m = X.shape[0]
+    N = pc.n + 2
+    nw = 2 * pc.n
+    tau = np.empty(nw)
+    qm = np.empty(N)
+    em = np.empty(2)
+    qd1 = np.empty(N)
+    qd2 = np.empty(N)
+    ed1 = np.empty(2)
+    ed2 = np.empty(2)
+    terms0 = F.reduced(pc, X[0, :N], X[0, N : N + 2])
+    half = 0.5 * h
+    for i in range(m):
+        x = X[i]
+        q = x[:N]
+        eta = x[N : N + 2]
+        k = N + 2
+        for j in range(nw):
+            rho = 1.0
+            if est_rho:
+                rho = x[k + j]
+            ubar = 0.0
+            if est_ubar:
+                ubar = x[k + (nw if est_rho else 0) + j]
+            # tau = rho u + ubar   (2.102)
+            tau[j] = rho * u[j] + ubar
+        same = True
+        for j in range(N + 2):
+            if x[j] != X[0, j]:
+                same = False
+                break
+        if same:
+            Mbar1, Mbar2, Cbar, Bbar, S, _Sd = terms0
+        else:
+            Mbar1, Mbar2, Cbar, Bbar, S, _Sd = F.reduced(pc, q, eta)
+        _rhs(Mbar1, Mbar2, Cbar, Bbar, S, eta, tau, qd1, ed1)
+        for j in range(N):
+            qm[j] = q[j] + half * qd1[j]
+        for j in range(2):
+            em[j] = eta[j] + half * ed1[j]
+        Mbar1, Mbar2, Cbar, Bbar, S, _Sd = F.reduced(pc, qm, em)
+        _rhs(Mbar1, Mbar2, Cbar, Bbar, S, em, tau, qd2, ed2)
+        for j in range(N):
+            Xf[i, j] = q[j] + h * qd2[j]
+        for j in range(2):
+            Xf[i, N + j] = eta[j] + h * ed2[j]
+        for j in range(N + 2, x.shape[0]):
+            Xf[i, j] = x[j]
+
+
+@jit
+def _all_finite(a):
+    return np.isfinite(a).all()
+
+
+@jit
+def ukf_step(pc, U, s, u, y, h):
+    r"""One UKF step over h: predict with u held, update with y = q (UKFEstimator.step).
+
+    Parameters
+    ----------
+    pc : kernels.Chain
+        The filter's model (``kernels.Chain(*chain.params)``).
+    U : Ukf
+        Filter constants (:func:`ukf_params`).
+    s : (nx + nx * nx,) ndarray
+        ``[x, P.ravel()]`` at the previous sample.
+    u : (2n,) ndarray
+        Control applied over the sample (held), wheel order 1r, 1l, 2r, ...
+    y : (N,) ndarray
+        Measured q at the end of the sample.
+    h : float
+        Sample length [s] (> 0); Q = Qc h.
+
+    Returns
+    -------
+    s_new : (nx + nx * nx,) ndarray
+        ``[x, P.ravel()]`` after the update, P symmetrised; the input s (a copy)
+        when the status is not UKF_OK.
+    status : int
+        UKF_OK (0); UKF_NONFINITE (1): x or P of the input, of the prediction or
+        of the result is not finite; UKF_PRIOR_NOT_PD (2): the input P is not
+        positive definite; UKF_PREDICTED_NOT_PD (3): the predicted P is not;
+        UKF_S_SINGULAR (4): S has a zero pivot.  :func:`ukf_message` gives the text.
+    """
+    nx = U.nx
+    N = U.N
+    m = 2 * nx + 1
+    x = s[:nx].copy()
+    P = s[nx:].copy().reshape(nx, nx)
+    if not (_all_finite(x) and _all_finite(P)):
+        return s.copy(), UKF_NONFINITE
+    work = np.empty((nx, nx))
+    Uc = np.empty((nx, nx))
+    X = np.empty((m, nx))
+    dev = np.empty((m, nx))
+
+    # ---- predict: sigma points of (x, P), each through one midpoint step of (2.63), (2.70), (2.102)
+    if _sigma_points(x, P, U.c, work, Uc, X):
+        return s.copy(), UKF_PRIOR_NOT_PD
+    Xf = np.empty((m, nx))
+    _propagate(pc, X, u, h, U.est_rho, U.est_ubar, Xf)
+    # x = sum Wm_k X_k;  P = sum Wc_k (X_k - x)(X_k - x)^T + Qc h
+    Q = U.Qc * h
+    _unscented_transform(Xf, U.Wm, U.Wc, Q, x, P, dev)
+    if not (_all_finite(x) and _all_finite(P)):
+        return s.copy(), UKF_NONFINITE
+    # filterpy's predict redraws the sigma points from the predicted (x, P)
+    if _sigma_points(x, P, U.c, work, Uc, X):
+        return s.copy(), UKF_PREDICTED_NOT_PD
+
+    # ---- update with y = q + v: Z_k = X_k[:N]
+    Z = np.ascontiguousarray(X[:, :N])
+    zp = np.empty(N)
+    S = np.empty((N, N))
+    dz = np.empty((m, N))
+    # zp = sum Wm_k Z_k;  S = sum Wc_k (Z_k - zp)(Z_k - zp)^T + R
+    _unscented_transform(Z, U.Wm, U.Wc, U.R, zp, S, dz)
+    SI = np.empty((N, N))
+    if not _lu_inverse(S, SI):
+        return s.copy(), UKF_S_SINGULAR
+    # Pxz = sum_k Wc_k (X_k - x)(Z_k - zp)^T, accumulated point by point as filterpy's cross_variance
+    Pxz = np.zeros((nx, N))
+    for k in range(m):
+        w = U.Wc[k]
+        for i in range(nx):
+            di = X[k, i] - x[i]
+            for j in range(N):
+                Pxz[i, j] += w * (di * dz[k, j])
+    # K = Pxz S^-1
+    Kg = np.zeros((nx, N))
+    for i in range(nx):
+        for j in range(N):
+            v = 0.0
+            for k in range(N):
+                v += Pxz[i, k] * SI[k, j]
+            Kg[i, j] = v
+    # x <- x + K (y - zp)
+    r = np.empty(N)
+    for j in range(N):
+        r[j] = y[j] - zp[j]
+    for i in range(nx):
+        v = 0.0
+        for j in range(N):
+            v += Kg[i, j] * r[j]
+        x[i] += v
+    # P <- P - K (S K^T)
+    SKt = np.empty((N, nx))
+    for i in range(N):
+        for j in range(nx):
+            v = 0.0
+            for k in range(N):
+                v += S[i, k] * Kg[j, k]
+            SKt[i, j] = v
+    for i in range(nx):
+        for j in range(nx):
+            v = 0.0
+            for k in range(N):
+                v += Kg[i, k] * SKt[k, j]
+            work[i, j] = P[i, j] - v
+    # P <- (P + P^T) / 2
+    out = np.empty(nx + nx * nx)
+    out[:nx] = x
+    for i in range(nx):
+        for j in range(nx):
+            out[nx + i * nx + j] = 0.5 * (work[i, j] + work[j, i])
+    if not _all_finite(out):
+        return s.copy(), UKF_NONFINITE
+    return out, UKF_OK

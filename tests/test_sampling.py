@@ -59,9 +59,10 @@ def test_sampled_control_converges_to_continuous_at_first_order():
 
 
 def test_sample_time_must_be_whole_steps():
-    with pytest.raises(ModelError, match="sample_time: 0.007 s is not a whole number of steps dt = 0.005 s"):
+    with pytest.raises(ModelError, match=r"sample_time: 0\.007 s is not a whole number of steps dt = 0\.005 s"):
         SimSettings(dt=0.005, duration=1.0, sample_time=0.007)
-    data = tomllib.loads(open(CASE).read())
+    with open(CASE, "rb") as fh:
+        data = tomllib.load(fh)
     data["simulation"]["sample_time"] = 0.007
     with pytest.raises(FtcError, match=r"simulation\.sample_time.*whole number of steps"):
         parse_case(data, source="x.toml")

@@ -47,6 +47,7 @@ from ..errors import (
     with_step,
 )
 from ..observers.farza import FarzaObserver
+from ..observers.ukf import UKFEstimator
 from ..references import FlatReference, TrigPath
 from ..schemes import SchemeController
 from . import kernels as F
@@ -67,6 +68,7 @@ class Spec(NamedTuple):
     chain: F.Chain
     n_sig: int
     controller: object
+    start: bool = False  # the discrete update also runs at t0, before the first step
 
 
 def _chain(params) -> F.Chain:
@@ -160,6 +162,7 @@ def compiled_spec(controller) -> Spec | None:
     n_kin = 4 + len(kin_obj.z_names) + N + 2  # eta_c, eta_c_dot, z, q_d, eta_d
     n_sig = n_kin
     disc = F.no_discrete
+    start = False  # run the discrete update once at t0 (a sampled scheme computing its first command)
     ulim = lambda v: NAN if v is None else float(v)  # noqa: E731
     cls = type(controller)
     if cls is OracleController:
@@ -193,13 +196,23 @@ def compiled_spec(controller) -> Spec | None:
         )  # fmt: skip
         law, P = F.active_law, (_law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit)), obs)
         n_sig = n_kin + N + 2 + 4 * nw
+    elif cls is ActiveController and type(controller.est) is UKFEstimator:
+        from .ukf import UkfLaw, active_ukf_discrete, active_ukf_law, ukf_params
+
+        c, o = controller, controller.est
+        P = UkfLaw(
+            _law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit)), ukf_params(o), _chain(o.chain.params), c._est.start,
+            c._filt.start, NAN if c.tau is None else float(c.tau), c._u.start, c._t.start,
+        )  # fmt: skip
+        law, disc, start = active_ukf_law, active_ukf_discrete, True
+        n_sig = n_kin + N + 2 + 4 * nw
     elif isinstance(controller, SchemeController):  # a registered scheme (ftcreport.schemes)
         law, P = controller.scheme.law, controller.P
         disc = controller.scheme.discrete or F.no_discrete
         n_sig = n_kin + sum(controller.widths.values())
     else:
         return None
-    return Spec(kin, ref, law, disc, P, _chain(chain.params), n_sig, controller)
+    return Spec(kin, ref, law, disc, P, _chain(chain.params), n_sig, controller, start)
 
 
 def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
@@ -261,9 +274,14 @@ def _split_signals(
         cols["sigma_used"] = (k, k + nw)
         cols["ubar_used"] = (k + nw, k + 2 * nw)
         o = c.est
-        P = xc[:, c._est][:, o._P].reshape(-1, o.p, o.p)
+        if isinstance(o, UKFEstimator):  # the filter's whole covariance; the parameters' deviations
+            P = xc[:, c._est][:, o.nx :].reshape(-1, o.nx, o.nx)
+            first = nq + 2
+        else:  # the Farza observer's parameter covariance
+            P = xc[:, c._est][:, o._P].reshape(-1, o.p, o.p)
+            first = 0
         out["P_max"] = np.linalg.eigvalsh(P).max(axis=1) if len(P) else np.zeros(0)
-        out["param_std"] = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
+        out["param_std"] = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2)[:, first:], 0.0))
     if isinstance(c, SchemeController):
         for name, width in c.widths.items():
             cols[name] = (k, k + width)
@@ -315,6 +333,11 @@ def _message(info: np.ndarray, t: float, settings, ref: F.Ref) -> tuple[str, str
         return "error", reference_speed_reason(a, int(b), c, ref.min_speed)
     if code == F.E_REF_ART:
         return "error", reference_articulation_reason(a, int(b), c, ref.max_art)
+    if code == F.E_UKF:
+        from .ukf import ukf_message
+
+        reason = f"the UKF stopped at t = {b:.6g} s: {ukf_message(int(a))}"
+        return "diverged", with_step(reason, settings.dt, settings.method)
     if code == F.E_STEP_GROWTH:
         from ..runs import GROWTH_FACTOR, GROWTH_STEPS
 
@@ -435,6 +458,9 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
 
     xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
     x = np.concatenate((q0, eta0, xc0))
+    info = np.zeros(4)
+    if spec.start:  # the first command of a sampled scheme, at t0 (h = 0: no filter step)
+        spec.disc(spec.P, spec.kin, spec.ref, F.new_cache(chain.n), float(grid[0]), q0, eta0, x[nq + 2 :], info)
     # The kernels log every step of a chunk (about 1 % of the run) into chunk buffers; after each chunk
     # the light signals go to the full-rate metric stream and every signal of the logged steps
     # (log_every) to the saved log, so the heavy ones (xc, switching costs, weights) are never held
@@ -452,7 +478,6 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     lmeas = np.full((rows if plant.noisy else 0, nq + 2), np.nan)
     lsg = np.full((rows, spec.n_sig), np.nan)
     lt = np.full(rows, np.nan)
-    info = np.zeros(4)
     grow = np.zeros(3)  # step-growth detector state, carried across chunks
     growth = np.array(
         [
@@ -487,8 +512,10 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     sig_h = np.zeros(spec.n_sig)
     loop = loop_for(spec.law, spec.disc)
     wall0 = _time.perf_counter()
+    if info[0] != 0:  # the first command failed (at t0, before any step)
+        status, reason, t_end = _stop(info, F.AT_STATE, t_end, t_end, settings, spec.ref)
     with np.errstate(all="ignore"):
-        while True:
+        while status == "ok":
             k1 = min(k + chunk - 1, n_steps)
             x, k_last, li, where = loop(
                 spec.P, spec.kin, spec.ref, spec.chain, pp,

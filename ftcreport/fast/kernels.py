@@ -53,6 +53,7 @@ E_KAPPA = 10  # info: kappa - Delta_1
 E_REF_SPEED = 11  # info: t, robot (1-based), speed
 E_REF_ART = 12  # info: t, link index, angle [deg]
 E_STEP_GROWTH = 13  # info: t, max |tau| at the streak start, max |tau| now [N m]
+E_UKF = 15  # info: the UKF step's status (fast.ukf.UKF_*), t
 E_STEP_JUMP = 14  # info: kind, before, after (sim._step_jump: non-finite new state or a check failed in one step)
 
 # where run_steps stopped (its 4th return value)

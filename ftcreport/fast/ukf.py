@@ -470,3 +470,100 @@ def ukf_step(pc, U, s, u, y, h):
     if not _all_finite(out):
         return s.copy(), UKF_NONFINITE
     return out, UKF_OK
+
+
+# =========================================================================== the active scheme on the UKF
+class UkfLaw(NamedTuple):
+    """Active FTC on the UKF's estimates: what its law and discrete update need (the scheme's P)."""
+
+    law: F.Law  # k_v, u_limit
+    ukf: Ukf
+    pf: F.Chain  # the filter's (and the law's) chain model
+    est0: int  # the filter's flat [x, P] in xc
+    filt0: int  # the estimates' filters (tau), 2 nw
+    tau: float  # nan: unfiltered
+    u0: int  # the held control, nw
+    t0: int  # the last sample time
+
+
+@jit
+def _ukf_estimates(L, xc, nw):
+    """(q_hat, eta_hat, rho_hat, ubar_hat) of the filter state (rho 1, ubar 0 where not estimated)."""
+    N = L.ukf.N
+    x = xc[L.est0 : L.est0 + L.ukf.nx]
+    rho = np.ones(nw)
+    ubar = np.zeros(nw)
+    k = N + 2
+    if L.ukf.est_rho:
+        rho = x[k : k + nw].copy()
+        k += nw
+    if L.ukf.est_ubar:
+        ubar = x[k : k + nw].copy()
+    return x[:N].copy(), x[N : N + 2].copy(), rho, ubar
+
+
+@jit
+def _ukf_used(L, xc, nw, rho_e, ubar_e):
+    """(sigma_hat, ubar_hat) the law uses: filtered when tau is set, ubar clipped to the limit, sigma to [0, 1]."""
+    rho, ubar = rho_e, ubar_e
+    if not math.isnan(L.tau):
+        rho = xc[L.filt0 : L.filt0 + nw].copy()
+        ubar = xc[L.filt0 + nw : L.filt0 + 2 * nw].copy()
+    if not math.isnan(L.law.u_limit):
+        ubar = F._clip(ubar, -L.law.u_limit, L.law.u_limit)
+    return F._clip(rho, 0.0, 1.0), ubar
+
+
+@jit
+def active_ukf_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
+    """Active FTC (4.14) on the UKF: the control computed at the last sample, held (ZOH) until the next.
+
+    The filter and the law run at the samples (:func:`active_ukf_discrete`); between them the
+    only continuous states are the estimates' first-order filters, tau xdot = x_est - x.
+    """
+    nw = 2 * pc.n
+    N = pc.n + 2
+    dx = np.zeros(xc.shape[0])
+    u = xc[P.u0 : P.u0 + nw].copy()
+    qh, eh, rho_e, ubar_e = _ukf_estimates(P, xc, nw)
+    if not math.isnan(P.tau):
+        for j in range(nw):
+            dx[P.filt0 + j] = (rho_e[j] - xc[P.filt0 + j]) / P.tau
+            dx[P.filt0 + nw + j] = (ubar_e[j] - xc[P.filt0 + nw + j]) / P.tau
+    if sig.shape[0] > 0:
+        sigma_hat, ubar_hat = _ukf_used(P, xc, nw, rho_e, ubar_e)
+        S_ = F.reduced(P.pf, q, eh)[4]
+        kin, ecd = F.eta_c_and_dot(Kp, R, C, S_, t, q, eh, xc[: Kp.nk], info)
+        if info[0] != 0:
+            return u, dx
+        k = F._kin_signals(sig, kin, ecd, C)
+        sig[k : k + N] = qh
+        sig[k + N : k + N + 2] = eh
+        k += N + 2
+        sig[k : k + nw] = rho_e
+        sig[k + nw : k + 2 * nw] = ubar_e
+        sig[k + 2 * nw : k + 3 * nw] = sigma_hat
+        sig[k + 3 * nw : k + 4 * nw] = ubar_hat
+    return u, dx
+
+
+@jit
+def active_ukf_discrete(P, Kp, R, C, t, q, eta, xc, info):
+    """At each sample: the UKF's predict + update over the time since the last sample with the held u,
+    then the law (4.14) on the new estimates, held until the next sample."""
+    nw = 2 * P.pf.n
+    h = t - xc[P.t0]
+    if h > 0.0:
+        ns = P.ukf.nx * (P.ukf.nx + 1)
+        s_new, status = ukf_step(P.pf, P.ukf, xc[P.est0 : P.est0 + ns], xc[P.u0 : P.u0 + nw], q, h)
+        if status != UKF_OK:
+            info[0] = F.E_UKF
+            info[1] = status
+            info[2] = t
+            return
+        xc[P.est0 : P.est0 + ns] = s_new
+    _qh, eh, rho_e, ubar_e = _ukf_estimates(P, xc, nw)
+    sigma_hat, ubar_hat = _ukf_used(P, xc, nw, rho_e, ubar_e)
+    u = F._active_u(Kp, R, C, P.law, P.pf, t, q, eh, xc[: Kp.nk], sigma_hat, ubar_hat, info)[0]
+    xc[P.u0 : P.u0 + nw] = u
+    xc[P.t0] = t

@@ -82,6 +82,8 @@ def _record(out: Path, name: str, payload: dict) -> None:
 
 def record_case(out: Path, case: Case, path: Path, duration: float | None = None) -> str:
     """Store the case record and a copy of the case file (provenance); returns the case content hash."""
+    from .families import not_applicable
+
     key = case_hash(case, __version__)
     write_atomic(out / case.name / "case.toml", Path(path).read_bytes())
     schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
@@ -97,7 +99,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
         "thresholds": thresholds,
         "duration_override": duration,
         "claims": [c.model_dump() for c in case.claims],  # thesis claims that `check` gates on
-        "not_run": _not_run(case),  # families the case does not run, each with its reason (issue 21)
+        "not_run": not_applicable(case),  # families the case does not run, each with its reason (issue 21)
     }
     _record(out, case.name, payload)
     return key
@@ -174,12 +176,6 @@ def write_manifests(out: Path, cases: list[Case], cached: set[tuple[str, str]], 
         settings=settings,
     )
     return write_manifest(out / "manifest.json", m)
-
-
-def _not_run(case: Case) -> dict[str, str]:
-    from .families import not_applicable
-
-    return not_applicable(case)
 
 
 def _cost(case: Case, scheme: str) -> float:

@@ -500,7 +500,7 @@ def check(
     from .check import evaluate
     from .claims import evaluate_claims
     from .report.junit import write_junit
-    from .store import load_metrics
+    from .store import load_metrics, read_json
 
     started = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     wall0 = _time.perf_counter()
@@ -515,16 +515,12 @@ def check(
         results += evaluate(name, rec.get("thresholds", {}), metrics)
         claims += evaluate_claims(name, rec.get("claims", []), metrics)
     if junit is not None:
-        try:
-            manifest = json.loads((out / "manifest.json").read_text())
-        except (OSError, ValueError):
-            manifest = None
         write_junit(
             junit,
             results,
             res.case_errors,
             claims=claims,
-            properties=manifest,
+            properties=read_json(out / "manifest.json"),
             time=_time.perf_counter() - wall0,
             timestamp=started,
             run_times=run_times,

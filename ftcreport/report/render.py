@@ -17,7 +17,7 @@ import hashlib
 import json
 import math
 import tomllib
-from importlib import metadata, resources
+from importlib import resources
 from pathlib import Path
 
 import jinja2
@@ -28,7 +28,7 @@ from ..cases import SCHEME_NAMES, parse_case, with_duration
 from ..check import evaluate
 from ..errors import FtcError
 from ..model.faults import wheel_names
-from ..store import load_metrics, load_timeseries, write_atomic
+from ..store import load_metrics, load_timeseries, read_json, write_atomic
 from . import interactive, plots
 from .replay import replay_data
 
@@ -53,14 +53,10 @@ def _fmt(x) -> str:
 
 
 def dependency_versions() -> str:
+    from ..manifest import _dist_version
+
     names = ["numpy", "scipy", "control", "filterpy", "matplotlib", "jinja2", "pydantic", "sympy", "typer"]
-    out = []
-    for n in names:
-        try:
-            out.append(f"{n} {metadata.version(n)}")
-        except metadata.PackageNotFoundError:
-            out.append(f"{n} ?")
-    return f"ftcreport {__version__}; " + ", ".join(out)
+    return f"ftcreport {__version__}; " + ", ".join(f"{n} {_dist_version(n) or '?'}" for n in names)
 
 
 def _now() -> str:
@@ -88,10 +84,7 @@ def _after_max(m: dict) -> float | None:
 
 
 def _record(out: Path, name: str) -> dict | None:
-    try:
-        return json.loads((out / name / "case.json").read_text())
-    except (OSError, ValueError):
-        return None
+    return read_json(out / name / "case.json")
 
 
 def render_case(out: Path, name: str) -> Path | None:
@@ -331,10 +324,7 @@ def _claims(name: str, case, runs: list[dict]) -> list:
 
 def _manifest(out: Path, name: str) -> dict | None:
     """The case's provenance manifest (``<case>/manifest.json``, written by batch and run), or None."""
-    try:
-        m = json.loads((out / name / "manifest.json").read_text())
-    except (OSError, ValueError):
-        return None
+    m = read_json(out / name / "manifest.json")
     return m if isinstance(m, dict) and "ftcreport" in m else None
 
 

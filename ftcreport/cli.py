@@ -224,6 +224,17 @@ WorkersOpt = Annotated[int, typer.Option(help="Worker processes of the local Das
 InProcessOpt = Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")]
 
 
+def _dask(scheduler: str | None, workers: int, in_process: bool, quiet: bool, force: bool) -> dict:
+    """The keywords a Dask command passes on to run_campaign, run_coverage or run_fdi."""
+    return {
+        "scheduler": scheduler,
+        "workers": workers,
+        "in_process": in_process,
+        "show_progress": not quiet,
+        "force": force,
+    }
+
+
 @app.command()
 def patterns(
     robots: Annotated[int, typer.Argument(help="Number of robots in the chain (>= 2).")],
@@ -620,18 +631,8 @@ def campaign(
         out_dir = out or Path("reports") / "campaigns" / base.name
         chosen = _names(schemes)
         with output_lock(out_dir, "campaign"):
-            res = run_campaign(
-                base,
-                samples,
-                out_dir,
-                seed=seed,
-                schemes=chosen,
-                scheduler=scheduler,
-                workers=workers,
-                in_process=in_process,
-                show_progress=not quiet,
-                force=force,
-            )
+            dask = _dask(scheduler, workers, in_process, quiet, force)
+            res = run_campaign(base, samples, out_dir, seed=seed, schemes=chosen, **dask)
             page = render_campaign(out_dir, read_table(res.table))
     except FtcError as exc:
         _fail(exc)
@@ -782,11 +783,7 @@ def coverage(
             sigmas=tuple(_floats(sigmas, "--sigmas") or ()),
             friction=friction,
             kinds=tuple(_names(kinds) or ()),
-            scheduler=scheduler,
-            workers=workers,
-            in_process=in_process,
-            show_progress=not quiet,
-            force=force,
+            **_dask(scheduler, workers, in_process, quiet, force),
         )
         page = render_coverage(out_dir)
     except FtcError as exc:
@@ -824,18 +821,8 @@ def fdi(
     try:
         base = load_case(case)
         out_dir = out or Path("reports") / "fdi" / base.name
-        res = run_fdi(
-            base,
-            samples,
-            out_dir,
-            seed=seed,
-            schemes=_names(schemes),
-            scheduler=scheduler,
-            workers=workers,
-            in_process=in_process,
-            show_progress=not quiet,
-            force=force,
-        )
+        dask = _dask(scheduler, workers, in_process, quiet, force)
+        res = run_fdi(base, samples, out_dir, seed=seed, schemes=_names(schemes), **dask)
         page = render_fdi(out_dir)
     except FtcError as exc:
         _fail(exc)

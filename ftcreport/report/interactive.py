@@ -76,32 +76,12 @@ def _phases(events: list[float], t_end: float) -> list[dict]:
     ev = sorted({float(e) for e in events if e > 0})
     for i, te in enumerate(ev):
         end = ev[i + 1] if i + 1 < len(ev) else t_end
+        span = {"xref": "x", "yref": "paper", "x0": te, "y0": 0, "y1": 1}  # full height from the event on
         if i % 2 == 0:
-            shapes.append(
-                {
-                    "type": "rect",
-                    "xref": "x",
-                    "yref": "paper",
-                    "x0": te,
-                    "x1": end,
-                    "y0": 0,
-                    "y1": 1,
-                    "fillcolor": "rgba(180,0,30,0.07)",
-                    "line": {"width": 0},
-                    "layer": "below",
-                }
-            )
+            shade = {"fillcolor": "rgba(180,0,30,0.07)", "line": {"width": 0}, "layer": "below"}
+            shapes.append({"type": "rect", **span, "x1": end, **shade})
         shapes.append(
-            {
-                "type": "line",
-                "xref": "x",
-                "yref": "paper",
-                "x0": te,
-                "x1": te,
-                "y0": 0,
-                "y1": 1,
-                "line": {"color": "rgba(120,0,20,0.6)", "width": 1, "dash": "dot"},
-            }
+            {"type": "line", **span, "x1": te, "line": {"color": "rgba(120,0,20,0.6)", "width": 1, "dash": "dot"}}
         )
     return shapes
 

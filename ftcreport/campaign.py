@@ -185,11 +185,8 @@ def draw_variant(base: Case, seeds: SampleSeeds) -> Case:
 
 
 def _scalar_metrics(m: dict) -> dict:
-    out = {}
-    for k, v in m.items():
-        if isinstance(v, bool) or v is None or isinstance(v, int | float | str):
-            out[k] = v
-    return out
+    """The metrics that are one number, flag or word (a table cell each)."""
+    return {k: v for k, v in m.items() if v is None or isinstance(v, bool | int | float | str)}
 
 
 def _success(m: dict, criteria: dict) -> bool:

@@ -843,14 +843,9 @@ def cases_schema(
 
     Example: ftcreport cases schema > case.schema.json
     """
-    if markdown:
-        from .schema_doc import markdown_tables
+    from .schema_doc import markdown_tables, schema_json
 
-        typer.echo(markdown_tables(), nl=False)
-        return
-    from .schema_doc import schema_json
-
-    typer.echo(schema_json(), nl=False)
+    typer.echo(markdown_tables() if markdown else schema_json(), nl=False)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -124,9 +124,8 @@ def _run_record(out: Path, case: Case, scheme: str, cached: bool) -> dict:
     from .store import load_metrics
 
     m = load_metrics(out, case.name, scheme) or {}
-    key = (
-        (out / case.name / scheme / "key").read_text().strip() if (out / case.name / scheme / "key").exists() else None
-    )
+    key_path = out / case.name / scheme / "key"
+    key = key_path.read_text().strip() if key_path.exists() else None
     return {
         "case": case.name,
         "scheme": scheme,

@@ -36,6 +36,7 @@ __all__ = [
     "output_lock",
     "read_json",
     "save_run",
+    "stored_metrics",
     "write_atomic",
     "write_json",
 ]
@@ -121,6 +122,14 @@ def read_json(path: Path) -> Any:
 
 def load_metrics(out: Path, case_name: str, scheme: str) -> dict | None:
     return read_json(Path(out) / case_name / scheme / "metrics.json")
+
+
+def stored_metrics(out: Path, case_name: str) -> dict[str, dict]:
+    """``{scheme: metrics.json content}`` of the case's stored runs, in scheme order."""
+    from .cases import SCHEME_NAMES
+
+    runs = {s: load_metrics(out, case_name, s) for s in SCHEME_NAMES}
+    return {s: m for s, m in runs.items() if m is not None}
 
 
 def load_timeseries(out: Path, case_name: str, scheme: str) -> dict[str, np.ndarray] | None:

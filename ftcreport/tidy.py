@@ -340,17 +340,13 @@ def metrics_table(out: Path) -> pd.DataFrame:
     """Every stored run's metrics under ``out``: one row per (case, scheme, phase), :data:`METRICS_DTYPES`."""
     import pandas as pd
 
-    from .cases import SCHEME_NAMES
-    from .store import load_metrics
+    from .store import stored_metrics
 
     out = Path(out)
     rows: list[dict] = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
-        for s in SCHEME_NAMES:
-            m = load_metrics(out, name, s)
-            if m is None:
-                continue
+        for s, m in stored_metrics(out, name).items():
             key_path = out / name / s / "key"
             key = key_path.read_text().strip() if key_path.exists() else ""
             rows += _phase_rows({"case": name, "scheme": s} | m, key)

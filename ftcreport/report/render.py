@@ -28,7 +28,7 @@ from ..cases import SCHEME_NAMES, parse_case, with_duration
 from ..check import evaluate
 from ..errors import FtcError
 from ..model.faults import wheel_names
-from ..store import load_metrics, load_timeseries, read_json, write_atomic
+from ..store import load_timeseries, read_json, stored_metrics, write_atomic
 from . import interactive, plots
 from .replay import replay_data
 
@@ -134,10 +134,7 @@ def render_case(out: Path, name: str) -> Path | None:
     if rec.get("duration_override"):
         case = with_duration(case, rec["duration_override"])
     runs, series = [], {}
-    for s in SCHEME_NAMES:
-        m = load_metrics(out, name, s)
-        if m is None:
-            continue
+    for s, m in stored_metrics(out, name).items():
         m = dict(m)
         m["after_max"] = _after_max(m)
         sm = m.get("singularity_margin_min")
@@ -485,14 +482,9 @@ def render_index(out: Path) -> Path:
             "error": rec.get("error") if rec.get("status") == "error" else None,
             "runs": {},
         }
-        metrics = {}
-        for s in SCHEME_NAMES:
-            m = load_metrics(out, name, s)
-            if m is None:
-                continue
-            metrics[s] = m
-            n_runs += 1
-            n_ok += m.get("status") == "ok"
+        metrics = stored_metrics(out, name)
+        n_runs += len(metrics)
+        n_ok += sum(m.get("status") == "ok" for m in metrics.values())
         checks = evaluate(name, rec.get("thresholds", {}), metrics) if rec.get("thresholds") else []
         for s, m in metrics.items():
             mine = [c for c in checks if c.scheme == s]

@@ -189,8 +189,6 @@ def _cost(case: Case, scheme: str) -> float:
 def error_record_name(path: Path, avoid: Iterable[str] = ()) -> str:
     """Directory of a rejected case file's record: its stem when that is a safe name not in ``avoid``
     (lower-case names of the batch's valid cases), else a hash of the path."""
-    import hashlib
-
     from .limits import name_problem
 
     stem = Path(path).stem

@@ -338,7 +338,6 @@ def _manifest_stamp(out: Path, name: str) -> bytes:
 def _analysis(case, names) -> dict | None:
     """Linearized analyses for the case page (None if they cannot be computed)."""
     from ..analysis import analyze_case
-    from ..errors import FtcError
 
     try:
         res = analyze_case(case)
@@ -522,8 +521,6 @@ def render_index(out: Path) -> Path:
 
 def _stored_case(out: Path, name: str, rec: dict):
     """The case as stored beside its runs (None when it cannot be read)."""
-    from ..errors import FtcError
-
     try:
         case = parse_case(tomllib.loads((out / name / "case.toml").read_text()), rec.get("source", name))
         if rec.get("duration_override"):

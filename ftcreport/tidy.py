@@ -248,12 +248,10 @@ def read_run(out: Path, case: str, scheme: str) -> Run | None:
         "duration": m.get("duration"),
         "n_robots": m.get("n_robots"),
         "package_version": m.get("package_version", ""),
+        "estimated_parameters": m.get("estimated_parameters") or None,  # None: dropped below
+        "patterns": m.get("patterns"),
+        "case_hash": m.get("case_hash", ""),
     }
-    if m.get("estimated_parameters"):
-        meta["estimated_parameters"] = m["estimated_parameters"]
-    if m.get("patterns") is not None:
-        meta["patterns"] = m["patterns"]
-    meta["case_hash"] = m.get("case_hash", "")
     toml = out / case / "case.toml"
     if toml.exists():
         try:

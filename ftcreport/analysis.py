@@ -536,6 +536,7 @@ def analyze_case(case) -> dict:
     ref = FlatReference(case.reference.path(), chain.d)
     kin = case.kinematic
     schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+    k_v0 = getattr(case.schemes, schemes[0]).k_v  # the first scheme's gain (frozen-time poles, patterns)
     if kin.kind == "two_link" and case.reference.kind == "unicycle":
         v_d, w_d = case.reference.v_d, case.reference.omega_d
         out["kinematic_poles"] = pole_table(kinematic_error_matrix(v_d, w_d, kin.k1, kin.k2, kin.k3))
@@ -550,7 +551,6 @@ def analyze_case(case) -> dict:
     elif kin.kind == "two_link":
         out["closed_loop_poles"] = None
         out["note"] = "time-varying reference: see the frozen-time poles"
-        k_v0 = getattr(case.schemes, schemes[0]).k_v
         out["frozen_time"] = frozen_time_poles(ref, chain.d[0], kin.k1, kin.k2, kin.k3, k_v0, case.simulation.duration)
     elif case.reference.kind in ("circle", "unicycle") and _omega(case) != 0.0:
         # chained form on a constant-curvature reference: frozen poles over the re-anchoring period
@@ -569,7 +569,6 @@ def analyze_case(case) -> dict:
     else:
         out["closed_loop_poles"] = None
         out["note"] = "time-varying reference: see the frozen-time poles"
-        k_v0 = getattr(case.schemes, schemes[0]).k_v
         span = min(case.simulation.duration, 60.0)
         try:
             out["frozen_time"] = chained_frozen_time_poles(chain, _chained(case, chain, ref), k_v0, span, samples=60)
@@ -577,7 +576,6 @@ def analyze_case(case) -> dict:
             out["frozen_time"] = None
             out["note"] = f"frozen-time poles not computed: the law is singular on the reference ({exc})"
     q0 = ref.at(0.0).q_d
-    k_v = next(getattr(case.schemes, s).k_v for s in schemes)
     mf = default_max_failed(chain.n_wheels)
     out["patterns_enumerated"] = {
         "max_failed": mf,
@@ -585,9 +583,9 @@ def analyze_case(case) -> dict:
         "total": 2**chain.n_wheels,
         "compensable_total": 3 * 2 ** (chain.n_wheels - 2) - 2,  # the rule of (2.103), ftcreport patterns
     }
-    out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v, mf)
+    out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v0, mf)
     # passive robustness of the healthy (nominal) law: the true patterns it keeps stable, and how fast
-    vl = velocity_loop(chain, q0, ref.at(0.0).eta_d, k_v, np.ones(chain.n_wheels), mf)
+    vl = velocity_loop(chain, q0, ref.at(0.0).eta_d, k_v0, np.ones(chain.n_wheels), mf)
     stable = [r for r in vl if r["stable"]]
     out["nominal_velocity_loop"] = {
         "enumerated_patterns": len(vl),

@@ -82,6 +82,8 @@ def _record(out: Path, name: str, payload: dict) -> None:
 
 def record_case(out: Path, case: Case, path: Path, duration: float | None = None) -> str:
     """Store the case record and a copy of the case file (provenance); returns the case content hash."""
+    from .families import not_applicable
+
     key = case_hash(case, __version__)
     write_atomic(out / case.name / "case.toml", Path(path).read_bytes())
     schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
@@ -97,7 +99,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
         "thresholds": thresholds,
         "duration_override": duration,
         "claims": [c.model_dump() for c in case.claims],  # thesis claims that `check` gates on
-        "not_run": _not_run(case),  # families the case does not run, each with its reason (issue 21)
+        "not_run": not_applicable(case),  # families the case does not run, each with its reason (issue 21)
     }
     _record(out, case.name, payload)
     return key
@@ -122,9 +124,8 @@ def _run_record(out: Path, case: Case, scheme: str, cached: bool) -> dict:
     from .store import load_metrics
 
     m = load_metrics(out, case.name, scheme) or {}
-    key = (
-        (out / case.name / scheme / "key").read_text().strip() if (out / case.name / scheme / "key").exists() else None
-    )
+    key_path = out / case.name / scheme / "key"
+    key = key_path.read_text().strip() if key_path.exists() else None
     return {
         "case": case.name,
         "scheme": scheme,
@@ -176,12 +177,6 @@ def write_manifests(out: Path, cases: list[Case], cached: set[tuple[str, str]], 
     return write_manifest(out / "manifest.json", m)
 
 
-def _not_run(case: Case) -> dict[str, str]:
-    from .families import not_applicable
-
-    return not_applicable(case)
-
-
 def _cost(case: Case, scheme: str) -> float:
     """A rough relative cost of a run (steps x per-step weight): the longest start first, so the
     last worker does not start a long run when the others are done."""
@@ -194,8 +189,6 @@ def _cost(case: Case, scheme: str) -> float:
 def error_record_name(path: Path, avoid: Iterable[str] = ()) -> str:
     """Directory of a rejected case file's record: its stem when that is a safe name not in ``avoid``
     (lower-case names of the batch's valid cases), else a hash of the path."""
-    import hashlib
-
     from .limits import name_problem
 
     stem = Path(path).stem

@@ -185,11 +185,8 @@ def draw_variant(base: Case, seeds: SampleSeeds) -> Case:
 
 
 def _scalar_metrics(m: dict) -> dict:
-    out = {}
-    for k, v in m.items():
-        if isinstance(v, bool) or v is None or isinstance(v, int | float | str):
-            out[k] = v
-    return out
+    """The metrics that are one number, flag or word (a table cell each)."""
+    return {k: v for k, v in m.items() if v is None or isinstance(v, bool | int | float | str)}
 
 
 def _success(m: dict, criteria: dict) -> bool:
@@ -256,23 +253,26 @@ def run_sample(base_json: str, index: int, campaign_seed: int, schemes: list[str
 
 
 # ---------------------------------------------------------------------- table (edge)
-def _sample_path(out: Path, index: int) -> Path:
-    return out / "samples" / f"{index:08d}.json"
-
-
 def write_table(out: Path, records: Iterable[dict]) -> Path:
     """Rewrite ``results.csv`` and ``results.parquet`` atomically from sample records (by sample, then scheme)."""
     rows = [r for rec in sorted(records, key=lambda r: r["sample"]) for r in rec["rows"]]
     keys = sorted({k for r in rows for k in r} - set(LEAD_COLUMNS))
-    cols = list(LEAD_COLUMNS) + keys
+    return write_rows(out, "results", rows, list(LEAD_COLUMNS) + keys)
+
+
+def write_rows(out: Path, stem: str, rows: list[dict], cols: list[str]) -> Path:
+    """``<stem>.csv`` (floats as repr, a missing value empty) and ``<stem>.parquet`` of ``rows``, atomically.
+
+    Only the columns ``cols`` are written, in that order; returns the CSV's path.
+    """
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
     w.writeheader()
     for r in rows:
         w.writerow({k: ("" if r.get(k) is None else (repr(r[k]) if isinstance(r[k], float) else r[k])) for k in cols})
-    path = out / "results.csv"
+    path = out / f"{stem}.csv"
     write_atomic(path, buf.getvalue().encode())
-    write_parquet(out / "results.parquet", rows, cols)
+    write_parquet(out / f"{stem}.parquet", rows, cols)
     return path
 
 
@@ -433,6 +433,16 @@ def stale_reason(rec: dict, expected: dict) -> str | None:
     return None
 
 
+def select_schemes(base: Case, schemes: list[str] | None) -> list[str]:
+    """The schemes to run: ``schemes`` (all configured in ``base`` when None); an unconfigured one is refused."""
+    configured = [s for s in SCHEME_NAMES if getattr(base.schemes, s) is not None]
+    schemes = configured if schemes is None else list(schemes)
+    unknown = [s for s in schemes if s not in configured]
+    if unknown:
+        raise FtcError(f"schemes {unknown} are not configured in {base.name} (configured: {', '.join(configured)})")
+    return schemes
+
+
 def load_records(folder: Path, expected: dict, force: bool, what: str = "sample") -> tuple[dict[int, dict], int]:
     """Stored records under ``folder`` that belong to this run; refuses stale ones unless ``force``.
 
@@ -491,11 +501,7 @@ def run_campaign(
         raise FtcError(f"--samples: must be >= 1, got {samples}")
     if seed < 0:
         raise FtcError(f"--seed: must be >= 0, got {seed}")
-    configured = [s for s in SCHEME_NAMES if getattr(base.schemes, s) is not None]
-    schemes = configured if schemes is None else list(schemes)
-    unknown = [s for s in schemes if s not in configured]
-    if unknown:
-        raise FtcError(f"schemes {unknown} are not configured in {base.name} (configured: {', '.join(configured)})")
+    schemes = select_schemes(base, schemes)
     out = Path(out)
     (out / "samples").mkdir(parents=True, exist_ok=True)
     chash = campaign_hash(base, schemes, seed)
@@ -539,13 +545,7 @@ def run_campaign(
 
     last_table = [0.0]
 
-    def store(rec: dict) -> None:
-        why = stale_reason(rec, expected)
-        if why is not None:  # never store a result that is not this campaign's (a foreign key, a stale worker)
-            raise ValueError(f"result {why}")
-        write_atomic(_sample_path(out, rec["sample"]), json.dumps(_jsonable(rec)).encode())
-        records[rec["sample"]] = rec
-        res.completed.append(rec["sample"])
+    def stored(rec: dict) -> None:
         # the table is a view of the sample files: refreshed at most every table_every seconds
         if time.perf_counter() - last_table[0] >= table_every:
             write_table(out, records.values())
@@ -553,31 +553,77 @@ def run_campaign(
         if on_sample is not None:
             on_sample(rec["sample"])
 
-    def fail(i: int, message: str) -> None:
-        res.failed[i] = message
-
-    from .cluster import execute
-
-    with _Progress(show_progress, len(todo)) as bar:
-        info = execute(
-            run_sample,
-            {i: (base_json, i, int(seed), schemes) for i in todo},
-            {i: task_key("campaign", chash, i) for i in todo},
-            store,
-            fail,
-            scheduler=scheduler,
-            workers=workers,
-            in_process=in_process,
-            retries=retries,
-            tick=lambda: bar(len(res.completed), len(res.failed)),
-        )
-    res.workers = info["workers"]
+    run_tasks(
+        run_sample,
+        {i: (base_json, i, int(seed), schemes) for i in todo},
+        "campaign",
+        expected,
+        out / "samples",
+        "sample",
+        8,
+        records,
+        res,
+        show_progress,
+        on_store=stored,
+        scheduler=scheduler,
+        workers=workers,
+        in_process=in_process,
+        retries=retries,
+    )
     write_table(out, records.values())
     if res.failed:
         write_atomic(out / "failed.json", json.dumps(res.failed, indent=1).encode())
     res.wall_time = time.perf_counter() - wall0
     _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
     return res
+
+
+def run_tasks(
+    func: Callable[..., dict],
+    args: dict[int, tuple],
+    kind: str,
+    expected: dict,
+    folder: Path,
+    what: str,
+    width: int,
+    records: dict[int, dict],
+    res: CampaignResult,
+    show_progress: bool = True,
+    on_store: Callable[[dict], None] | None = None,
+    **cluster,
+) -> None:
+    """Run ``func(*args[i])`` for every task ``i`` (:func:`ftcreport.cluster.execute`) behind a progress bar.
+
+    Task keys come from ``kind`` and the run hash ``expected["campaign"]`` (:func:`task_key`).  A result
+    must belong to this run (:func:`stale_reason` against ``expected``); it is written atomically at once
+    to ``folder/<rec[what]>.json`` (the index with ``width`` digits), entered in ``records`` and
+    ``res.completed``, then handed to ``on_store``; a failed task's message goes to ``res.failed``.
+    ``cluster``: the keywords of :func:`ftcreport.cluster.execute` (scheduler, workers, in_process, retries).
+    """
+    from .cluster import execute
+
+    def store(rec: dict) -> None:
+        why = stale_reason(rec, expected)
+        if why is not None:  # never store a result that is not this run's (a foreign key, a stale worker)
+            raise ValueError(f"result {why}")
+        index = rec[what]
+        write_atomic(folder / f"{index:0{width}d}.json", json.dumps(_jsonable(rec)).encode())
+        records[index] = rec
+        res.completed.append(index)
+        if on_store is not None:
+            on_store(rec)
+
+    with _Progress(show_progress, len(args)) as bar:
+        info = execute(
+            func,
+            args,
+            {i: task_key(kind, expected["campaign"], i) for i in args},
+            store,
+            res.failed.__setitem__,
+            tick=lambda: bar(len(res.completed), len(res.failed)),
+            **cluster,
+        )
+    res.workers = info["workers"]
 
 
 def _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process) -> None:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["OUTCOMES", "ClaimResult", "evaluate_claim", "evaluate_claims", "model_sequence"]
+__all__ = ["OUTCOMES", "ClaimResult", "bound_text", "evaluate_claim", "evaluate_claims", "model_sequence"]
 
 OUTCOMES = ("reproduced", "not reproduced", "not applicable", "not evaluated")
 
@@ -94,7 +94,8 @@ def _value(metrics: dict, metric: str, keys: list[str] | None) -> tuple[float | 
     return float(val), where
 
 
-def _bound_text(lo, hi) -> str:
+def bound_text(lo, hi) -> str:
+    """The bounds in words: ``>= lo and <= hi`` (a missing bound left out)."""
     parts = [f">= {lo:g}" if lo is not None else "", f"<= {hi:g}" if hi is not None else ""]
     return " and ".join(p for p in parts if p)
 
@@ -159,7 +160,7 @@ def evaluate_claim(case_name: str, claim, metrics_by_scheme: dict[str, dict | No
     else:
         measured = f"{label} = {val:.3g}"
         label = f"{scheme}'s {label}"
-    want = _bound_text(lo, hi)
+    want = bound_text(lo, hi)
     if (lo is None or val >= lo) and (hi is None or val <= hi):
         return result("reproduced", f"{label} is {val:.3g}, {want} as the claim requires.", measured)
     return result("not reproduced", f"{label} is {val:.3g}; the claim requires {want}.", measured)

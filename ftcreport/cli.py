@@ -224,6 +224,17 @@ WorkersOpt = Annotated[int, typer.Option(help="Worker processes of the local Das
 InProcessOpt = Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")]
 
 
+def _dask(scheduler: str | None, workers: int, in_process: bool, quiet: bool, force: bool) -> dict:
+    """The keywords a Dask command passes on to run_campaign, run_coverage or run_fdi."""
+    return {
+        "scheduler": scheduler,
+        "workers": workers,
+        "in_process": in_process,
+        "show_progress": not quiet,
+        "force": force,
+    }
+
+
 @app.command()
 def patterns(
     robots: Annotated[int, typer.Argument(help="Number of robots in the chain (>= 2).")],
@@ -500,7 +511,7 @@ def check(
     from .check import evaluate
     from .claims import evaluate_claims
     from .report.junit import write_junit
-    from .store import load_metrics
+    from .store import load_metrics, read_json
 
     started = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     wall0 = _time.perf_counter()
@@ -515,16 +526,12 @@ def check(
         results += evaluate(name, rec.get("thresholds", {}), metrics)
         claims += evaluate_claims(name, rec.get("claims", []), metrics)
     if junit is not None:
-        try:
-            manifest = json.loads((out / "manifest.json").read_text())
-        except (OSError, ValueError):
-            manifest = None
         write_junit(
             junit,
             results,
             res.case_errors,
             claims=claims,
-            properties=manifest,
+            properties=read_json(out / "manifest.json"),
             time=_time.perf_counter() - wall0,
             timestamp=started,
             run_times=run_times,
@@ -624,18 +631,8 @@ def campaign(
         out_dir = out or Path("reports") / "campaigns" / base.name
         chosen = _names(schemes)
         with output_lock(out_dir, "campaign"):
-            res = run_campaign(
-                base,
-                samples,
-                out_dir,
-                seed=seed,
-                schemes=chosen,
-                scheduler=scheduler,
-                workers=workers,
-                in_process=in_process,
-                show_progress=not quiet,
-                force=force,
-            )
+            dask = _dask(scheduler, workers, in_process, quiet, force)
+            res = run_campaign(base, samples, out_dir, seed=seed, schemes=chosen, **dask)
             page = render_campaign(out_dir, read_table(res.table))
     except FtcError as exc:
         _fail(exc)
@@ -786,11 +783,7 @@ def coverage(
             sigmas=tuple(_floats(sigmas, "--sigmas") or ()),
             friction=friction,
             kinds=tuple(_names(kinds) or ()),
-            scheduler=scheduler,
-            workers=workers,
-            in_process=in_process,
-            show_progress=not quiet,
-            force=force,
+            **_dask(scheduler, workers, in_process, quiet, force),
         )
         page = render_coverage(out_dir)
     except FtcError as exc:
@@ -828,18 +821,8 @@ def fdi(
     try:
         base = load_case(case)
         out_dir = out or Path("reports") / "fdi" / base.name
-        res = run_fdi(
-            base,
-            samples,
-            out_dir,
-            seed=seed,
-            schemes=_names(schemes),
-            scheduler=scheduler,
-            workers=workers,
-            in_process=in_process,
-            show_progress=not quiet,
-            force=force,
-        )
+        dask = _dask(scheduler, workers, in_process, quiet, force)
+        res = run_fdi(base, samples, out_dir, seed=seed, schemes=_names(schemes), **dask)
         page = render_fdi(out_dir)
     except FtcError as exc:
         _fail(exc)
@@ -860,14 +843,9 @@ def cases_schema(
 
     Example: ftcreport cases schema > case.schema.json
     """
-    if markdown:
-        from .schema_doc import markdown_tables
+    from .schema_doc import markdown_tables, schema_json
 
-        typer.echo(markdown_tables(), nl=False)
-        return
-    from .schema_doc import schema_json
-
-    typer.echo(schema_json(), nl=False)
+    typer.echo(markdown_tables() if markdown else schema_json(), nl=False)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -32,15 +32,14 @@ import numpy as np
 from . import __version__
 from .campaign import (
     CampaignResult,
-    _Progress,
     _scalar_metrics,
     _success,
     case_content_hash,
     load_records,
     run_hash,
-    stale_reason,
-    task_key,
-    write_parquet,
+    run_tasks,
+    select_schemes,
+    write_rows,
 )
 from .cases import SCHEME_NAMES, Case, parse_case
 from .errors import FtcError
@@ -308,11 +307,7 @@ def run_coverage(
     ``items/<index>.json``, ``coverage.csv`` + ``coverage.parquet``, ``summary.json``,
     ``manifest.json``; the page is :func:`ftcreport.report.coverage.render_coverage`.
     """
-    configured = [s for s in SCHEME_NAMES if getattr(base.schemes, s) is not None]
-    schemes = configured if schemes is None else list(schemes)
-    unknown = [s for s in schemes if s not in configured]
-    if unknown:
-        raise FtcError(f"schemes {unknown} are not configured in {base.name} (configured: {', '.join(configured)})")
+    schemes = select_schemes(base, schemes)
     T = base.simulation.duration
     times = onset_times(base, onsets) if times is None else [float(t) for t in times]
     if not times or any(not 0.0 <= t < T for t in times):
@@ -333,34 +328,22 @@ def run_coverage(
     res.rerun_stale = stale
     base_json = base.model_dump_json()
     wall0 = time.perf_counter()
-
-    def store(rec: dict) -> None:
-        why = stale_reason(rec, expected)
-        if why is not None:
-            raise ValueError(f"result {why}")
-        write_atomic(out / "items" / f"{rec['item']:06d}.json", json.dumps(_jsonable(rec)).encode())
-        records[rec["item"]] = rec
-        res.completed.append(rec["item"])
-
-    def fail(i: int, message: str) -> None:
-        res.failed[i] = message
-
-    from .cluster import execute
-
-    with _Progress(show_progress, len(todo)) as bar:
-        info = execute(
-            run_item,
-            {i: (base_json, i, asdict(items[i][0]), items[i][1], schemes, rhash) for i in todo},
-            {i: task_key("coverage", rhash, i) for i in todo},
-            store,
-            fail,
-            scheduler=scheduler,
-            workers=workers,
-            in_process=in_process,
-            retries=retries,
-            tick=lambda: bar(len(res.completed), len(res.failed)),
-        )
-    res.workers = info["workers"]
+    run_tasks(
+        run_item,
+        {i: (base_json, i, asdict(items[i][0]), items[i][1], schemes, rhash) for i in todo},
+        "coverage",
+        expected,
+        out / "items",
+        "item",
+        6,
+        records,
+        res,
+        show_progress,
+        scheduler=scheduler,
+        workers=workers,
+        in_process=in_process,
+        retries=retries,
+    )
     rows = [r for i in sorted(records) if i < len(items) for r in records[i]["rows"]]
     write_table(out, rows)
     summary = summarize_coverage(rows)
@@ -389,16 +372,4 @@ def run_coverage(
 
 def write_table(out: Path, rows: list[dict]) -> Path:
     """``coverage.csv`` and ``coverage.parquet`` (one row per item and scheme), atomically."""
-    import csv
-    import io
-
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n", extrasaction="ignore")
-    w.writeheader()
-    for r in rows:
-        w.writerow(
-            {k: ("" if r.get(k) is None else (repr(r[k]) if isinstance(r[k], float) else r[k])) for k in COLUMNS}
-        )
-    write_atomic(out / "coverage.csv", buf.getvalue().encode())
-    write_parquet(out / "coverage.parquet", rows, list(COLUMNS))
-    return out / "coverage.csv"
+    return write_rows(out, "coverage", rows, list(COLUMNS))

@@ -324,8 +324,7 @@ def run_fdi(
     """
     from pathlib import Path
 
-    from .campaign import _Progress, case_content_hash, load_records, run_hash, stale_reason, task_key
-    from .cluster import execute
+    from .campaign import CampaignResult, case_content_hash, load_records, run_hash, run_tasks
     from .manifest import build_manifest, write_manifest
     from .store import _jsonable, write_atomic
 
@@ -348,28 +347,24 @@ def run_fdi(
     records, stale = load_records(out / "traces", expected, force, what="task")
     tasks = {i * len(schemes) + j: (i, s) for i in range(samples) for j, s in enumerate(schemes)}
     todo = [k for k in tasks if k not in records]
-    failed: dict[int, str] = {}
     base_json = base.model_dump_json()
-
-    def store(rec: dict) -> None:
-        why = stale_reason(rec, expected)
-        if why is not None:
-            raise ValueError(f"result {why}")
-        write_atomic(out / "traces" / f"{rec['task']:08d}.json", json.dumps(_jsonable(rec)).encode())
-        records[rec["task"]] = rec
-
-    with _Progress(show_progress, len(todo)) as bar:
-        info = execute(
-            _fdi_task,
-            {k: (base_json, k, tasks[k][0], int(seed), tasks[k][1], tuple(calibration), rhash) for k in todo},
-            {k: task_key("fdi", rhash, k) for k in todo},
-            store,
-            lambda k, msg: failed.__setitem__(k, msg),
-            scheduler=scheduler,
-            workers=workers,
-            in_process=in_process,
-            tick=lambda: bar(len(records), len(failed)),
-        )
+    res = CampaignResult(out=out, table=out / "fdi.json", requested=len(tasks))
+    failed = res.failed
+    run_tasks(
+        _fdi_task,
+        {k: (base_json, k, tasks[k][0], int(seed), tasks[k][1], tuple(calibration), rhash) for k in todo},
+        "fdi",
+        expected,
+        out / "traces",
+        "task",
+        8,
+        records,
+        res,
+        show_progress,
+        scheduler=scheduler,
+        workers=workers,
+        in_process=in_process,
+    )
     result: dict = {"case": base.name, **settings, "schemes_results": {}}
     for s in schemes:
         segs = [records[k] for k in sorted(records) if k in tasks and tasks[k][1] == s]
@@ -385,7 +380,7 @@ def run_fdi(
             fdi=rhash,
             seeds={"campaign": int(seed), "rule": "as campaign: SeedSequence(seed, spawn_key=(sample,)).spawn(2)"},
             settings=settings | {"samples": samples, "scheduler": scheduler, "in_process": in_process},
-            workers=info["workers"],
+            workers=res.workers,
             result={"stored": len(records), "rerun_stale": stale, "failed": {str(k): v for k, v in failed.items()}},
         ),
     )

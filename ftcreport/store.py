@@ -34,7 +34,9 @@ __all__ = [
     "load_metrics",
     "load_timeseries",
     "output_lock",
+    "read_json",
     "save_run",
+    "stored_metrics",
     "write_atomic",
     "write_json",
 ]
@@ -110,11 +112,24 @@ def cached_key(out: Path, case_name: str, scheme: str) -> str | None:
     return key
 
 
-def load_metrics(out: Path, case_name: str, scheme: str) -> dict | None:
+def read_json(path: Path) -> Any:
+    """The content of a JSON file, or None when it is missing, unreadable or not JSON."""
     try:
-        return json.loads((Path(out) / case_name / scheme / "metrics.json").read_text())
+        return json.loads(Path(path).read_text())
     except (OSError, ValueError):
         return None
+
+
+def load_metrics(out: Path, case_name: str, scheme: str) -> dict | None:
+    return read_json(Path(out) / case_name / scheme / "metrics.json")
+
+
+def stored_metrics(out: Path, case_name: str) -> dict[str, dict]:
+    """``{scheme: metrics.json content}`` of the case's stored runs, in scheme order."""
+    from .cases import SCHEME_NAMES
+
+    runs = {s: load_metrics(out, case_name, s) for s in SCHEME_NAMES}
+    return {s: m for s, m in runs.items() if m is not None}
 
 
 def load_timeseries(out: Path, case_name: str, scheme: str) -> dict[str, np.ndarray] | None:

@@ -248,12 +248,10 @@ def read_run(out: Path, case: str, scheme: str) -> Run | None:
         "duration": m.get("duration"),
         "n_robots": m.get("n_robots"),
         "package_version": m.get("package_version", ""),
+        "estimated_parameters": m.get("estimated_parameters") or None,  # None: dropped below
+        "patterns": m.get("patterns"),
+        "case_hash": m.get("case_hash", ""),
     }
-    if m.get("estimated_parameters"):
-        meta["estimated_parameters"] = m["estimated_parameters"]
-    if m.get("patterns") is not None:
-        meta["patterns"] = m["patterns"]
-    meta["case_hash"] = m.get("case_hash", "")
     toml = out / case / "case.toml"
     if toml.exists():
         try:
@@ -340,17 +338,13 @@ def metrics_table(out: Path) -> pd.DataFrame:
     """Every stored run's metrics under ``out``: one row per (case, scheme, phase), :data:`METRICS_DTYPES`."""
     import pandas as pd
 
-    from .cases import SCHEME_NAMES
-    from .store import load_metrics
+    from .store import stored_metrics
 
     out = Path(out)
     rows: list[dict] = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
-        for s in SCHEME_NAMES:
-            m = load_metrics(out, name, s)
-            if m is None:
-                continue
+        for s, m in stored_metrics(out, name).items():
             key_path = out / name / s / "key"
             key = key_path.read_text().strip() if key_path.exists() else ""
             rows += _phase_rows({"case": name, "scheme": s} | m, key)

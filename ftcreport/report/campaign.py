@@ -11,11 +11,10 @@ matplotlib.use("svg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .. import __version__
 from ..campaign import summarize
 from ..store import _jsonable, write_atomic
 from . import plots
-from .render import _env, _now, dependency_versions
+from .render import dependency_versions, figure, write_page
 
 __all__ = ["render_campaign"]
 
@@ -66,37 +65,26 @@ def render_campaign(out: Path, rows: list[dict]) -> Path:
     figures = []
     if rows:
         figures = [
-            {
-                "id": "rates",
-                "svg": _rates_svg(summary),
-                "caption": "Success rate per scheme with 95 % Wilson intervals.",
-            },
-            {
-                "id": "max-error",
-                "svg": _hist_svg(summary, "max_errors", "max position error [m]", True),
-                "caption": "Distribution of the maximum position error per sample.",
-            },
-            {
-                "id": "recovery",
-                "svg": _hist_svg(summary, "recovery_times", "recovery time max [s]", False),
-                "caption": "Distribution of the recovery time (samples that never recover are counted in the table).",
-            },
+            figure("rates", "Success rate per scheme with 95 % Wilson intervals.", svg=_rates_svg(summary)),
+            figure(
+                "max-error",
+                "Distribution of the maximum position error per sample.",
+                svg=_hist_svg(summary, "max_errors", "max position error [m]", True),
+            ),
+            figure(
+                "recovery",
+                "Distribution of the recovery time (samples that never recover are counted in the table).",
+                svg=_hist_svg(summary, "recovery_times", "recovery time max [s]", False),
+            ),
         ]
-    html = (
-        _env()
-        .get_template("campaign.html")
-        .render(
-            root="../../",
-            version=__version__,
-            rendered=_now(),
-            name=meta.get("case", out.name),
-            seed=meta.get("seed"),
-            success=(meta.get("base", {}).get("campaign") or {}).get("success", {}),
-            summary=summary,
-            figures=figures,
-            versions=dependency_versions(),
-        )
+    return write_page(
+        out / "index.html",
+        "campaign.html",
+        "../../",
+        name=meta.get("case", out.name),
+        seed=meta.get("seed"),
+        success=(meta.get("base", {}).get("campaign") or {}).get("success", {}),
+        summary=summary,
+        figures=figures,
+        versions=dependency_versions(),
     )
-    page = out / "index.html"
-    write_atomic(page, html.encode())
-    return page

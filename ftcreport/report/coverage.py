@@ -11,11 +11,9 @@ matplotlib.use("svg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .. import __version__
 from ..model import wheel_names
-from ..store import write_atomic
 from . import plots
-from .render import _env, _now, dependency_versions
+from .render import dependency_versions, figure, write_page
 
 __all__ = ["coverage_grids", "render_coverage"]
 
@@ -103,34 +101,27 @@ def render_coverage(out: Path) -> Path:
     figures = []
     if grids["columns"]:
         figures.append(
-            {
-                "id": "single",
-                "svg": _map_svg(grids, "single", grids["columns"]),
-                "caption": "Single-wheel faults (wheels x fault kinds): the rule's prediction (green compensable, "
+            figure(
+                "single",
+                "Single-wheel faults (wheels x fault kinds): the rule's prediction (green compensable, "
                 "X uncompensable) beside the fraction of onset times each scheme recovered from.",
-            }
+                svg=_map_svg(grids, "single", grids["columns"]),
+            )
         )
     if any(np.isfinite(g).any() for g in grids["pairs"].values()):
         figures.append(
-            {
-                "id": "pairs",
-                "svg": _map_svg(grids, "pairs", grids["wheels"]),
-                "caption": "Pairs of wheel losses (wheel x wheel): prediction and fraction of onsets recovered.",
-            }
+            figure(
+                "pairs",
+                "Pairs of wheel losses (wheel x wheel): prediction and fraction of onsets recovered.",
+                svg=_map_svg(grids, "pairs", grids["wheels"]),
+            )
         )
-    html = (
-        _env()
-        .get_template("coverage.html")
-        .render(
-            root="../../",
-            version=__version__,
-            rendered=_now(),
-            meta=meta,
-            summary=summary,
-            figures=figures,
-            versions=dependency_versions(),
-        )
+    return write_page(
+        out / "index.html",
+        "coverage.html",
+        "../../",
+        meta=meta,
+        summary=summary,
+        figures=figures,
+        versions=dependency_versions(),
     )
-    page = out / "index.html"
-    write_atomic(page, html.encode())
-    return page

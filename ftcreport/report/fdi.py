@@ -10,10 +10,8 @@ import matplotlib
 matplotlib.use("svg")
 import matplotlib.pyplot as plt
 
-from .. import __version__
-from ..store import write_atomic
 from . import plots
-from .render import _env, _now, dependency_versions
+from .render import dependency_versions, figure, write_page
 
 __all__ = ["render_fdi"]
 
@@ -50,22 +48,10 @@ def render_fdi(out: Path) -> Path:
     for s, res in result["schemes_results"].items():
         if not res["n_samples"]:
             continue
-        figures.append({"id": f"{s}-roc", "svg": _svg(res, "pd", "detection probability"),
-                        "caption": f"{s}: ROC, detection probability against false alarms per hour."})  # fmt: skip
-        figures.append({"id": f"{s}-delay", "svg": _svg(res, "mean_delay", "mean detection delay [s]"),
-                        "caption": f"{s}: mean detection delay against false alarms per hour."})  # fmt: skip
-    html = (
-        _env()
-        .get_template("fdi.html")
-        .render(
-            root="../../",
-            version=__version__,
-            rendered=_now(),
-            result=result,
-            figures=figures,
-            versions=dependency_versions(),
-        )
+        roc = _svg(res, "pd", "detection probability")
+        figures.append(figure(f"{s}-roc", f"{s}: ROC, detection probability against false alarms per hour.", svg=roc))
+        delay = _svg(res, "mean_delay", "mean detection delay [s]")
+        figures.append(figure(f"{s}-delay", f"{s}: mean detection delay against false alarms per hour.", svg=delay))
+    return write_page(
+        out / "index.html", "fdi.html", "../../", result=result, figures=figures, versions=dependency_versions()
     )
-    page = out / "index.html"
-    write_atomic(page, html.encode())
-    return page

@@ -76,32 +76,12 @@ def _phases(events: list[float], t_end: float) -> list[dict]:
     ev = sorted({float(e) for e in events if e > 0})
     for i, te in enumerate(ev):
         end = ev[i + 1] if i + 1 < len(ev) else t_end
+        span = {"xref": "x", "yref": "paper", "x0": te, "y0": 0, "y1": 1}  # full height from the event on
         if i % 2 == 0:
-            shapes.append(
-                {
-                    "type": "rect",
-                    "xref": "x",
-                    "yref": "paper",
-                    "x0": te,
-                    "x1": end,
-                    "y0": 0,
-                    "y1": 1,
-                    "fillcolor": "rgba(180,0,30,0.07)",
-                    "line": {"width": 0},
-                    "layer": "below",
-                }
-            )
+            shade = {"fillcolor": "rgba(180,0,30,0.07)", "line": {"width": 0}, "layer": "below"}
+            shapes.append({"type": "rect", **span, "x1": end, **shade})
         shapes.append(
-            {
-                "type": "line",
-                "xref": "x",
-                "yref": "paper",
-                "x0": te,
-                "x1": te,
-                "y0": 0,
-                "y1": 1,
-                "line": {"color": "rgba(120,0,20,0.6)", "width": 1, "dash": "dot"},
-            }
+            {"type": "line", **span, "x1": te, "line": {"color": "rgba(120,0,20,0.6)", "width": 1, "dash": "dot"}}
         )
     return shapes
 
@@ -120,6 +100,11 @@ def _layout(title: str, events: list[float], t_end: float, height: int = 360, **
     return lay
 
 
+def _trace(t: np.ndarray, y: list, name: str, hover: str, **extra) -> dict:
+    """One line trace over time (``t`` rounded to 6 digits for compact JSON); ``extra``: its other keys."""
+    return {"x": _r(t, 6), "y": y, "name": name, "type": "scatter", "mode": "lines", "hovertemplate": hover, **extra}
+
+
 def _t_end(series: dict) -> float:
     return max(float(ts["t"][-1]) for ts in series.values())
 
@@ -133,31 +118,18 @@ def errors_fig(series: dict[str, dict], events: list[float]) -> dict:
         head = np.abs((q[:, 2:] - qd[:, 2:] + np.pi) % (2 * np.pi) - np.pi).max(axis=1)
         t, p, h = decimate(ts["t"], np.maximum(pos, 1e-12), np.maximum(head, 1e-9))
         c = SCHEME_COLORS.get(scheme)
+        data.append(_trace(t, _r(p), scheme, "%{y:.3g} m", legendgroup=scheme, line={"color": c, "width": 1.3}))
         data.append(
-            {
-                "x": _r(t, 6),
-                "y": _r(p),
-                "name": scheme,
-                "legendgroup": scheme,
-                "line": {"color": c, "width": 1.3},
-                "hovertemplate": "%{y:.3g} m",
-                "type": "scatter",
-                "mode": "lines",
-            }
-        )
-        data.append(
-            {
-                "x": _r(t, 6),
-                "y": _r(h),
-                "name": scheme,
-                "legendgroup": scheme,
-                "showlegend": False,
-                "line": {"color": c, "width": 1.0},
-                "yaxis": "y2",
-                "hovertemplate": "%{y:.3g} rad",
-                "type": "scatter",
-                "mode": "lines",
-            }
+            _trace(
+                t,
+                _r(h),
+                scheme,
+                "%{y:.3g} rad",
+                legendgroup=scheme,
+                showlegend=False,
+                line={"color": c, "width": 1.0},
+                yaxis="y2",
+            )
         )
     lay = _layout(
         "tracking errors (shaded: fault phases; drag to zoom, double-click to reset)",
@@ -183,18 +155,7 @@ def torques_fig(series: dict[str, dict], wheels: list[str], events: list[float],
             max_points=max(400, 4 * MAX_POINTS // max(1, len(wheels))),
         )
         for j, w in enumerate(wheels):
-            data.append(
-                {
-                    "x": _r(t, 6),
-                    "y": _r(cols[j]),
-                    "name": w,
-                    "type": "scatter",
-                    "mode": "lines",
-                    "line": {"width": 1},
-                    "visible": scheme == main,
-                    "hovertemplate": "%{y:.3g} N m",
-                }
-            )
+            data.append(_trace(t, _r(cols[j]), w, "%{y:.3g} N m", line={"width": 1}, visible=scheme == main))
             owner.append(scheme)
     buttons = [
         {
@@ -230,24 +191,20 @@ def switching_fig(ts: dict, patterns: list[list[int]], events: list[float]) -> d
     truth = np.array([pats.index(k) if (k := tuple((s >= 1.0).astype(int))) in pats else -1 for s in ts["sigma"]])
     t, sel, tr = decimate(ts["t"], np.asarray(ts["selected"], float), truth.astype(float))
     data = [
-        {
-            "x": _r(t, 6),
-            "y": tr.astype(int).tolist(),
-            "name": "true pattern",
-            "type": "scatter",
-            "mode": "lines",
-            "line": {"shape": "hv", "color": "rgba(0,0,0,0.35)", "width": 4},
-            "hovertemplate": "true %{y}",
-        },
-        {
-            "x": _r(t, 6),
-            "y": sel.astype(int).tolist(),
-            "name": "applied model",
-            "type": "scatter",
-            "mode": "lines",
-            "line": {"shape": "hv", "color": SCHEME_COLORS["switching"], "width": 1.2},
-            "hovertemplate": "model %{y}",
-        },
+        _trace(
+            t,
+            tr.astype(int).tolist(),
+            "true pattern",
+            "true %{y}",
+            line={"shape": "hv", "color": "rgba(0,0,0,0.35)", "width": 4},
+        ),
+        _trace(
+            t,
+            sel.astype(int).tolist(),
+            "applied model",
+            "model %{y}",
+            line={"shape": "hv", "color": SCHEME_COLORS["switching"], "width": 1.2},
+        ),
     ]
     lay = _layout(
         "switching: applied model against the true pattern (-1: the true pattern is not a model)",
@@ -277,17 +234,7 @@ def estimates_fig(ts: dict, scheme: str, wheels: list[str], events: list[float],
         w = [chi[:, k, pats[k] > 0].mean(axis=1) for k in show]
         t, *cols = decimate(ts["t"], *w)
         for k, c in zip(show, cols, strict=True):
-            data.append(
-                {
-                    "x": _r(t, 6),
-                    "y": _r(c),
-                    "name": f"model {k}",
-                    "type": "scatter",
-                    "mode": "lines",
-                    "line": {"width": 1},
-                    "hovertemplate": "%{y:.3g}",
-                }
-            )
+            data.append(_trace(t, _r(c), f"model {k}", "%{y:.3g}", line={"width": 1}))
         top, bottom = None, ("uf_hat", "ubar", "friction [N m]")
     else:
         return None
@@ -302,33 +249,11 @@ def estimates_fig(ts: dict, scheme: str, wheels: list[str], events: list[float],
         m = est.shape[1]
         for j, w in enumerate(wheels):
             color = f"hsl({int(360 * j / max(1, m))},65%,42%)"
-            data.append(
-                {
-                    "x": _r(t, 6),
-                    "y": _r(cols[j]),
-                    "name": f"{key} {w}",
-                    "legendgroup": w,
-                    "type": "scatter",
-                    "mode": "lines",
-                    "yaxis": axis,
-                    "line": {"width": 1.1, "color": color},
-                    "hovertemplate": "%{y:.3g}",
-                }
-            )
-            data.append(
-                {
-                    "x": _r(t, 6),
-                    "y": _r(cols[m + j]),
-                    "name": f"true {w}",
-                    "legendgroup": w,
-                    "showlegend": False,
-                    "type": "scatter",
-                    "mode": "lines",
-                    "yaxis": axis,
-                    "line": {"width": 1, "dash": "dash", "color": color},
-                    "hovertemplate": "true %{y:.3g}",
-                }
-            )
+            line = {"width": 1.1, "color": color}
+            data.append(_trace(t, _r(cols[j]), f"{key} {w}", "%{y:.3g}", legendgroup=w, yaxis=axis, line=line))
+            dashed = {"width": 1, "dash": "dash", "color": color}
+            hidden = {"legendgroup": w, "showlegend": False, "yaxis": axis, "line": dashed}
+            data.append(_trace(t, _r(cols[m + j]), f"true {w}", "true %{y:.3g}", **hidden))
     top_title = "gain estimate" if "rho_hat" in ts else "weight (mean over wheels)"
     lo_hi = [-0.5, 1.5] if "rho_hat" in ts else [-0.05, 1.05]
     fric = np.asarray(ts.get("ubar", np.zeros((1, 1))), float)

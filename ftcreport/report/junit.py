@@ -14,6 +14,7 @@ from typing import Any
 from xml.etree import ElementTree as ET
 
 from ..check import ThresholdResult
+from ..claims import bound_text
 from ..store import write_atomic
 
 __all__ = ["flatten", "junit_xml", "write_junit"]
@@ -70,9 +71,7 @@ def junit_xml(
             name=r.metric,
             time=f"{float(run_times.get((r.case, r.scheme)) or 0.0):.3f}",
         )
-        expected = " and ".join(
-            x for x in (f">= {r.min:g}" if r.min is not None else "", f"<= {r.max:g}" if r.max is not None else "") if x
-        )
+        expected = bound_text(r.min, r.max)
         actual = "n/a" if r.actual is None else f"{r.actual:.6g}"
         ET.SubElement(tc, "system-out").text = f"expected {expected}; actual {actual}"
         if not r.ok:

@@ -17,18 +17,14 @@ import numpy as np
 
 __all__ = [
     "SCHEME_COLORS",
-    "active_svg",
     "articulation_svg",
     "control_torque_svg",
     "decay_svg",
-    "errors_svg",
     "estimated_path_svg",
     "fitted_decay_rate",
     "paths_svg",
     "pole_loci_svg",
     "robot_velocities",
-    "switching_svg",
-    "torques_svg",
     "velocities_svg",
 ]
 
@@ -99,75 +95,6 @@ def paths_svg(series: dict[str, dict], d: list[float], events: list[float], b: f
     return _svg(fig)
 
 
-def errors_svg(series: dict[str, dict], events: list[float]) -> str:
-    """Tracking errors, log scale, fault phases shaded: position and largest heading error per
-    scheme, then every coordinate (x, y, each heading) of the main FTC scheme."""
-    fig, axes = plt.subplots(3, 1, figsize=(6.4, 6.6), sharex=True)
-    for scheme, ts in series.items():
-        q, qd = ts["q"], ts["q_d"]
-        pos = np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])
-        head = np.abs((q[:, 2:] - qd[:, 2:] + np.pi) % (2 * np.pi) - np.pi).max(axis=1)
-        c = SCHEME_COLORS.get(scheme)
-        axes[0].semilogy(ts["t"], np.maximum(pos, 1e-12), color=c, lw=1, label=scheme)
-        axes[1].semilogy(ts["t"], np.maximum(head, 1e-12), color=c, lw=1, label=scheme)
-    main = next((s for s in ("switching", "adaptive", "oracle") if s in series), next(iter(series)))
-    ts = series[main]
-    q, qd = ts["q"], ts["q_d"]
-    n = q.shape[1] - 2
-    labels = ["x", "y"] + [f"theta_{n - j}" for j in range(n)]
-    err = np.abs(q - qd)
-    err[:, 2:] = np.abs((q[:, 2:] - qd[:, 2:] + np.pi) % (2 * np.pi) - np.pi)
-    for j, lab in enumerate(labels):
-        axes[2].semilogy(ts["t"], np.maximum(err[:, j], 1e-12), lw=0.9, label=lab)
-    axes[0].set_ylabel("position error [m]")
-    axes[1].set_ylabel("max heading error [rad]")
-    axes[2].set_ylabel(f"{main}: per coordinate [m, rad]")
-    axes[2].set_xlabel("t [s]")
-    for ax in axes:
-        _shade_phases(ax, events)
-    axes[0].legend(loc="upper right")
-    axes[2].legend(loc="upper right", ncol=min(4, len(labels)), fontsize=6)
-    axes[0].set_title("tracking errors (shaded/dotted: fault phases)")
-    return _svg(fig)
-
-
-def torques_svg(ts: dict, wheels: list[str], events: list[float], scheme: str) -> str:
-    """Applied wheel torques, one panel per robot."""
-    n = len(wheels) // 2
-    fig, axes = plt.subplots(n, 1, figsize=(6.4, 1.5 * n + 0.6), sharex=True, squeeze=False)
-    tau = ts["tau"]
-    lim = np.percentile(np.abs(tau), 99.5) * 1.2 + 1e-9
-    for i in range(n):
-        ax = axes[i, 0]
-        ax.plot(ts["t"], tau[:, 2 * i], lw=0.9, label=wheels[2 * i])
-        ax.plot(ts["t"], tau[:, 2 * i + 1], lw=0.9, label=wheels[2 * i + 1])
-        ax.set_ylim(-lim, lim)
-        ax.set_ylabel(f"robot {i + 1} [N m]")
-        ax.legend(loc="upper right", ncol=2)
-        _shade_phases(ax, events)
-    axes[-1, 0].set_xlabel("t [s]")
-    axes[0, 0].set_title(f"applied torques, {scheme} (axis clipped at the 99.5th percentile)")
-    return _svg(fig)
-
-
-def switching_svg(ts: dict, patterns: list[list[int]], events: list[float]) -> str:
-    """Applied model index against the true pattern's index (when it is a model)."""
-    fig, ax = plt.subplots(figsize=(6.4, 2.4))
-    pats = [tuple(p) for p in patterns]
-    true = [
-        pats.index(tuple((s >= 1.0).astype(int))) if tuple((s >= 1.0).astype(int)) in pats else -1 for s in ts["sigma"]
-    ]
-    ax.step(ts["t"], true, where="post", color="k", lw=2.5, alpha=0.35, label="true pattern")
-    ax.step(ts["t"], ts["selected"], where="post", color=SCHEME_COLORS["switching"], lw=1, label="applied model")
-    ax.set_yticks(range(len(pats)) if len(pats) <= 12 else np.linspace(0, len(pats) - 1, 8).astype(int))
-    ax.set_ylabel("model index")
-    ax.set_xlabel("t [s]")
-    _shade_phases(ax, events)
-    ax.legend(loc="upper left")
-    ax.set_title("switching: applied model vs true pattern (-1: the true pattern is not a model)")
-    return _svg(fig)
-
-
 def articulation_svg(series: dict[str, dict], events: list[float]) -> str:
     """Articulation angles theta_i - theta_(i+1) with the 90 deg singularity."""
     fig, ax = plt.subplots(figsize=(6.4, 2.6))
@@ -190,67 +117,6 @@ def articulation_svg(series: dict[str, dict], events: list[float]) -> str:
     _shade_phases(ax, events)
     ax.legend(loc="upper right")
     ax.set_title("articulation angles (red: singular at +/-90 deg)")
-    return _svg(fig)
-
-
-def adaptive_svg(ts: dict, patterns: list[list[int]], wheels: list[str], events: list[float], scheme: str) -> str:
-    """Weights chihat_(k) (mean over the wheels each model drives) and uhat_f against the true ubar."""
-    fig, axes = plt.subplots(2, 1, figsize=(6.4, 4.4), sharex=True)
-    chi = ts["chi_hat"]  # (K, N, 2n)
-    pats = np.asarray(patterns, dtype=float)
-    for k in range(pats.shape[0]):
-        used = pats[k] > 0
-        axes[0].plot(ts["t"], chi[:, k, used].mean(axis=1), lw=1, label=f"model {k}")
-    axes[0].set_ylim(-0.05, 1.05)
-    axes[0].set_ylabel("chihat (mean over wheels)")
-    if pats.shape[0] <= 10:
-        axes[0].legend(loc="upper right", ncol=2, fontsize=6)
-    for j, w in enumerate(wheels):
-        line = axes[1].plot(ts["t"], ts["uf_hat"][:, j], lw=1, label=f"uhat_f {w}")[0]
-        axes[1].plot(ts["t"], ts["ubar"][:, j], "--", lw=1, color=line.get_color())
-    axes[1].set_ylabel("friction [N m]")
-    axes[1].set_xlabel("t [s]")
-    axes[1].legend(loc="lower left", ncol=4, fontsize=6)
-    for ax in axes:
-        _shade_phases(ax, events)
-    axes[0].set_title(
-        f"{scheme}: weights and friction estimate (dashed: true ubar) - control variables, not a diagnosis"
-    )
-    return _svg(fig)
-
-
-def active_svg(ts: dict, wheels: list[str], events: list[float], scheme: str, estimated: list[str]) -> str:
-    """Estimated gains and frictions against the truth (dashed), and the state-estimation error."""
-    rows = 1 + int(any(e.startswith("rho_") for e in estimated)) + int(any(e.startswith("ubar_") for e in estimated))
-    fig, axes = plt.subplots(rows, 1, figsize=(6.4, 1.9 * rows + 0.6), sharex=True)
-    axes = np.atleast_1d(axes)
-    t = ts["t"]
-    i = 0
-    for key, true_key, label in (("rho_hat", "sigma", "gain"), ("ubar_hat", "ubar", "friction [N m]")):
-        prefix = "rho_" if key == "rho_hat" else "ubar_"
-        if not any(e.startswith(prefix) for e in estimated):
-            continue
-        ax = axes[i]
-        for j, w in enumerate(wheels):
-            line = ax.plot(t, ts[key][:, j], lw=1, label=w)[0]
-            ax.plot(t, ts[true_key][:, j], "--", lw=1, color=line.get_color())
-        lo, hi = np.nanpercentile(ts[true_key], [0, 100])
-        pad = 0.5 if key == "rho_hat" else 1.0
-        ax.set_ylim(lo - pad, hi + pad)
-        ax.set_ylabel(label)
-        ax.legend(loc="lower left", ncol=len(wheels), fontsize=6)
-        i += 1
-    ax = axes[i]
-    eq = np.abs(ts["q_hat"] - ts["q"]).max(axis=1)
-    ee = np.abs(ts["eta_hat"] - ts["eta"]).max(axis=1)
-    ax.semilogy(t, np.maximum(eq, 1e-12), lw=1, label="max |q_hat - q|")
-    ax.semilogy(t, np.maximum(ee, 1e-12), lw=1, label="max |eta_hat - eta|")
-    ax.set_ylabel("estimation error")
-    ax.set_xlabel("t [s]")
-    ax.legend(loc="upper right", fontsize=6)
-    for a in axes:
-        _shade_phases(a, events)
-    axes[0].set_title(f"{scheme}: estimates (solid) and truth (dashed); clipped axes, see P3 on transients")
     return _svg(fig)
 
 

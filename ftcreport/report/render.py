@@ -17,7 +17,7 @@ import hashlib
 import json
 import math
 import tomllib
-from importlib import metadata, resources
+from importlib import resources
 from pathlib import Path
 
 import jinja2
@@ -28,7 +28,7 @@ from ..cases import SCHEME_NAMES, parse_case, with_duration
 from ..check import evaluate
 from ..errors import FtcError
 from ..model.faults import wheel_names
-from ..store import load_metrics, load_timeseries, write_atomic
+from ..store import load_timeseries, read_json, stored_metrics, write_atomic
 from . import interactive, plots
 from .replay import replay_data
 
@@ -53,18 +53,29 @@ def _fmt(x) -> str:
 
 
 def dependency_versions() -> str:
+    from ..manifest import _dist_version
+
     names = ["numpy", "scipy", "control", "filterpy", "matplotlib", "jinja2", "pydantic", "sympy", "typer"]
-    out = []
-    for n in names:
-        try:
-            out.append(f"{n} {metadata.version(n)}")
-        except metadata.PackageNotFoundError:
-            out.append(f"{n} ?")
-    return f"ftcreport {__version__}; " + ", ".join(out)
+    return f"ftcreport {__version__}; " + ", ".join(f"{n} {_dist_version(n) or '?'}" for n in names)
 
 
 def _now() -> str:
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+
+
+def write_page(page: Path, template: str, root: str, **context) -> Path:
+    """Render ``template`` with ``context``, the package version and the time, and write it to ``page`` atomically.
+
+    ``root`` is the relative path from the page to the output directory (shared assets, links).
+    """
+    html = _env().get_template(template).render(root=root, version=__version__, rendered=_now(), **context)
+    write_atomic(page, html.encode())
+    return page
+
+
+def figure(fig_id: str, caption: str, **drawing) -> dict:
+    """A page figure: its id, its drawing (``svg=`` an SVG string or ``plotly=`` a figure spec), its caption."""
+    return {"id": fig_id, **drawing, "caption": caption}
 
 
 def _after_max(m: dict) -> float | None:
@@ -73,10 +84,7 @@ def _after_max(m: dict) -> float | None:
 
 
 def _record(out: Path, name: str) -> dict | None:
-    try:
-        return json.loads((out / name / "case.json").read_text())
-    except (OSError, ValueError):
-        return None
+    return read_json(out / name / "case.json")
 
 
 def render_case(out: Path, name: str) -> Path | None:
@@ -85,13 +93,12 @@ def render_case(out: Path, name: str) -> Path | None:
     rec = _record(out, name)
     if rec is None:
         return None
-    env = _env()
     page = out / name / "index.html"
     if rec.get("status") == "error" or not (out / name / "case.toml").exists():
-        html = env.get_template("case.html").render(
-            root="../",
-            version=__version__,
-            rendered=_now(),
+        return write_page(
+            page,
+            "case.html",
+            "../",
             name=name,
             description=rec.get("error", ""),
             n="?",
@@ -114,8 +121,6 @@ def render_case(out: Path, name: str) -> Path | None:
             simulated=rec.get("time", "-"),
             case_text=rec.get("source_text", ""),
         )
-        write_atomic(page, html.encode())
-        return page
     stored = out / name / "case.toml"
     try:
         text = stored.read_text(encoding="utf-8")
@@ -129,10 +134,7 @@ def render_case(out: Path, name: str) -> Path | None:
     if rec.get("duration_override"):
         case = with_duration(case, rec["duration_override"])
     runs, series = [], {}
-    for s in SCHEME_NAMES:
-        m = load_metrics(out, name, s)
-        if m is None:
-            continue
+    for s, m in stored_metrics(out, name).items():
         m = dict(m)
         m["after_max"] = _after_max(m)
         sm = m.get("singularity_margin_min")
@@ -164,38 +166,38 @@ def render_case(out: Path, name: str) -> Path | None:
         d = case.robots.values("d")
         b = case.robots.values("b")[0]
         figures.append(
-            {
-                "id": "paths",
-                "svg": plots.paths_svg(series, d, events, b),
-                "caption": "Path of the last robot's axle midpoint P_n for every scheme over the reference.",
-            }
+            figure(
+                "paths",
+                "Path of the last robot's axle midpoint P_n for every scheme over the reference.",
+                svg=plots.paths_svg(series, d, events, b),
+            )
         )
         interactive.ensure_plotly(out)
         figures.append(
-            {
-                "id": "errors",
-                "plotly": interactive.errors_fig(series, events),
-                "caption": "Tracking errors per scheme (log scale; hover for values, drag to zoom, double-click to "
+            figure(
+                "errors",
+                "Tracking errors per scheme (log scale; hover for values, drag to zoom, double-click to "
                 "reset); fault phases shaded, events dotted.",
-            }
+                plotly=interactive.errors_fig(series, events),
+            )
         )
         main = next((s for s in (*compare.CONTESTANTS, "oracle") if s in series), next(iter(series)))
         figures.append(
-            {
-                "id": "torques",
-                "plotly": interactive.torques_fig(series, list(names), events, main),
-                "caption": "Applied wheel torques; the menu at the top right picks the scheme.",
-            }
+            figure(
+                "torques",
+                "Applied wheel torques; the menu at the top right picks the scheme.",
+                plotly=interactive.torques_fig(series, list(names), events, main),
+            )
         )
         if "switching" in series and "selected" in series["switching"]:
             pats = next((m.get("patterns") for m in runs if m["scheme"] == "switching"), None)
             if pats:
                 figures.append(
-                    {
-                        "id": "switching",
-                        "plotly": interactive.switching_fig(series["switching"], pats, events),
-                        "caption": "Applied model index against the true failure pattern.",
-                    }
+                    figure(
+                        "switching",
+                        "Applied model index against the true failure pattern.",
+                        plotly=interactive.switching_fig(series["switching"], pats, events),
+                    )
                 )
         for est in ("adaptive", "adaptive_frozen", "active", "active_ukf"):
             if est not in series:
@@ -212,14 +214,14 @@ def render_case(out: Path, name: str) -> Path | None:
                 "weakly identifiable in steady tracking; the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is "
                 "what the data determine (P3)."
             )
-            figures.append({"id": est, "plotly": spec, "caption": cap})
+            figures.append(figure(est, cap, plotly=spec))
         figures.extend(_thesis_figures(case, series, list(names), events))
         figures.append(
-            {
-                "id": "articulation",
-                "svg": plots.articulation_svg(series, events),
-                "caption": "Articulation angles with the singular configuration at +/-90 deg.",
-            }
+            figure(
+                "articulation",
+                "Articulation angles with the singular configuration at +/-90 deg.",
+                svg=plots.articulation_svg(series, events),
+            )
         )
     analysis = _analysis(case, names)
     if analysis is not None:
@@ -236,7 +238,10 @@ def render_case(out: Path, name: str) -> Path | None:
         )
     if analysis is not None and analysis.get("pole_tables"):
         analysis["pole_groups"] = _group_tables(analysis["pole_tables"])
-    html = env.get_template("case.html").render(
+    return write_page(
+        page,
+        "case.html",
+        "../",
         verdict=verdict,
         verdict_rows=_verdict_rows(verdict) if verdict else [],
         not_run=rec.get("not_run", {}),
@@ -244,9 +249,6 @@ def render_case(out: Path, name: str) -> Path | None:
         replay_schemes=list(replay["schemes"]) if replay else [],
         scheme_colors=plots.SCHEME_COLORS,
         plotly_src="../" + interactive.ASSET,
-        root="../",
-        version=__version__,
-        rendered=_now(),
         name=name,
         analysis=analysis,
         diagnosis=diagnosis,
@@ -273,8 +275,6 @@ def render_case(out: Path, name: str) -> Path | None:
         case_text=text,
         manifest=_manifest(out, name),
     )
-    write_atomic(page, html.encode())
-    return page
 
 
 def _thesis_figures(case, series: dict, names: list[str], events: list[float]) -> list[dict]:
@@ -286,28 +286,28 @@ def _thesis_figures(case, series: dict, names: list[str], events: list[float]) -
     active = [s for s in ("active", "active_ukf") if s in series and "q_hat" in series[s]]
     main = active[0] if active else ("switching" if "switching" in series else next(iter(series)))
     figs.append(
-        {
-            "id": "velocities",
-            "svg": plots.velocities_svg(series[main], build_plant_chain(case), events, main),
-            "caption": f"Linear and angular velocity of each robot, {main} scheme, from the logged q and eta "
+        figure(
+            "velocities",
+            f"Linear and angular velocity of each robot, {main} scheme, from the logged q and eta "
             "through the chain kinematics (thesis Figs 4.7/4.8, 4.17/4.18).",
-        }
+            svg=plots.velocities_svg(series[main], build_plant_chain(case), events, main),
+        )
     )
     for act in active:
         figs.append(
-            {
-                "id": f"{act}-control",
-                "svg": plots.control_torque_svg(series[act], names, events, act, case.plant.saturation),
-                "caption": f"{act}: commanded control u against the applied torque tau = sigma sat(u) + ubar, "
+            figure(
+                f"{act}-control",
+                f"{act}: commanded control u against the applied torque tau = sigma sat(u) + ubar, "
                 "per robot (thesis Figs 4.5/4.6, 4.14-4.16).",
-            }
+                svg=plots.control_torque_svg(series[act], names, events, act, case.plant.saturation),
+            )
         )
         figs.append(
-            {
-                "id": f"{act}-path",
-                "svg": plots.estimated_path_svg(series[act], act),
-                "caption": f"{act}: reference, true and estimated (q_hat) path of P_n (thesis Fig. 4.9a).",
-            }
+            figure(
+                f"{act}-path",
+                f"{act}: reference, true and estimated (q_hat) path of P_n (thesis Fig. 4.9a).",
+                svg=plots.estimated_path_svg(series[act], act),
+            )
         )
     return figs
 
@@ -321,10 +321,7 @@ def _claims(name: str, case, runs: list[dict]) -> list:
 
 def _manifest(out: Path, name: str) -> dict | None:
     """The case's provenance manifest (``<case>/manifest.json``, written by batch and run), or None."""
-    try:
-        m = json.loads((out / name / "manifest.json").read_text())
-    except (OSError, ValueError):
-        return None
+    m = read_json(out / name / "manifest.json")
     return m if isinstance(m, dict) and "ftcreport" in m else None
 
 
@@ -341,7 +338,6 @@ def _manifest_stamp(out: Path, name: str) -> bytes:
 def _analysis(case, names) -> dict | None:
     """Linearized analyses for the case page (None if they cannot be computed)."""
     from ..analysis import analyze_case
-    from ..errors import FtcError
 
     try:
         res = analyze_case(case)
@@ -364,24 +360,23 @@ def _analysis_figures(analysis: dict, series: dict, events: list[float], duratio
         step = max(1, len(ft["times"]) // 60)
         loci = list(zip(ft["times"][::step], ft["poles"][::step], strict=True))
         figs.append(
-            {
-                "id": "pole-loci",
-                "svg": plots.pole_loci_svg(loci, "t [s]"),
-                "caption": "Frozen-time poles of the closed-loop error dynamics along the reference "
-                "(red line: imaginary axis).",
-            }
+            figure(
+                "pole-loci",
+                "Frozen-time poles of the closed-loop error dynamics along the reference (red line: imaginary axis).",
+                svg=plots.pole_loci_svg(loci, "t [s]"),
+            )
         )
     ch = analysis.get("chained")
     if ch:
         first = next(iter(ch.values()))
         loci = [(f["phi_deg"], f["poles"]) for f in first["frozen"]]
         figs.append(
-            {
-                "id": "pole-loci",
-                "svg": plots.pole_loci_svg(loci, "theta_nd - psi [deg]"),
-                "caption": "Frozen poles of the chained-form loop over one re-anchoring period; the Floquet "
+            figure(
+                "pole-loci",
+                "Frozen poles of the chained-form loop over one re-anchoring period; the Floquet "
                 f"rate of the period is {first['floquet_rate']:.4g} 1/s.",
-            }
+                svg=plots.pole_loci_svg(loci, "theta_nd - psi [deg]"),
+            )
         )
     rate = analysis.get("predicted_decay_rate")
     if rate and series:
@@ -393,12 +388,12 @@ def _analysis_figures(analysis: dict, series: dict, events: list[float], duratio
             fitted, ta, tb = fit
             analysis["fitted_decay"] = {"scheme": scheme, "rate": fitted, "from": ta, "to": tb}
             figs.append(
-                {
-                    "id": "decay",
-                    "svg": plots.decay_svg(series[scheme], rate, (ta, tb), scheme),
-                    "caption": f"Predicted envelope (rate {rate:.4g} 1/s) against the simulated error of the "
+                figure(
+                    "decay",
+                    f"Predicted envelope (rate {rate:.4g} 1/s) against the simulated error of the "
                     f"{scheme} run before the first fault (fitted rate {fitted:.4g} 1/s over {ta:.0f}-{tb:.0f} s).",
-                }
+                    svg=plots.decay_svg(series[scheme], rate, (ta, tb), scheme),
+                )
             )
     return figs
 
@@ -486,14 +481,9 @@ def render_index(out: Path) -> Path:
             "error": rec.get("error") if rec.get("status") == "error" else None,
             "runs": {},
         }
-        metrics = {}
-        for s in SCHEME_NAMES:
-            m = load_metrics(out, name, s)
-            if m is None:
-                continue
-            metrics[s] = m
-            n_runs += 1
-            n_ok += m.get("status") == "ok"
+        metrics = stored_metrics(out, name)
+        n_runs += len(metrics)
+        n_ok += sum(m.get("status") == "ok" for m in metrics.values())
         checks = evaluate(name, rec.get("thresholds", {}), metrics) if rec.get("thresholds") else []
         for s, m in metrics.items():
             mine = [c for c in checks if c.scheme == s]
@@ -512,34 +502,25 @@ def render_index(out: Path) -> Path:
             entry["verdict"] = v
         cases.append(entry)
     board = compare.scoreboard(verdicts, [s for s in SCHEME_NAMES if any(s in c["runs"] for c in cases)])
-    html = (
-        _env()
-        .get_template("index.html")
-        .render(
-            root="",
-            version=__version__,
-            rendered=_now(),
-            cases=cases,
-            board=board,
-            specs=compare.HEADLINE,
-            fmt_ratio=compare.fmt_ratio,
-            schemes=[s for s in SCHEME_NAMES if any(s in c["runs"] or s in c.get("not_run", {}) for c in cases)],
-            n_runs=n_runs,
-            n_ok=n_ok,
-            n_bad=n_runs - n_ok,
-            n_pass=n_pass,
-            n_fail=n_fail,
-        )
+    return write_page(
+        out / "index.html",
+        "index.html",
+        "",
+        cases=cases,
+        board=board,
+        specs=compare.HEADLINE,
+        fmt_ratio=compare.fmt_ratio,
+        schemes=[s for s in SCHEME_NAMES if any(s in c["runs"] or s in c.get("not_run", {}) for c in cases)],
+        n_runs=n_runs,
+        n_ok=n_ok,
+        n_bad=n_runs - n_ok,
+        n_pass=n_pass,
+        n_fail=n_fail,
     )
-    page = out / "index.html"
-    write_atomic(page, html.encode())
-    return page
 
 
 def _stored_case(out: Path, name: str, rec: dict):
     """The case as stored beside its runs (None when it cannot be read)."""
-    from ..errors import FtcError
-
     try:
         case = parse_case(tomllib.loads((out / name / "case.toml").read_text()), rec.get("source", name))
         if rec.get("duration_override"):

@@ -68,6 +68,7 @@ class Built:
             noise_q=[nz.position, nz.position] + [nz.heading] * n,
             noise_eta=[nz.velocity, nz.velocity],
             seed=nz.seed,
+            motors=case.motor_params(),
         )
         self.q0, self.eta0 = initial_state(case, self.reference)
         s = case.simulation

@@ -232,6 +232,10 @@ class Plant:
         Standard deviations of the noise on the measured eta [m/s, rad/s].
     seed : int
         Seed of the noise generator (runs are reproducible).
+    motors : MotorParams or sequence of MotorParams, optional
+        A DC motor per wheel (one set per robot, leader first), thesis (2.26)-(2.29): the command
+        becomes armature voltages (the driver's static inversion, ftcreport.fast.motor) and the
+        wheel torque follows the currents.  None: the ideal torque plant (tau = command).
     """
 
     def __init__(
@@ -242,8 +246,10 @@ class Plant:
         noise_q=None,
         noise_eta=None,
         seed: int = 0,
+        motors=None,
     ):
         self.chain = chain
+        self.motors = motors
         self.faults = faults if faults is not None else FaultSchedule(chain.n)
         if self.faults.n != chain.n:
             raise ModelError(f"faults: schedule is for {self.faults.n} robots, chain has {chain.n}")
@@ -363,6 +369,11 @@ def simulate(
             return run
         if engine == "compiled":
             raise ModelError(f"engine: {type(controller).__name__} has no compiled counterpart")
+    if plant.motors is not None:
+        raise ModelError(
+            f"actuators: the DC-motor plant runs on the compiled engine; {type(controller).__name__} "
+            f"{'has no compiled counterpart' if engine != 'python' else 'was asked to run in the Python loop'}"
+        )
     if settings.sample_time is not None:
         raise ModelError(
             f"sample_time: sampled control runs on the compiled engine; {type(controller).__name__} "

@@ -362,6 +362,32 @@ def _stop(info: np.ndarray, where: int, t_state: float, t_next: float, settings,
 
 
 # --------------------------------------------------------------------------- the loop
+def _no_motors():
+    from .motor import Motors
+
+    z = np.zeros(0)
+    return Motors(z, z, z, z, z, z, z, z, z, z)
+
+
+def _initial_currents(spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x: np.ndarray, npl: int) -> np.ndarray:
+    """The motors' currents at t0: quasi-static for the first command (its wheel torque is the command)."""
+    from . import motor as Mo
+
+    nq = plant.chain.n_q
+    pc = spec.chain
+    info = np.zeros(4)
+    q, eta = x[:nq], x[nq : nq + 2]
+    C = F.new_cache(pc.n)
+    u = spec.law(spec.P, spec.kin, spec.ref, C, pc, t0, q, eta, x[npl:], sigma, ubar, info, np.zeros(0))[0]
+    if info[0] != 0 or not np.all(np.isfinite(u)):
+        return np.zeros(npl - nq - 2)  # the loop reports the law's failure at its first step
+    sat = plant.saturation
+    tau_c = sigma * (u if sat is None else np.clip(u, -sat, sat)) + ubar
+    omega = F.reduced(_chain(plant.chain.params), q, eta)[3].T @ eta
+    v = Mo.driver_voltage(mo, tau_c, omega, fm)
+    return Mo.quasi_static_current(mo, v, omega, fm)
+
+
 def _cache_dir() -> Path:
     """Where the generated loop modules live: $FTCREPORT_CACHE, else beside the package, else ~/.cache."""
     env = os.environ.get("FTCREPORT_CACHE")
@@ -456,11 +482,24 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     else:
         noise = np.zeros((1, nq + 2))
 
+    # DC motors: their currents follow eta in the state, their fault tables follow the segments
+    if plant.motors is not None:
+        from ..model.actuators import pack as pack_motors
+
+        mo = pack_motors(plant.motors, chain.n)
+        fmot = np.array([plant.faults.motor(float(grid[k])) for k in firsts], dtype=float).reshape(-1, nw, 4)
+    else:
+        mo = _no_motors()
+        fmot = np.zeros((len(firsts), 0, 4))
+    nm = mo.R_a.shape[0]
+    npl = nq + 2 + nm
     xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
-    x = np.concatenate((q0, eta0, xc0))
+    x = np.concatenate((q0, eta0, np.zeros(nm), xc0))
     info = np.zeros(4)
     if spec.start:  # the first command of a sampled scheme, at t0 (h = 0: no filter step)
-        spec.disc(spec.P, spec.kin, spec.ref, F.new_cache(chain.n), float(grid[0]), q0, eta0, x[nq + 2 :], info)
+        spec.disc(spec.P, spec.kin, spec.ref, F.new_cache(chain.n), float(grid[0]), q0, eta0, x[npl:], info)
+    if nm and info[0] == 0:
+        x[nq + 2 : npl] = _initial_currents(spec, plant, mo, fsig[0], fubar[0], fmot[0], float(grid[0]), x, npl)
     # The kernels log every step of a chunk (about 1 % of the run) into chunk buffers; after each chunk
     # the light signals go to the full-rate metric stream and every signal of the logged steps
     # (log_every) to the saved log, so the heavy ones (xc, switching costs, weights) are never held
@@ -475,6 +514,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     lsig = np.full((rows, nw), np.nan)
     lubar = np.full((rows, nw), np.nan)
     lxc = np.full((rows, nc), np.nan)
+    lia = np.full((rows, nm), np.nan)
     lmeas = np.full((rows if plant.noisy else 0, nq + 2), np.nan)
     lsg = np.full((rows, spec.n_sig), np.nan)
     lt = np.full(rows, np.nan)
@@ -490,10 +530,10 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
         ]
     )
     sat = NAN if plant.saturation is None else float(plant.saturation)
-    diag = np.zeros(nq + 2 + nc)
+    diag = np.zeros(npl + nc)
     stiff = getattr(controller, "stiff_diagonal", None)
     if stiff is not None:
-        diag[nq + 2 :] = np.asarray(stiff, dtype=float)
+        diag[npl:] = np.asarray(stiff, dtype=float)
     method = 0 if settings.method == "rk4" else 1
     lim = math.sin(settings.singularity_margin)
     pp = _chain(chain.params)
@@ -510,6 +550,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     u_h = np.zeros(0 if ts is None else nw)
     dx_h = np.zeros(nc)
     sig_h = np.zeros(spec.n_sig)
+    v_h = np.zeros(0 if ts is None else nm)
     loop = loop_for(spec.law, spec.disc)
     wall0 = _time.perf_counter()
     if info[0] != 0:  # the first command failed (at t0, before any step)
@@ -522,10 +563,10 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
                 x, k, k1, every_step, 0,
                 lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share, grow, growth,
-                hold_t, u_h, dx_h, sig_h,
+                lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h,
             )  # fmt: skip
             if li:
-                bufs = (lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg)
+                bufs = (lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lia)
                 si = _collect(spec, plant, nq, k, li, is_logged, bufs, stream, si, n_steps + 1, log_parts)
             if info[0] != 0:
                 status, reason, t_end = _stop(
@@ -569,11 +610,13 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
 
 def _chunk_signals(spec: Spec, plant, nq: int, rows, bufs, costs: bool = True) -> dict[str, np.ndarray]:
     """Every logged array of the chunk buffers' ``rows`` (a slice: views; an index array: copies), by name."""
-    lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg = bufs
+    lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lia = bufs
     out = {
         "t": lt[rows], "q": lq[rows], "eta": leta[rows], "u": lu[rows], "tau": ltau[rows], "sigma": lsig[rows],
         "ubar": lubar[rows], "xc": lxc[rows],
     }  # fmt: skip
+    if lia.shape[1]:
+        out["i_a"] = lia[rows]
     meas = lmeas[rows] if plant.noisy else np.concatenate((out["q"], out["eta"]), axis=1)
     out |= _split_signals(spec, lsg[rows], out["xc"], meas, nq, costs)
     if plant.noisy:

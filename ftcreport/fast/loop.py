@@ -38,79 +38,160 @@ from ftcreport.fast.kernels import (
     new_cache,
     no_discrete,
     plant_rhs,
+    reduced,
     tracking_law,
 )
+from ftcreport.fast.motor import driver_voltage, fault_equivalent, motor_plant_rhs, reset_current
 
 LAW, DISC = tracking_law, no_discrete  # LOOP-BINDING
 
 
 @jit
-def _deriv(P, ctx, t, x, sigma, ubar, nz, info, sig):
+def _motors(ctx, x, tau_c, fm, v_h, qm, etam):
+    """(qdot, etadot, i_dot, tau_w, v_a) of the chain driven by its DC motors, (2.26)-(2.29) with E19.
+
+    The driver turns the commanded torques tau_c into armature voltages by its static inversion at
+    the measured wheel speeds (fast.motor.driver_voltage), or holds ``v_h`` (sampled control).
+    """
+    pc, pp, nq, mo, nm = ctx[3], ctx[4], ctx[5], ctx[8], ctx[9]
+    if v_h.shape[0] > 0:
+        v = v_h
+    else:
+        Bm = reduced(pc, qm, etam)[3]
+        # the driver's wheel speeds: Bbar(q)^T eta at the measured state
+        v = driver_voltage(mo, tau_c, _mv(Bm.T, etam), fm)
+    qdot, etadot, idot, tau_w = motor_plant_rhs(pp, mo, x[:nq], x[nq : nq + 2], x[nq + 2 : nq + 2 + nm], v, fm)
+    return qdot, etadot, idot, tau_w, v
+
+
+@jit
+def true_faults(ctx, x, sigma, ubar, fm):
+    """The (sigma, ubar) the chain sees: the command faults composed with the motors' equivalents.
+
+    tau_w ~ s_m (sigma u + ubar) + u_m, so sigma_true = s_m sigma, ubar_true = s_m ubar + u_m
+    (fast.motor.fault_equivalent at the wheel speeds of x); without motors, (sigma, ubar).
+    """
+    if ctx[9] == 0:
+        return sigma, ubar
+    pp, nq = ctx[4], ctx[5]
+    Bb = reduced(pp, x[:nq], x[nq : nq + 2])[3]
+    sm, um = fault_equivalent(ctx[8], fm, _mv(Bb.T, x[nq : nq + 2]))
+    return sm * sigma, sm * ubar + um
+
+
+@jit
+def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
     """(f, u, tau) of the closed loop (sim.simulate's deriv).
 
-    ``ctx = (Kp, R, C, pc, pp, nq, sat, share)``; ``share``: the controller's
+    ``ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)``; ``share``: the controller's
     model is the plant's and there is no noise, so the reduced matrices the
-    controller computed at (q, eta) are the plant's.
+    controller computed at (q, eta) are the plant's; ``nm``: the motors' currents in x
+    (0: the ideal torque plant).
     """
-    Kp, R, C, pc, pp, nq, sat, share = ctx
+    Kp, R, C, pc, pp, nq, sat, share, _mo, nm = ctx
     q = x[:nq]
     eta = x[nq : nq + 2]
-    xc = x[nq + 2 :]
+    xc = x[nq + 2 + nm :]
     C.f[3] = 0.0
-    u, xcdot = LAW(P, Kp, R, C, pc, t, q + nz[:nq], eta + nz[nq:], xc, sigma, ubar, info, sig)
+    qm = q + nz[:nq]
+    etam = eta + nz[nq:]
+    st, ut = sigma, ubar
+    if nm > 0:  # the oracle is told the faults the chain sees, motor faults included
+        st, ut = true_faults(ctx, x, sigma, ubar, fm)
+    u, xcdot = LAW(P, Kp, R, C, pc, t, qm, etam, xc, st, ut, info, sig)
     f = np.zeros(x.shape[0])
     if info[0] != 0:
         return f, u, u
     us = u if math.isnan(sat) else _clip(u, -sat, sat)
     tau = sigma * us + ubar
-    if share and C.f[3] == 1.0:
+    if nm > 0:
+        qdot, etadot, idot, tau, _v = _motors(ctx, x, tau, fm, np.zeros(0), qm, etam)
+        f[nq + 2 : nq + 2 + nm] = idot
+    elif share and C.f[3] == 1.0:
         qdot = _mv(C.Sm, eta)
         etadot = _solve2(C.M1, _mv(C.Bb, tau) - _mv(C.M2, eta) - C.Cb)
     else:
         qdot, etadot = plant_rhs(pp, q, eta, tau)
     f[:nq] = qdot
     f[nq : nq + 2] = etadot
-    f[nq + 2 :] = xcdot
+    f[nq + 2 + nm :] = xcdot
     return f, u, tau
+
+
+@jit
+def _solve_small(A, b):
+    """A x = b for the W-method's small system: closed form for 2 x 2, else Gaussian elimination (partial pivoting)."""
+    m = b.shape[0]
+    if m == 2:
+        return _solve2(A, b)
+    M = A.copy()
+    y = b.copy()
+    for c in range(m):
+        p = c
+        for r in range(c + 1, m):
+            if abs(M[r, c]) > abs(M[p, c]):
+                p = r
+        if p != c:
+            for j in range(m):
+                M[c, j], M[p, j] = M[p, j], M[c, j]
+            y[c], y[p] = y[p], y[c]
+        for r in range(c + 1, m):
+            f = M[r, c] / M[c, c]
+            for j in range(c, m):
+                M[r, j] -= f * M[c, j]
+            y[r] -= f * y[c]
+    out = np.empty(m)
+    for c in range(m - 1, -1, -1):
+        acc = y[c]
+        for j in range(c + 1, m):
+            acc -= M[c, j] * out[j]
+        out[c] = acc / M[c, c]
+    return out
 
 
 ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 
 @jit
-def _plant_deriv(ctx, x, u, sigma, ubar):
+def _plant_deriv(ctx, x, u, sigma, ubar, fm, v_h):
     """(f, u, tau) with the control held (sampled control): the plant's rates, the controller's frozen.
 
-    tau = sigma o sat(u) + ubar (2.102); qdot = S(q) eta, Mbar1 etadot = Bbar tau - Mbar2 eta - Cbar (2.70).
+    tau = sigma o sat(u) + ubar (2.102); qdot = S(q) eta, Mbar1 etadot = Bbar tau - Mbar2 eta - Cbar (2.70);
+    with motors, the held armature voltages v_h drive (2.28)-(2.29).
     """
-    pp, nq, sat = ctx[4], ctx[5], ctx[6]
+    pp, nq, sat, nm = ctx[4], ctx[5], ctx[6], ctx[9]
     us = u if math.isnan(sat) else _clip(u, -sat, sat)
     tau = sigma * us + ubar
-    qdot, etadot = plant_rhs(pp, x[:nq], x[nq : nq + 2], tau)
     f = np.zeros(x.shape[0])
+    if nm > 0:
+        qdot, etadot, idot, tau, _v = _motors(ctx, x, tau, fm, v_h, x[:nq], x[nq : nq + 2])
+        f[nq + 2 : nq + 2 + nm] = idot
+    else:
+        qdot, etadot = plant_rhs(pp, x[:nq], x[nq : nq + 2], tau)
     f[:nq] = qdot
     f[nq : nq + 2] = etadot
     return f, u, tau
 
 
 @jit
-def _stage(P, ctx, t, x, sigma, ubar, nz, info, u_h):
+def _stage(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
     """The rates at a trial stage: the whole loop's (continuous control) or the plant's with u held."""
     if u_h.shape[0] > 0:
-        return _plant_deriv(ctx, x, u_h, sigma, ubar)[0]
-    return _deriv(P, ctx, t, x, sigma, ubar, nz, info, np.zeros(0))[0]
+        return _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)[0]
+    return _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, np.zeros(0))[0]
 
 
 @jit
-def sample(P, ctx, t, x, sigma, ubar, nz, info, hold_t, u_h, dx_h, sig_h):
+def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h):
     """One sample of a discrete-time controller at t (sampled control, period T_s = hold_t[2]).
 
     The controller's state is advanced over the last sample by a forward-Euler step of its rates
     (held since that sample), then its discrete updates run, then the law: its u is held (zero-order
-    hold) until the next sample, its rates and logged signals too.  Measurements: q + noise, eta + noise.
+    hold) until the next sample, its rates and logged signals too, and with motors the driver's
+    voltages.  Measurements: q + noise, eta + noise.
     """
-    Kp, R, C, pc, nq = ctx[0], ctx[1], ctx[2], ctx[3], ctx[5]
-    xc = x[nq + 2 :]
+    Kp, R, C, pc, nq, sat, nm = ctx[0], ctx[1], ctx[2], ctx[3], ctx[5], ctx[6], ctx[9]
+    xc = x[nq + 2 + nm :]
     q = x[:nq] + nz[:nq]
     eta = x[nq : nq + 2] + nz[nq:]
     if not math.isnan(hold_t[1]):
@@ -125,9 +206,13 @@ def sample(P, ctx, t, x, sigma, ubar, nz, info, hold_t, u_h, dx_h, sig_h):
         if info[0] != 0:
             return
     C.f[3] = 0.0
-    u, dx = LAW(P, Kp, R, C, pc, t, q, eta, xc, sigma, ubar, info, sig_h)
+    st, ut = true_faults(ctx, x, sigma, ubar, fm)
+    u, dx = LAW(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig_h)
     u_h[:] = u
     dx_h[:] = dx
+    if nm > 0:
+        us = u if math.isnan(sat) else _clip(u, -sat, sat)
+        v_h[:] = _motors(ctx, x, sigma * us + ubar, fm, np.zeros(0), q, eta)[4]
     hold_t[0] = t + hold_t[2]
     hold_t[1] = t
 
@@ -138,7 +223,7 @@ def run_steps(
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
     x, k0, k1, is_logged, li,
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
-    hold_t, u_h, dx_h, sig_h,
+    lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h,
 ):  # fmt: skip
     """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, where).
 
@@ -150,12 +235,17 @@ def run_steps(
     Sampled control when ``u_h`` is not empty: ``hold_t = [next sample time, last sample time (nan:
     none yet), T_s]``; the law runs at the samples (:func:`sample`) and the plant integrates with
     its u held; ``u_h, dx_h, sig_h`` carry the held control, rates and signals across calls.
+
+    DC motors when ``mo`` has wheels: the state is [q, eta, i_a, xc]; ``fmot`` holds the motor-fault
+    table of each fault segment (fast.motor), ``v_h`` the held armature voltages.
     """
     nq = pp.n + 2
     nx = x.shape[0]
     sig_buf = np.zeros(n_sig)
     C = new_cache(pp.n)
-    ctx = (Kp, R, C, pc, pp, nq, sat, share)
+    nm = mo.R_a.shape[0]
+    ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)
+    npl = nq + 2 + nm  # the plant's states: q, eta, the motors' currents
     empty = np.zeros(0)
     noisy = noise.shape[0] > 1
     nz = noise[0]
@@ -164,6 +254,9 @@ def run_steps(
         t = grid[k]
         sigma = fsig[fidx[k]]
         ubar = fubar[fidx[k]]
+        fm = fmot[fidx[k]]
+        if nm > 0 and k > 0 and fidx[k] != fidx[k - 1]:  # a winding opened: its current drops to 0
+            x[nq + 2 : npl] = reset_current(fm, x[nq + 2 : npl])
         if noisy:
             nz = noise[k]
         for i in range(nx):
@@ -177,13 +270,13 @@ def run_steps(
         want = is_logged[k]
         if sampled:
             if t >= hold_t[0] - 1e-9 * hold_t[2]:
-                sample(P, ctx, t, x, sigma, ubar, nz, info, hold_t, u_h, dx_h, sig_h)
+                sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h)
                 if info[0] != 0:
                     return x, k, li, AT_STATE
-            f0, u, tau = _plant_deriv(ctx, x, u_h, sigma, ubar)
+            f0, u, tau = _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)
             sig_buf[:] = sig_h
         else:
-            f0, u, tau = _deriv(P, ctx, t, x, sigma, ubar, nz, info, sig_buf if want else empty)
+            f0, u, tau = _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig_buf if want else empty)
         if info[0] != 0:
             return x, k, li, AT_STATE
         ok = True
@@ -220,9 +313,13 @@ def run_steps(
             leta[li] = x[nq : nq + 2]
             lu[li] = u
             ltau[li] = tau
-            lsig[li] = sigma
-            lubar[li] = ubar
-            lxc[li] = x[nq + 2 :]
+            if nm > 0:  # the faults the chain sees (motor faults by their equivalents) and the currents
+                lsig[li], lubar[li] = true_faults(ctx, x, sigma, ubar, fm)
+                lia[li] = x[nq + 2 : npl]
+            else:
+                lsig[li] = sigma
+                lubar[li] = ubar
+            lxc[li] = x[npl:]
             if lmeas.shape[0] > 0:
                 lmeas[li] = x[: nq + 2] + nz
             lsg[li] = sig_buf
@@ -231,45 +328,47 @@ def run_steps(
             return x, k, li, AT_STATE
         h = grid[k + 1] - t
         if method == 0:
-            f2 = _stage(P, ctx, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, nz, info, u_h)
+            f2 = _stage(P, ctx, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
-            f3 = _stage(P, ctx, t + 0.5 * h, x + 0.5 * h * f2, sigma, ubar, nz, info, u_h)
+            f3 = _stage(P, ctx, t + 0.5 * h, x + 0.5 * h * f2, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
-            f4 = _stage(P, ctx, t + h, x + h * f3, sigma, ubar, nz, info, u_h)
+            f4 = _stage(P, ctx, t + h, x + h * f3, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
             xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
         else:
-            F = np.empty((nx, 2))
-            for j in range(2):
+            # W-method Jacobian: exact columns (finite differences) for eta and the motors' currents,
+            # the stiff diagonal for the controller's linear filters (Sherman-Morrison-Woodbury solve)
+            m = 2 + nm
+            F = np.empty((nx, m))
+            for j in range(m):
                 c = nq + j
                 delta = 1e-7 * max(1.0, abs(x[c]))
                 xp = x.copy()
                 xp[c] += delta
-                fp = _stage(P, ctx, t, xp, sigma, ubar, nz, info, u_h)
+                fp = _stage(P, ctx, t, xp, sigma, ubar, fm, nz, info, u_h, v_h)
                 if info[0] != 0:
                     return x, k, li, AT_TRIAL
                 F[:, j] = (fp - f0) / delta
             gh = ROS2_GAMMA * h
             dinv = 1.0 / (1.0 - gh * diag)
-            DF = np.empty((nx, 2))
+            DF = np.empty((nx, m))
             for i in range(nx):
-                DF[i, 0] = dinv[i] * F[i, 0]
-                DF[i, 1] = dinv[i] * F[i, 1]
-            small = np.empty((2, 2))
-            small[0, 0] = 1.0 - gh * DF[nq, 0]
-            small[0, 1] = -gh * DF[nq, 1]
-            small[1, 0] = -gh * DF[nq + 1, 0]
-            small[1, 1] = 1.0 - gh * DF[nq + 1, 1]
+                for j in range(m):
+                    DF[i, j] = dinv[i] * F[i, j]
+            small = np.empty((m, m))
+            for i in range(m):
+                for j in range(m):
+                    small[i, j] = (1.0 if i == j else 0.0) - gh * DF[nq + i, j]
             rd = dinv * f0
-            kk1 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
-            f2 = _stage(P, ctx, t + h, x + h * kk1, sigma, ubar, nz, info, u_h)
+            kk1 = rd + gh * (DF @ _solve_small(small, rd[nq : nq + m]))
+            f2 = _stage(P, ctx, t + h, x + h * kk1, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
             rd = dinv * (f2 - 2.0 * kk1)
-            kk2 = rd + gh * (DF @ _solve2(small, rd[nq : nq + 2]))
+            kk2 = rd + gh * (DF @ _solve_small(small, rd[nq : nq + m]))
             xn = x + 1.5 * h * kk1 + 0.5 * h * kk2
         kind = _step_jump(pp, x, xn, nq, lim, max_speed, max_position, growth[3], growth[4], info)
         if kind != 0:
@@ -280,7 +379,7 @@ def run_steps(
             x = xn
             continue
         # discrete updates on the new state (xn is a new array: updated in place, it becomes the state)
-        xcn = xn[nq + 2 :]
+        xcn = xn[npl:]
         kin_discrete(Kp, R, C, grid[k + 1], xcn, info)
         if info[0] != 0:
             return x, k, li, AT_DISCRETE

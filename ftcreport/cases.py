@@ -29,10 +29,11 @@ from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, whe
 from .model.actuators import MAXON_RE65, MotorParams
 from .model.chain import THESIS_ROBOT
 from .model.faults import MOTOR_KINDS, motor_row
+from .schemes import BUILT_IN
 
 __all__ = ["SCHEME_NAMES", "Case", "case_hash", "case_schema", "did_you_mean", "load_case", "parse_case"]
 
-SCHEME_NAMES = ("nominal", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf", "oracle")
+SCHEME_NAMES = BUILT_IN  # the built-in schemes (ftcreport.schemes)
 
 
 def _f(default: Any, description: str, unit: str, **kw: Any) -> Any:

@@ -113,16 +113,18 @@ class Scheme:
 
 _REGISTRY: dict[str, Scheme] = {}
 
+#: the built-in schemes (ftcreport.runner.make_controller builds them; case files name them)
+BUILT_IN = ("nominal", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf", "oracle")
+
 
 def register(scheme: Scheme) -> Scheme:
     """Register a scheme under its name (a safe name, not a built-in one); returns it."""
-    from .cases import SCHEME_NAMES
     from .limits import NAME_PATTERN
 
     if not NAME_PATTERN.fullmatch(scheme.name):
         rule = "a letter or digit, then letters, digits, '_', '.', '-' (at most 64)"
         raise ModelError(f"scheme name {scheme.name!r}: {rule}")
-    if scheme.name in SCHEME_NAMES:
+    if scheme.name in BUILT_IN:
         raise ModelError(f"scheme name {scheme.name!r} is a built-in scheme")
     old = _REGISTRY.get(scheme.name)
     if old is not None and old.law is not scheme.law and old.law.py_func.__code__ != scheme.law.py_func.__code__:

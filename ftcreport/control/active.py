@@ -58,8 +58,6 @@ class ActiveController:
         Actuator limit [N m] (thesis 5 N m); the estimator receives the clipped control.
     tau : float, optional
         Time constant [s] of the filters on the estimates (thesis 30 s); None: unfiltered.
-    compiled_law : bool
-        With a discrete estimator, evaluate the law on the compiled kernel (False: in Python).
     """
 
     def __init__(
@@ -70,7 +68,6 @@ class ActiveController:
         estimator,
         u_limit: float | None = None,
         tau: float | None = None,
-        compiled_law: bool = True,
     ) -> None:
         if tau is not None and not tau > 0:
             raise ModelError(f"tau: filter time constant must be > 0 s, got {tau}")
@@ -92,13 +89,6 @@ class ActiveController:
         self._u = slice(self._filt.stop, self._filt.stop + (nw if self.discrete_time else 0))
         self._t = slice(self._u.stop, self._u.stop + (1 if self.discrete_time else 0))
         self.n_states = self._t.stop
-        # a sampled-data (discrete) estimator runs in the Python loop; its law at the samples
-        # runs on the compiled kernel (the same law the compiled engine golden-tests)
-        self._fast_law = None
-        if self.discrete_time and compiled_law:
-            from ..fast.engine import compiled_active_law
-
-            self._fast_law = compiled_active_law(self)
         self.signal_names = (
             "eta_c",
             "z",
@@ -135,8 +125,6 @@ class ActiveController:
         """(u, the raw estimate it was computed from)."""
         e, sigma_hat, ubar_hat = self.used_estimates(q, xc)
         eta_hat = e.eta
-        if self._fast_law is not None:
-            return self._fast_law(t, q, eta_hat, xc[self._kin], sigma_hat, ubar_hat), e
         kin, eta_c_dot = self.tracking.eta_c_and_dot(t, q, eta_hat, xc[self._kin])
         Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta_hat)
         terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta_hat, eta_hat - kin.eta_c, kin, eta_c_dot, self.k_v)

@@ -222,35 +222,6 @@ def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
     return F.wheel_speeds_rows(_chain(chain.params), Q, ETA)
 
 
-def compiled_active_law(controller):
-    """(t, q, eta_hat, xk, sigma_hat, ubar_hat) -> u: ActiveController's law (4.14) on the kernels, or None."""
-    from ..errors import FtcError, SingularityError
-
-    parts = _kin_ref(controller)
-    if parts is None:
-        return None
-    kin, ref = parts
-    nw = controller.chain.n_wheels
-    law = _law(F.LAW_ACTIVE, controller, nw, u_limit=NAN if controller.u_limit is None else float(controller.u_limit))
-    pc = _chain(controller.chain.params)
-    cache = F.new_cache(pc.n)
-    info = np.zeros(4)
-
-    def law_at(t, q, eta_hat, xk, sigma_hat, ubar_hat):
-        u = F.active_u(
-            kin, ref, cache, law, pc, float(t), np.ascontiguousarray(q, dtype=float),
-            np.ascontiguousarray(eta_hat, dtype=float), np.ascontiguousarray(xk, dtype=float).reshape(-1),
-            np.ascontiguousarray(sigma_hat, dtype=float), np.ascontiguousarray(ubar_hat, dtype=float), info,
-        )  # fmt: skip
-        if info[0] != 0:
-            status, reason = _message(info, t, None, ref)
-            info[:] = 0.0
-            raise (SingularityError if status == "singular" else FtcError)(reason)
-        return u
-
-    return law_at
-
-
 # --------------------------------------------------------------------------- signals from the log
 def _split_signals(
     spec: Spec, sg: np.ndarray, xc: np.ndarray, meas: np.ndarray, nq: int, costs: bool = True

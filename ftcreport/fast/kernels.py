@@ -1432,9 +1432,3 @@ def _active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info):
     if not math.isnan(Lw.u_limit):
         u = _clip(u, -Lw.u_limit, Lw.u_limit)
     return u, kin, ecd
-
-
-@jit
-def active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info):
-    """The active law alone (for a discrete estimator running in the Python loop)."""
-    return _active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info)[0]

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time as _time
 from pathlib import Path
 from typing import NamedTuple
@@ -375,6 +376,7 @@ def _cache_dir() -> Path:
 
 
 _LOOPS: dict[tuple, object] = {}
+_LOOPS_LOCK = threading.Lock()
 
 
 def loop_for(law, disc):
@@ -390,6 +392,15 @@ def loop_for(law, disc):
     loop = _LOOPS.get(key)
     if loop is not None:
         return loop
+    with _LOOPS_LOCK:  # threads (a Dask worker's) load each loop once, never half-loaded
+        loop = _LOOPS.get(key)
+        if loop is None:
+            loop = _LOOPS[key] = _load_loop(law, disc)
+    return loop
+
+
+def _load_loop(law, disc):
+    """Write (if needed) and import the loop module bound to (law, disc); returns its run_steps."""
     import hashlib
     import importlib.util
     import inspect
@@ -421,10 +432,9 @@ def loop_for(law, disc):
     if module is None or getattr(module, "__file__", None) != str(path):
         spec = importlib.util.spec_from_file_location(name, path)
         module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
         spec.loader.exec_module(module)
-    loop = _LOOPS[key] = module.run_steps
-    return loop
+        sys.modules[name] = module  # only once loaded: numba's cache imports it by name
+    return module.run_steps
 
 
 def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, progress=None):

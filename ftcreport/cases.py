@@ -28,7 +28,18 @@ from .limits import budget_problem, name_problem
 from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
 from .model.chain import THESIS_ROBOT
 
-__all__ = ["SCHEME_NAMES", "Case", "case_hash", "case_schema", "did_you_mean", "load_case", "parse_case"]
+__all__ = [
+    "SCHEME_NAMES",
+    "Case",
+    "case_hash",
+    "case_schema",
+    "configured_schemes",
+    "did_you_mean",
+    "known_schemes",
+    "load_case",
+    "ordered_schemes",
+    "parse_case",
+]
 
 SCHEME_NAMES = ("nominal", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf", "oracle")
 
@@ -304,8 +315,24 @@ class Schemes(_Strict):
     else the thesis's).
     """
 
-    run: list[Literal[SCHEME_NAMES]] | None = _f(
-        None, "the schemes to run (default: every family, adaptive_frozen only when its table is given)", "-"
+    model_config = ConfigDict(
+        extra="allow",  # [schemes.<name>] of a registered (plug-in) scheme, validated by _plugin_tables
+        frozen=True,
+        json_schema_extra={
+            "additionalProperties": {
+                "type": "object",
+                "description": "the table of a registered scheme (a file listed in plugins), validated by its "
+                "parameter model",
+                "unit": "-",
+            }
+        },
+    )
+
+    run: list[str] | None = _f(
+        None,
+        "the schemes to run (default: every family, adaptive_frozen only when its table is given); built-in or "
+        "registered (plugins) names",
+        "-",
     )
     k_v: Gain | None = _f(None, "velocity-error gain of the default tables (default: the first table's)", "1/s")
     nominal: NominalScheme | None = _f(None, "no FTC", "-")
@@ -315,6 +342,102 @@ class Schemes(_Strict):
     active: ActiveScheme | None = _f(None, "Farza observer + (4.14)", "-")
     active_ukf: ActiveUKFScheme | None = _f(None, "UKF + (4.14)", "-")
     oracle: OracleScheme | None = _f(None, "told the true faults", "-")
+
+    @field_validator("run")
+    @classmethod
+    def _known_run(cls, v: list[str] | None) -> list[str] | None:
+        known = known_schemes()
+        for i, name in enumerate(v or ()):
+            if name not in known:
+                raise _FieldError(f"schemes.run[{i}]", _unknown_scheme(name))
+        return v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _plugin_tables(cls, data: Any) -> Any:
+        """Validate ``[schemes.<name>]`` of a registered scheme with its parameter model; refuse other names.
+
+        A registered scheme listed in ``run`` without a table gets its parameter model's defaults.
+        """
+        if not isinstance(data, dict):
+            return data
+        from .schemes import registered
+
+        reg = registered()
+        out = dict(data)
+        for key, table in data.items():
+            if key in cls.model_fields:
+                continue
+            if key not in reg:
+                raise _FieldError(f"schemes.{key}", "unknown field" + _unknown_hint(key, [*cls.model_fields, *reg]))
+            out[key] = _plugin_table(key, reg[key], table)
+        run = data.get("run")
+        for name in run if isinstance(run, list) else ():
+            if isinstance(name, str) and name in reg and name not in data:
+                out[name] = _plugin_table(name, reg[name], {})
+        return out
+
+
+class PluginTable(_Strict):
+    """The table of a registered scheme that declares no parameter model."""
+
+    k_v: Gain | None = _f(None, _K_V + " (default: schemes.k_v, else the case's default)", "1/s")
+
+
+def _unknown_hint(key: str, known: list[str]) -> str:
+    """A did-you-mean, else how a plug-in scheme's name becomes known."""
+    hint = did_you_mean(key, known)
+    if hint:
+        return hint
+    return (
+        ": neither a built-in scheme nor a registered one (a plug-in scheme's file must be listed in plugins = [...])"
+    )
+
+
+def _unknown_scheme(name: str) -> str:
+    known = known_schemes()
+    return f"unknown scheme '{name}'" + _unknown_hint(name, known) + f" (known: {', '.join(known)})"
+
+
+def _plugin_table(name: str, scheme: Any, table: Any) -> BaseModel:
+    """``[schemes.<name>]`` of a registered scheme, validated by its parameter model (field errors named)."""
+    model = scheme.params or PluginTable
+    if isinstance(table, model):
+        return table
+    if isinstance(table, BaseModel):
+        table = table.model_dump()
+    if not isinstance(table, dict):
+        raise _FieldError(f"schemes.{name}", f"a table is expected, got {type(table).__name__}")
+    try:
+        return model.model_validate(table)
+    except ValidationError as exc:
+        err = min(exc.errors(), key=_rank)
+        loc = _format_loc(tuple(err["loc"]))
+        if err["type"] == "extra_forbidden":
+            why = "unknown field" + did_you_mean(str(err["loc"][-1]), list(model.model_fields))
+        else:
+            why = _message(err)
+        raise _FieldError(f"schemes.{name}" + (f".{loc}" if loc else ""), why) from None
+    except ValueError as exc:  # a validator of the plug-in's model raising outside pydantic's wrapping
+        raise _FieldError(f"schemes.{name}", str(exc)) from None
+
+
+def known_schemes() -> list[str]:
+    """The built-in scheme names, then the registered (plug-in) ones."""
+    from .schemes import registered
+
+    return [*SCHEME_NAMES, *sorted(registered())]
+
+
+def configured_schemes(case: Case) -> list[str]:
+    """The schemes a case runs: its built-in tables (in :data:`SCHEME_NAMES` order), then its plug-in tables."""
+    return [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None] + list(case.schemes.model_extra or {})
+
+
+def ordered_schemes(names) -> list[str]:
+    """``names`` without repeats, the built-in schemes first in :data:`SCHEME_NAMES` order, the others as met."""
+    names = list(dict.fromkeys(names))
+    return [s for s in SCHEME_NAMES if s in names] + [s for s in names if s not in SCHEME_NAMES]
 
 
 class Simulation(_Strict):
@@ -402,8 +525,8 @@ class Claim(_Strict):
         if self.scheme is None or self.metric is None:
             raise ValueError("give scheme and metric (or not_applicable = '<why>')")
         for key, val in (("scheme", self.scheme), ("relative_to", self.relative_to)):
-            if val is not None and val not in SCHEME_NAMES:
-                raise ValueError(f"{key}: unknown scheme '{val}' (known: {', '.join(SCHEME_NAMES)})")
+            if val is not None and val not in known_schemes():
+                raise ValueError(f"{key}: unknown scheme '{val}' (known: {', '.join(known_schemes())})")
         has_bound = self.min is not None or self.max is not None
         if has_bound == (self.sequence is not None):
             raise ValueError("give either a bound (min, max) or a sequence")
@@ -452,6 +575,12 @@ class Case(_Strict):
         "-",
     )
     description: str = _f("", "one line shown in reports", "-")
+    plugins: list[str] = _f(
+        [],
+        "scheme files (ftcreport.schemes) loaded before [schemes] is read, paths relative to the case file; each "
+        "registers its schemes, which [schemes.<name>] and schemes.run may then name",
+        "-",
+    )
     robots: Robots = _f(..., "the chain ([robots])", "-")
     reference: Reference = _f(..., "the last robot's path ([reference])", "-")
     initial: Initial = _f(Initial(), "initial state ([initial])", "-")
@@ -566,14 +695,14 @@ class Case(_Strict):
             raise _FieldError(
                 "schemes", "no scheme to run: schemes.run is empty (list some of " + ", ".join(SCHEME_NAMES) + ")"
             )
-        for s in SCHEME_NAMES:
-            if run is not None and getattr(self.schemes, s) is not None and s not in run:
+        for s in configured_schemes(self):
+            if run is not None and s not in run:
                 raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")
+        known = known_schemes()
         for s in self.expected_status_of:
-            if s not in SCHEME_NAMES:
+            if s not in known:
                 raise _FieldError(
-                    f"expected_status_of.{s}",
-                    f"unknown scheme{did_you_mean(s, list(SCHEME_NAMES))} (known: {', '.join(SCHEME_NAMES)})",
+                    f"expected_status_of.{s}", f"unknown scheme{did_you_mean(s, known)} (known: {', '.join(known)})"
                 )
         ids = [c.id for c in self.claims]
         for i, c in enumerate(self.claims):
@@ -584,10 +713,9 @@ class Case(_Strict):
                 if s is not None and run is not None and s not in run:
                     raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not run by this case (schemes.run)")
         for scheme, metrics in self.thresholds.items():
-            if scheme not in SCHEME_NAMES:
+            if scheme not in known:
                 raise _FieldError(
-                    f"thresholds.{scheme}",
-                    f"unknown scheme{did_you_mean(scheme, list(SCHEME_NAMES))} (known: {', '.join(SCHEME_NAMES)})",
+                    f"thresholds.{scheme}", f"unknown scheme{did_you_mean(scheme, known)} (known: {', '.join(known)})"
                 )
             for metric, bound in metrics.items():
                 if bound.min is None and bound.max is None:
@@ -635,10 +763,8 @@ def _check_name(v: str | None) -> str | None:
 def _check_budget(case: Case) -> None:
     """Refuse, before it starts, a run over the step limit or memory budget (ftcreport.limits)."""
     s = case.simulation
-    for scheme in SCHEME_NAMES:
+    for scheme in configured_schemes(case):
         cfg = getattr(case.schemes, scheme)
-        if cfg is None:
-            continue
         pats = getattr(cfg, "patterns", "all")
         models = None if pats == "all" else len(pats)
         problem = budget_problem(case.robots.n, s.duration, s.dt, s.log_every, scheme, models)
@@ -751,7 +877,12 @@ def _rank(err: dict) -> int:
 
 
 def parse_case(data: dict, source: str = "<case>") -> Case:
-    """Validate a case given as a dict (parsed TOML); raise CaseError naming the field."""
+    """Validate a case given as a dict (parsed TOML); raise CaseError naming the field.
+
+    The scheme files of ``plugins`` are loaded first (their schemes register themselves), and the
+    case keeps their absolute paths, so a worker that parses the case's JSON loads them too.
+    """
+    data = _load_plugins(data, source)
     try:
         case = Case.model_validate(data)
     except ValidationError as exc:
@@ -774,6 +905,43 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
     from .families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
 
     return fill_defaults(case)
+
+
+def _load_plugins(data: dict, source: str) -> dict:
+    """Load the case's scheme files (paths relative to the case file's directory); the absolute paths."""
+    plugins = data.get("plugins") if isinstance(data, dict) else None
+    if plugins is None:
+        return data
+    if not isinstance(plugins, list) or not all(isinstance(p, str) for p in plugins):
+        raise CaseError(f"{source}: plugins: a list of scheme file paths is expected, got {plugins!r}")
+    from .schemes import load_plugin
+
+    base = Path(source).parent
+    resolved = []
+    for i, p in enumerate(plugins):
+        path = Path(p).expanduser()
+        path = path if path.is_absolute() else base / path
+        if not path.is_file():
+            raise CaseError(f"{source}: plugins[{i}]: no such scheme file: {path}")
+        try:
+            load_plugin(path)
+        except FtcError as exc:
+            raise CaseError(f"{source}: plugins[{i}]: {exc}") from None
+        resolved.append(str(path.resolve()))
+    return {**data, "plugins": resolved}
+
+
+def plugin_digest(case: Case) -> str:
+    """Hash of the contents of the case's scheme files ('' when it has none): a changed law is a changed case."""
+    if not case.plugins:
+        return ""
+    h = hashlib.sha256()
+    for p in case.plugins:
+        try:
+            h.update(Path(p).name.encode() + b"\0" + Path(p).read_bytes())
+        except OSError:
+            h.update(f"{p}: unreadable".encode())
+    return h.hexdigest()[:16]
 
 
 def case_schema() -> dict[str, Any]:
@@ -818,7 +986,9 @@ def case_hash(case: Case, version: str) -> str:
 
     The thesis claims are left out: they are judged on stored metrics and change no run.
     """
-    blob = case.model_dump_json(exclude={"claims"}) + "|" + version
+    blob = case.model_dump_json(exclude={"claims", "plugins"}) + "|" + version
+    if case.plugins:  # the scheme files' contents, not where they are
+        blob += "|" + plugin_digest(case)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 

@@ -362,7 +362,7 @@ def run(
 
     Example: ftcreport run cases/two_link_switching.toml --scheme switching --verify-dt
     """
-    from .cases import SCHEME_NAMES, load_case, with_duration
+    from .cases import configured_schemes, load_case, with_duration
     from .runner import build, dt_sensitivity, halve_dt, run_scheme
     from .store import save_run
 
@@ -370,7 +370,7 @@ def run(
         c = load_case(case)
         if duration is not None:
             c = with_duration(c, duration)
-        schemes = [s for s in SCHEME_NAMES if getattr(c.schemes, s) is not None]
+        schemes = configured_schemes(c)
         if scheme:
             unknown = [s for s in scheme if s not in schemes]
             if unknown:
@@ -868,6 +868,48 @@ def cases_schema(
     from .schema_doc import schema_json
 
     typer.echo(schema_json(), nl=False)
+
+
+@app.command("schemes")
+def schemes_cmd(
+    source: Annotated[
+        Path | None,
+        typer.Argument(help="A case file (its plug-in schemes are loaded and state sizes given) or a scheme file."),
+    ] = None,
+) -> None:
+    """List the built-in and registered (plug-in) schemes: name, family, description, reference.
+
+    Given a case file, its plugins are loaded and the schemes it runs are marked with their state
+    size (the controller's states: kinematic and the scheme's own); given a scheme file (.py), it is
+    loaded first.
+
+    Example: ftcreport schemes cases/two_link_sliding_mode.toml
+    """
+    from .schemes import BUILT_IN, load_plugin, registered
+
+    sizes: dict[str, int] = {}
+    try:
+        if source is not None and source.suffix == ".py":
+            load_plugin(source)
+        elif source is not None:
+            from .cases import configured_schemes, load_case
+            from .runner import build, make_controller
+
+            case = load_case(source)
+            built = build(case)
+            for s in configured_schemes(case):
+                sizes[s] = int(getattr(make_controller(built, s), "n_states", 0))
+    except FtcError as exc:
+        _fail(exc)
+    rows = [(name, *info, "built-in") for name, info in BUILT_IN.items()]
+    for name, sc in sorted(registered().items()):
+        law = getattr(sc.law, "py_func", sc.law)
+        code = getattr(law, "__code__", None)
+        rows.append((name, sc.family, sc.description, sc.reference, code.co_filename if code else "registered"))
+    for name, family, description, reference, where in rows:
+        state = f"  [runs in this case, {sizes[name]} states]" if name in sizes else ""
+        typer.echo(f"{name:16s} {family:16s} {description}{state}")
+        typer.echo(f"{'':16s} {'':16s} reference: {reference}; {where}")
 
 
 if __name__ == "__main__":  # pragma: no cover

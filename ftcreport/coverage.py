@@ -42,7 +42,7 @@ from .campaign import (
     task_key,
     write_parquet,
 )
-from .cases import SCHEME_NAMES, Case, parse_case
+from .cases import Case, configured_schemes, ordered_schemes, parse_case
 from .errors import FtcError
 from .model import pattern_is_compensable, wheel_names
 from .store import _jsonable, write_atomic
@@ -234,7 +234,7 @@ def summarize_coverage(rows: list[dict]) -> dict:
     ``agreement``: per scheme, the faults whose outcome (recovered at every onset) equals the
     prediction, and the lists of disagreements both ways.
     """
-    schemes = [s for s in SCHEME_NAMES if any(r["scheme"] == s for r in rows)]
+    schemes = ordered_schemes(r["scheme"] for r in rows)
     out: dict = {"schemes": {}, "n_items": len({r["item"] for r in rows})}
     for s in schemes:
         faults: dict[str, dict] = {}
@@ -308,7 +308,7 @@ def run_coverage(
     ``items/<index>.json``, ``coverage.csv`` + ``coverage.parquet``, ``summary.json``,
     ``manifest.json``; the page is :func:`ftcreport.report.coverage.render_coverage`.
     """
-    configured = [s for s in SCHEME_NAMES if getattr(base.schemes, s) is not None]
+    configured = configured_schemes(base)
     schemes = configured if schemes is None else list(schemes)
     unknown = [s for s in schemes if s not in configured]
     if unknown:

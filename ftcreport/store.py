@@ -110,6 +110,15 @@ def cached_key(out: Path, case_name: str, scheme: str) -> str | None:
     return key
 
 
+def stored_schemes(out: Path, case_name: str) -> list[str]:
+    """The schemes with a stored run of a case (built-in ones first, then plug-in ones by name)."""
+    from .cases import ordered_schemes
+
+    d = Path(out) / case_name
+    found = sorted(p.parent.name for p in d.glob("*/metrics.json")) if d.is_dir() else []
+    return ordered_schemes(found)
+
+
 def load_metrics(out: Path, case_name: str, scheme: str) -> dict | None:
     try:
         return json.loads((Path(out) / case_name / scheme / "metrics.json").read_text())

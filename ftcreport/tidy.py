@@ -340,14 +340,13 @@ def metrics_table(out: Path) -> pd.DataFrame:
     """Every stored run's metrics under ``out``: one row per (case, scheme, phase), :data:`METRICS_DTYPES`."""
     import pandas as pd
 
-    from .cases import SCHEME_NAMES
-    from .store import load_metrics
+    from .store import load_metrics, stored_schemes
 
     out = Path(out)
     rows: list[dict] = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
-        for s in SCHEME_NAMES:
+        for s in stored_schemes(out, name):
             m = load_metrics(out, name, s)
             if m is None:
                 continue
@@ -382,8 +381,8 @@ def export(out: Path, dest: Path | None = None) -> list[Path]:
 
     ``dest`` defaults to ``out`` (the files go beside the JSON and ``.npz``).
     """
-    from .cases import SCHEME_NAMES
     from .errors import FtcError
+    from .store import stored_schemes
 
     out = Path(out)
     dest = Path(dest) if dest is not None else out
@@ -392,7 +391,7 @@ def export(out: Path, dest: Path | None = None) -> list[Path]:
     written = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
-        for s in SCHEME_NAMES:
+        for s in stored_schemes(out, name):
             run = read_run(out, name, s)
             if run is None:
                 continue

@@ -440,8 +440,9 @@ def _fmt(x, spec: str = ".3g") -> str:
 
 
 def _table(rows: list[dict]) -> str:
+    w = max([10, *(len(m["scheme"]) for m in rows)])  # a plug-in scheme's name may be longer
     head = (
-        f"{'scheme':<10} {'status':<9} {'max err after faults':>20} {'final err':>10} {'switches':>8} "
+        f"{'scheme':<{w}} {'status':<9} {'max err after faults':>20} {'final err':>10} {'switches':>8} "
         f"{'match':>6} {'peak tau':>9} {'wall/sim-s':>10}"
     )
     lines = [head, "-" * len(head)]
@@ -449,12 +450,12 @@ def _table(rows: list[dict]) -> str:
         after = [p["position_error_max"] for p in m.get("phases", [])[1:] if p["position_error_max"] is not None]
         wall = m.get("wall_time", 0.0) / max(m.get("t_end") or m["duration"], 1e-9)
         lines.append(
-            f"{m['scheme']:<10} {m['status']:<9} {_fmt(max(after) if after else None):>20} "
+            f"{m['scheme']:<{w}} {m['status']:<9} {_fmt(max(after) if after else None):>20} "
             f"{_fmt(m.get('position_error_final')):>10} {_fmt(m.get('switch_count'), 'd'):>8} "
             f"{_fmt(m.get('switching_match_fraction'), '.3f'):>6} {_fmt(m.get('torque_peak')):>9} {wall:>10.3f}"
         )
         if m.get("reason"):
-            lines.append(f"{'':<10} reason: {m['reason']}")
+            lines.append(f"{'':<{w}} reason: {m['reason']}")
     return "\n".join(lines)
 
 

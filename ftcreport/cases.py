@@ -422,6 +422,17 @@ def _plugin_table(name: str, scheme: Any, table: Any) -> BaseModel:
         raise _FieldError(f"schemes.{name}", str(exc)) from None
 
 
+def _scheme_file(name: str) -> str | None:
+    """The file a registered scheme's law is defined in (resolved), None when it is not a file (a notebook)."""
+    from .schemes import registered
+
+    sc = registered().get(name)
+    code = getattr(getattr(sc.law, "py_func", sc.law), "__code__", None) if sc is not None else None
+    if code is None or not Path(code.co_filename).is_file():
+        return None
+    return str(Path(code.co_filename).resolve())
+
+
 def known_schemes() -> list[str]:
     """The built-in scheme names, then the registered (plug-in) ones."""
     from .schemes import registered
@@ -695,6 +706,15 @@ class Case(_Strict):
             raise _FieldError(
                 "schemes", "no scheme to run: schemes.run is empty (list some of " + ", ".join(SCHEME_NAMES) + ")"
             )
+        listed = {str(Path(p).resolve()) for p in self.plugins}
+        for s in list(self.schemes.model_extra or {}):
+            where = _scheme_file(s)
+            if where is not None and where not in listed:
+                raise _FieldError(
+                    f"schemes.{s}",
+                    f"scheme '{s}' comes from {where}, which this case does not list in plugins (a batch or campaign "
+                    "worker would not know it)",
+                )
         for s in configured_schemes(self):
             if run is not None and s not in run:
                 raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")

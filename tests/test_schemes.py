@@ -228,3 +228,16 @@ def test_a_scheme_in_run_without_a_table_gets_its_defaults():
     data["schemes"]["run"] = ["nominal"]
     with pytest.raises(CaseError, match=r"schemes\.sliding_mode: configured but not listed in schemes\.run"):
         parse_case(data, "cases/x.toml")
+
+
+def test_a_registered_scheme_needs_its_file_in_plugins():
+    """A table of a scheme registered in this process by another case's file is refused: a worker
+    process parsing this case would not load the file."""
+    _case()  # registers sliding_mode
+    data = _data()
+    data["plugins"] = []
+    with pytest.raises(CaseError) as info:
+        parse_case(data, "cases/x.toml")
+    msg = str(info.value)
+    assert msg.startswith("cases/x.toml: schemes.sliding_mode: scheme 'sliding_mode' comes from ")
+    assert "does not list in plugins" in msg

@@ -241,3 +241,29 @@ def test_a_registered_scheme_needs_its_file_in_plugins():
     msg = str(info.value)
     assert msg.startswith("cases/x.toml: schemes.sliding_mode: scheme 'sliding_mode' comes from ")
     assert "does not list in plugins" in msg
+
+
+def test_the_sliding_mode_bound_on_its_case():
+    """The numbers the case file's comment states: lambda = lambda_min(sym(A)), A = MB Sigma MB^+, at
+    the start pose; k_w = 0.6 meets lambda k_w >= ||A - I|| before 35 s (2l at 0.5) and not after
+    (1l lost, 2r at 0.8), where the bound asks for k_w >= 7.2 (docstring of the example)."""
+    from ftcreport.fast import kernels as F
+    from ftcreport.runner import build
+    from ftcreport.schemes import reduced
+
+    case = load_case(CASE)
+    built = build(case)
+    M1, _M2, _C, Bb, _S, _Sd = reduced(F.Chain(*built.chain.params), built.q0, np.array([0.5, 0.5]))
+    MB = np.linalg.solve(M1, Bb)
+    MBp = MB.T @ np.linalg.inv(MB @ MB.T)
+    out = {}
+    for phase, t in (("before", 1.0), ("after", 40.0)):
+        sigma, _ = built.faults.at(t)
+        A = MB @ np.diag(sigma) @ MBp
+        lam = np.linalg.eigvalsh(0.5 * (A + A.T)).min()
+        out[phase] = (lam, np.linalg.norm(A - np.eye(2), 2))
+    k_w = case.schemes.sliding_mode.k_w
+    lam, dev = out["before"]
+    assert 0.85 < lam < 0.9 and lam * k_w >= dev  # 0.875 and 0.125
+    lam, dev = out["after"]
+    assert 0.1 < lam < 0.15 and lam * k_w < dev and 7.0 < dev / lam < 7.5  # 0.127, 0.916: k_w >= 7.2

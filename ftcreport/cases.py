@@ -312,7 +312,8 @@ class Schemes(_Strict):
 
     Issue 21: every family runs unless ``run`` narrows the list; a family without its table gets
     the defaults of :mod:`ftcreport.families` (k_v: this table's ``k_v``, else the first table's,
-    else the thesis's).
+    else the thesis's).  A registered (plug-in) scheme's table, ``[schemes.<name>]``, is validated
+    with that scheme's parameter model and kept as an extra field (:func:`configured_schemes`).
     """
 
     model_config = ConfigDict(

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import __version__
-from .cases import SCHEME_NAMES, Case, case_hash, load_case, with_duration
+from .cases import Case, case_hash, configured_schemes, load_case, with_duration
 from .errors import CaseError
 from .store import cached_key, output_lock, save_run, write_atomic, write_json
 
@@ -86,7 +86,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
 
     key = case_hash(case, __version__)
     write_atomic(out / case.name / "case.toml", Path(path).read_bytes())
-    schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+    schemes = configured_schemes(case)
     thresholds = {s: {m: b.model_dump() for m, b in t.items()} for s, t in case.thresholds.items()}
     payload = {
         "source": str(path),
@@ -100,9 +100,30 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
         "duration_override": duration,
         "claims": [c.model_dump() for c in case.claims],  # thesis claims that `check` gates on
         "not_run": not_applicable(case),  # families the case does not run, each with its reason (issue 21)
+        "plugin_schemes": plugin_info(case),  # the plug-in schemes' family, description, reference (report pages)
     }
     _record(out, case.name, payload)
     return key
+
+
+def plugin_info(case: Case) -> dict[str, dict]:
+    """``{name: {family, description, reference, file}}`` of the registered schemes a case runs."""
+    from .schemes import registered
+
+    reg = registered()
+    out = {}
+    for s in configured_schemes(case):
+        if s in reg:
+            sc = reg[s]
+            law = getattr(sc.law, "py_func", sc.law)
+            where = getattr(law, "__code__", None)
+            out[s] = {
+                "family": sc.family,
+                "description": sc.description,
+                "reference": sc.reference,
+                "file": where.co_filename if where is not None else "",
+            }
+    return out
 
 
 def run_key(case: Case, scheme: str) -> str:
@@ -144,7 +165,7 @@ def write_case_manifest(out: Path, case: Case, settings: dict, runs: list[dict] 
 
     out = Path(out)
     if runs is None:
-        schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+        schemes = configured_schemes(case)
         runs = [_run_record(out, case, s, False) for s in schemes if (out / case.name / s / "metrics.json").exists()]
     one = build_manifest(
         "case",
@@ -163,7 +184,7 @@ def write_manifests(out: Path, cases: list[Case], cached: set[tuple[str, str]], 
     out = Path(out)
     all_runs = []
     for case in cases:
-        schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+        schemes = configured_schemes(case)
         runs = [_run_record(out, case, s, (case.name, s) in cached) for s in schemes]
         all_runs += runs
         write_case_manifest(out, case, settings, runs)
@@ -286,7 +307,7 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -
         loaded.append(case)
         record_case(out, case, Path(path), duration)
         expected[case.name] = case
-        schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
+        schemes = configured_schemes(case)
         for s in schemes:
             key = run_key(case, s)
             if not force and cached_key(out, case.name, s) == key:

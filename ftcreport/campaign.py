@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .cases import SCHEME_NAMES, Case, parse_case
+from .cases import Case, configured_schemes, ordered_schemes, parse_case, plugin_digest
 from .errors import CaseError, FtcError
 from .model import pattern_is_compensable, wheel_names
 from .stats import compare_metric, compare_success, wilson_interval
@@ -111,7 +111,8 @@ def sample_seeds(campaign_seed: int, index: int) -> SampleSeeds:
 
 def case_content_hash(base: Case) -> str:
     """Hash (16 hex digits) of a case's validated content (campaign table included, its name excluded)."""
-    return hashlib.sha256(base.model_dump_json(exclude={"name"}).encode()).hexdigest()[:16]
+    blob = base.model_dump_json(exclude={"name"}) + plugin_digest(base)  # a changed scheme file is a changed case
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
 def run_hash(kind: str, content: dict, version: str = __version__) -> str:
@@ -366,7 +367,7 @@ def comparisons(rows: list[dict], schemes: list[str]) -> list[dict]:
 
 def summarize(rows: list[dict]) -> dict:
     """Success rates with Wilson intervals, distributions, worst patterns, paired comparisons between schemes."""
-    schemes = [s for s in SCHEME_NAMES if any(r["scheme"] == s for r in rows)]
+    schemes = ordered_schemes(r["scheme"] for r in rows)
     by = {s: [r for r in rows if r["scheme"] == s] for s in schemes}
     out: dict = {"n_samples": len({r["sample"] for r in rows}), "schemes": {}}
     success = {s: {r["sample"]: bool(r["success"]) for r in by[s]} for s in schemes}
@@ -435,7 +436,7 @@ def stale_reason(rec: dict, expected: dict) -> str | None:
 
 def select_schemes(base: Case, schemes: list[str] | None) -> list[str]:
     """The schemes to run: ``schemes`` (all configured in ``base`` when None); an unconfigured one is refused."""
-    configured = [s for s in SCHEME_NAMES if getattr(base.schemes, s) is not None]
+    configured = configured_schemes(base)
     schemes = configured if schemes is None else list(schemes)
     unknown = [s for s in schemes if s not in configured]
     if unknown:

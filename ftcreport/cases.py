@@ -31,9 +31,20 @@ from .model.chain import THESIS_ROBOT
 from .model.faults import MOTOR_KINDS, motor_row
 from .schemes import BUILT_IN
 
-__all__ = ["SCHEME_NAMES", "Case", "case_hash", "case_schema", "did_you_mean", "load_case", "parse_case"]
+__all__ = [
+    "SCHEME_NAMES",
+    "Case",
+    "case_hash",
+    "case_schema",
+    "configured_schemes",
+    "did_you_mean",
+    "known_schemes",
+    "load_case",
+    "ordered_schemes",
+    "parse_case",
+]
 
-SCHEME_NAMES = BUILT_IN  # the built-in schemes (ftcreport.schemes)
+SCHEME_NAMES = tuple(BUILT_IN)  # the built-in schemes (ftcreport.schemes)
 
 
 def _f(default: Any, description: str, unit: str, **kw: Any) -> Any:
@@ -368,11 +379,28 @@ class Schemes(_Strict):
 
     Issue 21: every family runs unless ``run`` narrows the list; a family without its table gets
     the defaults of :mod:`ftcreport.families` (k_v: this table's ``k_v``, else the first table's,
-    else the thesis's).
+    else the thesis's).  A registered (plug-in) scheme's table, ``[schemes.<name>]``, is validated
+    with that scheme's parameter model and kept as an extra field (:func:`configured_schemes`).
     """
 
-    run: list[Literal[SCHEME_NAMES]] | None = _f(
-        None, "the schemes to run (default: every family, adaptive_frozen only when its table is given)", "-"
+    model_config = ConfigDict(
+        extra="allow",  # [schemes.<name>] of a registered (plug-in) scheme, validated by _plugin_tables
+        frozen=True,
+        json_schema_extra={
+            "additionalProperties": {
+                "type": "object",
+                "description": "the table of a registered scheme (a file listed in plugins), validated by its "
+                "parameter model",
+                "unit": "-",
+            }
+        },
+    )
+
+    run: list[str] | None = _f(
+        None,
+        "the schemes to run (default: every family, adaptive_frozen only when its table is given); built-in or "
+        "registered (plugins) names",
+        "-",
     )
     k_v: Gain | None = _f(None, "velocity-error gain of the default tables (default: the first table's)", "1/s")
     nominal: NominalScheme | None = _f(None, "no FTC", "-")
@@ -382,6 +410,113 @@ class Schemes(_Strict):
     active: ActiveScheme | None = _f(None, "Farza observer + (4.14)", "-")
     active_ukf: ActiveUKFScheme | None = _f(None, "UKF + (4.14)", "-")
     oracle: OracleScheme | None = _f(None, "told the true faults", "-")
+
+    @field_validator("run")
+    @classmethod
+    def _known_run(cls, v: list[str] | None) -> list[str] | None:
+        known = known_schemes()
+        for i, name in enumerate(v or ()):
+            if name not in known:
+                raise _FieldError(f"schemes.run[{i}]", _unknown_scheme(name))
+        return v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _plugin_tables(cls, data: Any) -> Any:
+        """Validate ``[schemes.<name>]`` of a registered scheme with its parameter model; refuse other names.
+
+        A registered scheme listed in ``run`` without a table gets its parameter model's defaults.
+        """
+        if not isinstance(data, dict):
+            return data
+        from .schemes import registered
+
+        reg = registered()
+        out = dict(data)
+        for key, table in data.items():
+            if key in cls.model_fields:
+                continue
+            if key not in reg:
+                raise _FieldError(f"schemes.{key}", "unknown field" + _unknown_hint(key, [*cls.model_fields, *reg]))
+            out[key] = _plugin_table(key, reg[key], table)
+        run = data.get("run")
+        for name in run if isinstance(run, list) else ():
+            if isinstance(name, str) and name in reg and name not in data:
+                out[name] = _plugin_table(name, reg[name], {})
+        return out
+
+
+class PluginTable(_Strict):
+    """The table of a registered scheme that declares no parameter model."""
+
+    k_v: Gain | None = _f(None, _K_V + " (default: schemes.k_v, else the case's default)", "1/s")
+
+
+def _unknown_hint(key: str, known: list[str]) -> str:
+    """A did-you-mean, else how a plug-in scheme's name becomes known."""
+    hint = did_you_mean(key, known)
+    if hint:
+        return hint
+    return (
+        ": neither a built-in scheme nor a registered one (a plug-in scheme's file must be listed in plugins = [...])"
+    )
+
+
+def _unknown_scheme(name: str) -> str:
+    known = known_schemes()
+    return f"unknown scheme '{name}'" + _unknown_hint(name, known) + f" (known: {', '.join(known)})"
+
+
+def _plugin_table(name: str, scheme: Any, table: Any) -> BaseModel:
+    """``[schemes.<name>]`` of a registered scheme, validated by its parameter model (field errors named)."""
+    model = scheme.params or PluginTable
+    if isinstance(table, model):
+        return table
+    if isinstance(table, BaseModel):
+        table = table.model_dump()
+    if not isinstance(table, dict):
+        raise _FieldError(f"schemes.{name}", f"a table is expected, got {type(table).__name__}")
+    try:
+        return model.model_validate(table)
+    except ValidationError as exc:
+        err = min(exc.errors(), key=_rank)
+        loc = _format_loc(tuple(err["loc"]))
+        if err["type"] == "extra_forbidden":
+            why = "unknown field" + did_you_mean(str(err["loc"][-1]), list(model.model_fields))
+        else:
+            why = _message(err)
+        raise _FieldError(f"schemes.{name}" + (f".{loc}" if loc else ""), why) from None
+    except ValueError as exc:  # a validator of the plug-in's model raising outside pydantic's wrapping
+        raise _FieldError(f"schemes.{name}", str(exc)) from None
+
+
+def _scheme_file(name: str) -> str | None:
+    """The file a registered scheme's law is defined in (resolved), None when it is not a file (a notebook)."""
+    from .schemes import registered
+
+    sc = registered().get(name)
+    code = getattr(getattr(sc.law, "py_func", sc.law), "__code__", None) if sc is not None else None
+    if code is None or not Path(code.co_filename).is_file():
+        return None
+    return str(Path(code.co_filename).resolve())
+
+
+def known_schemes() -> list[str]:
+    """The built-in scheme names, then the registered (plug-in) ones."""
+    from .schemes import registered
+
+    return [*SCHEME_NAMES, *sorted(registered())]
+
+
+def configured_schemes(case: Case) -> list[str]:
+    """The schemes a case runs: its built-in tables (in :data:`SCHEME_NAMES` order), then its plug-in tables."""
+    return [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None] + list(case.schemes.model_extra or {})
+
+
+def ordered_schemes(names) -> list[str]:
+    """``names`` without repeats, the built-in schemes first in :data:`SCHEME_NAMES` order, the others as met."""
+    names = list(dict.fromkeys(names))
+    return [s for s in SCHEME_NAMES if s in names] + [s for s in names if s not in SCHEME_NAMES]
 
 
 class Simulation(_Strict):
@@ -485,8 +620,8 @@ class Claim(_Strict):
         if self.scheme is None or self.metric is None:
             raise ValueError("give scheme and metric (or not_applicable = '<why>')")
         for key, val in (("scheme", self.scheme), ("relative_to", self.relative_to)):
-            if val is not None and val not in SCHEME_NAMES:
-                raise ValueError(f"{key}: unknown scheme '{val}' (known: {', '.join(SCHEME_NAMES)})")
+            if val is not None and val not in known_schemes():
+                raise ValueError(f"{key}: unknown scheme '{val}' (known: {', '.join(known_schemes())})")
         has_bound = self.min is not None or self.max is not None
         if has_bound == (self.sequence is not None):
             raise ValueError("give either a bound (min, max) or a sequence")
@@ -535,6 +670,12 @@ class Case(_Strict):
         "-",
     )
     description: str = _f("", "one line shown in reports", "-")
+    plugins: list[str] = _f(
+        [],
+        "scheme files (ftcreport.schemes) loaded before [schemes] is read, paths relative to the case file; each "
+        "registers its schemes, which [schemes.<name>] and schemes.run may then name",
+        "-",
+    )
     robots: Robots = _f(..., "the chain ([robots])", "-")
     reference: Reference = _f(..., "the last robot's path ([reference])", "-")
     initial: Initial = _f(Initial(), "initial state ([initial])", "-")
@@ -659,14 +800,23 @@ class Case(_Strict):
             raise _FieldError(
                 "schemes", "no scheme to run: schemes.run is empty (list some of " + ", ".join(SCHEME_NAMES) + ")"
             )
-        for s in SCHEME_NAMES:
-            if run is not None and getattr(self.schemes, s) is not None and s not in run:
-                raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")
-        for s in self.expected_status_of:
-            if s not in SCHEME_NAMES:
+        listed = {str(Path(p).resolve()) for p in self.plugins}
+        for s in list(self.schemes.model_extra or {}):
+            where = _scheme_file(s)
+            if where is not None and where not in listed:
                 raise _FieldError(
-                    f"expected_status_of.{s}",
-                    f"unknown scheme{did_you_mean(s, list(SCHEME_NAMES))} (known: {', '.join(SCHEME_NAMES)})",
+                    f"schemes.{s}",
+                    f"scheme '{s}' comes from {where}, which this case does not list in plugins (a batch or campaign "
+                    "worker would not know it)",
+                )
+        for s in configured_schemes(self):
+            if run is not None and s not in run:
+                raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")
+        known = known_schemes()
+        for s in self.expected_status_of:
+            if s not in known:
+                raise _FieldError(
+                    f"expected_status_of.{s}", f"unknown scheme{did_you_mean(s, known)} (known: {', '.join(known)})"
                 )
         ids = [c.id for c in self.claims]
         for i, c in enumerate(self.claims):
@@ -677,10 +827,9 @@ class Case(_Strict):
                 if s is not None and run is not None and s not in run:
                     raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not run by this case (schemes.run)")
         for scheme, metrics in self.thresholds.items():
-            if scheme not in SCHEME_NAMES:
+            if scheme not in known:
                 raise _FieldError(
-                    f"thresholds.{scheme}",
-                    f"unknown scheme{did_you_mean(scheme, list(SCHEME_NAMES))} (known: {', '.join(SCHEME_NAMES)})",
+                    f"thresholds.{scheme}", f"unknown scheme{did_you_mean(scheme, known)} (known: {', '.join(known)})"
                 )
             for metric, bound in metrics.items():
                 if bound.min is None and bound.max is None:
@@ -754,10 +903,8 @@ def _check_name(v: str | None) -> str | None:
 def _check_budget(case: Case) -> None:
     """Refuse, before it starts, a run over the step limit or memory budget (ftcreport.limits)."""
     s = case.simulation
-    for scheme in SCHEME_NAMES:
+    for scheme in configured_schemes(case):
         cfg = getattr(case.schemes, scheme)
-        if cfg is None:
-            continue
         pats = getattr(cfg, "patterns", "all")
         models = None if pats == "all" else len(pats)
         problem = budget_problem(case.robots.n, s.duration, s.dt, s.log_every, scheme, models)
@@ -870,7 +1017,12 @@ def _rank(err: dict) -> int:
 
 
 def parse_case(data: dict, source: str = "<case>") -> Case:
-    """Validate a case given as a dict (parsed TOML); raise CaseError naming the field."""
+    """Validate a case given as a dict (parsed TOML); raise CaseError naming the field.
+
+    The scheme files of ``plugins`` are loaded first (their schemes register themselves), and the
+    case keeps their absolute paths, so a worker that parses the case's JSON loads them too.
+    """
+    data = _load_plugins(data, source)
     try:
         case = Case.model_validate(data)
     except ValidationError as exc:
@@ -893,6 +1045,43 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
     from .families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
 
     return fill_defaults(case)
+
+
+def _load_plugins(data: dict, source: str) -> dict:
+    """Load the case's scheme files (paths relative to the case file's directory); the absolute paths."""
+    plugins = data.get("plugins") if isinstance(data, dict) else None
+    if plugins is None:
+        return data
+    if not isinstance(plugins, list) or not all(isinstance(p, str) for p in plugins):
+        raise CaseError(f"{source}: plugins: a list of scheme file paths is expected, got {plugins!r}")
+    from .schemes import load_plugin
+
+    base = Path(source).parent
+    resolved = []
+    for i, p in enumerate(plugins):
+        path = Path(p).expanduser()
+        path = path if path.is_absolute() else base / path
+        if not path.is_file():
+            raise CaseError(f"{source}: plugins[{i}]: no such scheme file: {path}")
+        try:
+            load_plugin(path)
+        except FtcError as exc:
+            raise CaseError(f"{source}: plugins[{i}]: {exc}") from None
+        resolved.append(str(path.resolve()))
+    return {**data, "plugins": resolved}
+
+
+def plugin_digest(case: Case) -> str:
+    """Hash of the contents of the case's scheme files ('' when it has none): a changed law is a changed case."""
+    if not case.plugins:
+        return ""
+    h = hashlib.sha256()
+    for p in case.plugins:
+        try:
+            h.update(Path(p).name.encode() + b"\0" + Path(p).read_bytes())
+        except OSError:
+            h.update(f"{p}: unreadable".encode())
+    return h.hexdigest()[:16]
 
 
 def case_schema() -> dict[str, Any]:
@@ -938,13 +1127,15 @@ def case_hash(case: Case, version: str) -> str:
     The thesis claims are left out: they are judged on stored metrics and change no run.
     """
     # the motor fields (issue 19) are left out when unused, so older cases keep their hashes
-    exclude: dict[str, Any] = {"claims": True}
+    exclude: dict[str, Any] = {"claims": True, "plugins": True}
     if case.actuators is None:
         exclude["actuators"] = True
     plain = {i: {"motor", "value"} for i, f in enumerate(case.faults) if f.motor is None and f.value is None}
     if plain:
         exclude["faults"] = plain
     blob = case.model_dump_json(exclude=exclude) + "|" + version
+    if case.plugins:  # the scheme files' contents, not where they are
+        blob += "|" + plugin_digest(case)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 

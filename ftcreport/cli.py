@@ -373,7 +373,7 @@ def run(
 
     Example: ftcreport run cases/two_link_switching.toml --scheme switching --verify-dt
     """
-    from .cases import SCHEME_NAMES, load_case, with_duration
+    from .cases import configured_schemes, load_case, with_duration
     from .runner import build, dt_sensitivity, halve_dt, run_scheme
     from .store import save_run
 
@@ -381,7 +381,7 @@ def run(
         c = load_case(case)
         if duration is not None:
             c = with_duration(c, duration)
-        schemes = [s for s in SCHEME_NAMES if getattr(c.schemes, s) is not None]
+        schemes = configured_schemes(c)
         if scheme:
             unknown = [s for s in scheme if s not in schemes]
             if unknown:
@@ -451,8 +451,9 @@ def _fmt(x, spec: str = ".3g") -> str:
 
 
 def _table(rows: list[dict]) -> str:
+    w = max([10, *(len(m["scheme"]) for m in rows)])  # a plug-in scheme's name may be longer
     head = (
-        f"{'scheme':<10} {'status':<9} {'max err after faults':>20} {'final err':>10} {'switches':>8} "
+        f"{'scheme':<{w}} {'status':<9} {'max err after faults':>20} {'final err':>10} {'switches':>8} "
         f"{'match':>6} {'peak tau':>9} {'wall/sim-s':>10}"
     )
     lines = [head, "-" * len(head)]
@@ -460,12 +461,12 @@ def _table(rows: list[dict]) -> str:
         after = [p["position_error_max"] for p in m.get("phases", [])[1:] if p["position_error_max"] is not None]
         wall = m.get("wall_time", 0.0) / max(m.get("t_end") or m["duration"], 1e-9)
         lines.append(
-            f"{m['scheme']:<10} {m['status']:<9} {_fmt(max(after) if after else None):>20} "
+            f"{m['scheme']:<{w}} {m['status']:<9} {_fmt(max(after) if after else None):>20} "
             f"{_fmt(m.get('position_error_final')):>10} {_fmt(m.get('switch_count'), 'd'):>8} "
             f"{_fmt(m.get('switching_match_fraction'), '.3f'):>6} {_fmt(m.get('torque_peak')):>9} {wall:>10.3f}"
         )
         if m.get("reason"):
-            lines.append(f"{'':<10} reason: {m['reason']}")
+            lines.append(f"{'':<{w}} reason: {m['reason']}")
     return "\n".join(lines)
 
 
@@ -846,6 +847,48 @@ def cases_schema(
     from .schema_doc import markdown_tables, schema_json
 
     typer.echo(markdown_tables() if markdown else schema_json(), nl=False)
+
+
+@app.command("schemes")
+def schemes_cmd(
+    source: Annotated[
+        Path | None,
+        typer.Argument(help="A case file (its plug-in schemes are loaded and state sizes given) or a scheme file."),
+    ] = None,
+) -> None:
+    """List the built-in and registered (plug-in) schemes: name, family, description, reference.
+
+    Given a case file, its plugins are loaded and the schemes it runs are marked with their state
+    size (the controller's states: kinematic and the scheme's own); given a scheme file (.py), it is
+    loaded first.
+
+    Example: ftcreport schemes cases/two_link_sliding_mode.toml
+    """
+    from .schemes import BUILT_IN, load_plugin, registered
+
+    sizes: dict[str, int] = {}
+    try:
+        if source is not None and source.suffix == ".py":
+            load_plugin(source)
+        elif source is not None:
+            from .cases import configured_schemes, load_case
+            from .runner import build, make_controller
+
+            case = load_case(source)
+            built = build(case)
+            for s in configured_schemes(case):
+                sizes[s] = int(getattr(make_controller(built, s), "n_states", 0))
+    except FtcError as exc:
+        _fail(exc)
+    rows = [(name, *info, "built-in") for name, info in BUILT_IN.items()]
+    for name, sc in sorted(registered().items()):
+        law = getattr(sc.law, "py_func", sc.law)
+        code = getattr(law, "__code__", None)
+        rows.append((name, sc.family, sc.description, sc.reference, code.co_filename if code else "registered"))
+    for name, family, description, reference, where in rows:
+        state = f"  [runs in this case, {sizes[name]} states]" if name in sizes else ""
+        typer.echo(f"{name:16s} {family:16s} {description}{state}")
+        typer.echo(f"{'':16s} {'':16s} reference: {reference}; {where}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -45,6 +45,7 @@ __all__ = [
     "Scoreboard",
     "compare_case",
     "compare_metric",
+    "contestant",
     "ratio",
     "scoreboard",
     "tidy",
@@ -63,6 +64,11 @@ LABEL = {
     "oracle": "the oracle",
 }
 CONTESTANTS = ("switching", "adaptive", "active", "active_ukf")  # the three FTC families
+
+
+def contestant(scheme: str) -> bool:
+    """An FTC scheme in the race: the built-in families, and every registered (plug-in) scheme."""
+    return scheme in CONTESTANTS or scheme not in LABEL
 
 
 @dataclass(frozen=True)
@@ -374,7 +380,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
                 else f"{fmt_ratio(after.benefit)} times smaller than nominal's"
             )
         out.append(", ".join(parts) + ".")
-        if "nominal" in after.winners and not whole and any(s in ok for s in CONTESTANTS):
+        if "nominal" in after.winners and not whole and any(contestant(s) for s in ok):
             out.append(_why_nominal(facts, after))
     if failed:
         stops = "; ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)
@@ -382,8 +388,8 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
     rec = verdicts.get("recovery_time_max")
     if rec:
         bits = []
-        settled = [r for r in rec.ranking if r.scheme in CONTESTANTS and not math.isinf(r.value)]
-        never = [r.scheme for r in rec.ranking if r.scheme in CONTESTANTS and math.isinf(r.value)]
+        settled = [r for r in rec.ranking if contestant(r.scheme) and not math.isinf(r.value)]
+        never = [r.scheme for r in rec.ranking if contestant(r.scheme) and math.isinf(r.value)]
         if settled:
             first = [r.scheme for r in settled if tied(r.value, settled[0].value, rec.spec)]
             who, v0 = _names(first), settled[0].value

@@ -41,7 +41,7 @@ from .campaign import (
     select_schemes,
     write_rows,
 )
-from .cases import SCHEME_NAMES, Case, parse_case
+from .cases import Case, ordered_schemes, parse_case
 from .errors import FtcError
 from .model import pattern_is_compensable, wheel_names
 from .store import _jsonable, write_atomic
@@ -233,7 +233,7 @@ def summarize_coverage(rows: list[dict]) -> dict:
     ``agreement``: per scheme, the faults whose outcome (recovered at every onset) equals the
     prediction, and the lists of disagreements both ways.
     """
-    schemes = [s for s in SCHEME_NAMES if any(r["scheme"] == s for r in rows)]
+    schemes = ordered_schemes(r["scheme"] for r in rows)
     out: dict = {"schemes": {}, "n_items": len({r["item"] for r in rows})}
     for s in schemes:
         faults: dict[str, dict] = {}

@@ -14,10 +14,9 @@ from typing import ClassVar
 
 import pandas as pd
 
-from .cases import SCHEME_NAMES
 from .errors import FtcError
 from .sim import Run
-from .store import load_metrics
+from .store import load_metrics, stored_schemes
 from .tidy import METRICS_DTYPES, metrics_table, read_run
 
 __all__ = ["CaseResults", "Results", "load_results"]
@@ -31,7 +30,7 @@ class CaseResults:
         self.name = name
         if not (self.root / name / "case.json").exists():
             raise FtcError(f"{self.root / name}: no stored case '{name}'")
-        self.schemes = [s for s in SCHEME_NAMES if (self.root / name / s / "metrics.json").exists()]
+        self.schemes = stored_schemes(self.root, name)
 
     def metrics_by_scheme(self) -> dict[str, dict]:
         """``{scheme: metrics.json content}``."""

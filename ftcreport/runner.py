@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from . import __version__
-from .cases import Case, build_chain, build_plant_chain, case_hash, initial_state, switching_patterns
+from .cases import SCHEME_NAMES, Case, build_chain, build_plant_chain, case_hash, initial_state, switching_patterns
 from .control.active import ActiveController
 from .control.adaptive import AdaptiveController
 from .control.baselines import OracleController, nominal
@@ -103,6 +103,13 @@ def make_controller(built: Built, scheme: str):
     if cfg is None:
         raise FtcError(f"scheme '{scheme}' is not configured in case '{case.name}'")
     kin = built.kinematic()
+    if scheme not in SCHEME_NAMES:  # a registered (plug-in) scheme: the engine runs its compiled law
+        from .families import default_k_v
+        from .schemes import SchemeController, get
+
+        k_v = getattr(cfg, "k_v", None)
+        k_v = default_k_v(case) if k_v is None else k_v
+        return SchemeController(get(scheme), built.chain, kin, k_v, cfg, saturation=case.plant.saturation)
     if scheme == "nominal":
         return nominal(built.chain, kin, cfg.k_v)
     if scheme == "oracle":

@@ -113,8 +113,28 @@ class Scheme:
 
 _REGISTRY: dict[str, Scheme] = {}
 
-#: the built-in schemes (ftcreport.runner.make_controller builds them; case files name them)
-BUILT_IN = ("nominal", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf", "oracle")
+#: The built-in schemes as ``ftcreport schemes`` lists them: (family, description, reference).
+BUILT_IN: dict[str, tuple[str, str, str]] = {
+    "nominal": ("baseline", "the matched law (3.35) assuming healthy wheels: no FTC", "thesis 3.2.2, (3.35)"),
+    "switching": (
+        "multiple models",
+        "one law per failure pattern, switched by the cost of reconstructed velocities",
+        "thesis 3.2 and 3.3.1, (3.42)-(3.48)",
+    ),
+    "adaptive": ("adaptive", "adaptive pattern weights and friction estimate", "thesis 3.3.2"),
+    "adaptive_frozen": ("ablation", "the adaptive law with its weights and friction frozen", "thesis 3.3.2"),
+    "active": (
+        "active",
+        "Farza adaptive observer of q, eta, gains and frictions + the compensating law (4.14)",
+        "thesis chapter 4; Farza et al. 2009",
+    ),
+    "active_ukf": (
+        "active",
+        "augmented-state unscented Kalman filter + (4.14), both at the samples (the law held in between)",
+        "Julier & Uhlmann 1997; thesis (4.14)",
+    ),
+    "oracle": ("bound", "(3.35) told the true sigma and ubar at every instant", "thesis (3.35) with the true pattern"),
+}
 
 
 def register(scheme: Scheme) -> Scheme:

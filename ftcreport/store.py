@@ -112,6 +112,15 @@ def cached_key(out: Path, case_name: str, scheme: str) -> str | None:
     return key
 
 
+def stored_schemes(out: Path, case_name: str) -> list[str]:
+    """The schemes with a stored run of a case (built-in ones first, then plug-in ones by name)."""
+    from .cases import ordered_schemes
+
+    d = Path(out) / case_name
+    found = sorted(p.parent.name for p in d.glob("*/metrics.json")) if d.is_dir() else []
+    return ordered_schemes(found)
+
+
 def read_json(path: Path) -> Any:
     """The content of a JSON file, or None when it is missing, unreadable or not JSON."""
     try:
@@ -125,10 +134,8 @@ def load_metrics(out: Path, case_name: str, scheme: str) -> dict | None:
 
 
 def stored_metrics(out: Path, case_name: str) -> dict[str, dict]:
-    """``{scheme: metrics.json content}`` of the case's stored runs, in scheme order."""
-    from .cases import SCHEME_NAMES
-
-    runs = {s: load_metrics(out, case_name, s) for s in SCHEME_NAMES}
+    """``{scheme: metrics.json content}`` of the case's stored runs, in scheme order (plug-ins last)."""
+    runs = {s: load_metrics(out, case_name, s) for s in stored_schemes(out, case_name)}
     return {s: m for s, m in runs.items() if m is not None}
 
 

@@ -376,8 +376,8 @@ def export(out: Path, dest: Path | None = None) -> list[Path]:
 
     ``dest`` defaults to ``out`` (the files go beside the JSON and ``.npz``).
     """
-    from .cases import SCHEME_NAMES
     from .errors import FtcError
+    from .store import stored_schemes
 
     out = Path(out)
     dest = Path(dest) if dest is not None else out
@@ -386,7 +386,7 @@ def export(out: Path, dest: Path | None = None) -> list[Path]:
     written = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
-        for s in SCHEME_NAMES:
+        for s in stored_schemes(out, name):
             run = read_run(out, name, s)
             if run is None:
                 continue

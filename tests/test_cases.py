@@ -48,7 +48,7 @@ def _base() -> dict:
         ),
         (lambda c: c["schemes"].update(run=[]), "schemes", "no scheme"),
         (lambda c: c["schemes"].update(run=["nominal"]), "schemes.switching", "not listed in schemes.run"),
-        (lambda c: c["schemes"].update(run=["nominal", "magic"]), "schemes.run[1]", "Input should be"),
+        (lambda c: c["schemes"].update(run=["nominal", "magic"]), "schemes.run[1]", "unknown scheme 'magic'"),
         (lambda c: c.pop("reference"), "reference", "Field required"),
         (lambda c: c.update(expected_status_of={"adaptiv": ["ok"]}), "expected_status_of.adaptiv", "'adaptive'"),
     ],

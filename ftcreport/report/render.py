@@ -24,11 +24,11 @@ import jinja2
 import numpy as np
 
 from .. import __version__, compare
-from ..cases import SCHEME_NAMES, parse_case, with_duration
+from ..cases import ordered_schemes, parse_case, with_duration
 from ..check import evaluate
 from ..errors import FtcError
 from ..model.faults import wheel_names
-from ..store import load_timeseries, read_json, stored_metrics, write_atomic
+from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
 from . import interactive, plots
 from .replay import replay_data
 
@@ -245,6 +245,7 @@ def render_case(out: Path, name: str) -> Path | None:
         verdict=verdict,
         verdict_rows=_verdict_rows(verdict) if verdict else [],
         not_run=rec.get("not_run", {}),
+        plugin_schemes=rec.get("plugin_schemes", {}),
         replay_json=_script_json(replay) if replay else None,
         replay_schemes=list(replay["schemes"]) if replay else [],
         scheme_colors=plots.SCHEME_COLORS,
@@ -470,6 +471,7 @@ def render_index(out: Path) -> Path:
     out = Path(out)
     cases = []
     verdicts = []
+    plugins: dict[str, dict] = {}  # plug-in schemes' family, description, reference (batch.plugin_info)
     n_runs = n_ok = n_pass = n_fail = 0
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
@@ -492,6 +494,7 @@ def render_index(out: Path) -> Path:
             n_fail += failed
             entry["runs"][s] = {**m, "after_max": _after_max(m), "checks_total": len(mine), "checks_failed": failed}
         entry["not_run"] = rec.get("not_run", {})
+        plugins |= rec.get("plugin_schemes", {})
         if metrics:
             case = _stored_case(out, name, rec)
             if case is not None:
@@ -501,7 +504,7 @@ def render_index(out: Path) -> Path:
             verdicts.append(v)
             entry["verdict"] = v
         cases.append(entry)
-    board = compare.scoreboard(verdicts, [s for s in SCHEME_NAMES if any(s in c["runs"] for c in cases)])
+    board = compare.scoreboard(verdicts, ordered_schemes(s for c in cases for s in c["runs"]))
     return write_page(
         out / "index.html",
         "index.html",
@@ -510,12 +513,13 @@ def render_index(out: Path) -> Path:
         board=board,
         specs=compare.HEADLINE,
         fmt_ratio=compare.fmt_ratio,
-        schemes=[s for s in SCHEME_NAMES if any(s in c["runs"] or s in c.get("not_run", {}) for c in cases)],
+        schemes=ordered_schemes(s for c in cases for s in (*c["runs"], *c.get("not_run", {}))),
         n_runs=n_runs,
         n_ok=n_ok,
         n_bad=n_runs - n_ok,
         n_pass=n_pass,
         n_fail=n_fail,
+        plugins=plugins,
     )
 
 
@@ -537,7 +541,7 @@ def _page_stamp(out: Path, name: str) -> str:
     rec = json.loads((out / name / "case.json").read_text())
     rec.pop("time", None)
     h.update(json.dumps(rec, sort_keys=True).encode())
-    for s in SCHEME_NAMES:
+    for s in stored_schemes(out, name):
         for f in ("metrics.json", "timeseries.npz"):
             p = out / name / s / f
             if p.exists():

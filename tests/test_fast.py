@@ -28,7 +28,6 @@ from ftcreport.errors import ModelError
 from ftcreport.fast import kernels as F
 from ftcreport.fast.engine import compiled_spec
 from ftcreport.model import Chain
-from ftcreport.model import kernels as K
 from ftcreport.model.chained import symbolic_chained_form
 from ftcreport.references import FlatReference, circle, eight, sinusoid
 from ftcreport.runner import build, make_controller
@@ -53,22 +52,6 @@ def test_numeric_chained_form_equals_the_sympy_derivation(n):
         F.xi_T(q, d, work, xi2, T2)
         np.testing.assert_allclose(xi2, xi, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(T2, T, rtol=1e-12, atol=1e-12)
-
-
-@pytest.mark.parametrize("n", [2, 3, 5])
-def test_compiled_reduced_model_equals_the_python_kernels(n):
-    rng = np.random.default_rng(10 + n)
-    chain = Chain.uniform(n, d=rng.uniform(0.6, 1.4, n - 1).tolist())
-    pc = F.Chain(*chain.params)
-    for _ in range(20):
-        q = np.concatenate((rng.normal(size=2), rng.uniform(-0.7, 0.7, n)))
-        eta, tau = rng.normal(size=2), rng.normal(size=2 * n)
-        for a, b in zip(K.reduced(chain.params, q, eta), F.reduced(pc, q, eta)[:4], strict=True):
-            np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12)
-        qd, ed = K.eta_dot(chain.params, q, eta, tau)
-        qd2, ed2 = F.plant_rhs(pc, q, eta, tau)
-        np.testing.assert_allclose(qd2, qd, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(ed2, ed, rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize(

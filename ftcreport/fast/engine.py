@@ -70,15 +70,9 @@ class Spec(NamedTuple):
 
 
 def _chain(params) -> F.Chain:
-    return F.Chain(
-        int(params.n),
-        *(np.ascontiguousarray(v, dtype=float) for v in (params.a, params.b, params.r, params.m, params.I)),
-        np.ascontiguousarray(params.d, dtype=float).reshape(-1),
-        float(params.m_total),
-        np.ascontiguousarray(params.h, dtype=float),
-        np.ascontiguousarray(params.G, dtype=float),
-        np.ascontiguousarray(params.D, dtype=float),
-    )
+    from ..model.kernels import packed
+
+    return packed(params)  # Chain.params is already the kernels' tuple (model.kernels.make_params)
 
 
 def _terms(terms) -> np.ndarray:

@@ -144,6 +144,10 @@ class _Face:
             self._kin = self._pack(float(h))
         return self._kin
 
+    def _packed_any(self):
+        """The packed law whatever its h (h only sets the kernels' etadot_c difference, unused by a single law)."""
+        return self._kin if self._kin is not None else self.packed()
+
     def _pack(self, h: float):
         raise NotImplementedError
 
@@ -167,7 +171,7 @@ class _Face:
         F = _F()
         if self._cache is None:
             self._cache = F.new_cache(self.n)
-        C, Kp, R = self._cache, self.packed(), self.reference.packed()
+        C, Kp, R = self._cache, self._packed_any(), self.reference.packed()
         C.f[2] = 0.0  # row 0 is filled here, not by ref_side: the kernels' memo is not valid
         C.QD[0], C.ED[0], C.EDD[0] = r.q_d, r.eta_d, r.eta_d_dot
         C.SC[0] = (r.v_d, r.omega_d, r.v_d_dot, r.omega_d_dot)
@@ -354,7 +358,7 @@ class ChainedBackstepping(_Face):
             self._cache = F.new_cache(self.n)
         out = np.array(xc, dtype=float)
         info = np.zeros(4)
-        F.kin_discrete(self.packed(), self.reference.packed(), self._cache, float(t), out, info)
+        F.kin_discrete(self._packed_any(), self.reference.packed(), self._cache, float(t), out, info)
         if info[0] != 0:
             self._raise(info)
         return out if out[0] != xc[0] else xc

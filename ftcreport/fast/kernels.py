@@ -79,19 +79,22 @@ KIN_CHAINED = 1
 
 
 class Chain(NamedTuple):
-    """Constant arrays of a chain (as model.kernels.ChainParams, numba-typed)."""
+    """Constant arrays of a chain, built once by model.kernels.make_params (``Chain.params``, ``ChainParams``).
+
+    Arrays indexed ``[robot]`` are in robot order (index 0 = robot 1).
+    """
 
     n: int
-    a: np.ndarray
-    b: np.ndarray
-    r: np.ndarray
-    m: np.ndarray
-    I: np.ndarray
-    d: np.ndarray
-    m_total: float
-    h: np.ndarray
-    G: np.ndarray
-    D: np.ndarray
+    a: np.ndarray  # (n,) P_i -> C_i [m], signed along the heading
+    b: np.ndarray  # (n,) half axle length [m]
+    r: np.ndarray  # (n,) wheel radius [m]
+    m: np.ndarray  # (n,) mass [kg]
+    I: np.ndarray  # (n,) yaw inertia about C_i [kg m^2]
+    d: np.ndarray  # (n-1,) link lengths d_i = |P_i P_(i+1)| [m] (ERRATA E5c)
+    m_total: float  # sum of the masses [kg]
+    h: np.ndarray  # (n,) first moments h_k = sum_i m_i L[i, k] (D.5)
+    G: np.ndarray  # (n, n) G = L^T diag(m) L (D.5)
+    D: np.ndarray  # (n, n) D[i, k] lever arm of P_i on theta_k (C.2-C.8)
 
 
 class Ref(NamedTuple):

@@ -1,7 +1,9 @@
 r"""Array kernels of the n-link 2WD chain model (the simulation hot path).
 
-Every function takes plain ``numpy`` arrays and a :class:`ChainParams` tuple of
-constant arrays computed once per chain, and returns new arrays.
+Every function takes plain ``numpy`` arrays and a ``ChainParams`` tuple of
+constant arrays computed once per chain (:func:`make_params`; it is the compiled
+kernels' ``fast.kernels.Chain``, whose fields are documented there), and
+returns new arrays.
 
 What the simulation evaluates -- S and Sdot, the reduced model, the plant's
 right-hand side, the wheel speeds -- exists once, in the compiled kernels
@@ -51,9 +53,12 @@ derivation and the explicit two- and three-link matrices in the tests.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..fast.kernels import Chain as ChainParams
 
 __all__ = [
     "A_matrix",
@@ -81,26 +86,11 @@ def _fast():
     return kernels
 
 
-class ChainParams(NamedTuple):
-    """Constant arrays of one chain, computed once by :func:`make_params`.
-
-    The same fields as the compiled kernels' ``fast.kernels.Chain``; :func:`make_params`
-    returns that type itself, so the tuple goes to the kernels as it is (one numba type).
-    Arrays indexed ``[robot]`` are in robot order (index 0 = robot 1);
-    arrays indexed ``[row of q]`` follow the order of q.
-    """
-
-    n: int
-    a: np.ndarray  # (n,) P_i -> C_i [m], signed along the heading
-    b: np.ndarray  # (n,) half axle length [m]
-    r: np.ndarray  # (n,) wheel radius [m]
-    m: np.ndarray  # (n,) mass [kg]
-    I: np.ndarray  # (n,) yaw inertia about C_i [kg m^2]
-    d: np.ndarray  # (n-1,) link lengths d_i = |P_i P_(i+1)| [m]
-    m_total: float
-    h: np.ndarray  # (n,) first moments h_k = sum_i m_i L[i, k], robot order
-    G: np.ndarray  # (n, n) G = L^T diag(m) L, robot order
-    D: np.ndarray  # (n, n) D[i, k] lever arm of P_i on theta_k, robot order
+def __getattr__(name: str):
+    # ChainParams is the kernels' Chain tuple (one type for numba), reached lazily: numba loads on first use
+    if name == "ChainParams":
+        return _fast().Chain
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def make_params(a, b, r, m, I, d):

@@ -183,6 +183,23 @@ class _Face:
             self._raise(info)
         return KinematicOutput(C.KEC[0].copy(), C.KT[0].copy(), C.KF[0].copy(), C.KZ[0].copy())
 
+    def law_and_rate(
+        self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, S: np.ndarray, h: float = 1e-5
+    ) -> tuple[KinematicOutput, np.ndarray]:
+        """The law at t and etadot_c, its derivative along (qdot = S eta, 1) (ERRATA P5): the compiled
+        ``eta_c_and_dot``, a central difference of step h on the law (the reference from its jets at t)."""
+        F = _F()
+        if self._cache is None:
+            self._cache = F.new_cache(self.n)
+        info = np.zeros(4)
+        xk = np.array([float(xc[0])]) if self.n_states else np.zeros(1)
+        v = (np.ascontiguousarray(x, dtype=float) for x in (S, q, eta))
+        S, q, eta = v
+        kin, ecd = F.eta_c_and_dot(self.packed(h), self.reference.packed(), self._cache, S, float(t), q, eta, xk, info)
+        if info[0] != 0:
+            self._raise(info)
+        return KinematicOutput(*(a.copy() for a in kin)), ecd
+
 
 class TwoLinkKinematic(_Face):
     r"""Two-link diffeomorphism controller, thesis (3.8)-(3.29), ERRATA E6-E11a.

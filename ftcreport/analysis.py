@@ -77,8 +77,8 @@ class _TwoLinkError:
         z, eta_e = x[:4], x[4:]
         q = self.q_from_z(z)
         out = self.kin.law(0.0, q, np.zeros(0))
-        alpha_c = np.array([-self.kin.k1 * out.f_eta[0], -self.kin.k2 * self.v_d * z[2] - self.kin.k3 * z[3]])
-        a1, a2 = alpha_c + out.T_alpha @ eta_e
+        # alpha = T_alpha (eta_c + eta_e) + f_alpha = alpha_c + T_alpha eta_e   (3.29)
+        a1, a2 = out.T_alpha @ (out.eta_c + eta_e) + self.kin.f_alpha(0.0, q)
         vd, wd = self.v_d, self.omega_d
         z1, z2, z3, z4 = z
         zdot = np.array(

@@ -11,8 +11,11 @@ generalized to n)::
 
 Derivatives are propagated exactly with truncated Taylor series ("jets"),
 so q_d(t), eta_d(t) and etadot_d(t) satisfy the kinematics to round-off,
-for any n.  The unicycle quantities (x_d, y_d, theta_d, v_d, omega_d and
-their derivatives) of the two-link scheme (3.5-3.7) are those of robot n.
+for any n.  The jets are computed once, by the compiled kernels
+(``fast.kernels.path_jets``, ``ref_jets``, ``ref_point``); :class:`TrigPath` and
+:class:`FlatReference` hold and check the parameters and call them.  The
+unicycle quantities (x_d, y_d, theta_d, v_d, omega_d and their derivatives) of
+the two-link scheme (3.5-3.7) are those of robot n.
 
 Paths are sums of a uniform motion and sinusoids in each coordinate, rotated
 and translated (:class:`TrigPath`); the named constructors build the thesis's
@@ -39,51 +42,41 @@ __all__ = [
     "TrigPath",
     "circle",
     "eight",
-    "jet_div",
-    "jet_mul",
-    "jet_sincos",
     "line",
     "sinusoid",
     "unicycle",
 ]
 
 
-# --------------------------------------------------------------------------- Taylor jets
-# A jet is the array of normalized Taylor coefficients a_k = f^(k)(t) / k!.
-def jet_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Product of two jets of equal length (Cauchy product, truncated)."""
-    n = min(a.shape[0], b.shape[0])
-    return np.convolve(a[:n], b[:n])[:n]
+def _F():
+    """The compiled kernels (numba is loaded on first use, not with the package)."""
+    from .fast import kernels
+
+    return kernels
 
 
-def jet_div(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Quotient a / b of jets: w_k = (a_k - sum_(j>=1) b_j w_(k-j)) / b_0."""
-    n = min(a.shape[0], b.shape[0])
-    w = np.empty(n)
-    for k in range(n):
-        w[k] = (a[k] - np.dot(b[1 : k + 1], w[k - 1 :: -1] if k else w[:0])) / b[0]
-    return w
+def _terms(terms) -> np.ndarray:
+    return np.array([list(t) for t in terms], dtype=float).reshape(-1, 3)
 
 
-def jet_sincos(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(sin u, cos u) of a jet: k s_k = sum j u_j c_(k-j), k c_k = -sum j u_j s_(k-j)."""
-    n = u.shape[0]
-    s, c = np.empty(n), np.empty(n)
-    s[0], c[0] = math.sin(u[0]), math.cos(u[0])
-    j = np.arange(1, n)
-    for k in range(1, n):
-        ju = j[:k] * u[1 : k + 1]
-        s[k] = np.dot(ju, c[k - 1 :: -1]) / k
-        c[k] = -np.dot(ju, s[k - 1 :: -1]) / k
-    return s, c
-
-
-def _jet_deriv(a: np.ndarray) -> np.ndarray:
-    return a[1:] * np.arange(1, a.shape[0])
-
-
-def _jet_integ(a: np.ndarray, c0: float) -> np.ndarray:
-    return np.concatenate(([c0], a / np.arange(1, a.shape[0] + 1)))
+def _pack(path: TrigPath, n: int, d, order: int, max_art: float, min_speed: float):
+    """The kernels' ``Ref`` tuple: a path, the link lengths and the jets' order."""
+    return _F().Ref(
+        int(n),
+        float(path.x0),
+        float(path.y0),
+        float(path.vx),
+        float(path.vy),
+        _terms(path.x_terms),
+        _terms(path.y_terms),
+        float(path.rotation),
+        float(path.origin[0]),
+        float(path.origin[1]),
+        np.ascontiguousarray(d, dtype=float).reshape(-1),
+        int(order),
+        float(max_art),
+        float(min_speed),
+    )
 
 
 # --------------------------------------------------------------------------- paths
@@ -118,25 +111,8 @@ class TrigPath:
     kind: str = "path"
 
     def jets(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
-        """Normalized Taylor coefficients of x_d and y_d at t, each (order + 1,)."""
-        k = np.arange(order + 1)
-        fact = np.array([math.factorial(i) for i in k], dtype=float)
-        X = np.zeros(order + 1)
-        Y = np.zeros(order + 1)
-        X[0], Y[0] = self.x0 + self.vx * t, self.y0 + self.vy * t
-        if order >= 1:
-            X[1] += self.vx
-            Y[1] += self.vy
-        for arr, terms in ((X, self.x_terms), (Y, self.y_terms)):
-            for amp, w, ph in terms:
-                # d^k/dt^k A sin(w t + ph) = A w^k sin(w t + ph + k pi / 2)
-                arr += amp * w**k * np.sin(w * t + ph + k * np.pi / 2) / fact
-        c, s = math.cos(self.rotation), math.sin(self.rotation)
-        Xw = c * X - s * Y
-        Yw = s * X + c * Y
-        Xw[0] += self.origin[0]
-        Yw[0] += self.origin[1]
-        return Xw, Yw
+        """Normalized Taylor coefficients of x_d and y_d at t, each (order + 1,): the compiled ``path_jets``."""
+        return _F().path_jets(_pack(self, 1, np.zeros(0), order, math.pi, 0.0), float(t))
 
 
 def circle(
@@ -295,38 +271,25 @@ class FlatReference:
         self.max_articulation = float(max_articulation)
         self.min_speed = float(min_speed)
         self._cache: dict[float, RefPoint] = {}
-        self._jets: tuple | None = None  # (t0, X, Y, theta jets, v jet) of the last full evaluation
+        self._jets: tuple | None = None  # (t0, the kernels' jets at t0) of the last full evaluation
+        self._packed = None
 
     @property
     def kind(self) -> str:
         return self.path.kind
 
-    def _headings(self, t: float):
-        """Jets of every heading (robot order) and the speed jet of robot n."""
-        X, Y = self.path.jets(t, self.order)
-        n = self.n
-        th_jets: list[np.ndarray] = [np.empty(0)] * n
-        v_jet = None
-        for i in range(n - 1, -1, -1):  # robot i+1, from the last robot to the leader
-            Xd, Yd = _jet_deriv(X), _jet_deriv(Y)
-            speed = math.hypot(Xd[0], Yd[0])
-            if speed < self.min_speed:
-                raise ReferenceError(reference_speed_reason(t, i + 1, speed, self.min_speed))
-            Xdd, Ydd = _jet_deriv(Xd), _jet_deriv(Yd)
-            m = Xdd.shape[0]
-            # thetadot = (xdot yddot - ydot xddot) / (xdot^2 + ydot^2)
-            num = jet_mul(Xd[:m], Ydd) - jet_mul(Yd[:m], Xdd)
-            den = jet_mul(Xd[:m], Xd[:m]) + jet_mul(Yd[:m], Yd[:m])
-            th = _jet_integ(jet_div(num, den), math.atan2(Yd[0], Xd[0]))
-            th_jets[i] = th
-            s, c = jet_sincos(th)
-            if i == n - 1:
-                v_jet = jet_mul(Xd, c) + jet_mul(Yd, s)
-            if i > 0:
-                L = th.shape[0]
-                X = X[:L] + self.d[i - 1] * c
-                Y = Y[:L] + self.d[i - 1] * s
-        return th_jets, v_jet
+    def packed(self):
+        """The reference as the compiled kernels take it (``fast.kernels.Ref``; built once)."""
+        if self._packed is None:
+            self._packed = _pack(self.path, self.n, self.d, self.order, self.max_articulation, self.min_speed)
+        return self._packed
+
+    def _raise(self, info: np.ndarray) -> None:
+        F = _F()
+        code, a, b, c = int(info[0]), float(info[1]), int(info[2]), float(info[3])
+        if code == F.E_REF_SPEED:
+            raise ReferenceError(reference_speed_reason(a, b, c, self.min_speed))
+        raise ReferenceError(reference_articulation_reason(a, b, c, self.max_articulation))
 
     def at(self, t: float) -> RefPoint:
         """Reference state at time t; raises ReferenceError where it is infeasible.
@@ -334,57 +297,31 @@ class FlatReference:
         The last few points are memoized (RK4 stages and the etadot_c difference
         ask for the same instants several times).
         """
+        t = float(t)
         hit = self._cache.get(t)
         if hit is not None:
             return hit
+        F = _F()
+        info = np.zeros(4)
         jets = self._jets
-        if jets is not None and abs(t - jets[0]) <= _TAYLOR_REACH:
+        if jets is None or abs(t - jets[0]) > _TAYLOR_REACH:
             # the etadot_c difference asks for t0 +/- 1e-5: the jets at t0 are its Taylor series
-            point = self._point(t, jets, t - jets[0])
-        else:
-            point = self._at(t)
+            jets = (t, F.ref_jets(self.packed(), t, info))
+            if info[0] != 0:
+                self._raise(info)
+            self._jets = jets
+        n = self.n
+        q_d, eta_d, eta_d_dot, sc = np.empty(n + 2), np.empty(2), np.empty(2), np.empty(4)
+        work = np.empty((n + 4, max(n, 3)))
+        F.ref_point(self.packed(), jets[1], t, t - jets[0], info, q_d, eta_d, eta_d_dot, sc, work)
+        if info[0] != 0:
+            self._raise(info)
+        # work[:n, :3] holds the first 3 Taylor coefficients of every heading at t
+        point = RefPoint(t, q_d, eta_d, eta_d_dot, work[:n, 1].copy(), *(float(v) for v in sc))
         if len(self._cache) >= 16:
             self._cache.clear()
         self._cache[t] = point
         return point
-
-    def _at(self, t: float) -> RefPoint:
-        th_jets, v_jet = self._headings(t)
-        X, Y = self.path.jets(t, self.order)
-        self._jets = (t, X, Y, th_jets, v_jet)
-        return self._point(t, self._jets, 0.0)
-
-    def _point(self, t: float, jets: tuple, delta: float) -> RefPoint:
-        """RefPoint at t = t0 + delta from the jets at t0 (Taylor series, shifted)."""
-        _, X, Y, th_jets, v_jet = jets
-        if delta != 0.0:
-            X, Y, v_jet = (_shift(a, delta, 3) for a in (X, Y, v_jet))
-            th_jets = [_shift(a, delta, 3) for a in th_jets]
-        th = np.array([j[0] for j in th_jets])
-        # unwrap the leader side relative to robot n so articulation angles are small
-        for i in range(self.n - 2, -1, -1):
-            th[i] = th[i + 1] + _wrap(th[i] - th[i + 1])
-        art = th[:-1] - th[1:]
-        if np.any(np.abs(art) > self.max_articulation):
-            i = int(np.argmax(np.abs(art)))
-            raise ReferenceError(reference_articulation_reason(t, i, math.degrees(art[i]), self.max_articulation))
-        thdot = np.array([j[1] for j in th_jets])
-        q_d = np.concatenate(([X[0], Y[0]], th[::-1]))
-        om1 = th_jets[0]
-        eta_d = np.array([v_jet[0], om1[1]])
-        eta_d_dot = np.array([v_jet[1], 2.0 * om1[2]])
-        thn = th_jets[-1]
-        return RefPoint(
-            t=float(t),
-            q_d=q_d,
-            eta_d=eta_d,
-            eta_d_dot=eta_d_dot,
-            theta_dot=thdot,
-            v_d=float(v_jet[0]),
-            omega_d=float(thn[1]),
-            v_d_dot=float(v_jet[1]),
-            omega_d_dot=float(2.0 * thn[2]),
-        )
 
     def check(self, duration: float, dt: float = 0.05, t0: float = 0.0) -> None:
         """Raise ReferenceError if the reference is infeasible anywhere on [t0, t0 + duration]."""
@@ -393,19 +330,3 @@ class FlatReference:
 
 
 _TAYLOR_REACH = 1e-4  # [s] largest shift served from cached jets (truncation ~ delta^5: round-off)
-
-
-def _shift(a: np.ndarray, delta: float, m: int) -> np.ndarray:
-    """First m normalized Taylor coefficients at t0 + delta of the jet a at t0."""
-    k = np.arange(a.shape[0])
-    out = np.empty(m)
-    for i in range(m):
-        # b_i = sum_(j >= i) C(j, i) a_j delta^(j - i)
-        j = k[i:]
-        coef = np.array([math.comb(int(jj), i) for jj in j], dtype=float)
-        out[i] = np.sum(coef * a[i:] * delta ** (j - i))
-    return out
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi

@@ -52,7 +52,7 @@ def test_linearization_equals_fd_jacobian_of_the_simulated_closed_loop():
 
     def eps_of(t, q, eta):
         out = err.kin.law(t, q, xc)
-        z, _ = err.kin.zcoords(q, err.ref.at(t))
+        z = err.kin.zcoords(q, err.ref.at(t))
         return np.concatenate((z, eta - out.eta_c))
 
     def eps_dot(e):

@@ -7,9 +7,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ftcreport.control.kinematic import ChainedBackstepping
 from ftcreport.errors import SingularityError
 from ftcreport.model import Chain
 from ftcreport.model.chained import ChainedForm
+from ftcreport.references import FlatReference, circle
 
 LIM60 = np.radians(60)
 
@@ -78,8 +80,10 @@ def test_three_link_against_corrected_thesis_formulas():
 
 
 def test_domain_check():
-    cf = ChainedForm([1.0, 1.0])
+    """The chained law refuses |theta_n| or an articulation angle at 90 deg (its frame psi = 0 here)."""
+    ref = FlatReference(circle(8.0, 0.5), [1.0, 1.0])
+    kin = ChainedBackstepping([1.0, 1.0], ref, [0.3] * 3, 2.0, 2.0, 5.0)
     with pytest.raises(SingularityError, match="theta_3"):
-        cf.check_domain(np.array([0, 0, np.pi / 2, 0.0, 0.0]), margin=1e-3)
+        kin.law(0.0, np.array([0, 0, np.pi / 2, np.pi / 2, np.pi / 2]), np.zeros(1))
     with pytest.raises(SingularityError, match="theta_1 - theta_2"):
-        cf.check_domain(np.array([0, 0, 0.0, 0.0, np.pi / 2]), margin=1e-3)
+        kin.law(0.0, np.array([0, 0, 0.0, 0.0, np.pi / 2]), np.zeros(1))

@@ -28,9 +28,8 @@ from ftcreport.errors import ModelError
 from ftcreport.fast import kernels as F
 from ftcreport.fast.engine import compiled_spec
 from ftcreport.model import Chain
-from ftcreport.model import kernels as K
 from ftcreport.model.chained import symbolic_chained_form
-from ftcreport.references import FlatReference, circle, eight, sinusoid
+from ftcreport.references import FlatReference, circle, eight
 from ftcreport.runner import build, make_controller
 from ftcreport.sim import Plant, SimSettings, simulate
 
@@ -55,51 +54,43 @@ def test_numeric_chained_form_equals_the_sympy_derivation(n):
         np.testing.assert_allclose(T2, T, rtol=1e-12, atol=1e-12)
 
 
+def test_compiled_path_jets_are_the_analytic_derivatives():
+    """path_jets (behind TrigPath.jets) against the derivatives of the eight's closed form (3.3.2.3, E11).
+
+    x = 3 sin 0.3t, y = 5 sin 0.15t, rotated by rot: the normalized coefficients are f^(k)(t) / k!.
+    Same formula evaluated in another order: round-off (1e-13 absolute on values below 10).
+    """
+    path = eight()
+    c, s = math.cos(path.rotation), math.sin(path.rotation)
+    for t in np.linspace(0.0, 40.0, 17):
+        X, Y = path.jets(float(t), 3)
+        x = [
+            3 * math.sin(0.3 * t),
+            0.9 * math.cos(0.3 * t),
+            -0.27 * math.sin(0.3 * t) / 2,
+            -0.081 * math.cos(0.3 * t) / 6,
+        ]
+        y = [5 * math.sin(0.15 * t), 0.75 * math.cos(0.15 * t), -0.1125 * math.sin(0.15 * t) / 2]
+        y.append(-0.016875 * math.cos(0.15 * t) / 6)
+        np.testing.assert_allclose(X, c * np.array(x) - s * np.array(y), rtol=0, atol=1e-13)
+        np.testing.assert_allclose(Y, s * np.array(x) + c * np.array(y), rtol=0, atol=1e-13)
+
+
 @pytest.mark.parametrize("n", [2, 3, 5])
-def test_compiled_reduced_model_equals_the_python_kernels(n):
-    rng = np.random.default_rng(10 + n)
-    chain = Chain.uniform(n, d=rng.uniform(0.6, 1.4, n - 1).tolist())
-    pc = F.Chain(*chain.params)
-    for _ in range(20):
-        q = np.concatenate((rng.normal(size=2), rng.uniform(-0.7, 0.7, n)))
-        eta, tau = rng.normal(size=2), rng.normal(size=2 * n)
-        for a, b in zip(K.reduced(chain.params, q, eta), F.reduced(pc, q, eta)[:4], strict=True):
-            np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12)
-        qd, ed = K.eta_dot(chain.params, q, eta, tau)
-        qd2, ed2 = F.plant_rhs(pc, q, eta, tau)
-        np.testing.assert_allclose(qd2, qd, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(ed2, ed, rtol=1e-12, atol=1e-12)
+def test_compiled_reference_on_a_circle_is_the_rigid_rotation(n):
+    """On a circle every robot turns at v / R, v_n = v, eta_d is constant, P_n stays on the circle.
 
-
-@pytest.mark.parametrize(
-    ("path", "d"),
-    [(circle(5.0, 0.5), [1.0]), (eight(), [0.6, 0.6]), (sinusoid(0.5, 1.0, 0.2), [1.0, 0.8, 0.9, 1.1])],
-)
-def test_compiled_reference_equals_the_flat_reference(path, d):
-    ref = FlatReference(path, d)
-    from ftcreport.fast.engine import _ref
-
-    R = _ref(ref)
-    n = len(d) + 1
-    info = np.zeros(4)
-    for t in np.linspace(0.0, 40.0, 23):
-        jets = F.ref_jets(R, t, info)
-        for delta in (0.0, 1e-5, -1e-5):
-            q_d, eta_d, eta_d_dot, sc = (
-                np.full(n + 2, np.nan),
-                np.full(2, np.nan),
-                np.full(2, np.nan),
-                np.full(4, np.nan),
-            )
-            F.ref_point(R, jets, t + delta, delta, info, q_d, eta_d, eta_d_dot, sc, np.full((n + 4, max(n, 3)), np.nan))
-            vd, wd, vdd, wdd = sc
-            ref._at(t)  # the Python reference's jets at t, shifted as in FlatReference.at
-            r = ref._point(t + delta, ref._jets, delta)
-            np.testing.assert_allclose(q_d, r.q_d, rtol=1e-12, atol=1e-12)
-            np.testing.assert_allclose(eta_d, r.eta_d, rtol=1e-12, atol=1e-12)
-            np.testing.assert_allclose(eta_d_dot, r.eta_d_dot, rtol=1e-12, atol=1e-12)
-            np.testing.assert_allclose([vd, wd, vdd, wdd], [r.v_d, r.omega_d, r.v_d_dot, r.omega_d_dot], atol=1e-12)
-    assert info[0] == 0
+    The chain in steady turning is a rigid body rotating at omega = v / R (each follower on its own
+    smaller circle), so omega_1d = thetadot_i = v / R and etadot_d = 0: the jets reproduce it to round-off.
+    """
+    radius, v = 6.0, 0.7
+    ref = FlatReference(circle(radius, v, center=(1.0, -2.0)), [0.9] * (n - 1))
+    for t in np.linspace(0.0, 50.0, 11):
+        r = ref.at(float(t))
+        np.testing.assert_allclose(r.theta_dot, v / radius, rtol=1e-12)
+        np.testing.assert_allclose(r.eta_d, [v, v / radius], rtol=1e-12)
+        np.testing.assert_allclose(r.eta_d_dot, 0.0, atol=1e-12)
+        assert abs(math.hypot(r.q_d[0] - 1.0, r.q_d[1] + 2.0) - radius) < 1e-12
 
 
 # (case file, scheme, simulated seconds): every compiled law, both integrators, faults, noise, saturation

@@ -1,6 +1,9 @@
 r"""Kinematic controllers: eta_c, T_alpha and f_eta for the dynamic layer.
 
-Two designs, both returning a :class:`KinematicOutput` from ``law(t, q, xc)``
+Both laws exist once, in the compiled kernels (``fast.kernels._two_link_law`` and
+``_chained_law``, with their equations and errata); the classes here hold and
+check the gains, pack them (``packed(h)``, the kernels' ``Kin`` tuple) and call
+the kernels.  Two designs, both returning a :class:`KinematicOutput` from ``law(t, q, xc)``
 with ``alpha = T_alpha eta + f_alpha`` and the Lyapunov cross term ``f_eta`` that
 the dynamic law cancels with ``-T_alpha^T f_eta`` (ERRATA E8):
 
@@ -77,11 +80,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ModelError, SingularityError, kappa_reason, two_link_reason
-from ..model.chained import ChainedForm
+from ..errors import ModelError, SingularityError, chained_reason, kappa_reason, two_link_reason
 from ..references import FlatReference, RefPoint
 
 __all__ = ["ChainedBackstepping", "KinematicOutput", "TwoLinkKinematic", "to_frame", "wrap"]
+
+
+def _F():
+    """The compiled kernels (numba is loaded on first use, not with the package)."""
+    from ..fast import kernels
+
+    return kernels
 
 
 def wrap(a):
@@ -90,19 +99,13 @@ def wrap(a):
 
 
 def to_frame(q: np.ndarray, psi: float) -> np.ndarray:
-    """q expressed in the frame rotated by psi, headings continuous along the chain.
+    """q expressed in the frame rotated by psi, headings continuous along the chain: the compiled ``to_frame``.
 
     theta_n is wrapped to [-pi, pi) in the new frame; every other heading keeps its
     (wrapped) articulation angle to its follower.
     """
-    c, s = math.cos(psi), math.sin(psi)
-    out = np.empty_like(q)
-    out[0] = c * q[0] + s * q[1]
-    out[1] = -s * q[0] + c * q[1]
-    th = q[2:]  # theta_n, ..., theta_1
-    out[2] = float(wrap(th[0] - psi))
-    out[3:] = out[2] + np.cumsum(wrap(np.diff(th)))
-    return out
+    q = np.ascontiguousarray(q, dtype=float)
+    return _F().to_frame(q, float(psi), np.empty_like(q))
 
 
 @dataclass(frozen=True)
@@ -127,7 +130,78 @@ class KinematicOutput:
     z: np.ndarray
 
 
-class TwoLinkKinematic:
+class _Face:
+    """What both laws share: the kernels' tuples, a work cache, and the call of ``kin_law``."""
+
+    reference: FlatReference
+    n: int
+    _kin: object = None
+    _cache: object = None
+
+    def packed(self, h: float = 1e-5):
+        """The law as the compiled kernels take it (``fast.kernels.Kin``); h: step of the etadot_c difference."""
+        if self._kin is None or self._kin.h != float(h):
+            self._kin = self._pack(float(h))
+        return self._kin
+
+    def _packed_any(self):
+        """The packed law whatever its h (h only sets the kernels' etadot_c difference, unused by a single law)."""
+        return self._kin if self._kin is not None else self.packed()
+
+    def _pack(self, h: float):
+        raise NotImplementedError
+
+    def _raise(self, info: np.ndarray) -> None:
+        F = _F()
+        code, a, b = int(info[0]), float(info[1]), float(info[2])
+        if code in (F.E_REF_SPEED, F.E_REF_ART):
+            self.reference._raise(info)
+        if code == F.E_TWO_LINK_ETH:
+            raise SingularityError(two_link_reason("heading error e_theta", a))
+        if code == F.E_TWO_LINK_PHI:
+            raise SingularityError(two_link_reason("theta_1 - theta_2", a))
+        if code == F.E_CHAINED_THN:
+            raise SingularityError(chained_reason(f"theta_{self.n}", a, " in its frame"))
+        if code == F.E_CHAINED_ART:
+            raise SingularityError(chained_reason(f"theta_{int(a) + 1} - theta_{int(a) + 2}", b))
+        raise SingularityError(kappa_reason(a))
+
+    def _at(self, r: RefPoint, q: np.ndarray, psi: float) -> KinematicOutput:
+        """The law at state q against reference point r (row 0 of the kernels' cache), frame psi."""
+        F = _F()
+        if self._cache is None:
+            self._cache = F.new_cache(self.n)
+        C, Kp, R = self._cache, self._packed_any(), self.reference.packed()
+        C.f[2] = 0.0  # row 0 is filled here, not by ref_side: the kernels' memo is not valid
+        C.QD[0], C.ED[0], C.EDD[0] = r.q_d, r.eta_d, r.eta_d_dot
+        C.SC[0] = (r.v_d, r.omega_d, r.v_d_dot, r.omega_d_dot)
+        if Kp.kind == F.KIN_CHAINED:
+            F.xi_T(F.to_frame(C.QD[0], psi, C.WQ), R.d, C.WJ, C.XID[0], C.TD[0])
+        info = np.zeros(4)
+        F.kin_law(Kp, R, C, 0, np.ascontiguousarray(q, dtype=float), np.array([psi]), info)
+        if info[0] != 0:
+            self._raise(info)
+        return KinematicOutput(C.KEC[0].copy(), C.KT[0].copy(), C.KF[0].copy(), C.KZ[0].copy())
+
+    def law_and_rate(
+        self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, S: np.ndarray, h: float = 1e-5
+    ) -> tuple[KinematicOutput, np.ndarray]:
+        """The law at t and etadot_c, its derivative along (qdot = S eta, 1) (ERRATA P5): the compiled
+        ``eta_c_and_dot``, a central difference of step h on the law (the reference from its jets at t)."""
+        F = _F()
+        if self._cache is None:
+            self._cache = F.new_cache(self.n)
+        info = np.zeros(4)
+        xk = np.array([float(xc[0])]) if self.n_states else np.zeros(1)
+        v = (np.ascontiguousarray(x, dtype=float) for x in (S, q, eta))
+        S, q, eta = v
+        kin, ecd = F.eta_c_and_dot(self.packed(h), self.reference.packed(), self._cache, S, float(t), q, eta, xk, info)
+        if info[0] != 0:
+            self._raise(info)
+        return KinematicOutput(*(a.copy() for a in kin)), ecd
+
+
+class TwoLinkKinematic(_Face):
     r"""Two-link diffeomorphism controller, thesis (3.8)-(3.29), ERRATA E6-E11a.
 
     Errors (3.8)-(3.10) ``e = T_e (q - q_d)`` of robot 2 against the unicycle
@@ -139,8 +213,9 @@ class TwoLinkKinematic:
     ``alpha_1 = v_2 cos e_theta - v_d`` (E11a), ``alpha_2 = z4'``, so that
     ``z1' = omega_d z2 + alpha_1``, ``z2' = -omega_d z1 + (v_d + alpha_1) z3``,
     ``z3' = v_d (z4 - z2) + alpha_1 (z4 - z2 + (omega_d/v_d)(1 + z3^2))`` (E7),
-    ``z4' = alpha_2``.  T_alpha and f_alpha below are derived by differentiating
-    z4 (Appendix G with E6) and tested against finite differences.
+    ``z4' = alpha_2``.  T_alpha and f_alpha (in the kernel ``_two_link_law``) are
+    derived by differentiating z4 (Appendix G with E6) and tested against finite
+    differences.
 
     Parameters
     ----------
@@ -153,6 +228,7 @@ class TwoLinkKinematic:
     """
 
     n_states = 0
+    n = 2
     z_names = ("z1", "z2", "z3", "z4")
 
     def __init__(self, d: float, reference: FlatReference, k1: float, k2: float, k3: float) -> None:
@@ -165,79 +241,41 @@ class TwoLinkKinematic:
         self.reference = reference
         self.k1, self.k2, self.k3 = float(k1), float(k2), float(k3)
 
+    def _pack(self, h: float):
+        F = _F()
+        e1 = np.zeros(1)
+        return F.Kin(
+            F.KIN_TWO_LINK, 2, self.d, self.k1, self.k2, self.k3, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
+            np.zeros((1, 1)), e1, e1, 1.0, h, 0,
+        )  # fmt: skip
+
     def initial_state(self, t: float, q: np.ndarray) -> np.ndarray:
         return np.zeros(0)
 
     def discrete(self, t: float, q: np.ndarray, xc: np.ndarray) -> np.ndarray:
         return xc
 
-    def zcoords(self, q: np.ndarray, r: RefPoint) -> tuple[np.ndarray, dict]:
-        """(z1..z4) and the intermediate quantities at state q and reference point r."""
-        d = self.d
-        x, y, th2, th1 = q
-        thd = r.theta_d
-        ct, st = math.cos(thd), math.sin(thd)
-        ex_w, ey_w = x - r.q_d[0], y - r.q_d[1]
-        # e = T_e e_tilde (3.9)-(3.10)
-        ex = ct * ex_w + st * ey_w
-        ey = -st * ex_w + ct * ey_w
-        eth = float(wrap(th2 - thd))
-        c, s = math.cos(eth), math.sin(eth)
-        phi = th1 - th2
-        cphi = math.cos(phi)
-        if abs(c) < 1e-3:
-            raise SingularityError(two_link_reason("heading error e_theta", math.degrees(eth)))
-        if abs(cphi) < 1e-3:
-            raise SingularityError(two_link_reason("theta_1 - theta_2", math.degrees(phi)))
-        tphi = math.tan(phi)
-        vd, wd = r.v_d, r.omega_d
-        z = np.array([ex, ey, s / c, tphi / (d * c**3) - wd / (vd * c**2) + ey])
-        aux = {"c": c, "s": s, "tphi": tphi, "sec2phi": 1.0 / cphi**2, "ex": ex, "ey": ey, "eth": eth}
-        return z, aux
+    def zcoords(self, q: np.ndarray, r: RefPoint) -> np.ndarray:
+        """(z1..z4) (3.14)-(3.17) with E6 at state q and reference point r."""
+        return self._at(r, q, 0.0).z
 
     def law(self, t: float, q: np.ndarray, xc: np.ndarray) -> KinematicOutput:
         """eta_c (3.29), T_alpha, f_eta at time t and state q."""
-        r = self.reference.at(t)
-        return self._law(q, r)
-
-    def _law(self, q: np.ndarray, r: RefPoint) -> KinematicOutput:
-        d = self.d
-        z, a = self.zcoords(q, r)
-        c, s, tphi, sec2 = a["c"], a["s"], a["tphi"], a["sec2phi"]
-        vd, wd, vdd, wdd = r.v_d, r.omega_d, r.v_d_dot, r.omega_d_dot
-        # alpha_1 = cos(e_theta) v2 - v_d
-        # alpha_2 = z4' = T21 v2 + T22 omega1 + f2 (derivative of 3.17 with E6)
-        T21 = (
-            -sec2 * tphi / (d**2 * c**3) + 3.0 * tphi**2 * s / (d**2 * c**4) - 2.0 * wd * s * tphi / (d * vd * c**3) + s
-        )
-        T22 = sec2 / (d * c**3)
-        f2 = (
-            -3.0 * tphi * s * wd / (d * c**4)
-            - (wdd * vd - wd * vdd) / (vd**2 * c**2)
-            + 2.0 * wd**2 * s / (vd * c**3)
-            - wd * a["ex"]
-        )
-        T = np.array([[c, 0.0], [T21, T22]])
-        f_alpha = np.array([-vd, f2])
-        z1, _, z3, z4 = z
-        g = z1 + z3 * (z4 + (wd / vd) * (1.0 + z3**2))
-        # (3.27)-(3.28), E9
-        alpha_c = np.array([-self.k1 * g, -self.k2 * vd * z3 - self.k3 * z4])
-        # eta_c = T_alpha^-1 (alpha_c - f_alpha)   (3.29)
-        eta_c = np.linalg.solve(T, alpha_c - f_alpha)
-        f_eta = np.array([g, z4 / self.k2])
-        return KinematicOutput(eta_c, T, f_eta, z)
+        return self._at(self.reference.at(t), q, 0.0)
 
     def f_alpha(self, t: float, q: np.ndarray) -> np.ndarray:
-        """f_alpha of alpha = T_alpha eta + f_alpha (exposed for tests and analysis)."""
+        """f_alpha of alpha = T_alpha eta + f_alpha, from the law's outputs: alpha_c - T_alpha eta_c (3.29).
+
+        alpha_c = [-k1 g, -k2 v_d z3 - k3 z4] (3.27)-(3.28) with E9, g = f_eta[0] (exposed for tests and analysis).
+        """
         r = self.reference.at(t)
-        out = self._law(q, r)
+        out = self._at(r, q, 0.0)
         alpha_c = np.array([-self.k1 * out.f_eta[0], -self.k2 * r.v_d * out.z[2] - self.k3 * out.z[3]])
         return alpha_c - out.T_alpha @ out.eta_c
 
 
-class ChainedBackstepping:
-    r"""Recursive backstepping on the chained form for any n, with re-anchoring.
+class ChainedBackstepping(_Face):
+    r"""Recursive backstepping on the chained form for any n, with re-anchoring (kernel ``_chained_law``).
 
     Parameters
     ----------
@@ -274,9 +312,11 @@ class ChainedBackstepping:
         mu: float = 1.0,
         singular_tol: float = 1e-2,
     ) -> None:
-        self.cf = ChainedForm(d)
-        self.n = self.cf.n
-        self.m = self.cf.m
+        self.d = tuple(float(v) for v in d)
+        self.n = len(self.d) + 1
+        if self.n < 2:
+            raise ModelError("d: the chained form needs at least 2 robots")
+        self.m = self.n + 2
         if reference.n != self.n:
             raise ModelError(f"reference: built for {reference.n} robots, controller for {self.n}")
         p = self.m - 1
@@ -316,50 +356,31 @@ class ChainedBackstepping:
         self.LN_last = L[p - 1] @ N
         self.z_names = tuple(f"Z{j + 1}" for j in range(self.m))
 
+    def _pack(self, h: float):
+        F = _F()
+        return F.Kin(
+            F.KIN_CHAINED, self.n, 0.0, 0.0, 0.0, 0.0, self.c_alpha2, self.c_xi1, self.kappa, self.band, self.mu,
+            self.singular_tol, np.ascontiguousarray(self.L), np.ascontiguousarray(self.LN_last, dtype=float),
+            np.ascontiguousarray(self.Dscale, dtype=float), float(self.rho), h, 1,
+        )  # fmt: skip
+
     # ------------------------------------------------------------ discrete state
     def initial_state(self, t: float, q: np.ndarray) -> np.ndarray:
         return np.array([self.reference.at(t).theta_d])
 
     def discrete(self, t: float, q: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        """Re-anchor the frame when the reference heading leaves psi +/- band."""
-        thd = self.reference.at(t).theta_d
-        if abs(float(wrap(thd - xc[0]))) > self.band:
-            xc = xc.copy()
-            xc[0] = thd
-        return xc
+        """Re-anchor the frame when the reference heading leaves psi +/- band: the compiled ``kin_discrete``."""
+        F = _F()
+        if self._cache is None:
+            self._cache = F.new_cache(self.n)
+        out = np.array(xc, dtype=float)
+        info = np.zeros(4)
+        F.kin_discrete(self._packed_any(), self.reference.packed(), self._cache, float(t), out, info)
+        if info[0] != 0:
+            self._raise(info)
+        return out if out[0] != xc[0] else xc
 
     # ------------------------------------------------------------ the law
     def law(self, t: float, q: np.ndarray, xc: np.ndarray) -> KinematicOutput:
-        r = self.reference.at(t)
-        psi = float(xc[0])
-        qf = to_frame(np.asarray(q, dtype=float), psi)
-        qdf = to_frame(r.q_d, psi)
-        self.cf.check_domain(qf, margin=self.singular_tol)
-        xi, T = self.cf.xi_and_T(qf)
-        xi_d, T_d = self.cf.xi_and_T(qdf)
-        alpha_d = T_d @ r.eta_d
-        a1d, a2d = alpha_d
-        m, p = self.m, self.p
-        e = xi - xi_d  # e[k-1] is xi_e,k in thesis numbering
-        Z = np.empty(m)
-        for j in range(1, m - 1):  # Z_j = xi_e,(m+1-j) - xi_(m-j) xi_e,1
-            Z[j - 1] = e[m - j] - xi[m - j - 1] * e[0]
-        Z[m - 2] = e[1]
-        Z[m - 1] = e[0]
-        mu, D = self.mu, self.Dscale
-        Zh, z = Z[:p] * D, Z[m - 1]
-        Zbar = self.L @ Zh
-        # alpha_2c (3.102 generalized, length scale mu)
-        a2c = a2d + mu ** (p - 1) * (-self.c_alpha2 * Zbar[p - 1] - mu * a1d * (Zbar[p - 2] + self.LN_last @ Zh))
-        LtZ = self.rho * (self.L.T @ Zbar) * D
-        # Delta_1 = sum_(j<=p-2) (L^T Zbar)_j mu^-(j-1) xi_(m-1-j)   (3.93 generalized)
-        delta1 = sum(LtZ[j - 1] * xi[m - 2 - j] for j in range(1, p - 1))
-        gamma = LtZ[p - 2]
-        kd = self.kappa - delta1
-        if abs(kd) < self.singular_tol * self.kappa:
-            raise SingularityError(kappa_reason(kd))
-        a1c = a1d + (-self.c_xi1 * z + gamma * a2c) / kd  # (3.103) with E12a
-        alpha_c = np.array([a1c, a2c])
-        eta_c = np.linalg.solve(T, alpha_c)  # alpha = T_alpha eta (3.98)
-        f_eta = np.array([z * kd, self.rho * D[p - 1] * Zbar[p - 1] - z * gamma])  # (3.105) with E12c
-        return KinematicOutput(eta_c, T, f_eta, Z)
+        """eta_c (3.98)-(3.106) generalized, T_alpha, f_eta (3.105, E12c) and Z at time t, state q, frame xc[0]."""
+        return self._at(self.reference.at(t), q, float(xc[0]))

@@ -11,6 +11,10 @@ Lyapunov function decreases.  :class:`TrackingController` applies it with the
 healthy pattern (the ``nominal`` baseline); the FTC schemes reuse
 :func:`dynamic_law` with other patterns.
 
+The law lives once, in the compiled kernels (``fast.kernels.law_terms`` and
+``law_for_pattern``, which cite the equations and errata); the helpers here are
+their faces for the Python controllers.
+
 etadot_c is the derivative of eta_c(t, q, psi) along the closed loop (ERRATA P5):
 the directional derivative in the direction (qdot = S(q) eta, 1), computed as a
 central difference of step h (truncation O(h^2), about 1e-10 relative at
@@ -38,6 +42,13 @@ __all__ = [
 ]
 
 
+def _F():
+    """The compiled kernels (numba is loaded on first use, not with the package)."""
+    from ..fast import kernels
+
+    return kernels
+
+
 class LawTerms(NamedTuple):
     """Pattern-independent pieces of the dynamic law at one instant.
 
@@ -51,6 +62,10 @@ class LawTerms(NamedTuple):
     g: np.ndarray
 
 
+def _vec(x) -> np.ndarray:
+    return np.ascontiguousarray(x, dtype=float)
+
+
 def law_terms(
     Mbar1: np.ndarray,
     Mbar2: np.ndarray,
@@ -62,27 +77,22 @@ def law_terms(
     eta_c_dot: np.ndarray,
     k_v: float,
 ) -> LawTerms:
-    """The bracket of (3.35)/(3.107) and Mbar1^-1 Bbar, computed once for every pattern."""
-    Minv = np.linalg.inv(Mbar1)
-    g = -Minv @ (Mbar2 @ eta + Cbar)
-    # w = -k_v eta_e - T_alpha^T f_eta + Mbar1^-1 (Mbar2 eta + Cbar) + etadot_c
-    w = -k_v * eta_e - kin.T_alpha.T @ kin.f_eta - g + eta_c_dot
-    return LawTerms(w, Minv @ Bbar, g)
+    """The bracket of (3.35)/(3.107) with E8 and Mbar1^-1 Bbar, once for every pattern: the compiled ``law_terms``."""
+    w, MB, g = _F().law_terms(
+        *(_vec(v) for v in (Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin.T_alpha, kin.f_eta, eta_c_dot)), float(k_v)
+    )
+    return LawTerms(w, MB, g)
 
 
 def law_for_pattern(terms: LawTerms, sigma_k: np.ndarray, w_extra: np.ndarray | None = None) -> np.ndarray:
-    r"""u_(k) = (Mbar1^-1 Bbar sigma_(k))^+ w, thesis (3.35)/(3.107), A^+ = A^T (A A^T)^-1.
+    r"""u_(k) = (Mbar1^-1 Bbar sigma_(k))^+ w, thesis (3.35)/(3.107): the compiled ``law_for_pattern``.
 
     ``w_extra`` is added to the bracket (e.g. ``-Mbar1^-1 Bbar ubar`` to cancel a known
     or estimated friction).  For a pattern with rank(A) < 2 the least-squares
     pseudo-inverse is used (the oracle facing an uncompensable fault).
     """
     w = terms.w if w_extra is None else terms.w + w_extra
-    A = terms.MB * sigma_k[None, :]
-    AAt = A @ A.T
-    if np.linalg.cond(AAt) > 1e12:
-        return np.linalg.pinv(A, rcond=1e-9) @ w
-    return A.T @ np.linalg.solve(AAt, w)
+    return _F().law_for_pattern(_vec(terms.MB), _vec(w), _vec(sigma_k))
 
 
 def dynamic_law(

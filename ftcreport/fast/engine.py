@@ -49,7 +49,7 @@ from ..errors import (
 )
 from ..observers.farza import FarzaObserver
 from ..observers.ukf import UKFEstimator
-from ..references import FlatReference, TrigPath
+from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
 
@@ -73,56 +73,18 @@ class Spec(NamedTuple):
 
 
 def _chain(params) -> F.Chain:
-    return F.Chain(
-        int(params.n),
-        *(np.ascontiguousarray(v, dtype=float) for v in (params.a, params.b, params.r, params.m, params.I)),
-        np.ascontiguousarray(params.d, dtype=float).reshape(-1),
-        float(params.m_total),
-        np.ascontiguousarray(params.h, dtype=float),
-        np.ascontiguousarray(params.G, dtype=float),
-        np.ascontiguousarray(params.D, dtype=float),
-    )
+    from ..model.kernels import packed
 
-
-def _terms(terms) -> np.ndarray:
-    return np.array([list(t) for t in terms], dtype=float).reshape(-1, 3)
+    return packed(params)  # Chain.params is already the kernels' tuple (model.kernels.make_params)
 
 
 def _ref(ref: FlatReference) -> F.Ref | None:
-    path = ref.path
-    if type(path) is not TrigPath:
-        return None
-    return F.Ref(
-        int(ref.n),
-        float(path.x0),
-        float(path.y0),
-        float(path.vx),
-        float(path.vy),
-        _terms(path.x_terms),
-        _terms(path.y_terms),
-        float(path.rotation),
-        float(path.origin[0]),
-        float(path.origin[1]),
-        np.ascontiguousarray(ref.d, dtype=float).reshape(-1),
-        int(ref.order),
-        float(ref.max_articulation),
-        float(ref.min_speed),
-    )
+    return ref.packed()  # the face builds (and keeps) the kernels' tuple
 
 
 def _kin(kin, h: float) -> F.Kin | None:
-    if type(kin) is TwoLinkKinematic:
-        e1 = np.zeros(1)
-        return F.Kin(
-            F.KIN_TWO_LINK, 2, kin.d, kin.k1, kin.k2, kin.k3, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
-            np.zeros((1, 1)), e1, e1, 1.0, float(h), 0,
-        )  # fmt: skip
-    if type(kin) is ChainedBackstepping:
-        return F.Kin(
-            F.KIN_CHAINED, kin.n, 0.0, 0.0, 0.0, 0.0, kin.c_alpha2, kin.c_xi1, kin.kappa, kin.band, kin.mu,
-            kin.singular_tol, np.ascontiguousarray(kin.L), np.ascontiguousarray(kin.LN_last, dtype=float),
-            np.ascontiguousarray(kin.Dscale, dtype=float), float(kin.rho), float(h), 1,
-        )  # fmt: skip
+    if type(kin) in (TwoLinkKinematic, ChainedBackstepping):
+        return kin.packed(float(h))  # the face builds (and keeps) the kernels' tuple
     return None
 
 

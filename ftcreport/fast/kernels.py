@@ -1,10 +1,18 @@
-r"""Compiled (numba) closed loop: the equations of the Python engine in one machine-code loop.
+r"""Compiled (numba) closed loop: the single implementation of the model, references and laws.
 
-Every function here implements an equation that the pure-Python modules
-implement and document (model/kernels.py, references.py, control/*.py,
-observers/farza.py, sim.py); the docstrings name those.  The Python modules
-stay the reference implementation: tests/test_fast.py runs both on every
-scheme and compares them (golden runs).  Nothing here does I/O.
+The reduced model, the reference jets, both kinematic laws, the dynamic law's
+terms and the Farza observer exist here only.  The public classes are thin
+faces over these functions: ``model.Chain`` (and ``model.kernels``),
+``references.FlatReference``/``TrigPath``, ``control.kinematic.TwoLinkKinematic``/
+``ChainedBackstepping``, ``control.tracking.law_terms``/``law_for_pattern`` and
+``observers.farza.FarzaObserver`` hold and validate the parameters, pack them
+into the NamedTuples below (``Chain``, ``Ref``, ``Kin``, ``Obs``; their
+``packed()`` methods) and call these functions from Python.  Each function
+cites its thesis equation and erratum (docs/ERRATA.md); the formula stands as
+a comment above the line that computes it.  What checks them is independent:
+the numpy derivation of M, C, A, B (model/kernels.py), the sympy chained form,
+the thesis's explicit matrices, invariants (S^T A^T = 0, power balance) and
+closed-form references (tests).  Nothing here does I/O.
 
 Differences of method (not of equations):
 
@@ -72,19 +80,22 @@ KIN_CHAINED = 1
 
 
 class Chain(NamedTuple):
-    """Constant arrays of a chain (as model.kernels.ChainParams, numba-typed)."""
+    """Constant arrays of a chain, built once by model.kernels.make_params (``Chain.params``, ``ChainParams``).
+
+    Arrays indexed ``[robot]`` are in robot order (index 0 = robot 1).
+    """
 
     n: int
-    a: np.ndarray
-    b: np.ndarray
-    r: np.ndarray
-    m: np.ndarray
-    I: np.ndarray
-    d: np.ndarray
-    m_total: float
-    h: np.ndarray
-    G: np.ndarray
-    D: np.ndarray
+    a: np.ndarray  # (n,) P_i -> C_i [m], signed along the heading
+    b: np.ndarray  # (n,) half axle length [m]
+    r: np.ndarray  # (n,) wheel radius [m]
+    m: np.ndarray  # (n,) mass [kg]
+    I: np.ndarray  # (n,) yaw inertia about C_i [kg m^2]
+    d: np.ndarray  # (n-1,) link lengths d_i = |P_i P_(i+1)| [m] (ERRATA E5c)
+    m_total: float  # sum of the masses [kg]
+    h: np.ndarray  # (n,) first moments h_k = sum_i m_i L[i, k] (D.5)
+    G: np.ndarray  # (n, n) G = L^T diag(m) L (D.5)
+    D: np.ndarray  # (n, n) D[i, k] lever arm of P_i on theta_k (C.2-C.8)
 
 
 class Ref(NamedTuple):
@@ -251,7 +262,11 @@ def _inv2(A):
 # =========================================================================== model (model/kernels.py)
 @jit
 def s_column(p, q):
-    """(theta robot order, col = thetadot / v_n, tan phi, sec phi, w), thesis (2.64)."""
+    """(theta robot order, col = thetadot / v_n, tan phi, sec phi, w), thesis (2.64) with ERRATA E5, E5c.
+
+    v_(i+1) = v_n w_(i+1), w_(i+1) = prod_(j=i+1)^(n-1) sec(phi_j), and
+    thetadot_(i+1) = v_(i+1) tan(phi_i) / d_i, phi_i = theta_i - theta_(i+1) (one pinned link, 2.33).
+    """
     n = p.n
     N = n + 2
     th = np.empty(n)
@@ -260,36 +275,47 @@ def s_column(p, q):
     tphi = np.empty(max(n - 1, 0))
     sphi = np.empty(max(n - 1, 0))
     for i in range(n - 1):
+        # phi_i = theta_i - theta_(i+1)
         ph = th[i] - th[i + 1]
         tphi[i] = math.tan(ph)
         sphi[i] = 1.0 / math.cos(ph)
     w = np.ones(n)
     for i in range(n - 2, -1, -1):
+        # w_i = w_(i+1) sec(phi_i)   (v_i = v_n w_i)
         w[i] = w[i + 1] * sphi[i]
     col = np.zeros(n)
     for i in range(1, n):
+        # thetadot_(i+1) / v_n = w_(i+1) tan(phi_i) / d_i
         col[i] = tphi[i - 1] * w[i] / p.d[i - 1]
     return th, col, tphi, sphi, w
 
 
 @jit
 def s_matrix(p, q):
-    """S(q), (2.63)-(2.64)."""
+    """S(q), qdot = S(q) eta, thesis (2.63)-(2.64): columns [d q / d v_n, d q / d omega_1]."""
     n = p.n
     N = n + 2
     th, col, _t, _s, _w = s_column(p, q)
     S = np.zeros((N, 2))
+    # xdot = v_n cos theta_n, ydot = v_n sin theta_n
     S[0, 0] = math.cos(th[n - 1])
     S[1, 0] = math.sin(th[n - 1])
     for k in range(n):
         S[N - 1 - k, 0] = col[k]
+    # thetadot_1 = omega_1
     S[N - 1, 1] = 1.0
     return S
 
 
 @jit
 def reduced(p, q, eta):
-    """(Mbar1, Mbar2, Cbar, Bbar, S, Sdot) of (2.70)-(2.74), M by (D.5), C by (D.9), B by (C.8)."""
+    """(Mbar1, Mbar2, Cbar, Bbar, S, Sdot) of (2.70)-(2.74), M by (D.5), C by (D.9), B by (C.8).
+
+    ERRATA E1-E5b (the printed matrices are wrong or garbled; this is the generic derivation
+    of model/kernels.py, E5a inertia slots), E4 (the two-link reduced model it reproduces).
+    Mbar1 = S^T M S, Mbar2 = S^T M Sdot, Cbar = S^T C(q, S eta), Bbar = S^T B; Sdot analytic:
+    d/dt tan(phi_i) = sec^2(phi_i) phidot_i, d/dt w_(i+1) = w_(i+1) sum_(j > i) tan(phi_j) phidot_j.
+    """
     n = p.n
     N = n + 2
     nw = 2 * n
@@ -311,6 +337,7 @@ def reduced(p, q, eta):
     for k in range(n):
         S[N - 1 - k, 0] = col[k]
         if k >= 1:
+            # d/dt (w_k tan(phi_(k-1)) / d_(k-1)) = (sec^2 phi phidot w + tan phi wdot) / d
             phidot = thdot[k - 1] - thdot[k]
             Sd[N - 1 - k, 0] = (sphi[k - 1] ** 2 * phidot * w[k] + tphi[k - 1] * wdot[k]) / p.d[k - 1]
     S[N - 1, 1] = 1.0
@@ -325,6 +352,7 @@ def reduced(p, q, eta):
     M[1, 1] = p.m_total
     for k in range(n):
         ik = N - 1 - k
+        # M_xy,k = h_k U_k^perp,  M_kl = G_kl cos(theta_k - theta_l) + I_k delta_kl   (D.5, E5a)
         M[0, ik] = -p.h[k] * sth[k]
         M[ik, 0] = M[0, ik]
         M[1, ik] = p.h[k] * cth[k]
@@ -334,6 +362,7 @@ def reduced(p, q, eta):
         M[ik, ik] += p.I[k]
     # C (D.9) at qdot = S eta
     C = np.zeros(N)
+    # C_xy = -sum_k h_k thetadot_k^2 U_k,  C_l = sum_k G_lk thetadot_k^2 sin(theta_l - theta_k)
     for k in range(n):
         t2 = thdot[k] * thdot[k]
         C[0] -= p.h[k] * t2 * cth[k]
@@ -343,7 +372,7 @@ def reduced(p, q, eta):
         for k in range(n):
             s += p.G[l, k] * math.sin(th[l] - th[k]) * thdot[k] * thdot[k]
         C[N - 1 - l] = s
-    # B (C.8): columns 2i (ir), 2i+1 (il)
+    # B (C.8), E3: columns 2i (ir), 2i+1 (il) = (1/r_i) [U_i; D[i, k] sin(theta_i - theta_k) +/- b_i delta_ik]
     B = np.zeros((N, nw))
     for i in range(n):
         ri = p.r[i]
@@ -396,8 +425,9 @@ def wheel_speeds_rows(p, Q, ETA):
 
 @jit
 def plant_rhs(p, q, eta, tau):
-    """qdot = S eta and etadot of (2.70)."""
+    """qdot = S eta and etadot of the reduced model (2.70): Mbar1 etadot + Mbar2 eta + Cbar = Bbar tau."""
     Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(p, q, eta)
+    # etadot = Mbar1^-1 (Bbar tau - Mbar2 eta - Cbar)
     rhs = _mv(Bbar, tau) - _mv(Mbar2, eta) - Cbar
     return _mv(S, eta), _solve2(Mbar1, rhs)
 
@@ -405,7 +435,12 @@ def plant_rhs(p, q, eta, tau):
 # =========================================================================== references (references.py)
 @jit
 def path_jets(R, t):
-    """TrigPath.jets: normalized Taylor coefficients of x_d, y_d at t."""
+    """Normalized Taylor coefficients (f^(k)(t) / k!) of x_d, y_d at t (references.TrigPath).
+
+    x = x0 + vx t + sum_j a_j sin(w_j t + ph_j) in the path frame, likewise y, then rotated by R.rot
+    and translated by (R.ox, R.oy).  The thesis's references (3.5-3.7, the eight of 3.3.2.3 with
+    ERRATA E11) are such paths.
+    """
     K1 = R.order + 1
     X = np.zeros(K1)
     Y = np.zeros(K1)
@@ -423,8 +458,10 @@ def path_jets(R, t):
             for k in range(K1):
                 if k > 0:
                     fact *= k
+                # d^k/dt^k A sin(w t + ph) = A w^k sin(w t + ph + k pi / 2)
                 arr[k] += amp * w**k * math.sin(w * t + ph + k * np.pi / 2) / fact
     c, s = math.cos(R.rot), math.sin(R.rot)
+    # world = origin + R(rot) (x, y)
     Xw = c * X - s * Y
     Yw = s * X + c * Y
     Xw[0] += R.ox
@@ -443,7 +480,12 @@ def _conv(a, b, k):
 
 @jit
 def ref_jets(R, t, info):
-    """FlatReference._headings: jets of every heading (rows, robot order) and of v_n."""
+    """Jets of every heading (rows, robot order) and of v_n at t: the flat outputs (3.59)-(3.66) for any n.
+
+    From P_n's path: theta_nd = atan2(ydot_d, xdot_d), v_nd = xdot_d cos theta_nd + ydot_d sin theta_nd,
+    P_(i)d = P_(i+1)d + d_i U_(i+1)d (ERRATA E5, E5c), theta_id the direction of Pdot_(i)d; each robot
+    loses one order of the jet.  Refuses speeds below R.min_speed (info E_REF_SPEED).
+    """
     X0, Y0 = path_jets(R, t)
     n = R.n
     K1 = R.order + 1
@@ -472,6 +514,7 @@ def ref_jets(R, t, info):
             Xdd[k] = Xd[k + 1] * (k + 1)
             Ydd[k] = Yd[k + 1] * (k + 1)
         for k in range(m):
+            # thetadot = (xdot yddot - ydot xddot) / (xdot^2 + ydot^2)
             num[k] = _conv(Xd, Ydd, k) - _conv(Yd, Xdd, k)
             den[k] = _conv(Xd, Xd, k) + _conv(Yd, Yd, k)
         th = TH[i]
@@ -485,6 +528,7 @@ def ref_jets(R, t, info):
         LEN[i] = m + 1
         s[0] = math.sin(th[0])
         c[0] = math.cos(th[0])
+        # jets of sin and cos: k s_k = sum_j j th_j c_(k-j), k c_k = -sum_j j th_j s_(k-j)
         for k in range(1, m + 1):
             a = 0.0
             b = 0.0
@@ -495,10 +539,12 @@ def ref_jets(R, t, info):
             c[k] = -b / k
         if i == n - 1:
             for k in range(m + 1):
+                # v_n = xdot cos theta_n + ydot sin theta_n
                 V[k] = _conv(Xd, c, k) + _conv(Yd, s, k)
         if i > 0:
             L = m + 1
             for k in range(L):
+                # P_i = P_(i+1) + d_i (cos theta_(i+1), sin theta_(i+1))
                 X[k] = X[k] + R.d[i - 1] * c[k]
                 Y[k] = Y[k] + R.d[i - 1] * s[k]
     return X0, Y0, TH, LEN, V
@@ -510,6 +556,7 @@ def _shift3(a, length, delta, out):
     for i in range(3):
         s = 0.0
         for j in range(i, length):
+            # b_i = sum_(j >= i) C(j, i) a_j delta^(j - i)
             comb = 1.0 if i == 0 else (float(j) if i == 1 else 0.5 * j * (j - 1))  # C(j, i), i <= 2
             s += comb * a[j] * delta ** (j - i)
         out[i] = s
@@ -517,7 +564,10 @@ def _shift3(a, length, delta, out):
 
 @jit
 def ref_point(R, jets, t, delta, info, q_d, eta_d, eta_d_dot, sc, work):
-    """FlatReference._point at t0 + delta into q_d, eta_d, eta_d_dot and sc = (v_d, omega_d, v_d_dot, omega_d_dot).
+    """The reference state at t0 + delta from the jets at t0: q_d, eta_d, eta_d_dot and sc = (v_d, omega_d,
+    v_d_dot, omega_d_dot) of robot n (the two-link scheme's unicycle, 3.5-3.7).  Headings are unwrapped along
+    the chain; an articulation angle beyond R.max_art is refused (info E_REF_ART).
+    After the call ``work[:n, :3]`` holds the first three coefficients of every heading (thetadot_id in column 1).
 
     ``work``: (n + 4, max(n, 3)) scratch (no allocation: this runs for three instants per new t).
     """
@@ -556,6 +606,7 @@ def ref_point(R, jets, t, delta, info, q_d, eta_d, eta_d_dot, sc, work):
         info[2] = iw
         info[3] = math.degrees(th[iw] - th[iw + 1])
         return
+    # q_d = [x_d, y_d, theta_nd, ..., theta_1d] (2.60), eta_d = [v_nd, omega_1d], etadot_d = [vdot_nd, 2 th_1,2]
     q_d[0] = X[0]
     q_d[1] = Y[0]
     for k in range(n):
@@ -696,7 +747,8 @@ def chained_xi_T(th, d, work, ang):
 
 @jit
 def to_frame(q, psi, out):
-    """q in the frame rotated by psi, into out (control/kinematic.py to_frame)."""
+    """q in the frame rotated by psi, into out: theta_n wrapped in the frame, every other heading keeps its
+    (wrapped) articulation angle to its follower (the re-anchoring of control/kinematic.py, beyond the thesis)."""
     c, s = math.cos(psi), math.sin(psi)
     out[0] = c * q[0] + s * q[1]
     out[1] = -s * q[0] + c * q[1]
@@ -710,10 +762,15 @@ def to_frame(q, psi, out):
 
 @jit
 def xi_T(qf, d, work, xi, T):
-    """Chained coordinates xi (m,) and T_alpha (2, 2) at q (in its frame), into xi and T."""
+    """Chained coordinates xi = phi(q) (m,) and T_alpha (2, 2) at q (in its frame), into xi and T.
+
+    Theorem 2.1 for any n (the module doc; ERRATA E5e-E5g: the printed (2.94), (2.99), (3.98) are wrong,
+    this is checked against the sympy derivation of model/chained.py).  alpha = T_alpha eta (3.98).
+    """
     n = qf.shape[0] - 2
     m = n + 2
     T21, T22 = chained_xi_T(qf[m - 1 : 1 : -1], d, work, xi[1 : m - 1])  # headings in robot order (a view)
+    # xi_1 = x, xi_m = y;  T_alpha = [[cos theta_n, 0], [T21, T22]]
     xi[0] = qf[0]
     xi[m - 1] = qf[1]
     T[0, 0] = math.cos(qf[2])  # theta_n, the last robot
@@ -724,7 +781,13 @@ def xi_T(qf, d, work, xi, T):
 
 @jit
 def _chained_law(Kp, R, C, ir, q, psi, info):
-    """ChainedBackstepping.law into row ir of the cache: eta_c, T_alpha, f_eta, Z; (3.67)-(3.106) generalized."""
+    """Recursive backstepping on the chained form into row ir of the cache: eta_c, T_alpha, f_eta, Z.
+
+    Thesis (3.67)-(3.106) generalized to any n (derivation in control/kinematic.py's module doc), with
+    ERRATA E12a ((3.95), hence 3.103), E12b ((3.102)), E12c ((3.105)) and E12d (gains c_j on every virtual
+    control, in L); length scale mu and frame psi beyond the thesis.  Refuses |theta_n| or an articulation
+    angle near 90 deg in the frame (E_CHAINED_*) and kappa - Delta_1 near 0 (E_KAPPA).
+    """
     eta_d = C.ED[ir]
     qf = to_frame(q, psi, C.WQ)
     n = Kp.n
@@ -751,6 +814,7 @@ def _chained_law(Kp, R, C, ir, q, psi, info):
     xi = C.WXI
     xi_T(qf, R.d, C.WJ, xi, T)
     xi_d, T_d = C.XID[ir], C.TD[ir]
+    # alpha_d = T_alpha(q_d) eta_d
     a1d = T_d[0, 0] * eta_d[0] + T_d[0, 1] * eta_d[1]
     a2d = T_d[1, 0] * eta_d[0] + T_d[1, 1] * eta_d[1]
     e0 = xi[0] - xi_d[0]
@@ -761,6 +825,7 @@ def _chained_law(Kp, R, C, ir, q, psi, info):
     mu = Kp.mu
     Zh, Zbar, LtZ = C.WV[0], C.WV[1], C.WV[2]
     for j in range(p):
+        # Zhat_j = mu^-(j-1) Z_j
         Zh[j] = Z[j] * Kp.Dscale[j]
     z = Z[m - 1]
     lnz = 0.0
@@ -769,13 +834,17 @@ def _chained_law(Kp, R, C, ir, q, psi, info):
         acc = 0.0
         for i in range(j + 1):  # L is lower triangular
             acc += Kp.L[j, i] * Zh[i]
+        # Zbar = L Zhat
         Zbar[j] = acc
+    # alpha_2c = alpha_2d + mu^(p-1) [-c_a2 Zbar_p - mu alpha_1d (Zbar_(p-1) + row_p N Zhat)]   (3.102, E12b)
     a2c = a2d + mu ** (p - 1) * (-Kp.c_alpha2 * Zbar[p - 1] - mu * a1d * (Zbar[p - 2] + lnz))
     for i in range(p):
         acc = 0.0
         for j in range(i, p):
             acc += Kp.L[j, i] * Zbar[j]
+        # rho (L^T Zbar)_i mu^-(i-1)
         LtZ[i] = Kp.rho * acc * Kp.Dscale[i]
+    # Delta_1 = sum_(j<=p-2) rho (L^T Zbar)_j mu^-(j-1) xi_(m-1-j),  Gamma = rho (L^T Zbar)_(p-1) mu^-(p-2)  (3.93)
     delta1 = 0.0
     for j in range(1, p - 1):
         delta1 += LtZ[j - 1] * xi[m - 2 - j]
@@ -785,23 +854,30 @@ def _chained_law(Kp, R, C, ir, q, psi, info):
         info[0] = E_KAPPA
         info[1] = kd
         return
+    # alpha_1c = alpha_1d + (kappa - Delta_1)^-1 (-c_z z + Gamma alpha_2c)   (3.103, E12a)
     a1c = a1d + (-Kp.c_xi1 * z + gam * a2c) / kd
     det = T[0, 0] * T[1, 1] - T[0, 1] * T[1, 0]  # eta_c = T^-1 alpha_c
     eta_c[0] = (T[1, 1] * a1c - T[0, 1] * a2c) / det
     eta_c[1] = (T[0, 0] * a2c - T[1, 0] * a1c) / det
+    # f_eta = [z (kappa - Delta_1), rho mu^-(p-1) Zbar_p - z Gamma]   (3.105, E12c)
     f_eta[0] = z * kd
     f_eta[1] = Kp.rho * Kp.Dscale[p - 1] * Zbar[p - 1] - z * gam
 
 
 @jit
 def _two_link_law(Kp, C, ir, q, info):
-    """TwoLinkKinematic._law into row ir of the cache: eta_c, T_alpha, f_eta, z; (3.8)-(3.29) with E6-E11a."""
+    """Two-link diffeomorphism controller into row ir of the cache: eta_c, T_alpha, f_eta, z.
+
+    Thesis (3.8)-(3.29) and Appendices F, G with ERRATA E6 (z4), E7 (z3'), E9 (alpha_2c), E10 (T_alpha,
+    f_alpha of Appendix G once E6 is applied), E11a (alpha_1).  Refuses cos e_theta or cos phi below 1e-3.
+    """
     q_d = C.QD[ir]
     vd, wd, vdd, wdd = C.SC[ir, 0], C.SC[ir, 1], C.SC[ir, 2], C.SC[ir, 3]
     d = Kp.d2
     thd = q_d[2]
     ct, st = math.cos(thd), math.sin(thd)
     exw, eyw = q[0] - q_d[0], q[1] - q_d[1]
+    # e = T_e (q - q_d)   (3.8)-(3.10)
     ex = ct * exw + st * eyw
     ey = -st * exw + ct * eyw
     eth = _wrap(q[2] - thd)
@@ -819,10 +895,12 @@ def _two_link_law(Kp, C, ir, q, info):
         return
     tphi = math.tan(phi)
     sec2 = 1.0 / cphi**2
+    # z1 = e_x, z2 = e_y, z3 = tan e_theta, z4 = tan(phi) / (d c^3) - omega_d / (v_d c^2) + e_y   (3.14-3.17, E6)
     z[0] = ex
     z[1] = ey
     z[2] = s / c
     z[3] = tphi / (d * c**3) - wd / (vd * c**2) + ey
+    # alpha_1 = v_2 cos e_theta - v_d (E11a);  alpha_2 = z4' = T21 v_2 + T22 omega_1 + f2 (Appendix G, E6, E10)
     T21 = -sec2 * tphi / (d**2 * c**3) + 3.0 * tphi**2 * s / (d**2 * c**4) - 2.0 * wd * s * tphi / (d * vd * c**3) + s
     T22 = sec2 / (d * c**3)
     f2 = (
@@ -836,12 +914,14 @@ def _two_link_law(Kp, C, ir, q, info):
     T[1, 0] = T21
     T[1, 1] = T22
     z1, z3, z4 = z[0], z[2], z[3]
+    # g = z1 + z3 (z4 + (omega_d / v_d)(1 + z3^2));  alpha_c = [-k1 g, -k2 v_d z3 - k3 z4]   (3.27)-(3.28), E9
     g = z1 + z3 * (z4 + (wd / vd) * (1.0 + z3**2))
     r0 = -Kp.k1 * g + vd
     r1 = -Kp.k2 * vd * z3 - Kp.k3 * z4 - f2
     det = T[0, 0] * T[1, 1] - T[0, 1] * T[1, 0]  # eta_c = T^-1 (alpha_c - f_alpha)   (3.29)
     eta_c[0] = (T[1, 1] * r0 - T[0, 1] * r1) / det
     eta_c[1] = (T[0, 0] * r1 - T[1, 0] * r0) / det
+    # f_eta = [g, z4 / k2] (the Lyapunov cross term the dynamic law cancels, E8)
     f_eta[0] = g
     f_eta[1] = z4 / Kp.k2
 
@@ -899,9 +979,15 @@ def _mv(A, x):
 
 @jit
 def law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, T, f_eta, eta_c_dot, k_v):
-    """(w, Mbar1^-1 Bbar, g) of (3.35)/(3.107) with E8."""
+    """(w, MB = Mbar1^-1 Bbar, g) of the dynamic law (3.35)/(3.107), with ERRATA E8 (T_alpha^T f_eta).
+
+    The pattern-independent part: u_(k) = (MB sigma_(k))^+ w (law_for_pattern) gives
+    eta_e' = -k_v eta_e - T_alpha^T f_eta when sigma_(k) is the true pattern.
+    """
     Minv = _inv2(Mbar1)
+    # g = -Mbar1^-1 (Mbar2 eta + Cbar)   (the free dynamics)
     g = -_mv(Minv, _mv(Mbar2, eta) + Cbar)
+    # w = -k_v eta_e - T_alpha^T f_eta + Mbar1^-1 (Mbar2 eta + Cbar) + etadot_c
     w = -k_v * eta_e - _mv(T.T, f_eta) - g + eta_c_dot
     nw = Bbar.shape[1]
     MB = np.empty((2, nw))
@@ -937,7 +1023,11 @@ def _right_inverse(MB, sigma, AAt, w):
 
 @jit
 def law_for_pattern(MB, w, sigma):
-    """u = (MB diag(sigma))^+ w, A^+ = A^T (A A^T)^-1; least squares when cond(A A^T) > 1e12."""
+    """u_(k) = (MB diag(sigma_(k)))^+ w, thesis (3.35)/(3.107), minimum-norm A^+ = A^T (A A^T)^-1.
+
+    Least squares (pinv) when cond(A A^T) > 1e12: a pattern with rank < 2 (ERRATA E5d), e.g. the
+    oracle facing an uncompensable fault.
+    """
     AAt = _gram(MB, sigma)
     tr = 0.5 * (AAt[0, 0] + AAt[1, 1])
     det = AAt[0, 0] * AAt[1, 1] - AAt[0, 1] * AAt[1, 0]
@@ -949,6 +1039,7 @@ def law_for_pattern(MB, w, sigma):
             A[0, j] = MB[0, j] * sigma[j]
             A[1, j] = MB[1, j] * sigma[j]
         return np.linalg.pinv(A, rcond=1e-9) @ w
+    # u = A^T (A A^T)^-1 w
     return _right_inverse(MB, sigma, AAt, w)
 
 
@@ -960,9 +1051,10 @@ def _clip(x, lo, hi):
 # =========================================================================== Farza observer (observers/farza.py)
 @jit
 def farza_estimates(O, pc, s, y, nw):
-    """(q_hat, eta_hat = S^+(y) qdot_hat, rho, ubar) from the observer state."""
+    """(q_hat, eta_hat, rho, ubar) from the observer state (thesis 4.2.3.2); nominal values where not estimated."""
     N = pc.n + 2
     S = s_matrix(pc, y)
+    # eta_hat = S(y)^+ qdot_hat = (S^T S)^-1 S^T qdot_hat
     eta = _solve2(S.T @ S, S.T @ s[N : 2 * N])
     rho = np.ones(nw)
     ubar = np.zeros(nw)
@@ -977,9 +1069,9 @@ def farza_estimates(O, pc, s, y, nw):
 
 @jit
 def farza_derivative(O, pc, u, y, s):
-    """Observer state derivative (4.4)-(4.11) with E15, E16 and the P guard.
+    """Observer state derivative (4.4)-(4.11) with ERRATA E15 (signs), E16 (phi_2) and the P guard (P3).
 
-    Same equations as FarzaObserver.derivative, grouped for small dense loops:
+    The equations of observers/farza.py's module doc, grouped for small dense loops:
     (S_o^-1 + Y P Y^T) C^T K = S_o^-1 C^T K + Y (P v) with v = (C Y)^T K, and
     P Y^T C^T C Y P = W^T W with W = C Y P.  eta = S^+ qdot by the normal equations.
     """
@@ -1011,11 +1103,13 @@ def farza_derivative(O, pc, u, y, s):
         MB[0, j] = Minv[0, 0] * Bbar[0, j] + Minv[0, 1] * Bbar[1, j]
         MB[1, j] = Minv[1, 0] * Bbar[0, j] + Minv[1, 1] * Bbar[1, j]
     tq = rho * u + ubar
+    # Mbar1^-1 (-Mbar2 eta - Cbar + Bbar (diag(rho) u + ubar))   (E16)
     acc = -_mv(Minv, _mv(Mbar2, eta) + Cbar) + _mv(MB, tq)
     ds = np.empty(s.shape[0])
     # correction terms
     Kt = np.empty(N)
     for i in range(N):
+        # K(ytilde) = k1 tanh(k0 (y - C xhat))   (E15: ytilde = y - C xhat)
         Kt[i] = O.k1 * math.tanh(O.k0 * (y[i] - s[i]))
     v = np.zeros(P_)  # (C Y)^T K
     for a in range(P_):
@@ -1027,12 +1121,14 @@ def farza_derivative(O, pc, u, y, s):
     YPv = _mv(Y, Pv)
     SoK = _mv(O.Soinv[:, :N], Kt)
     sgn = O.sign * Th
+    # xhat' = A xhat + phi + Theta Delta^-1 (S_o^-1 + Y P Y^T) C^T K, Delta^-1 = diag(I, Theta I)   (E15)
     for i in range(N):
         ds[i] = s[N + i] + sgn * (SoK[i] + YPv[i])
         # phi_2 = S acc + Sdot eta
         ds[N + i] = S[i, 0] * acc[0] + S[i, 1] * acc[1] + Sdot[i, 0] * eta[0] + Sdot[i, 1] * eta[1]
         ds[N + i] += sgn * Th * (SoK[N + i] + YPv[N + i])
     for a in range(P_):
+        # rhohat' = Theta P Y^T C^T K   (E15)
         ds[o_rho + a] = sgn * Pv[a]
     # Y' = Theta (A - S_o^-1 C^T C) Y + Delta dphi/drho_bar, with dphi_2/drho_bar = S MB [diag(u), I]
     AY = O.AY

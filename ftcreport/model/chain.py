@@ -1,9 +1,10 @@
 r"""Kinematic and dynamic model of n physically linked 2WD robots.
 
 Thesis chapter 2, sections 2.4.1-2.4.3 and Appendices A-D, with the
-corrections of ERRATA E1-E5d.  The arithmetic lives in
-:mod:`ftcreport.model.kernels`; :class:`Chain` validates the parameters,
-precomputes the constant arrays once, and exposes the stable API::
+corrections of ERRATA E1-E5d.  The arithmetic lives in the compiled kernels
+(:mod:`ftcreport.fast.kernels`, through the faces of :mod:`ftcreport.model.kernels`);
+:class:`Chain` validates the parameters, precomputes the constant arrays once,
+and exposes the stable API::
 
     chain = Chain(a=[...], b=[...], r=[...], m=[...], I=[...], d=[...])
     chain.S(q); chain.A(q); chain.M(q); chain.C(q, qdot); chain.B(q)
@@ -79,7 +80,7 @@ class Chain:
     m: Sequence[float]
     I: Sequence[float]
     d: Sequence[float]
-    params: K.ChainParams = field(init=False, repr=False)
+    params: K.ChainParams = field(init=False, repr=False)  # the kernels' Chain tuple (K.make_params)
 
     def __post_init__(self) -> None:
         try:
@@ -99,6 +100,10 @@ class Chain:
         for key, arr in vals.items():
             object.__setattr__(self, key, tuple(arr.tolist()))
         object.__setattr__(self, "params", K.make_params(**vals))
+
+    def packed(self):
+        """The chain as the compiled kernels take it (``fast.kernels.Chain``; built once)."""
+        return self.params
 
     # ------------------------------------------------------------------ build
     @classmethod

@@ -20,7 +20,8 @@ lengths as symbols); it is the independent check the tests compare against
 (tests/test_fast.py, to 1e-12 for n = 2..5), never a run-time path.  Both
 replace the thesis's hand-printed three-link formulas, which ERRATA E5e-E5g
 list as wrong.  Valid while |theta_n| < 90 deg and every articulation
-angle |theta_i - theta_(i+1)| < 90 deg.
+angle |theta_i - theta_(i+1)| < 90 deg (the backstepping kernel refuses
+states outside, ``fast.kernels._chained_law``).
 
 The inverse map uses that ``xi_(m-1-j)`` is the first coordinate to depend on
 theta_(n-j) and is affine in ``tan(theta_(n-j) - theta_(n-j+1))``: the angles are
@@ -34,7 +35,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..errors import ModelError, SingularityError, chained_reason
+from ..errors import ModelError, SingularityError
 
 __all__ = ["ChainedForm", "chained_form", "symbolic_chained_form"]
 
@@ -104,35 +105,21 @@ class ChainedForm:
         T21, T22 = chained_xi_T(np.ascontiguousarray(th, dtype=float), self._d, work, ang)
         return ang, float(T21), float(T22)
 
-    def _th(self, q: np.ndarray) -> np.ndarray:
-        return np.asarray(q, dtype=float)[:1:-1]
-
-    def check_domain(self, q: np.ndarray, margin: float = 1e-6) -> None:
-        """Raise SingularityError outside |theta_n| < 90 deg, |theta_i - theta_(i+1)| < 90 deg."""
-        th = self._th(q)
-        if abs(math.cos(th[-1])) <= margin:
-            raise SingularityError(chained_reason(f"theta_{self.n}", math.degrees(th[-1]), " in its frame"))
-        c = np.cos(th[:-1] - th[1:])
-        if np.any(c <= margin):
-            i = int(np.argmin(c))
-            raise SingularityError(chained_reason(f"theta_{i + 1} - theta_{i + 2}", math.degrees(th[i] - th[i + 1])))
-
     def xi(self, q: np.ndarray) -> np.ndarray:
         r"""Chained coordinates xi = phi(q), (n + 2,), thesis numbering xi_1..xi_m."""
-        q = np.asarray(q, dtype=float)
-        ang = self._ang(self._th(q))[0]
-        return np.array([q[0], *ang, q[1]], dtype=float)
+        return self.xi_and_T(q)[0]
 
     def T_alpha(self, q: np.ndarray) -> np.ndarray:
         """Input map alpha = T_alpha(q) eta, (2, 2)."""
         return self.xi_and_T(q)[1]
 
     def xi_and_T(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(xi(q), T_alpha(q))`` in one call."""
-        q = np.asarray(q, dtype=float)
-        th = self._th(q)
-        ang, T21, T22 = self._ang(th)
-        return np.array([q[0], *ang, q[1]], dtype=float), np.array([[math.cos(th[-1]), 0.0], [T21, T22]])
+        """``(xi(q), T_alpha(q))`` in one call: the compiled ``xi_T``."""
+        from ..fast.kernels import xi_T
+
+        xi, T = np.empty(self.m), np.empty((2, 2))
+        xi_T(np.ascontiguousarray(q, dtype=float), self._d, np.zeros((9 * self.n, self.n + 2)), xi, T)
+        return xi, T
 
     def inverse(self, xi: np.ndarray) -> np.ndarray:
         """q = phi^-1(xi) on the domain |theta_n|, |articulations| < 90 deg."""

@@ -1,9 +1,17 @@
 r"""Array kernels of the n-link 2WD chain model (the simulation hot path).
 
-Every function takes plain ``numpy`` arrays and a :class:`ChainParams` tuple of
-constant arrays computed once per chain, and returns new arrays.  Nothing is
-allocated beyond the outputs, no Python objects are built per call, so the
-functions can later be compiled (numba) without change.
+Every function takes plain ``numpy`` arrays and a ``ChainParams`` tuple of
+constant arrays computed once per chain (:func:`make_params`; it is the compiled
+kernels' ``fast.kernels.Chain``, whose fields are documented there), and
+returns new arrays.
+
+What the simulation evaluates -- S and Sdot, the reduced model, the plant's
+right-hand side, the wheel speeds -- exists once, in the compiled kernels
+(:mod:`ftcreport.fast.kernels`); the functions of that name here are faces over
+them.  The full matrices A(q), M(q), C(q, qdot), B(q) below stay in numpy: they
+are the derivation, not a copy, and the tests check the kernels against them
+(S^T A^T = 0, Mbar1 = S^T M S, Bbar = S^T B, power balance) and against the
+thesis's explicit matrices and a sympy Lagrangian.
 
 Conventions (used everywhere in ftcreport)
 ------------------------------------------
@@ -45,9 +53,12 @@ derivation and the explicit two- and three-link matrices in the tests.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..fast.kernels import Chain as ChainParams
 
 __all__ = [
     "A_matrix",
@@ -61,36 +72,31 @@ __all__ = [
     "eta_dot",
     "headings",
     "make_params",
+    "packed",
     "positions",
     "reduced",
     "wheel_speeds",
 ]
 
 
-class ChainParams(NamedTuple):
-    """Constant arrays of one chain, computed once by :func:`make_params`.
+def _fast():
+    """The compiled kernels (numba is loaded on first use, not with the package)."""
+    from ..fast import kernels
 
-    Arrays indexed ``[robot]`` are in robot order (index 0 = robot 1);
-    arrays indexed ``[row of q]`` follow the order of q.
-    """
-
-    n: int
-    a: np.ndarray  # (n,) P_i -> C_i [m], signed along the heading
-    b: np.ndarray  # (n,) half axle length [m]
-    r: np.ndarray  # (n,) wheel radius [m]
-    m: np.ndarray  # (n,) mass [kg]
-    I: np.ndarray  # (n,) yaw inertia about C_i [kg m^2]
-    d: np.ndarray  # (n-1,) link lengths d_i = |P_i P_(i+1)| [m]
-    m_total: float
-    h: np.ndarray  # (n,) first moments h_k = sum_i m_i L[i, k], robot order
-    G: np.ndarray  # (n, n) G = L^T diag(m) L, robot order
-    D: np.ndarray  # (n, n) D[i, k] lever arm of P_i on theta_k, robot order
+    return kernels
 
 
-def make_params(a, b, r, m, I, d) -> ChainParams:
-    """Precompute the constant arrays of a chain (no validation here)."""
-    a, b, r, m, I = (np.asarray(v, dtype=float).copy() for v in (a, b, r, m, I))
-    d = np.asarray(d, dtype=float).copy()
+def __getattr__(name: str):
+    # ChainParams is the kernels' Chain tuple (one type for numba), reached lazily: numba loads on first use
+    if name == "ChainParams":
+        return _fast().Chain
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def make_params(a, b, r, m, I, d):
+    """Precompute the constant arrays of a chain (no validation here), as the kernels' ``Chain`` tuple."""
+    a, b, r, m, I = (np.ascontiguousarray(v, dtype=float).copy() for v in (a, b, r, m, I))
+    d = np.ascontiguousarray(d, dtype=float).reshape(-1).copy()
     n = a.shape[0]
     # D[i, k] = d_(k-1) for k > i (0-based: D[i, k] = d[k - 1] for k > i)
     D = np.zeros((n, n))
@@ -100,7 +106,25 @@ def make_params(a, b, r, m, I, d) -> ChainParams:
     L = D + np.diag(a)
     h = L.T @ m
     G = L.T @ (m[:, None] * L)
-    return ChainParams(n, a, b, r, m, I, d, float(m.sum()), h, G, D)
+    return _fast().Chain(int(n), a, b, r, m, I, d, float(m.sum()), h, G, D)
+
+
+def packed(p):
+    """p as the kernels' ``Chain`` tuple (p itself when :func:`make_params` built it)."""
+    F = _fast()
+    if type(p) is F.Chain:
+        return p
+    return F.Chain(
+        int(p.n),
+        *(np.ascontiguousarray(v, dtype=float) for v in (p.a, p.b, p.r, p.m, p.I)),
+        np.ascontiguousarray(p.d, dtype=float).reshape(-1),
+        float(p.m_total),
+        *(np.ascontiguousarray(v, dtype=float) for v in (p.h, p.G, p.D)),
+    )
+
+
+def _vec(x) -> np.ndarray:
+    return np.ascontiguousarray(x, dtype=float)
 
 
 def headings(q: np.ndarray) -> np.ndarray:
@@ -114,78 +138,24 @@ def articulation_cos(p: ChainParams, q: np.ndarray) -> np.ndarray:
     return np.cos(th[:-1] - th[1:])
 
 
-def _s_column(p: ChainParams, th: np.ndarray):
-    """First column of S in robot order plus the helpers Sdot needs.
-
-    v_(i+1) = v_n w_(i+1) with w_(i+1) = prod_(j=i+1)^(n-1) sec(phi_j), and
-    thetadot_(i+1) = v_(i+1) tan(phi_i) / d_i, phi_i = theta_i - theta_(i+1)
-    (thesis 2.64; the kinematics of one pinned link, 2.33).
-    """
-    n = p.n
-    phi = th[:-1] - th[1:]  # (n-1,)
-    tphi = np.tan(phi)
-    sphi = 1.0 / np.cos(phi)
-    w = np.ones(n)  # w[i] = v_(i+1) / v_n in 0-based robot index i
-    for i in range(n - 2, -1, -1):
-        w[i] = w[i + 1] * sphi[i]
-    col = np.zeros(n)  # thetadot_k / v_n in robot order, theta_1 entry is 0
-    col[1:] = tphi * w[1:] / p.d
-    return col, phi, tphi, sphi, w
-
-
 def S_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
-    r"""Kinematic matrix S(q), qdot = S(q) eta, thesis (2.63)-(2.64).
+    r"""Kinematic matrix S(q), qdot = S(q) eta, thesis (2.63)-(2.64): the compiled ``s_matrix``.
 
     Returns
     -------
     S : (n + 2, 2) ndarray
     """
-    th = q[:1:-1]
-    col, *_ = _s_column(p, th)
-    S = np.zeros((p.n + 2, 2))
-    S[0, 0] = np.cos(th[-1])
-    S[1, 0] = np.sin(th[-1])
-    S[2:, 0] = col[::-1]
-    S[-1, 1] = 1.0
-    return S
+    return _fast().s_matrix(packed(p), _vec(q))
 
 
 def S_and_Sdot(p: ChainParams, q: np.ndarray, eta: np.ndarray):
-    r"""S(q) and its time derivative along qdot = S(q) eta.
-
-    Sdot = sum_j dS/dq_j qdot_j, computed analytically:
-    d/dt tan(phi_i) = sec^2(phi_i) phidot_i and
-    d/dt w_(i+1) = w_(i+1) sum_(j > i) tan(phi_j) phidot_j.
+    r"""S(q) and its time derivative along qdot = S(q) eta: the compiled ``reduced`` (its last two outputs).
 
     Returns
     -------
     S, Sdot : (n + 2, 2) ndarrays
     """
-    n = p.n
-    th = q[:1:-1]
-    col, _phi, tphi, sphi, w = _s_column(p, th)
-    thdot = col * eta[0]
-    thdot[0] = eta[1]
-    phidot = thdot[:-1] - thdot[1:]
-    g = tphi * phidot  # (n-1,)
-    # wdot[i] = w[i] * sum_{j >= i} g[j] (0-based; j runs over links below robot i+1)
-    wdot = np.zeros(n)
-    acc = 0.0
-    for i in range(n - 2, -1, -1):
-        acc += g[i]
-        wdot[i] = w[i] * acc
-    coldot = np.zeros(n)
-    coldot[1:] = (sphi**2 * phidot * w[1:] + tphi * wdot[1:]) / p.d
-    S = np.zeros((n + 2, 2))
-    Sdot = np.zeros((n + 2, 2))
-    cn, sn = np.cos(th[-1]), np.sin(th[-1])
-    S[0, 0], S[1, 0] = cn, sn
-    S[2:, 0] = col[::-1]
-    S[-1, 1] = 1.0
-    Sdot[0, 0] = -sn * thdot[-1]
-    Sdot[1, 0] = cn * thdot[-1]
-    Sdot[2:, 0] = coldot[::-1]
-    return S, Sdot
+    return _fast().reduced(packed(p), _vec(q), _vec(eta))[4:]
 
 
 def A_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
@@ -282,40 +252,27 @@ def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
 
 
 def reduced(p: ChainParams, q: np.ndarray, eta: np.ndarray):
-    r"""Reduced dynamics matrices, thesis (2.70)-(2.74).
+    r"""Reduced dynamics matrices, thesis (2.70)-(2.74): the compiled ``reduced``.
 
     ``Mbar1 etadot + Mbar2 eta + Cbar = Bbar tau`` with
     Mbar1 = S^T M S, Mbar2 = S^T M Sdot, Cbar = S^T C(q, S eta), Bbar = S^T B.
+    The full M, C, B above are the independent check (tests/test_model.py).
 
     Returns
     -------
     Mbar1 : (2, 2), Mbar2 : (2, 2), Cbar : (2,), Bbar : (2, 2 n) ndarrays
     """
-    return _reduced_and_S(p, q, eta)[:4]
-
-
-def _reduced_and_S(p: ChainParams, q: np.ndarray, eta: np.ndarray):
-    """(Mbar1, Mbar2, Cbar, Bbar, S): the reduced matrices and the S they were built with."""
-    S, Sdot = S_and_Sdot(p, q, eta)
-    M = M_matrix(p, q)
-    Mbar1 = S.T @ (M @ S)
-    Mbar2 = S.T @ (M @ Sdot)
-    Cbar = S.T @ C_vector(p, q, S @ eta)
-    Bbar = S.T @ B_matrix(p, q)
-    return Mbar1, Mbar2, Cbar, Bbar, S
+    return _fast().reduced(packed(p), _vec(q), _vec(eta))[:4]
 
 
 def eta_dot(p: ChainParams, q: np.ndarray, eta: np.ndarray, tau: np.ndarray):
-    r"""Forward dynamics of the reduced model (2.70): qdot and etadot.
+    r"""Forward dynamics of the reduced model (2.70), qdot and etadot: the compiled ``plant_rhs``.
 
     Returns
     -------
     qdot : (n + 2,), etadot : (2,) ndarrays
     """
-    Mbar1, Mbar2, Cbar, Bbar, S = _reduced_and_S(p, q, eta)  # S once per evaluation
-    # Mbar1 etadot = Bbar tau - Mbar2 eta - Cbar
-    etadot = np.linalg.solve(Mbar1, Bbar @ tau - Mbar2 @ eta - Cbar)
-    return S @ eta, etadot
+    return _fast().plant_rhs(packed(p), _vec(q), _vec(eta), _vec(tau))
 
 
 def positions(p: ChainParams, q: np.ndarray):
@@ -338,9 +295,9 @@ def positions(p: ChainParams, q: np.ndarray):
 
 
 def wheel_speeds(p: ChainParams, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
-    r"""Wheel angular velocities in wheel order: ``Bbar^T eta = B^T S eta``.
+    r"""Wheel angular velocities in wheel order, ``Bbar^T eta = B^T S eta``: the compiled ``wheel_speeds_rows``.
 
     By virtual work the power delivered by the torques is ``tau . wheel_speeds``:
     omega_ir = (v_i + b_i omega_i) / r_i, omega_il = (v_i - b_i omega_i) / r_i.
     """
-    return B_matrix(p, q).T @ (S_matrix(p, q) @ eta)
+    return _fast().wheel_speeds_rows(packed(p), _vec(q)[None, :], _vec(eta)[None, :])[0]

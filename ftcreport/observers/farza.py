@@ -25,17 +25,22 @@ instant).  The term -Theta P^2 / p_max bounds P at p_max in those directions and
 leaves it essentially unchanged where excitation keeps P << p_max; the trade-off
 is a slower parameter convergence (smaller adaptation gain) when p_max is small.
 ``p_max = None`` reproduces the printed law.
+
+The observer's equations exist once, in the compiled kernels
+(``fast.kernels.farza_derivative`` and ``farza_estimates``); :class:`FarzaObserver`
+checks and holds the tuning, lays out the state, packs the tuple the kernels take
+(``packed()``, ``fast.kernels.Obs``) and calls them.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
 
 from ..errors import ModelError
-from ..model import kernels as K
 from ..model.chain import Chain
 
 __all__ = ["Estimate", "FarzaObserver"]
@@ -124,24 +129,12 @@ class FarzaObserver:
         self.A = np.block([[Z, I], [Z, Z]])
         self.Soinv = np.block([[2 * I, I], [I, I]])  # inverse of S_o = [[I, -I], [-I, 2I]]
         self.AY = self.Theta * (self.A - self.Soinv[:, :N] @ np.eye(N, 2 * N))  # Theta (A - S_o^-1 C^T C)
+        self._obs = None  # the kernels' tuple, built on first use
 
     # ------------------------------------------------------------------ parameters
     def split(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(xhat, rhohat, Y, P) from the observer state."""
         return s[self._x], s[self._rho], s[self._Y].reshape(2 * self.N, self.p), s[self._P].reshape(self.p, self.p)
-
-    def gains_frictions(self, rho_hat: np.ndarray, rho_known=None, ubar_known=None):
-        """(rho, ubar) per wheel from the estimated parameters (known values where not estimated)."""
-        nw = self.nw
-        rho = np.ones(nw) if rho_known is None else np.asarray(rho_known, float)
-        ubar = np.zeros(nw) if ubar_known is None else np.asarray(ubar_known, float)
-        k = 0
-        if self.est_rho:
-            rho = rho_hat[:nw]
-            k = nw
-        if self.est_ubar:
-            ubar = rho_hat[k : k + nw]
-        return rho, ubar
 
     def initial_state(self, q0: np.ndarray, qdot0: np.ndarray | None = None) -> np.ndarray:
         """Observer state at t = 0: q_hat(0) per ``q_hat0``, qdot_hat(0) = qdot0 (default 0),
@@ -160,49 +153,33 @@ class FarzaObserver:
         s[self._P] = (self.p0 * np.eye(self.p)).ravel()
         return s
 
-    # ------------------------------------------------------------------ dynamics
-    def phi_and_regressor(self, u: np.ndarray, xhat: np.ndarray, rho: np.ndarray, ubar: np.ndarray):
-        """phi_2 (N,) and d phi_2 / d rho_bar (N, p) at the estimate (E16)."""
-        p = self.chain.params
-        q, qdot = xhat[: self.N], xhat[self.N :]
-        S = K.S_matrix(p, q)
-        eta = np.linalg.lstsq(S, qdot, rcond=None)[0]  # eta = S^+ qdot
-        Mbar1, Mbar2, Cbar, Bbar = K.reduced(p, q, eta)
-        _, Sdot = K.S_and_Sdot(p, q, eta)
-        MB = np.linalg.solve(Mbar1, Bbar)
-        # phi_2 = S Mbar1^-1 (-Mbar2 eta - Cbar + Bbar (diag(rho) u + ubar)) + Sdot eta
-        acc = np.linalg.solve(Mbar1, -Mbar2 @ eta - Cbar) + MB @ (rho * u + ubar)
-        phi2 = S @ acc + Sdot @ eta
-        SMB = S @ MB
-        cols = []
-        if self.est_rho:
-            cols.append(SMB * u[None, :])
-        if self.est_ubar:
-            cols.append(SMB)
-        return phi2, np.hstack(cols), eta
+    def packed(self, tau: float | None = None, est0: int = 0, filt0: int = 0):
+        """The observer as the compiled kernels take it (``fast.kernels.Obs``).
 
-    def derivative(self, u: np.ndarray, y: np.ndarray, s: np.ndarray, rho_known=None, ubar_known=None):
-        """Observer state derivative, (n_states,), for measured q = y and applied control u."""
-        N, Th = self.N, self.Theta
-        xhat, rhohat, Y, P = self.split(s)
-        rho, ubar = self.gains_frictions(rhohat, rho_known, ubar_known)
-        phi2, dphi2, _ = self.phi_and_regressor(u, xhat, rho, ubar)
-        Kt = self.k1 * np.tanh(self.k0 * (y - xhat[:N]))  # K(ytilde)
-        YN = Y[:N]  # C Y
-        # correction = Theta Delta^-1 (S_o^-1 + Y P Y^T) C^T K
-        corr = (self.Soinv[:, :N] + Y @ P @ YN.T) @ Kt
-        corr[N:] *= Th  # Delta^-1 = diag(I, Theta I)
-        ds = np.empty(self.n_states)
-        xdot = np.concatenate((xhat[N:], phi2))
-        ds[self._x] = xdot + self.sign * Th * corr
-        ds[self._rho] = self.sign * Th * (P @ (YN.T @ Kt))
-        dphi = np.vstack((np.zeros((N, self.p)), dphi2 / Th))  # Delta d phi / d rho_bar
-        ds[self._Y] = (self.AY @ Y + dphi).ravel()
-        dP = Th * P - Th * P @ YN.T @ YN @ P
-        if self.p_max is not None:
-            dP -= Th * (P @ P) / self.p_max
-        ds[self._P] = dP.ravel()
-        return ds
+        ``tau``, ``est0`` and ``filt0`` are the active controller's: its estimate filter's time
+        constant (None: unfiltered), where the observer's and the filter's states start in its state.
+        """
+        from ..fast import kernels as F
+
+        return F.Obs(
+            self.Theta, self.k0, self.k1, math.nan if self.p_max is None else float(self.p_max), int(self.est_rho),
+            int(self.est_ubar), self.p, self.sign, math.nan if tau is None else float(tau),
+            np.ascontiguousarray(self.AY), np.ascontiguousarray(self.Soinv), int(est0), self.n_states, int(filt0),
+        )  # fmt: skip
+
+    def _O(self):
+        if self._obs is None:
+            self._obs = self.packed()
+        return self._obs
+
+    # ------------------------------------------------------------------ dynamics
+    def derivative(self, u: np.ndarray, y: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Observer state derivative, (n_states,), for measured q = y and applied control u: the compiled
+        ``farza_derivative``, (4.4)-(4.11) with E15, E16 and the P guard."""
+        from ..fast import kernels as F
+
+        v = (np.ascontiguousarray(x, dtype=float) for x in (u, y, s))
+        return F.farza_derivative(self._O(), self.chain.packed(), *v)
 
     # ------------------------------------------------------------------ estimator interface
     discrete_time = False  # integrated with the plant (continuous observer)
@@ -215,12 +192,12 @@ class FarzaObserver:
         return [f"rho_{w}" for w in wheels if self.est_rho] + [f"ubar_{w}" for w in wheels if self.est_ubar]
 
     def estimates(self, s: np.ndarray, y: np.ndarray) -> Estimate:
-        """Estimate from the observer state; eta_hat = S^+(y) qdot_hat (thesis 4.2.3.2)."""
-        xhat, rhohat, _, _ = self.split(s)
-        S = K.S_matrix(self.chain.params, y)
-        eta = np.linalg.solve(S.T @ S, S.T @ xhat[self.N :])
-        rho, ubar = self.gains_frictions(rhohat)
-        return Estimate(xhat[: self.N], eta, rho, ubar)
+        """Estimate from the observer state; eta_hat = S^+(y) qdot_hat (thesis 4.2.3.2): the compiled
+        ``farza_estimates``."""
+        from ..fast import kernels as F
+
+        s, y = np.ascontiguousarray(s, dtype=float), np.ascontiguousarray(y, dtype=float)
+        return Estimate(*F.farza_estimates(self._O(), self.chain.packed(), s, y, self.nw))
 
     def parameter_std(self, s: np.ndarray) -> np.ndarray:
         """sqrt(diag P) per estimated parameter: the observer's adaptation gain, not a covariance."""

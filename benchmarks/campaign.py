@@ -103,7 +103,7 @@ def main() -> None:
     base = parse_case(data, "two_link_campaign")
     cores = os.cpu_count() or 1
     load0 = os.getloadavg()
-    from ftcreport.fast.engine import warm_up
+    from ftcreport.sim import warm_up
 
     warm_up()
     costs = per_sample_costs(base, max(4, samples // 4), seed=100)

@@ -173,7 +173,7 @@ def compile_time() -> dict:
     """First-run compile time (empty numba cache, fresh process) and the load time from the cache."""
     code = (
         f"import sys, time; sys.path.insert(0, {str(ROOT)!r}); t0 = time.perf_counter()\n"
-        "from ftcreport.fast.engine import warm_up\n"
+        "from ftcreport.sim import warm_up\n"
         "warm_up(); print(time.perf_counter() - t0)\n"
     )
     out = {}

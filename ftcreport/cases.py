@@ -544,7 +544,7 @@ class Simulation(_Strict):
             ratio = self.sample_time / self.dt
             if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
                 raise _FieldError(
-                    "sample_time", f"{self.sample_time} s is not a whole number of steps dt = {self.dt} s"
+                    "simulation.sample_time", f"{self.sample_time} s is not a whole number of steps dt = {self.dt} s"
                 )
         return self
 
@@ -1044,7 +1044,11 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         case = case.model_copy(update={"name": stem})
     from .families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
 
-    return fill_defaults(case)
+    models = {
+        "nominal": NominalScheme, "oracle": OracleScheme, "switching": SwitchingScheme, "adaptive": AdaptiveScheme,
+        "active": ActiveScheme, "active_ukf": ActiveUKFScheme,
+    }  # fmt: skip
+    return fill_defaults(case, models)
 
 
 def _load_plugins(data: dict, source: str) -> dict:

@@ -14,7 +14,7 @@ report through Dask's own version report (``Client.get_versions``, which also
 warns on Dask's own mismatches) with the client's, for the package and every
 dependency that can change a simulated number; a mismatch is refused.  A
 worker plugin (:class:`WarmUp`) loads the compiled kernels once per worker
-(``ftcreport.fast.engine.warm_up``), so no sample pays the numba load.
+(``ftcreport.sim.warm_up``), so no sample pays the numba load.
 
 :func:`execute` runs ``func(*args)`` for every index, in this process or on a
 ``LocalCluster`` / existing scheduler through the same ``client.submit`` path,
@@ -44,7 +44,7 @@ class WarmUp(WorkerPlugin):
     name = "ftcreport-warm-up"
 
     async def setup(self, worker) -> None:
-        from .fast.engine import warm_up
+        from .sim import warm_up
 
         loop = asyncio.get_running_loop()
         self.seconds = await loop.run_in_executor(None, warm_up)

@@ -47,11 +47,11 @@ OBSERVER_RATIO = 100.0
 
 def default_k_v(case: Case) -> float:
     """The velocity gain the default tables use (see the module docstring)."""
-    from .cases import SCHEME_NAMES
+    from .schemes import BUILT_IN
 
     if case.schemes.k_v is not None:
         return float(case.schemes.k_v)
-    for s in SCHEME_NAMES:
+    for s in BUILT_IN:
         cfg = getattr(case.schemes, s)
         if cfg is not None:
             return float(cfg.k_v)
@@ -101,10 +101,14 @@ def _patterns(case: Case, other: str):
     return "all" if cfg is None else cfg.patterns
 
 
-def fill_defaults(case: Case) -> Case:
-    """The case with a default table for every wanted family it does not configure."""
-    from .cases import ActiveScheme, ActiveUKFScheme, AdaptiveScheme, NominalScheme, OracleScheme, SwitchingScheme
+def fill_defaults(case: Case, models: dict[str, type]) -> Case:
+    """The case with a default table for every wanted family it does not configure.
 
+    ``models``: the table model of each family (ftcreport.cases passes its own, so this module
+    does not import the case schema: cases -> families, never back).
+    """
+    NominalScheme, OracleScheme, SwitchingScheme = models["nominal"], models["oracle"], models["switching"]
+    AdaptiveScheme, ActiveScheme, ActiveUKFScheme = models["adaptive"], models["active"], models["active_ukf"]
     k_v = default_k_v(case)
     kind = case.kinematic.kind
     add = {}

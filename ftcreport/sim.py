@@ -547,11 +547,17 @@ def simulate(
 
 
 def _fault_records(plant: Plant) -> list[dict]:
-    """The plant's fault events as plain records (run metadata: exports and notebook views)."""
-    return [
-        {"time": float(e.time), "wheel": str(e.wheel), "sigma": float(e.sigma), "ubar": float(e.ubar)}
-        for e in plant.faults.events
-    ]
+    """The plant's fault events as plain records (run metadata: exports and notebook views).
+
+    A motor event (issue 19) also carries its ``motor`` kind and ``value``.
+    """
+    out = []
+    for e in plant.faults.events:
+        rec = {"time": float(e.time), "wheel": str(e.wheel), "sigma": float(e.sigma), "ubar": float(e.ubar)}
+        if e.motor is not None:
+            rec |= {"motor": str(e.motor), "value": None if e.value is None else float(e.value)}
+        out.append(rec)
+    return out
 
 
 def _step_rk4(deriv, t, x, h, k1, hold):
@@ -636,3 +642,26 @@ def _check_state(chain: Chain, x: np.ndarray, settings: SimSettings) -> None:
         raise DivergenceError(bound_reason("velocity", eta.tolist(), settings.max_speed))
     if np.any(np.abs(q[:2]) > settings.max_position):
         raise DivergenceError(bound_reason("position", q[:2].tolist(), settings.max_position, " m"))
+
+
+def warm_up() -> float:
+    """Compile (or load from the cache) every kernel on a tiny run; returns the seconds it took."""
+    from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
+    from .control.switching import SwitchingController
+    from .control.tracking import TrackingController
+    from .model import Chain
+    from .references import FlatReference, circle
+
+    t0 = _time.perf_counter()
+    for n in (2, 3):
+        chain = Chain.uniform(n)
+        ref = FlatReference(circle(5.0, 0.5), chain.d)
+        if n == 2:
+            kin = TwoLinkKinematic(chain.d[0], ref, 1.0, 1.0, 1.0)
+        else:
+            kin = ChainedBackstepping(chain.d, ref, [0.3] * n, 1.0, 1.0, 5.0)
+        q0 = ref.at(0.0).q_d
+        for ctrl in (TrackingController(chain, kin, 5.0), SwitchingController(chain, kin, 5.0)):
+            for method in ("rk4", "ros2"):
+                simulate(Plant(chain), ctrl, q0, np.array([0.5, 0.0]), SimSettings(0.01, 0.03, method=method))
+    return _time.perf_counter() - t0

@@ -256,7 +256,11 @@ def read_run(out: Path, case: str, scheme: str) -> Run | None:
     if toml.exists():
         try:
             c = parse_case(tomllib.loads(toml.read_text()), str(toml))
-            meta["fault_schedule"] = [f.model_dump() for f in c.faults if f.time < (m.get("duration") or math.inf)]
+            meta["fault_schedule"] = [
+                {k: v for k, v in f.model_dump().items() if k not in ("motor", "value") or f.motor is not None}
+                for f in c.faults
+                if f.time < (m.get("duration") or math.inf)
+            ]
         except Exception:  # a record whose case no longer validates still gives its arrays
             meta["fault_schedule"] = []
     meta = {k: v for k, v in meta.items() if v is not None}

@@ -13,7 +13,7 @@ observer's P) are computed here, vectorized, from the log.
 The loop runs in chunks of about 1 % of the steps so that the progress
 callback is called as often as in the Python loop.  numba compiles the kernels
 on first use and caches the machine code beside the package (``__pycache__``):
-a fresh clone builds the cache on its first run (:func:`warm_up` does it
+a fresh clone builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
 explicitly and reports the time).
 """
 
@@ -53,7 +53,7 @@ from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
 
-__all__ = ["Spec", "compiled_spec", "simulate_compiled", "warm_up"]
+__all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled"]
 
 NAN = float("nan")
 
@@ -590,25 +590,3 @@ def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     if not parts:
         return {}
     return {name: np.concatenate([p[name] for p in parts], axis=0) for name in parts[0]}
-
-
-def warm_up() -> float:
-    """Compile (or load from the cache) every kernel on a tiny run; returns the seconds it took."""
-    from ..control.kinematic import ChainedBackstepping, TwoLinkKinematic
-    from ..model import Chain
-    from ..references import FlatReference, circle
-    from ..runs import Plant, SimSettings, simulate
-
-    t0 = _time.perf_counter()
-    for n in (2, 3):
-        chain = Chain.uniform(n)
-        ref = FlatReference(circle(5.0, 0.5), chain.d)
-        if n == 2:
-            kin = TwoLinkKinematic(chain.d[0], ref, 1.0, 1.0, 1.0)
-        else:
-            kin = ChainedBackstepping(chain.d, ref, [0.3] * n, 1.0, 1.0, 5.0)
-        q0 = ref.at(0.0).q_d
-        for ctrl in (TrackingController(chain, kin, 5.0), SwitchingController(chain, kin, 5.0)):
-            for method in ("rk4", "ros2"):
-                simulate(Plant(chain), ctrl, q0, np.array([0.5, 0.0]), SimSettings(0.01, 0.03, method=method))
-    return _time.perf_counter() - t0

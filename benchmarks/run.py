@@ -19,6 +19,7 @@ cases/two_link_sliding_mode.toml: wall seconds per simulated second, warm, and t
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import statistics
 import subprocess
@@ -203,20 +204,91 @@ def peak_rss_400s() -> dict:
     return {"status": out[0], "logged_samples": int(out[1]), "peak_rss_mb": int(out[2]) / 1024}
 
 
+def _cold_env(d: str) -> dict:
+    """An environment with an empty compile cache: numba's and the generated loop modules' (issue 20)."""
+    import os
+
+    return dict(os.environ, NUMBA_CACHE_DIR=str(Path(d) / "numba"), FTCREPORT_CACHE=str(Path(d) / "loops"))
+
+
 def batch_times() -> dict:
-    """`ftcreport batch cases/` cold (empty output directory) and warm (everything cached)."""
+    """`ftcreport batch cases/` cold (empty compile cache and output directory) and warm (everything cached)."""
     import subprocess
     import tempfile
 
     with tempfile.TemporaryDirectory() as d:
-        cmd = [sys.executable, "-m", "ftcreport.cli", "batch", str(CASES), "--out", d, "--quiet"]
+        env = _cold_env(d)
+        cmd = [sys.executable, "-m", "ftcreport.cli", "batch", str(CASES), "--out", str(Path(d) / "out"), "--quiet"]
         t0 = time.perf_counter()
-        subprocess.run(cmd, check=False, capture_output=True)
+        subprocess.run(cmd, check=False, capture_output=True, env=env)
         cold = time.perf_counter() - t0
         t0 = time.perf_counter()
-        subprocess.run(cmd, check=False, capture_output=True)
+        subprocess.run(cmd, check=False, capture_output=True, env=env)
         warm = time.perf_counter() - t0
     return {"cold_s": cold, "warm_s": warm}
+
+
+def first_result() -> dict:
+    """Issue 20 item 1: `ftcreport run cases/two_link_switching.toml --scheme switching` on an empty
+    compile cache, run for 0.05 simulated s (so the wall time is the time before simulating), then warm."""
+    import subprocess
+    import tempfile
+
+    out = {}
+    with tempfile.TemporaryDirectory() as d:
+        env = _cold_env(d)
+        cmd = [sys.executable, "-m", "ftcreport.cli", "run", str(CASES / "two_link_switching.toml"), "--scheme"]
+        cmd += ["switching", "--duration", "0.05", "--no-report", "--quiet", "--out", str(Path(d) / "out")]
+        for key in ("cold_s", "warm_s"):
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=False, capture_output=True, env=env)
+            out[key] = time.perf_counter() - t0
+    return out
+
+
+def scaling(seconds: float) -> dict:
+    """Issue 20 item 5: wall time per simulated second for n = 2, 3, 5, 8, 12 (nominal, switching, adaptive).
+
+    A circle of radius 5 m at 0.5 m/s, the thesis robot, the chained law for n >= 3 (the two-link
+    law for n = 2), every compensable pattern as the bank: 3 * 4^(n-1) models.  Banks above
+    MAX_MODELS are not run (their state alone would be 2 * 3 * 4^(n-1) floats per step and stage).
+    """
+    from ftcreport.control.adaptive import AdaptiveController
+    from ftcreport.control.kinematic import ChainedBackstepping, TwoLinkKinematic
+    from ftcreport.control.switching import SwitchingController
+    from ftcreport.control.tracking import TrackingController
+    from ftcreport.model import Chain
+    from ftcreport.references import FlatReference, circle
+    from ftcreport.sim import Plant, SimSettings
+
+    max_models = 60_000
+    out: dict = {}
+    for n in (2, 3, 5, 8, 12):
+        chain = Chain.uniform(n)
+        ref = FlatReference(circle(5.0, 0.5), chain.d)
+        if n == 2:
+            kin = TwoLinkKinematic(chain.d[0], ref, 1.0, 1.0, 1.0)
+        else:
+            kin = ChainedBackstepping(chain.d, ref, [0.3] * n, 1.0, 1.0, 5.0)
+        q0 = ref.at(0.0).q_d
+        models = 3 * 4 ** (n - 1)
+        for name in ("nominal", "switching", "adaptive"):
+            key = f"n={n} {name}"
+            if name != "nominal" and models > max_models:
+                out[key] = {"models": models, "not_run": f"{models} models > {max_models}"}
+                continue
+            cls = {"nominal": TrackingController, "switching": SwitchingController, "adaptive": AdaptiveController}[
+                name
+            ]
+            settings = SimSettings(0.01, seconds, log_every=10)
+            short = dataclasses.replace(settings, duration=0.05)  # compile or load the loop first
+            simulate(Plant(chain), cls(chain, kin, 2.0), q0, np.array([0.5, 0.0]), short)
+            t0 = time.perf_counter()
+            run = simulate(Plant(chain), cls(chain, kin, 2.0), q0, np.array([0.5, 0.0]), settings)
+            wall = time.perf_counter() - t0
+            out[key] = {"models": models if name != "nominal" else 1, "wall_per_sim_s": wall / seconds,
+                        "status": run.status}  # fmt: skip
+    return out
 
 
 def io_response_comparison(seconds: float) -> dict:
@@ -306,7 +378,15 @@ def main() -> None:
         f"({cmp_['ratio_python_engine']:.1f} for the Python engine); "
         f"final positions differ by {cmp_['final_position_difference_m']:.1e} m"
     )
+    sc = scaling(2.0 if args.quick else 5.0)
+    out["scaling"] = sc
+    for key, r in sc.items():
+        what = r.get("not_run") or f"{r['wall_per_sim_s']:.4f} s/sim-s ({r['status']})"
+        print(f"scaling {key:18s} {r['models']:>9,} models: {what}")
     if not args.no_batch:
+        fr = first_result()
+        out["first_result"] = fr
+        print(f"ftcreport run two_link_switching (switching): cold {fr['cold_s']:.0f} s, warm {fr['warm_s']:.1f} s")
         mem = peak_rss_400s()
         out["memory_400s"] = mem
         print(

@@ -172,30 +172,29 @@ def test_controllers_without_a_compiled_counterpart_run_in_python():
         simulate(Plant(chain), ctrl, np.zeros(4), np.zeros(2), SimSettings(0.01, 0.5), engine="compiled")
     case = with_duration(load_case(CASES / "two_link_active.toml"), 0.1)
     built = build(case)
-    assert compiled_spec(make_controller(built, "active_ukf")) is None  # the UKF stays in Python (filterpy)
+    assert compiled_spec(make_controller(built, "active_ukf")) is not None  # the UKF is compiled (issue 20)
     assert math.isfinite(built.settings.dt)
 
 
-def test_ukf_on_compiled_kernels_equals_pure_python():
-    """The UKF runs in the Python loop; its sigma-point propagation and the law at the samples use the
-    kernels.  Against the pure-Python UKF and law (round-off apart, as above)."""
+def test_compiled_ukf_loop_equals_the_filterpy_loop():
+    """The compiled UKF scheme (fast/ukf.py) against the Python loop on filterpy, the reference.
+
+    Same equations in another floating-point order: one filter step differs by <= 3e-12 in x
+    (tests/test_ukf_compiled.py); over 5 s of closed loop the measured gaps are 7e-12 m in q and
+    1e-8 relative in u, so 1e-9 on q, eta and 1e-7 relative on u and the estimates.
+    """
     case = with_duration(load_case(CASES / "two_link_active.toml"), 5.0)
     runs = []
-    for pure in (True, False):
+    for engine in ("python", "compiled"):
         built = build(case)
-        ctrl = make_controller(built, "active_ukf")
-        if pure:
-            ctrl._fast_law = None
-            ctrl.est._ukf.batch_fx = None
-        else:
-            assert ctrl._fast_law is not None
-        runs.append(simulate(built.plant, ctrl, built.q0, built.eta0, built.settings))
+        runs.append(simulate(built.plant, make_controller(built, "active_ukf"), built.q0, built.eta0,
+                             built.settings, engine=engine))  # fmt: skip
     py, fast = runs
-    assert py.ok and fast.ok
+    assert py.ok and fast.ok and fast.meta["engine"] == "compiled"
     for name in ("q", "eta"):
         np.testing.assert_allclose(fast[name], py[name], rtol=0, atol=1e-9)
-    for name in ("u", "rho_hat", "ubar_hat", "eta_hat"):
-        np.testing.assert_allclose(fast[name], py[name], rtol=0, atol=1e-8 * max(1.0, np.abs(py[name]).max()))
+    for name in ("u", "rho_hat", "ubar_hat", "eta_hat", "P_max"):
+        np.testing.assert_allclose(fast[name], py[name], rtol=0, atol=1e-7 * max(1.0, np.abs(py[name]).max()))
 
 
 def test_a_run_without_the_ukf_does_not_load_filterpy_or_sympy():

@@ -28,7 +28,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from ..errors import ModelError
 from ..model import kernels as K
@@ -101,12 +100,16 @@ class UKFEstimator:
         p0 = [1e-6] * N + [eta_std0**2] * 2
         p0 += [rho_std0**2] * (nw if self.est_rho else 0) + [ubar_std0**2] * (nw if self.est_ubar else 0)
         self.P0 = np.diag(p0)
+        # filterpy (and the scipy.stats it pulls, ~65 MB) only where a UKF is built: the compiled
+        # engine runs its own step (fast/ukf.py); this object is the reference and the Python loop's
+        from filterpy.kalman import MerweScaledSigmaPoints
+
         points = MerweScaledSigmaPoints(
             self.nx, alpha=alpha, beta=beta, kappa=(3.0 - self.nx) if kappa is None else kappa
         )
         self.points = points  # alpha, beta, kappa and the weights Wm, Wc (fast/ukf.py reads them)
         self.R = np.diag(R**2)  # measurement covariance
-        self._ukf = _BatchUKF(dim_x=self.nx, dim_z=N, dt=0.01, fx=self._fx, hx=self._hx, points=points)
+        self._ukf = _batch_ukf_class()(dim_x=self.nx, dim_z=N, dt=0.01, fx=self._fx, hx=self._hx, points=points)
         self._ukf.batch_fx = self._fx_batch
         self._ukf.R = self.R
 
@@ -191,14 +194,27 @@ class UKFEstimator:
         return float(np.linalg.eigvalsh(self.unpack(s)[1]).max())
 
 
-class _BatchUKF(UnscentedKalmanFilter):
-    """filterpy's UKF with the process model applied to all sigma points in one call."""
+_BatchUKF = None
 
-    batch_fx = None
 
-    def compute_process_sigmas(self, dt, fx=None, **fx_args):
-        if fx is not None or self.batch_fx is None:
-            return super().compute_process_sigmas(dt, fx, **fx_args)
-        sigmas = self.points_fn.sigma_points(self.x, self.P)
-        self.sigmas_f[:] = self.batch_fx(sigmas, dt, **fx_args)
-        return None
+def _batch_ukf_class():
+    """filterpy's UKF with the process model applied to all sigma points in one call (built on first use)."""
+    global _BatchUKF
+    if _BatchUKF is not None:
+        return _BatchUKF
+    from filterpy.kalman import UnscentedKalmanFilter
+
+    class BatchUKF(UnscentedKalmanFilter):
+        """filterpy's UKF with the process model applied to all sigma points in one call."""
+
+        batch_fx = None
+
+        def compute_process_sigmas(self, dt, fx=None, **fx_args):
+            if fx is not None or self.batch_fx is None:
+                return super().compute_process_sigmas(dt, fx, **fx_args)
+            sigmas = self.points_fn.sigma_points(self.x, self.P)
+            self.sigmas_f[:] = self.batch_fx(sigmas, dt, **fx_args)
+            return None
+
+    _BatchUKF = BatchUKF
+    return BatchUKF

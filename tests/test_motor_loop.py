@@ -11,6 +11,7 @@ motor cases use is tested at the end.
 
 from __future__ import annotations
 
+import json
 import tomllib
 from pathlib import Path
 
@@ -192,3 +193,27 @@ def test_a_stored_overlay_parses_on_its_own(tmp_path):
     path = ROOT / "cases" / "motors" / "two_link_adaptive_eight_motors.toml"
     text = overlay_text(path)
     assert parse_case(tomllib.loads(text), str(path)).model_dump() == load_case(path).model_dump()
+
+
+def test_the_motor_page_compares_with_its_base(tmp_path):
+    """A short batch of a motor case and its base: the page has the side-by-side table."""
+    from ftcreport.batch import run_batch
+
+    motor = ROOT / "cases" / "motors" / "three_link_switching_motors.toml"
+    res = run_batch(
+        [ROOT / "cases" / "three_link_switching.toml", motor], tmp_path, jobs=2, duration=0.5, show_progress=False
+    )
+    assert not res.case_errors and not res.failed_runs, (res.case_errors, res.failed_runs)
+    rec = json.loads((tmp_path / "three_link_switching_motors" / "case.json").read_text())
+    assert rec["base"] == "three_link_switching"
+    # the stored copy is the resolved case: it parses on its own
+    stored = (tmp_path / "three_link_switching_motors" / "case.toml").read_text()
+    assert parse_case(tomllib.loads(stored), "stored").actuators is not None
+    page = (tmp_path / "three_link_switching_motors" / "index.html").read_text()
+    table = page[page.index('id="base-compare"') :]
+    table = table[: table.index("</table>")]
+    # one row per scheme the motor case runs (nominal, switching, oracle), each with the base's value
+    assert table.count("<tr><td") == 3
+    for scheme in ("nominal", "switching", "oracle"):
+        assert f'<td class="l">{scheme}</td>' in table
+    assert "ok / ok" in table

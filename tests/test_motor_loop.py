@@ -4,9 +4,10 @@ The open-loop motor plant is tested in test_motor.py; here the controllers comma
 driver's static inversion turns it into armature voltages and the engine integrates [q, eta, i_a].
 Checks: the motor plant tends to the ideal torque plant as L_a -> 0 (V_max huge), at first order in
 L_a; an open winding carries no current and gives no torque; a shorted winding brakes with
--k_m k_b omega_m / R_a; a k_m loss is logged as the sigma it maps to.  A case without
-[actuators] is covered by the golden windows (test_golden.py).  The overlay (base_case) that the
-motor cases use is tested at the end.
+-k_m k_b omega_m / R_a; a k_m loss is logged as the sigma it maps to; the electrical power balance
+holds along a sampled run.  A case without [actuators] is covered by the golden windows
+(test_golden.py).  The overlay (base_case) that the motor cases use, and the motor case page's
+comparison with its base, are tested at the end.
 """
 
 from __future__ import annotations

@@ -218,6 +218,7 @@ def test_the_motor_page_compares_with_its_base(tmp_path):
     for scheme in ("nominal", "switching", "oracle"):
         assert f'<td class="l">{scheme}</td>' in table
     assert "ok / ok" in table
+    assert 'id="fig-base"' in page  # the errors of both, overlaid
 
 
 def test_electrical_power_balance_along_a_sampled_closed_loop_run():

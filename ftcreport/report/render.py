@@ -224,6 +224,22 @@ def render_case(out: Path, name: str) -> Path | None:
             )
         )
     base_cmp = motor_comparison(out, rec.get("base"), runs) if rec.get("base") else None
+    if base_cmp and base_cmp["rows"] and series:
+        both = {}
+        for s in series:
+            ts = load_timeseries(out, base_cmp["base"], s)
+            if ts is not None and ts.get("t") is not None and ts["t"].size > 1:
+                both[f"{s} (this case)"] = series[s]
+                both[f"{s} (base)"] = ts
+        if both:
+            figures.append(
+                figure(
+                    "base",
+                    f"Tracking errors of this case and of its base case {base_cmp['base']}, scheme by scheme "
+                    "(the legend toggles a trace).",
+                    plotly=interactive.errors_fig(both, events),
+                )
+            )
     analysis = _analysis(case, names)
     if analysis is not None:
         figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import __version__
-from .cases import Case, case_hash, configured_schemes, load_case, with_duration
+from .cases import Case, case_hash, configured_schemes, load_case, overlay_text, with_duration
 from .errors import CaseError
 from .store import cached_key, output_lock, save_run, write_atomic, write_json
 
@@ -80,12 +80,23 @@ def _record(out: Path, name: str, payload: dict) -> None:
     write_json(out / name / "case.json", payload | {"time": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")})
 
 
+def base_name(path: Path, base_case: str) -> str:
+    """The name (report directory) of an overlay's base case: its ``name`` field, else its file stem."""
+    base = (Path(path).parent / base_case).resolve()
+    try:
+        return load_case(base).name or base.stem
+    except CaseError:
+        return base.stem
+
+
 def record_case(out: Path, case: Case, path: Path, duration: float | None = None) -> str:
     """Store the case record and a copy of the case file (provenance); returns the case content hash."""
     from .families import not_applicable
 
     key = case_hash(case, __version__)
-    write_atomic(out / case.name / "case.toml", Path(path).read_bytes())
+    # an overlay (base_case) is stored resolved, so the copy parses on its own
+    resolved = overlay_text(path) if case.base_case is not None else None
+    write_atomic(out / case.name / "case.toml", Path(path).read_bytes() if resolved is None else resolved.encode())
     schemes = configured_schemes(case)
     thresholds = {s: {m: b.model_dump() for m, b in t.items()} for s, t in case.thresholds.items()}
     payload = {
@@ -102,6 +113,8 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
         "not_run": not_applicable(case),  # families the case does not run, each with its reason (issue 21)
         "plugin_schemes": plugin_info(case),  # the plug-in schemes' family, description, reference (report pages)
     }
+    if case.base_case is not None:  # the page compares with the base's runs (issue 19 item 4)
+        payload["base"] = base_name(Path(path), case.base_case)
     _record(out, case.name, payload)
     return key
 

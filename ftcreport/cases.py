@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import difflib
 import hashlib
+import json
 import math
 import tomllib
 from pathlib import Path
@@ -676,6 +677,14 @@ class Case(_Strict):
         "registers its schemes, which [schemes.<name>] and schemes.run may then name",
         "-",
     )
+    base_case: str | None = _f(
+        None,
+        "path of the case this file overlays, relative to this file: the base's tables, then this file's "
+        "(tables merged key by key, arrays such as [[faults]] replaced whole); name, description, thresholds, "
+        "claims, campaign, expected_status and expected_status_of are this file's own, never the base's",
+        "-",
+        max_length=1000,
+    )
     robots: Robots = _f(..., "the chain ([robots])", "-")
     reference: Reference = _f(..., "the last robot's path ([reference])", "-")
     initial: Initial = _f(Initial(), "initial state ([initial])", "-")
@@ -1104,8 +1113,127 @@ def case_schema() -> dict[str, Any]:
 
 
 def load_case(path: str | Path) -> Case:
-    """Read and validate a TOML case file."""
+    """Read and validate a TOML case file (an overlay is resolved over its ``base_case`` first)."""
     path = Path(path)
+    data = _read_toml(path)
+    if "base_case" not in data:
+        return parse_case(data, str(path))
+    merged = resolve_overlay(path, data)
+    try:
+        return parse_case(merged, str(path))
+    except CaseError as exc:
+        raise CaseError(_name_base_field(str(exc), str(path), data)) from None
+
+
+#: Fields an overlay never takes from its base: they describe the base's own results or identity.
+OWN_FIELDS = (
+    "name",
+    "description",
+    "thresholds",
+    "claims",
+    "campaign",
+    "expected_status",
+    "expected_status_of",
+)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    """``over`` on ``base``: tables merged key by key, anything else (values, arrays) replaced whole."""
+    out = dict(base)
+    for key, val in over.items():
+        if isinstance(val, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], val)
+        else:
+            out[key] = val
+    return out
+
+
+def resolve_overlay(path: Path, data: dict, _seen: tuple[Path, ...] = ()) -> dict:
+    """The full case of an overlay file: its base (resolved in turn), without OWN_FIELDS, then ``data``.
+
+    ``base_case`` stays in the result (provenance; :func:`parse_case` only checks it is a string).
+    Errors name the overlay file and its ``base_case`` field.
+    """
+    ref = data.get("base_case")
+    if not isinstance(ref, str) or not ref.strip():
+        raise CaseError(f"{path}: base_case: must be the path of a case file (a string), got {ref!r}")
+    base_path = (path.parent / ref).resolve()
+    seen = (*_seen, path.resolve())
+    if base_path in seen:
+        chain = " -> ".join(str(p) for p in (*seen, base_path))
+        raise CaseError(f"{path}: base_case: '{ref}' makes a cycle ({chain})")
+    if len(seen) > 8:
+        raise CaseError(f"{path}: base_case: more than 8 overlays deep")
+    try:
+        base = _read_toml(base_path)
+    except CaseError as exc:
+        raise CaseError(f"{path}: base_case: '{ref}': {exc}") from None
+    if "base_case" in base:
+        base = resolve_overlay(base_path, base, seen)
+    base = {k: v for k, v in base.items() if k not in OWN_FIELDS and k != "base_case"}
+    return _merge(base, data)
+
+
+def _name_base_field(message: str, source: str, overlay: dict) -> str:
+    """Say so when the field an error names has its value from the base case, not from the overlay."""
+    rest = message.removeprefix(f"{source}: ")
+    loc = rest.split(": ", 1)[0]
+    parts = [p for p in loc.replace("[", ".[").split(".") if p]
+    node: Any = overlay
+    for part in parts:
+        if part.startswith("[") and isinstance(node, list):
+            i = int(part.strip("[]"))
+            if i >= len(node):
+                node = None
+                break
+            node = node[i]
+        elif isinstance(node, dict) and part in node:
+            node = node[part]
+        else:
+            node = None
+            break
+    if node is None and loc not in ("<root>", "name") and parts:
+        return f"{message} (the value comes from the base case {overlay['base_case']})"
+    return message
+
+
+def overlay_text(path: str | Path) -> str | None:
+    """The resolved case of an overlay file as TOML text (None for a plain case file).
+
+    Batch and run store this beside the runs, so the stored copy parses on its own; the overlay's
+    own text follows as comments (provenance).
+    """
+    path = Path(path)
+    data = _read_toml(path)
+    if "base_case" not in data:
+        return None
+    merged = resolve_overlay(path, data)
+    own = "".join(f"# | {line}\n" for line in path.read_text(encoding="utf-8").splitlines())
+    body = "".join(f"{_toml_key(k)} = {_toml_value(v)}\n" for k, v in merged.items())
+    return f"# {path} resolved over its base case {data['base_case']}; the file itself:\n{own}\n{body}"
+
+
+def _toml_key(key: str) -> str:
+    return key if key and all(c.isalnum() or c in "_-" for c in key) else json.dumps(key)
+
+
+def _toml_value(v: Any) -> str:
+    """One TOML value on one line (inline tables and arrays; a case file holds nothing else)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a JSON string is a TOML basic string
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise CaseError(f"cannot write {type(v).__name__} as TOML")
+
+
+def _read_toml(path: Path) -> dict:
+    """A TOML file as a dict; CaseError naming the file when it cannot be read or parsed."""
     try:
         raw = path.read_bytes()
     except OSError as exc:
@@ -1122,7 +1250,7 @@ def load_case(path: str | Path) -> Case:
         raise CaseError(f"{path}: not valid TOML ({exc})") from None
     except RecursionError:
         raise CaseError(f"{path}: not valid TOML (nested too deeply)") from None
-    return parse_case(data, str(path))
+    return data
 
 
 def case_hash(case: Case, version: str) -> str:
@@ -1134,6 +1262,8 @@ def case_hash(case: Case, version: str) -> str:
     exclude: dict[str, Any] = {"claims": True, "plugins": True}
     if case.actuators is None:
         exclude["actuators"] = True
+    if case.base_case is None:  # the overlay field (issue 19 item 4): older cases keep their hashes
+        exclude["base_case"] = True
     plain = {i: {"motor", "value"} for i, f in enumerate(case.faults) if f.motor is None and f.value is None}
     if plain:
         exclude["faults"] = plain

@@ -223,6 +223,23 @@ def render_case(out: Path, name: str) -> Path | None:
                 svg=plots.articulation_svg(series, events),
             )
         )
+    base_cmp = motor_comparison(out, rec.get("base"), runs) if rec.get("base") else None
+    if base_cmp and base_cmp["rows"] and series:
+        both = {}
+        for s in series:
+            ts = load_timeseries(out, base_cmp["base"], s)
+            if ts is not None and ts.get("t") is not None and ts["t"].size > 1:
+                both[f"{s} (this case)"] = series[s]
+                both[f"{s} (base)"] = ts
+        if both:
+            figures.append(
+                figure(
+                    "base",
+                    f"Tracking errors of this case and of its base case {base_cmp['base']}, scheme by scheme "
+                    "(the legend toggles a trace).",
+                    plotly=interactive.errors_fig(both, events),
+                )
+            )
     analysis = _analysis(case, names)
     if analysis is not None:
         figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
@@ -275,7 +292,41 @@ def render_case(out: Path, name: str) -> Path | None:
         simulated=rec.get("time", "-"),
         case_text=text,
         manifest=_manifest(out, name),
+        base_cmp=base_cmp,
     )
+
+
+#: Headline metrics of the motors-on / motors-off comparison: key, label, unit.
+BASE_METRICS = (
+    ("after_max", "max position error after the first fault", "m"),
+    ("position_error_final", "final position error", "m"),
+    ("torque_peak", "peak wheel torque", "N m"),
+    ("energy", "mechanical energy at the wheels, integral of sum |tau omega|", "J"),
+)
+
+
+def motor_comparison(out: Path, base: str, runs: list[dict]) -> dict:
+    """This case (an overlay, e.g. motors on) against its base case's stored runs, scheme by scheme.
+
+    Rows: every scheme both ran; per headline metric the base's value, this case's and the ratio
+    this / base.  ``missing`` says why there is nothing to compare (the base not in this report).
+    """
+    theirs = stored_metrics(Path(out), base) if (Path(out) / base).is_dir() else {}
+    if not theirs:
+        return {"base": base, "rows": [], "missing": f"the base case '{base}' has no runs in this report"}
+    rows = []
+    for m in runs:
+        b = theirs.get(m["scheme"])
+        if b is None:
+            continue
+        b = dict(b) | {"after_max": _after_max(b)}
+        cells = []
+        for key, _label, _unit in BASE_METRICS:
+            x, y = m.get(key), b.get(key)
+            ratio = x / y if isinstance(x, int | float) and isinstance(y, int | float) and y != 0 else None
+            cells.append({"base": y, "this": x, "ratio": ratio})
+        rows.append({"scheme": m["scheme"], "status": m["status"], "base_status": b.get("status"), "cells": cells})
+    return {"base": base, "rows": rows, "metrics": BASE_METRICS, "missing": None if rows else "no scheme in common"}
 
 
 def _thesis_figures(case, series: dict, names: list[str], events: list[float]) -> list[dict]:
@@ -548,6 +599,12 @@ def _page_stamp(out: Path, name: str) -> str:
                 st = p.stat()
                 h.update(f"{s}/{f}:{st.st_size}:{st.st_mtime_ns}".encode())
     h.update(_manifest_stamp(out, name))
+    if rec.get("base"):  # an overlay's page shows its base's metrics too
+        for s in stored_schemes(out, rec["base"]):
+            p = out / rec["base"] / s / "metrics.json"
+            if p.exists():
+                st = p.stat()
+                h.update(f"base/{s}:{st.st_size}:{st.st_mtime_ns}".encode())
     for t in sorted(resources.files("ftcreport.templates").iterdir(), key=lambda p: p.name):
         if t.name.endswith(".html"):
             h.update(t.read_bytes())

@@ -124,58 +124,62 @@ def compiled_spec(controller) -> Spec | None:
     N = chain.n_q
     n_kin = 4 + len(kin_obj.z_names) + N + 2  # eta_c, eta_c_dot, z, q_d, eta_d
     n_sig = n_kin
-    disc = F.no_discrete
     start = False  # run the discrete update once at t0 (a sampled scheme computing its first command)
     ulim = lambda v: NAN if v is None else float(v)  # noqa: E731
     cls = type(controller)
+    pc = _chain(chain.params)
+    obs = ukf = None
     if cls is OracleController:
-        law, P = F.oracle_law, _law(F.LAW_ORACLE, controller, nw)
+        P = _law(F.LAW_ORACLE, controller, nw)
     elif cls is TrackingController:
         P = _law(F.LAW_TRACKING, controller, nw, sigma=np.ascontiguousarray(controller.sigma, dtype=float))
-        law = F.tracking_law
     elif cls is SwitchingController:
         c = controller
         P = _law(
-            F.LAW_SWITCHING, c, nw, patterns=np.ascontiguousarray(c.patterns), gamma=c.gamma, T_min=c.T_min,
-            c_inst=c.c_inst, c_int=c.c_int, forgetting=c.forgetting, hysteresis=c.hysteresis,
+            F.LAW_SWITCHING, c, nw, patterns=np.ascontiguousarray(c.patterns, dtype=float), gamma=c.gamma,
+            T_min=c.T_min, c_inst=c.c_inst, c_int=c.c_int, forgetting=c.forgetting, hysteresis=c.hysteresis,
             u_limit=ulim(c.u_limit), hat0=c._hat.start, int0=c._int.start, n_int=c._int.stop - c._int.start,
             sel=c._sel, tsw=c._tsw,
         )  # fmt: skip
-        law, disc = F.switching_law, F.switching_discrete
     elif cls is AdaptiveController:
         c = controller
         P = _law(
-            F.LAW_ADAPTIVE, c, nw, patterns=np.ascontiguousarray(c.patterns), gamma=c.gamma,
+            F.LAW_ADAPTIVE, c, nw, patterns=np.ascontiguousarray(c.patterns, dtype=float), gamma=c.gamma,
             chi0=c._chi.start, uf0=c._uf.start, Gamma_f=np.ascontiguousarray(c.Gamma_f, dtype=float),
             adapt=int(c.adapt),
         )  # fmt: skip
-        law, disc = F.adaptive_law, F.adaptive_discrete
     elif cls is ActiveController and type(controller.est) is FarzaObserver:
         c, o = controller, controller.est
         obs = F.Obs(
-            o.Theta, o.k0, o.k1, NAN if o.p_max is None else float(o.p_max), int(o.est_rho), int(o.est_ubar),
-            o.p, o.sign, NAN if c.tau is None else float(c.tau), np.ascontiguousarray(o.AY),
-            np.ascontiguousarray(o.Soinv), c._est.start, c._est.stop - c._est.start, c._filt.start,
+            float(o.Theta), float(o.k0), float(o.k1), NAN if o.p_max is None else float(o.p_max), int(o.est_rho),
+            int(o.est_ubar), int(o.p), float(o.sign), NAN if c.tau is None else float(c.tau),
+            np.ascontiguousarray(o.AY, dtype=float), np.ascontiguousarray(o.Soinv, dtype=float), int(c._est.start),
+            int(c._est.stop - c._est.start), int(c._filt.start),
         )  # fmt: skip
-        law, P = F.active_law, (_law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit)), obs)
+        P = _law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit))
         n_sig = n_kin + N + 2 + 4 * nw
     elif cls is ActiveController and type(controller.est) is UKFEstimator:
-        from .ukf import UkfLaw, active_ukf_discrete, active_ukf_law, ukf_params
+        from .ukf import UkfLaw, ukf_params
 
         c, o = controller, controller.est
-        P = UkfLaw(
-            _law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit)), ukf_params(o), _chain(o.chain.params), c._est.start,
-            c._filt.start, NAN if c.tau is None else float(c.tau), c._u.start, c._t.start,
+        P = _law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit))
+        ukf = UkfLaw(
+            P, ukf_params(o), _chain(o.chain.params), c._est.start, c._filt.start,
+            NAN if c.tau is None else float(c.tau), c._u.start, c._t.start,
         )  # fmt: skip
-        law, disc, start = active_ukf_law, active_ukf_discrete, True
+        start = True
         n_sig = n_kin + N + 2 + 4 * nw
-    elif isinstance(controller, SchemeController):  # a registered scheme (ftcreport.schemes)
-        law, P = controller.scheme.law, controller.P
-        disc = controller.scheme.discrete or F.no_discrete
+    elif isinstance(controller, SchemeController):  # a registered scheme (ftcreport.schemes): its own loop
+        law, disc = controller.scheme.law, controller.scheme.discrete or F.no_discrete
         n_sig = n_kin + sum(controller.widths.values())
+        return Spec(kin, ref, law, disc, controller.P, pc, n_sig, controller, start)
     else:
         return None
-    return Spec(kin, ref, law, disc, P, _chain(chain.params), n_sig, controller, start)
+    from .builtin import LAW_ACTIVE_UKF, builtin, builtin_discrete, builtin_law
+
+    kind = LAW_ACTIVE_UKF if ukf is not None else P.kind
+    return Spec(kin, ref, builtin_law, builtin_discrete, builtin(kind, P, pc, obs, ukf), pc, n_sig, controller, start)
+
 
 
 def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
@@ -374,12 +378,17 @@ def _load_loop(law, disc):
     binding = "LAW, DISC = tracking_law, no_discrete  # LOOP-BINDING"
     if binding not in text:
         raise RuntimeError("ftcreport/fast/loop.py: the LOOP-BINDING line is missing")
+    # the hash covers the law's and discrete update's files and every compiled source of the package
+    # (the kernels they call): numba's cache of the generated module sees only its own file's stamp
+    fast_dir = Path(template.__file__).parent
+    shared = hashlib.sha1(b"".join(p.read_bytes() for p in sorted(fast_dir.glob("*.py")))).hexdigest()[:12]
     parts = []
     for fn, alias in ((law, "LAW"), (disc, "DISC")):
         py = fn.py_func
         source = Path(inspect.getfile(py)).read_bytes()
         parts.append((py.__module__, py.__qualname__, alias, hashlib.sha1(source).hexdigest()[:12]))
     lines = [f"from {m} import {q} as {a}  # source {h}" for m, q, a, h in parts]
+    lines.append(f"# ftcreport/fast sources {shared}")
     text = text.replace(binding, "\n".join(lines))
     tag = "__".join(f"{m}.{q}" for m, q, _, _ in parts)
     name = "ftcreport_loop_" + "".join(c if c.isalnum() else "_" for c in tag)

@@ -181,7 +181,6 @@ def compiled_spec(controller) -> Spec | None:
     return Spec(kin, ref, builtin_law, builtin_discrete, builtin(kind, P, pc, obs, ukf), pc, n_sig, controller, start)
 
 
-
 def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
     """Wheel speeds (K, 2n) at K states: the compiled reduced model's Bbar(q)^T eta, row by row."""
     Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)

@@ -1393,7 +1393,6 @@ def active_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
     """Active FTC (4.14) on the Farza observer's estimates (4.3)-(4.9); eta is not used (only q is)."""
     Lw, O = P
     nw = 2 * pc.n
-    N = pc.n + 2
     xk = xc[: Kp.nk]
     dx = np.zeros(xc.shape[0])
     est_n = O.est_n
@@ -1410,21 +1409,38 @@ def active_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
     if info[0] != 0:
         return u, dx
     dx[O.est0 : O.est0 + est_n] = farza_derivative(O, pc, u, q, s)
-    if not math.isnan(O.tau):
-        # first-order filters of the estimates: tau xdot = x_est - x
-        for j in range(nw):
-            dx[O.filt0 + j] = (rho_e[j] - xc[O.filt0 + j]) / O.tau
-            dx[O.filt0 + nw + j] = (ubar_e[j] - xc[O.filt0 + nw + j]) / O.tau
+    estimate_filters(dx, xc, O.filt0, O.tau, rho_e, ubar_e)
     if sig.shape[0] > 0:
-        k = _kin_signals(sig, kin, ecd, C)
-        sig[k : k + N] = qh
-        sig[k + N : k + N + 2] = eh
-        k += N + 2
-        sig[k : k + nw] = rho_e
-        sig[k + nw : k + 2 * nw] = ubar_e
-        sig[k + 2 * nw : k + 3 * nw] = sigma_hat
-        sig[k + 3 * nw : k + 4 * nw] = ubar
+        active_signals(sig, _kin_signals(sig, kin, ecd, C), qh, eh, rho_e, ubar_e, sigma_hat, ubar)
     return u, dx
+
+
+@jit
+def estimate_filters(dx, xc, filt0, tau, rho_e, ubar_e):
+    """The estimates' first-order filters of the active laws (thesis 4.2.4: tau xdot = x_est - x), into dx.
+
+    ``xc[filt0 : filt0 + nw]`` filters the gains, the next nw the frictions; tau nan: no filters.
+    """
+    if math.isnan(tau):
+        return
+    nw = rho_e.shape[0]
+    for j in range(nw):
+        dx[filt0 + j] = (rho_e[j] - xc[filt0 + j]) / tau
+        dx[filt0 + nw + j] = (ubar_e[j] - xc[filt0 + nw + j]) / tau
+
+
+@jit
+def active_signals(sig, k, qh, eh, rho_e, ubar_e, sigma_used, ubar_used):
+    """The active laws' logged signals after the kinematic ones (from index k): q_hat, eta_hat,
+    rho_hat, ubar_hat, sigma_used, ubar_used (fast.engine splits them by these widths)."""
+    N, nw = qh.shape[0], rho_e.shape[0]
+    sig[k : k + N] = qh
+    sig[k + N : k + N + 2] = eh
+    k += N + 2
+    sig[k : k + nw] = rho_e
+    sig[k + nw : k + 2 * nw] = ubar_e
+    sig[k + 2 * nw : k + 3 * nw] = sigma_used
+    sig[k + 3 * nw : k + 4 * nw] = ubar_used
 
 
 @jit

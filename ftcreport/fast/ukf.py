@@ -522,28 +522,17 @@ def active_ukf_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, si
     only continuous states are the estimates' first-order filters, tau xdot = x_est - x.
     """
     nw = 2 * pc.n
-    N = pc.n + 2
     dx = np.zeros(xc.shape[0])
     u = xc[P.u0 : P.u0 + nw].copy()
     qh, eh, rho_e, ubar_e = _ukf_estimates(P, xc, nw)
-    if not math.isnan(P.tau):
-        for j in range(nw):
-            dx[P.filt0 + j] = (rho_e[j] - xc[P.filt0 + j]) / P.tau
-            dx[P.filt0 + nw + j] = (ubar_e[j] - xc[P.filt0 + nw + j]) / P.tau
+    F.estimate_filters(dx, xc, P.filt0, P.tau, rho_e, ubar_e)
     if sig.shape[0] > 0:
         sigma_hat, ubar_hat = _ukf_used(P, xc, nw, rho_e, ubar_e)
         S_ = F.reduced(P.pf, q, eh)[4]
         kin, ecd = F.eta_c_and_dot(Kp, R, C, S_, t, q, eh, xc[: Kp.nk], info)
         if info[0] != 0:
             return u, dx
-        k = F._kin_signals(sig, kin, ecd, C)
-        sig[k : k + N] = qh
-        sig[k + N : k + N + 2] = eh
-        k += N + 2
-        sig[k : k + nw] = rho_e
-        sig[k + nw : k + 2 * nw] = ubar_e
-        sig[k + 2 * nw : k + 3 * nw] = sigma_hat
-        sig[k + 3 * nw : k + 4 * nw] = ubar_hat
+        F.active_signals(sig, F._kin_signals(sig, kin, ecd, C), qh, eh, rho_e, ubar_e, sigma_hat, ubar_hat)
     return u, dx
 
 

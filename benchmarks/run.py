@@ -254,23 +254,14 @@ def scaling(seconds: float) -> dict:
     MAX_MODELS are not run (their state alone would be 2 * 3 * 4^(n-1) floats per step and stage).
     """
     from ftcreport.control.adaptive import AdaptiveController
-    from ftcreport.control.kinematic import ChainedBackstepping, TwoLinkKinematic
     from ftcreport.control.switching import SwitchingController
     from ftcreport.control.tracking import TrackingController
-    from ftcreport.model import Chain
-    from ftcreport.references import FlatReference, circle
-    from ftcreport.sim import Plant, SimSettings
+    from ftcreport.sim import Plant, SimSettings, demo_chain
 
     max_models = 60_000
     out: dict = {}
     for n in (2, 3, 5, 8, 12):
-        chain = Chain.uniform(n)
-        ref = FlatReference(circle(5.0, 0.5), chain.d)
-        if n == 2:
-            kin = TwoLinkKinematic(chain.d[0], ref, 1.0, 1.0, 1.0)
-        else:
-            kin = ChainedBackstepping(chain.d, ref, [0.3] * n, 1.0, 1.0, 5.0)
-        q0 = ref.at(0.0).q_d
+        chain, kin, q0 = demo_chain(n)
         models = 3 * 4 ** (n - 1)
         for name in ("nominal", "switching", "adaptive"):
             key = f"n={n} {name}"

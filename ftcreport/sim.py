@@ -644,23 +644,30 @@ def _check_state(chain: Chain, x: np.ndarray, settings: SimSettings) -> None:
         raise DivergenceError(bound_reason("position", q[:2].tolist(), settings.max_position, " m"))
 
 
-def warm_up() -> float:
-    """Compile (or load from the cache) every kernel on a tiny run; returns the seconds it took."""
+def demo_chain(n: int):
+    """(chain, kinematic controller, q0) of the thesis robot on a 5 m circle at 0.5 m/s: the two-link
+    law for n = 2, the chained law for n >= 3 (warm-up and benchmarks)."""
     from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
-    from .control.switching import SwitchingController
-    from .control.tracking import TrackingController
     from .model import Chain
     from .references import FlatReference, circle
 
+    chain = Chain.uniform(n)
+    ref = FlatReference(circle(5.0, 0.5), chain.d)
+    if n == 2:
+        kin = TwoLinkKinematic(chain.d[0], ref, 1.0, 1.0, 1.0)
+    else:
+        kin = ChainedBackstepping(chain.d, ref, [0.3] * n, 1.0, 1.0, 5.0)
+    return chain, kin, ref.at(0.0).q_d
+
+
+def warm_up() -> float:
+    """Compile (or load from the cache) every kernel on a tiny run; returns the seconds it took."""
+    from .control.switching import SwitchingController
+    from .control.tracking import TrackingController
+
     t0 = _time.perf_counter()
     for n in (2, 3):
-        chain = Chain.uniform(n)
-        ref = FlatReference(circle(5.0, 0.5), chain.d)
-        if n == 2:
-            kin = TwoLinkKinematic(chain.d[0], ref, 1.0, 1.0, 1.0)
-        else:
-            kin = ChainedBackstepping(chain.d, ref, [0.3] * n, 1.0, 1.0, 5.0)
-        q0 = ref.at(0.0).q_d
+        chain, kin, q0 = demo_chain(n)
         for ctrl in (TrackingController(chain, kin, 5.0), SwitchingController(chain, kin, 5.0)):
             for method in ("rk4", "ros2"):
                 simulate(Plant(chain), ctrl, q0, np.array([0.5, 0.0]), SimSettings(0.01, 0.03, method=method))

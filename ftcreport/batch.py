@@ -39,6 +39,7 @@ from pathlib import Path
 from . import __version__
 from .cases import Case, case_hash, configured_schemes, load_case, overlay_text, with_duration
 from .errors import CaseError
+from .schemes import BUILT_IN
 from .store import cached_key, output_lock, save_run, write_atomic, write_json
 
 __all__ = [
@@ -221,6 +222,30 @@ def _cost(case: Case, scheme: str) -> float:
     return steps * ((2 * (n + 2 + 4 * n) + 1) / 6.0 if scheme == "active_ukf" else 1.0)
 
 
+def _loop_of(case: Case, scheme: str) -> tuple:
+    """Which compiled loop a run needs (ftcreport.fast.engine.loop_for): the built-in schemes share
+    two (fast/builtin.py: the active ones, the others), a plug-in has its own; motors and sampled
+    control are variants of each."""
+    builtin_group = "active" if scheme.startswith("active") else "passive"
+    group = builtin_group if scheme in BUILT_IN else "plugin:" + scheme
+    return group, case.actuators is not None, case.simulation.sample_time is not None
+
+
+def _compile_first(todo: list) -> list:
+    """The runs in the given order, except that the first run of each distinct loop comes first.
+
+    A cold batch compiles each loop once (the workers take turns under a file lock, see
+    fast.engine): started together, the first wave compiles the loops in parallel instead of one
+    worker compiling while the others wait for it."""
+    seen: set[tuple] = set()
+    first, rest = [], []
+    for job in todo:
+        key = _loop_of(job[0], job[2])
+        (rest if key in seen else first).append(job)
+        seen.add(key)
+    return first + rest
+
+
 def error_record_name(path: Path, avoid: Iterable[str] = ()) -> str:
     """Directory of a rejected case file's record: its stem when that is a safe name not in ``avoid``
     (lower-case names of the batch's valid cases), else a hash of the path."""
@@ -330,7 +355,7 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -
                 todo.append((case, str(path), s, key))
     for path, error in res.case_errors.items():  # after every valid name is known
         _record_error(out, Path(path), error, taken)
-    todo.sort(key=lambda job: -_cost(job[0], job[2]))
+    todo = _compile_first(sorted(todo, key=lambda job: -_cost(job[0], job[2])))
     if todo:
         _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected)
     settings = {"jobs": jobs, "force": force, "duration": duration}

@@ -269,3 +269,24 @@ def test_every_thesis_case_page_has_its_claims_section(batch_dir):
     html = (out / "two_link_active" / "index.html").read_text()
     for fig in ("velocities", "active-control", "active-path", "active_ukf-control", "active_ukf-path"):
         assert f'id="fig-{fig}"' in html, fig
+
+
+def test_a_cold_batch_starts_every_loop_in_the_first_wave():
+    # issue 20 item 3: the workers compile distinct loops side by side (fast.builtin's two groups,
+    # each plug-in's, each motor/sampled variant) before any loop's second run
+    from ftcreport.batch import _compile_first, _loop_of
+    from ftcreport.cases import configured_schemes, load_case
+
+    cases = [load_case(CASES / f"{n}.toml") for n in ("two_link_active", "two_link_sliding_mode")]
+    cases.append(load_case(CASES / "motors" / "two_link_active_motors.toml"))
+    todo = [(c, "", s, "") for c in cases for s in configured_schemes(c)]
+    ordered = _compile_first(todo)
+    assert sorted(map(id, ordered)) == sorted(map(id, todo))  # a reordering, nothing lost
+    keys = [_loop_of(c, s) for c, _, s, _ in ordered]
+    distinct = list(dict.fromkeys(keys))
+    assert keys[: len(distinct)] == distinct  # every distinct loop once, before any repeat
+    groups = {k[0] for k in distinct}
+    assert {"passive", "active", "plugin:sliding_mode"} <= groups
+    assert any(k[1] for k in distinct)  # the motor case's loops are a variant of their own
+    rest = [(c.name, s) for c, _, s, _ in ordered[len(distinct) :]]
+    assert rest == [(c.name, s) for c, _, s, _ in todo if (c.name, s) in set(rest)]  # the rest keeps its order

@@ -234,7 +234,7 @@ def test_both_engines_break_switching_ties_alike():
         xc[ctrl._hat] = hat.ravel()
         py = ctrl.discrete(1.0, q, eta, xc)
         fast = xc.copy()
-        F.switching_discrete(spec.P.law, spec.kin, spec.ref, F.new_cache(3), 1.0, q, eta, fast, np.zeros(4))
+        F.switching_discrete(spec.P, spec.kin, spec.ref, F.new_cache(3), 1.0, q, eta, fast, np.zeros(4))
         return round(py[ctrl._sel]), round(fast[ctrl._sel])
 
     xc[ctrl._hat] = hat.ravel()

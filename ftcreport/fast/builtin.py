@@ -1,12 +1,20 @@
-r"""The built-in schemes behind one law, so that they share one compiled loop.
+r"""The built-in schemes behind two laws, so that they share two compiled loops.
 
 numba compiles the closed loop (fast/loop.py) once per law it is bound to, and each compile links
-every kernel the law reaches: about 20-40 s apiece on the 2-core machine.  Binding the six built-in
-laws one by one made a cold batch compile six loops in each worker process.  Here they sit behind
-one dispatcher with one parameter type, :class:`Builtin` (the law's own parameters in their slot,
-placeholders in the others), so a process compiles one loop for all of them.  Each law stays one
-kernel (fast/kernels.py, fast/ukf.py); this module only chooses.  Plug-in schemes
-(ftcreport.schemes) keep a loop of their own, compiled when a case first runs them.
+every kernel the law reaches.  Binding the six built-in laws one by one made a cold batch compile
+six loops (each with its own copy of the model, the reference and the kinematic law); one loop for
+all six made the first run of any scheme compile all six laws, the UKF's included.  Here they sit
+in two groups, each behind one dispatcher over one parameter type:
+
+- :func:`passive_law`: nominal (tracking), oracle, switching and adaptive, over their ``Law``
+  (``P.kind`` chooses); they share the matched law;
+- :func:`active_any_law`: the active schemes, Farza's observer or the UKF, over :class:`Active`
+  (the scheme's slot filled, a placeholder in the other); they share the estimate filters.
+
+A cold batch compiles the two loops in parallel (ftcreport.batch starts one run of each first), and
+a first run of a passive scheme compiles only the first.  Each law stays one kernel
+(fast/kernels.py, fast/ukf.py); this module only chooses.  Plug-in schemes (ftcreport.schemes) keep
+a loop of their own, compiled when a case first runs them.
 """
 
 from __future__ import annotations
@@ -20,13 +28,14 @@ from . import kernels as F
 from .kernels import jit
 from .ukf import Ukf, UkfLaw, active_ukf_discrete, active_ukf_law
 
-__all__ = ["LAW_ACTIVE_UKF", "Builtin", "builtin", "builtin_discrete", "builtin_law"]
+__all__ = ["LAW_ACTIVE_UKF", "Active", "active", "active_any_discrete", "active_any_law", "passive_discrete"]
+__all__ += ["passive_law"]
 
 LAW_ACTIVE_UKF = 5  # after kernels.LAW_TRACKING .. LAW_ACTIVE
 
 
-class Builtin(NamedTuple):
-    """A built-in scheme's parameters: ``kind`` (kernels.LAW_*, LAW_ACTIVE_UKF) and its slot filled."""
+class Active(NamedTuple):
+    """An active scheme's parameters: ``kind`` (kernels.LAW_ACTIVE or LAW_ACTIVE_UKF) and its slot filled."""
 
     kind: int
     law: F.Law
@@ -44,35 +53,45 @@ def _no_ukf(law: F.Law, chain: F.Chain) -> UkfLaw:
     return UkfLaw(law, Ukf(1, 1, False, False, z2, z2, z1, z1, 1.0), chain, 0, 0, math.nan, 0, 0)
 
 
-def builtin(kind: int, law: F.Law, chain: F.Chain, obs: F.Obs | None = None, ukf: UkfLaw | None = None) -> Builtin:
-    """Pack a built-in scheme (placeholders where its slot is not used)."""
-    return Builtin(int(kind), law, _no_obs() if obs is None else obs, _no_ukf(law, chain) if ukf is None else ukf)
+def active(law: F.Law, chain: F.Chain, obs: F.Obs | None = None, ukf: UkfLaw | None = None) -> Active:
+    """Pack an active scheme: Farza's observer (``obs``) or the UKF (``ukf``), a placeholder in the other."""
+    kind = F.LAW_ACTIVE if ukf is None else LAW_ACTIVE_UKF
+    return Active(kind, law, _no_obs() if obs is None else obs, _no_ukf(law, chain) if ukf is None else ukf)
 
 
 @jit
-def builtin_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    """The law of the built-in scheme ``P.kind`` (the scheme API's signature)."""
+def passive_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
+    """The law of the passive (or baseline) scheme ``P.kind`` (the scheme API's signature)."""
     k = P.kind
     if k == F.LAW_TRACKING:
-        return F.tracking_law(P.law, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
+        return F.tracking_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
     if k == F.LAW_ORACLE:
-        return F.oracle_law(P.law, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
+        return F.oracle_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
     if k == F.LAW_SWITCHING:
-        return F.switching_law(P.law, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
-    if k == F.LAW_ADAPTIVE:
-        return F.adaptive_law(P.law, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
-    if k == F.LAW_ACTIVE:
+        return F.switching_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
+    return F.adaptive_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
+
+
+@jit
+def passive_discrete(P, Kp, R, C, t, q, eta, xc, info):
+    """The discrete update of the passive scheme ``P.kind`` (switching rule, weight clip)."""
+    k = P.kind
+    if k == F.LAW_SWITCHING:
+        F.switching_discrete(P, Kp, R, C, t, q, eta, xc, info)
+    elif k == F.LAW_ADAPTIVE:
+        F.adaptive_discrete(P, Kp, R, C, t, q, eta, xc, info)
+
+
+@jit
+def active_any_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
+    """The law of the active scheme ``P.kind``: on Farza's observer's estimates or the UKF's."""
+    if P.kind == F.LAW_ACTIVE:
         return F.active_law((P.law, P.obs), Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
     return active_ukf_law(P.ukf, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig)
 
 
 @jit
-def builtin_discrete(P, Kp, R, C, t, q, eta, xc, info):
-    """The discrete update of the built-in scheme ``P.kind`` (switching rule, weight clip, UKF step)."""
-    k = P.kind
-    if k == F.LAW_SWITCHING:
-        F.switching_discrete(P.law, Kp, R, C, t, q, eta, xc, info)
-    elif k == F.LAW_ADAPTIVE:
-        F.adaptive_discrete(P.law, Kp, R, C, t, q, eta, xc, info)
-    elif k == LAW_ACTIVE_UKF:
+def active_any_discrete(P, Kp, R, C, t, q, eta, xc, info):
+    """The discrete update of the active scheme ``P.kind`` (the UKF's step; none for Farza's observer)."""
+    if P.kind == LAW_ACTIVE_UKF:
         active_ukf_discrete(P.ukf, Kp, R, C, t, q, eta, xc, info)

@@ -19,14 +19,21 @@ explicitly and reports the time).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import threading
 import time as _time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX
+    fcntl = None
 
 from ..control.active import ActiveController
 from ..control.adaptive import AdaptiveController
@@ -52,6 +59,7 @@ from ..observers.ukf import UKFEstimator
 from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
+from .compiling import loop_compile
 
 __all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled"]
 
@@ -175,10 +183,12 @@ def compiled_spec(controller) -> Spec | None:
         return Spec(kin, ref, law, disc, controller.P, pc, n_sig, controller, start)
     else:
         return None
-    from .builtin import LAW_ACTIVE_UKF, builtin, builtin_discrete, builtin_law
+    from . import builtin as B
 
-    kind = LAW_ACTIVE_UKF if ukf is not None else P.kind
-    return Spec(kin, ref, builtin_law, builtin_discrete, builtin(kind, P, pc, obs, ukf), pc, n_sig, controller, start)
+    if obs is None and ukf is None:
+        return Spec(kin, ref, B.passive_law, B.passive_discrete, P, pc, n_sig, controller, start)
+    P = B.active(P, pc, obs, ukf)
+    return Spec(kin, ref, B.active_any_law, B.active_any_discrete, P, pc, n_sig, controller, start)
 
 
 def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
@@ -306,7 +316,7 @@ def _no_motors():
     return Motors(z, z, z, z, z, z, z, z, z, z)
 
 
-def _initial_currents(spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x: np.ndarray, npl: int) -> np.ndarray:
+def _initial_currents(loop, spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x: np.ndarray, npl: int) -> np.ndarray:
     """The motors' currents at t0: quasi-static for the first command (its wheel torque is the command)."""
     from . import motor as Mo
 
@@ -314,8 +324,8 @@ def _initial_currents(spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x: np.n
     pc = spec.chain
     info = np.zeros(4)
     q, eta = x[:nq], x[nq : nq + 2]
-    C = F.new_cache(pc.n)
-    u = spec.law(spec.P, spec.kin, spec.ref, C, pc, t0, q, eta, x[npl:], sigma, ubar, info, np.zeros(0))[0]
+    with _compiling(loop, loop.first_law):
+        u = loop.first_law(spec.P, spec.kin, spec.ref, pc, t0, q, eta, x[npl:], sigma, ubar, info)
     if info[0] != 0 or not np.all(np.isfinite(u)):
         return np.zeros(npl - nq - 2)  # the loop reports the law's failure at its first step
     sat = plant.saturation
@@ -344,8 +354,12 @@ _LOOPS: dict[tuple, object] = {}
 _LOOPS_LOCK = threading.Lock()
 
 
-def loop_for(law, disc):
+def loop_for(law, disc, motors: bool = True, sampled: bool = True):
     """The compiled loop (``run_steps`` of ftcreport.fast.loop) bound to a scheme's law and discrete update.
+
+    ``motors``, ``sampled``: the loop's variant.  A variant without one of them does not compile its
+    code at all (numba prunes the branches on these constants before typing).  Both integrators are
+    always in (RK4 and ROS2 share the stages; a batch of RK4 and ROS2 cases needs one loop).
 
     The loop's module is written once per (law, discrete update) from ftcreport/fast/loop.py, with
     its LOOP-BINDING line importing them, and imported under a name that is the same in every
@@ -353,19 +367,19 @@ def loop_for(law, disc):
     the template or the law's source file changes (its text carries a hash of both), which also
     renews numba's cache: numba alone does not see a change in a function another file calls.
     """
-    key = (law, disc)
+    key = (law, disc, bool(motors), bool(sampled))
     loop = _LOOPS.get(key)
     if loop is not None:
         return loop
     with _LOOPS_LOCK:  # threads (a Dask worker's) load each loop once, never half-loaded
         loop = _LOOPS.get(key)
         if loop is None:
-            loop = _LOOPS[key] = _load_loop(law, disc)
+            loop = _LOOPS[key] = _load_loop(*key)
     return loop
 
 
-def _load_loop(law, disc):
-    """Write (if needed) and import the loop module bound to (law, disc); returns its run_steps."""
+def _load_loop(law, disc, motors: bool, sampled: bool):
+    """Write (if needed) and import the loop module bound to (law, disc) and the variant."""
     import hashlib
     import importlib.util
     import inspect
@@ -389,7 +403,12 @@ def _load_loop(law, disc):
     lines = [f"from {m} import {q} as {a}  # source {h}" for m, q, a, h in parts]
     lines.append(f"# ftcreport/fast sources {shared}")
     text = text.replace(binding, "\n".join(lines))
+    variant_line = "MOTORS, SAMPLED = True, True  # LOOP-VARIANT"
+    if variant_line not in text:
+        raise RuntimeError("ftcreport/fast/loop.py: the LOOP-VARIANT line is missing")
+    text = text.replace(variant_line, f"MOTORS, SAMPLED = {motors}, {sampled}")
     tag = "__".join(f"{m}.{q}" for m, q, _, _ in parts)
+    tag += "__" + "".join(c for c, on in zip("ms", (motors, sampled), strict=True) if on)
     name = "ftcreport_loop_" + "".join(c if c.isalnum() else "_" for c in tag)
     folder = _cache_dir()
     folder.mkdir(parents=True, exist_ok=True)
@@ -404,7 +423,24 @@ def _load_loop(law, disc):
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
         sys.modules[name] = module  # only once loaded: numba's cache imports it by name
-    return module.run_steps
+    return module
+
+
+@contextlib.contextmanager
+def _compiling(loop, entry) -> Iterator[None]:
+    """Around a call of a loop's entry point: its first call in this process compiles it (or loads it
+    from numba's cache) under a file lock beside its module, so that two processes that need the
+    same loop (a batch's workers) compile it once: the second waits and then loads the first's."""
+    with loop_compile():
+        if entry.signatures or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
+            yield
+            return
+        with open(Path(loop.__file__).with_suffix(".lock"), "a") as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, progress=None):
@@ -444,13 +480,15 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
         fmot = np.zeros((len(firsts), 0, 4))
     nm = mo.R_a.shape[0]
     npl = nq + 2 + nm
+    loop = loop_for(spec.law, spec.disc, motors=nm > 0, sampled=settings.sample_time is not None)
     xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
     x = np.concatenate((q0, eta0, np.zeros(nm), xc0))
     info = np.zeros(4)
     if spec.start:  # the first command of a sampled scheme, at t0 (h = 0: no filter step)
-        spec.disc(spec.P, spec.kin, spec.ref, F.new_cache(chain.n), float(grid[0]), q0, eta0, x[npl:], info)
+        with _compiling(loop, loop.first_discrete):
+            loop.first_discrete(spec.P, spec.kin, spec.ref, spec.chain, float(grid[0]), q0, eta0, x[npl:], info)
     if nm and info[0] == 0:
-        x[nq + 2 : npl] = _initial_currents(spec, plant, mo, fsig[0], fubar[0], fmot[0], float(grid[0]), x, npl)
+        x[nq + 2 : npl] = _initial_currents(loop, spec, plant, mo, fsig[0], fubar[0], fmot[0], float(grid[0]), x, npl)
     # The kernels log every step of a chunk (about 1 % of the run) into chunk buffers; after each chunk
     # the light signals go to the full-rate metric stream and every signal of the logged steps
     # (log_every) to the saved log, so the heavy ones (xc, switching costs, weights) are never held
@@ -502,20 +540,20 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     dx_h = np.zeros(nc)
     sig_h = np.zeros(spec.n_sig)
     v_h = np.zeros(0 if ts is None else nm)
-    loop = loop_for(spec.law, spec.disc)
     wall0 = _time.perf_counter()
     if info[0] != 0:  # the first command failed (at t0, before any step)
         status, reason, t_end = _stop(info, F.AT_STATE, t_end, t_end, settings, spec.ref)
     with np.errstate(all="ignore"):
         while status == "ok":
             k1 = min(k + chunk - 1, n_steps)
-            x, k_last, li, where = loop(
-                spec.P, spec.kin, spec.ref, spec.chain, pp,
-                grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
-                x, k, k1, every_step, 0,
-                lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share, grow, growth,
-                lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h,
-            )  # fmt: skip
+            with _compiling(loop, loop.run_steps):  # compiles the loop on its first use (fast.compiling)
+                x, k_last, li, where = loop.run_steps(
+                    spec.P, spec.kin, spec.ref, spec.chain, pp,
+                    grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
+                    x, k, k1, every_step, 0,
+                    lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share, grow, growth,
+                    lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h,
+                )  # fmt: skip
             if li:
                 bufs = (lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lia)
                 si = _collect(spec, plant, nq, k, li, is_logged, bufs, stream, si, n_steps + 1, log_parts)

@@ -42,8 +42,12 @@ from ftcreport.fast.kernels import (
     tracking_law,
 )
 from ftcreport.fast.motor import driver_voltage, fault_equivalent, motor_plant_rhs, reset_current
+from ftcreport.fast.refs import as_ref
 
 LAW, DISC = tracking_law, no_discrete  # LOOP-BINDING
+# the loop's variant (fast.engine.loop_for writes the case's): numba prunes the branches these close
+# before typing, so a loop without motors or sampled control never compiles their kernels
+MOTORS, SAMPLED = True, True  # LOOP-VARIANT
 
 
 @jit
@@ -96,7 +100,7 @@ def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
     qm = q + nz[:nq]
     etam = eta + nz[nq:]
     st, ut = sigma, ubar
-    if nm > 0:  # the oracle is told the faults the chain sees, motor faults included
+    if MOTORS and nm > 0:  # the oracle is told the faults the chain sees, motor faults included
         st, ut = true_faults(ctx, x, sigma, ubar, fm)
     u, xcdot = LAW(P, Kp, R, C, pc, t, qm, etam, xc, st, ut, info, sig)
     f = np.zeros(x.shape[0])
@@ -104,7 +108,7 @@ def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
         return f, u, u
     us = u if math.isnan(sat) else _clip(u, -sat, sat)
     tau = sigma * us + ubar
-    if nm > 0:
+    if MOTORS and nm > 0:
         qdot, etadot, idot, tau, _v = _motors(ctx, x, tau, fm, np.zeros(0), qm, etam)
         f[nq + 2 : nq + 2 + nm] = idot
     elif share and C.f[3] == 1.0:
@@ -163,7 +167,7 @@ def _plant_deriv(ctx, x, u, sigma, ubar, fm, v_h):
     us = u if math.isnan(sat) else _clip(u, -sat, sat)
     tau = sigma * us + ubar
     f = np.zeros(x.shape[0])
-    if nm > 0:
+    if MOTORS and nm > 0:
         qdot, etadot, idot, tau, _v = _motors(ctx, x, tau, fm, v_h, x[:nq], x[nq : nq + 2])
         f[nq + 2 : nq + 2 + nm] = idot
     else:
@@ -176,7 +180,7 @@ def _plant_deriv(ctx, x, u, sigma, ubar, fm, v_h):
 @jit
 def _stage(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
     """The rates at a trial stage: the whole loop's (continuous control) or the plant's with u held."""
-    if u_h.shape[0] > 0:
+    if SAMPLED and u_h.shape[0] > 0:
         return _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)[0]
     return _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, np.zeros(0))[0]
 
@@ -206,11 +210,13 @@ def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_
         if info[0] != 0:
             return
     C.f[3] = 0.0
-    st, ut = true_faults(ctx, x, sigma, ubar, fm)
+    st, ut = sigma, ubar
+    if MOTORS:
+        st, ut = true_faults(ctx, x, sigma, ubar, fm)
     u, dx = LAW(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig_h)
     u_h[:] = u
     dx_h[:] = dx
-    if nm > 0:
+    if MOTORS and nm > 0:
         us = u if math.isnan(sat) else _clip(u, -sat, sat)
         v_h[:] = _motors(ctx, x, sigma * us + ubar, fm, np.zeros(0), q, eta)[4]
     hold_t[0] = t + hold_t[2]
@@ -218,12 +224,26 @@ def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_
 
 
 @jit
+def first_law(P, Kp, R, pc, t, q, eta, xc, sigma, ubar, info):
+    """The scheme's command at t (the motors' initial currents need it before the first step)."""
+    C = as_ref(new_cache(pc.n))
+    return LAW(as_ref(P), as_ref(Kp), as_ref(R), C, as_ref(pc), t, q, eta, xc, sigma, ubar, info, np.zeros(0))[0]
+
+
+@jit
+def first_discrete(P, Kp, R, pc, t, q, eta, xc, info):
+    """The scheme's discrete update at t0 (a sampled scheme's first command)."""
+    C = as_ref(new_cache(pc.n))
+    DISC(as_ref(P), as_ref(Kp), as_ref(R), C, t, q, eta, xc, info)
+
+
+@jit
 def run_steps(
-    P, Kp, R, pc, pp,
+    P0, Kp0, R0, pc0, pp0,
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
     x, k0, k1, is_logged, li,
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
-    lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h,
+    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h,
 ):  # fmt: skip
     """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, where).
 
@@ -239,10 +259,12 @@ def run_steps(
     DC motors when ``mo`` has wheels: the state is [q, eta, i_a, xc]; ``fmot`` holds the motor-fault
     table of each fault segment (fast.motor), ``v_h`` the held armature voltages.
     """
+    # the parameter tuples behind one pointer each, for every kernel below (fast.refs)
+    P, Kp, R, pc, pp, mo = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0)
     nq = pp.n + 2
     nx = x.shape[0]
     sig_buf = np.zeros(n_sig)
-    C = new_cache(pp.n)
+    C = as_ref(new_cache(pp.n))
     nm = mo.R_a.shape[0]
     ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)
     npl = nq + 2 + nm  # the plant's states: q, eta, the motors' currents
@@ -255,7 +277,7 @@ def run_steps(
         sigma = fsig[fidx[k]]
         ubar = fubar[fidx[k]]
         fm = fmot[fidx[k]]
-        if nm > 0 and k > 0 and fidx[k] != fidx[k - 1]:  # a winding opened: its current drops to 0
+        if MOTORS and nm > 0 and k > 0 and fidx[k] != fidx[k - 1]:  # a winding opened: its current drops to 0
             x[nq + 2 : npl] = reset_current(fm, x[nq + 2 : npl])
         if noisy:
             nz = noise[k]
@@ -268,7 +290,7 @@ def run_steps(
         if info[0] != 0:
             return x, k, li, AT_STATE
         want = is_logged[k]
-        if sampled:
+        if SAMPLED and sampled:
             if t >= hold_t[0] - 1e-9 * hold_t[2]:
                 sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h)
                 if info[0] != 0:
@@ -313,7 +335,7 @@ def run_steps(
             leta[li] = x[nq : nq + 2]
             lu[li] = u
             ltau[li] = tau
-            if nm > 0:  # the faults the chain sees (motor faults by their equivalents) and the currents
+            if MOTORS and nm > 0:  # the faults the chain sees (motor faults by their equivalents) and the currents
                 lsig[li], lubar[li] = true_faults(ctx, x, sigma, ubar, fm)
                 lia[li] = x[nq + 2 : npl]
             else:
@@ -375,7 +397,7 @@ def run_steps(
             info[0] = E_STEP_JUMP
             info[1] = kind
             return x, k, li, AT_TRIAL
-        if sampled:  # the controller's discrete updates run at its samples
+        if SAMPLED and sampled:  # the controller's discrete updates run at its samples
             x = xn
             continue
         # discrete updates on the new state (xn is a new array: updated in place, it becomes the state)

@@ -1,0 +1,89 @@
+"""How the loops are compiled (issue 20 item 1): refs, the variant constants, the optimization hook.
+
+None of these may change a number: the golden windows (tests/test_golden.py) hold the results at
+1e-9; here, the pieces' own contracts.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from ftcreport.fast import compiling
+from ftcreport.fast import kernels as F
+from ftcreport.fast.engine import loop_for
+from ftcreport.fast.refs import as_ref
+
+
+class _Inner(NamedTuple):
+    a: np.ndarray
+    g: float
+
+
+class _Outer(NamedTuple):
+    m: np.ndarray
+    inner: _Inner
+    n: int
+
+
+@njit(cache=False)
+def _read(P):
+    return P.m[1, 0] + P.inner.a[2] * P.inner.g + P.n
+
+
+@njit(cache=False)
+def _read_ref(P):
+    return _read(as_ref(P))
+
+
+@njit(cache=False)
+def _pair_ref(P, Q):
+    r = as_ref((P, Q))
+    r[0].inner.a[0] = 7.0  # a ref holds the same arrays: writes reach the caller's tuple
+    return _read(r[0]) + _read(r[1])
+
+
+def test_ref_reads_the_same_fields_as_the_tuple():
+    P = _Outer(np.arange(6.0).reshape(3, 2), _Inner(np.array([1.0, 2.0, 3.0]), 0.5), 4)
+    assert _read_ref(P) == _read(P) == 2.0 + 1.5 + 4  # exact: the same loads, no arithmetic changed
+    Q = P._replace(n=10)
+    assert _pair_ref(P, Q) == (2.0 + 1.5 + 4) + (2.0 + 1.5 + 10)
+    assert P.inner.a[0] == 7.0
+
+
+def test_the_optimization_hook_is_installed_on_the_pinned_numba():
+    # if a numba release renames the hooked method, every kernel is optimized fully again (slower
+    # to compile, same numbers): this test makes that visible instead of silent
+    assert compiling.ACTIVE
+    from numba.core import codegen
+
+    assert getattr(codegen.CPUCodeLibrary._optimize_final_module, "_ftcreport", False)
+
+
+def test_loop_compile_is_per_thread_and_nests():
+    seen = {}
+
+    def other():
+        seen["other"] = getattr(compiling._STATE, "on", False)
+
+    with compiling.loop_compile():
+        with compiling.loop_compile():
+            assert compiling._STATE.on
+        assert compiling._STATE.on  # the inner block restores, not clears
+        t = threading.Thread(target=other)
+        t.start()
+        t.join()
+    assert not compiling._STATE.on
+    assert seen["other"] is False  # another thread's compiles are not affected
+
+
+def test_variants_are_separate_modules_with_their_constants():
+    plain = loop_for(F.tracking_law, F.no_discrete, motors=False, sampled=False)
+    motors = loop_for(F.tracking_law, F.no_discrete, motors=True, sampled=False)
+    assert plain is not motors
+    assert (plain.MOTORS, plain.SAMPLED) == (False, False)
+    assert (motors.MOTORS, motors.SAMPLED) == (True, False)
+    assert loop_for(F.tracking_law, F.no_discrete, motors=False, sampled=False) is plain  # one per process

@@ -328,9 +328,12 @@ def batch(
     from .batch import failures_summary, run_batch
 
     res = run_batch(cases or [Path("cases")], out, jobs, force, duration, show_progress=not quiet)
+    peak = res.worker_peak_rss_mb
+    memory = "" if peak is None else f"; worker peak memory {peak:.0f} MB ({len(res.worker_peaks_mb)} worker(s))"
     typer.echo(
         f"{len(res.cases)} case(s): {len(res.simulated)} run(s) simulated, {len(res.cached)} cached, "
-        f"{len(res.failed_runs)} failed, {len(res.case_errors)} case file(s) rejected; report: {out / 'index.html'}"
+        f"{len(res.failed_runs)} failed, {len(res.case_errors)} case file(s) rejected{memory}; "
+        f"report: {out / 'index.html'}"
     )
     if verbose:
         from .store import load_metrics

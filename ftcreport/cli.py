@@ -398,7 +398,6 @@ def run(
         for w in c.warnings():
             typer.echo(f"warning: {case}: {w}", err=True)
     from .batch import record_case, run_key, write_case_manifest
-    from .report.render import render_case, render_index
     from .store import output_lock
 
     rows = []
@@ -410,9 +409,13 @@ def run(
                 m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
             save_run(out, c.name, s, r, m, run_key(c, s))
             rows.append(m)
+            del r  # stored: the next scheme and the report do not hold this run's arrays too
         write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
-        page = None if no_report else render_case(out, c.name)
-        if not no_report:
+        page = None
+        if not no_report:  # matplotlib and jinja2 only for the report (--no-report: about 45 MB less)
+            from .report.render import render_case, render_index
+
+            page = render_case(out, c.name)
             render_index(out)
     if not quiet:
         typer.echo(_table(rows))

@@ -200,7 +200,7 @@ def _run_record(out: Path, case: Case, scheme: str, cached: bool, peak_mb: float
     m = load_metrics(out, case.name, scheme) or {}
     key_path = out / case.name / scheme / "key"
     key = key_path.read_text().strip() if key_path.exists() else None
-    return {
+    record = {
         "case": case.name,
         "scheme": scheme,
         "engine": m.get("engine"),
@@ -209,8 +209,10 @@ def _run_record(out: Path, case: Case, scheme: str, cached: bool, peak_mb: float
         "key": key,
         "seed": case.plant.noise.seed,
         "wall_time": m.get("wall_time"),
-        "worker_peak_rss_mb": peak_mb,  # its worker's peak when it finished (None: cached or not measured)
     }
+    if peak_mb is not None:  # simulated by a batch worker: its peak resident memory when the run finished
+        record["worker_peak_rss_mb"] = peak_mb
+    return record
 
 
 def write_case_manifest(out: Path, case: Case, settings: dict, runs: list[dict] | None = None) -> Path:

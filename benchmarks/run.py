@@ -1,6 +1,6 @@
 """Speed and memory of the simulation core, measured (not asserted).
 
-    python benchmarks/run.py [--quick] [--json FILE] [--no-batch] [--only-plugin]
+    python benchmarks/run.py [--quick] [--json FILE] [--no-batch] [--only-plugin] [--only-memory]
 
 Prints, for each scheme (nominal, switching, adaptive, active Farza, active UKF)
 and chain size n = 2, 3, 5: wall seconds per simulated second of the compiled
@@ -10,7 +10,8 @@ peak Python-heap memory of the run (tracemalloc: the logs and objects), the
 first-run compile time of the kernels (a fresh process with an empty numba
 cache), the same two-link closed loop run through python-control's
 ``input_output_response`` side by side with ours, the peak resident memory of the
-400 s Table 4.2 run, ``ftcreport batch cases/`` cold and warm, and the scheme API's worked
+400 s Table 4.2 run (warm: compile cache built; and cold), ``ftcreport batch cases/`` cold, warm and
+with fresh results (each with its worker processes' peak resident memory), and the scheme API's worked
 example (examples/schemes/sliding_mode.py, a plug-in) against the built-in nominal scheme on
 cases/two_link_sliding_mode.toml: wall seconds per simulated second, warm, and their ratio
 (issue 17 asks for at most 2; reported here, never asserted in a test).
@@ -186,22 +187,45 @@ def compile_time() -> dict:
     return out
 
 
-def peak_rss_400s() -> dict:
-    """Peak resident memory of the 400 s Table 4.2 active run (decimated logging), in a fresh process."""
-    import subprocess
+_RSS_400S = (
+    "import sys; sys.path.insert(0, {root!r})\n"
+    "from ftcreport.cases import load_case\n"
+    "from ftcreport.runner import run_scheme\n"
+    "run, m = run_scheme(load_case({case!r}), 'active')\n"
+    "from ftcreport.fast.lazy_link import installed\n"
+    "hwm = [int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]\n"
+    "print(m['status'], run.t.size, hwm, int(installed()))\n"
+)
 
+
+def _rss_400s(env: dict | None = None) -> dict:
+    """One 400 s Table 4.2 active run in a fresh process: its status and peak resident memory (VmHWM)."""
     # VmHWM, not getrusage's ru_maxrss: Linux carries the parent's peak over fork + exec into
     # ru_maxrss, so a child of this (large) process would report the benchmark's own peak
-    code = (
-        "import sys; sys.path.insert(0, {!r})\n"
-        "from ftcreport.cases import load_case\n"
-        "from ftcreport.runner import run_scheme\n"
-        "run, m = run_scheme(load_case({!r}), 'active')\n"
-        "hwm = [int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]\n"
-        "print(m['status'], run.t.size, hwm)\n"
-    ).format(str(ROOT), str(CASES / "three_link_active.toml"))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
-    return {"status": out[0], "logged_samples": int(out[1]), "peak_rss_mb": int(out[2]) / 1024}
+    code = _RSS_400S.format(root=str(ROOT), case=str(CASES / "three_link_active.toml"))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    status, samples, hwm, lazy = res.stdout.split()[-4:]
+    return {"status": status, "logged_samples": int(samples), "peak_rss_mb": int(hwm) / 1024, "lazy_link": lazy == "1"}
+
+
+def peak_rss_400s(cold: bool = True) -> dict:
+    """Peak resident memory of the 400 s Table 4.2 active run (decimated logging), each in a fresh process.
+
+    ``peak_rss_mb``: warm, the compile cache already built (a first run builds it if needed and is not
+    measured), the case of every run after the first.  ``eager_link_peak_rss_mb``: the same with
+    numba's own cache load (``FTCREPORT_LAZY_LINK=0``: the loop's LLVM IR parsed on load), for
+    comparison.  ``cold_peak_rss_mb``: empty compile caches, so the compile (LLVM) is in the figure.
+    """
+    import os
+
+    _rss_400s()  # builds or loads the cache; not measured
+    warm = _rss_400s()
+    eager = _rss_400s(dict(os.environ, FTCREPORT_LAZY_LINK="0"))
+    out = warm | {"cache": "warm", "eager_link_peak_rss_mb": eager["peak_rss_mb"]}
+    if cold:
+        with tempfile.TemporaryDirectory() as d:
+            out["cold_peak_rss_mb"] = _rss_400s(_cold_env(d))["peak_rss_mb"]
+    return out
 
 
 def _cold_env(d: str) -> dict:
@@ -211,21 +235,31 @@ def _cold_env(d: str) -> dict:
     return dict(os.environ, NUMBA_CACHE_DIR=str(Path(d) / "numba"), FTCREPORT_CACHE=str(Path(d) / "loops"))
 
 
+def _worker_peak(out: Path) -> float | None:
+    """The batch's largest worker peak resident memory [MB], from its manifest (None: no worker ran)."""
+    try:
+        return json.loads((out / "manifest.json").read_text())["memory"]["worker_peak_rss_mb"]
+    except (OSError, KeyError, ValueError):
+        return None
+
+
 def batch_times() -> dict:
-    """`ftcreport batch cases/` cold (empty compile cache and output directory) and warm (everything cached)."""
+    """`ftcreport batch cases/`: cold (empty compile cache and output directory), warm (everything
+    cached: nothing simulated) and fresh (compile cache built, empty output directory: every run
+    simulated), each with the largest peak resident memory of its worker processes."""
     import subprocess
     import tempfile
 
+    out: dict = {}
     with tempfile.TemporaryDirectory() as d:
         env = _cold_env(d)
-        cmd = [sys.executable, "-m", "ftcreport.cli", "batch", str(CASES), "--out", str(Path(d) / "out"), "--quiet"]
-        t0 = time.perf_counter()
-        subprocess.run(cmd, check=False, capture_output=True, env=env)
-        cold = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        subprocess.run(cmd, check=False, capture_output=True, env=env)
-        warm = time.perf_counter() - t0
-    return {"cold_s": cold, "warm_s": warm}
+        cmd = [sys.executable, "-m", "ftcreport.cli", "batch", str(CASES), "--quiet", "--out"]
+        for key, where in (("cold", "out"), ("warm", "out"), ("fresh", "fresh")):
+            t0 = time.perf_counter()
+            subprocess.run([*cmd, str(Path(d) / where)], check=False, capture_output=True, env=env)
+            out[f"{key}_s"] = time.perf_counter() - t0
+            out[f"{key}_worker_peak_rss_mb"] = _worker_peak(Path(d) / where)
+    return out
 
 
 def first_result() -> dict:
@@ -322,13 +356,39 @@ def io_response_comparison(seconds: float) -> dict:
     }
 
 
+def _print_memory(mem: dict) -> dict:
+    print(
+        f"400 s Table 4.2 active run: peak RSS {mem['peak_rss_mb']:.0f} MB warm (compile cache built; "
+        f"{mem['eager_link_peak_rss_mb']:.0f} MB with numba's eager cache load), "
+        f"{mem['cold_peak_rss_mb']:.0f} MB cold (compiling); {mem['logged_samples']} logged samples, "
+        "every 10th step"
+    )
+    return mem
+
+
+def _print_batch(bt: dict) -> dict:
+    mb = lambda v: "none (nothing simulated)" if v is None else f"{v:.0f} MB"  # noqa: E731
+    print(
+        f"ftcreport batch cases/: cold {bt['cold_s']:.0f} s (worker peak {mb(bt['cold_worker_peak_rss_mb'])}), "
+        f"warm {bt['warm_s']:.1f} s (worker peak {mb(bt['warm_worker_peak_rss_mb'])}), fresh results on a "
+        f"built compile cache {bt['fresh_s']:.0f} s (worker peak {mb(bt['fresh_worker_peak_rss_mb'])})"
+    )
+    return bt
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repeats, shorter runs")
     ap.add_argument("--json", type=Path, help="also write the results here")
     ap.add_argument("--no-batch", action="store_true", help="skip the cold/warm batch and the 400 s memory run")
     ap.add_argument("--only-plugin", action="store_true", help="only the plug-in scheme against nominal")
+    ap.add_argument("--only-memory", action="store_true", help="only the 400 s run's memory and the batch")
     args = ap.parse_args()
+    if args.only_memory:
+        out = {"memory_400s": _print_memory(peak_rss_400s()), "batch": _print_batch(batch_times())}
+        if args.json:
+            args.json.write_text(json.dumps(out, indent=2))
+        return
     repeats = 1 if args.quick else 3
     scale = 0.25 if args.quick else 1.0
     out: dict = {"model_evals_per_second": {}, "scenarios": {}}
@@ -378,15 +438,8 @@ def main() -> None:
         fr = first_result()
         out["first_result"] = fr
         print(f"ftcreport run two_link_switching (switching): cold {fr['cold_s']:.0f} s, warm {fr['warm_s']:.1f} s")
-        mem = peak_rss_400s()
-        out["memory_400s"] = mem
-        print(
-            f"400 s Table 4.2 active run: peak RSS {mem['peak_rss_mb']:.0f} MB "
-            f"({mem['logged_samples']} logged samples, every 10th step)"
-        )
-        bt = batch_times()
-        out["batch"] = bt
-        print(f"ftcreport batch cases/: cold {bt['cold_s']:.0f} s, warm {bt['warm_s']:.1f} s")
+        out["memory_400s"] = _print_memory(peak_rss_400s())
+        out["batch"] = _print_batch(batch_times())
     if args.json:
         args.json.write_text(json.dumps(out, indent=2))
 

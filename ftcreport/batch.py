@@ -19,6 +19,10 @@ git revision, dependency versions, Python, platform, CPU; per run the engine, st
 and noise seed; per case its content hash); ``<out>/<case>/manifest.json`` the same for one case
 (its page shows it).  ``<out>/metrics.parquet`` holds every run's metrics, one row per
 (case, scheme, phase) (:func:`ftcreport.tidy.metrics_table`).
+
+Memory: each worker returns its peak resident memory with its result (:func:`peak_rss_mb`); the
+batch's maximum over its workers is :attr:`BatchResult.worker_peak_rss_mb`, printed by
+``ftcreport batch``, stored in ``<out>/manifest.json`` (``memory``) and shown on the index page.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import json
 import multiprocessing as mp
 import os
 import queue as _queue
+import sys
 import traceback
 from collections.abc import Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -46,6 +51,7 @@ __all__ = [
     "BatchResult",
     "discover",
     "failures_summary",
+    "peak_rss_mb",
     "record_case",
     "run_batch",
     "run_key",
@@ -63,6 +69,40 @@ class BatchResult:
     failed_runs: list[tuple[str, str, str]] = field(default_factory=list)
     case_errors: dict[str, str] = field(default_factory=dict)
     cases: list[str] = field(default_factory=list)
+    #: peak resident memory [MB] of the worker process that ran each simulated run, when it finished
+    #: (a worker runs several jobs: its peak so far); only runs whose worker reported one
+    run_peak_rss_mb: dict[tuple[str, str], float] = field(default_factory=dict)
+    #: peak resident memory [MB] of each worker process (by process id) over the batch
+    worker_peaks_mb: dict[int, float] = field(default_factory=dict)
+
+    @property
+    def worker_peak_rss_mb(self) -> float | None:
+        """The largest peak resident memory [MB] of the batch's worker processes (None: no worker ran)."""
+        return max(self.worker_peaks_mb.values(), default=None)
+
+
+def peak_rss_mb() -> float | None:
+    """This process's peak resident memory [MB] so far (None where it cannot be read).
+
+    Linux: ``VmHWM`` of /proc/self/status, the high-water mark of this process's address space since
+    its exec.  Not ``getrusage(RUSAGE_SELF).ru_maxrss``: Linux carries the peak of the address space
+    a process had before exec into it, so a worker started (fork + exec) by a large batch process
+    would report the batch process's size.  Elsewhere ru_maxrss (bytes on macOS, KiB otherwise).
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    except (ImportError, OSError):  # pragma: no cover - Windows
+        return None
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0
 
 
 def discover(paths: Iterable[Path]) -> list[Path]:
@@ -155,13 +195,13 @@ def run_key(case: Case, scheme: str) -> str:
     return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _run_record(out: Path, case: Case, scheme: str, cached: bool) -> dict:
+def _run_record(out: Path, case: Case, scheme: str, cached: bool, peak_mb: float | None = None) -> dict:
     from .store import load_metrics
 
     m = load_metrics(out, case.name, scheme) or {}
     key_path = out / case.name / scheme / "key"
     key = key_path.read_text().strip() if key_path.exists() else None
-    return {
+    record = {
         "case": case.name,
         "scheme": scheme,
         "engine": m.get("engine"),
@@ -171,6 +211,9 @@ def _run_record(out: Path, case: Case, scheme: str, cached: bool) -> dict:
         "seed": case.plant.noise.seed,
         "wall_time": m.get("wall_time"),
     }
+    if peak_mb is not None:  # simulated by a batch worker: its peak resident memory when the run finished
+        record["worker_peak_rss_mb"] = peak_mb
+    return record
 
 
 def write_case_manifest(out: Path, case: Case, settings: dict, runs: list[dict] | None = None) -> Path:
@@ -191,15 +234,21 @@ def write_case_manifest(out: Path, case: Case, settings: dict, runs: list[dict] 
     return write_manifest(out / case.name / "manifest.json", one)
 
 
-def write_manifests(out: Path, cases: list[Case], cached: set[tuple[str, str]], settings: dict) -> Path:
-    """``<out>/manifest.json`` for the batch and ``<out>/<case>/manifest.json`` per case; returns the first."""
+def write_manifests(
+    out: Path, cases: list[Case], cached: set[tuple[str, str]], settings: dict, res: BatchResult | None = None
+) -> Path:
+    """``<out>/manifest.json`` for the batch and ``<out>/<case>/manifest.json`` per case; returns the first.
+
+    With ``res``, the batch manifest's ``memory`` holds the workers' peak resident memory.
+    """
     from .manifest import build_manifest, write_manifest
 
     out = Path(out)
+    peaks = res.run_peak_rss_mb if res is not None else {}
     all_runs = []
     for case in cases:
         schemes = configured_schemes(case)
-        runs = [_run_record(out, case, s, (case.name, s) in cached) for s in schemes]
+        runs = [_run_record(out, case, s, (case.name, s) in cached, peaks.get((case.name, s))) for s in schemes]
         all_runs += runs
         write_case_manifest(out, case, settings, runs)
     m = build_manifest(
@@ -208,8 +257,19 @@ def write_manifests(out: Path, cases: list[Case], cached: set[tuple[str, str]], 
         runs=all_runs,
         seeds={c.name: c.plant.noise.seed for c in cases},
         settings=settings,
+        **({"memory": memory_summary(res)} if res is not None else {}),
     )
     return write_manifest(out / "manifest.json", m)
+
+
+def memory_summary(res: BatchResult) -> dict:
+    """The ``memory`` block of the batch manifest: the workers' peak resident memory [MB]."""
+    return {
+        "worker_peak_rss_mb": res.worker_peak_rss_mb,
+        "workers": len(res.worker_peaks_mb),
+        "runs_measured": len(res.run_peak_rss_mb),
+        "measure": "VmHWM of each worker process (peak resident set since its start), maximum over the workers",
+    }
 
 
 def _cost(case: Case, scheme: str) -> float:
@@ -269,8 +329,9 @@ def _record_error(out: Path, path: Path, error: str, avoid: Iterable[str] = ()) 
     _record(out, error_record_name(path, avoid), record)
 
 
-def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> dict:
-    """Run one scheme in a worker process and store it; returns its metrics."""
+def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> tuple[dict, dict]:
+    """Run one scheme in a worker process and store it; returns its metrics and the worker's
+    ``{"pid", "peak_rss_mb"}`` (its peak resident memory after the run and its storage)."""
     from .cases import parse_case
     from .runner import run_scheme
 
@@ -300,7 +361,7 @@ def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progr
             "null_reasons": {},  # no metric was computed
         }
     save_run(Path(out), case.name, scheme, run, metrics, key)
-    return metrics
+    return metrics, {"pid": os.getpid(), "peak_rss_mb": peak_rss_mb()}
 
 
 def run_batch(
@@ -359,7 +420,7 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -
     if todo:
         _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected)
     settings = {"jobs": jobs, "force": force, "duration": duration}
-    write_manifests(out, loaded, set(res.cached), settings)
+    write_manifests(out, loaded, set(res.cached), settings, res)
     if _parquet_stale(out):
         from .tidy import write_metrics_parquet
 
@@ -426,8 +487,9 @@ def _collect(pending, futures, q, progress, tasks, out: Path, res: BatchResult, 
         for fut in done:
             name, scheme = futures[fut]
             try:
-                m = fut.result()
+                m, worker = fut.result()
                 status, reason = m.get("status", "error"), m.get("reason", "")
+                _note_peak(res, name, scheme, worker)
             except Exception as exc:
                 status, reason = "error", f"worker failed: {type(exc).__name__}: {exc}"
                 (out / name / scheme / "key").unlink(missing_ok=True)  # not a complete, cached run
@@ -440,6 +502,16 @@ def _collect(pending, futures, q, progress, tasks, out: Path, res: BatchResult, 
                 res.failed_runs.append((name, scheme, f"{status}: {reason}"))
             task = tasks[(name, scheme)]
             progress.update(task, completed=progress.tasks[task].total, description=f"{name} / {scheme} [{status}]")
+
+
+def _note_peak(res: BatchResult, name: str, scheme: str, worker: dict) -> None:
+    """Record a worker's reported peak resident memory for its run and for the worker."""
+    peak = worker.get("peak_rss_mb")
+    if peak is None:
+        return
+    res.run_peak_rss_mb[(name, scheme)] = float(peak)
+    pid = int(worker.get("pid", -1))
+    res.worker_peaks_mb[pid] = max(res.worker_peaks_mb.get(pid, 0.0), float(peak))
 
 
 def _drain(q, progress, tasks) -> None:

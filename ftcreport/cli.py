@@ -328,9 +328,12 @@ def batch(
     from .batch import failures_summary, run_batch
 
     res = run_batch(cases or [Path("cases")], out, jobs, force, duration, show_progress=not quiet)
+    peak = res.worker_peak_rss_mb
+    memory = "" if peak is None else f"; worker peak memory {peak:.0f} MB ({len(res.worker_peaks_mb)} worker(s))"
     typer.echo(
         f"{len(res.cases)} case(s): {len(res.simulated)} run(s) simulated, {len(res.cached)} cached, "
-        f"{len(res.failed_runs)} failed, {len(res.case_errors)} case file(s) rejected; report: {out / 'index.html'}"
+        f"{len(res.failed_runs)} failed, {len(res.case_errors)} case file(s) rejected{memory}; "
+        f"report: {out / 'index.html'}"
     )
     if verbose:
         from .store import load_metrics
@@ -395,7 +398,6 @@ def run(
         for w in c.warnings():
             typer.echo(f"warning: {case}: {w}", err=True)
     from .batch import record_case, run_key, write_case_manifest
-    from .report.render import render_case, render_index
     from .store import output_lock
 
     rows = []
@@ -407,9 +409,13 @@ def run(
                 m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
             save_run(out, c.name, s, r, m, run_key(c, s))
             rows.append(m)
+            del r  # stored: the next scheme and the report do not hold this run's arrays too
         write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
-        page = None if no_report else render_case(out, c.name)
-        if not no_report:
+        page = None
+        if not no_report:  # matplotlib and jinja2 only for the report (--no-report: about 45 MB less)
+            from .report.render import render_case, render_index
+
+            page = render_case(out, c.name)
             render_index(out)
     if not quiet:
         typer.echo(_table(rows))

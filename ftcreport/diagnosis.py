@@ -374,26 +374,28 @@ def diagnosis_metrics(
     out["state_estimation_rms"] = out["state_estimation_rms_eta"]
     out["state_estimation_max_after_5s_q"] = float(np.max(np.abs(signals["q_hat"][after] - q[after])))
     out["state_estimation_max_after_5s_eta"] = float(np.max(np.abs(signals["eta_hat"][after] - eta[after])))
-    est = np.hstack([signals["rho_hat"], signals["ubar_hat"]])
-    truth = np.hstack([signals["sigma"], signals["ubar"]])
-    all_names = [f"rho_{w}" for w in wheel_names(chain.n)] + [f"ubar_{w}" for w in wheel_names(chain.n)]
-    cols = [all_names.index(n) for n in names]
-    err_final = np.abs(est[-1, cols] - truth[-1, cols])
-    out["fault_estimation_error_final"] = float(err_final.max())
-    out["fault_estimation_errors_final"] = dict(zip(names, err_final.tolist(), strict=True))
+    # the combined effect first, so that its (K, 2, 2n) matrices are freed before the estimates are
+    # gathered (the peak memory of a long run's metrics: issue 20 item 7)
     u_applied = signals["u"] if u_limit is None else np.clip(signals["u"], -u_limit, u_limit)
     MB = input_matrices(chain, q)
     ce_hat = combined_effect(MB, u_applied, signals["rho_hat"], signals["ubar_hat"])
     ce_true = combined_effect(MB, u_applied, signals["sigma"], signals["ubar"])
+    del MB, u_applied
     out["combined_effect_error_rms"] = float(np.sqrt(np.mean((ce_hat[after] - ce_true[after]) ** 2)))
     out["combined_effect_rms"] = float(np.sqrt(np.mean(ce_true[after] ** 2)))
+    all_names = [f"rho_{w}" for w in wheel_names(chain.n)] + [f"ubar_{w}" for w in wheel_names(chain.n)]
+    cols = [all_names.index(n) for n in names]
+    # the estimated parameters' columns only, each gathered once (K, len(names))
+    est = np.hstack([signals["rho_hat"], signals["ubar_hat"]])[:, cols]
+    truth = np.hstack([signals["sigma"], signals["ubar"]])[:, cols]
+    err_final = np.abs(est[-1] - truth[-1])
+    out["fault_estimation_error_final"] = float(err_final.max())
+    out["fault_estimation_errors_final"] = dict(zip(names, err_final.tolist(), strict=True))
     phases = schedule.phases(float(t[-1]))
-    out["diagnosis_phases"] = phase_combined_effect(
-        t, ce_hat, ce_true, est[:, cols], truth[:, cols], names, phases, dwell
-    )
+    out["diagnosis_phases"] = phase_combined_effect(t, ce_hat, ce_true, est, truth, names, phases, dwell)
     last = out["diagnosis_phases"][-1] if out["diagnosis_phases"] else {}
     out["combined_effect_relative_error_final"] = last.get("combined_effect_relative_error")
-    decl = detect(t, est[:, cols], names, gain_band, friction_band, dwell, settle_band)
+    decl = detect(t, est, names, gain_band, friction_band, dwell, settle_band)
     res = match_events(
         decl, true_events(schedule, names), t_end, gain_tol, friction_tol, boundaries=list(schedule.times)
     )

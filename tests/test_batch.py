@@ -290,3 +290,42 @@ def test_a_cold_batch_starts_every_loop_in_the_first_wave():
     assert any(k[1] for k in distinct)  # the motor case's loops are a variant of their own
     rest = [(c.name, s) for c, _, s, _ in ordered[len(distinct) :]]
     assert rest == [(c.name, s) for c, _, s, _ in todo if (c.name, s) in set(rest)]  # the rest keeps its order
+
+
+def test_batch_reports_its_workers_peak_memory(tmp_path):
+    """The workers' peak resident memory reaches the CLI line, the batch manifest and the index page.
+
+    Bounds: a worker imports numpy and numba and runs compiled code (``import numba`` alone is about
+    100 MB resident here), so a real reading is above 50 MB; a 0.2 s two-link run cannot need 4 GB.
+    A KiB/bytes/MB mix-up would be off by 1024x and fall outside.  (Not a memory target: that is
+    measured by benchmarks/run.py.)
+    """
+    out = tmp_path / "out"
+    case = CASES / "two_link_switching.toml"
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "--duration", "0.2", "--jobs", "1", "--quiet"])
+    assert res.exit_code == 0, res.output
+    line = next(x for x in res.output.splitlines() if "worker peak memory" in x)
+    printed = float(line.split("worker peak memory ")[1].split(" MB")[0])
+    memory = json.loads((out / "manifest.json").read_text())["memory"]
+    peak = memory["worker_peak_rss_mb"]
+    assert 50.0 < peak < 4096.0
+    assert abs(printed - peak) <= 0.5  # printed rounded to the MB
+    assert memory["workers"] == 1 and memory["runs_measured"] >= 1
+    runs = json.loads((out / "manifest.json").read_text())["runs"]
+    per_run = [r.get("worker_peak_rss_mb") for r in runs]
+    assert all(p is not None and 50.0 < p <= peak for p in per_run)  # one worker: its peak so far, at most the max
+    assert f"{peak:.0f} MB" in (out / "index.html").read_text()
+    # a warm batch starts no worker: nothing measured, and the line says nothing about memory
+    again = runner.invoke(app, ["batch", str(case), "--out", str(out), "--duration", "0.2", "--jobs", "1", "--quiet"])
+    assert again.exit_code == 0 and "worker peak memory" not in again.output
+    assert json.loads((out / "manifest.json").read_text())["memory"]["worker_peak_rss_mb"] is None
+
+
+def test_peak_rss_is_this_process_high_water_mark_in_mb():
+    import resource
+
+    from ftcreport.batch import peak_rss_mb
+
+    peak = peak_rss_mb()
+    # ru_maxrss (KiB on Linux) also counts what the process had before its exec, so it is at least VmHWM
+    assert 20.0 < peak <= resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + 1.0

@@ -556,10 +556,14 @@ def render_index(out: Path) -> Path:
             entry["verdict"] = v
         cases.append(entry)
     board = compare.scoreboard(verdicts, ordered_schemes(s for c in cases for s in c["runs"]))
+    batch = read_json(out / "manifest.json")  # the last batch's manifest: its workers' peak memory
+    memory = batch.get("memory") if isinstance(batch, dict) and batch.get("kind") == "batch" else None
     return write_page(
         out / "index.html",
         "index.html",
         "",
+        batch_memory=memory if isinstance(memory, dict) else None,
+        batch_created=batch.get("created") if memory else None,
         cases=cases,
         board=board,
         specs=compare.HEADLINE,

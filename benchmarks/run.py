@@ -250,23 +250,29 @@ def scaling(seconds: float) -> dict:
     """Issue 20 item 5: wall time per simulated second for n = 2, 3, 5, 8, 12 (nominal, switching, adaptive).
 
     A circle of radius 5 m at 0.5 m/s, the thesis robot, the chained law for n >= 3 (the two-link
-    law for n = 2), every compensable pattern as the bank: 3 * 4^(n-1) models.  Banks above
-    MAX_MODELS are not run (their state alone would be 2 * 3 * 4^(n-1) floats per step and stage).
+    law for n = 2), every compensable pattern as the bank: 3 * 4^(n-1) - 2 models.  Switching keeps
+    O(n^2) states whatever the bank (superposed filters, control/switching.py) and runs while its
+    pattern table fits the memory budget (ftcreport.limits: n <= 10); adaptive banks above
+    max_models are not run (their state alone would be 2n * 3 * 4^(n-1) floats per step and stage).
     """
     from ftcreport.control.adaptive import AdaptiveController
     from ftcreport.control.switching import SwitchingController
     from ftcreport.control.tracking import TrackingController
+    from ftcreport.limits import budget_problem, n_models
     from ftcreport.sim import Plant, SimSettings, demo_chain
 
     max_models = 60_000
     out: dict = {}
     for n in (2, 3, 5, 8, 12):
         chain, kin, q0 = demo_chain(n)
-        models = 3 * 4 ** (n - 1)
+        models = n_models(n)
         for name in ("nominal", "switching", "adaptive"):
             key = f"n={n} {name}"
-            if name != "nominal" and models > max_models:
+            if name == "adaptive" and models > max_models:
                 out[key] = {"models": models, "not_run": f"{models} models > {max_models}"}
+                continue
+            if name == "switching" and (problem := budget_problem(n, seconds, 0.01, 10, name)) is not None:
+                out[key] = {"models": models, "not_run": problem[1]}
                 continue
             cls = {"nominal": TrackingController, "switching": SwitchingController, "adaptive": AdaptiveController}[
                 name

@@ -7,9 +7,12 @@ what is not under test: the kinematic law and the matched law's terms (law_terms
 
 Tolerances.  The superposed filters are the same linear ODEs summed in another order, so they agree
 with the per-model ones to round-off: values of O(1) after a few hundred RK4 steps, 1e-12 absolute.
-In the closed loops the compiled engine and the Python loop differ at round-off as well (1e-9 on the
-plant state, tests/test_fast.py); costs are (m/s)^2 of O(1e-2) at most, so they are compared to
-1e-9 absolute.  The selected model is an integer sequence and must be identical.
+In the closed loops the compiled engine and the Python loop may differ at round-off as well (1e-9 on
+the plant state, tests/test_fast.py; measured here: 0, the same operations in the same order).  The
+costs, up to 1.1e-4 (m/s)^2 in these runs, differed by at most 1.4e-18 (measured): they are held to
+1e-8 of the largest cost, 10^4 above that and far below any cost difference the rule acts on (the
+hysteresis is 1e-10).  The selected model is an integer sequence and must be identical (28 to 76
+switches in these runs).
 """
 
 from __future__ import annotations
@@ -161,15 +164,19 @@ def test_superposed_filters_equal_the_per_model_filters():
 
 
 # ------------------------------------------------------------------ the rule on given states
+@pytest.mark.parametrize("reverse", [False, True])
 @pytest.mark.parametrize("c_int", [0.0, 0.3])
 @pytest.mark.parametrize("n", [3, 4, 5])
-def test_walk_selects_what_the_exhaustive_rule_selects(n, c_int):
-    """Random superposed states, many with exact ties (wheels the law sends no torque: z_j = 0) and
-    near-ties: switching_select (the walk) picks the exhaustive rule's model every time."""
+def test_walk_selects_what_the_exhaustive_rule_selects(n, c_int, reverse):
+    """Random superposed states, many with exact ties (wheels never driven: z_j = 0) and near-ties:
+    switching_select (the walk) picks the exhaustive rule's model every time, also for the bank in
+    reverse order (not monotone: no skipping of the never-driven wheels' branches)."""
     chain, kin, _q0 = demo_chain(n)
-    ctrl = SwitchingController(chain, kin, 2.0, c_int=c_int, T_min=0.0)
+    pats = compensable_patterns(n)
+    ctrl = SwitchingController(chain, kin, 2.0, c_int=c_int, T_min=0.0, patterns=pats[::-1] if reverse else pats)
     Lw = ctrl.packed()
     assert Lw.codes.shape[0] == 4**n  # the walk is used
+    assert Lw.trie[0] == (0 if reverse else 1)  # monotone bank
     nw = 2 * n
     rng = np.random.default_rng(100 + n)
     eta = np.array([0.5, 0.1])
@@ -177,12 +184,14 @@ def test_walk_selects_what_the_exhaustive_rule_selects(n, c_int):
     switched = 0
     for trial in range(60):
         Z = rng.normal(scale=10.0 ** rng.uniform(-4, -1), size=(nw, 2))
-        Z[rng.random(nw) < 0.4] = 0.0  # exact ties among models differing in these wheels
+        idle = rng.random(nw) < 0.4
+        Z[idle] = 0.0  # exact ties among models differing in these wheels
         true = rng.integers(ctrl.N)
         h = eta + f[true] @ Z + rng.normal(scale=10.0 ** rng.uniform(-9, -3), size=2)  # model `true` near exact
         M = None
         if c_int > 0:
             A = rng.normal(scale=1e-2, size=(5, 2, nw + 1))
+            A[:, :, 1:][:, :, idle] = 0.0  # never driven: their integrals are 0 too
             M = np.einsum("tia,tib->ab", A, A)
         xc = _state(ctrl, h, Z, M)
         cur = int(rng.integers(ctrl.N))
@@ -281,9 +290,9 @@ def test_engine_selects_the_per_model_banks_sequence(n, c_int, events):
     fast, ref = runs
     assert fast.ok and ref.ok, (fast.reason, ref.reason)
     sel = ref["selected"]
-    assert len(np.flatnonzero(np.diff(sel))) >= len(events)  # it switches, after every fault
+    assert len(np.flatnonzero(np.diff(sel))) >= 10  # it switches, after every fault (28 to 76 times)
     np.testing.assert_array_equal(fast["selected"], sel)
-    np.testing.assert_allclose(fast["cost"], ref["cost"], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fast["cost"], ref["cost"], rtol=0, atol=1e-8 * np.abs(ref["cost"]).max())
     np.testing.assert_allclose(fast["q"], ref["q"], rtol=0, atol=1e-9)
 
 

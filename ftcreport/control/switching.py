@@ -153,7 +153,8 @@ class SwitchingController:
         """(codes, trie) of the walk (fast.kernels.Law), or empty arrays when every pattern is evaluated.
 
         codes[sum_j sigma_j 2^j] is the bank index of a 0/1 pattern (-1: not in the bank);
-        trie[2^d + (code mod 2^d)] is 1 when a bank pattern starts with those d wheels.
+        trie[2^d + (code mod 2^d)] is 1 when a bank pattern starts with those d wheels; trie[0] is 1
+        when the bank is monotone (each pattern with one more working wheel is in it, at a lower index).
         """
         nw = self.chain.n_wheels
         P = self.patterns
@@ -165,6 +166,11 @@ class SwitchingController:
         trie = np.zeros(1 << (nw + 1), dtype=np.uint8)
         for d in range(nw + 1):
             trie[(1 << d) + (code & ((1 << d) - 1))] = 1
+        # monotone: each pattern with one more working wheel is in the bank at a lower index
+        idx = np.arange(self.N, dtype=np.int64)
+        up = code[:, None] | (np.int64(1) << np.arange(nw, dtype=np.int64))[None, :]  # (N, nw)
+        ok = (codes[up] >= 0) & (codes[up] < idx[:, None])
+        trie[0] = np.all(ok | (P == 1.0))
         return codes, trie
 
     def packed(self):

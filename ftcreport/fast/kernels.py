@@ -165,7 +165,8 @@ class Law(NamedTuple):
     adapt: int
     n_states: int
     codes: np.ndarray  # (2^nw,) int64: bank index of the 0/1 pattern sum_j sigma_j 2^j, -1 if absent; (0,): no walk
-    trie: np.ndarray  # (2^(nw+1),) uint8: 1 where a bank pattern has the prefix (wheels 0..d-1) of node 2^d + code
+    trie: np.ndarray  # (2^(nw+1),) uint8: 1 where a bank pattern has the prefix (wheels 0..d-1) of node 2^d + code;
+    # trie[0] = 1: the bank is monotone (switching._walk)
 
 
 class Obs(NamedTuple):
@@ -1396,10 +1397,18 @@ def _walk(Lw, xc, e10, e11, mode, lim):
     Wheel j's branch adds f_j = 1 - sigma_j: etatilde += z_j and int += 2 c_j + M_jj, with
     c_i += M_ji for the wheels i > j still open (the rank-one update of ``_model_cost``'s sums, O(2n)
     per node).  Branches without a bank pattern (``Lw.trie``) are skipped, and so are those whose lower
-    bound exceeds lim: every leaf below a node has |etatilde| >= |etatilde_node| - sum_(i >= d) |z_i|,
-    and int >= 0 up to round-off; both bounds are lowered by far more than the round-off of the leaf
-    costs (1e-12 relative, 1e-9 on the comparison), so no pattern that could be the minimum or a tie
-    is skipped.  Returns (least J, True if a NaN cost was met) in mode 0, (index, False) in mode 1.
+    bound exceeds lim: every leaf below a node at depth d has, for any unit vector w,
+    |etatilde| >= w . etatilde = w . etatilde_node + sum_(i >= d) f_i w . z_i
+    >= w . etatilde_node + sum_(i >= d) min(0, w . z_i); with w along etatilde_node (above the last
+    three wheels; nearer the leaves the cheaper |etatilde_node| - sum_(i >= d) |z_i|), and int >= 0 up
+    to round-off.  Both bounds are lowered by far more than the round-off of the leaf costs (1e-12
+    relative, 1e-9 on the comparison), so no pattern that could be the minimum or a tie is skipped.
+    The branch that brings etatilde nearer 0 is walked first (a low cost early prunes more; the
+    order does not change the result).  In a monotone bank (``trie[0] = 1``: a pattern with one more
+    working wheel is in the bank, at a lower index, e.g. every compensable pattern) the branch
+    f_d = 1 of a wheel whose filter and integrals are exactly 0 (never driven) is skipped: its costs
+    are those of f_d = 0, bit for bit, at higher indices (at t = 0 every model ties).  Returns
+    (least J, True if a NaN cost was met) in mode 0, (index, False) in mode 1.
     """
     nw = Lw.patterns.shape[1]
     D = nw + 1
@@ -1420,6 +1429,15 @@ def _walk(Lw, xc, e10, e11, mode, lim):
     CV = np.zeros((nw + 1, nw)) if use_int else np.zeros((1, 1))
     CODE = np.zeros(nw + 1, dtype=np.int64)
     BR = np.zeros(nw + 1, dtype=np.int64)
+    FIRST = np.zeros(nw + 1, dtype=np.int64)  # the f_d walked first at depth d
+    SAME = np.zeros(nw, dtype=np.bool_)  # f_d = 1 gives f_d = 0's costs at a higher index: skipped
+    if Lw.trie[0] == 1:
+        for j in range(nw):
+            zero = xc[i0 + 2 + 2 * j] == 0.0 and xc[i0 + 3 + 2 * j] == 0.0
+            if use_int:
+                for a in range(D):
+                    zero = zero and xc[m0 + (_tri(a, j + 1, D) if a <= j + 1 else _tri(j + 1, a, D))] == 0.0
+            SAME[j] = zero
     E[0, 0] = e10
     E[0, 1] = e11
     if use_int:
@@ -1446,11 +1464,17 @@ def _walk(Lw, xc, e10, e11, mode, lim):
                     found = k
             d -= 1
             continue
-        b = BR[d]
-        if b == 2:
+        if BR[d] == 0:
+            a0 = E[d, 0] + xc[i0 + 2 + 2 * d]
+            a1 = E[d, 1] + xc[i0 + 3 + 2 * d]
+            FIRST[d] = 1 if a0 * a0 + a1 * a1 < E[d, 0] * E[d, 0] + E[d, 1] * E[d, 1] else 0
+        elif BR[d] == 2:
             d -= 1
             continue
-        BR[d] = b + 1
+        b = FIRST[d] if BR[d] == 0 else 1 - FIRST[d]  # f_d of this branch
+        BR[d] += 1
+        if b == 1 and SAME[d]:
+            continue
         code = CODE[d] | ((1 - b) << d)  # bit d = sigma_d
         if Lw.trie[(1 << (d + 1)) + code] == 0:
             continue
@@ -1475,6 +1499,19 @@ def _walk(Lw, xc, e10, e11, mode, lim):
         bound = Lw.c_inst * gap * gap if gap > 0.0 else 0.0
         if (bound - slack) * (1.0 - 1e-9) > best:
             continue
+        if nw - c >= 3 and r > 0.0:
+            # w = etatilde_node / |etatilde_node|: |etatilde| >= r + sum_(i >= c) min(0, w . z_i)
+            w0 = E[c, 0] / r
+            w1 = E[c, 1] / r
+            acc = r
+            for i in range(c, nw):
+                p = w0 * xc[i0 + 2 + 2 * i] + w1 * xc[i0 + 3 + 2 * i]
+                if p < 0.0:
+                    acc += p
+            gap = acc - 1e-12 * (r + R[c])
+            bound = Lw.c_inst * gap * gap if gap > 0.0 else 0.0
+            if (bound - slack) * (1.0 - 1e-9) > best:
+                continue
         CODE[c] = code
         BR[c] = 0
         d = c

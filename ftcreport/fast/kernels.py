@@ -1400,9 +1400,12 @@ def _walk(Lw, xc, e10, e11, mode, lim):
     bound exceeds lim: every leaf below a node at depth d has, for any unit vector w,
     |etatilde| >= w . etatilde = w . etatilde_node + sum_(i >= d) f_i w . z_i
     >= w . etatilde_node + sum_(i >= d) min(0, w . z_i); with w along etatilde_node (above the last
-    three wheels; nearer the leaves the cheaper |etatilde_node| - sum_(i >= d) |z_i|), and int >= 0 up
-    to round-off.  Both bounds are lowered by far more than the round-off of the leaf costs (1e-12
-    relative, 1e-9 on the comparison), so no pattern that could be the minimum or a tie is skipped.
+    three wheels; nearer the leaves the cheaper |etatilde_node| - sum_(i >= d) |z_i|).  For the
+    integral, M is positive semidefinite, so v^T M v >= (y^T M v)^2 / (y^T M y) for y = the node's
+    (1, f) (Cauchy-Schwarz), and y^T M v >= y^T M y + sum_(i >= d) min(0, (M y)_i).  The bounds are
+    lowered by far more than the round-off of the leaf costs (1e-12 relative on etatilde,
+    1e-10 D^2 trace(M) on the integral, 1e-9 on the comparison), so no pattern that could be the
+    minimum or a tie is skipped.
     The branch that brings etatilde nearer 0 is walked first (a low cost early prunes more; the
     order does not change the result).  In a monotone bank (``trie[0] = 1``: a pattern with one more
     working wheel is in the bank, at a lower index, e.g. every compensable pattern) the branch
@@ -1413,17 +1416,36 @@ def _walk(Lw, xc, e10, e11, mode, lim):
     nw = Lw.patterns.shape[1]
     D = nw + 1
     i0 = Lw.hat0
-    m0 = Lw.int0
     use_int = Lw.n_int > 0
+    Z = np.empty((nw, 2))  # local copies: the walk reads plain arrays of its own
+    for j in range(nw):
+        Z[j, 0] = xc[i0 + 2 + 2 * j]
+        Z[j, 1] = xc[i0 + 3 + 2 * j]
+    M = np.zeros((D, D)) if use_int else np.zeros((1, 1))
+    if use_int:
+        for a in range(D):
+            for b in range(a, D):
+                M[a, b] = xc[Lw.int0 + _tri(a, b, D)]
+                M[b, a] = M[a, b]
+    return _walk_core(
+        Lw.codes, Lw.trie, Z, M, use_int, Lw.c_inst, Lw.c_int, e10, e11, mode, lim
+    )  # fmt: skip
+
+
+@jit
+def _walk_core(codes, trie, Z, M, use_int, c_inst, c_int, e10, e11, mode, lim):
+    """``_walk`` on plain arrays: Z (2n, 2) the wheels' filters, M (2n + 1, 2n + 1) the integrals."""
+    nw = Z.shape[0]
+    D = nw + 1
     R = np.zeros(nw + 1)  # R[d] = sum_(i >= d) |z_i|
     for j in range(nw - 1, -1, -1):
-        R[j] = R[j + 1] + math.sqrt(xc[i0 + 2 + 2 * j] ** 2 + xc[i0 + 3 + 2 * j] ** 2)
-    slack = 0.0  # the int part's round-off (int >= -slack as computed)
+        R[j] = R[j + 1] + math.sqrt(Z[j, 0] ** 2 + Z[j, 1] ** 2)
+    slack = 0.0  # the int part's round-off and M's departure from PSD (far above either)
     if use_int:
         tr = 0.0
         for a in range(D):
-            tr += abs(xc[m0 + _tri(a, a, D)])
-        slack = Lw.c_int * 1e-12 * D * D * tr
+            tr += abs(M[a, a])
+        slack = c_int * 1e-10 * D * D * tr
     E = np.empty((nw + 1, 2))
     ACC = np.zeros(nw + 1)
     CV = np.zeros((nw + 1, nw)) if use_int else np.zeros((1, 1))
@@ -1431,30 +1453,30 @@ def _walk(Lw, xc, e10, e11, mode, lim):
     BR = np.zeros(nw + 1, dtype=np.int64)
     FIRST = np.zeros(nw + 1, dtype=np.int64)  # the f_d walked first at depth d
     SAME = np.zeros(nw, dtype=np.bool_)  # f_d = 1 gives f_d = 0's costs at a higher index: skipped
-    if Lw.trie[0] == 1:
+    if trie[0] == 1:
         for j in range(nw):
-            zero = xc[i0 + 2 + 2 * j] == 0.0 and xc[i0 + 3 + 2 * j] == 0.0
+            zero = Z[j, 0] == 0.0 and Z[j, 1] == 0.0
             if use_int:
                 for a in range(D):
-                    zero = zero and xc[m0 + (_tri(a, j + 1, D) if a <= j + 1 else _tri(j + 1, a, D))] == 0.0
+                    zero = zero and M[a, j + 1] == 0.0
             SAME[j] = zero
     E[0, 0] = e10
     E[0, 1] = e11
     if use_int:
-        ACC[0] = xc[m0]
+        ACC[0] = M[0, 0]
         for j in range(nw):
-            CV[0, j] = xc[m0 + _tri(0, j + 1, D)]
+            CV[0, j] = M[0, j + 1]
     best = lim
     nan = False
     found = -1
     d = 0
     while d >= 0:
         if d == nw:
-            k = Lw.codes[CODE[d]]
+            k = codes[CODE[d]]
             if k >= 0:
-                cost = Lw.c_inst * (E[d, 0] * E[d, 0] + E[d, 1] * E[d, 1])
+                cost = c_inst * (E[d, 0] * E[d, 0] + E[d, 1] * E[d, 1])
                 if use_int:
-                    cost = cost + Lw.c_int * ACC[d]
+                    cost = cost + c_int * ACC[d]
                 if mode == 0:
                     if cost < best:
                         best = cost
@@ -1465,8 +1487,8 @@ def _walk(Lw, xc, e10, e11, mode, lim):
             d -= 1
             continue
         if BR[d] == 0:
-            a0 = E[d, 0] + xc[i0 + 2 + 2 * d]
-            a1 = E[d, 1] + xc[i0 + 3 + 2 * d]
+            a0 = E[d, 0] + Z[d, 0]
+            a1 = E[d, 1] + Z[d, 1]
             FIRST[d] = 1 if a0 * a0 + a1 * a1 < E[d, 0] * E[d, 0] + E[d, 1] * E[d, 1] else 0
         elif BR[d] == 2:
             d -= 1
@@ -1476,7 +1498,7 @@ def _walk(Lw, xc, e10, e11, mode, lim):
         if b == 1 and SAME[d]:
             continue
         code = CODE[d] | ((1 - b) << d)  # bit d = sigma_d
-        if Lw.trie[(1 << (d + 1)) + code] == 0:
+        if trie[(1 << (d + 1)) + code] == 0:
             continue
         c = d + 1
         if b == 0:  # wheel d works: f_d = 0
@@ -1487,17 +1509,27 @@ def _walk(Lw, xc, e10, e11, mode, lim):
                 for i in range(c, nw):
                     CV[c, i] = CV[d, i]
         else:  # wheel d failed: f_d = 1
-            E[c, 0] = E[d, 0] + xc[i0 + 2 + 2 * d]
-            E[c, 1] = E[d, 1] + xc[i0 + 3 + 2 * d]
+            E[c, 0] = E[d, 0] + Z[d, 0]
+            E[c, 1] = E[d, 1] + Z[d, 1]
             if use_int:
-                ACC[c] = ACC[d] + (2.0 * CV[d, d] + xc[m0 + _tri(d + 1, d + 1, D)])
+                ACC[c] = ACC[d] + (2.0 * CV[d, d] + M[d + 1, d + 1])
                 for i in range(c, nw):
-                    CV[c, i] = CV[d, i] + xc[m0 + _tri(d + 1, i + 1, D)]
-        # lower bound of J below this node
+                    CV[c, i] = CV[d, i] + M[d + 1, i + 1]
+        # lower bound of J below this node: c_inst (inst. bound) + c_int (integral bound) - slack
+        ib = 0.0
+        if use_int and ACC[c] > 0.0:
+            # int = v^T M v >= (y^T M v)^2 / (y^T M y) with y = this node's (1, f) (Cauchy-Schwarz),
+            # y^T M v >= int_node + sum_(i >= c) min(0, c_i) = L
+            L = ACC[c]
+            for i in range(c, nw):
+                if CV[c, i] < 0.0:
+                    L += CV[c, i]
+            if L > 0.0:
+                ib = c_int * (L * L / ACC[c])
         r = math.sqrt(E[c, 0] * E[c, 0] + E[c, 1] * E[c, 1])
         gap = r - R[c] - 1e-12 * (r + R[c])
-        bound = Lw.c_inst * gap * gap if gap > 0.0 else 0.0
-        if (bound - slack) * (1.0 - 1e-9) > best:
+        bound = c_inst * gap * gap if gap > 0.0 else 0.0
+        if (bound + ib - slack) * (1.0 - 1e-9) > best:
             continue
         if nw - c >= 3 and r > 0.0:
             # w = etatilde_node / |etatilde_node|: |etatilde| >= r + sum_(i >= c) min(0, w . z_i)
@@ -1505,12 +1537,12 @@ def _walk(Lw, xc, e10, e11, mode, lim):
             w1 = E[c, 1] / r
             acc = r
             for i in range(c, nw):
-                p = w0 * xc[i0 + 2 + 2 * i] + w1 * xc[i0 + 3 + 2 * i]
+                p = w0 * Z[i, 0] + w1 * Z[i, 1]
                 if p < 0.0:
                     acc += p
             gap = acc - 1e-12 * (r + R[c])
-            bound = Lw.c_inst * gap * gap if gap > 0.0 else 0.0
-            if (bound - slack) * (1.0 - 1e-9) > best:
+            bound = c_inst * gap * gap if gap > 0.0 else 0.0
+            if (bound + ib - slack) * (1.0 - 1e-9) > best:
                 continue
         CODE[c] = code
         BR[c] = 0
@@ -1521,10 +1553,55 @@ def _walk(Lw, xc, e10, e11, mode, lim):
 
 
 @jit
+def _good_cost(Lw, xc, e10, e11):
+    """The cost of a good bank pattern, the walk's first upper bound: wheel by wheel the branch of lower
+    partial cost (the wheels after it assumed working), then single-wheel changes while one lowers J.
+
+    A cost of a pattern of the bank, computed by ``_model_cost`` (the walk's bits): only a bound, the
+    walk still finds the least cost.  Without it a poor applied model (during the dwell time or
+    behind the hysteresis) leaves the walk a poor bound and many more nodes to visit.
+    """
+    nw = Lw.patterns.shape[1]
+    i0 = Lw.hat0
+    s = np.ones(nw)
+    code = 0
+    e0 = e10
+    e1 = e11
+    for d in range(nw):
+        a0 = e0 + xc[i0 + 2 + 2 * d]
+        a1 = e1 + xc[i0 + 3 + 2 * d]
+        keep = Lw.trie[(1 << (d + 1)) + (code | (1 << d))] == 1  # wheel d working is in the bank
+        fail = Lw.trie[(1 << (d + 1)) + code] == 1
+        if fail and (not keep or a0 * a0 + a1 * a1 < e0 * e0 + e1 * e1):
+            s[d] = 0.0
+            e0 = a0
+            e1 = a1
+        else:
+            code |= 1 << d
+    best = _model_cost(Lw, xc, e10, e11, s)
+    for _ in range(nw):
+        moved = False
+        for j in range(nw):
+            c2 = code ^ (1 << j)
+            k = Lw.codes[c2]
+            if k >= 0:
+                Jn = _model_cost(Lw, xc, e10, e11, Lw.patterns[k])
+                if Jn < best:
+                    best = Jn
+                    code = c2
+                    moved = True
+        if not moved:
+            break
+    return best
+
+
+@jit
 def _best_cost(Lw, xc, e10, e11, Jc):
     """min_k J_(k) over the bank (``_walk`` for a 0/1 bank with its table, else every pattern), and NaN seen."""
     if Lw.codes.shape[0] > 0:
-        return _walk(Lw, xc, e10, e11, 0, Jc if not math.isnan(Jc) else np.inf)
+        Jg = _good_cost(Lw, xc, e10, e11)
+        lim = Jc if not math.isnan(Jc) else np.inf
+        return _walk(Lw, xc, e10, e11, 0, Jg if Jg < lim else lim)
     best = np.inf
     nan = False
     for k in range(Lw.patterns.shape[0]):

@@ -174,11 +174,20 @@ class SwitchingController:
         return codes, trie
 
     def packed(self):
-        """The kernels' parameters (fast.kernels.Law), built once."""
+        """The kernels' parameters (fast.kernels.Law): the bank, the superposed filters' layout and the
+        walk's tables (fast.kernels.switching_rates, switching_select), built once."""
         if self._packed is None:
-            from ..fast.engine import switching_params
+            from ..fast import kernels as F
 
-            self._packed = switching_params(self)
+            codes, trie = self.walk_tables()
+            self._packed = F.law_params(
+                F.LAW_SWITCHING, self.k_v, self.chain.n_wheels, self.n_states,
+                patterns=np.ascontiguousarray(self.patterns, dtype=float), gamma=self.gamma, T_min=self.T_min,
+                c_inst=self.c_inst, c_int=self.c_int, forgetting=self.forgetting, hysteresis=self.hysteresis,
+                u_limit=float("nan") if self.u_limit is None else float(self.u_limit), hat0=self._filt.start,
+                int0=self._int.start, n_int=self._int.stop - self._int.start, sel=self._sel, tsw=self._tsw,
+                codes=codes, trie=trie,
+            )  # fmt: skip
         return self._packed
 
     def selected(self, xc: np.ndarray) -> int:

@@ -53,7 +53,7 @@ from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
 
-__all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled", "switching_params"]
+__all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled"]
 
 NAN = float("nan")
 
@@ -89,14 +89,7 @@ def _kin(kin, h: float) -> F.Kin | None:
 
 
 def _law(kind, ctrl, nw: int, **kw) -> F.Law:
-    base = dict(
-        kind=kind, k_v=float(ctrl.k_v), sigma=np.ones(nw), patterns=np.zeros((0, nw)), gamma=0.0, T_min=0.0,
-        c_inst=0.0, c_int=0.0, forgetting=0.0, hysteresis=0.0, u_limit=NAN, hat0=0, int0=0, n_int=0, sel=0,
-        tsw=0, chi0=0, uf0=0, Gamma_f=np.zeros((nw, nw)), adapt=0, n_states=int(ctrl.n_states),
-        codes=np.zeros(0, dtype=np.int64), trie=np.zeros(0, dtype=np.uint8),
-    )  # fmt: skip
-    base.update(kw)
-    return F.Law(**base)
+    return F.law_params(kind, float(ctrl.k_v), nw, int(ctrl.n_states), **kw)
 
 
 def _kin_ref(controller) -> tuple[F.Kin, F.Ref] | None:
@@ -174,18 +167,6 @@ def compiled_spec(controller) -> Spec | None:
 
     kind = LAW_ACTIVE_UKF if ukf is not None else P.kind
     return Spec(kin, ref, builtin_law, builtin_discrete, builtin(kind, P, pc, obs, ukf), pc, n_sig, controller, start)
-
-
-def switching_params(c: SwitchingController) -> F.Law:
-    """The kernels' parameters of a switching controller (its ``packed()``): the bank, the superposed
-    filters' layout and the walk's tables (fast.kernels.switching_rates, switching_select)."""
-    codes, trie = c.walk_tables()
-    return _law(
-        F.LAW_SWITCHING, c, c.chain.n_wheels, patterns=np.ascontiguousarray(c.patterns, dtype=float),
-        gamma=c.gamma, T_min=c.T_min, c_inst=c.c_inst, c_int=c.c_int, forgetting=c.forgetting,
-        hysteresis=c.hysteresis, u_limit=NAN if c.u_limit is None else float(c.u_limit), hat0=c._filt.start,
-        int0=c._int.start, n_int=c._int.stop - c._int.start, sel=c._sel, tsw=c._tsw, codes=codes, trie=trie,
-    )  # fmt: skip
 
 
 def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:

@@ -169,6 +169,18 @@ class Law(NamedTuple):
     # trie[0] = 1: the bank is monotone (switching._walk)
 
 
+def law_params(kind: int, k_v: float, nw: int, n_states: int, **kw) -> Law:
+    """A ``Law`` with the fields a law does not use at neutral values (numba compiles one type)."""
+    base = dict(
+        kind=kind, k_v=k_v, sigma=np.ones(nw), patterns=np.zeros((0, nw)), gamma=0.0, T_min=0.0,
+        c_inst=0.0, c_int=0.0, forgetting=0.0, hysteresis=0.0, u_limit=math.nan, hat0=0, int0=0, n_int=0, sel=0,
+        tsw=0, chi0=0, uf0=0, Gamma_f=np.zeros((nw, nw)), adapt=0, n_states=n_states,
+        codes=np.zeros(0, dtype=np.int64), trie=np.zeros(0, dtype=np.uint8),
+    )  # fmt: skip
+    base.update(kw)
+    return Law(**base)
+
+
 class Obs(NamedTuple):
     """Farza observer (observers/farza.py) and the active law's filters (control/active.py)."""
 

@@ -284,35 +284,55 @@ def scaling(seconds: float) -> dict:
     """Issue 20 item 5: wall time per simulated second for n = 2, 3, 5, 8, 12 (nominal, switching, adaptive).
 
     A circle of radius 5 m at 0.5 m/s, the thesis robot, the chained law for n >= 3 (the two-link
-    law for n = 2), every compensable pattern as the bank: 3 * 4^(n-1) models.  Banks above
-    MAX_MODELS are not run (their state alone would be 2 * 3 * 4^(n-1) floats per step and stage).
+    law for n = 2), every compensable pattern as the bank: 3 * 4^(n-1) - 2 models, dt = 0.01 s.
+    Switching keeps O(n^2) states whatever the bank (superposed filters, control/switching.py) and
+    runs while its pattern table fits the memory budget (ftcreport.limits: n <= 10), healthy and
+    with three wheel faults (``switching+faults``: nr at 0.5 s, 2l at 1 s, 1r at 1.5 s, so that it
+    switches); adaptive banks above max_models are not run (their state alone would be
+    2n * 3 * 4^(n-1) floats per step and stage).  The controller and its kernel tables are built
+    before the clock starts (``setup_s``: the bank's pattern table and walk tables, 0.3-0.5 s at n = 8).
     """
     from ftcreport.control.adaptive import AdaptiveController
     from ftcreport.control.switching import SwitchingController
     from ftcreport.control.tracking import TrackingController
+    from ftcreport.limits import budget_problem, n_models
+    from ftcreport.model import FaultEvent, FaultSchedule
     from ftcreport.sim import Plant, SimSettings, demo_chain
 
     max_models = 60_000
     out: dict = {}
     for n in (2, 3, 5, 8, 12):
         chain, kin, q0 = demo_chain(n)
-        models = 3 * 4 ** (n - 1)
-        for name in ("nominal", "switching", "adaptive"):
+        models = n_models(n)
+        faults = FaultSchedule(n, [FaultEvent(0.5, f"{n}r"), FaultEvent(1.0, "2l"), FaultEvent(1.5, "1r")])
+        for name in ("nominal", "switching", "switching+faults", "adaptive"):
             key = f"n={n} {name}"
-            if name != "nominal" and models > max_models:
+            scheme = name.split("+")[0]
+            if scheme == "adaptive" and models > max_models:
                 out[key] = {"models": models, "not_run": f"{models} models > {max_models}"}
                 continue
+            if scheme == "switching" and (problem := budget_problem(n, seconds, 0.01, 10, scheme)) is not None:
+                out[key] = {"models": models, "not_run": problem[1]}
+                continue
             cls = {"nominal": TrackingController, "switching": SwitchingController, "adaptive": AdaptiveController}[
-                name
+                scheme
             ]
+            plant = Plant(chain, faults) if name.endswith("faults") else Plant(chain)
             settings = SimSettings(0.01, seconds, log_every=10)
             short = dataclasses.replace(settings, duration=0.05)  # compile or load the loop first
-            simulate(Plant(chain), cls(chain, kin, 2.0), q0, np.array([0.5, 0.0]), short)
+            simulate(plant, cls(chain, kin, 2.0), q0, np.array([0.5, 0.0]), short)
             t0 = time.perf_counter()
-            run = simulate(Plant(chain), cls(chain, kin, 2.0), q0, np.array([0.5, 0.0]), settings)
+            ctrl = cls(chain, kin, 2.0)
+            if hasattr(ctrl, "packed"):
+                ctrl.packed()  # the switching bank's kernel tables (walk_tables), built once per controller
+            setup = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            run = simulate(plant, ctrl, q0, np.array([0.5, 0.0]), settings)
             wall = time.perf_counter() - t0
-            out[key] = {"models": models if name != "nominal" else 1, "wall_per_sim_s": wall / seconds,
-                        "status": run.status}  # fmt: skip
+            out[key] = {"models": models if scheme != "nominal" else 1, "wall_per_sim_s": wall / seconds,
+                        "setup_s": setup, "status": run.status}  # fmt: skip
+            if "selected" in run.signals:
+                out[key]["switches"] = int(np.count_nonzero(np.diff(run["selected"])))
     return out
 
 
@@ -376,6 +396,17 @@ def _print_batch(bt: dict) -> dict:
     return bt
 
 
+def _print_scaling(seconds: float) -> dict:
+    sc = scaling(seconds)
+    for key, r in sc.items():
+        what = r.get("not_run") or (
+            f"{r['wall_per_sim_s']:.4f} s/sim-s ({r['status']}), setup {r['setup_s']:.2f} s"
+            + (f", {r['switches']} switches" if "switches" in r else "")
+        )
+        print(f"scaling {key:25s} {r['models']:>10,} models: {what}")
+    return sc
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repeats, shorter runs")
@@ -383,6 +414,7 @@ def main() -> None:
     ap.add_argument("--no-batch", action="store_true", help="skip the cold/warm batch and the 400 s memory run")
     ap.add_argument("--only-plugin", action="store_true", help="only the plug-in scheme against nominal")
     ap.add_argument("--only-memory", action="store_true", help="only the 400 s run's memory and the batch")
+    ap.add_argument("--only-scaling", action="store_true", help="only the scaling in n (issue 20 item 5)")
     args = ap.parse_args()
     if args.only_memory:
         out = {"memory_400s": _print_memory(peak_rss_400s()), "batch": _print_batch(batch_times())}
@@ -392,6 +424,11 @@ def main() -> None:
     repeats = 1 if args.quick else 3
     scale = 0.25 if args.quick else 1.0
     out: dict = {"model_evals_per_second": {}, "scenarios": {}}
+    if args.only_scaling:
+        out["scaling"] = _print_scaling(2.0 if args.quick else 5.0)
+        if args.json:
+            args.json.write_text(json.dumps(out, indent=2))
+        return
     pl = plugin_speed(70.0 * scale, max(3, repeats))
     out["plugin_scheme"] = pl
     print(
@@ -429,11 +466,7 @@ def main() -> None:
         f"({cmp_['ratio_python_engine']:.1f} for the Python engine); "
         f"final positions differ by {cmp_['final_position_difference_m']:.1e} m"
     )
-    sc = scaling(2.0 if args.quick else 5.0)
-    out["scaling"] = sc
-    for key, r in sc.items():
-        what = r.get("not_run") or f"{r['wall_per_sim_s']:.4f} s/sim-s ({r['status']})"
-        print(f"scaling {key:18s} {r['models']:>9,} models: {what}")
+    out["scaling"] = _print_scaling(2.0 if args.quick else 5.0)
     if not args.no_batch:
         fr = first_result()
         out["first_result"] = fr

@@ -417,18 +417,24 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -
     for path, error in res.case_errors.items():  # after every valid name is known
         _record_error(out, Path(path), error, taken)
     todo = _compile_first(sorted(todo, key=lambda job: -_cost(job[0], job[2])))
+
+    def finish(pool=None) -> None:
+        """Manifests, the tidy table and the pages (in the workers, when there are some)."""
+        settings = {"jobs": jobs, "force": force, "duration": duration}
+        write_manifests(out, loaded, set(res.cached), settings, res)
+        if _parquet_stale(out):
+            from .tidy import write_metrics_parquet
+
+            write_metrics_parquet(out)
+        if render:
+            from .report.render import render_all
+
+            render_all(out, pool=pool)
+
     if todo:
-        _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected)
-    settings = {"jobs": jobs, "force": force, "duration": duration}
-    write_manifests(out, loaded, set(res.cached), settings, res)
-    if _parquet_stale(out):
-        from .tidy import write_metrics_parquet
-
-        write_metrics_parquet(out)
-    if render:
-        from .report.render import render_all
-
-        render_all(out)
+        _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected, finish)
+    else:
+        finish()
     return res
 
 
@@ -441,7 +447,8 @@ def _parquet_stale(out: Path) -> bool:
     return any(p.stat().st_mtime_ns > stamp for p in out.glob("*/*/metrics.json"))
 
 
-def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict) -> None:
+def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict, finish) -> None:
+    """Run ``todo`` in worker processes, then ``finish(pool)`` (the pages render in the same workers)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     ctx = mp.get_context("spawn")
@@ -466,6 +473,8 @@ def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, 
         pending = set(futures)
         try:
             _collect(pending, futures, q, progress, tasks, out, res, expected)
+            progress.stop()
+            finish(pool)
         except BaseException:  # Ctrl-C, SIGTERM: stop the workers now; every stored run is complete
             for fut in pending:
                 fut.cancel()

@@ -44,6 +44,7 @@ MAX_STEPS = 10_000_000
 #: memory a run may preallocate for its grid, logs and model bank
 MEMORY_BUDGET_BYTES = 1 << 30  # 1 GiB
 _BYTES_PER_STEP = 40  # time grid, step flags and their temporaries
+MAX_LOGGED_COSTS = 4096  # control.switching.MAX_LOGGED_COSTS (tests/test_switching_bank.py checks they agree)
 
 
 def name_problem(name: object) -> str | None:
@@ -85,23 +86,34 @@ def run_memory_bytes(
 
     Logged values per sample: q, q_d, q_meas (n + 2 each), eta, eta_c, eta_d, z
     (2 each), u, tau, sigma, ubar and the estimates (2n each, 8 arrays), plus
-    the controller state and its per-model signals: switching 2N filter states,
-    N integrals and N costs; adaptive 2n N weights, logged twice (state and
-    chi_hat).  The model bank itself holds about 8 values per model and wheel.
+    the controller state and its per-model signals: switching keeps 2 + 4n superposed
+    filter states and (2n + 1)(2n + 2) / 2 integral states whatever the bank
+    (control/switching.py) and logs N costs per sample up to MAX_LOGGED_COSTS
+    models, 2 above; its bank is the (N, 2n) pattern array, the list of tuples it
+    is built from (about 64 + 8 * 2n bytes per model) and the walk's tables
+    (9 * 2^(2n) bytes); adaptive 2n N weights, logged twice (state and chi_hat),
+    and a bank of about 8 values per model and wheel.
     """
     steps = math.ceil(duration / dt)
     samples = steps // max(int(log_every), 1) + 2
     wheels = 2 * n
     width = 3 * (n + 2) + 8 + 8 * wheels + 16
     N = n_models(n) if models is None else models
-    bank = 0
     if scheme == "switching":
-        width += 4 * N
-        bank = 8 * N * wheels * 8
+        width += 2 + 2 * wheels + (wheels + 1) * (wheels + 2) // 2 + 2 + (N if N <= MAX_LOGGED_COSTS else 2)
     elif scheme in ("adaptive", "adaptive_frozen"):
         width += 2 * N * wheels
-        bank = 8 * N * wheels * 8
-    return steps * _BYTES_PER_STEP + samples * width * 8 + bank, steps, samples
+    return steps * _BYTES_PER_STEP + samples * width * 8 + _bank_bytes(n, scheme, N), steps, samples
+
+
+def _bank_bytes(n: int, scheme: str, N: int) -> int:
+    """The model bank's bytes (run_memory_bytes)."""
+    wheels = 2 * n
+    if scheme == "switching":
+        return N * wheels * 8 + N * (64 + 8 * wheels) + 9 * 2**wheels
+    if scheme in ("adaptive", "adaptive_frozen"):
+        return 8 * N * wheels * 8
+    return 0
 
 
 def budget_problem(
@@ -122,7 +134,7 @@ def budget_problem(
         N = n_models(n) if models is None else models
         banked = scheme in ("switching", "adaptive", "adaptive_frozen")
         why = f" with {N} models (3 * 4^(n-1) - 2 = {n_models(n)} for n = {n})" if banked else ""
-        field = "robots.n" if banked and 4 * N * 2 * n * 8 * 8 > MEMORY_BUDGET_BYTES else "simulation.log_every"
+        field = "robots.n" if banked and 4 * _bank_bytes(n, scheme, N) > MEMORY_BUDGET_BYTES else "simulation.log_every"
         return (
             field,
             f"the {scheme} run needs about {need / 2**20:.0f} MiB ({samples} logged samples of {steps} steps{why}), "

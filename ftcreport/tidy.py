@@ -77,6 +77,8 @@ UNITS: dict[str, tuple[tuple[str, ...], str, str]] = {
     "P_max": ((), "1", "largest entry of the observer's P"),
     "selected": ((), "1", "index of the applied model"),
     "cost": (("pattern",), "(m/s)^2", "switching cost of every model"),
+    "cost_selected": ((), "(m/s)^2", "switching cost of the applied model (banks too large to log every cost)"),
+    "cost_best": ((), "(m/s)^2", "least switching cost of the bank (banks too large to log every cost)"),
     "chi_hat": (("pattern", "wheel"), "1", "adaptive weights"),
     "z": (("chained",), "chained-form coordinates", "chained-form coordinates of the kinematic controller"),
     "xc": (("controller_state",), "mixed", "controller state"),

@@ -87,3 +87,28 @@ def test_variants_are_separate_modules_with_their_constants():
     assert (plain.MOTORS, plain.SAMPLED) == (False, False)
     assert (motors.MOTORS, motors.SAMPLED) == (True, False)
     assert loop_for(F.tracking_law, F.no_discrete, motors=False, sampled=False) is plain  # one per process
+
+
+def test_every_ftcreport_kernel_cache_is_keyed_on_all_compiled_sources():
+    # a kernel cached from one file (fast/builtin.py) links kernels of another (fast/kernels.py):
+    # its cache entry must go stale when any compiled source changes, not only its own file
+    import hashlib
+    from pathlib import Path
+
+    from ftcreport.fast import builtin
+
+    root = Path(F.__file__).parent
+    h = hashlib.sha256()
+    for path in sorted(root.glob("*.py")):
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    assert compiling.engine_stamp() == h.hexdigest()
+    for kernel in (F._solve2, builtin.passive_law):
+        stamp = kernel._cache._impl._locator.get_source_stamp()
+        assert stamp[1] == h.hexdigest()
+        assert stamp[0] == hashlib.sha256(Path(kernel.py_func.__code__.co_filename).read_bytes()).digest()
+
+    @njit(cache=True)
+    def elsewhere(x):  # not ftcreport's (this test module): numba's own locator, untouched
+        return x
+
+    assert not getattr(type(elsewhere._cache._impl._locator), "_ftcreport", False)

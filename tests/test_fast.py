@@ -226,23 +226,27 @@ def test_both_engines_break_switching_ties_alike():
     assert ctrl.N >= 4  # models
     q, eta = built.q0, np.array([0.5, 0.1])
     xc = np.asarray(ctrl.initial_state(0.0, q, eta), dtype=float)
-    hat = np.tile(eta + 1e-2, (ctrl.N, 1))  # every model far off, but 1 and 3 close and tied
-    hat[1] = eta + np.array([3e-5, 4e-5])
-    hat[3] = eta + np.array([3e-5, 4e-5 * (1.0 - 1e-11)])  # 3 smaller by 1e-11 relative: argmin would pick it
+    f = 1.0 - ctrl.patterns  # etatilde_k = (eta - h) + sum_j f_kj z_j (superposed filters)
+    # one wheel model 1 assumes failed and 3 does not, and one the other way round (z = 0 for the others)
+    j1 = int(np.flatnonzero((f[1] == 1) & (f[3] == 0))[0])
+    j3 = int(np.flatnonzero((f[3] == 1) & (f[1] == 0))[0])
+    h = eta + 1e-2  # every model far off, but 1 and 3 close and tied
 
-    def selected(hat):
-        xc[ctrl._hat] = hat.ravel()
+    def selected(e1, e3):
+        z = np.zeros((ctrl.chain.n_wheels, 2))
+        z[j1], z[j3] = e1 - (eta - h), e3 - (eta - h)
+        xc[ctrl._filt] = np.concatenate((h, z.ravel()))
         py = ctrl.discrete(1.0, q, eta, xc)
         fast = xc.copy()
         F.switching_discrete(spec.P, spec.kin, spec.ref, F.new_cache(3), 1.0, q, eta, fast, np.zeros(4))
-        return round(py[ctrl._sel]), round(fast[ctrl._sel])
+        return ctrl.costs(eta, xc), (round(py[ctrl._sel]), round(fast[ctrl._sel]))
 
-    xc[ctrl._hat] = hat.ravel()
-    J = ctrl.costs(eta, xc)
-    assert J[3] < J[1] < J[3] * (1.0 + TIE_RTOL)
-    assert selected(hat) == (1, 1)
-    hat[1] = eta + np.array([3e-5, 4.1e-5])  # a real difference (J[1] 3 % above J[3]): the smaller cost wins
-    assert selected(hat) == (3, 3)
+    # 3 smaller by 1e-11 relative: argmin would pick it
+    J, sel = selected(-np.array([3e-5, 4e-5]), -np.array([3e-5, 4e-5 * (1.0 - 1e-11)]))
+    assert J[3] < J[1] < J[3] * (1.0 + TIE_RTOL) and J.min() == J[3]
+    assert sel == (1, 1)
+    # a real difference (J[1] 3 % above J[3]): the smaller cost wins
+    assert selected(-np.array([3e-5, 4.1e-5]), -np.array([3e-5, 4e-5]))[1] == (3, 3)
 
 
 @pytest.mark.parametrize("n", [2, 3, 5])

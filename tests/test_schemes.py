@@ -131,7 +131,8 @@ def test_cli_lists_the_schemes():
     assert res.exit_code == 0, res.output
     line = next(x for x in res.output.splitlines() if x.startswith("sliding_mode"))
     assert "passive" in line and "[runs in this case, 0 states]" in line
-    assert any(x.startswith("switching") and "22 states" in x for x in res.output.splitlines())
+    # two-link law (no kinematic state), 10 models: h, z_1 .. z_4 (superposed filters), selected, last switch
+    assert any(x.startswith("switching") and "12 states" in x for x in res.output.splitlines())
 
 
 # ------------------------------------------------------------------ (b) a campaign on a local Dask cluster

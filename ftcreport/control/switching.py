@@ -4,7 +4,7 @@ Thesis sections 3.2.2.2-3.2.2.3 and 3.3.1 (3.33-3.48, 3.107), ERRATA E8, E12f, E
 
 * One dynamic law per failure pattern sigma_(k) (3.35)/(3.107), all sharing the
   kinematic controller; only the selected one is applied.
-* Reconstruction filters, one per model, as controller state (3.42)::
+* Reconstruction filters, one per model (3.42)::
 
       etahat_(k) = gamma/(s+gamma)[eta] + 1/(s+gamma)[-Mbar1^-1 (Mbar2 eta + Cbar)]
                    + 1/(s+gamma)[Mbar1^-1 Bbar sigma_(k) u]
@@ -13,9 +13,13 @@ Thesis sections 3.2.2.2-3.2.2.3 and 3.3.1 (3.33-3.48, 3.107), ERRATA E8, E12f, E
   + Mbar1^-1 Bbar sigma_(k) u`` with the applied u, started at etahat_(k)(0) = eta(0)
   (ERRATA E12g).  The matched model then reconstructs exactly: its error obeys
   e' = -gamma e + Mbar1^-1 Bbar (sigma - sigma_(k)) u = -gamma e.
+  The filters are linear in sigma_(k), so they are run by superposition (issue 20 item 5):
+  the healthy model's filter h and one filter z_j per wheel, ``etahat_(k) = h - sum_j (1 - sigma_kj) z_j``;
+  2 + 4n states for the whole bank instead of 2 N (fast.kernels.switching_rates).
 * Costs (3.46), with the optional forgetting integral of Narendra & Balakrishnan
   (1994): ``J_(k) = c_inst |etatilde_(k)|^2 + c_int int_0^t exp(-lambda (t - s)) |etatilde_(k)(s)|^2 ds``;
-  the integral is one more state per model, ``I' = -lambda I + |etatilde|^2``.
+  the integral is ``I' = -lambda I + |etatilde|^2`` per model; superposed, it is the quadratic form
+  ``(1, f_k)^T M (1, f_k)`` of one (2n + 1)^2 symmetric matrix M (f_k = 1 - sigma_(k)).
   The thesis uses c_inst = 1, c_int = 0.
 * Switching (3.47)-(3.48), after every integration step: the argmin of J is
   applied if at least T_min has passed since the last switch.  Hysteresis
@@ -30,9 +34,18 @@ Thesis sections 3.2.2.2-3.2.2.3 and 3.3.1 (3.33-3.48, 3.107), ERRATA E8, E12f, E
   floating-point operations (the two engines, another BLAS) from the first such
   tie on.
 
-The controller's state is ``[kinematic state, etahat (N x 2), I (N, if c_int > 0),
-selected index, time of the last switch]``; the last two are discrete (zero
-derivative, changed only by :meth:`discrete`).
+* The least cost is found without visiting every model (fast.kernels._walk: a depth-first walk over
+  the wheels that skips the subtrees whose lower bound cannot win), so n = 8 (49,150 models) runs
+  in real time; the chosen model is the exhaustive rule's (tests/test_switching_bank.py).
+
+The controller's state is ``[kinematic state, h (2), z_1 .. z_2n (2 each), M's upper triangle
+((2n + 1)(2n + 2) / 2, if c_int > 0), selected index, time of the last switch]``; the last two are
+discrete (zero derivative, changed only by :meth:`discrete`).  The equations are the compiled
+kernels' (fast.kernels.switching_rates, switching_select, switching_costs), called from here too.
+
+Logged signals: ``selected`` and, for banks of at most :data:`MAX_LOGGED_COSTS` models, ``cost``
+(every model's J, (N,) per sample); larger banks log ``cost_selected`` (the applied model's J) and
+``cost_best`` (the least J of the bank) instead.
 """
 
 from __future__ import annotations
@@ -48,9 +61,11 @@ from ..model.faults import model_patterns
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
 from .tracking import TrackingController, kinematic_signals, law_for_pattern, law_terms
 
-__all__ = ["TIE_RTOL", "SwitchingController"]
+__all__ = ["MAX_LOGGED_COSTS", "TIE_RTOL", "SwitchingController"]
 
 TIE_RTOL = 1e-9  # switching costs this close (relative) to the smallest are ties
+MAX_LOGGED_COSTS = 4096  # banks up to this size log every model's cost (n <= 6 with every pattern)
+WALK_MIN_MODELS = 32  # 0/1 banks from this size on are searched by the walk (fast.kernels._walk)
 
 
 class SwitchingController:
@@ -116,72 +131,120 @@ class SwitchingController:
             raise ModelError(f"initial_model: {initial_model} is not a model index (0..{self.N - 1})")
         self.initial_model = int(initial_model)
         nk = kinematic.n_states
-        N = self.N
+        nw = chain.n_wheels
+        n_tri = (nw + 1) * (nw + 2) // 2
         self._kin = slice(0, nk)
-        self._hat = slice(nk, nk + 2 * N)
-        self._int = slice(nk + 2 * N, nk + 2 * N + (N if self.c_int > 0 else 0))
+        self._filt = slice(nk, nk + 2 + 2 * nw)  # h, z_1 .. z_2n
+        self._int = slice(self._filt.stop, self._filt.stop + (n_tri if self.c_int > 0 else 0))
         self._sel = self._int.stop
         self._tsw = self._sel + 1
         self.n_states = self._tsw + 1
         # exact diagonal Jacobian of the linear filter / integral states (used by ROS2)
         self.stiff_diagonal = np.zeros(self.n_states)
-        self.stiff_diagonal[self._hat] = -self.gamma
+        self.stiff_diagonal[self._filt] = -self.gamma
         self.stiff_diagonal[self._int] = -self.forgetting
-        self.signal_names = ("eta_c", "z", "q_d", "eta_d", "selected", "cost")
+        self.log_costs = self.N <= MAX_LOGGED_COSTS
+        costs = ("cost",) if self.log_costs else ("cost_selected", "cost_best")
+        self.signal_names = ("eta_c", "z", "q_d", "eta_d", "selected", *costs)
+        self._packed = None
 
     # ------------------------------------------------------------------ helpers
+    def walk_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """(codes, trie) of the walk (fast.kernels.Law), or empty arrays when every pattern is evaluated.
+
+        codes[sum_j sigma_j 2^j] is the bank index of a 0/1 pattern (-1: not in the bank);
+        trie[2^d + (code mod 2^d)] is 1 when a bank pattern starts with those d wheels; trie[0] is 1
+        when the bank is monotone (each pattern with one more working wheel is in it, at a lower index).
+        """
+        nw = self.chain.n_wheels
+        P = self.patterns
+        if self.N < WALK_MIN_MODELS or nw > 30 or not np.all((P == 0.0) | (P == 1.0)):
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint8)
+        code = (P.astype(np.int64) << np.arange(nw, dtype=np.int64)[None, :]).sum(axis=1)
+        codes = np.full(1 << nw, -1, dtype=np.int64)
+        codes[code[::-1]] = np.arange(self.N, dtype=np.int64)[::-1]  # a repeated pattern: its first index
+        trie = np.zeros(1 << (nw + 1), dtype=np.uint8)
+        for d in range(nw + 1):
+            trie[(1 << d) + (code & ((1 << d) - 1))] = 1
+        # monotone: each pattern with one more working wheel is in the bank at a lower index
+        idx = np.arange(self.N, dtype=np.int64)
+        up = code[:, None] | (np.int64(1) << np.arange(nw, dtype=np.int64))[None, :]  # (N, nw)
+        ok = (codes[up] >= 0) & (codes[up] < idx[:, None])
+        trie[0] = np.all(ok | (P == 1.0))
+        return codes, trie
+
+    def packed(self):
+        """The kernels' parameters (fast.kernels.Law): the bank, the superposed filters' layout and the
+        walk's tables (fast.kernels.switching_rates, switching_select), built once."""
+        if self._packed is None:
+            from ..fast import kernels as F
+
+            codes, trie = self.walk_tables()
+            self._packed = F.law_params(
+                F.LAW_SWITCHING, self.k_v, self.chain.n_wheels, self.n_states,
+                patterns=np.ascontiguousarray(self.patterns, dtype=float), gamma=self.gamma, T_min=self.T_min,
+                c_inst=self.c_inst, c_int=self.c_int, forgetting=self.forgetting, hysteresis=self.hysteresis,
+                u_limit=float("nan") if self.u_limit is None else float(self.u_limit), hat0=self._filt.start,
+                int0=self._int.start, n_int=self._int.stop - self._int.start, sel=self._sel, tsw=self._tsw,
+                codes=codes, trie=trie,
+            )  # fmt: skip
+        return self._packed
+
     def selected(self, xc: np.ndarray) -> int:
         """Index of the applied model."""
         return round(float(xc[self._sel]))
 
     def costs(self, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        """J_(k) for every model, (N,)."""
-        err = eta[None, :] - xc[self._hat].reshape(self.N, 2)
-        J = self.c_inst * np.einsum("ij,ij->i", err, err)
-        if self.c_int > 0:
-            J = J + self.c_int * xc[self._int]
-        return J
+        """J_(k) for every model, (N,) (fast.kernels.switching_costs)."""
+        from ..fast import kernels as F
+
+        return F.switching_costs(self.packed(), np.ascontiguousarray(eta, dtype=float), np.asarray(xc, dtype=float))
+
+    def filters(self, xc: np.ndarray) -> np.ndarray:
+        """etahat_(k) of every model, (N, 2): h - sum_j (1 - sigma_kj) z_j."""
+        nw = self.chain.n_wheels
+        f = xc[self._filt]
+        return f[None, :2] - (1.0 - self.patterns) @ f[2:].reshape(nw, 2)
 
     # ------------------------------------------------------------------ Controller protocol
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
         xc = np.zeros(self.n_states)
         xc[self._kin] = self.kin.initial_state(t, q)
-        xc[self._hat] = np.tile(eta, self.N)  # etahat_(k)(0) = eta(0), ERRATA E12g
+        xc[self._filt.start : self._filt.start + 2] = eta  # etahat_(k)(0) = eta(0), ERRATA E12g; z_j(0) = 0
         xc[self._sel] = float(self.initial_model)
         xc[self._tsw] = -1e9  # "long ago" (finite: the engine rejects non-finite states)
         return xc
 
     def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
+        from ..fast import kernels as F
+
         kin, eta_c_dot = self.tracking.eta_c_and_dot(t, q, eta, xc[self._kin])
         Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)
         terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta - kin.eta_c, kin, eta_c_dot, self.k_v)
         u = law_for_pattern(terms, self.patterns[self.selected(xc)])
-        u_app = u if self.u_limit is None else np.clip(u, -self.u_limit, self.u_limit)
         dx = np.zeros(self.n_states)
-        hat = xc[self._hat].reshape(self.N, 2)
-        # etahat_(k)' = -gamma etahat + gamma eta + g + Mbar1^-1 Bbar sigma_(k) u   (3.42)
-        drive = (self.patterns * u_app[None, :]) @ terms.MB.T  # (N, 2)
-        dx[self._hat] = (-self.gamma * hat + self.gamma * eta[None, :] + terms.g[None, :] + drive).ravel()
-        if self.c_int > 0:
-            err = eta[None, :] - hat
-            dx[self._int] = -self.forgetting * xc[self._int] + np.einsum("ij,ij->i", err, err)
+        F.switching_rates(
+            self.packed(), np.ascontiguousarray(terms.MB, dtype=float), np.ascontiguousarray(u, dtype=float),
+            np.ascontiguousarray(terms.g, dtype=float), np.ascontiguousarray(eta, dtype=float),
+            np.asarray(xc, dtype=float), dx,
+        )  # fmt: skip
         return u, dx
 
     def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        xc = xc.copy()
+        from ..fast import kernels as F
+
+        xc = np.array(xc, dtype=float)
         xc[self._kin] = self.kin.discrete(t, q, xc[self._kin])
-        J = self.costs(eta, xc)
-        cur = self.selected(xc)
-        lim = J.min() * (1.0 + TIE_RTOL)
-        ties = np.flatnonzero(np.less_equal(J, lim))  # (3.47), ties -> lowest index
-        cand = int(ties[0]) if ties.size else int(np.argmin(J))
-        if cand != cur and t - xc[self._tsw] >= self.T_min - 1e-12 and J[cand] < J[cur] - self.hysteresis:
-            xc[self._sel] = cand
-            xc[self._tsw] = t
+        F.switching_select(self.packed(), float(t), np.ascontiguousarray(eta, dtype=float), xc)  # (3.47)
         return xc
 
     def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        return kinematic_signals(self.kin, t, q, xc[self._kin]) | {
-            "selected": np.array(self.selected(xc), dtype=float),
-            "cost": self.costs(eta, xc),
-        }
+        from ..fast import kernels as F
+
+        eta = np.ascontiguousarray(eta, dtype=float)
+        xc = np.asarray(xc, dtype=float)
+        out = kinematic_signals(self.kin, t, q, xc[self._kin]) | {"selected": np.array(self.selected(xc), dtype=float)}
+        if self.log_costs:
+            return out | {"cost": self.costs(eta, xc)}
+        J = F.switching_costs_rows(self.packed(), eta[None, :], xc[None, :], False)[0]
+        return out | {"cost_selected": np.array(J[0]), "cost_best": np.array(J[1])}

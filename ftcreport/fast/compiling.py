@@ -15,6 +15,14 @@ same numbers (LLVM's optimizations keep IEEE semantics: no fast-math flags are s
 windows (tests/test_golden.py) hold at 1e-9.  Measured on the switching loop: 57 s -> 34 s of
 CPU, and the warm run no slower (benchmarks/run.py).
 
+numba's cache of a kernel is keyed on its own file's content only, so a kernel cached from one
+file (fast/builtin.py's dispatchers, a plug-in's law, a loop module) kept the old code of a kernel
+it calls in another file (fast/kernels.py) after that file changed: a `git pull` that changed
+kernels.py alone ran stale code.  :func:`install_cache_stamp` adds numba's documented extension
+point, a cache locator, for every module of ftcreport (and its generated loops and plug-ins): the
+stamp of their cache entries is their own file's and :func:`engine_stamp`, a hash of every compiled
+source of the package, so any change renews every entry that could have linked it.
+
 The hook wraps one method of numba's code library (``CPUCodeLibrary._optimize_final_module``,
 numba 0.58-0.68).  If a numba release renames it, :data:`ACTIVE` is False and every kernel is
 optimized fully, as numba does by default: slower to compile, same results.
@@ -26,7 +34,7 @@ import contextlib
 import threading
 from collections.abc import Iterator
 
-__all__ = ["ACTIVE", "ROOTS", "loop_compile"]
+__all__ = ["ACTIVE", "ROOTS", "engine_stamp", "install_cache_stamp", "loop_compile"]
 
 ROOTS = frozenset({"run_steps", "first_law", "first_discrete"})  # fast/loop.py's entry points
 
@@ -70,3 +78,71 @@ def loop_compile() -> Iterator[None]:
         yield
     finally:
         _STATE.on = before
+
+
+_ENGINE_FILES = ("fast",)  # the package's compiled sources: ftcreport/fast/*.py
+
+
+def engine_stamp() -> str:
+    """A hash of every compiled source of the package (read once per process)."""
+    stamp = getattr(engine_stamp, "_value", None)
+    if stamp is None:
+        import hashlib
+        from pathlib import Path
+
+        root = Path(__file__).resolve().parents[1]
+        h = hashlib.sha256()
+        for sub in _ENGINE_FILES:
+            for path in sorted((root / sub).glob("*.py")):
+                h.update(path.name.encode() + b"\0" + path.read_bytes())
+        stamp = engine_stamp._value = h.hexdigest()
+    return stamp
+
+
+def install_cache_stamp() -> bool:
+    """Key the numba cache of every ftcreport kernel on :func:`engine_stamp` too (once per process)."""
+    try:
+        from numba.core import caching
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return False
+    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
+    base = getattr(caching, "_CacheLocator", None) or getattr(caching, "CacheLocator", None)
+    classes = getattr(impl, "_locator_classes", None)
+    if base is None or not isinstance(classes, list):
+        return False
+    if any(getattr(c, "_ftcreport", False) for c in classes):
+        return True
+    numba_classes = list(classes)
+
+    class EngineLocator(base):
+        """numba's own locator for the file, with the engine's stamp joined to the file's."""
+
+        _ftcreport = True
+
+        def __init__(self, inner):
+            self._inner = inner
+
+        def ensure_cache_path(self):
+            return self._inner.ensure_cache_path()
+
+        def get_cache_path(self):
+            return self._inner.get_cache_path()
+
+        def get_source_stamp(self):
+            return (self._inner.get_source_stamp(), engine_stamp())
+
+        def get_disambiguator(self):
+            return self._inner.get_disambiguator()
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if not str(getattr(py_func, "__module__", "")).startswith("ftcreport"):
+                return None  # another package's function: numba's locators, untouched
+            for other in numba_classes:
+                inner = other.from_function(py_func, py_file)
+                if inner is not None:
+                    return cls(inner)
+            return None
+
+    classes.insert(0, EngineLocator)
+    return True

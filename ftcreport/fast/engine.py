@@ -97,13 +97,7 @@ def _kin(kin, h: float) -> F.Kin | None:
 
 
 def _law(kind, ctrl, nw: int, **kw) -> F.Law:
-    base = dict(
-        kind=kind, k_v=float(ctrl.k_v), sigma=np.ones(nw), patterns=np.zeros((0, nw)), gamma=0.0, T_min=0.0,
-        c_inst=0.0, c_int=0.0, forgetting=0.0, hysteresis=0.0, u_limit=NAN, hat0=0, int0=0, n_int=0, sel=0,
-        tsw=0, chi0=0, uf0=0, Gamma_f=np.zeros((nw, nw)), adapt=0, n_states=int(ctrl.n_states),
-    )  # fmt: skip
-    base.update(kw)
-    return F.Law(**base)
+    return F.law_params(kind, float(ctrl.k_v), nw, int(ctrl.n_states), **kw)
 
 
 def _kin_ref(controller) -> tuple[F.Kin, F.Ref] | None:
@@ -142,13 +136,7 @@ def compiled_spec(controller) -> Spec | None:
     elif cls is TrackingController:
         P = _law(F.LAW_TRACKING, controller, nw, sigma=np.ascontiguousarray(controller.sigma, dtype=float))
     elif cls is SwitchingController:
-        c = controller
-        P = _law(
-            F.LAW_SWITCHING, c, nw, patterns=np.ascontiguousarray(c.patterns, dtype=float), gamma=c.gamma,
-            T_min=c.T_min, c_inst=c.c_inst, c_int=c.c_int, forgetting=c.forgetting, hysteresis=c.hysteresis,
-            u_limit=ulim(c.u_limit), hat0=c._hat.start, int0=c._int.start, n_int=c._int.stop - c._int.start,
-            sel=c._sel, tsw=c._tsw,
-        )  # fmt: skip
+        P = controller.packed()
     elif cls is AdaptiveController:
         c = controller
         P = _law(
@@ -237,14 +225,13 @@ def _split_signals(
         out[name] = sg[:, a:b].copy()
     if isinstance(c, SwitchingController):
         out["selected"] = np.round(xc[:, c._sel]).astype(float)
-    if isinstance(c, SwitchingController) and costs:
-        eta = meas[:, nq : nq + 2]
-        hat = xc[:, c._hat].reshape(len(xc), c.N, 2)
-        err = eta[:, None, :] - hat
-        J = c.c_inst * np.einsum("kij,kij->ki", err, err)
-        if c.c_int > 0:
-            J = J + c.c_int * xc[:, c._int]
-        out["cost"] = J
+    if isinstance(c, SwitchingController) and costs:  # (3.46) at the logged states (fast.kernels.switching_costs)
+        eta = np.ascontiguousarray(meas[:, nq : nq + 2], dtype=float)
+        J = F.switching_costs_rows(c.packed(), eta, np.ascontiguousarray(xc, dtype=float), c.log_costs)
+        if c.log_costs:
+            out["cost"] = J
+        else:
+            out["cost_selected"], out["cost_best"] = J[:, 0].copy(), J[:, 1].copy()
     if isinstance(c, AdaptiveController):
         out["chi_hat"] = xc[:, c._chi].reshape(len(xc), c.N, nw).copy()
         out["uf_hat"] = xc[:, c._uf].copy()

@@ -615,13 +615,14 @@ def _page_stamp(out: Path, name: str) -> str:
     return h.hexdigest()
 
 
-def render_all(out: Path, force: bool = False) -> Path:
-    """Every case page whose inputs changed (all with ``force``), then the index.
+def stale_pages(out: Path, force: bool = False) -> list[tuple[str, str | None]]:
+    """The case pages whose inputs changed (all with ``force``): (name, stamp) pairs, by name.
 
-    A page is re-rendered when its stamp (:func:`_page_stamp`) differs from the one stored
-    beside it, so a warm batch (every run cached) does not redo the figures and analyses.
+    A page is re-rendered when its stamp (:func:`_page_stamp`) differs from the one stored beside
+    it, so a warm batch (every run cached) does not redo the figures and analyses.
     """
     out = Path(out)
+    todo = []
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
         stamp_path = out / name / "page.stamp"
@@ -631,9 +632,31 @@ def render_all(out: Path, force: bool = False) -> Path:
             stamp = None
         page = out / name / "index.html"
         unchanged = stamp is not None and page.exists() and stamp_path.exists() and stamp_path.read_text() == stamp
-        if unchanged and not force:
-            continue
-        render_case(out, name)
-        if stamp is not None:
-            write_atomic(stamp_path, stamp.encode())
+        if force or not unchanged:
+            todo.append((name, stamp))
+    return todo
+
+
+def render_page(out: str | Path, name: str, stamp: str | None) -> str:
+    """Render one case page and store its stamp (a batch's worker processes call this)."""
+    render_case(Path(out), name)
+    if stamp is not None:
+        write_atomic(Path(out) / name / "page.stamp", stamp.encode())
+    return name
+
+
+def render_all(out: Path, force: bool = False, pool=None) -> Path:
+    """Every case page whose inputs changed (all with ``force``), then the index.
+
+    ``pool``: an executor (a batch's worker processes) to render the pages in, side by side; the
+    index is rendered here, after them.
+    """
+    out = Path(out)
+    todo = stale_pages(out, force)
+    if pool is None:
+        for name, stamp in todo:
+            render_page(out, name, stamp)
+    else:
+        for fut in [pool.submit(render_page, str(out), name, stamp) for name, stamp in todo]:
+            fut.result()  # a page's error is raised here, as without a pool
     return render_index(out)

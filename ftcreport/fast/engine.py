@@ -419,7 +419,7 @@ def _compiling(loop, entry) -> Iterator[None]:
     from numba's cache) under a file lock beside its module, so that two processes that need the
     same loop (a batch's workers) compile it once: the second waits and then loads the first's."""
     with loop_compile():
-        if entry.signatures or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
+        if entry in _READY or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
             yield
             return
         with open(Path(loop.__file__).with_suffix(".lock"), "a") as fh:
@@ -428,6 +428,11 @@ def _compiling(loop, entry) -> Iterator[None]:
                 yield
             finally:
                 fcntl.flock(fh, fcntl.LOCK_UN)
+        if entry.signatures:
+            _READY.add(entry)  # numba's signature list costs 0.3 ms to read: once per entry point
+
+
+_READY: set = set()  # the loops' entry points compiled or loaded in this process
 
 
 def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, progress=None):

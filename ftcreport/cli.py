@@ -9,9 +9,11 @@ Commands of DESIGN.md that are not built yet say so and exit 2.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import signal
+import sys
 import threading
 from pathlib import Path
 from typing import Annotated
@@ -404,9 +406,10 @@ def run(
     with output_lock(out, "run"):
         record_case(out, c, case, duration)
         for s in schemes:
-            r, m = run_scheme(c, s, built)
-            if half is not None:
-                m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
+            with _running(f"{c.name} / {s}", quiet):
+                r, m = run_scheme(c, s, built)
+                if half is not None:
+                    m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
             save_run(out, c.name, s, r, m, run_key(c, s))
             rows.append(m)
             del r  # stored: the next scheme and the report do not hold this run's arrays too
@@ -435,6 +438,20 @@ def run(
         )
     if failed or loose:
         raise typer.Exit(code=1)
+
+
+@contextlib.contextmanager
+def _running(what: str, quiet: bool):
+    """A spinner on a terminal's stderr while a scheme runs (its first run on a machine compiles its
+    loop for about a minute: the user sees why nothing else moves).  Nothing when piped or quiet."""
+    if quiet or not sys.stderr.isatty():
+        yield
+        return
+    from rich.console import Console
+
+    note = " (a scheme's first run on this machine compiles it: about a minute; later runs load it)"
+    with Console(stderr=True).status(f"{what}: simulating{note}"):
+        yield
 
 
 def _dt_table(rows: list[dict]) -> str:

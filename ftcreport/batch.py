@@ -429,13 +429,20 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -
         if render:
             from .report.render import render_all
 
-            render_all(out, pool=pool)
+            render_all(out, pool=pool, notify=_render_notice if show_progress else None)
 
     if todo:
         _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected, finish)
     else:
         finish()
     return res
+
+
+def _render_notice(pages: int) -> None:
+    """Say why the terminal is quiet after the last run: the figures and analyses of the pages."""
+    from rich.console import Console
+
+    Console(stderr=True, highlight=False).print(f"rendering {pages} case page(s) (figures and linearized analyses) ...")
 
 
 def _parquet_stale(out: Path) -> bool:

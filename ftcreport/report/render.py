@@ -645,14 +645,16 @@ def render_page(out: str | Path, name: str, stamp: str | None) -> str:
     return name
 
 
-def render_all(out: Path, force: bool = False, pool=None) -> Path:
+def render_all(out: Path, force: bool = False, pool=None, notify=None) -> Path:
     """Every case page whose inputs changed (all with ``force``), then the index.
 
     ``pool``: an executor (a batch's worker processes) to render the pages in, side by side; the
-    index is rendered here, after them.
+    index is rendered here, after them.  ``notify(k)``: told how many pages are about to render.
     """
     out = Path(out)
     todo = stale_pages(out, force)
+    if notify is not None and todo:
+        notify(len(todo))
     if pool is None:
         for name, stamp in todo:
             render_page(out, name, stamp)

@@ -59,7 +59,7 @@ from ..observers.ukf import UKFEstimator
 from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
-from .compiling import loop_compile
+from .compiling import engine_stamp, loop_compile
 
 __all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled"]
 
@@ -378,10 +378,9 @@ def _load_loop(law, disc, motors: bool, sampled: bool):
     binding = "LAW, DISC = tracking_law, no_discrete  # LOOP-BINDING"
     if binding not in text:
         raise RuntimeError("ftcreport/fast/loop.py: the LOOP-BINDING line is missing")
-    # the hash covers the law's and discrete update's files and every compiled source of the package
-    # (the kernels they call): numba's cache of the generated module sees only its own file's stamp
-    fast_dir = Path(template.__file__).parent
-    shared = hashlib.sha1(b"".join(p.read_bytes() for p in sorted(fast_dir.glob("*.py")))).hexdigest()[:12]
+    # the text carries a hash of the law's and discrete update's files and of every compiled source of
+    # the package (compiling.engine_stamp, which also stamps every kernel's numba cache entry)
+    shared = engine_stamp()[:12]
     parts = []
     for fn, alias in ((law, "LAW"), (disc, "DISC")):
         py = fn.py_func

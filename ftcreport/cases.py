@@ -525,8 +525,11 @@ class Simulation(_Strict):
 
     dt: _num(None, 10.0, gt=0) = _f(..., "step", "s")
     duration: _num(None, 1e6, gt=0) = _f(..., "simulated time", "s")
-    method: Literal["rk4", "ros2"] = _f(
-        "rk4", "RK4, or the stiff-capable Rosenbrock W-method (for k_v in the thousands)", "-"
+    method: Literal["rk4", "ros2", "etd2"] = _f(
+        "rk4",
+        "RK4; the stiff-capable Rosenbrock W-method (for k_v in the thousands); or the exponential"
+        " ETD2RK, exact on the motors' currents (DC-motor cases: one step per control sample)",
+        "-",
     )
     log_every: int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
     singularity_margin_deg: _num(0.0, lt=90) = _f(
@@ -1383,7 +1386,7 @@ k_v = 5.0
 [simulation]
 dt = 0.02           # [s]
 duration = 60.0     # [s]
-method = "rk4"      # or "ros2" for stiff velocity loops
+method = "rk4"      # or "ros2" for stiff velocity loops, "etd2" with DC motors
 log_every = 5
 
 [thresholds.switching]

@@ -29,10 +29,15 @@ stays exactly zero, as it does under RK4.  Solving with A = F E^T + diag(a)
 is a 2 x 2 solve (Woodbury).  The fast transient of
 the velocity loop is then damped rather than resolved: tracking errors agree
 with fine-step RK4 (tested), first-instant torque peaks do not (they last
-~1/k4 s).  Fault events land exactly on step boundaries: the
-time grid is ``t0 + k dt`` with every event time inserted (the step before an
-event is shortened), and sigma, ubar are held over each step at their value at
-its start, so the fault model is exact.  After each step the controller's
+~1/k4 s).  With DC motors, ``method="etd2"`` (compiled engine
+only, :func:`ftcreport.fast.loop._etd2`) is the exponential ETD2RK of Cox & Matthews (2002): exact
+on the linear [eta, i_a] block, so a current's transient after a held-voltage step is integrated
+whole over a step of one control sample, where ROS2 only damps it.
+
+Fault events land exactly on step boundaries: the time grid is ``t0 + k dt``
+with every event time inserted (the step before an event is shortened), and
+sigma, ubar are held over each step at their value at its start, so the fault
+model is exact.  After each step the controller's
 discrete hook runs (switching logic and the like).
 
 A run that approaches a singular configuration (an articulation angle
@@ -172,7 +177,9 @@ class SimSettings:
     max_position : float
         Stop (diverged) when |x| or |y| exceeds this [m].
     method : str
-        ``"rk4"`` (classical, fixed step) or ``"ros2"`` (Rosenbrock W-method, stiff-capable).
+        ``"rk4"`` (classical, fixed step), ``"ros2"`` (Rosenbrock W-method, stiff-capable) or
+        ``"etd2"`` (exponential ETD2RK, exact on the linear [eta, i_a] block: the motor cases at
+        one step per control sample; compiled engine only, fast.loop._etd2).
     sample_time : float or None
         Sampled (digital) control: the controller runs every ``sample_time`` [s], a whole number
         of steps, its command held in between (zero-order hold) and its own state advanced by a
@@ -191,8 +198,8 @@ class SimSettings:
     sample_time: float | None = None
 
     def __post_init__(self) -> None:
-        if self.method not in ("rk4", "ros2"):
-            raise ModelError(f"method: must be 'rk4' or 'ros2', got {self.method!r}")
+        if self.method not in ("rk4", "ros2", "etd2"):
+            raise ModelError(f"method: must be 'rk4', 'ros2' or 'etd2', got {self.method!r}")
         if not (math.isfinite(self.dt) and self.dt > 0):
             raise ModelError(f"dt: must be a positive number of seconds, got {self.dt}")
         if not (math.isfinite(self.duration) and self.duration > 0):
@@ -372,6 +379,11 @@ def simulate(
     if plant.motors is not None:
         raise ModelError(
             f"actuators: the DC-motor plant runs on the compiled engine; {type(controller).__name__} "
+            f"{'has no compiled counterpart' if engine != 'python' else 'was asked to run in the Python loop'}"
+        )
+    if settings.method == "etd2":
+        raise ModelError(
+            f"method: 'etd2' runs on the compiled engine; {type(controller).__name__} "
             f"{'has no compiled counterpart' if engine != 'python' else 'was asked to run in the Python loop'}"
         )
     if settings.sample_time is not None:

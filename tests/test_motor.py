@@ -492,3 +492,39 @@ def test_case_actuators_table_and_motor_faults():
     ]:
         with pytest.raises(CaseError, match=where):
             _case(**extra)
+
+
+# ------------------------------------------------------------------ the ETD2 step's Jacobian block
+@pytest.mark.parametrize("n", [2, 3])
+def test_current_jacobian_matches_finite_differences_with_faults(n):
+    """fast.motor.current_jacobian (the exact current columns of ETD2's L) against central differences
+    of motor_plant_rhs, on healthy, k_m-lost, hot (R_a x 1.8), open, shorted and stuck windings."""
+    rng, pc, mo = _setup(n, 11 + n)
+    q, eta = _start(rng, n)
+    nw = 2 * n
+    fault = M.healthy_faults(nw)
+    fault[0, M.F_KM] = 0.4
+    fault[1, M.F_RA] = 1.8
+    fault[2, M.F_MODE] = M.MODE_OPEN
+    fault[3, M.F_MODE] = M.MODE_SHORT
+    if n > 2:
+        fault[4, M.F_MODE] = M.MODE_STUCK
+        fault[4, M.F_VSTUCK] = 12.0
+    i_a = rng.uniform(-3.0, 3.0, nw)
+    v_a = rng.uniform(-20.0, 20.0, nw)
+    J = M.current_jacobian(pc, mo, q, eta, fault)
+
+    def rates(i):
+        _qd, ed, idot, _tw = M.motor_plant_rhs(pc, mo, q, eta, i, v_a, fault)
+        return np.concatenate((ed, idot))
+
+    F = np.empty((2 + nw, nw))
+    for j in range(nw):
+        d = np.zeros(nw)
+        d[j] = 1e-3  # the rates are affine in i_a: central differences are exact up to round-off
+        F[:, j] = (rates(i_a + d) - rates(i_a - d)) / 2e-3
+    # round-off of (f(i + d) - f(i - d)) / 2d: eps |f| / d ~ 1e-16 * 1e4 / 1e-3 = 1e-9 on the current rows
+    np.testing.assert_allclose(J, F, rtol=1e-7, atol=1e-6)
+    assert np.all(J[:, 2] == 0.0)  # the open winding's current is 0 whatever it was
+    assert J[2 + 1, 1] == pytest.approx(-1.8 * mo.R_a[1] / mo.L_a[1])  # the hot winding's R_a / L_a
+    assert abs(J[2, 0]) > 1e3  # the healthy electrical pole -R_a / L_a ~ -2270 1/s is in the block

@@ -471,7 +471,9 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
         fmot = np.zeros((len(firsts), 0, 4))
     nm = mo.R_a.shape[0]
     npl = nq + 2 + nm
-    loop = loop_for(spec.law, spec.disc, motors=nm > 0, sampled=settings.sample_time is not None)
+    # ETD2 is compiled in the motor variant only (it needs no motors: with none its block is eta's)
+    motor_loop = nm > 0 or settings.method == "etd2"
+    loop = loop_for(spec.law, spec.disc, motors=motor_loop, sampled=settings.sample_time is not None)
     xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
     x = np.concatenate((q0, eta0, np.zeros(nm), xc0))
     info = np.zeros(4)
@@ -514,7 +516,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     stiff = getattr(controller, "stiff_diagonal", None)
     if stiff is not None:
         diag[npl:] = np.asarray(stiff, dtype=float)
-    method = 0 if settings.method == "rk4" else 1
+    method = {"rk4": 0, "ros2": 1, "etd2": 2}[settings.method]
     lim = math.sin(settings.singularity_margin)
     pp = _chain(chain.params)
     share = not plant.noisy and all(np.array_equal(a, b) for a, b in zip(pp, spec.chain, strict=True))

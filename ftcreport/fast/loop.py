@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from ftcreport.fast.expo import phi12, phi12_scalar
 from ftcreport.fast.kernels import (
     AT_DISCRETE,
     AT_STATE,
@@ -41,7 +42,7 @@ from ftcreport.fast.kernels import (
     reduced,
     tracking_law,
 )
-from ftcreport.fast.motor import driver_voltage, fault_equivalent, motor_plant_rhs, reset_current
+from ftcreport.fast.motor import current_jacobian, driver_voltage, fault_equivalent, motor_plant_rhs, reset_current
 from ftcreport.fast.refs import as_ref
 
 LAW, DISC = tracking_law, no_discrete  # LOOP-BINDING
@@ -183,6 +184,56 @@ def _stage(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
     if SAMPLED and u_h.shape[0] > 0:
         return _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)[0]
     return _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, np.zeros(0))[0]
+
+
+@jit
+def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
+    r"""One ETD2RK step (Cox & Matthews 2002, J. Comput. Phys. 176, (22); Hochbruck & Ostermann 2010, (5.8)).
+
+    x' = f(x) is split as L x + N(x), L linear: J, the Jacobian block of the rates of
+    [eta, i_a] in [eta, i_a] (eta's columns by forward differences at x, 2 evaluations; the
+    currents' exact, fast.motor.current_jacobian), where the stiff
+    modes live (the motors' L_a / R_a, the velocity loop); the controller's exact ``diag``
+    (its linear filters, as for ROS2); zero elsewhere (q).  With the phi functions of h L::
+
+        a  = x + h phi_1(h L) f(x)                        (= e^{hL} x + h phi_1 N(x))
+        x+ = a + h phi_2(h L) (f(a) - f(x) - L (a - x))   (= ... + h phi_2 (N(a) - N(x)))
+
+    Second order for any L, stiff order 2 (Hochbruck & Ostermann, Table 5.2); exact when f is
+    linear and L its Jacobian, so a current's transient after each held-voltage step is
+    integrated exactly however long the step: its torque impulse reaches eta in full.
+    """
+    pp, nq, mo, nm = ctx[4], ctx[5], ctx[8], ctx[9]
+    nx = x.shape[0]
+    m = 2 + nm
+    J = np.empty((m, m))
+    if nm > 0:
+        J[:, 2:] = current_jacobian(pp, mo, x[:nq], x[nq : nq + 2], fm)
+    for j in range(2):
+        c = nq + j
+        delta = 1e-7 * max(1.0, abs(x[c]))
+        xp = x.copy()
+        xp[c] += delta
+        fp = _stage(P, ctx, t, xp, sigma, ubar, fm, nz, info, u_h, v_h)
+        if info[0] != 0:
+            return x
+        for i in range(m):
+            J[i, j] = (fp[nq + i] - f0[nq + i]) / delta
+    P1, P2 = phi12(h * J)
+    p1 = np.empty(nx)
+    p2 = np.empty(nx)
+    for i in range(nx):
+        p1[i], p2[i] = phi12_scalar(h * diag[i])
+    a = x + h * p1 * f0
+    a[nq : nq + m] = x[nq : nq + m] + h * (P1 @ f0[nq : nq + m])
+    f1 = _stage(P, ctx, t + h, a, sigma, ubar, fm, nz, info, u_h, v_h)
+    if info[0] != 0:
+        return x
+    g = f1 - f0 - diag * (a - x)
+    g[nq : nq + m] = f1[nq : nq + m] - f0[nq : nq + m] - J @ (a[nq : nq + m] - x[nq : nq + m])
+    xn = a + h * p2 * g
+    xn[nq : nq + m] = a[nq : nq + m] + h * (P2 @ g[nq : nq + m])
+    return xn
 
 
 @jit
@@ -360,7 +411,7 @@ def run_steps(
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
             xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
-        else:
+        elif method == 1:
             # W-method Jacobian: exact columns (finite differences) for eta and the motors' currents,
             # the stiff diagonal for the controller's linear filters (Sherman-Morrison-Woodbury solve)
             m = 2 + nm
@@ -392,6 +443,10 @@ def run_steps(
             rd = dinv * (f2 - 2.0 * kk1)
             kk2 = rd + gh * (DF @ _solve_small(small, rd[nq : nq + m]))
             xn = x + 1.5 * h * kk1 + 0.5 * h * kk2
+        if MOTORS and method == 2:  # the motor variant only (fast.engine.loop_for): others never compile ETD2
+            xn = _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag)
+            if info[0] != 0:
+                return x, k, li, AT_TRIAL
         kind = _step_jump(pp, x, xn, nq, lim, max_speed, max_position, growth[3], growth[4], info)
         if kind != 0:
             info[0] = E_STEP_JUMP

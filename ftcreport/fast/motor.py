@@ -268,6 +268,34 @@ def motor_plant_rhs(pc, mo, q, eta, i_a, v_a, fault):
 
 
 @jit
+def current_jacobian(pc, mo, q, eta, fault):
+    r"""d(etadot, i_dot) / d i_a of :func:`motor_plant_rhs`, (2 + nw, nw): exact, the plant is affine in i_a.
+
+    From (2.29) and the implicit (2.70) with E19, etadot = A^-1 (Bbar tau0 + ...) with
+    tau0_j = eta_g N s k_m i_j + ..., so d etadot / d i_j = A^-1 Bbar[:, j] eta_g N s k_m, where
+    A = Mbar1 + Bbar diag(J_w) Bbar^T (:func:`rotor_mass`); from (2.28), d i_dot_j / d i_j =
+    -rho R_a / L_a.  An open winding carries no current whatever its state: its column is 0.
+    No other rate reads the currents (the driver and the laws see the commands and the speeds).
+    """
+    nw = 2 * pc.n
+    Mbar1, _M2, _C, Bbar, _S, _Sd = reduced(pc, q, eta)
+    A = rotor_mass(Mbar1, Bbar, rotor_inertia_wheel(mo))
+    out = np.zeros((2 + nw, nw))
+    b = np.empty(2)
+    for j in range(nw):
+        if int(fault[j, F_MODE]) == MODE_OPEN:
+            continue
+        g = mo.eta_g[j] * mo.N[j] * fault[j, F_KM] * mo.k_m[j]
+        b[0] = Bbar[0, j] * g
+        b[1] = Bbar[1, j] * g
+        col = _solve2(A, b)
+        out[0, j] = col[0]
+        out[1, j] = col[1]
+        out[2 + j, j] = -fault[j, F_RA] * mo.R_a[j] / mo.L_a[j]
+    return out
+
+
+@jit
 def driver_voltage(mo, tau_c, omega_w, fault):
     r"""Armature voltages for commanded wheel torques: static inversion with nominal parameters.
 

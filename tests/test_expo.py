@@ -1,8 +1,10 @@
 """The phi functions of the ETD2 step (fast/expo.py) against scipy's matrix exponential.
 
-scipy.linalg.expm (Al-Mohy & Higham 2009) is the independent reference.  The augmented-matrix
-identity is checked on its own (scalar closed forms), balancing on a matrix scaled as the motor
-block is (amperes against metres per second), and the scalar series at its switch-over point.
+The reference is scipy.linalg.expm (Al-Mohy & Higham 2009) of the augmented matrix
+[[Z, I, 0], [0, 0, I], [0, 0, 0]], whose first block row is [e^Z, phi_1(Z), phi_2(Z)] (Saad 1992):
+an independent route to what fast/expo.py gets by scaling and modified squaring.  Also: the scalar
+closed forms on a diagonal matrix, balancing on a matrix scaled as the motor block is (amperes
+against metres per second), and the scalar series at its switch-over point.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sl
 
-from ftcreport.fast.expo import balance, expm, phi12, phi12_scalar
+from ftcreport.fast.expo import balance, phi12, phi12_scalar
 
 
 def _phi_ref(Z):
@@ -27,14 +29,16 @@ def _phi_ref(Z):
 
 
 @pytest.mark.parametrize("scale", [1e-3, 0.5, 3.0, 40.0, 400.0])
-def test_expm_matches_scipy(scale):
+def test_phi12_matches_scipy_over_five_decades_of_norm(scale):
     rng = np.random.default_rng(7)
     A = rng.normal(size=(10, 10)) * scale / np.sqrt(10)
     A -= 2.0 * scale * np.eye(10)  # a stable matrix, as h J of a damped plant is
-    E, R = expm(A), sl.expm(A)
-    # both are backward stable to the unit round-off; the forward error grows with ||A|| (squarings):
-    # measured <= 6e-14 at ||A|| ~ 600; 1e-11 keeps a margin of 100 without hiding a wrong coefficient
-    assert np.abs(E - R).max() <= 1e-11 * np.abs(R).max()
+    P1, P2 = phi12(A)
+    R1, R2 = _phi_ref(A)
+    # measured <= 1.9e-15 relative up to ||A|| ~ 1000 (s = 11 doublings); 1e-12 leaves a margin of
+    # 500 for other platforms' round-off without hiding a wrong doubling formula (that is O(1))
+    assert np.abs(P1 - R1).max() <= 1e-12 * np.abs(R1).max()
+    assert np.abs(P2 - R2).max() <= 1e-12 * np.abs(R2).max()
 
 
 def test_phi_functions_of_a_diagonal_matrix_are_the_scalar_closed_forms():

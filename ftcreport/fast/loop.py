@@ -187,6 +187,27 @@ def _stage(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
 
 
 @jit
+def _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
+    """d f / d [eta, i_a] at x, (nx, 2 + nm): eta's columns by forward differences (2 evaluations of
+    the stage's rates), the currents' exact (fast.motor.current_jacobian: rows eta and i_a; no other
+    rate reads a current)."""
+    pp, nq, mo, nm = ctx[4], ctx[5], ctx[8], ctx[9]
+    F = np.zeros((x.shape[0], 2 + nm))
+    for j in range(2):
+        c = nq + j
+        delta = 1e-7 * max(1.0, abs(x[c]))
+        xp = x.copy()
+        xp[c] += delta
+        fp = _stage(P, ctx, t, xp, sigma, ubar, fm, nz, info, u_h, v_h)
+        if info[0] != 0:
+            return F
+        F[:, j] = (fp - f0) / delta
+    if MOTORS and nm > 0:
+        F[nq : nq + 2 + nm, 2:] = current_jacobian(pp, mo, x[:nq], x[nq : nq + 2], fm)
+    return F
+
+
+@jit
 def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
     r"""One ETD2RK step (Cox & Matthews 2002, J. Comput. Phys. 176, (22); Hochbruck & Ostermann 2010, (5.8)).
 
@@ -203,22 +224,13 @@ def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
     linear and L its Jacobian, so a current's transient after each held-voltage step is
     integrated exactly however long the step: its torque impulse reaches eta in full.
     """
-    pp, nq, mo, nm = ctx[4], ctx[5], ctx[8], ctx[9]
+    nq, nm = ctx[5], ctx[9]
     nx = x.shape[0]
     m = 2 + nm
-    J = np.empty((m, m))
-    if nm > 0:
-        J[:, 2:] = current_jacobian(pp, mo, x[:nq], x[nq : nq + 2], fm)
-    for j in range(2):
-        c = nq + j
-        delta = 1e-7 * max(1.0, abs(x[c]))
-        xp = x.copy()
-        xp[c] += delta
-        fp = _stage(P, ctx, t, xp, sigma, ubar, fm, nz, info, u_h, v_h)
-        if info[0] != 0:
-            return x
-        for i in range(m):
-            J[i, j] = (fp[nq + i] - f0[nq + i]) / delta
+    F = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+    if info[0] != 0:
+        return x
+    J = np.ascontiguousarray(F[nq : nq + m, :])
     P1, P2 = phi12(h * J)
     p1 = np.empty(nx)
     p2 = np.empty(nx)
@@ -412,19 +424,12 @@ def run_steps(
                 return x, k, li, AT_TRIAL
             xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
         elif method == 1:
-            # W-method Jacobian: exact columns (finite differences) for eta and the motors' currents,
-            # the stiff diagonal for the controller's linear filters (Sherman-Morrison-Woodbury solve)
+            # W-method Jacobian: the columns of eta and the motors' currents (_jacobian_columns), the
+            # stiff diagonal for the controller's linear filters (Sherman-Morrison-Woodbury solve)
             m = 2 + nm
-            F = np.empty((nx, m))
-            for j in range(m):
-                c = nq + j
-                delta = 1e-7 * max(1.0, abs(x[c]))
-                xp = x.copy()
-                xp[c] += delta
-                fp = _stage(P, ctx, t, xp, sigma, ubar, fm, nz, info, u_h, v_h)
-                if info[0] != 0:
-                    return x, k, li, AT_TRIAL
-                F[:, j] = (fp - f0) / delta
+            F = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+            if info[0] != 0:
+                return x, k, li, AT_TRIAL
             gh = ROS2_GAMMA * h
             dinv = 1.0 / (1.0 - gh * diag)
             DF = np.empty((nx, m))

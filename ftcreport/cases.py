@@ -541,9 +541,22 @@ class Simulation(_Strict):
         "between samples (zero-order hold). Absent: continuous-time control",
         "s",
     )
+    measurement_delay: int = _f(
+        0,
+        "sampled control: the controller sees the measurements of this many samples before (a transport delay "
+        "of whole samples; the first sample's measurement until there is one that old)",
+        "samples",
+        ge=0,
+        le=1000,
+    )
 
     @model_validator(mode="after")
     def _whole_steps(self) -> Simulation:
+        if self.measurement_delay and self.sample_time is None:
+            raise _FieldError(
+                "simulation.measurement_delay",
+                f"{self.measurement_delay} samples needs sampled control: set simulation.sample_time",
+            )
         if self.sample_time is not None:
             ratio = self.sample_time / self.dt
             if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:

@@ -80,6 +80,7 @@ class Built:
             log_every=s.log_every,
             singularity_margin=math.radians(s.singularity_margin_deg),
             sample_time=s.sample_time,
+            measurement_delay=s.measurement_delay,
         )
 
     def kinematic(self) -> TwoLinkKinematic | ChainedBackstepping:

@@ -185,6 +185,9 @@ class SimSettings:
         of steps, its command held in between (zero-order hold) and its own state advanced by a
         forward-Euler step per sample; the plant integrates at ``dt``.  None: continuous-time
         control (the law evaluated at every stage of the step).
+    measurement_delay : int
+        Sampled control only: the controller sees the measurements taken this many samples before
+        (the first sample's until there is one that old).
     """
 
     dt: float
@@ -196,6 +199,7 @@ class SimSettings:
     max_position: float = 1e6
     method: str = "rk4"
     sample_time: float | None = None
+    measurement_delay: int = 0
 
     def __post_init__(self) -> None:
         if self.method not in ("rk4", "ros2", "etd2"):
@@ -210,6 +214,10 @@ class SimSettings:
             raise ModelError(f"log_every: must be >= 1, got {self.log_every}")
         if not 0 <= self.singularity_margin < math.pi / 2:
             raise ModelError(f"singularity_margin: must be in [0, pi/2) rad, got {self.singularity_margin}")
+        if int(self.measurement_delay) != self.measurement_delay or self.measurement_delay < 0:
+            raise ModelError(f"measurement_delay: must be a whole number of samples >= 0, got {self.measurement_delay}")
+        if self.measurement_delay and self.sample_time is None:
+            raise ModelError(f"measurement_delay: {self.measurement_delay} samples needs sampled control (sample_time)")
         if self.sample_time is not None:
             ratio = self.sample_time / self.dt
             if not (math.isfinite(ratio) and ratio >= 1 - 1e-9 and abs(ratio - round(ratio)) <= 1e-9 * ratio):

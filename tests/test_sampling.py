@@ -90,3 +90,48 @@ def test_etd2_without_motors_is_second_order_and_the_python_loop_refuses_it():
     s = dataclasses.replace(built.settings, duration=0.1, method="etd2")
     with pytest.raises(ModelError, match=r"method: 'etd2' runs on the compiled engine"):
         simulate(built.plant, make_controller(built, "nominal"), built.q0, built.eta0, s, engine="python")
+
+
+@pytest.mark.parametrize("delay", [0, 3])
+def test_measurement_delay_feeds_the_law_the_state_of_d_samples_before(delay):
+    """At each sample the held command is the law at (t_k, x(t_{k-d}), xc(t_k)): recomputed here by the
+    loop's own entry point (first_law) from the logged states, so only the delay line is under test."""
+    from ftcreport.fast.engine import compiled_spec, loop_for
+
+    m = 4  # steps per sample
+    built = build(load_case(CASE))
+    s = dataclasses.replace(
+        built.settings, duration=1.0, dt=0.005, log_every=1, sample_time=m * 0.005, measurement_delay=delay
+    )
+    ctrl = make_controller(built, "nominal")
+    run = simulate(built.plant, ctrl, built.q0, built.eta0, s)
+    assert run.status == "ok", run.reason
+    spec = compiled_spec(ctrl)
+    loop = loop_for(spec.law, spec.disc, motors=False, sampled=True)
+    q, eta, xc, u = run["q"], run["eta"], run["xc"], run["u"]
+    info = np.zeros(4)
+    checked = 0
+    for k in range(0, len(run.t) - 1, m):
+        src = max(k - delay * m, 0)  # the first sample's measurement until one d samples old exists
+        want = loop.first_law(
+            spec.P, spec.kin, spec.ref, spec.chain, run.t[k], q[src], eta[src], xc[k], run["sigma"][k],
+            run["ubar"][k], info,
+        )  # fmt: skip
+        # the same kernel on the same numbers: equal up to the loop's cached matrices (1e-12 of |u|)
+        np.testing.assert_allclose(u[k], want, rtol=1e-12, atol=1e-12 * np.abs(u).max())
+        checked += 1
+    assert checked == 50
+    if delay:  # and the state it sees is not today's: the command differs from the undelayed law's
+        now = loop.first_law(spec.P, spec.kin, spec.ref, spec.chain, run.t[40], q[40], eta[40], xc[40],
+                             run["sigma"][40], run["ubar"][40], info)  # fmt: skip
+        assert np.abs(now - u[40]).max() > 1e-3 * np.abs(u).max()
+
+
+def test_measurement_delay_needs_sampled_control():
+    with pytest.raises(ModelError, match=r"measurement_delay: 2 samples needs sampled control"):
+        SimSettings(dt=0.005, duration=1.0, measurement_delay=2)
+    with open(CASE, "rb") as fh:
+        data = tomllib.load(fh)
+    data["simulation"]["measurement_delay"] = 2
+    with pytest.raises(FtcError, match=r"simulation\.measurement_delay.*needs sampled control"):
+        parse_case(data, source="x.toml")

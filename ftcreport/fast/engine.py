@@ -528,7 +528,8 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     t_end = float(grid[0])
     # sampled control: [next sample time, last sample time, T_s] and the held u, rates and signals
     ts = settings.sample_time
-    hold_t = np.array([float(grid[0]), NAN, NAN if ts is None else float(ts)])
+    hold_t = np.array([float(grid[0]), NAN, NAN if ts is None else float(ts), 0.0])
+    mbuf = np.zeros((int(settings.measurement_delay) + 1, nq + 2))  # the delayed measurements' ring
     u_h = np.zeros(0 if ts is None else nw)
     dx_h = np.zeros(nc)
     sig_h = np.zeros(spec.n_sig)
@@ -545,7 +546,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
                     x, k, k1, every_step, 0,
                     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share, grow, growth,
-                    lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h,
+                    lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h, mbuf,
                 )  # fmt: skip
             if li:
                 bufs = (lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lia)
@@ -583,6 +584,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
             "duration": settings.duration,
             "log_every": int(settings.log_every),
             "sample_time": settings.sample_time,
+            "measurement_delay": int(settings.measurement_delay),
             "engine": "compiled",
         },
         t_stream=t_stream,

@@ -249,18 +249,36 @@ def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
 
 
 @jit
-def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h):
+def _delayed(mbuf, hold_t, q, eta):
+    """The measurement of d = len(mbuf) - 1 samples before: ``mbuf`` is a ring of the last d + 1
+    samples' [q, eta], ``hold_t[3]`` counts the samples; before the d-th, the first sample's."""
+    nq = q.shape[0]
+    d1 = mbuf.shape[0]
+    c = int(hold_t[3])
+    slot = c % d1
+    mbuf[slot, :nq] = q
+    mbuf[slot, nq:] = eta
+    hold_t[3] = c + 1.0
+    src = max(c - (d1 - 1), 0) % d1
+    return mbuf[src, :nq].copy(), mbuf[src, nq:].copy()
+
+
+@jit
+def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf):
     """One sample of a discrete-time controller at t (sampled control, period T_s = hold_t[2]).
 
     The controller's state is advanced over the last sample by a forward-Euler step of its rates
     (held since that sample), then its discrete updates run, then the law: its u is held (zero-order
     hold) until the next sample, its rates and logged signals too, and with motors the driver's
-    voltages.  Measurements: q + noise, eta + noise.
+    voltages.  Measurements: q + noise, eta + noise, taken ``len(mbuf) - 1`` samples before
+    (:func:`_delayed`; the law and the driver both see them).
     """
     Kp, R, C, pc, nq, sat, nm = ctx[0], ctx[1], ctx[2], ctx[3], ctx[5], ctx[6], ctx[9]
     xc = x[nq + 2 + nm :]
     q = x[:nq] + nz[:nq]
     eta = x[nq : nq + 2] + nz[nq:]
+    if mbuf.shape[0] > 1:
+        q, eta = _delayed(mbuf, hold_t, q, eta)
     if not math.isnan(hold_t[1]):
         h = t - hold_t[1]
         for i in range(xc.shape[0]):
@@ -306,7 +324,7 @@ def run_steps(
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
     x, k0, k1, is_logged, li,
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
-    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h,
+    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf,
 ):  # fmt: skip
     """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, where).
 
@@ -316,8 +334,9 @@ def run_steps(
     GROWTH_STEPS, GROWTH_FLOOR, JUMP_FRACTION, sin(JUMP_MARGINS * margin), GROWTH_TOTAL] of ftcreport.sim.
 
     Sampled control when ``u_h`` is not empty: ``hold_t = [next sample time, last sample time (nan:
-    none yet), T_s]``; the law runs at the samples (:func:`sample`) and the plant integrates with
-    its u held; ``u_h, dx_h, sig_h`` carry the held control, rates and signals across calls.
+    none yet), T_s, samples taken]``; the law runs at the samples (:func:`sample`) and the plant
+    integrates with its u held; ``u_h, dx_h, sig_h`` carry the held control, rates and signals
+    across calls, ``mbuf`` the last d + 1 samples' measurements (a delay of d samples).
 
     DC motors when ``mo`` has wheels: the state is [q, eta, i_a, xc]; ``fmot`` holds the motor-fault
     table of each fault segment (fast.motor), ``v_h`` the held armature voltages.
@@ -355,7 +374,7 @@ def run_steps(
         want = is_logged[k]
         if SAMPLED and sampled:
             if t >= hold_t[0] - 1e-9 * hold_t[2]:
-                sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h)
+                sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf)
                 if info[0] != 0:
                     return x, k, li, AT_STATE
             f0, u, tau = _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)

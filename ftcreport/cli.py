@@ -691,16 +691,22 @@ def export(
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")
 
 
+_MAX_ERRORS = 50  # errors shown per case file by 'cases validate'
+
+
 @cases_app.command("validate")
 def cases_validate(
     paths: Annotated[list[Path], typer.Argument(help="Case files or directories.")],
 ) -> None:
-    """Validate case files: one line per file; exit 0 if all are valid, 2 otherwise.
+    """Validate case files: 'ok' per valid file, every error of the others; exit 0 if all are valid, 2 otherwise.
+
+    Each error is one line 'file: field: reason' (at most 50 per file, then the count of the rest).
 
     Example: ftcreport cases validate cases/
     """
     from .batch import discover
     from .cases import load_case
+    from .errors import CaseError
 
     files = discover(paths)
     if not files:
@@ -711,7 +717,11 @@ def cases_validate(
             c = load_case(f)
         except FtcError as exc:
             bad += 1
-            typer.echo(f"ftcreport: error: {exc}", err=True)
+            lines = exc.lines if isinstance(exc, CaseError) else (str(exc),)
+            for line in lines[:_MAX_ERRORS]:
+                typer.echo(f"ftcreport: error: {line}", err=True)
+            if len(lines) > _MAX_ERRORS:
+                typer.echo(f"ftcreport: error: {f}: and {len(lines) - _MAX_ERRORS} more error(s)", err=True)
             continue
         typer.echo(f"ok     {f}")
         for w in c.warnings():

@@ -42,7 +42,13 @@ class CaseError(FtcError):
 
     The message names the file, the field path and the reason, e.g.
     ``cases/x.toml: faults[2].wheel: '4r' is not a wheel of a 3-robot chain``.
+    A file with several errors has them all in ``lines`` (one ``file: field: reason`` each,
+    the message's first); the message is the first with the count of the others.
     """
+
+    def __init__(self, message: str, lines: tuple[str, ...] | list[str] | None = None) -> None:
+        super().__init__(message)
+        self.lines: tuple[str, ...] = tuple(lines) if lines else (message,)
 
 
 class ModelError(FtcError, ValueError):

@@ -119,3 +119,37 @@ def test_analyze_json_gives_closed_loop_poles():
     kin = sorted(complex(r["re"], r["im"]).real for r in data["kinematic_poles"])
     assert kin[0] == pytest.approx(-1.93, abs=0.01)
     assert sum(r["rank"] == 2 for r in data["controllability"]) == 10
+
+
+def test_cases_validate_lists_every_error_of_a_file(tmp_path):
+    """Audit item 2: each field in error on its own line, not the first with '(and 3 more)'."""
+    text = (Path(__file__).resolve().parents[1] / "cases" / "two_link_switching.toml").read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        text.replace("[robots]\n", '[robots]\ncolour = "red"\n', 1)
+        .replace('kind = "unicycle"', 'kind = "unicycel"', 1)
+        .replace("\ndt = 0.005", "\ndt = -0.005", 1)
+    )
+    assert bad.read_text().count("unicycel") == 1 and "\ndt = -0.005" in bad.read_text()
+    res = runner.invoke(app, ["cases", "validate", str(bad)])
+    assert res.exit_code == 2
+    assert res.output.splitlines() == [
+        f"ftcreport: error: {bad}: robots.colour: unknown field",
+        f"ftcreport: error: {bad}: simulation.dt: must be > 0, got -0.005",
+        f"ftcreport: error: {bad}: reference.kind: got 'unicycel'; expected one of 'unicycle', 'circle', 'eight', "
+        "'line', 'sinusoid' (did you mean 'unicycle'?)",
+    ], res.output
+
+
+def test_cases_validate_caps_the_errors_of_a_file(tmp_path):
+    """60 unknown keys: the first 50 lines, then the count of the rest."""
+    text = (Path(__file__).resolve().parents[1] / "cases" / "two_link_switching.toml").read_text()
+    extra = "".join(f"junk{i:02d} = 1\n" for i in range(60))
+    bad = tmp_path / "many.toml"
+    bad.write_text(text.replace("[robots]\n", "[robots]\n" + extra, 1))
+    res = runner.invoke(app, ["cases", "validate", str(bad)])
+    lines = res.output.splitlines()
+    assert res.exit_code == 2 and len(lines) == 51, res.output
+    assert lines[0] == f"ftcreport: error: {bad}: robots.junk00: unknown field"
+    assert lines[49] == f"ftcreport: error: {bad}: robots.junk49: unknown field"
+    assert lines[50] == f"ftcreport: error: {bad}: and 10 more error(s)"

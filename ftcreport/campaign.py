@@ -435,13 +435,11 @@ def stale_reason(rec: dict, expected: dict) -> str | None:
 
 
 def select_schemes(base: Case, schemes: list[str] | None) -> list[str]:
-    """The schemes to run: ``schemes`` (all configured in ``base`` when None); an unconfigured one is refused."""
-    configured = configured_schemes(base)
-    schemes = configured if schemes is None else list(schemes)
-    unknown = [s for s in schemes if s not in configured]
-    if unknown:
-        raise FtcError(f"schemes {unknown} are not configured in {base.name} (configured: {', '.join(configured)})")
-    return schemes
+    """The schemes to run: ``schemes`` (all configured in ``base`` when None); an unknown or unconfigured
+    one is refused, blamed on the ``--schemes`` option (:func:`ftcreport.cases.option_schemes`)."""
+    from .cases import option_schemes
+
+    return configured_schemes(base) if schemes is None else option_schemes("--schemes", list(schemes), base)
 
 
 def load_records(folder: Path, expected: dict, force: bool, what: str = "sample") -> tuple[dict[int, dict], int]:

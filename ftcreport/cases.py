@@ -42,6 +42,7 @@ __all__ = [
     "did_you_mean",
     "known_schemes",
     "load_case",
+    "option_schemes",
     "ordered_schemes",
     "parse_case",
 ]
@@ -513,6 +514,32 @@ def known_schemes() -> list[str]:
 def configured_schemes(case: Case) -> list[str]:
     """The schemes a case runs: its built-in tables (in :data:`SCHEME_NAMES` order), then its plug-in tables."""
     return [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None] + list(case.schemes.model_extra or {})
+
+
+def option_schemes(option: str, names: list[str], case: Case, among: list[str] | None = None) -> list[str]:
+    """The schemes a CLI option names (``--scheme``, ``--schemes``), checked against ``case``.
+
+    ``among``: the schemes the command can run (default: those the case configures).  A name that
+    is no scheme at all is blamed on the option, with the known schemes and the closest one
+    (``--scheme: got 'swiching'; known schemes: ...; did you mean 'switching'?``); a scheme the
+    case does not run says so with the reason of :func:`ftcreport.families.not_applicable`.
+    Raises :class:`FtcError` (exit 2); returns ``names``.
+    """
+    from .families import not_applicable
+
+    known = known_schemes()
+    among = configured_schemes(case) if among is None else among
+    for name in names:
+        if name not in known:
+            close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+            hint = f"; did you mean '{close[0]}'?" if close else ""
+            raise FtcError(f"{option}: got '{name}'; known schemes: {', '.join(known)}{hint}")
+        if name not in among:
+            why = not_applicable(case).get(name)
+            reason = f": {why}" if why else ""
+            runs = ", ".join(among) or "none"
+            raise FtcError(f"{option}: '{name}' is not run on case '{case.name}' (this command runs {runs}){reason}")
+    return names
 
 
 def ordered_schemes(names) -> list[str]:

@@ -378,7 +378,7 @@ def run(
 
     Example: ftcreport run cases/two_link_switching.toml --scheme switching --verify-dt
     """
-    from .cases import configured_schemes, load_case, with_duration
+    from .cases import configured_schemes, load_case, option_schemes, with_duration
     from .runner import build, dt_sensitivity, halve_dt, run_scheme
     from .store import save_run
 
@@ -387,11 +387,15 @@ def run(
         if duration is not None:
             c = with_duration(c, duration)
         schemes = configured_schemes(c)
-        if scheme:
-            unknown = [s for s in scheme if s not in schemes]
-            if unknown:
-                raise FtcError(f"{case}: schemes.{unknown[0]}: not configured in this case (has {', '.join(schemes)})")
-            schemes = [s for s in schemes if s in scheme]
+    except FtcError as exc:
+        _fail(exc if str(exc).startswith(str(case)) else FtcError(f"{case}: {exc}"))
+    if scheme:  # a mistyped --scheme is the option's fault, not the case file's
+        try:
+            option_schemes("--scheme", scheme, c)
+        except FtcError as exc:
+            _fail(exc)
+        schemes = [s for s in schemes if s in scheme]
+    try:
         built = build(c)
         half = halve_dt(c, str(case)) if verify_dt else None
     except FtcError as exc:
@@ -645,7 +649,7 @@ def campaign(
 
     Example: ftcreport campaign cases/two_link_campaign.toml --samples 200 --workers 2
     """
-    from .campaign import read_table, run_campaign
+    from .campaign import read_table, run_campaign, select_schemes
     from .cases import load_case
     from .report.campaign import render_campaign
     from .store import output_lock
@@ -654,6 +658,7 @@ def campaign(
         base = load_case(case)
         out_dir = out or Path("reports") / "campaigns" / base.name
         chosen = _names(schemes)
+        select_schemes(base, chosen)  # a wrong --schemes before the output directory is made
         with output_lock(out_dir, "campaign"):
             dask = _dask(scheduler, workers, in_process, quiet, force)
             res = run_campaign(base, samples, out_dir, seed=seed, schemes=chosen, **dask)

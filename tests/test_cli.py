@@ -153,3 +153,50 @@ def test_cases_validate_caps_the_errors_of_a_file(tmp_path):
     assert lines[0] == f"ftcreport: error: {bad}: robots.junk00: unknown field"
     assert lines[49] == f"ftcreport: error: {bad}: robots.junk49: unknown field"
     assert lines[50] == f"ftcreport: error: {bad}: and 10 more error(s)"
+
+
+KNOWN = "nominal, switching, adaptive, adaptive_frozen, active, active_ukf, oracle"  # ftcreport.schemes.BUILT_IN
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (
+            ["run", "cases/two_link_switching.toml", "--scheme", "swiching"],
+            f"--scheme: got 'swiching'; known schemes: {KNOWN}; did you mean 'switching'?",
+        ),
+        (
+            ["run", "cases/two_link_switching.toml", "--scheme", "xyzzy"],
+            f"--scheme: got 'xyzzy'; known schemes: {KNOWN}",
+        ),
+        (
+            ["campaign", "cases/two_link_campaign.toml", "--schemes", "nominal,swiching", "--in-process"],
+            f"--schemes: got 'swiching'; known schemes: {KNOWN}; did you mean 'switching'?",
+        ),
+        (
+            ["coverage", "cases/two_link_campaign.toml", "--schemes", "oracel", "--in-process"],
+            f"--schemes: got 'oracel'; known schemes: {KNOWN}; did you mean 'oracle'?",
+        ),
+        (
+            ["fdi", "cases/two_link_campaign.toml", "--schemes", "activ", "--in-process"],
+            f"--schemes: got 'activ'; known schemes: {KNOWN}; did you mean 'active'?",
+        ),
+    ],
+)
+def test_a_mistyped_scheme_option_is_blamed_on_the_option(args, expected, tmp_path):
+    """Audit item 4: not 'cases/x.toml: schemes.swiching: not configured in this case'."""
+    res = runner.invoke(app, [*args, "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2
+    assert res.output == f"ftcreport: error: {expected}\n"
+    assert not (tmp_path / "o").exists()  # refused before anything is written
+
+
+def test_a_scheme_the_case_does_not_run_says_why(tmp_path):
+    res = runner.invoke(app, ["run", "cases/two_link_switching.toml", "--scheme", "active", "--out", str(tmp_path)])
+    assert res.exit_code == 2
+    line = res.output.strip()
+    assert line.startswith(
+        "ftcreport: error: --scheme: 'active' is not run on case 'two_link_switching' "
+        "(this command runs nominal, switching, adaptive, oracle): the active law closes its k_v = 3000 1/s"
+    ), line
+    assert "\n" not in line

@@ -43,7 +43,7 @@ from pathlib import Path
 
 from . import __version__
 from .cases import Case, case_hash, configured_schemes, load_case, overlay_text, with_duration
-from .errors import CaseError
+from .errors import CaseError, note_stored
 from .schemes import BUILT_IN
 from .store import cached_key, output_lock, save_run, write_atomic, write_json
 
@@ -74,6 +74,8 @@ class BatchResult:
     run_peak_rss_mb: dict[tuple[str, str], float] = field(default_factory=dict)
     #: peak resident memory [MB] of each worker process (by process id) over the batch
     worker_peaks_mb: dict[int, float] = field(default_factory=dict)
+    #: runs this batch simulated and stored complete (with their cache key): a re-run skips them
+    stored: int = 0
 
     @property
     def worker_peak_rss_mb(self) -> float | None:
@@ -379,12 +381,16 @@ def run_batch(
     a second batch, run, report or check on the same ``out`` fails at once with a message.
     """
     out = Path(out)
-    with output_lock(out, "batch"):
-        return _run_batch(paths, out, jobs, force, duration, show_progress, render)
-
-
-def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -> BatchResult:
     res = BatchResult()
+    try:
+        with output_lock(out, "batch"):
+            return _run_batch(paths, out, jobs, force, duration, show_progress, render, res)
+    except KeyboardInterrupt as exc:  # the CLI's interrupt message says how many runs are stored
+        note_stored(exc, res.stored)
+        raise
+
+
+def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, res: BatchResult) -> BatchResult:
     todo: list[tuple[Case, str, str, str]] = []  # case, source, scheme, key
     expected: dict[str, Case] = {}  # case name -> the case (its expected_for(scheme): statuses that are not failures)
     loaded: list[Case] = []
@@ -506,6 +512,7 @@ def _collect(pending, futures, q, progress, tasks, out: Path, res: BatchResult, 
                 m, worker = fut.result()
                 status, reason = m.get("status", "error"), m.get("reason", "")
                 _note_peak(res, name, scheme, worker)
+                res.stored += 1  # the worker stored it (save_run) before it returned
             except Exception as exc:
                 status, reason = "error", f"worker failed: {type(exc).__name__}: {exc}"
                 (out / name / scheme / "key").unlink(missing_ok=True)  # not a complete, cached run

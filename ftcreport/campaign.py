@@ -34,6 +34,7 @@ The drawing and the summary are pure; files and the cluster are at the edge
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
@@ -612,7 +613,7 @@ def run_tasks(
         if on_store is not None:
             on_store(rec)
 
-    with _Progress(show_progress, len(args)) as bar:
+    with _Progress(show_progress, len(args)) as bar, _noting_stored(res, what):
         info = execute(
             func,
             args,
@@ -623,6 +624,18 @@ def run_tasks(
             **cluster,
         )
     res.workers = info["workers"]
+
+
+@contextlib.contextmanager
+def _noting_stored(res: CampaignResult, noun: str):
+    """An interrupt inside says how many finished tasks were stored (the CLI's interrupt message)."""
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        from .errors import note_stored
+
+        note_stored(exc, len(res.completed), noun)
+        raise
 
 
 def _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process) -> None:

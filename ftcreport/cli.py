@@ -128,7 +128,9 @@ def _classify(exc: BaseException) -> tuple[str, int]:
     import errno
 
     if isinstance(exc, KeyboardInterrupt):
-        return "interrupted; finished runs are stored, re-run the same command to resume", 130
+        from .errors import interrupted_message
+
+        return interrupted_message(exc), 130
     if isinstance(exc, FtcError):
         return str(exc), getattr(exc, "exit_code", 2)
     if isinstance(exc, UnicodeDecodeError):
@@ -407,23 +409,29 @@ def run(
     from .store import output_lock
 
     rows = []
-    with output_lock(out, "run"):
-        record_case(out, c, case, duration)
-        for s in schemes:
-            with _running(f"{c.name} / {s}", quiet):
-                r, m = run_scheme(c, s, built)
-                if half is not None:
-                    m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
-            save_run(out, c.name, s, r, m, run_key(c, s))
-            rows.append(m)
-            del r  # stored: the next scheme and the report do not hold this run's arrays too
-        write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
-        page = None
-        if not no_report:  # matplotlib and jinja2 only for the report (--no-report: about 45 MB less)
-            from .report.render import render_case, render_index
+    try:
+        with output_lock(out, "run"):
+            record_case(out, c, case, duration)
+            for s in schemes:
+                with _running(f"{c.name} / {s}", quiet):
+                    r, m = run_scheme(c, s, built)
+                    if half is not None:
+                        m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
+                save_run(out, c.name, s, r, m, run_key(c, s))
+                rows.append(m)
+                del r  # stored: the next scheme and the report do not hold this run's arrays too
+            write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
+            page = None
+            if not no_report:  # matplotlib and jinja2 only for the report (--no-report: about 45 MB less)
+                from .report.render import render_case, render_index
 
-            page = render_case(out, c.name)
-            render_index(out)
+                page = render_case(out, c.name)
+                render_index(out)
+    except KeyboardInterrupt as exc:  # the interrupt message says how many schemes' runs are stored
+        from .errors import note_stored
+
+        note_stored(exc, len(rows))
+        raise
     if not quiet:
         typer.echo(_table(rows))
         if half is not None:

@@ -200,3 +200,59 @@ def test_a_scheme_the_case_does_not_run_says_why(tmp_path):
         "(this command runs nominal, switching, adaptive, oracle): the active law closes its k_v = 3000 1/s"
     ), line
     assert "\n" not in line
+
+
+# ------------------------------------------------------------------ interrupts (audit item 5)
+def _interrupt(*args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def test_an_interrupt_before_any_run_finished_says_nothing_was_stored(tmp_path, monkeypatch):
+    import ftcreport.runner
+
+    monkeypatch.setattr(ftcreport.runner, "run_scheme", _interrupt)  # Ctrl-C during the first scheme
+    res = runner.invoke(app, ["run", "cases/two_link_switching.toml", "--out", str(tmp_path), "--no-report", "-q"])
+    assert res.exit_code == 130
+    assert res.output == "ftcreport: error: interrupted before any run finished; nothing was stored\n"
+
+
+@pytest.mark.parametrize(
+    ("stored", "said"),
+    [
+        (0, "interrupted before any run finished; nothing was stored"),
+        (1, "interrupted; 1 finished run is stored, re-run the same command to resume"),
+        (3, "interrupted; 3 finished runs are stored, re-run the same command to resume"),
+    ],
+)
+def test_an_interrupted_batch_says_how_many_runs_it_stored(tmp_path, monkeypatch, stored, said):
+    import ftcreport.batch
+
+    def execute(todo, out, jobs, show_progress, res, expected, finish):
+        assert len(todo) == 4  # the case's four schemes, none cached
+        res.stored = stored  # as _collect counts the runs whose worker stored them
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ftcreport.batch, "_execute", execute)
+    case = "cases/two_link_switching.toml"
+    res = runner.invoke(app, ["batch", case, "--out", str(tmp_path), "--duration", "0.2", "-q"])
+    assert res.exit_code == 130
+    assert res.output == f"ftcreport: error: {said}\n"
+
+
+def test_a_command_that_stores_nothing_says_only_interrupted(tmp_path, monkeypatch):
+    import ftcreport.report.render
+
+    (tmp_path / "o").mkdir()
+    monkeypatch.setattr(ftcreport.report.render, "render_all", _interrupt)
+    res = runner.invoke(app, ["report", "--out", str(tmp_path / "o")])
+    assert res.exit_code == 130 and res.output == "ftcreport: error: interrupted\n"
+
+
+def test_an_interrupted_campaign_counts_its_samples(tmp_path, monkeypatch):
+    import ftcreport.cluster
+
+    monkeypatch.setattr(ftcreport.cluster, "execute", _interrupt)
+    args = ["campaign", "cases/two_link_campaign.toml", "-n", "2", "--in-process", "--out", str(tmp_path / "c"), "-q"]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 130
+    assert res.output == "ftcreport: error: interrupted before any sample finished; nothing was stored\n"

@@ -335,3 +335,84 @@ def test_peak_rss_is_this_process_high_water_mark_in_mb():
     peak = peak_rss_mb()
     # ru_maxrss (KiB on Linux) also counts what the process had before its exec, so it is at least VmHWM
     assert 20.0 < peak <= resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + 1.0
+
+
+# ------------------------------------------------------------------ the progress display (audit item 1)
+def _terminal(height: int = 24):
+    import io
+
+    from rich.console import Console
+
+    return Console(file=io.StringIO(), force_terminal=True, width=100, height=height, color_system=None)
+
+
+def _screen(display, height: int = 24) -> list[str]:
+    """One frame of the display as the terminal shows it."""
+    con = _terminal(height)
+    con.print(display)
+    return con.file.getvalue().rstrip("\n").splitlines()
+
+
+def _runs(display, n: int) -> None:
+    for i in range(n):
+        display.durations[(f"case{i // 4}", f"s{i % 4}")] = 20.0  # every run 20 s of simulated time
+
+
+def test_the_display_is_one_overall_bar_and_the_active_runs():
+    from ftcreport.batch import _display
+
+    d = _display(98, True, _terminal())
+    _runs(d, 98)
+    d.advanced("case0", "s0", 0.0)  # started (compiling)
+    d.advanced("case0", "s1", 5.0)
+    d.advanced("case0", "s0", 10.0)
+    d.finished("case0", "s0")
+    d.advanced("case0", "s0", 20.0)  # a report that arrives after the run's result: ignored
+    d.advanced("case0", "s2", 1.0)
+    lines = _screen(d)
+    assert len(lines) == 3, lines  # the overall bar and the two active runs; no line for the 96 others
+    assert lines[0].startswith("batch ") and " 1/98 runs " in lines[0] and " ETA " in lines[0], lines[0]
+    assert lines[1].startswith("  case0 / s1 ") and lines[1].endswith(" 25 % of 20 s"), lines[1]
+    assert lines[2].startswith("  case0 / s2 ") and lines[2].endswith("  5 % of 20 s"), lines[2]
+    # the bar counts the finished run and the active ones' fractions: 1 + 5/20 + 1/20
+    assert d.overall.tasks[0].completed == pytest.approx(1.30, abs=1e-12)
+
+
+def test_the_display_fits_a_24_row_terminal():
+    from ftcreport.batch import _display
+
+    d = _display(98, True, _terminal())
+    _runs(d, 98)
+    for i in range(40):  # 40 workers busy at once
+        d.advanced(f"case{i // 4}", f"s{i % 4}", 2.0)
+    lines = _screen(d)
+    assert len(lines) == 21, lines  # overall, 19 runs, the count of the others: 24 rows less 3
+    assert lines[-1] == "  ... and 21 more running"
+    assert " 0/98 runs " in lines[0]
+
+
+def test_no_display_off_a_terminal_or_when_quiet():
+    import io
+
+    from rich.console import Console
+
+    from ftcreport.batch import _display
+
+    assert _display(4, True, Console(file=io.StringIO())).live is None  # piped stderr, a CI log
+    assert _display(4, False, _terminal()).live is None  # --quiet
+    d = _display(4, True, None)  # pytest's stderr is no terminal
+    assert d.live is None
+    with d:
+        d.advanced("c", "s", 0.0)
+        d.finished("c", "s")
+
+
+def test_a_piped_batch_prints_no_bars(tmp_path):
+    out = tmp_path / "o"
+    case = CASES / "two_link_switching.toml"
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "--duration", "0.2", "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert "━" not in res.output and "two_link_switching / " not in res.output, res.output
+    lines = res.output.splitlines()  # stderr's one notice, then the summary: nothing of the display
+    assert len(lines) == 2 and lines[0].startswith("rendering 1 case page(s)"), res.output
+    assert lines[1].startswith("1 case(s): 4 run(s) simulated, 0 cached, 0 failed"), res.output

@@ -181,6 +181,8 @@ def _crash_log(exc: BaseException) -> str:
     return "<no writable log directory>"
 
 
+# Help text is rich markup: a unit such as [s] or a table such as [campaign] is written \\[s] in it,
+# or it vanishes as an unknown style tag (tests/test_cli.py checks every command's help).
 app = typer.Typer(
     cls=_ErrorBoundary,
     name="ftcreport",
@@ -267,9 +269,9 @@ def patterns(
 @app.command()
 def demo(
     robots: Annotated[int, typer.Option(help="Number of robots (>= 2).")] = 3,
-    duration: Annotated[float, typer.Option(help="Simulated time [s].")] = 20.0,
-    dt: Annotated[float, typer.Option(help="RK4 step [s].")] = 0.01,
-    fault_time: Annotated[float, typer.Option(help="When wheel 2l loses its motor [s].")] = 10.0,
+    duration: Annotated[float, typer.Option(help="Simulated time \\[s].")] = 20.0,
+    dt: Annotated[float, typer.Option(help="RK4 step \\[s].")] = 0.01,
+    fault_time: Annotated[float, typer.Option(help="When wheel 2l loses its motor \\[s].")] = 10.0,
 ) -> None:
     """Run the nominal velocity loop on a thesis-parameter chain that loses motor 2l.
 
@@ -318,7 +320,7 @@ def batch(
     out: Annotated[Path, typer.Option(help="Output directory.")] = Path("reports"),
     jobs: Annotated[int | None, typer.Option(help="Parallel processes (default: the core count).")] = None,
     force: Annotated[bool, typer.Option("--force", help="Re-simulate cached runs.")] = False,
-    duration: Annotated[float | None, typer.Option(help="Override every case's simulated time [s].")] = None,
+    duration: Annotated[float | None, typer.Option(help="Override every case's simulated time \\[s].")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="One line per run after the summary.")] = False,
 ) -> None:
@@ -358,7 +360,7 @@ def run(
     case: Annotated[Path, typer.Argument(help="One case file (TOML).")],
     out: Annotated[Path, typer.Option(help="Output directory.")] = Path("reports"),
     scheme: Annotated[list[str] | None, typer.Option(help="Run only these schemes (repeatable).")] = None,
-    duration: Annotated[float | None, typer.Option(help="Override the simulated time [s].")] = None,
+    duration: Annotated[float | None, typer.Option(help="Override the simulated time \\[s].")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only errors.")] = False,
     verify_dt: Annotated[
         bool,
@@ -378,7 +380,7 @@ def run(
     stopped early (singular, diverged, error) or --verify-dt finds the step not
     converged, 2 for a bad case file.
 
-    Example: ftcreport run cases/two_link_switching.toml --scheme switching --verify-dt
+    Example: ftcreport run cases/two_link_switching.toml --scheme switching --duration 30
     """
     from .cases import configured_schemes, load_case, option_schemes, with_duration
     from .runner import build, dt_sensitivity, halve_dt, run_scheme
@@ -603,7 +605,7 @@ def analyze(
 ) -> None:
     """Linearized analyses (python-control): closed-loop poles, controllability per fault pattern.
 
-    Closed-loop poles (key closed_loop_poles, [re, im] pairs per scheme) for two-link cases
+    Closed-loop poles (key closed_loop_poles, \\[re, im] pairs per scheme) for two-link cases
     on constant-velocity references; controllability rank and Gramian per 0/1 pattern for all.
 
     Example: ftcreport analyze cases/two_link_adaptive_circle.toml --json
@@ -637,7 +639,7 @@ def analyze(
 
 @app.command()
 def campaign(
-    case: Annotated[Path, typer.Argument(help="Base case file with a [campaign] table.")],
+    case: Annotated[Path, typer.Argument(help="Base case file with a \\[campaign] table.")],
     samples: Annotated[int, typer.Option("--samples", "-n", help="Number of samples (variants).")] = 100,
     seed: Annotated[int, typer.Option(help="Campaign seed; sample i uses a seed derived from (seed, i).")] = 0,
     scheduler: SchedulerOpt = None,
@@ -795,11 +797,11 @@ def _floats(text: str | None, option: str) -> list[float] | None:
 def coverage(
     case: Annotated[Path, typer.Argument(help="Case file (its faults are replaced by the fault set).")],
     times: Annotated[
-        str | None, typer.Option(help="Comma-separated onset times [s] (default: 3 along the curvature).")
+        str | None, typer.Option(help="Comma-separated onset times \\[s] (default: 3 along the curvature).")
     ] = None,
     schemes: Annotated[str | None, typer.Option(help="Comma-separated schemes (default: all in the case).")] = None,
     sigmas: Annotated[str, typer.Option(help="Partial-loss gains, comma-separated, in (0, 1).")] = "0.25,0.5",
-    friction: Annotated[float, typer.Option(help="Friction of the friction faults [N m].")] = 0.5,
+    friction: Annotated[float, typer.Option(help="Friction of the friction faults \\[N m].")] = 0.5,
     kinds: Annotated[str, typer.Option(help="Fault kinds: loss,pair,partial,friction.")] = "loss,pair,partial,friction",
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
@@ -846,7 +848,7 @@ def coverage(
 
 @app.command()
 def fdi(
-    case: Annotated[Path, typer.Argument(help="Base case with a [campaign] table and an active scheme.")],
+    case: Annotated[Path, typer.Argument(help="Base case with a \\[campaign] table and an active scheme.")],
     samples: Annotated[int, typer.Option("--samples", "-n", help="Campaign samples per active scheme.")] = 50,
     seed: Annotated[int, typer.Option(help="Campaign seed (the same samples as campaign --seed).")] = 0,
     schemes: Annotated[str | None, typer.Option(help="Active schemes, comma-separated (default: all).")] = None,
@@ -859,7 +861,7 @@ def fdi(
 ) -> None:
     """FDI evaluation: ROC, delay and isolation of the estimate-based and a CUSUM residual detector.
 
-    Example: ftcreport fdi my_active_campaign.toml -n 100
+    Example: ftcreport fdi cases/two_link_campaign.toml -n 20
     """
     from .cases import load_case
     from .fdi import run_fdi

@@ -256,3 +256,49 @@ def test_an_interrupted_campaign_counts_its_samples(tmp_path, monkeypatch):
     res = runner.invoke(app, args)
     assert res.exit_code == 130
     assert res.output == "ftcreport: error: interrupted before any sample finished; nothing was stored\n"
+
+
+# ------------------------------------------------------------------ help text (audit item 6)
+def _commands():
+    """(command path, click command) of every command of the CLI, groups included."""
+    import typer.main
+
+    def walk(cmd, path):
+        yield path, cmd
+        for name, sub in getattr(cmd, "commands", {}).items():
+            yield from walk(sub, [*path, name])
+
+    return list(walk(typer.main.get_command(app), []))
+
+
+COMMANDS = [(p, c) for p, c in _commands() if not hasattr(c, "commands")]
+
+
+@pytest.mark.parametrize(("path", "cmd"), COMMANDS, ids=[" ".join(p) for p, _ in COMMANDS])
+def test_every_command_has_an_example_that_parses(path, cmd):
+    """The README says `ftcreport COMMAND --help` gives an example: it names files that exist, options that do."""
+    import shlex
+
+    root = Path(__file__).resolve().parents[1]
+    res = runner.invoke(app, [*path, "--help"])
+    assert res.exit_code == 0
+    examples = [ln.strip().removeprefix("Example: ") for ln in res.output.splitlines() if "Example: " in ln]
+    assert len(examples) == 1, res.output
+    argv = shlex.split(examples[0].split(" > ")[0])  # without a shell redirection
+    assert argv[: 1 + len(path)] == ["ftcreport", *path], argv
+    args = argv[1 + len(path) :]
+    cmd.make_context(" ".join(argv[: 1 + len(path)]), list(args))  # options and arguments parse
+    for a in args:
+        if a.endswith((".toml", "/")) and not a.startswith("reports"):  # inputs (reports/ is output)
+            assert (root / a).exists(), (examples[0], a)
+
+
+def test_help_keeps_units_and_table_names():
+    """Typer renders help as rich markup, where '[s]' is a style tag: every bracket of a help text is shown."""
+    import re
+
+    for path, cmd in _commands():
+        shown = " ".join(runner.invoke(app, [*path, "--help"]).output.replace("│", " ").split())
+        for text in [cmd.help or "", *(getattr(p, "help", None) or "" for p in cmd.params)]:
+            for bracket in re.findall(r"\\?(\[[^\]]*\])", text):
+                assert " ".join(bracket.split()) in shown, (path, bracket)

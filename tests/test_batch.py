@@ -359,9 +359,9 @@ def _runs(display, n: int) -> None:
 
 
 def test_the_display_is_one_overall_bar_and_the_active_runs():
-    from ftcreport.batch import _display
+    from ftcreport.display import BatchDisplay
 
-    d = _display(98, True, _terminal())
+    d = BatchDisplay.make(98, True, _terminal())
     _runs(d, 98)
     d.advanced("case0", "s0", 0.0)  # started (compiling)
     d.advanced("case0", "s1", 5.0)
@@ -379,9 +379,9 @@ def test_the_display_is_one_overall_bar_and_the_active_runs():
 
 
 def test_the_display_fits_a_24_row_terminal():
-    from ftcreport.batch import _display
+    from ftcreport.display import BatchDisplay
 
-    d = _display(98, True, _terminal())
+    d = BatchDisplay.make(98, True, _terminal())
     _runs(d, 98)
     for i in range(40):  # 40 workers busy at once
         d.advanced(f"case{i // 4}", f"s{i % 4}", 2.0)
@@ -396,11 +396,11 @@ def test_no_display_off_a_terminal_or_when_quiet():
 
     from rich.console import Console
 
-    from ftcreport.batch import _display
+    from ftcreport.display import BatchDisplay
 
-    assert _display(4, True, Console(file=io.StringIO())).live is None  # piped stderr, a CI log
-    assert _display(4, False, _terminal()).live is None  # --quiet
-    d = _display(4, True, None)  # pytest's stderr is no terminal
+    assert BatchDisplay.make(4, True, Console(file=io.StringIO())).live is None  # piped stderr, a CI log
+    assert BatchDisplay.make(4, False, _terminal()).live is None  # --quiet
+    d = BatchDisplay.make(4, True, None)  # pytest's stderr is no terminal
     assert d.live is None
     with d:
         d.advanced("c", "s", 0.0)

@@ -36,7 +36,9 @@ import json
 import multiprocessing as mp
 import os
 import queue as _queue
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -334,12 +336,22 @@ def _record_error(out: Path, path: Path, error: str, avoid: Iterable[str] = ()) 
     _record(out, error_record_name(path, avoid), record)
 
 
-def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> tuple[dict, dict]:
+#: a batch worker's progress queue (set by :func:`_init_worker`; None outside a batch's workers)
+_PROGRESS_Q: list = [None]
+
+
+def _init_worker(progress_q) -> None:
+    """Initializer of a batch worker process: the queue its runs report their simulated time on."""
+    _PROGRESS_Q[0] = progress_q
+
+
+def _worker(case_data: dict, source: str, scheme: str, out: str, key: str) -> tuple[dict, dict]:
     """Run one scheme in a worker process and store it; returns its metrics and the worker's
     ``{"pid", "peak_rss_mb"}`` (its peak resident memory after the run and its storage)."""
     from .cases import parse_case
     from .runner import run_scheme
 
+    progress_q = _PROGRESS_Q[0]
     case = parse_case(case_data, source)
     last = [0.0]
     if progress_q is not None:  # started: the display shows the run from now on (its compile included)
@@ -469,14 +481,13 @@ def _parquet_stale(out: Path) -> bool:
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict, finish) -> None:
     """Run ``todo`` in worker processes, then ``finish(pool)`` (the pages render in the same workers)."""
     ctx = mp.get_context("spawn")
-    manager = ctx.Manager()
-    q = manager.Queue()
+    q = ctx.Queue()  # the workers' progress reports, handed to each worker as it starts
     display = BatchDisplay.make(len(todo), show_progress)
-    with display, ProcessPoolExecutor(max_workers=max(1, jobs), mp_context=ctx) as pool:
+    pool = _Pool(max_workers=max(1, jobs), mp_context=ctx, initializer=_init_worker, initargs=(q,))
+    with display, pool:
         futures = {}
         for case, source, scheme, key in todo:
-            data = case.model_dump(mode="json")
-            fut = pool.submit(_worker, data, source, scheme, str(out), key, q)
+            fut = pool.submit(_worker, case.model_dump(mode="json"), source, scheme, str(out), key)
             futures[fut] = (case.name, scheme)
             display.durations[(case.name, scheme)] = case.simulation.duration
         pending = set(futures)
@@ -486,16 +497,45 @@ def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, 
             finish(pool)
         except BaseException:  # Ctrl-C, SIGTERM: stop the workers now; every stored run is complete
             display.stop()
-            for fut in pending:
-                fut.cancel()
             for proc in list((getattr(pool, "_processes", None) or {}).values()):
                 with contextlib.suppress(Exception):
                     proc.terminate()
+            # the pool cancels the waiting runs itself: a future cancelled here, which the pool then
+            # finds broken (its workers terminated), raised InvalidStateError in its thread (Python 3.11)
             pool.shutdown(wait=False, cancel_futures=True)
-            with contextlib.suppress(Exception):
-                manager.shutdown()
             raise
-    manager.shutdown()
+        finally:
+            q.close()
+
+
+class _Pool(ProcessPoolExecutor):
+    """A process pool whose workers ignore Ctrl-C: the batch process takes it and terminates them.
+
+    Ctrl-C reaches the terminal's whole process group, and a worker still starting (importing)
+    printed a KeyboardInterrupt traceback.  A submit starts a worker while fewer than
+    ``max_workers`` run; it does so with SIGINT ignored (:func:`_children_ignore_sigint`).
+    """
+
+    def submit(self, fn, /, *args, **kwargs):
+        with _children_ignore_sigint():
+            return super().submit(fn, *args, **kwargs)
+
+
+@contextlib.contextmanager
+def _children_ignore_sigint():
+    """Processes started inside ignore Ctrl-C (SIGINT) for life; this process's handler is back after.
+
+    An ignored signal stays ignored across fork and exec, and Python leaves it so.  Inside is only
+    the start of a process (fork and exec, milliseconds): a Ctrl-C then is lost.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old if old is not None else signal.default_int_handler)
 
 
 def _collect(pending, futures, q, display: BatchDisplay, out: Path, res: BatchResult, expected: dict) -> None:

@@ -416,3 +416,17 @@ def test_a_piped_batch_prints_no_bars(tmp_path):
     lines = res.output.splitlines()  # stderr's one notice, then the summary: nothing of the display
     assert len(lines) == 2 and lines[0].startswith("rendering 1 case page(s)"), res.output
     assert lines[1].startswith("1 case(s): 4 run(s) simulated, 0 cached, 0 failed"), res.output
+
+
+def test_batch_workers_leave_ctrl_c_to_the_batch_process():
+    """Ctrl-C reaches the whole process group: a worker still importing printed a KeyboardInterrupt
+    traceback.  The workers ignore SIGINT (the batch process terminates them); its own handler stays."""
+    import multiprocessing as mp
+    import signal
+
+    from ftcreport.batch import _Pool
+
+    before = signal.getsignal(signal.SIGINT)
+    with _Pool(max_workers=1, mp_context=mp.get_context("spawn")) as pool:
+        assert pool.submit(signal.getsignal, signal.SIGINT).result(timeout=120) == signal.SIG_IGN
+    assert signal.getsignal(signal.SIGINT) is before

@@ -12,7 +12,9 @@ Edge module (files, processes, progress).  For each case file:
 * a run that fails (singular, diverged, error, or an exception in the worker) is
   stored with its status and reason.
 
-Progress: one line per running job with case, scheme and simulated time (rich).
+Progress (on a terminal's stderr only, not with ``--quiet``): one overall bar (runs done of the
+batch's total, elapsed time, an estimate of the time left) and one line per run a worker is on
+(case / scheme and its fraction of simulated time); a finished run leaves the display (rich).
 
 Provenance: ``<out>/manifest.json`` describes the batch (:mod:`ftcreport.manifest`: package,
 git revision, dependency versions, Python, platform, CPU; per run the engine, status, cache key
@@ -34,7 +36,9 @@ import json
 import multiprocessing as mp
 import os
 import queue as _queue
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -43,7 +47,8 @@ from pathlib import Path
 
 from . import __version__
 from .cases import Case, case_hash, configured_schemes, load_case, overlay_text, with_duration
-from .errors import CaseError
+from .display import BatchDisplay
+from .errors import CaseError, note_stored
 from .schemes import BUILT_IN
 from .store import cached_key, output_lock, save_run, write_atomic, write_json
 
@@ -74,6 +79,8 @@ class BatchResult:
     run_peak_rss_mb: dict[tuple[str, str], float] = field(default_factory=dict)
     #: peak resident memory [MB] of each worker process (by process id) over the batch
     worker_peaks_mb: dict[int, float] = field(default_factory=dict)
+    #: runs this batch simulated and stored complete (with their cache key): a re-run skips them
+    stored: int = 0
 
     @property
     def worker_peak_rss_mb(self) -> float | None:
@@ -329,14 +336,27 @@ def _record_error(out: Path, path: Path, error: str, avoid: Iterable[str] = ()) 
     _record(out, error_record_name(path, avoid), record)
 
 
-def _worker(case_data: dict, source: str, scheme: str, out: str, key: str, progress_q) -> tuple[dict, dict]:
+#: a batch worker's progress queue (set by :func:`_init_worker`; None outside a batch's workers)
+_PROGRESS_Q: list = [None]
+
+
+def _init_worker(progress_q) -> None:
+    """Initializer of a batch worker process: the queue its runs report their simulated time on."""
+    _PROGRESS_Q[0] = progress_q
+
+
+def _worker(case_data: dict, source: str, scheme: str, out: str, key: str) -> tuple[dict, dict]:
     """Run one scheme in a worker process and store it; returns its metrics and the worker's
     ``{"pid", "peak_rss_mb"}`` (its peak resident memory after the run and its storage)."""
     from .cases import parse_case
     from .runner import run_scheme
 
+    progress_q = _PROGRESS_Q[0]
     case = parse_case(case_data, source)
     last = [0.0]
+    if progress_q is not None:  # started: the display shows the run from now on (its compile included)
+        with contextlib.suppress(Exception):
+            progress_q.put_nowait((case.name, scheme, 0.0))
 
     def progress(t: float) -> None:
         if progress_q is not None and t - last[0] >= 0.005 * case.simulation.duration:
@@ -379,12 +399,16 @@ def run_batch(
     a second batch, run, report or check on the same ``out`` fails at once with a message.
     """
     out = Path(out)
-    with output_lock(out, "batch"):
-        return _run_batch(paths, out, jobs, force, duration, show_progress, render)
-
-
-def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render) -> BatchResult:
     res = BatchResult()
+    try:
+        with output_lock(out, "batch"):
+            return _run_batch(paths, out, jobs, force, duration, show_progress, render, res)
+    except KeyboardInterrupt as exc:  # the CLI's interrupt message says how many runs are stored
+        note_stored(exc, res.stored)
+        raise
+
+
+def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, res: BatchResult) -> BatchResult:
     todo: list[tuple[Case, str, str, str]] = []  # case, source, scheme, key
     expected: dict[str, Case] = {}  # case name -> the case (its expected_for(scheme): statuses that are not failures)
     loaded: list[Case] = []
@@ -456,56 +480,76 @@ def _parquet_stale(out: Path) -> bool:
 
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict, finish) -> None:
     """Run ``todo`` in worker processes, then ``finish(pool)`` (the pages render in the same workers)."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
     ctx = mp.get_context("spawn")
-    manager = ctx.Manager()
-    q = manager.Queue()
-    progress = Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
-        TimeElapsedColumn(),
-        disable=not show_progress,
-        transient=False,
-    )
-    tasks = {}
-    with progress, ProcessPoolExecutor(max_workers=max(1, jobs), mp_context=ctx) as pool:
+    q = ctx.Queue()  # the workers' progress reports, handed to each worker as it starts
+    display = BatchDisplay.make(len(todo), show_progress)
+    pool = _Pool(max_workers=max(1, jobs), mp_context=ctx, initializer=_init_worker, initargs=(q,))
+    with display, pool:
         futures = {}
         for case, source, scheme, key in todo:
-            data = case.model_dump(mode="json")
-            fut = pool.submit(_worker, data, source, scheme, str(out), key, q)
+            fut = pool.submit(_worker, case.model_dump(mode="json"), source, scheme, str(out), key)
             futures[fut] = (case.name, scheme)
-            tasks[(case.name, scheme)] = progress.add_task(f"{case.name} / {scheme}", total=case.simulation.duration)
+            display.durations[(case.name, scheme)] = case.simulation.duration
         pending = set(futures)
         try:
-            _collect(pending, futures, q, progress, tasks, out, res, expected)
-            progress.stop()
+            _collect(pending, futures, q, display, out, res, expected)
+            display.stop()
             finish(pool)
         except BaseException:  # Ctrl-C, SIGTERM: stop the workers now; every stored run is complete
-            for fut in pending:
-                fut.cancel()
+            display.stop()
             for proc in list((getattr(pool, "_processes", None) or {}).values()):
                 with contextlib.suppress(Exception):
                     proc.terminate()
+            # the pool cancels the waiting runs itself: a future cancelled here, which the pool then
+            # finds broken (its workers terminated), raised InvalidStateError in its thread (Python 3.11)
             pool.shutdown(wait=False, cancel_futures=True)
-            with contextlib.suppress(Exception):
-                manager.shutdown()
             raise
-    manager.shutdown()
+        finally:
+            q.close()
 
 
-def _collect(pending, futures, q, progress, tasks, out: Path, res: BatchResult, expected: dict) -> None:
+class _Pool(ProcessPoolExecutor):
+    """A process pool whose workers ignore Ctrl-C: the batch process takes it and terminates them.
+
+    Ctrl-C reaches the terminal's whole process group, and a worker still starting (importing)
+    printed a KeyboardInterrupt traceback.  A submit starts a worker while fewer than
+    ``max_workers`` run; it does so with SIGINT ignored (:func:`_children_ignore_sigint`).
+    """
+
+    def submit(self, fn, /, *args, **kwargs):
+        with _children_ignore_sigint():
+            return super().submit(fn, *args, **kwargs)
+
+
+@contextlib.contextmanager
+def _children_ignore_sigint():
+    """Processes started inside ignore Ctrl-C (SIGINT) for life; this process's handler is back after.
+
+    An ignored signal stays ignored across fork and exec, and Python leaves it so.  Inside is only
+    the start of a process (fork and exec, milliseconds): a Ctrl-C then is lost.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old if old is not None else signal.default_int_handler)
+
+
+def _collect(pending, futures, q, display: BatchDisplay, out: Path, res: BatchResult, expected: dict) -> None:
     """Wait for the runs, recording each as it finishes."""
     while pending:
         done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-        _drain(q, progress, tasks)
+        _drain(q, display)
         for fut in done:
             name, scheme = futures[fut]
             try:
                 m, worker = fut.result()
                 status, reason = m.get("status", "error"), m.get("reason", "")
                 _note_peak(res, name, scheme, worker)
+                res.stored += 1  # the worker stored it (save_run) before it returned
             except Exception as exc:
                 status, reason = "error", f"worker failed: {type(exc).__name__}: {exc}"
                 (out / name / scheme / "key").unlink(missing_ok=True)  # not a complete, cached run
@@ -516,8 +560,7 @@ def _collect(pending, futures, q, progress, tasks, out: Path, res: BatchResult, 
             res.simulated.append((name, scheme))
             if name not in expected or status not in expected[name].expected_for(scheme):
                 res.failed_runs.append((name, scheme, f"{status}: {reason}"))
-            task = tasks[(name, scheme)]
-            progress.update(task, completed=progress.tasks[task].total, description=f"{name} / {scheme} [{status}]")
+            display.finished(name, scheme)
 
 
 def _note_peak(res: BatchResult, name: str, scheme: str, worker: dict) -> None:
@@ -530,15 +573,13 @@ def _note_peak(res: BatchResult, name: str, scheme: str, worker: dict) -> None:
     res.worker_peaks_mb[pid] = max(res.worker_peaks_mb.get(pid, 0.0), float(peak))
 
 
-def _drain(q, progress, tasks) -> None:
+def _drain(q, display: BatchDisplay) -> None:
     while True:
         try:
             name, scheme, t = q.get_nowait()
         except (_queue.Empty, EOFError, OSError):
             return
-        task = tasks.get((name, scheme))
-        if task is not None:
-            progress.update(task, completed=t)
+        display.advanced(name, scheme, t)
 
 
 def failures_summary(res: BatchResult) -> str:  # pragma: no cover - CLI text helper

@@ -34,6 +34,7 @@ The drawing and the summary are pure; files and the cluster are at the edge
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
@@ -435,13 +436,11 @@ def stale_reason(rec: dict, expected: dict) -> str | None:
 
 
 def select_schemes(base: Case, schemes: list[str] | None) -> list[str]:
-    """The schemes to run: ``schemes`` (all configured in ``base`` when None); an unconfigured one is refused."""
-    configured = configured_schemes(base)
-    schemes = configured if schemes is None else list(schemes)
-    unknown = [s for s in schemes if s not in configured]
-    if unknown:
-        raise FtcError(f"schemes {unknown} are not configured in {base.name} (configured: {', '.join(configured)})")
-    return schemes
+    """The schemes to run: ``schemes`` (all configured in ``base`` when None); an unknown or unconfigured
+    one is refused, blamed on the ``--schemes`` option (:func:`ftcreport.cases.option_schemes`)."""
+    from .cases import option_schemes
+
+    return configured_schemes(base) if schemes is None else option_schemes("--schemes", list(schemes), base)
 
 
 def load_records(folder: Path, expected: dict, force: bool, what: str = "sample") -> tuple[dict[int, dict], int]:
@@ -614,7 +613,7 @@ def run_tasks(
         if on_store is not None:
             on_store(rec)
 
-    with _Progress(show_progress, len(args)) as bar:
+    with _Progress(show_progress, len(args)) as bar, _noting_stored(res, what):
         info = execute(
             func,
             args,
@@ -625,6 +624,18 @@ def run_tasks(
             **cluster,
         )
     res.workers = info["workers"]
+
+
+@contextlib.contextmanager
+def _noting_stored(res: CampaignResult, noun: str):
+    """An interrupt inside says how many finished tasks were stored (the CLI's interrupt message)."""
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        from .errors import note_stored
+
+        note_stored(exc, len(res.completed), noun)
+        raise
 
 
 def _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process) -> None:

@@ -17,6 +17,7 @@ import difflib
 import hashlib
 import json
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
@@ -41,6 +42,7 @@ __all__ = [
     "did_you_mean",
     "known_schemes",
     "load_case",
+    "option_schemes",
     "ordered_schemes",
     "parse_case",
 ]
@@ -512,6 +514,32 @@ def known_schemes() -> list[str]:
 def configured_schemes(case: Case) -> list[str]:
     """The schemes a case runs: its built-in tables (in :data:`SCHEME_NAMES` order), then its plug-in tables."""
     return [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None] + list(case.schemes.model_extra or {})
+
+
+def option_schemes(option: str, names: list[str], case: Case, among: list[str] | None = None) -> list[str]:
+    """The schemes a CLI option names (``--scheme``, ``--schemes``), checked against ``case``.
+
+    ``among``: the schemes the command can run (default: those the case configures).  A name that
+    is no scheme at all is blamed on the option, with the known schemes and the closest one
+    (``--scheme: got 'swiching'; known schemes: ...; did you mean 'switching'?``); a scheme the
+    case does not run says so with the reason of :func:`ftcreport.families.not_applicable`.
+    Raises :class:`FtcError` (exit 2); returns ``names``.
+    """
+    from .families import not_applicable
+
+    known = known_schemes()
+    among = configured_schemes(case) if among is None else among
+    for name in names:
+        if name not in known:
+            close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+            hint = f"; did you mean '{close[0]}'?" if close else ""
+            raise FtcError(f"{option}: got '{name}'; known schemes: {', '.join(known)}{hint}")
+        if name not in among:
+            why = not_applicable(case).get(name)
+            reason = f": {why}" if why else ""
+            runs = ", ".join(among) or "none"
+            raise FtcError(f"{option}: '{name}' is not run on case '{case.name}' (this command runs {runs}){reason}")
+    return names
 
 
 def ordered_schemes(names) -> list[str]:
@@ -1030,7 +1058,22 @@ def _message(err: dict) -> str:
     if kind in _BOUND_OPS:
         name, op = _BOUND_OPS[kind]
         return f"must be {op} {err['ctx'][name]:g}, got {err['input']}"
+    if kind in ("literal_error", "enum"):  # every Literal (and enum) field of the schema
+        return _choice_message(err["input"], str((err.get("ctx") or {}).get("expected", "")))
     return err["msg"].removeprefix("Value error, ")
+
+
+def _choice_message(value: Any, expected: str) -> str:
+    """``got 'circel'; expected one of 'unicycle', 'circle', ... (did you mean 'circle'?)``.
+
+    ``expected`` is pydantic's list of the allowed values (``'a', 'b' or 'c'``); the closest one
+    to a string value is suggested (difflib, :func:`did_you_mean`).
+    """
+    allowed = re.findall(r"'([^']*)'", expected)
+    if not allowed:  # not strings (numbers): pydantic's own list
+        return f"got {value!r}; expected one of {expected}"
+    hint = did_you_mean(value, allowed) if isinstance(value, str) else ""
+    return f"got {value!r}; expected one of {', '.join(repr(a) for a in allowed)}{hint}"
 
 
 def _rank(err: dict) -> int:
@@ -1039,6 +1082,36 @@ def _rank(err: dict) -> int:
     if kind == "extra_forbidden":  # a misspelt key also makes its field "missing": name the typo first
         return -1
     return int(kind.endswith("_type") or kind == "literal_error" or kind.endswith("_parsing"))
+
+
+def _field_errors(errors: list[dict]) -> list[tuple[str, str]]:
+    """Every field in error once, as (field path, reason): pydantic's errors grouped by field.
+
+    A union field reports one error per member (``a = -300`` is neither a valid float nor a list):
+    the member that matches the input's type is the reason (:func:`_rank`), and a member whose
+    error lies deeper (``a[1]`` of the list member) stands for the field alone.  Typos of keys
+    come first, then wrong values, then wrong types; otherwise pydantic's order (the file's).
+    """
+    groups: dict[str, list[tuple[int, dict]]] = {}
+    for err in errors:
+        ctx_err = (err.get("ctx") or {}).get("error")
+        loc = ctx_err.loc if isinstance(ctx_err, _FieldError) else _format_loc(tuple(err["loc"])) or "<root>"
+        groups.setdefault(loc, []).append((_rank(err), err))
+
+    def inside(child: str, parent: str) -> bool:
+        return parent == "<root>" or child.startswith((parent + ".", parent + "["))
+
+    def type_only(loc: str) -> bool:
+        return all(rank > 0 for rank, _ in groups[loc])
+
+    kept = [loc for loc in groups if not (type_only(loc) and any(inside(o, loc) for o in groups if o != loc))]
+    best = {loc: min(groups[loc], key=lambda pair: pair[0]) for loc in kept}  # stable: the first of the best rank
+    out = []
+    for loc in sorted(kept, key=lambda loc: best[loc][0]):
+        err = best[loc][1]
+        ctx_err = (err.get("ctx") or {}).get("error")
+        out.append((loc, ctx_err.msg if isinstance(ctx_err, _FieldError) else _message(err)))
+    return out
 
 
 def parse_case(data: dict, source: str = "<case>") -> Case:
@@ -1051,17 +1124,9 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
     try:
         case = Case.model_validate(data)
     except ValidationError as exc:
-        errors = exc.errors()
-        err = min(errors, key=_rank)  # stable: the first of the best rank
-        ctx_err = (err.get("ctx") or {}).get("error")
-        if isinstance(ctx_err, _FieldError):
-            raise CaseError(f"{source}: {ctx_err.loc}: {ctx_err.msg}") from None
-        loc = _format_loc(tuple(err["loc"]))
-        # other fields in error (the other members of a union at this field are not others)
-        others = {_format_loc(e["loc"]) for e in errors}
-        others = {o for o in others if not (loc == o or loc.startswith(o + ".") or loc.startswith(o + "["))}
-        more = f" (and {len(others)} more)" if others else ""
-        raise CaseError(f"{source}: {loc or '<root>'}: {_message(err)}{more}") from None
+        lines = [f"{source}: {loc}: {why}" for loc, why in _field_errors(exc.errors())]
+        more = f" (and {len(lines) - 1} more; 'ftcreport cases validate' lists every one)" if len(lines) > 1 else ""
+        raise CaseError(lines[0] + more, lines) from None
     if case.name is None:
         stem = Path(source).stem
         if (why := name_problem(stem)) is not None:
@@ -1138,7 +1203,8 @@ def load_case(path: str | Path) -> Case:
     try:
         return parse_case(merged, str(path))
     except CaseError as exc:
-        raise CaseError(_name_base_field(str(exc), str(path), data)) from None
+        lines = [_name_base_field(line, str(path), data) for line in exc.lines]
+        raise CaseError(_name_base_field(str(exc), str(path), data), lines) from None
 
 
 #: Fields an overlay never takes from its base: they describe the base's own results or identity.

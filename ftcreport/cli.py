@@ -128,7 +128,9 @@ def _classify(exc: BaseException) -> tuple[str, int]:
     import errno
 
     if isinstance(exc, KeyboardInterrupt):
-        return "interrupted; finished runs are stored, re-run the same command to resume", 130
+        from .errors import interrupted_message
+
+        return interrupted_message(exc), 130
     if isinstance(exc, FtcError):
         return str(exc), getattr(exc, "exit_code", 2)
     if isinstance(exc, UnicodeDecodeError):
@@ -179,6 +181,8 @@ def _crash_log(exc: BaseException) -> str:
     return "<no writable log directory>"
 
 
+# Help text is rich markup: a unit such as [s] or a table such as [campaign] is written \\[s] in it,
+# or it vanishes as an unknown style tag (tests/test_cli.py checks every command's help).
 app = typer.Typer(
     cls=_ErrorBoundary,
     name="ftcreport",
@@ -265,9 +269,9 @@ def patterns(
 @app.command()
 def demo(
     robots: Annotated[int, typer.Option(help="Number of robots (>= 2).")] = 3,
-    duration: Annotated[float, typer.Option(help="Simulated time [s].")] = 20.0,
-    dt: Annotated[float, typer.Option(help="RK4 step [s].")] = 0.01,
-    fault_time: Annotated[float, typer.Option(help="When wheel 2l loses its motor [s].")] = 10.0,
+    duration: Annotated[float, typer.Option(help="Simulated time \\[s].")] = 20.0,
+    dt: Annotated[float, typer.Option(help="RK4 step \\[s].")] = 0.01,
+    fault_time: Annotated[float, typer.Option(help="When wheel 2l loses its motor \\[s].")] = 10.0,
 ) -> None:
     """Run the nominal velocity loop on a thesis-parameter chain that loses motor 2l.
 
@@ -316,7 +320,7 @@ def batch(
     out: Annotated[Path, typer.Option(help="Output directory.")] = Path("reports"),
     jobs: Annotated[int | None, typer.Option(help="Parallel processes (default: the core count).")] = None,
     force: Annotated[bool, typer.Option("--force", help="Re-simulate cached runs.")] = False,
-    duration: Annotated[float | None, typer.Option(help="Override every case's simulated time [s].")] = None,
+    duration: Annotated[float | None, typer.Option(help="Override every case's simulated time \\[s].")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="One line per run after the summary.")] = False,
 ) -> None:
@@ -356,7 +360,7 @@ def run(
     case: Annotated[Path, typer.Argument(help="One case file (TOML).")],
     out: Annotated[Path, typer.Option(help="Output directory.")] = Path("reports"),
     scheme: Annotated[list[str] | None, typer.Option(help="Run only these schemes (repeatable).")] = None,
-    duration: Annotated[float | None, typer.Option(help="Override the simulated time [s].")] = None,
+    duration: Annotated[float | None, typer.Option(help="Override the simulated time \\[s].")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only errors.")] = False,
     verify_dt: Annotated[
         bool,
@@ -376,9 +380,9 @@ def run(
     stopped early (singular, diverged, error) or --verify-dt finds the step not
     converged, 2 for a bad case file.
 
-    Example: ftcreport run cases/two_link_switching.toml --scheme switching --verify-dt
+    Example: ftcreport run cases/two_link_switching.toml --scheme switching --duration 30
     """
-    from .cases import configured_schemes, load_case, with_duration
+    from .cases import configured_schemes, load_case, option_schemes, with_duration
     from .runner import build, dt_sensitivity, halve_dt, run_scheme
     from .store import save_run
 
@@ -387,11 +391,15 @@ def run(
         if duration is not None:
             c = with_duration(c, duration)
         schemes = configured_schemes(c)
-        if scheme:
-            unknown = [s for s in scheme if s not in schemes]
-            if unknown:
-                raise FtcError(f"{case}: schemes.{unknown[0]}: not configured in this case (has {', '.join(schemes)})")
-            schemes = [s for s in schemes if s in scheme]
+    except FtcError as exc:
+        _fail(exc if str(exc).startswith(str(case)) else FtcError(f"{case}: {exc}"))
+    if scheme:  # a mistyped --scheme is the option's fault, not the case file's
+        try:
+            option_schemes("--scheme", scheme, c)
+        except FtcError as exc:
+            _fail(exc)
+        schemes = [s for s in schemes if s in scheme]
+    try:
         built = build(c)
         half = halve_dt(c, str(case)) if verify_dt else None
     except FtcError as exc:
@@ -403,23 +411,29 @@ def run(
     from .store import output_lock
 
     rows = []
-    with output_lock(out, "run"):
-        record_case(out, c, case, duration)
-        for s in schemes:
-            with _running(f"{c.name} / {s}", quiet):
-                r, m = run_scheme(c, s, built)
-                if half is not None:
-                    m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
-            save_run(out, c.name, s, r, m, run_key(c, s))
-            rows.append(m)
-            del r  # stored: the next scheme and the report do not hold this run's arrays too
-        write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
-        page = None
-        if not no_report:  # matplotlib and jinja2 only for the report (--no-report: about 45 MB less)
-            from .report.render import render_case, render_index
+    try:
+        with output_lock(out, "run"):
+            record_case(out, c, case, duration)
+            for s in schemes:
+                with _running(f"{c.name} / {s}", quiet):
+                    r, m = run_scheme(c, s, built)
+                    if half is not None:
+                        m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
+                save_run(out, c.name, s, r, m, run_key(c, s))
+                rows.append(m)
+                del r  # stored: the next scheme and the report do not hold this run's arrays too
+            write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
+            page = None
+            if not no_report:  # matplotlib and jinja2 only for the report (--no-report: about 45 MB less)
+                from .report.render import render_case, render_index
 
-            page = render_case(out, c.name)
-            render_index(out)
+                page = render_case(out, c.name)
+                render_index(out)
+    except KeyboardInterrupt as exc:  # the interrupt message says how many schemes' runs are stored
+        from .errors import note_stored
+
+        note_stored(exc, len(rows))
+        raise
     if not quiet:
         typer.echo(_table(rows))
         if half is not None:
@@ -591,7 +605,7 @@ def analyze(
 ) -> None:
     """Linearized analyses (python-control): closed-loop poles, controllability per fault pattern.
 
-    Closed-loop poles (key closed_loop_poles, [re, im] pairs per scheme) for two-link cases
+    Closed-loop poles (key closed_loop_poles, \\[re, im] pairs per scheme) for two-link cases
     on constant-velocity references; controllability rank and Gramian per 0/1 pattern for all.
 
     Example: ftcreport analyze cases/two_link_adaptive_circle.toml --json
@@ -625,7 +639,7 @@ def analyze(
 
 @app.command()
 def campaign(
-    case: Annotated[Path, typer.Argument(help="Base case file with a [campaign] table.")],
+    case: Annotated[Path, typer.Argument(help="Base case file with a \\[campaign] table.")],
     samples: Annotated[int, typer.Option("--samples", "-n", help="Number of samples (variants).")] = 100,
     seed: Annotated[int, typer.Option(help="Campaign seed; sample i uses a seed derived from (seed, i).")] = 0,
     scheduler: SchedulerOpt = None,
@@ -645,7 +659,7 @@ def campaign(
 
     Example: ftcreport campaign cases/two_link_campaign.toml --samples 200 --workers 2
     """
-    from .campaign import read_table, run_campaign
+    from .campaign import read_table, run_campaign, select_schemes
     from .cases import load_case
     from .report.campaign import render_campaign
     from .store import output_lock
@@ -654,6 +668,7 @@ def campaign(
         base = load_case(case)
         out_dir = out or Path("reports") / "campaigns" / base.name
         chosen = _names(schemes)
+        select_schemes(base, chosen)  # a wrong --schemes before the output directory is made
         with output_lock(out_dir, "campaign"):
             dask = _dask(scheduler, workers, in_process, quiet, force)
             res = run_campaign(base, samples, out_dir, seed=seed, schemes=chosen, **dask)
@@ -691,16 +706,22 @@ def export(
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")
 
 
+_MAX_ERRORS = 50  # errors shown per case file by 'cases validate'
+
+
 @cases_app.command("validate")
 def cases_validate(
     paths: Annotated[list[Path], typer.Argument(help="Case files or directories.")],
 ) -> None:
-    """Validate case files: one line per file; exit 0 if all are valid, 2 otherwise.
+    """Validate case files: 'ok' per valid file, every error of the others; exit 0 if all are valid, 2 otherwise.
+
+    Each error is one line 'file: field: reason' (at most 50 per file, then the count of the rest).
 
     Example: ftcreport cases validate cases/
     """
     from .batch import discover
     from .cases import load_case
+    from .errors import CaseError
 
     files = discover(paths)
     if not files:
@@ -711,7 +732,11 @@ def cases_validate(
             c = load_case(f)
         except FtcError as exc:
             bad += 1
-            typer.echo(f"ftcreport: error: {exc}", err=True)
+            lines = exc.lines if isinstance(exc, CaseError) else (str(exc),)
+            for line in lines[:_MAX_ERRORS]:
+                typer.echo(f"ftcreport: error: {line}", err=True)
+            if len(lines) > _MAX_ERRORS:
+                typer.echo(f"ftcreport: error: {f}: and {len(lines) - _MAX_ERRORS} more error(s)", err=True)
             continue
         typer.echo(f"ok     {f}")
         for w in c.warnings():
@@ -772,11 +797,11 @@ def _floats(text: str | None, option: str) -> list[float] | None:
 def coverage(
     case: Annotated[Path, typer.Argument(help="Case file (its faults are replaced by the fault set).")],
     times: Annotated[
-        str | None, typer.Option(help="Comma-separated onset times [s] (default: 3 along the curvature).")
+        str | None, typer.Option(help="Comma-separated onset times \\[s] (default: 3 along the curvature).")
     ] = None,
     schemes: Annotated[str | None, typer.Option(help="Comma-separated schemes (default: all in the case).")] = None,
     sigmas: Annotated[str, typer.Option(help="Partial-loss gains, comma-separated, in (0, 1).")] = "0.25,0.5",
-    friction: Annotated[float, typer.Option(help="Friction of the friction faults [N m].")] = 0.5,
+    friction: Annotated[float, typer.Option(help="Friction of the friction faults \\[N m].")] = 0.5,
     kinds: Annotated[str, typer.Option(help="Fault kinds: loss,pair,partial,friction.")] = "loss,pair,partial,friction",
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
@@ -823,7 +848,7 @@ def coverage(
 
 @app.command()
 def fdi(
-    case: Annotated[Path, typer.Argument(help="Base case with a [campaign] table and an active scheme.")],
+    case: Annotated[Path, typer.Argument(help="Base case with a \\[campaign] table and an active scheme.")],
     samples: Annotated[int, typer.Option("--samples", "-n", help="Campaign samples per active scheme.")] = 50,
     seed: Annotated[int, typer.Option(help="Campaign seed (the same samples as campaign --seed).")] = 0,
     schemes: Annotated[str | None, typer.Option(help="Active schemes, comma-separated (default: all).")] = None,
@@ -836,7 +861,7 @@ def fdi(
 ) -> None:
     """FDI evaluation: ROC, delay and isolation of the estimate-based and a CUSUM residual detector.
 
-    Example: ftcreport fdi my_active_campaign.toml -n 100
+    Example: ftcreport fdi cases/two_link_campaign.toml -n 20
     """
     from .cases import load_case
     from .fdi import run_fdi

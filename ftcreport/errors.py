@@ -20,8 +20,10 @@ __all__ = [
     "articulation_reason",
     "bound_reason",
     "chained_reason",
+    "interrupted_message",
     "kappa_reason",
     "nonfinite_reason",
+    "note_stored",
     "reference_articulation_reason",
     "reference_speed_reason",
     "step_growth_reason",
@@ -42,7 +44,13 @@ class CaseError(FtcError):
 
     The message names the file, the field path and the reason, e.g.
     ``cases/x.toml: faults[2].wheel: '4r' is not a wheel of a 3-robot chain``.
+    A file with several errors has them all in ``lines`` (one ``file: field: reason`` each,
+    the message's first); the message is the first with the count of the others.
     """
+
+    def __init__(self, message: str, lines: tuple[str, ...] | list[str] | None = None) -> None:
+        super().__init__(message)
+        self.lines: tuple[str, ...] = tuple(lines) if lines else (message,)
 
 
 class ModelError(FtcError, ValueError):
@@ -71,6 +79,31 @@ class NotBuiltError(FtcError):
 
 class ReferenceError(FtcError, ValueError):
     """An infeasible reference (speed near 0, articulation angle near 90 deg)."""
+
+
+# --------------------------------------------------------------------------- interrupts
+def note_stored(exc: BaseException, count: int, noun: str = "run") -> None:
+    """Tell the CLI's interrupt message how many finished ``noun``s the command stored before ``exc``.
+
+    The innermost note wins (the code that stored them knows best); see :func:`interrupted_message`.
+    """
+    if getattr(exc, "ftc_stored", None) is None:
+        exc.ftc_stored = (int(count), noun)  # type: ignore[attr-defined]
+
+
+def interrupted_message(exc: BaseException) -> str:
+    """The one line of an interrupted command: how many finished runs it stored (:func:`note_stored`).
+
+    A command that stores nothing (or was interrupted before it could) says only that it was interrupted.
+    """
+    stored = getattr(exc, "ftc_stored", None)
+    if stored is None:
+        return "interrupted"
+    count, noun = stored
+    if count == 0:
+        return f"interrupted before any {noun} finished; nothing was stored"
+    them = f"1 finished {noun} is" if count == 1 else f"{count} finished {noun}s are"
+    return f"interrupted; {them} stored, re-run the same command to resume"
 
 
 # --------------------------------------------------------------------------- reasons

@@ -331,6 +331,10 @@ def run_fdi(
     if base.campaign is None:
         raise FtcError(f"{base.name}: no [campaign] table: the FDI evaluation draws campaign samples")
     configured = [s for s in ACTIVE if getattr(base.schemes, s) is not None]
+    if schemes is not None and configured:  # a name that is no active scheme of the case: the option's fault
+        from .cases import option_schemes
+
+        option_schemes("--schemes", list(schemes), base, among=configured)
     schemes = configured if schemes is None else list(schemes)
     if not schemes or any(s not in configured for s in schemes):
         raise FtcError(f"{base.name}: the FDI evaluation needs active schemes (configured: {configured or 'none'})")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import tomllib
 from pathlib import Path
@@ -219,20 +220,25 @@ def test_fuzzed_bad_cases_give_one_clear_error(tmp_path, where, value, extra):
         return
     assert res.exit_code == 2
     lines = [ln for ln in res.output.splitlines() if ln.startswith("ftcreport: error:")]
-    assert len(lines) == 1, res.output
-    assert "fz.toml: " in lines[0] and "Traceback" not in res.output
+    # one line per field in error (a table given for a value can hold several), each 'file: field: reason'
+    assert lines and len(set(lines)) == len(lines), res.output
+    assert all(re.match(rf"ftcreport: error: {re.escape(str(path))}: \S+: \S", ln) for ln in lines), res.output
+    assert "Traceback" not in res.output
+    assert not extra or f"ftcreport: error: {path}: robots.colour: unknown field" in lines
 
 
 @pytest.mark.parametrize(
     "text",
     ["", "not toml at all [", "[robots]\nn = 2\n", '[[faults]]\ntime = "soon"\n', "robots = 3\n"],
 )
-def test_garbage_files_give_one_line_and_exit_2(tmp_path, text):
+def test_garbage_files_give_one_line_per_error_and_exit_2(tmp_path, text):
     path = tmp_path / "g.toml"
     path.write_text(text)
     res = runner.invoke(app, ["cases", "validate", str(path)])
     assert res.exit_code == 2
-    assert res.output.count("error:") == 1 and "Traceback" not in res.output
+    lines = res.output.splitlines()
+    assert lines and all(ln.startswith(f"ftcreport: error: {path}: ") for ln in lines), res.output
+    assert len(set(lines)) == len(lines) and "Traceback" not in res.output
 
 
 def test_expected_status_keeps_a_designed_loss_from_failing_the_batch(tmp_path):
@@ -329,3 +335,98 @@ def test_peak_rss_is_this_process_high_water_mark_in_mb():
     peak = peak_rss_mb()
     # ru_maxrss (KiB on Linux) also counts what the process had before its exec, so it is at least VmHWM
     assert 20.0 < peak <= resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + 1.0
+
+
+# ------------------------------------------------------------------ the progress display (audit item 1)
+def _terminal(height: int = 24):
+    import io
+
+    from rich.console import Console
+
+    return Console(file=io.StringIO(), force_terminal=True, width=100, height=height, color_system=None)
+
+
+def _screen(display, height: int = 24) -> list[str]:
+    """One frame of the display as the terminal shows it."""
+    con = _terminal(height)
+    con.print(display)
+    return con.file.getvalue().rstrip("\n").splitlines()
+
+
+def _runs(display, n: int) -> None:
+    for i in range(n):
+        display.durations[(f"case{i // 4}", f"s{i % 4}")] = 20.0  # every run 20 s of simulated time
+
+
+def test_the_display_is_one_overall_bar_and_the_active_runs():
+    from ftcreport.display import BatchDisplay
+
+    d = BatchDisplay.make(98, True, _terminal())
+    _runs(d, 98)
+    d.advanced("case0", "s0", 0.0)  # started (compiling)
+    d.advanced("case0", "s1", 5.0)
+    d.advanced("case0", "s0", 10.0)
+    d.finished("case0", "s0")
+    d.advanced("case0", "s0", 20.0)  # a report that arrives after the run's result: ignored
+    d.advanced("case0", "s2", 1.0)
+    lines = _screen(d)
+    assert len(lines) == 3, lines  # the overall bar and the two active runs; no line for the 96 others
+    assert lines[0].startswith("batch ") and " 1/98 runs " in lines[0] and " ETA " in lines[0], lines[0]
+    assert lines[1].startswith("  case0 / s1 ") and lines[1].endswith(" 25 % of 20 s"), lines[1]
+    assert lines[2].startswith("  case0 / s2 ") and lines[2].endswith("  5 % of 20 s"), lines[2]
+    # the bar counts the finished run and the active ones' fractions: 1 + 5/20 + 1/20
+    assert d.overall.tasks[0].completed == pytest.approx(1.30, abs=1e-12)
+
+
+def test_the_display_fits_a_24_row_terminal():
+    from ftcreport.display import BatchDisplay
+
+    d = BatchDisplay.make(98, True, _terminal())
+    _runs(d, 98)
+    for i in range(40):  # 40 workers busy at once
+        d.advanced(f"case{i // 4}", f"s{i % 4}", 2.0)
+    lines = _screen(d)
+    assert len(lines) == 21, lines  # overall, 19 runs, the count of the others: 24 rows less 3
+    assert lines[-1] == "  ... and 21 more running"
+    assert " 0/98 runs " in lines[0]
+
+
+def test_no_display_off_a_terminal_or_when_quiet():
+    import io
+
+    from rich.console import Console
+
+    from ftcreport.display import BatchDisplay
+
+    assert BatchDisplay.make(4, True, Console(file=io.StringIO())).live is None  # piped stderr, a CI log
+    assert BatchDisplay.make(4, False, _terminal()).live is None  # --quiet
+    d = BatchDisplay.make(4, True, None)  # pytest's stderr is no terminal
+    assert d.live is None
+    with d:
+        d.advanced("c", "s", 0.0)
+        d.finished("c", "s")
+
+
+def test_a_piped_batch_prints_no_bars(tmp_path):
+    out = tmp_path / "o"
+    case = CASES / "two_link_switching.toml"
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "--duration", "0.2", "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert "━" not in res.output and "two_link_switching / " not in res.output, res.output
+    lines = res.output.splitlines()  # stderr's one notice, then the summary: nothing of the display
+    assert len(lines) == 2 and lines[0].startswith("rendering 1 case page(s)"), res.output
+    assert lines[1].startswith("1 case(s): 4 run(s) simulated, 0 cached, 0 failed"), res.output
+
+
+def test_batch_workers_leave_ctrl_c_to_the_batch_process():
+    """Ctrl-C reaches the whole process group: a worker still importing printed a KeyboardInterrupt
+    traceback.  The workers ignore SIGINT (the batch process terminates them); its own handler stays."""
+    import multiprocessing as mp
+    import signal
+
+    from ftcreport.batch import _Pool
+
+    before = signal.getsignal(signal.SIGINT)
+    with _Pool(max_workers=1, mp_context=mp.get_context("spawn")) as pool:
+        assert pool.submit(signal.getsignal, signal.SIGINT).result(timeout=120) == signal.SIG_IGN
+    assert signal.getsignal(signal.SIGINT) is before

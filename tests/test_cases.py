@@ -118,3 +118,97 @@ def test_expected_status_per_scheme():
     case = parse_case(data, "x.toml")
     assert case.expected_for("adaptive") == {"ok", "step_unstable"}
     assert case.expected_for("switching") == {"ok"}  # the case-wide expected_status elsewhere
+
+
+# ------------------------------------------------------------------ every error of a file (audit item 2)
+def test_every_field_in_error_is_listed_once():
+    data = _base()
+    data["robots"]["colour"] = "red"
+    data["robots"]["a"] = [0.1, -300.0, 0.1]  # the list member of a scalar-or-list field: its index, once
+    data["simulation"]["dt"] = -1.0
+    data["reference"]["kind"] = "circel"
+    with pytest.raises(CaseError) as info:
+        parse_case(data, "cases/x.toml")
+    assert info.value.lines == (
+        "cases/x.toml: robots.colour: unknown field",  # a typo of a key first
+        "cases/x.toml: robots.a[1]: must be >= -100, got -300.0",
+        "cases/x.toml: simulation.dt: must be > 0, got -1.0",
+        "cases/x.toml: reference.kind: got 'circel'; expected one of 'unicycle', 'circle', 'eight', 'line', "
+        "'sinusoid' (did you mean 'circle'?)",
+    )
+    assert str(info.value) == info.value.lines[0] + " (and 3 more; 'ftcreport cases validate' lists every one)"
+
+
+def test_an_overlay_names_the_base_on_every_line(tmp_path):
+    base = _base()
+    base["simulation"]["dt"] = -1.0
+    base["reference"]["kind"] = "circel"
+    import tomli_w
+
+    (tmp_path / "base.toml").write_text(tomli_w.dumps(base))
+    (tmp_path / "over.toml").write_text('base_case = "base.toml"\n[robots]\ncolour = "red"\n')
+    with pytest.raises(CaseError) as info:
+        load_case(tmp_path / "over.toml")
+    src, why = str(tmp_path / "over.toml"), "(the value comes from the base case base.toml)"
+    assert info.value.lines[0] == f"{src}: robots.colour: unknown field"  # the overlay's own field
+    assert info.value.lines[1] == f"{src}: simulation.dt: must be > 0, got -1.0 {why}"
+    assert info.value.lines[2].startswith(f"{src}: reference.kind: got 'circel'") and why in info.value.lines[2]
+
+
+# ------------------------------------------------------------------ Literal fields in plain words (audit item 3)
+def _literal_fields() -> list[tuple[str, str, tuple]]:
+    """(model, field, allowed values) of every Literal in the case schema's models (unions and lists included)."""
+    from typing import Literal, get_args, get_origin
+
+    from pydantic import BaseModel
+
+    from ftcreport import cases
+
+    def literals(annotation) -> list[tuple]:
+        if get_origin(annotation) is Literal:
+            return [get_args(annotation)]
+        return [lit for arg in get_args(annotation) for lit in literals(arg)]
+
+    models = [m for m in vars(cases).values() if isinstance(m, type) and issubclass(m, BaseModel)]
+    found = []
+    for model in models:
+        for name, field in model.model_fields.items():
+            found += [(model.__name__, name, values) for values in literals(field.annotation)]
+    return found
+
+
+LITERALS = _literal_fields()
+
+
+def test_the_schema_has_literal_fields():
+    fields = {f"{m}.{f}" for m, f, _ in LITERALS}
+    # the ones the audit met; the parametrized test below covers whatever else the schema has
+    assert {"Reference.kind", "Simulation.method", "Kinematic.kind"} <= fields, fields
+
+
+@pytest.mark.parametrize(("model", "field", "allowed"), LITERALS, ids=[f"{m}.{f}" for m, f, _ in LITERALS])
+def test_every_literal_field_says_what_it_expects(model, field, allowed):
+    """The reason of a wrong value of each Literal of the schema (pydantic's error for that Literal)."""
+    from typing import Literal
+
+    from pydantic import TypeAdapter, ValidationError
+
+    from ftcreport.cases import _message
+
+    typo = f"{allowed[0]}x"  # one letter more than the first allowed value: difflib's closest
+    with pytest.raises(ValidationError) as info:
+        TypeAdapter(Literal[allowed]).validate_python(typo)
+    (err,) = info.value.errors()
+    msg = _message(err)
+    listed = ", ".join(repr(a) for a in allowed)
+    assert msg == f"got '{typo}'; expected one of {listed} (did you mean '{allowed[0]}'?)", msg
+
+
+def test_a_literal_typo_in_a_file():
+    data = _base()
+    data["simulation"]["method"] = "rk5"
+    with pytest.raises(CaseError) as info:
+        parse_case(data, "cases/x.toml")
+    assert str(info.value) == (
+        "cases/x.toml: simulation.method: got 'rk5'; expected one of 'rk4', 'ros2' (did you mean 'rk4'?)"
+    )

@@ -119,3 +119,186 @@ def test_analyze_json_gives_closed_loop_poles():
     kin = sorted(complex(r["re"], r["im"]).real for r in data["kinematic_poles"])
     assert kin[0] == pytest.approx(-1.93, abs=0.01)
     assert sum(r["rank"] == 2 for r in data["controllability"]) == 10
+
+
+def test_cases_validate_lists_every_error_of_a_file(tmp_path):
+    """Audit item 2: each field in error on its own line, not the first with '(and 3 more)'."""
+    text = (Path(__file__).resolve().parents[1] / "cases" / "two_link_switching.toml").read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        text.replace("[robots]\n", '[robots]\ncolour = "red"\n', 1)
+        .replace('kind = "unicycle"', 'kind = "unicycel"', 1)
+        .replace("\ndt = 0.005", "\ndt = -0.005", 1)
+    )
+    assert bad.read_text().count("unicycel") == 1 and "\ndt = -0.005" in bad.read_text()
+    res = runner.invoke(app, ["cases", "validate", str(bad)])
+    assert res.exit_code == 2
+    assert res.output.splitlines() == [
+        f"ftcreport: error: {bad}: robots.colour: unknown field",
+        f"ftcreport: error: {bad}: simulation.dt: must be > 0, got -0.005",
+        f"ftcreport: error: {bad}: reference.kind: got 'unicycel'; expected one of 'unicycle', 'circle', 'eight', "
+        "'line', 'sinusoid' (did you mean 'unicycle'?)",
+    ], res.output
+
+
+def test_cases_validate_caps_the_errors_of_a_file(tmp_path):
+    """60 unknown keys: the first 50 lines, then the count of the rest."""
+    text = (Path(__file__).resolve().parents[1] / "cases" / "two_link_switching.toml").read_text()
+    extra = "".join(f"junk{i:02d} = 1\n" for i in range(60))
+    bad = tmp_path / "many.toml"
+    bad.write_text(text.replace("[robots]\n", "[robots]\n" + extra, 1))
+    res = runner.invoke(app, ["cases", "validate", str(bad)])
+    lines = res.output.splitlines()
+    assert res.exit_code == 2 and len(lines) == 51, res.output
+    assert lines[0] == f"ftcreport: error: {bad}: robots.junk00: unknown field"
+    assert lines[49] == f"ftcreport: error: {bad}: robots.junk49: unknown field"
+    assert lines[50] == f"ftcreport: error: {bad}: and 10 more error(s)"
+
+
+KNOWN = "nominal, switching, adaptive, adaptive_frozen, active, active_ukf, oracle"  # ftcreport.schemes.BUILT_IN
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (
+            ["run", "cases/two_link_switching.toml", "--scheme", "swiching"],
+            f"--scheme: got 'swiching'; known schemes: {KNOWN}; did you mean 'switching'?",
+        ),
+        (
+            ["run", "cases/two_link_switching.toml", "--scheme", "xyzzy"],
+            f"--scheme: got 'xyzzy'; known schemes: {KNOWN}",
+        ),
+        (
+            ["campaign", "cases/two_link_campaign.toml", "--schemes", "nominal,swiching", "--in-process"],
+            f"--schemes: got 'swiching'; known schemes: {KNOWN}; did you mean 'switching'?",
+        ),
+        (
+            ["coverage", "cases/two_link_campaign.toml", "--schemes", "oracel", "--in-process"],
+            f"--schemes: got 'oracel'; known schemes: {KNOWN}; did you mean 'oracle'?",
+        ),
+        (
+            ["fdi", "cases/two_link_campaign.toml", "--schemes", "activ", "--in-process"],
+            f"--schemes: got 'activ'; known schemes: {KNOWN}; did you mean 'active'?",
+        ),
+    ],
+)
+def test_a_mistyped_scheme_option_is_blamed_on_the_option(args, expected, tmp_path):
+    """Audit item 4: not 'cases/x.toml: schemes.swiching: not configured in this case'."""
+    res = runner.invoke(app, [*args, "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2
+    assert res.output == f"ftcreport: error: {expected}\n"
+    assert not (tmp_path / "o").exists()  # refused before anything is written
+
+
+def test_a_scheme_the_case_does_not_run_says_why(tmp_path):
+    res = runner.invoke(app, ["run", "cases/two_link_switching.toml", "--scheme", "active", "--out", str(tmp_path)])
+    assert res.exit_code == 2
+    line = res.output.strip()
+    assert line.startswith(
+        "ftcreport: error: --scheme: 'active' is not run on case 'two_link_switching' "
+        "(this command runs nominal, switching, adaptive, oracle): the active law closes its k_v = 3000 1/s"
+    ), line
+    assert "\n" not in line
+
+
+# ------------------------------------------------------------------ interrupts (audit item 5)
+def _interrupt(*args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def test_an_interrupt_before_any_run_finished_says_nothing_was_stored(tmp_path, monkeypatch):
+    import ftcreport.runner
+
+    monkeypatch.setattr(ftcreport.runner, "run_scheme", _interrupt)  # Ctrl-C during the first scheme
+    res = runner.invoke(app, ["run", "cases/two_link_switching.toml", "--out", str(tmp_path), "--no-report", "-q"])
+    assert res.exit_code == 130
+    assert res.output == "ftcreport: error: interrupted before any run finished; nothing was stored\n"
+
+
+@pytest.mark.parametrize(
+    ("stored", "said"),
+    [
+        (0, "interrupted before any run finished; nothing was stored"),
+        (1, "interrupted; 1 finished run is stored, re-run the same command to resume"),
+        (3, "interrupted; 3 finished runs are stored, re-run the same command to resume"),
+    ],
+)
+def test_an_interrupted_batch_says_how_many_runs_it_stored(tmp_path, monkeypatch, stored, said):
+    import ftcreport.batch
+
+    def execute(todo, out, jobs, show_progress, res, expected, finish):
+        assert len(todo) == 4  # the case's four schemes, none cached
+        res.stored = stored  # as _collect counts the runs whose worker stored them
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ftcreport.batch, "_execute", execute)
+    case = "cases/two_link_switching.toml"
+    res = runner.invoke(app, ["batch", case, "--out", str(tmp_path), "--duration", "0.2", "-q"])
+    assert res.exit_code == 130
+    assert res.output == f"ftcreport: error: {said}\n"
+
+
+def test_a_command_that_stores_nothing_says_only_interrupted(tmp_path, monkeypatch):
+    import ftcreport.report.render
+
+    (tmp_path / "o").mkdir()
+    monkeypatch.setattr(ftcreport.report.render, "render_all", _interrupt)
+    res = runner.invoke(app, ["report", "--out", str(tmp_path / "o")])
+    assert res.exit_code == 130 and res.output == "ftcreport: error: interrupted\n"
+
+
+def test_an_interrupted_campaign_counts_its_samples(tmp_path, monkeypatch):
+    import ftcreport.cluster
+
+    monkeypatch.setattr(ftcreport.cluster, "execute", _interrupt)
+    args = ["campaign", "cases/two_link_campaign.toml", "-n", "2", "--in-process", "--out", str(tmp_path / "c"), "-q"]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 130
+    assert res.output == "ftcreport: error: interrupted before any sample finished; nothing was stored\n"
+
+
+# ------------------------------------------------------------------ help text (audit item 6)
+def _commands():
+    """(command path, click command) of every command of the CLI, groups included."""
+    import typer.main
+
+    def walk(cmd, path):
+        yield path, cmd
+        for name, sub in getattr(cmd, "commands", {}).items():
+            yield from walk(sub, [*path, name])
+
+    return list(walk(typer.main.get_command(app), []))
+
+
+COMMANDS = [(p, c) for p, c in _commands() if not hasattr(c, "commands")]
+
+
+@pytest.mark.parametrize(("path", "cmd"), COMMANDS, ids=[" ".join(p) for p, _ in COMMANDS])
+def test_every_command_has_an_example_that_parses(path, cmd):
+    """The README says `ftcreport COMMAND --help` gives an example: it names files that exist, options that do."""
+    import shlex
+
+    root = Path(__file__).resolve().parents[1]
+    res = runner.invoke(app, [*path, "--help"])
+    assert res.exit_code == 0
+    examples = [ln.strip().removeprefix("Example: ") for ln in res.output.splitlines() if "Example: " in ln]
+    assert len(examples) == 1, res.output
+    argv = shlex.split(examples[0].split(" > ")[0])  # without a shell redirection
+    assert argv[: 1 + len(path)] == ["ftcreport", *path], argv
+    args = argv[1 + len(path) :]
+    cmd.make_context(" ".join(argv[: 1 + len(path)]), list(args))  # options and arguments parse
+    for a in args:
+        if a.endswith((".toml", "/")) and not a.startswith("reports"):  # inputs (reports/ is output)
+            assert (root / a).exists(), (examples[0], a)
+
+
+def test_help_keeps_units_and_table_names():
+    """Typer renders help as rich markup, where '[s]' is a style tag: every bracket of a help text is shown."""
+    import re
+
+    for path, cmd in _commands():
+        shown = " ".join(runner.invoke(app, [*path, "--help"]).output.replace("│", " ").split())
+        for text in [cmd.help or "", *(getattr(p, "help", None) or "" for p in cmd.params)]:
+            for bracket in re.findall(r"\\?(\[[^\]]*\])", text):
+                assert " ".join(bracket.split()) in shown, (path, bracket)

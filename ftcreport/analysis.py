@@ -499,6 +499,18 @@ def farza_linearized_poles(obs, q: np.ndarray, qdot: np.ndarray, u: np.ndarray, 
     return np.sort_complex(np.linalg.eigvals(central_jacobian(f, s0[:n], h)))
 
 
+def healthy_torque(p, q: np.ndarray, eta: np.ndarray, etadot_des: np.ndarray) -> np.ndarray:
+    """Minimum-norm torques realising etadot_des with healthy wheels, (2n,): the operating point's input.
+
+    ``u = Bbar^T (Bbar Bbar^T)^-1 (Mbar1 etadot_des + Mbar2 eta + Cbar)``, the healthy instance of (3.35)
+    (Bbar^+ equals (Mbar1^-1 Bbar)^+ Mbar1: both matrices have the same row space).
+    """
+    Mbar1, Mbar2, Cbar, Bbar = K.reduced(p, q, eta)
+    w = Mbar1 @ etadot_des + Mbar2 @ eta + Cbar
+    # u = Bbar^T (Bbar Bbar^T)^-1 w
+    return Bbar.T @ np.linalg.solve(Bbar @ Bbar.T, w)
+
+
 def observer_analysis(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray, thetas=(0.5, 0.9, 1.6, 3.0, 6.0)):
     """Observability ranks and Farza error poles against Theta at one operating point, as data."""
     from .observers import FarzaObserver
@@ -596,8 +608,6 @@ def analyze_case(case) -> dict:
     }
     if case.schemes.active is not None or case.schemes.active_ukf is not None:
         # operating point: the reference at t = 0 with the healthy torque that realizes it
-        from .control.velocity import healthy_torque
-
         r0 = ref.at(0.0)
         u0 = healthy_torque(chain.params, r0.q_d, r0.eta_d, r0.eta_d_dot)
         thetas = sorted({0.5, 1.0, 2.0, 4.0, *([case.schemes.active.Theta] if case.schemes.active else [])})

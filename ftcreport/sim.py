@@ -309,8 +309,8 @@ def _fault_records(plant: Plant) -> list[dict]:
 
 
 def demo_chain(n: int):
-    """(chain, kinematic controller, q0) of the thesis robot on a 5 m circle at 0.5 m/s: the two-link
-    law for n = 2, the chained law for n >= 3 (warm-up and benchmarks)."""
+    """(chain, kinematic controller, q0) of the thesis robot (1 m links) on a 5 m circle at 0.5 m/s: the
+    two-link law for n = 2, the chained law for n >= 3 (``ftcreport demo``, warm-up and benchmarks)."""
     from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
     from .model import Chain
     from .references import FlatReference, circle

@@ -36,7 +36,6 @@ __all__ = [
     "LawTerms",
     "TrackingController",
     "dynamic_law",
-    "kinematic_signals",
     "law_for_pattern",
     "law_terms",
 ]
@@ -122,13 +121,6 @@ def dynamic_law(
     return law_for_pattern(terms, sigma_k)
 
 
-def kinematic_signals(kin: TwoLinkKinematic | ChainedBackstepping, t: float, q: np.ndarray, xc_kin: np.ndarray) -> dict:
-    """The logged signals every tracking scheme shares: eta_c, z, q_d, eta_d."""
-    out = kin.law(t, q, xc_kin)
-    r = kin.reference.at(t)
-    return {"eta_c": out.eta_c, "z": out.z, "q_d": r.q_d, "eta_d": r.eta_d}
-
-
 class TrackingController:
     """Kinematic controller + dynamic law for one assumed pattern (nominal: healthy).
 
@@ -173,7 +165,7 @@ class TrackingController:
         minus = self.kin.law(t - h, q - h * qdot, xc).eta_c
         return kin, (plus - minus) / (2.0 * h)
 
-    # --------------------------------------------------------------- Controller protocol
+    # --------------------------------------------------------------- the engine's start; the analyses' law
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
         return self.kin.initial_state(t, q)
 
@@ -182,10 +174,3 @@ class TrackingController:
         Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)
         u = dynamic_law(Mbar1, Mbar2, Cbar, Bbar, self.sigma, eta, eta - kin.eta_c, kin, eta_c_dot, self.k_v)
         return u, np.zeros(self.n_states)
-
-    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        return self.kin.discrete(t, q, xc)
-
-    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        _, eta_c_dot = self.eta_c_and_dot(t, q, eta, xc)
-        return kinematic_signals(self.kin, t, q, xc) | {"eta_c_dot": eta_c_dot}

@@ -185,14 +185,6 @@ class UKFEstimator:
         rho, ubar = self._split_params(x)
         return Estimate(x[: self.N], x[self.N : self.N + 2], rho.copy(), ubar.copy())
 
-    def parameter_std(self, s: np.ndarray) -> np.ndarray:
-        """Posterior standard deviations of the estimated parameters (order of parameter_names)."""
-        P = self.unpack(s)[1]
-        return np.sqrt(np.maximum(np.diag(P)[self.N + 2 :], 0.0))
-
-    def covariance_bound(self, s: np.ndarray) -> float:
-        return float(np.linalg.eigvalsh(self.unpack(s)[1]).max())
-
 
 _BatchUKF = None
 

@@ -31,7 +31,7 @@ Thesis sections 3.2.2.2-3.2.2.3 and 3.3.1 (3.33-3.48, 3.107), ERRATA E8, E12f, E
   first, then by number of assumed failures.  A tie is a cost within
   ``TIE_RTOL`` (relative) of the smallest: round-off (about 1e-13 here) must not
   decide between models that are equivalent, or the run depends on the order of
-  floating-point operations (the two engines, another BLAS) from the first such
+  floating-point operations (another BLAS, another compiler) from the first such
   tie on.
 
 * The least cost is found without visiting every model (fast.kernels._walk: a depth-first walk over

@@ -101,7 +101,7 @@ class UKFEstimator:
         p0 += [rho_std0**2] * (nw if self.est_rho else 0) + [ubar_std0**2] * (nw if self.est_ubar else 0)
         self.P0 = np.diag(p0)
         # filterpy (and the scipy.stats it pulls, ~65 MB) only where a UKF is built: the compiled
-        # engine runs its own step (fast/ukf.py); this object is the reference and the Python loop's
+        # engine runs its own step (fast/ukf.py); this object is the reference of tests/test_ukf_compiled.py
         from filterpy.kalman import MerweScaledSigmaPoints
 
         points = MerweScaledSigmaPoints(

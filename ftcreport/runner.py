@@ -38,6 +38,7 @@ __all__ = [
     "run_scheme",
 ]
 
+
 def expected_engine(scheme: str) -> str:
     """The engine that runs a scheme: the compiled one, the only engine since issue 17.
 

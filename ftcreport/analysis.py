@@ -502,13 +502,16 @@ def farza_linearized_poles(obs, q: np.ndarray, qdot: np.ndarray, u: np.ndarray, 
 def healthy_torque(p, q: np.ndarray, eta: np.ndarray, etadot_des: np.ndarray) -> np.ndarray:
     """Minimum-norm torques realising etadot_des with healthy wheels, (2n,): the operating point's input.
 
-    ``u = Bbar^T (Bbar Bbar^T)^-1 (Mbar1 etadot_des + Mbar2 eta + Cbar)``, the healthy instance of (3.35)
-    (Bbar^+ equals (Mbar1^-1 Bbar)^+ Mbar1: both matrices have the same row space).
+    The healthy instance of (3.35): ``u = (Mbar1^-1 Bbar)^+ [etadot_des + Mbar1^-1 (Mbar2 eta + Cbar)]``
+    (= Bbar^+ (Mbar1 etadot_des + Mbar2 eta + Cbar): both matrices have the same row space), the
+    pseudo-inverse the compiled law's (``control.tracking.law_for_pattern``).
     """
+    from .control.tracking import LawTerms, law_for_pattern
+
     Mbar1, Mbar2, Cbar, Bbar = K.reduced(p, q, eta)
-    w = Mbar1 @ etadot_des + Mbar2 @ eta + Cbar
-    # u = Bbar^T (Bbar Bbar^T)^-1 w
-    return Bbar.T @ np.linalg.solve(Bbar @ Bbar.T, w)
+    MB = np.linalg.solve(Mbar1, Bbar)
+    w = np.asarray(etadot_des, dtype=float) + np.linalg.solve(Mbar1, Mbar2 @ eta + Cbar)
+    return law_for_pattern(LawTerms(w, MB, np.zeros(2)), np.ones(Bbar.shape[1]))
 
 
 def observer_analysis(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray, thetas=(0.5, 0.9, 1.6, 3.0, 6.0)):

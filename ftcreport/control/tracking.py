@@ -13,12 +13,13 @@ healthy pattern (the ``nominal`` baseline); the FTC schemes reuse
 
 The law lives once, in the compiled kernels (``fast.kernels.law_terms`` and
 ``law_for_pattern``, which cite the equations and errata); the helpers here are
-their faces for the Python controllers.
+their faces, and :meth:`TrackingController.evaluate` is the compiled loop's law at
+one state for the analyses (``analysis.closed_loop_jacobian``).
 
 etadot_c is the derivative of eta_c(t, q, psi) along the closed loop (ERRATA P5):
-the directional derivative in the direction (qdot = S(q) eta, 1), computed as a
-central difference of step h (truncation O(h^2), about 1e-10 relative at
-h = 1e-5).
+the directional derivative in the direction (qdot = S(q) eta, 1), computed by the
+kernels' ``eta_c_and_dot`` as a central difference of step h (truncation O(h^2),
+about 1e-10 relative at h = 1e-5).
 """
 
 from __future__ import annotations
@@ -157,13 +158,8 @@ class TrackingController:
 
     # --------------------------------------------------------------- pieces
     def eta_c_and_dot(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
-        """(KinematicOutput at t, etadot_c along qdot = S(q) eta)."""
-        kin = self.kin.law(t, q, xc)
-        h = self.h
-        qdot = K.S_matrix(self.chain.params, q) @ eta
-        plus = self.kin.law(t + h, q + h * qdot, xc).eta_c
-        minus = self.kin.law(t - h, q - h * qdot, xc).eta_c
-        return kin, (plus - minus) / (2.0 * h)
+        """(KinematicOutput at t, etadot_c along qdot = S(q) eta): the compiled ``eta_c_and_dot``, the loop's."""
+        return self.kin.law_and_rate(t, q, eta, xc, K.S_matrix(self.chain.params, q), self.h)
 
     # --------------------------------------------------------------- the engine's start; the analyses' law
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:

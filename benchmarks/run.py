@@ -4,8 +4,7 @@
 
 Prints, for each scheme (nominal, switching, adaptive, active Farza, active UKF)
 and chain size n = 2, 3, 5: wall seconds per simulated second of the compiled
-engine (median of repeats) and of the Python reference engine (one shorter run,
-for the speed-up), evaluations per second of the model (compiled and Python),
+engine (median of repeats), evaluations per second of the model (compiled, and its Python face),
 peak Python-heap memory of the run (tracemalloc: the logs and objects), the
 first-run compile time of the kernels (a fresh process with an empty numba
 cache), the same two-link closed loop run through python-control's
@@ -163,8 +162,8 @@ def model_evals_per_second(n: int, count: int) -> dict:
     return {"python": py, "compiled": big / (time.perf_counter() - t0)}
 
 
-def scenario(case_file: str, scheme: str, seconds: float, repeats: int, py_seconds: float) -> dict:
-    """Median wall time of the compiled engine, one Python-engine run, peak Python heap (tracemalloc)."""
+def scenario(case_file: str, scheme: str, seconds: float, repeats: int) -> dict:
+    """Median wall time of the compiled engine and peak Python heap (tracemalloc)."""
     case = load(case_file, scheme, seconds)
     walls, engine = [], ""
     for _ in range(repeats):
@@ -174,14 +173,7 @@ def scenario(case_file: str, scheme: str, seconds: float, repeats: int, py_secon
         run = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings)
         walls.append(time.perf_counter() - t0)
         assert run.ok, run.reason
-        engine = run.meta.get("engine", "python")
-    pcase = load(case_file, scheme, py_seconds)
-    built = build(pcase)
-    ctrl = make_controller(built, scheme)
-    t0 = time.perf_counter()
-    prun = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings, engine="python")
-    py = (time.perf_counter() - t0) / py_seconds
-    assert prun.ok, prun.reason
+        engine = run.meta.get("engine", "")
     built = build(case)
     ctrl = make_controller(built, scheme)
     tracemalloc.start()
@@ -192,8 +184,6 @@ def scenario(case_file: str, scheme: str, seconds: float, repeats: int, py_secon
     return {
         "engine": engine,
         "wall_per_sim_s": wall,
-        "python_engine_wall_per_sim_s": py,
-        "speedup": py / wall,
         "peak_mb": peak / 2**20,
         "steps": run.steps,
     }
@@ -411,18 +401,14 @@ def io_response_comparison(seconds: float) -> dict:
     from ftcreport.sim import Plant, SimSettings
 
     simulate(Plant(chain), ctrl, q0, eta0, SimSettings(dt=0.01, duration=0.05))  # kernels loaded, not timed
-    walls = {}
-    for engine in ("compiled", "python"):
-        t0 = time.perf_counter()
-        run = simulate(Plant(chain), ctrl, q0, eta0, SimSettings(dt=0.01, duration=seconds), engine=engine)
-        walls[engine] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    run = simulate(Plant(chain), ctrl, q0, eta0, SimSettings(dt=0.01, duration=seconds))
+    wall = time.perf_counter() - t0
     diff = float(np.abs(res.states[:2, -1] - run["q"][-1, :2]).max())
     return {
-        "ours_wall_per_sim_s": walls["compiled"] / seconds,
-        "ours_python_engine_wall_per_sim_s": walls["python"] / seconds,
+        "ours_wall_per_sim_s": wall / seconds,
         "python_control_wall_per_sim_s": wall_ct / seconds,
-        "ratio": wall_ct / walls["compiled"],
-        "ratio_python_engine": wall_ct / walls["python"],
+        "ratio": wall_ct / wall,
         "final_position_difference_m": diff,
     }
 
@@ -507,21 +493,16 @@ def main() -> None:
         r = model_evals_per_second(n, 500 if args.quick else 2000)
         out["model_evals_per_second"][n] = r
         print(f"model eta_dot, n = {n}: {r['compiled']:,.0f} evaluations/s compiled, {r['python']:,.0f} Python")
-    print(f"{'n':>2} {'scheme':11s} {'s/sim-s':>8s} {'Python':>7s} {'x':>5s} {'heap MB':>8s}  case")
+    print(f"{'n':>2} {'scheme':11s} {'s/sim-s':>8s} {'heap MB':>8s}  case")
     for n, scheme, case_file, seconds, note in SCENARIOS:
-        r = scenario(case_file, scheme, seconds * scale, repeats, min(5.0, seconds * scale))
+        r = scenario(case_file, scheme, seconds * scale, repeats)
         out["scenarios"][f"n={n} {scheme}"] = r | {"case": case_file, "note": note}
-        print(
-            f"{n:2d} {scheme:11s} {r['wall_per_sim_s']:8.4f} {r['python_engine_wall_per_sim_s']:7.3f} "
-            f"{r['speedup']:5.0f} {r['peak_mb']:8.1f}  {note} [{r['engine']}]"
-        )
+        print(f"{n:2d} {scheme:11s} {r['wall_per_sim_s']:8.4f} {r['peak_mb']:8.1f}  {note} [{r['engine']}]")
     cmp_ = io_response_comparison(10.0 * scale)
     out["input_output_response"] = cmp_
     print(
-        f"two-link healthy loop: ours {cmp_['ours_wall_per_sim_s']:.4f} s/s (Python engine "
-        f"{cmp_['ours_python_engine_wall_per_sim_s']:.3f}), python-control input_output_response "
-        f"{cmp_['python_control_wall_per_sim_s']:.3f} s/s: ratio {cmp_['ratio']:.0f} "
-        f"({cmp_['ratio_python_engine']:.1f} for the Python engine); "
+        f"two-link healthy loop: ours {cmp_['ours_wall_per_sim_s']:.4f} s/s, python-control "
+        f"input_output_response {cmp_['python_control_wall_per_sim_s']:.3f} s/s: ratio {cmp_['ratio']:.0f}; "
         f"final positions differ by {cmp_['final_position_difference_m']:.1e} m"
     )
     out["scaling"] = _print_scaling(2.0 if args.quick else 5.0)

@@ -499,6 +499,21 @@ def farza_linearized_poles(obs, q: np.ndarray, qdot: np.ndarray, u: np.ndarray, 
     return np.sort_complex(np.linalg.eigvals(central_jacobian(f, s0[:n], h)))
 
 
+def healthy_torque(p, q: np.ndarray, eta: np.ndarray, etadot_des: np.ndarray) -> np.ndarray:
+    """Minimum-norm torques realising etadot_des with healthy wheels, (2n,): the operating point's input.
+
+    The healthy instance of (3.35): ``u = (Mbar1^-1 Bbar)^+ [etadot_des + Mbar1^-1 (Mbar2 eta + Cbar)]``
+    (= Bbar^+ (Mbar1 etadot_des + Mbar2 eta + Cbar): both matrices have the same row space), the
+    pseudo-inverse the compiled law's (``control.tracking.law_for_pattern``).
+    """
+    from .control.tracking import LawTerms, law_for_pattern
+
+    Mbar1, Mbar2, Cbar, Bbar = K.reduced(p, q, eta)
+    MB = np.linalg.solve(Mbar1, Bbar)
+    w = np.asarray(etadot_des, dtype=float) + np.linalg.solve(Mbar1, Mbar2 @ eta + Cbar)
+    return law_for_pattern(LawTerms(w, MB, np.zeros(2)), np.ones(Bbar.shape[1]))
+
+
 def observer_analysis(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray, thetas=(0.5, 0.9, 1.6, 3.0, 6.0)):
     """Observability ranks and Farza error poles against Theta at one operating point, as data."""
     from .observers import FarzaObserver
@@ -596,8 +611,6 @@ def analyze_case(case) -> dict:
     }
     if case.schemes.active is not None or case.schemes.active_ukf is not None:
         # operating point: the reference at t = 0 with the healthy torque that realizes it
-        from .control.velocity import healthy_torque
-
         r0 = ref.at(0.0)
         u0 = healthy_torque(chain.params, r0.q_d, r0.eta_d, r0.eta_d_dot)
         thetas = sorted({0.5, 1.0, 2.0, 4.0, *([case.schemes.active.Theta] if case.schemes.active else [])})

@@ -273,18 +273,19 @@ def demo(
     dt: Annotated[float, typer.Option(help="RK4 step \\[s].")] = 0.01,
     fault_time: Annotated[float, typer.Option(help="When wheel 2l loses its motor \\[s].")] = 10.0,
 ) -> None:
-    """Run the nominal velocity loop on a thesis-parameter chain that loses motor 2l.
+    """Run the nominal scheme (the matched law (3.35), no FTC) on a thesis-parameter chain that loses motor 2l.
 
-    Prints the velocity error before and after the fault and the peak torque.
+    The chain follows a 5 m circle at 0.5 m/s from its start.  Prints the velocity error before and after
+    the fault and the peak torque.
 
     Example: ftcreport demo --robots 3 --duration 20
     """
     import numpy as np
 
-    from .control import VelocityController, constant_command
+    from .control import TrackingController
     from .limits import budget_problem
-    from .model import Chain, FaultEvent, FaultSchedule
-    from .sim import Plant, SimSettings, simulate
+    from .model import FaultEvent, FaultSchedule
+    from .sim import Plant, SimSettings, demo_chain, simulate
 
     if not 2 <= robots <= 12:
         _fail(FtcError(f"--robots: must be between 2 and 12, got {robots}"))
@@ -292,17 +293,16 @@ def demo(
         opt = "--dt" if problem[0] == "simulation.dt" else "--duration"  # demo logs every step
         _fail(FtcError(f"demo: {opt}: {problem[1]}"))
     try:
-        chain = Chain.uniform(robots, d=1.0)
+        chain, kin, q0 = demo_chain(robots)  # 1 m links, a 5 m circle at 0.5 m/s
         faults = FaultSchedule(robots, [FaultEvent(fault_time, "2l", sigma=0.0, ubar=0.0)])
-        ctrl = VelocityController(chain, constant_command(0.5, 0.1), k=5.0)
-        run = simulate(
-            Plant(chain, faults), ctrl, np.zeros(chain.n_q), np.zeros(2), SimSettings(dt=dt, duration=duration)
-        )
+        ctrl = TrackingController(chain, kin, k_v=5.0)
+        eta0 = kin.reference.at(0.0).eta_d
+        run = simulate(Plant(chain, faults), ctrl, q0, eta0, SimSettings(dt=dt, duration=duration))
     except FtcError as exc:
         _fail(exc)
     err = np.abs(run["eta"] - run["eta_c"]).max(axis=1)
     before = run.t < fault_time
-    typer.echo(f"{robots}-robot chain, v_n = 0.5 m/s, omega_1 = 0.1 rad/s, wheel 2l lost at {fault_time} s")
+    typer.echo(f"{robots}-robot chain on a 5 m circle at 0.5 m/s, nominal scheme, wheel 2l lost at {fault_time} s")
     typer.echo(f"status: {run.status} {run.reason}".rstrip())
     if before.any():
         typer.echo(f"velocity error at {run.t[before][-1]:.2f} s: {err[before][-1]:.3e}")

@@ -10,7 +10,6 @@ import math
 
 __all__ = [
     "CaseError",
-    "DivergenceError",
     "FaultError",
     "FtcError",
     "ModelError",
@@ -69,10 +68,6 @@ class SingularityError(FtcError):
     """The state approaches a singular configuration (ERRATA P4)."""
 
 
-class DivergenceError(FtcError):
-    """A simulation produced a non-finite value or left its bounds."""
-
-
 class NotBuiltError(FtcError):
     """A CLI command that is registered but not implemented yet."""
 
@@ -107,9 +102,9 @@ def interrupted_message(exc: BaseException) -> str:
 
 
 # --------------------------------------------------------------------------- reasons
-# One wording per stop. The Python modules raise with these; the compiled engine
-# (ftcreport.fast.engine), which reports the same stops as error codes, words them
-# with the same functions, so a run gives the same reason whichever engine ran it.
+# One wording per stop. The Python faces raise with these (the kinematic laws, the references); the
+# compiled engine (ftcreport.fast.engine), which reports the same stops as error codes, words them
+# with the same functions, so a stop reads the same wherever it is met.
 def nonfinite_reason(what: str, t: float) -> str:
     """``what``: "state" or "control or derivative"."""
     return f"non-finite {what} at t = {t:.6g} s"

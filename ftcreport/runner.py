@@ -38,18 +38,14 @@ __all__ = [
     "run_scheme",
 ]
 
-#: Schemes whose controller the compiled engine does not know (they would run in the Python loop):
-#: none since the UKF is compiled (issue 20); kept so the cache key names the engine that runs.
-PYTHON_ENGINE_SCHEMES: tuple[str, ...] = ()
-
 
 def expected_engine(scheme: str) -> str:
-    """The engine ``simulate(engine="auto")`` uses for a scheme built by :func:`make_controller`.
+    """The engine that runs a scheme: the compiled one, the only engine since issue 17.
 
     Part of the result cache key (``ftcreport.batch.run_key``), so it is known before the run;
     ``tests/test_tidy.py`` checks it against the engine each run records.
     """
-    return "python" if scheme in PYTHON_ENGINE_SCHEMES else "compiled"
+    return "compiled"
 
 
 class Built:
@@ -219,7 +215,7 @@ def _identity(case: Case, scheme: str) -> dict:
 def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     """The metrics.json content of one run (see ftcreport.metrics for definitions)."""
     out = _identity(case, scheme) | {"status": run.status, "reason": run.reason, "t_end": run.t_end}
-    out["engine"] = run.meta.get("engine", "python")  # compiled (ftcreport.fast) or the Python loop
+    out["engine"] = run.meta["engine"]  # "compiled" (ftcreport.fast): the only engine
     # every metric reads the metric stream (every accepted step), never the decimated log
     t, S = (run.t_stream, run.stream) if run.stream else (run.t, run.signals)
     out["metric_samples"] = int(t.size)

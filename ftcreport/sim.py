@@ -1,4 +1,4 @@
-r"""Simulation engine: plant and controller integrated together.
+r"""Simulation: plant and controller integrated together, on the compiled engine.
 
 The plant is the reduced dynamics (2.70) of a :class:`~ftcreport.model.Chain`
 with the actuator fault model (2.102) and optional torque saturation::
@@ -6,39 +6,39 @@ with the actuator fault model (2.102) and optional torque saturation::
     qdot   = S(q) eta
     etadot = Mbar1^-1 (Bbar tau - Mbar2 eta - Cbar),   tau = sigma sat(u) + ubar
 
-A controller (any object following :class:`Controller`) has its own
-continuous state ``xc``; plant and controller state are stepped together by
-fixed-step classical RK4 (``method="rk4"``, the default) or by the two-stage
-Rosenbrock W-method ROS2 (``method="ros2"``) for stiff velocity loops.
+:func:`simulate` runs the closed loop on the compiled engine
+(:func:`ftcreport.fast.engine.simulate_compiled` over the loop template ``ftcreport/fast/loop.py``)
+for a controller built by the package (:func:`ftcreport.runner.make_controller`, the classes of
+:mod:`ftcreport.control`) or a registered scheme (:mod:`ftcreport.schemes`).  There is no second
+loop in Python (issue 17: each equation exists once): a new law is written as a scheme (README,
+"Write your own scheme").  The controller's continuous state ``xc`` is stepped with the plant's.
 
-ROS2 (Verwer, Spee, Blom, Hundsdorfer 1999), with gamma = 1 + 1/sqrt(2)::
+Integrators (:attr:`SimSettings.method`): fixed-step classical RK4 (``"rk4"``, the default), or
+the two-stage Rosenbrock W-method ROS2 (``"ros2"``, Verwer, Spee, Blom, Hundsdorfer 1999) for
+stiff velocity loops, with gamma = 1 + 1/sqrt(2)::
 
     (I - gamma h A) k1 = f(t, y)
     (I - gamma h A) k2 = f(t + h, y + h k1) - 2 k1
     y+ = y + 3/2 h k1 + 1/2 h k2
 
-is second order for any matrix A (a W-method) and L-stable when A is the
-Jacobian.  Here A holds only the columns of the plant velocities eta (forward
-differences, 2 extra evaluations per step): the stiffness of these closed
-loops is the velocity-error gain (k4 = 3000 in thesis 3.2.3 gives an eigenvalue
--3000, ERRATA E12f, so RK4 needs dt < 0.93 ms), and it lives in those columns.
-A controller may add the exact diagonal of the Jacobian of its own linear
-states (``stiff_diagonal``, e.g. -gamma for reconstruction filters); with it a
-matched reconstruction error obeys the W-method recursion of e' = -gamma e and
-stays exactly zero, as it does under RK4.  Solving with A = F E^T + diag(a)
-is a 2 x 2 solve (Woodbury).  The fast transient of
-the velocity loop is then damped rather than resolved: tracking errors agree
-with fine-step RK4 (tested), first-instant torque peaks do not (they last
-~1/k4 s).  With DC motors, ``method="etd2"`` (compiled engine
-only, :func:`ftcreport.fast.loop._etd2`) is the exponential ETD2RK of Cox & Matthews (2002): exact
-on the linear [eta, i_a] block, so a current's transient after a held-voltage step is integrated
+second order for any matrix A (a W-method) and L-stable when A is the Jacobian.  Here A holds only
+the columns of the plant velocities eta (forward differences): the stiffness of these closed
+loops is the velocity-error gain (k4 = 3000 in thesis 3.2.3 gives an eigenvalue -3000, ERRATA
+E12f, so RK4 needs dt < 0.93 ms), and it lives in those columns.  A controller may add the exact
+diagonal of the Jacobian of its own linear states (``stiff_diagonal``, e.g. -gamma for
+reconstruction filters); with it a matched reconstruction error obeys the W-method recursion of
+e' = -gamma e and stays exactly zero, as it does under RK4.  The fast transient of the velocity
+loop is then damped rather than resolved: tracking errors agree with fine-step RK4 (tested),
+first-instant torque peaks do not (they last ~1/k4 s).  With DC motors, ``method="etd2"``
+(:func:`ftcreport.fast.loop._etd2`) is the exponential ETD2RK of Cox & Matthews (2002): exact on
+the linear [eta, i_a] block, so a current's transient after a held-voltage step is integrated
 whole over a step of one control sample, where ROS2 only damps it.
 
 Fault events land exactly on step boundaries: the time grid is ``t0 + k dt``
-with every event time inserted (the step before an event is shortened), and
+with every event time inserted (:func:`time_grid`; the step before an event is shortened), and
 sigma, ubar are held over each step at their value at its start, so the fault
 model is exact.  After each step the controller's
-discrete hook runs (switching logic and the like).
+discrete update runs (switching logic and the like).
 
 A run that approaches a singular configuration (an articulation angle
 within ``singularity_margin`` of 90 deg, ERRATA P4, or a controller singular at
@@ -53,7 +53,8 @@ reached from ``JUMP_MARGINS`` margins away: a change no resolved step makes), or
 the applied torque grew geometrically from accepted step to accepted step
 (max_j |tau_j| more than ``GROWTH_FACTOR`` = e times larger than at the step
 before, ``GROWTH_STEPS`` = 3 steps in a row, ``GROWTH_TOTAL`` = 20 times larger
-overall, ending above ``GROWTH_FLOOR`` = 1 N m).  Growth by e per step is a rate
+overall, ending above ``GROWTH_FLOOR`` = 1 N m; the constants are in :mod:`ftcreport.runs`).
+Growth by e per step is a rate
 of 1 / dt: a mode with lambda dt > 1 is not resolved by the step (RK4's local
 error on it is about (lambda dt)^5 / 120 per step, 1 % at lambda dt = 1 and
 growing fast), so either the integrator is unstable there or the run is not
@@ -71,48 +72,17 @@ import math
 import time as _time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .errors import (
-    DivergenceError,
-    FtcError,
-    ModelError,
-    SingularityError,
-    articulation_reason,
-    bound_reason,
-    nonfinite_reason,
-    step_growth_reason,
-    trial_stage_reason,
-    with_step,
-)
-from .model import kernels as K
+from .errors import ModelError
 from .model.chain import Chain
 from .model.faults import FaultSchedule
-from .runs import (
-    GROWTH_FACTOR,
-    GROWTH_FLOOR,
-    GROWTH_STEPS,
-    GROWTH_TOTAL,
-    JUMP_FRACTION,
-    JUMP_MARGINS,
-    REDUCED_SIGNALS,
-    STATUS_DIVERGED,
-    STATUS_ERROR,
-    STATUS_OK,
-    STATUS_SINGULAR,
-    STATUS_STEP_UNSTABLE,
-    STREAM_SIGNALS,
-    Run,
-    step_jump_words,
-    stream_of,
-)
+from .runs import REDUCED_SIGNALS, STREAM_SIGNALS, Run, stream_of
 
 __all__ = [
     "REDUCED_SIGNALS",
     "STREAM_SIGNALS",
-    "Controller",
     "Plant",
     "Run",
     "SimSettings",
@@ -120,40 +90,6 @@ __all__ = [
     "stream_of",
     "time_grid",
 ]
-
-_NUMERIC_ERRORS = (DivergenceError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError)
-
-
-@runtime_checkable
-class Controller(Protocol):
-    """What the engine needs of a controller.
-
-    Attributes
-    ----------
-    n_states : int
-        Length of the controller's continuous state ``xc`` (may be 0).
-    signal_names : tuple of str
-        Names of the signals :meth:`signals` returns, logged at log instants.
-    """
-
-    n_states: int
-    signal_names: tuple[str, ...]
-
-    def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
-        """Controller state at the start of the run, (n_states,)."""
-        ...
-
-    def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Control signal u (2n,) and controller state derivative (n_states,)."""
-        ...
-
-    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        """Discrete update after each step (e.g. switching); return xc (possibly unchanged)."""
-        ...
-
-    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        """Named signals to log at this instant (keys are :attr:`signal_names`)."""
-        ...
 
 
 @dataclass(frozen=True)
@@ -179,7 +115,7 @@ class SimSettings:
     method : str
         ``"rk4"`` (classical, fixed step), ``"ros2"`` (Rosenbrock W-method, stiff-capable) or
         ``"etd2"`` (exponential ETD2RK, exact on the linear [eta, i_a] block: the motor cases at
-        one step per control sample; compiled engine only, fast.loop._etd2).
+        one step per control sample, fast.loop._etd2).
     sample_time : float or None
         Sampled (digital) control: the controller runs every ``sample_time`` [s], a whole number
         of steps, its command held in between (zero-order hold) and its own state advanced by a
@@ -279,28 +215,6 @@ class Plant:
         self.noisy = bool(np.any(self.noise_std > 0))
         self.seed = int(seed)
 
-    def draw_noise(self, rng: np.random.Generator) -> np.ndarray:
-        """Measurement noise of one step, (n + 4,) = [q noise, eta noise]."""
-        if not self.noisy:
-            return np.zeros_like(self.noise_std)
-        return rng.standard_normal(self.noise_std.shape[0]) * self.noise_std
-
-    def torque(self, u: np.ndarray, sigma: np.ndarray, ubar: np.ndarray) -> np.ndarray:
-        """Applied torque tau = sigma sat(u) + ubar (2.102)."""
-        if self.saturation is not None:
-            u = np.clip(u, -self.saturation, self.saturation)
-        return sigma * u + ubar
-
-    def rhs(self, t: float, x: np.ndarray, u: np.ndarray, params: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """Plant state derivative in python-control order ``f(t, x, u, params)``.
-
-        ``x = [q, eta]``, ``params = (sigma, ubar)``.
-        """
-        nq = self.chain.n_q
-        tau = self.torque(u, *params)
-        qdot, etadot = K.eta_dot(self.chain.params, x[:nq], x[nq:], tau)
-        return np.concatenate((qdot, etadot))
-
 
 def time_grid(t0: float, duration: float, dt: float, breakpoints=()) -> np.ndarray:
     """Step boundaries ``t0 + k dt`` with every breakpoint inside inserted exactly.
@@ -324,19 +238,22 @@ def time_grid(t0: float, duration: float, dt: float, breakpoints=()) -> np.ndarr
 
 def simulate(
     plant: Plant,
-    controller: Controller,
+    controller,
     q0: np.ndarray,
     eta0: np.ndarray,
     settings: SimSettings,
     progress: Callable[[float], None] | None = None,
-    engine: str = "auto",
+    engine: str = "compiled",
 ) -> Run:
-    """Integrate plant and controller with fixed-step RK4 or ROS2.
+    """Integrate plant and controller on the compiled engine (RK4, ROS2 or ETD2).
 
     Parameters
     ----------
     plant : Plant
-    controller : Controller
+    controller
+        A controller with a compiled counterpart: one :func:`ftcreport.runner.make_controller`
+        builds (the classes of :mod:`ftcreport.control` on a :class:`~ftcreport.references.FlatReference`)
+        or a registered scheme's :class:`ftcreport.schemes.SchemeController`.
     q0 : (n + 2,) array_like
         Initial configuration ``[x, y, theta_n, ..., theta_1]``.
     eta0 : (2,) array_like
@@ -345,225 +262,44 @@ def simulate(
     progress : callable, optional
         Called with the simulated time now and then (every ~1 % of the run).
     engine : str
-        ``"python"``: the loop below (the reference implementation);
-        ``"compiled"``: the same loop in machine code (:mod:`ftcreport.fast`),
-        for the controllers it knows; ``"auto"`` (default): compiled when the
-        controller has a compiled counterpart, else Python.
+        ``"compiled"`` (default) or its old alias ``"auto"``: the only engine.  The Python loop
+        (``"python"``) was removed (issue 17: each equation exists once).
 
     Returns
     -------
     Run
         Always returned; ``run.status`` says whether it completed.
+
+    Raises
+    ------
+    ModelError
+        Bad initial state, ``engine="python"``, or a controller without a compiled counterpart
+        (write it as a scheme: :mod:`ftcreport.schemes`).
     """
-    chain = plant.chain
-    p = chain.params
-    nq, nw, nc = chain.n_q, chain.n_wheels, int(controller.n_states)
+    from .fast.engine import compiled_spec, simulate_compiled
+
+    nq = plant.chain.n_q
     q0 = np.asarray(q0, dtype=float)
     eta0 = np.asarray(eta0, dtype=float)
     if q0.shape != (nq,):
         raise ModelError(f"q0: expected {nq} values [x, y, theta_n..theta_1], got shape {q0.shape}")
     if eta0.shape != (2,):
         raise ModelError(f"eta0: expected 2 values [v_n, omega_1], got shape {eta0.shape}")
-
+    if engine not in ("auto", "compiled"):
+        why = "; the Python loop was removed (issue 17)" if engine == "python" else ""
+        raise ModelError(f"engine: must be 'compiled' (or 'auto'), got {engine!r}{why}")
+    spec = compiled_spec(controller)
+    if spec is None:
+        raise ModelError(
+            f"controller: {type(controller).__name__} has no compiled counterpart; a new law runs as a scheme "
+            "(ftcreport.schemes, README 'Write your own scheme')"
+        )
     grid = time_grid(settings.t0, settings.duration, settings.dt, plant.faults.times)
     n_steps = grid.shape[0] - 1
-    every = int(settings.log_every)
-    log_idx = np.unique(np.append(np.arange(0, n_steps + 1, every), n_steps))
-    n_log = log_idx.shape[0]
-    is_logged = np.zeros(n_steps + 1, dtype=bool)
-    is_logged[log_idx] = True
-    if engine not in ("auto", "python", "compiled"):
-        raise ModelError(f"engine: must be 'auto', 'python' or 'compiled', got {engine!r}")
-    if engine != "python":
-        from .fast.engine import compiled_spec, simulate_compiled
-
-        spec = compiled_spec(controller)
-        if spec is not None:
-            run = simulate_compiled(spec, plant, q0, eta0, settings, grid, log_idx, progress)
-            run.meta["fault_schedule"] = _fault_records(plant)
-            return run
-        if engine == "compiled":
-            raise ModelError(f"engine: {type(controller).__name__} has no compiled counterpart")
-    if plant.motors is not None:
-        raise ModelError(
-            f"actuators: the DC-motor plant runs on the compiled engine; {type(controller).__name__} "
-            f"{'has no compiled counterpart' if engine != 'python' else 'was asked to run in the Python loop'}"
-        )
-    if settings.method == "etd2":
-        raise ModelError(
-            f"method: 'etd2' runs on the compiled engine; {type(controller).__name__} "
-            f"{'has no compiled counterpart' if engine != 'python' else 'was asked to run in the Python loop'}"
-        )
-    if settings.sample_time is not None:
-        raise ModelError(
-            f"sample_time: sampled control runs on the compiled engine; {type(controller).__name__} "
-            f"{'has no compiled counterpart' if engine != 'python' else 'was asked to run in the Python loop'}"
-        )
-
-    xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
-    x = np.concatenate((q0, eta0, xc0))
-
-    names = tuple(controller.signal_names)
-    first = controller.signals(grid[0], q0, eta0, xc0)
-    logs: dict[str, np.ndarray] = {
-        "q": np.full((n_log, nq), np.nan),
-        "eta": np.full((n_log, 2), np.nan),
-        "u": np.full((n_log, nw), np.nan),
-        "tau": np.full((n_log, nw), np.nan),
-        "sigma": np.full((n_log, nw), np.nan),
-        "ubar": np.full((n_log, nw), np.nan),
-        "xc": np.full((n_log, nc), np.nan),
-    }
-    for name in names:
-        logs[name] = np.full((n_log, *np.shape(first[name])), np.nan)
-    t_log = np.full(n_log, np.nan)
-
-    def deriv(t: float, xs: np.ndarray, hold: tuple):
-        sigma, ubar, nz = hold
-        q, eta, xc = xs[:nq], xs[nq : nq + 2], xs[nq + 2 :]
-        u, xcdot = controller.evaluate(t, q + nz[:nq], eta + nz[nq:], xc)
-        tau = plant.torque(u, sigma, ubar)
-        qdot, etadot = K.eta_dot(p, q, eta, tau)
-        return np.concatenate((qdot, etadot, xcdot)), u, tau
-
-    if settings.method == "rk4":
-        step = _step_rk4
-    else:
-        diag = np.zeros(nq + 2 + nc)
-        stiff = getattr(controller, "stiff_diagonal", None)
-        if stiff is not None:
-            diag[nq + 2 :] = np.asarray(stiff, dtype=float)
-        step = _make_ros2(nq, diag)
-    observe = getattr(controller, "observe_faults", None)  # the oracle is told the true faults
-    rng = np.random.default_rng(plant.seed)
-    if plant.noisy:
-        logs["q_meas"] = np.full((n_log, nq), np.nan)
-    status, reason = STATUS_OK, ""
-    stream: dict[str, np.ndarray] = {}  # the metric stream: every accepted step
-    t_stream = np.full(n_steps + 1, np.nan)
-    si = 0
-    g_prev, g_start, streak = 0.0, 0.0, 0  # step-growth detector
-    li = 0
-    k = 0
-    t = grid[0]
-    report_every = max(1, n_steps // 100)
-    wall0 = _time.perf_counter()
-    with np.errstate(all="ignore"):
-        for k in range(n_steps + 1):
-            t = grid[k]
-            sigma, ubar = plant.faults.at(t)
-            nz = plant.draw_noise(rng)
-            hold = (sigma, ubar, nz)
-            if observe is not None:
-                observe(sigma, ubar)
-            try:
-                if not np.all(np.isfinite(x)):
-                    raise DivergenceError(nonfinite_reason("state", t))
-                _check_state(chain, x, settings)
-                k1, u, tau = deriv(t, x, hold)
-                if not (np.all(np.isfinite(k1)) and np.all(np.isfinite(u))):
-                    raise DivergenceError(nonfinite_reason("control or derivative", t))
-            except SingularityError as exc:
-                status, reason = STATUS_SINGULAR, str(exc)
-                break
-            except (DivergenceError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError) as exc:
-                status, reason = STATUS_DIVERGED, with_step(str(exc), settings.dt, settings.method)
-                break
-            except FtcError as exc:
-                status, reason = STATUS_ERROR, str(exc)
-                break
-            g = float(np.max(np.abs(tau))) if tau.size else 0.0
-            if g_prev > 0.0 and g > GROWTH_FACTOR * g_prev:
-                if streak == 0:
-                    g_start = g_prev
-                streak += 1
-            else:
-                streak = 0
-            g_prev = g
-            if streak >= GROWTH_STEPS and g > GROWTH_FLOOR and g > GROWTH_TOTAL * g_start:
-                status = STATUS_STEP_UNSTABLE
-                reason = step_growth_reason(t, g_start, g, streak, GROWTH_FACTOR, settings.dt, settings.method)
-                break
-            q, eta, xc = x[:nq], x[nq : nq + 2], x[nq + 2 :]
-            row = {"q": q, "eta": eta, "u": u, "tau": tau, "sigma": sigma, "ubar": ubar, "xc": xc}
-            if plant.noisy:
-                row["q_meas"] = q + nz[:nq]
-            sig = controller.signals(t, q + nz[:nq], eta + nz[nq:], xc)
-            row |= {name: sig[name] for name in names}
-            srow = stream_of({name: np.asarray(v, dtype=float)[None] for name, v in row.items()})
-            if not stream:
-                stream = {name: np.full((n_steps + 1, *v.shape[1:]), np.nan) for name, v in srow.items()}
-            for name, v in srow.items():
-                stream[name][si] = v[0]
-            t_stream[si] = t
-            si += 1
-            if is_logged[k]:
-                t_log[li] = t
-                for name in logs:
-                    logs[name][li] = row[name]
-                li += 1
-            if k == n_steps:
-                break
-            h = grid[k + 1] - t
-            try:
-                xn = step(deriv, t, x, h, k1, hold)
-            except (SingularityError, *_NUMERIC_ERRORS) as e:
-                # a trial stage left the domain; the accepted state x passed every check above
-                status = STATUS_STEP_UNSTABLE
-                reason = trial_stage_reason(t, str(e), settings.dt, settings.method)
-                break
-            except FtcError as exc:
-                status, reason = STATUS_ERROR, str(exc)
-                t = grid[k + 1]
-                break
-            jump = _step_jump(chain, x, xn, settings)
-            if jump[0]:
-                status = STATUS_STEP_UNSTABLE
-                reason = trial_stage_reason(t, step_jump_words(*jump), settings.dt, settings.method, stage=False)
-                break
-            try:
-                x = np.asarray(
-                    controller.discrete(grid[k + 1], xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xn[nq + 2 :]),
-                    dtype=float,
-                )
-                x = np.concatenate((xn[: nq + 2], x)) if nc else xn
-            except SingularityError as exc:
-                status, reason = STATUS_SINGULAR, str(exc)
-                t = grid[k + 1]
-                break
-            except (DivergenceError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError) as exc:
-                status, reason = STATUS_DIVERGED, with_step(str(exc), settings.dt, settings.method)
-                t = grid[k + 1]
-                break
-            except FtcError as exc:
-                status, reason = STATUS_ERROR, str(exc)
-                t = grid[k + 1]
-                break
-            if progress is not None and k % report_every == 0:
-                progress(float(grid[k + 1]))
-    wall = _time.perf_counter() - wall0
-    if progress is not None:
-        progress(float(t))
-    for name in logs:
-        logs[name] = logs[name][:li]
-    stream = {name: v[:si] for name, v in stream.items()}
-    return Run(
-        t=t_log[:li],
-        signals=logs,
-        status=status,
-        reason=reason,
-        t_end=float(t),
-        steps=int(k),
-        wall_time=wall,
-        meta={
-            "dt": settings.dt,
-            "duration": settings.duration,
-            "log_every": every,
-            "fault_schedule": _fault_records(plant),
-        },
-        t_stream=t_stream[:si],
-        stream=stream,
-    )
+    log_idx = np.unique(np.append(np.arange(0, n_steps + 1, int(settings.log_every)), n_steps))
+    run = simulate_compiled(spec, plant, q0, eta0, settings, grid, log_idx, progress)
+    run.meta["fault_schedule"] = _fault_records(plant)
+    return run
 
 
 def _fault_records(plant: Plant) -> list[dict]:
@@ -580,93 +316,9 @@ def _fault_records(plant: Plant) -> list[dict]:
     return out
 
 
-def _step_rk4(deriv, t, x, h, k1, hold):
-    """One classical RK4 step (k1 = f(t, x) already evaluated)."""
-    k2 = deriv(t + 0.5 * h, x + 0.5 * h * k1, hold)[0]
-    k3 = deriv(t + 0.5 * h, x + 0.5 * h * k2, hold)[0]
-    k4 = deriv(t + h, x + h * k3, hold)[0]
-    return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-
-
-_ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
-
-
-def _make_ros2(nq: int, diag: np.ndarray):
-    """ROS2 step with A = F E^T + diag(diag), F the eta columns of the Jacobian."""
-    cols = [nq, nq + 1]
-
-    def step(deriv, t, x, h, f0, hold):
-        # F = df/d(eta), forward differences
-        F = np.empty((x.shape[0], 2))
-        for j, c in enumerate(cols):
-            delta = 1e-7 * max(1.0, abs(x[c]))
-            xp = x.copy()
-            xp[c] += delta
-            F[:, j] = (deriv(t, xp, hold)[0] - f0) / delta
-        gh = _ROS2_GAMMA * h
-        # W = Dm - gh F E^T with Dm = I - gh diag(a):
-        # W^-1 r = Dm^-1 r + gh Dm^-1 F (I_2 - gh E^T Dm^-1 F)^-1 E^T Dm^-1 r
-        dinv = 1.0 / (1.0 - gh * diag)
-        DF = dinv[:, None] * F
-        small = np.eye(2) - gh * DF[cols, :]
-
-        def solve(r):
-            rd = dinv * r
-            return rd + gh * (DF @ np.linalg.solve(small, rd[cols]))
-
-        k1 = solve(f0)
-        k2 = solve(deriv(t + h, x + h * k1, hold)[0] - 2.0 * k1)
-        return x + 1.5 * h * k1 + 0.5 * h * k2
-
-    return step
-
-
-def _step_jump(chain: Chain, x: np.ndarray, xn: np.ndarray, settings: SimSettings) -> tuple[int, float, float]:
-    """(kind, before, after) when the step x -> xn is a numerical blow-up, else (0, 0, 0).
-
-    The new state is non-finite (kind 1), or fails a check of :func:`_check_state`
-    that the accepted state x was far from: speed (2) or position (3) beyond its
-    bound from within ``JUMP_FRACTION`` of it (a growth of more than 10x in one
-    step), or an articulation angle (4) within the margin of 90 deg from more
-    than ``JUMP_MARGINS`` margins away.  ``before``/``after``: the checked value.
-    The compiled engine's ``_step_jump`` kernel returns the same triple.
-    """
-    nq = chain.n_q
-    if not np.all(np.isfinite(xn)):
-        return 1, 0.0, 0.0
-    e0, e1 = float(np.max(np.abs(x[nq : nq + 2]))), float(np.max(np.abs(xn[nq : nq + 2])))
-    if e1 > settings.max_speed and e0 < JUMP_FRACTION * settings.max_speed:
-        return 2, e0, e1
-    p0, p1 = float(np.max(np.abs(x[:2]))), float(np.max(np.abs(xn[:2])))
-    if p1 > settings.max_position and p0 < JUMP_FRACTION * settings.max_position:
-        return 3, p0, p1
-    if chain.n > 1:
-        c0 = float(np.min(np.abs(K.articulation_cos(chain.params, x[:nq]))))
-        c1 = float(np.min(np.abs(K.articulation_cos(chain.params, xn[:nq]))))
-        if c1 <= math.sin(settings.singularity_margin) and c0 > math.sin(JUMP_MARGINS * settings.singularity_margin):
-            return 4, math.degrees(math.acos(min(1.0, c0))), math.degrees(math.acos(min(1.0, c1)))
-    return 0, 0.0, 0.0
-
-
-def _check_state(chain: Chain, x: np.ndarray, settings: SimSettings) -> None:
-    """Raise SingularityError / DivergenceError for a state that must stop the run."""
-    nq = chain.n_q
-    q, eta = x[:nq], x[nq : nq + 2]
-    c = np.abs(K.articulation_cos(chain.params, q))
-    limit = math.sin(settings.singularity_margin)
-    if np.any(c <= limit):
-        i = int(np.argmin(c))
-        ang = math.degrees(math.acos(min(1.0, c[i])))
-        raise SingularityError(articulation_reason(i, ang, settings.singularity_margin))
-    if np.any(np.abs(eta) > settings.max_speed):
-        raise DivergenceError(bound_reason("velocity", eta.tolist(), settings.max_speed))
-    if np.any(np.abs(q[:2]) > settings.max_position):
-        raise DivergenceError(bound_reason("position", q[:2].tolist(), settings.max_position, " m"))
-
-
 def demo_chain(n: int):
-    """(chain, kinematic controller, q0) of the thesis robot on a 5 m circle at 0.5 m/s: the two-link
-    law for n = 2, the chained law for n >= 3 (warm-up and benchmarks)."""
+    """(chain, kinematic controller, q0) of the thesis robot (1 m links) on a 5 m circle at 0.5 m/s: the
+    two-link law for n = 2, the chained law for n >= 3 (``ftcreport demo``, warm-up and benchmarks)."""
     from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
     from .model import Chain
     from .references import FlatReference, circle

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -18,6 +21,14 @@ def random_chain(rng: np.random.Generator, n: int) -> Chain:
         I=rng.uniform(2.0, 20.0, n),
         d=rng.uniform(0.6, 2.0, n - 1),
     )
+
+
+def harness():
+    """The test harnesses' plug-in scheme (tests/data/harness_scheme.py), loaded once: its module."""
+    from ftcreport.schemes import load_plugin
+
+    load_plugin(Path(__file__).parent / "data" / "harness_scheme.py")
+    return sys.modules["ftcreport_plugin_harness_scheme"]
 
 
 def random_q(rng: np.random.Generator, n: int, max_art: float = np.radians(60)) -> np.ndarray:

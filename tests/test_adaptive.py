@@ -9,12 +9,14 @@ import numpy as np
 import pytest
 
 from ftcreport.cases import load_case
-from ftcreport.control.adaptive import AdaptiveController, pattern_laws
+from ftcreport.control.adaptive import AdaptiveController
 from ftcreport.control.kinematic import TwoLinkKinematic
 from ftcreport.errors import ModelError
+from ftcreport.fast import kernels as F
+from ftcreport.fast.engine import compiled_spec
 from ftcreport.model import Chain
 from ftcreport.references import FlatReference, eight
-from ftcreport.runner import build, run_scheme
+from ftcreport.runner import build, make_controller, run_scheme
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 
@@ -27,15 +29,34 @@ def eight_case():
 
 
 def test_pattern_laws_realise_the_bracket():
-    """Every u_(k) satisfies Mbar1^-1 Bbar sigma_(k) u_(k) = w and sends nothing to assumed-failed wheels."""
+    """The compiled adaptive law (fast.kernels.adaptive_law) with the weights of model k alone (chi_(k) = 1):
+    u = u_(k), Mbar1^-1 Bbar sigma_(k) u_(k) = w - Mbar1^-1 Bbar uhat_f (3.121), nothing to assumed-failed wheels."""
+    built = build(load_case(CASES / "three_link_adaptive.toml"))
+    ctrl = make_controller(built, "adaptive")
+    spec = compiled_spec(ctrl)
     rng = np.random.default_rng(3)
-    chain = Chain.uniform(3)
-    pats = np.array(chain.compensable_patterns(), dtype=float)
-    MB = rng.normal(size=(2, 6))
-    w = rng.normal(size=2)
-    U = pattern_laws(MB, pats, w)
-    np.testing.assert_allclose(np.einsum("ij,kj->ki", MB, pats * U), np.tile(w, (len(pats), 1)), atol=1e-10)
-    assert np.all(U[pats == 0] == 0)
+    n, nw = built.chain.n, built.chain.n_wheels
+    q = built.q0 + rng.normal(scale=0.02, size=built.q0.shape)
+    eta = np.array([0.4, 0.1])
+    xc0 = ctrl.initial_state(0.0, q, eta)
+    uf = rng.normal(scale=0.2, size=nw)
+    xc0[ctrl._uf] = uf
+    none, info = np.zeros(0), np.zeros(4)
+    w, MB, _g, _e = F.matched_terms(
+        spec.kin, spec.ref, F.new_cache(n), spec.chain, 0.0, q, eta, xc0, ctrl.k_v, info, none
+    )
+    assert info[0] == 0
+    for k, sigma in enumerate(ctrl.patterns):
+        xc = xc0.copy()
+        chi = np.zeros((ctrl.N, nw))
+        chi[k] = 1.0
+        xc[ctrl._chi] = chi.ravel()
+        u, _ = F.adaptive_law(spec.P, spec.kin, spec.ref, F.new_cache(n), spec.chain, 0.0, q, eta, xc,
+                              np.ones(nw), np.zeros(nw), info, none)  # fmt: skip
+        assert info[0] == 0
+        # the bracket to round-off (values of O(1-10), 2 x 2 solves)
+        np.testing.assert_allclose(MB @ (sigma * u), w - MB @ uf, rtol=0, atol=1e-10 * max(1.0, np.abs(w).max()))
+        assert np.all(u[sigma == 0] == 0)
 
 
 @pytest.mark.slow

@@ -170,8 +170,7 @@ def test_farza_error_poles_scale_with_theta():
 
 def test_full_observer_poles_approach_the_high_gain_ones():
     """With the model Jacobian included, slowest rate / Theta -> 1 as Theta grows (and the model dominates at 0.5)."""
-    from ftcreport.analysis import farza_linearized_poles
-    from ftcreport.control.velocity import healthy_torque
+    from ftcreport.analysis import farza_linearized_poles, healthy_torque
     from ftcreport.observers import FarzaObserver
 
     chain = Chain.uniform(2, d=1.0)
@@ -188,8 +187,7 @@ def test_full_observer_poles_approach_the_high_gain_ones():
 
 def test_measured_q_observability_ranks():
     """State observable from q; with the 4n parameters only two more directions (ERRATA P3), n = 2, 3."""
-    from ftcreport.analysis import observability
-    from ftcreport.control.velocity import healthy_torque
+    from ftcreport.analysis import healthy_torque, observability
 
     for n in (2, 3):
         chain = Chain.uniform(n, d=1.0)

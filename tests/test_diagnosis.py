@@ -166,4 +166,4 @@ def test_observer_initial_estimate_is_configurable():
     built = build(case)
     ctrl = make_controller(built, "active")
     xc = ctrl.initial_state(0.0, built.q0, built.eta0)
-    assert ctrl.signals(0.0, built.q0, built.eta0, xc)["q_hat"].tolist() == [0.0, 0.0, 0.0, 0.0]
+    assert xc[ctrl._est][:4].tolist() == [0.0, 0.0, 0.0, 0.0]  # q_hat(0), the observer's first states

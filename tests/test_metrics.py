@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import harness
 
-from ftcreport.control import VelocityController, constant_command
 from ftcreport.metrics import phase_metrics, recovery_time, switching_metrics, torque_metrics
 from ftcreport.model import Chain
 from ftcreport.sim import Plant, SimSettings, simulate
@@ -65,7 +65,7 @@ def test_switching_delay_stops_at_the_next_fault():
 def test_energy_bounds_the_kinetic_energy_gained():
     """From rest, no friction: int tau.omega dt = T(end) exactly, so energy >= T(end)."""
     chain = Chain.uniform(2)
-    ctrl = VelocityController(chain, constant_command(0.5, 0.2), k=3.0)
+    ctrl = harness().controller(chain, harness().VELOCITY, c0=(0.5, 0.2), k=3.0)  # healthy computed torque
     run = simulate(Plant(chain), ctrl, np.zeros(4), np.zeros(2), SimSettings(dt=0.005, duration=3.0))
     omega = np.array([chain.wheel_speeds(q, e) for q, e in zip(run["q"], run["eta"], strict=True)])
     m = torque_metrics(run["tau"], run["u"], None, run.t, omega)

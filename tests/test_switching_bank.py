@@ -2,21 +2,24 @@
 
 The reference here is the bank as it was before: one filter (3.42) and one cost integral per model,
 integrated separately, and the exhaustive rule (3.46)-(3.47) (every cost, the lowest index within
-TIE_RTOL of the least one, dwell time, hysteresis), in plain numpy.  It shares with the package only
-what is not under test: the kinematic law and the matched law's terms (law_terms, law_for_pattern).
+TIE_RTOL of the least one, dwell time, hysteresis): in plain numpy for the single evaluations, and as
+a plug-in scheme (tests/data/bank_reference_scheme.py) for the closed loops.  It shares with the
+package only what is not under test: the kinematic law and the matched law's terms.
 
 Tolerances.  The superposed filters are the same linear ODEs summed in another order, so they agree
 with the per-model ones to round-off: values of O(1) after 300 RK4 steps agree to 1e-15 (measured),
 held to 1e-13.
-In the closed loops the compiled engine and the Python loop may differ at round-off as well (1e-9 on
-the plant state, tests/test_fast.py; measured here: 0, the same operations in the same order).  The
-costs, up to 1.1e-4 (m/s)^2 in these runs, differed by at most 1.4e-18 (measured): they are held to
-1e-8 of the largest cost, 10^4 above that and far below any cost difference the rule acts on (the
-hysteresis is 1e-10).  The selected model is an integer sequence and must be identical (28 to 76
-switches in these runs).
+In the closed loops the two banks differ at round-off as well (the plant state held to 1e-9).  The
+costs, up to 1.1e-4 (m/s)^2 in these runs, differed by at most 1.4e-18 (measured when the reference
+ran in the Python loop): they are held to 1e-8 of the largest cost, 10^4 above that and far below
+any cost difference the rule acts on (the hysteresis is 1e-10).  The selected model is an integer
+sequence and must be identical (28 to 76 switches in these runs).
 """
 
 from __future__ import annotations
+
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,69 +27,10 @@ import pytest
 from ftcreport import limits
 from ftcreport.control import switching as S
 from ftcreport.control.switching import TIE_RTOL, SwitchingController
-from ftcreport.control.tracking import TrackingController, law_for_pattern, law_terms
 from ftcreport.fast import kernels as F
 from ftcreport.model import FaultEvent, FaultSchedule, compensable_patterns
-from ftcreport.model import kernels as K
+from ftcreport.schemes import load_plugin
 from ftcreport.sim import Plant, SimSettings, demo_chain, simulate
-
-
-class BankReference:
-    """The per-model switching bank: N filters (3.42), N integrals, the exhaustive rule (3.47)."""
-
-    def __init__(self, chain, kin, k_v, gamma=10.0, T_min=0.01, c_inst=1.0, c_int=0.0, forgetting=1.0):
-        self.chain, self.kin = chain, kin
-        self.tracking = TrackingController(chain, kin, k_v)
-        self.k_v, self.gamma, self.T_min = k_v, gamma, T_min
-        self.c_inst, self.c_int, self.forgetting, self.hysteresis = c_inst, c_int, forgetting, 1e-10
-        self.patterns = np.array(compensable_patterns(chain.n), dtype=float)
-        self.N = N = len(self.patterns)
-        nk = kin.n_states
-        self._hat = slice(nk, nk + 2 * N)
-        self._int = slice(nk + 2 * N, nk + 3 * N)
-        self._sel, self._tsw = nk + 3 * N, nk + 3 * N + 1
-        self.n_states = nk + 3 * N + 2
-        self.signal_names = ("selected", "cost")
-
-    def costs(self, eta, xc):
-        err = eta[None, :] - xc[self._hat].reshape(self.N, 2)
-        return self.c_inst * np.sum(err * err, axis=1) + self.c_int * xc[self._int]
-
-    def initial_state(self, t, q, eta):
-        xc = np.zeros(self.n_states)
-        xc[: self.kin.n_states] = self.kin.initial_state(t, q)
-        xc[self._hat] = np.tile(eta, self.N)
-        xc[self._tsw] = -1e9
-        return xc
-
-    def evaluate(self, t, q, eta, xc):
-        kin, eta_c_dot = self.tracking.eta_c_and_dot(t, q, eta, xc[: self.kin.n_states])
-        Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)
-        terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta - kin.eta_c, kin, eta_c_dot, self.k_v)
-        u = law_for_pattern(terms, self.patterns[round(xc[self._sel])])
-        dx = np.zeros(self.n_states)
-        hat = xc[self._hat].reshape(self.N, 2)
-        for k in range(self.N):
-            # etahat_k' = -gamma etahat_k + gamma eta + g + MB diag(sigma_k) u
-            rate = -self.gamma * hat[k] + self.gamma * eta + terms.g + terms.MB @ (self.patterns[k] * u)
-            dx[self._hat.start + 2 * k : self._hat.start + 2 * k + 2] = rate
-            err = eta - hat[k]
-            dx[self._int.start + k] = -self.forgetting * xc[self._int.start + k] + err @ err
-        return u, dx
-
-    def discrete(self, t, q, eta, xc):
-        xc = xc.copy()
-        xc[: self.kin.n_states] = self.kin.discrete(t, q, xc[: self.kin.n_states])
-        J = self.costs(eta, xc)
-        cur = round(xc[self._sel])
-        ties = np.flatnonzero(np.less_equal(J, J.min() * (1.0 + TIE_RTOL)))
-        cand = int(ties[0]) if ties.size else int(np.argmin(J))
-        if cand != cur and t - xc[self._tsw] >= self.T_min - 1e-12 and J[cand] < J[cur] - self.hysteresis:
-            xc[self._sel], xc[self._tsw] = cand, t
-        return xc
-
-    def signals(self, t, q, eta, xc):
-        return {"selected": np.array(float(round(xc[self._sel]))), "cost": self.costs(eta, xc)}
 
 
 def _state(ctrl: SwitchingController, h, Z, M=None) -> np.ndarray:
@@ -276,24 +220,27 @@ CLOSED = [
 @pytest.mark.slow
 @pytest.mark.parametrize(("n", "c_int", "events"), CLOSED)
 def test_engine_selects_the_per_model_banks_sequence(n, c_int, events):
-    """The compiled engine (superposition + walk) and the per-model bank in the Python loop: the same
-    selected model at every step, the same costs (module docstring)."""
+    """The built-in switching scheme (superposition + walk) and the per-model bank (a plug-in scheme): the
+    same selected model at every step, the same costs (module docstring)."""
+    load_plugin(Path(__file__).parent / "data" / "bank_reference_scheme.py")
+    bank = sys.modules["ftcreport_plugin_bank_reference_scheme"]
     chain, kin, q0 = demo_chain(n)
     eta0 = np.array([0.5, 0.0])
     settings = SimSettings(0.01, 4.0)
     runs = []
-    for ctrl, engine in (
-        (SwitchingController(chain, kin, 2.0, c_int=c_int), "compiled"),
-        (BankReference(chain, kin, 2.0, c_int=c_int), "python"),
-    ):
+    for ctrl in (SwitchingController(chain, kin, 2.0, c_int=c_int), bank.controller(chain, kin, 2.0, c_int)):
         plant = Plant(chain, FaultSchedule(n, events))
-        runs.append(simulate(plant, ctrl, q0, eta0, settings, engine=engine))
+        runs.append(simulate(plant, ctrl, q0, eta0, settings))
     fast, ref = runs
     assert fast.ok and ref.ok, (fast.reason, ref.reason)
-    sel = ref["selected"]
+    nk, N = kin.n_states, fast["cost"].shape[1]
+    xc = ref["xc"]
+    sel = xc[:, nk + 3 * N]
+    err = ref["eta"][:, None, :] - xc[:, nk : nk + 2 * N].reshape(-1, N, 2)
+    cost = np.sum(err * err, axis=2) + c_int * xc[:, nk + 2 * N : nk + 3 * N]  # (3.46), c_inst = 1
     assert len(np.flatnonzero(np.diff(sel))) >= 10  # it switches, after every fault (28 to 76 times)
     np.testing.assert_array_equal(fast["selected"], sel)
-    np.testing.assert_allclose(fast["cost"], ref["cost"], rtol=0, atol=1e-8 * np.abs(ref["cost"]).max())
+    np.testing.assert_allclose(fast["cost"], cost, rtol=0, atol=1e-8 * np.abs(cost).max())
     np.testing.assert_allclose(fast["q"], ref["q"], rtol=0, atol=1e-9)
 
 

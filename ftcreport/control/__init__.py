@@ -1,15 +1,12 @@
-"""Controllers: objects with explicit internal state (see ftcreport.sim.Controller)."""
+"""Controllers: the built-in schemes' laws, read by the compiled engine (ftcreport.fast.engine.compiled_spec)."""
 
 from .kinematic import ChainedBackstepping, KinematicOutput, TwoLinkKinematic
 from .tracking import TrackingController, dynamic_law
-from .velocity import VelocityController, constant_command
 
 __all__ = [
     "ChainedBackstepping",
     "KinematicOutput",
     "TrackingController",
     "TwoLinkKinematic",
-    "VelocityController",
-    "constant_command",
     "dynamic_law",
 ]

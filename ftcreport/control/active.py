@@ -35,10 +35,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ModelError
-from ..model import kernels as K
 from ..model.chain import Chain
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
-from .tracking import TrackingController, kinematic_signals, law_for_pattern, law_terms
+from .tracking import TrackingController
 
 __all__ = ["ActiveController"]
 
@@ -104,36 +103,6 @@ class ActiveController:
             "param_std",
         )
 
-    # ------------------------------------------------------------------ pieces
-    def used_estimates(self, q: np.ndarray, xc: np.ndarray):
-        """(estimate, sigma_hat used by the law, ubar_hat used by the law)."""
-        e = self.est.estimates(xc[self._est], q)
-        rho, ubar = e.rho, e.ubar
-        if self.tau is not None:
-            nw = self.chain.n_wheels
-            f = xc[self._filt]
-            rho, ubar = f[:nw], f[nw:]
-        if self.u_limit is not None:
-            ubar = np.clip(ubar, -self.u_limit, self.u_limit)
-        return e, np.clip(rho, 0.0, 1.0), ubar
-
-    def control(self, t: float, q: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        """(4.14) at the measured q with the estimates in xc, clipped to the actuator limit."""
-        return self._control(t, q, xc)[0]
-
-    def _control(self, t: float, q: np.ndarray, xc: np.ndarray):
-        """(u, the raw estimate it was computed from)."""
-        e, sigma_hat, ubar_hat = self.used_estimates(q, xc)
-        eta_hat = e.eta
-        kin, eta_c_dot = self.tracking.eta_c_and_dot(t, q, eta_hat, xc[self._kin])
-        Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta_hat)
-        terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta_hat, eta_hat - kin.eta_c, kin, eta_c_dot, self.k_v)
-        u = law_for_pattern(terms, sigma_hat, -terms.MB @ ubar_hat)
-        if self.u_limit is not None:
-            u = np.clip(u, -self.u_limit, self.u_limit)
-        return u, e
-
-    # ------------------------------------------------------------------ Controller protocol
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
         xc = np.zeros(self.n_states)
         xc[self._kin] = self.kin.initial_state(t, q)
@@ -141,43 +110,6 @@ class ActiveController:
         if self.tau is not None:
             nw = self.chain.n_wheels
             xc[self._filt] = np.concatenate((np.ones(nw), np.zeros(nw)))
-        if self.discrete_time:
-            xc[self._u] = self.control(t, q, xc)
+        if self.discrete_time:  # the engine's discrete update computes the first command at t0 (fast.ukf)
             xc[self._t] = t
         return xc
-
-    def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
-        dx = np.zeros(self.n_states)
-        if self.discrete_time:
-            u = xc[self._u].copy()
-            e = self.est.estimates(xc[self._est], q) if self.tau is not None else None
-        else:
-            u, e = self._control(t, q, xc)
-            dx[self._est] = self.est.derivative(u, q, xc[self._est])
-        if self.tau is not None:
-            dx[self._filt] = (np.concatenate((e.rho, e.ubar)) - xc[self._filt]) / self.tau
-        return u, dx
-
-    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        xc = xc.copy()
-        xc[self._kin] = self.kin.discrete(t, q, xc[self._kin])
-        if self.discrete_time:
-            h = t - float(xc[self._t][0])
-            if h > 0:
-                xc[self._est] = self.est.step(xc[self._est], xc[self._u], q, h)
-            xc[self._u] = self.control(t, q, xc)
-            xc[self._t] = t
-        return xc
-
-    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        e, sigma_hat, ubar_hat = self.used_estimates(q, xc)
-        return kinematic_signals(self.kin, t, q, xc[self._kin]) | {
-            "q_hat": e.q.copy(),
-            "eta_hat": e.eta.copy(),
-            "rho_hat": e.rho.copy(),
-            "ubar_hat": e.ubar.copy(),
-            "sigma_used": sigma_hat,
-            "ubar_used": ubar_hat.copy(),
-            "P_max": np.array(self.est.covariance_bound(xc[self._est])),
-            "param_std": self.est.parameter_std(xc[self._est]),
-        }

@@ -35,21 +35,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import ModelError
-from ..model import kernels as K
 from ..model.chain import Chain
 from ..model.faults import model_patterns
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
-from .tracking import TrackingController, kinematic_signals, law_terms
+from .tracking import TrackingController
 
-__all__ = ["AdaptiveController", "pattern_laws"]
-
-
-def pattern_laws(MB: np.ndarray, patterns: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """u_(k) = (MB sigma_(k))^+ w for every pattern at once, (N, 2n); A^+ = A^T (A A^T)^-1."""
-    A = MB[None, :, :] * patterns[:, None, :]  # (N, 2, 2n)
-    AAt = np.einsum("kij,klj->kil", A, A)  # (N, 2, 2)
-    y = np.linalg.solve(AAt, np.broadcast_to(w, (patterns.shape[0], 2))[..., None])[..., 0]  # (N, 2)
-    return np.einsum("kij,ki->kj", A, y)
+__all__ = ["AdaptiveController"]
 
 
 class AdaptiveController:
@@ -119,44 +110,9 @@ class AdaptiveController:
         self.n_states = self._uf.stop
         self.signal_names = ("eta_c", "z", "q_d", "eta_d", "chi_hat", "uf_hat")
 
-    def chi_hat(self, xc: np.ndarray) -> np.ndarray:
-        return xc[self._chi].reshape(self.N, self.chain.n_wheels)
-
-    # ------------------------------------------------------------------ Controller protocol
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
         xc = np.zeros(self.n_states)
         xc[self._kin] = self.kin.initial_state(t, q)
         xc[self._chi] = self.chi0.ravel()
         xc[self._uf] = self.uf0
         return xc
-
-    def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
-        kin, eta_c_dot = self.tracking.eta_c_and_dot(t, q, eta, xc[self._kin])
-        Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)
-        eta_e = eta - kin.eta_c
-        terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin, eta_c_dot, self.k_v)
-        uf = xc[self._uf]
-        # bracket of (3.121): w - Mbar1^-1 Bbar uhat_f
-        U = pattern_laws(terms.MB, self.patterns, terms.w - terms.MB @ uf)  # (N, 2n)
-        chi = self.chi_hat(xc)
-        u = np.sum(chi * U, axis=0)  # (3.118)
-        dx = np.zeros(self.n_states)
-        if self.adapt:
-            c = eta_e @ terms.MB  # c_j = eta_e^T (Mbar1^-1 Bbar)_(:, j)
-            p = -self.gamma * U * c[None, :]  # (3.125)
-            frozen = ((chi <= 0.0) & (p < 0.0)) | ((chi >= 1.0) & (p > 0.0))  # projection, ERRATA E14
-            dx[self._chi] = np.where(frozen, 0.0, p).ravel()
-            dx[self._uf] = self.Gamma_f @ (terms.MB.T @ eta_e)  # (3.124), ERRATA E13
-        return u, dx
-
-    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        xc = xc.copy()
-        xc[self._kin] = self.kin.discrete(t, q, xc[self._kin])
-        xc[self._chi] = np.clip(xc[self._chi], 0.0, 1.0)
-        return xc
-
-    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        return kinematic_signals(self.kin, t, q, xc[self._kin]) | {
-            "chi_hat": self.chi_hat(xc).copy(),
-            "uf_hat": xc[self._uf].copy(),
-        }

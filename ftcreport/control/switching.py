@@ -31,7 +31,7 @@ Thesis sections 3.2.2.2-3.2.2.3 and 3.3.1 (3.33-3.48, 3.107), ERRATA E8, E12f, E
   first, then by number of assumed failures.  A tie is a cost within
   ``TIE_RTOL`` (relative) of the smallest: round-off (about 1e-13 here) must not
   decide between models that are equivalent, or the run depends on the order of
-  floating-point operations (the two engines, another BLAS) from the first such
+  floating-point operations (another BLAS, another compiler) from the first such
   tie on.
 
 * The least cost is found without visiting every model (fast.kernels._walk: a depth-first walk over
@@ -55,11 +55,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import ModelError
-from ..model import kernels as K
 from ..model.chain import Chain
 from ..model.faults import model_patterns
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
-from .tracking import TrackingController, kinematic_signals, law_for_pattern, law_terms
+from .tracking import TrackingController
 
 __all__ = ["MAX_LOGGED_COSTS", "TIE_RTOL", "SwitchingController"]
 
@@ -190,10 +189,6 @@ class SwitchingController:
             )  # fmt: skip
         return self._packed
 
-    def selected(self, xc: np.ndarray) -> int:
-        """Index of the applied model."""
-        return round(float(xc[self._sel]))
-
     def costs(self, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
         """J_(k) for every model, (N,) (fast.kernels.switching_costs)."""
         from ..fast import kernels as F
@@ -206,7 +201,6 @@ class SwitchingController:
         f = xc[self._filt]
         return f[None, :2] - (1.0 - self.patterns) @ f[2:].reshape(nw, 2)
 
-    # ------------------------------------------------------------------ Controller protocol
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
         xc = np.zeros(self.n_states)
         xc[self._kin] = self.kin.initial_state(t, q)
@@ -214,37 +208,3 @@ class SwitchingController:
         xc[self._sel] = float(self.initial_model)
         xc[self._tsw] = -1e9  # "long ago" (finite: the engine rejects non-finite states)
         return xc
-
-    def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
-        from ..fast import kernels as F
-
-        kin, eta_c_dot = self.tracking.eta_c_and_dot(t, q, eta, xc[self._kin])
-        Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)
-        terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta - kin.eta_c, kin, eta_c_dot, self.k_v)
-        u = law_for_pattern(terms, self.patterns[self.selected(xc)])
-        dx = np.zeros(self.n_states)
-        F.switching_rates(
-            self.packed(), np.ascontiguousarray(terms.MB, dtype=float), np.ascontiguousarray(u, dtype=float),
-            np.ascontiguousarray(terms.g, dtype=float), np.ascontiguousarray(eta, dtype=float),
-            np.asarray(xc, dtype=float), dx,
-        )  # fmt: skip
-        return u, dx
-
-    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        from ..fast import kernels as F
-
-        xc = np.array(xc, dtype=float)
-        xc[self._kin] = self.kin.discrete(t, q, xc[self._kin])
-        F.switching_select(self.packed(), float(t), np.ascontiguousarray(eta, dtype=float), xc)  # (3.47)
-        return xc
-
-    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        from ..fast import kernels as F
-
-        eta = np.ascontiguousarray(eta, dtype=float)
-        xc = np.asarray(xc, dtype=float)
-        out = kinematic_signals(self.kin, t, q, xc[self._kin]) | {"selected": np.array(self.selected(xc), dtype=float)}
-        if self.log_costs:
-            return out | {"cost": self.costs(eta, xc)}
-        J = F.switching_costs_rows(self.packed(), eta[None, :], xc[None, :], False)[0]
-        return out | {"cost_selected": np.array(J[0]), "cost_best": np.array(J[1])}

@@ -13,12 +13,13 @@ healthy pattern (the ``nominal`` baseline); the FTC schemes reuse
 
 The law lives once, in the compiled kernels (``fast.kernels.law_terms`` and
 ``law_for_pattern``, which cite the equations and errata); the helpers here are
-their faces for the Python controllers.
+their faces, and :meth:`TrackingController.evaluate` is the compiled loop's law at
+one state for the analyses (``analysis.closed_loop_jacobian``).
 
 etadot_c is the derivative of eta_c(t, q, psi) along the closed loop (ERRATA P5):
-the directional derivative in the direction (qdot = S(q) eta, 1), computed as a
-central difference of step h (truncation O(h^2), about 1e-10 relative at
-h = 1e-5).
+the directional derivative in the direction (qdot = S(q) eta, 1), computed by the
+kernels' ``eta_c_and_dot`` as a central difference of step h (truncation O(h^2),
+about 1e-10 relative at h = 1e-5).
 """
 
 from __future__ import annotations
@@ -36,7 +37,6 @@ __all__ = [
     "LawTerms",
     "TrackingController",
     "dynamic_law",
-    "kinematic_signals",
     "law_for_pattern",
     "law_terms",
 ]
@@ -122,13 +122,6 @@ def dynamic_law(
     return law_for_pattern(terms, sigma_k)
 
 
-def kinematic_signals(kin: TwoLinkKinematic | ChainedBackstepping, t: float, q: np.ndarray, xc_kin: np.ndarray) -> dict:
-    """The logged signals every tracking scheme shares: eta_c, z, q_d, eta_d."""
-    out = kin.law(t, q, xc_kin)
-    r = kin.reference.at(t)
-    return {"eta_c": out.eta_c, "z": out.z, "q_d": r.q_d, "eta_d": r.eta_d}
-
-
 class TrackingController:
     """Kinematic controller + dynamic law for one assumed pattern (nominal: healthy).
 
@@ -165,15 +158,10 @@ class TrackingController:
 
     # --------------------------------------------------------------- pieces
     def eta_c_and_dot(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
-        """(KinematicOutput at t, etadot_c along qdot = S(q) eta)."""
-        kin = self.kin.law(t, q, xc)
-        h = self.h
-        qdot = K.S_matrix(self.chain.params, q) @ eta
-        plus = self.kin.law(t + h, q + h * qdot, xc).eta_c
-        minus = self.kin.law(t - h, q - h * qdot, xc).eta_c
-        return kin, (plus - minus) / (2.0 * h)
+        """(KinematicOutput at t, etadot_c along qdot = S(q) eta): the compiled ``eta_c_and_dot``, the loop's."""
+        return self.kin.law_and_rate(t, q, eta, xc, K.S_matrix(self.chain.params, q), self.h)
 
-    # --------------------------------------------------------------- Controller protocol
+    # --------------------------------------------------------------- the engine's start; the analyses' law
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
         return self.kin.initial_state(t, q)
 
@@ -182,10 +170,3 @@ class TrackingController:
         Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)
         u = dynamic_law(Mbar1, Mbar2, Cbar, Bbar, self.sigma, eta, eta - kin.eta_c, kin, eta_c_dot, self.k_v)
         return u, np.zeros(self.n_states)
-
-    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        return self.kin.discrete(t, q, xc)
-
-    def signals(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> dict[str, np.ndarray]:
-        _, eta_c_dot = self.eta_c_and_dot(t, q, eta, xc)
-        return kinematic_signals(self.kin, t, q, xc) | {"eta_c_dot": eta_c_dot}

@@ -1,17 +1,17 @@
-r"""The compiled engine: sim.simulate's loop, run by ftcreport.fast.kernels.
+r"""The compiled engine: the one simulation loop (ftcreport/fast/loop.py on ftcreport.fast.kernels).
 
-:func:`compiled_spec` reads a controller built by the Python modules (the
-reference implementation) into the plain arrays the kernels take, or returns
-None when the controller has no compiled counterpart (the UKF's discrete
-estimator, user-defined controllers): :func:`ftcreport.sim.simulate` then runs
-the Python loop.  :func:`simulate_compiled` runs the same steps in the same
-order (fault sampling, noise, checks, logging, RK4 or ROS2, discrete updates)
-and builds the same :class:`~ftcreport.sim.Run`; the signals that are plain
-functions of the logged state (switching costs, adaptive weights, the
-observer's P) are computed here, vectorized, from the log.
+:func:`compiled_spec` reads a controller built by the Python faces (the classes of
+:mod:`ftcreport.control`, a registered scheme's ``SchemeController``) into the plain
+arrays the kernels take, or returns None when the controller has no compiled
+counterpart: :func:`ftcreport.sim.simulate` then refuses it (issue 17: there is no
+Python loop; a new law is written as a scheme).  :func:`simulate_compiled` runs the
+steps (fault sampling, noise, checks, logging, RK4, ROS2 or ETD2, discrete updates)
+and builds the :class:`~ftcreport.sim.Run`; the signals that are plain functions of
+the logged state (switching costs, adaptive weights, the observer's P) are computed
+here, vectorized, from the log.
 
 The loop runs in chunks of about 1 % of the steps so that the progress
-callback is called as often as in the Python loop.  numba compiles the kernels
+callback is called every ~1 % of the run.  numba compiles the kernels
 on first use and caches the machine code beside the package (``__pycache__``):
 a fresh clone builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
 explicitly and reports the time).
@@ -240,7 +240,7 @@ def _split_signals(
 
 # --------------------------------------------------------------------------- errors
 def _message(info: np.ndarray, t: float, settings, ref: F.Ref) -> tuple[str, str]:
-    """(status, reason) of the Python engine for a kernel error code (the same wording: ftcreport.errors)."""
+    """(status, reason) of a kernel error code (one wording per stop: ftcreport.errors)."""
     code = int(info[0])
     a, b, c = (float(v) for v in info[1:4])
     if code == F.E_STATE_SINGULAR:
@@ -453,7 +453,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     fsig = np.array([np.asarray(s, float) for s, _ in table]).reshape(-1, nw)
     fubar = np.array([np.asarray(u, float) for _, u in table]).reshape(-1, nw)
     fidx = np.searchsorted(np.unique(seg), seg).astype(np.int64)
-    # one draw per step, in order: the same stream as the Python loop's per-step draws
+    # one draw per step, in order (seeded: a run is reproducible)
     if plant.noisy:
         rng = np.random.default_rng(plant.seed)
         noise = rng.standard_normal((n_steps + 1, nq + 2)) * plant.noise_std

@@ -32,7 +32,7 @@ Differences of method (not of equations):
 
 Errors are reported through ``info`` (a float array): ``info[0]`` is a code
 (``E_*`` below, 0 = none) and ``info[1:4]`` its numbers; the engine turns them
-into the messages of the Python engine.
+into the messages of ftcreport.errors.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ E_REF_SPEED = 11  # info: t, robot (1-based), speed
 E_REF_ART = 12  # info: t, link index, angle [deg]
 E_STEP_GROWTH = 13  # info: t, max |tau| at the streak start, max |tau| now [N m]
 E_UKF = 15  # info: the UKF step's status (fast.ukf.UKF_*), t
-E_STEP_JUMP = 14  # info: kind, before, after (sim._step_jump: non-finite new state or a check failed in one step)
+E_STEP_JUMP = 14  # info: kind, before, after (_step_jump: non-finite new state or a check failed in one step)
 
 # where run_steps stopped (its 4th return value)
 AT_STATE = 0  # at the accepted state of step k (checks, the law at the step start, growth)
@@ -1824,7 +1824,7 @@ def _min_art_cos(pp, x, nq):
 
 @jit
 def _step_jump(pp, x, xn, nq, lim, max_speed, max_position, frac, lim_far, info):
-    """sim._step_jump: kind (0 = none) with before/after in info[2:4]."""
+    """A step's blow-up (ftcreport.sim's docstring): kind (0 = none) with before/after in info[2:4]."""
     for i in range(xn.shape[0]):
         if not math.isfinite(xn[i]):
             return 1
@@ -1850,7 +1850,7 @@ def _step_jump(pp, x, xn, nq, lim, max_speed, max_position, frac, lim_far, info)
     return 0
 
 
-# =========================================================================== entry points for the Python engine
+# =========================================================================== the Python UKF's model; the active law
 @jit
 def midpoint_sigmas(pc, sigmas, u, dt, est_rho, est_ubar):
     """UKFEstimator._fx for every sigma point: one midpoint step of the process model, u held."""

@@ -190,19 +190,3 @@ class FarzaObserver:
 
         wheels = wheel_names(self.chain.n)
         return [f"rho_{w}" for w in wheels if self.est_rho] + [f"ubar_{w}" for w in wheels if self.est_ubar]
-
-    def estimates(self, s: np.ndarray, y: np.ndarray) -> Estimate:
-        """Estimate from the observer state; eta_hat = S^+(y) qdot_hat (thesis 4.2.3.2): the compiled
-        ``farza_estimates``."""
-        from ..fast import kernels as F
-
-        s, y = np.ascontiguousarray(s, dtype=float), np.ascontiguousarray(y, dtype=float)
-        return Estimate(*F.farza_estimates(self._O(), self.chain.packed(), s, y, self.nw))
-
-    def parameter_std(self, s: np.ndarray) -> np.ndarray:
-        """sqrt(diag P) per estimated parameter: the observer's adaptation gain, not a covariance."""
-        return np.sqrt(np.maximum(np.diag(self.split(s)[3]), 0.0))
-
-    def covariance_bound(self, s: np.ndarray) -> float:
-        """Largest eigenvalue of P (the quantity the guard bounds)."""
-        return float(np.linalg.eigvalsh(self.split(s)[3]).max())

@@ -101,7 +101,7 @@ class UKFEstimator:
         p0 += [rho_std0**2] * (nw if self.est_rho else 0) + [ubar_std0**2] * (nw if self.est_ubar else 0)
         self.P0 = np.diag(p0)
         # filterpy (and the scipy.stats it pulls, ~65 MB) only where a UKF is built: the compiled
-        # engine runs its own step (fast/ukf.py); this object is the reference and the Python loop's
+        # engine runs its own step (fast/ukf.py); this object is the reference of tests/test_ukf_compiled.py
         from filterpy.kalman import MerweScaledSigmaPoints
 
         points = MerweScaledSigmaPoints(
@@ -184,14 +184,6 @@ class UKFEstimator:
         x, _ = self.unpack(s)
         rho, ubar = self._split_params(x)
         return Estimate(x[: self.N], x[self.N : self.N + 2], rho.copy(), ubar.copy())
-
-    def parameter_std(self, s: np.ndarray) -> np.ndarray:
-        """Posterior standard deviations of the estimated parameters (order of parameter_names)."""
-        P = self.unpack(s)[1]
-        return np.sqrt(np.maximum(np.diag(P)[self.N + 2 :], 0.0))
-
-    def covariance_bound(self, s: np.ndarray) -> float:
-        return float(np.linalg.eigvalsh(self.unpack(s)[1]).max())
 
 
 _BatchUKF = None

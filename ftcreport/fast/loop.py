@@ -1,15 +1,16 @@
 r"""The closed loop, compiled once per scheme: the template of every scheme's loop.
 
-``run_steps`` integrates the plant and the scheme's controller state over a range of steps
-(sim.simulate's order of operations: checks, the law, the stream row, the step, the discrete
-updates).  It calls the scheme's law and discrete update through the globals ``LAW`` and
-``DISC``.  :func:`ftcreport.fast.engine.loop_for` writes, for each scheme, a module that is this
-file with the line marked ``LOOP-BINDING`` importing that scheme's law: numba compiles each such
-module on the scheme's first use and caches it beside the module, under a key that is the same
-in every process.  So a case compiles only the loops of the schemes it runs, and a plug-in scheme
-(ftcreport.schemes) gets a loop as fast as a built-in one.  (Passing the law as an argument
-instead would key numba's cache on the law's dispatcher object, which differs in every process:
-the loop would be compiled again on every run.)
+``run_steps`` integrates the plant and the scheme's controller state over a range of steps, in
+this order: checks, the law, the stream row, the step, the discrete updates (the stops and their
+thresholds are in ftcreport.sim's docstring).  It calls the scheme's law and discrete update
+through the globals ``LAW`` and ``DISC``.  :func:`ftcreport.fast.engine.loop_for` writes, for
+each scheme, a module that is this file with the line marked ``LOOP-BINDING`` importing that
+scheme's law: numba compiles each such module on the scheme's first use and caches it beside
+the module, under a key that is the same in every process.  So a case compiles only the loops
+of the schemes it runs, and a plug-in scheme (ftcreport.schemes) gets a loop as fast as a
+built-in one.  (Passing the law as an argument instead would key numba's cache on the law's
+dispatcher object, which differs in every process: the loop would be compiled again on every
+run.)
 
 This file itself binds the nominal law; it is never run as it is.
 """
@@ -86,7 +87,7 @@ def true_faults(ctx, x, sigma, ubar, fm):
 
 @jit
 def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
-    """(f, u, tau) of the closed loop (sim.simulate's deriv).
+    """(f, u, tau) of the closed loop: the plant's and the controller's rates at (t, x).
 
     ``ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)``; ``share``: the controller's
     model is the plant's and there is no noise, so the reduced matrices the
@@ -326,11 +327,11 @@ def run_steps(
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
     lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf,
 ):  # fmt: skip
-    """Steps k0..k1 of sim.simulate (the same order of operations); returns (x, k, li, where).
+    """Steps k0..k1 of a run (sim.simulate through fast.engine.simulate_compiled); returns (x, k, li, where).
 
     ``where`` says where an error stopped the loop (AT_STATE, AT_TRIAL, AT_DISCRETE).
     ``grow`` = [max |tau| at the previous step, streak length, max |tau| at the streak start]
-    carries the step-growth detector of sim.simulate across calls; ``growth`` = [GROWTH_FACTOR,
+    carries the step-growth detector (ftcreport.sim's docstring) across calls; ``growth`` = [GROWTH_FACTOR,
     GROWTH_STEPS, GROWTH_FLOOR, JUMP_FRACTION, sin(JUMP_MARGINS * margin), GROWTH_TOTAL] of ftcreport.sim.
 
     Sampled control when ``u_h`` is not empty: ``hold_t = [next sample time, last sample time (nan:

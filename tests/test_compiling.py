@@ -207,3 +207,52 @@ def test_kernels_below_a_loop_emit_code_only_when_asked_and_cache_in_a_fresh_pro
         assert out["second_root"] == middle - leaf
     assert runs[0]["leaf_deferred"] and runs[0]["hits"] == [0, 0, 0]
     assert runs[1]["hits"] == [1, 1, 1]  # each from the cache: leaf and middle as bitcode, run_steps as code
+
+
+_ENTRY_PROBE = """
+import json
+import numpy as np
+from ftcreport.fast import compiling
+from ftcreport.fast import kernels as F
+from ftcreport.fast.engine import _chain
+from ftcreport.model import Chain
+
+chain = Chain.uniform(3, d=[1.0, 1.2])
+pc = _chain(chain.params)
+rng = np.random.default_rng(3)
+Q = np.array([np.concatenate((rng.normal(size=2), rng.uniform(-0.6, 0.6, 3))) for _ in range(4)])
+ETA = rng.normal(size=(4, 2))
+rows = F.wheel_speeds_rows(pc, Q, ETA)  # an entry point: reduced below it is compiled, not emitted
+sig = [s for s in F.reduced.signatures if str(s[0]).startswith("Chain")][0]
+cres = F.reduced.overloads[sig]
+deferred = isinstance(cres.entry_point, compiling.LazyEntry) and cres.entry_point.cfunc is None
+cheap = bool(getattr(cres.library, "_ftc_cheap", False))
+Bbar = F.reduced(pc, Q[1], ETA[1])[3]  # from Python: optimized fully, then emitted
+print(json.dumps({
+    "deferred": deferred, "cheap": cheap, "cheap_after": bool(getattr(cres.library, "_ftc_cheap", False)),
+    "rows": rows[1].tolist(), "direct": (Bbar[0] * ETA[1, 0] + Bbar[1] * ETA[1, 1]).tolist(),
+    "model": chain.wheel_speeds(Q[1], ETA[1]).tolist(),
+}))
+"""
+
+
+def test_a_kernel_called_from_python_is_an_entry_point_and_its_callees_are_deferred(tmp_path):
+    # the rule of loop_compile holds for every ftcreport kernel called from Python (the reference checks,
+    # the metrics' kernels): what is compiled below it gets the cheap passes and no machine code until
+    # asked; asked from Python, it is optimized fully first and computes the same numbers
+    import json
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "probe.py").write_text(_ENTRY_PROBE)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    res = subprocess.run([sys.executable, "probe.py"], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout.splitlines()[-1])
+    assert out["deferred"] and out["cheap"] and not out["cheap_after"]
+    # bit for bit: the same IEEE operations (no fast-math) in the inlined and the emitted callee (and numpy's
+    # elementwise products and sum, the kernel's order); 1e-12 to
+    # the Python model (its own order of operations, as in tests/test_fast.py)
+    assert out["rows"] == out["direct"]
+    np.testing.assert_allclose(out["rows"], out["model"], rtol=1e-12, atol=1e-12)

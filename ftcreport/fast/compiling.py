@@ -24,6 +24,13 @@ cache keeps such a kernel as its optimized bitcode (numba's ``serialize_using_bi
 of object code.  The loop's own module is emitted as always, so the code that runs is the same.
 Measured on the switching loop: machine-code emission 14 -> 6 s of CPU.
 
+The same rule holds for every ftcreport kernel that Python calls (the references' checks, the
+metrics' kernels): its own top-level compile makes it an entry point, and the kernels compiled
+below it get the cheap passes and no machine code until asked.  A kernel asked for from Python
+after all (its module had the cheap passes only) gets numba's full optimization before its code is
+emitted, in this process or when loaded from the cache (its module's name carries the tag
+``#ftcreport-cheap`` there), so a kernel called from Python always runs numba's default code.
+
 numba's cache of a kernel is keyed on its own file's content only, so a kernel cached from one
 file (fast/builtin.py's dispatchers, a plug-in's law, a loop module) kept the old code of a kernel
 it calls in another file (fast/kernels.py) after that file changed: a `git pull` that changed
@@ -51,6 +58,15 @@ __all__ = ["ACTIVE", "DEFERRED", "ROOTS", "LazyEntry", "engine_stamp", "install_
 ROOTS = frozenset({"run_steps", "first_law", "first_discrete"})  # fast/loop.py's entry points
 
 _STATE = threading.local()  # numba compiles in the calling thread, under its global compiler lock
+_NUMBA: dict = {}  # numba's own methods that the hooks wrap
+
+
+def _below(library) -> bool:
+    """Whether a library is compiled below an entry point: a loop's (:data:`ROOTS`, within
+    :func:`loop_compile`) or a kernel's that Python calls (its own top-level compile)."""
+    if not getattr(_STATE, "on", False):
+        return False
+    return library.name not in ROOTS and library.name not in getattr(_STATE, "roots", ())
 
 
 def _install() -> bool:
@@ -63,14 +79,17 @@ def _install() -> bool:
     if full is None or getattr(full, "_ftcreport", False):
         return full is not None
 
+    _NUMBA["_optimize_final_module"] = full
+
     def optimize_final_module(self) -> None:
-        if not getattr(_STATE, "on", False) or self.name in ROOTS:
+        if not _below(self):
             return full(self)
         # numba's own first stage (inlining for reference-count pruning), without the full O3 run
         mpm, pb = self._codegen._module_pass_manager(
             loop_vectorize=False, slp_vectorize=False, opt=0, cost="cheap"
         )  # fmt: skip
         mpm.run(self._final_module, pb)
+        self._ftc_cheap = True  # emitting its own code (a call from Python) optimizes it fully first
 
     optimize_final_module._ftcreport = True
     lib._optimize_final_module = optimize_final_module
@@ -122,17 +141,33 @@ class LazyEntry:
         return f"<LazyEntry {self._fndesc.qualname} ({state})>"
 
 
-_NUMBA: dict = {}  # numba's own methods that the deferral wraps
+_CHEAP = "#ftcreport-cheap"  # a module name's tag in the cache: optimized with the cheap passes only
 
 
 def _deferring(library) -> bool:
     """Whether a library just optimized (or loaded as bitcode) emits its machine code later."""
     return (
-        getattr(_STATE, "on", False)
-        and library.name not in ROOTS
+        _below(library)
         and getattr(library, "_ftc_jit", False)
         and getattr(library, "_compiled_object", None) is None  # not loaded as object code
     )
+
+
+def _emit(library) -> None:
+    """numba's finalization: the module added to the JIT engine and its machine code emitted.
+
+    A module that had the cheap passes only (below an entry point, now called from Python or
+    loaded from the cache so) gets numba's full optimization first: its code is then what numba
+    would have emitted by default."""
+    mod = library._final_module
+    if getattr(library, "_ftc_cheap", False) or mod.name.endswith(_CHEAP):
+        library._ftc_cheap = False
+        mod.name = mod.name.removesuffix(_CHEAP)
+        full = _NUMBA.get("_optimize_final_module")
+        if full is not None:
+            full(library)
+    _NUMBA["_finalize_final_module"](library)
+    _flush_envs(library._codegen)
 
 
 def _realize(library) -> None:
@@ -140,8 +175,7 @@ def _realize(library) -> None:
     if getattr(library, "_ftc_deferred", False):
         library._ftc_deferred = False
         library._dynamic_globals = []  # numba's finalization lists them again
-        _NUMBA["_finalize_final_module"](library)
-        _flush_envs(library._codegen)
+        _emit(library)
 
 
 def _flush_envs(cg) -> None:
@@ -166,7 +200,7 @@ def _install_deferred() -> bool:
         (lib, "_finalize_final_module"), (lib, "_finalize_dynamic_globals"), (lib, "_verify_declare_only_symbols"),
         (lib, "serialize_using_object_code"), (lib, "serialize_using_bitcode"), (lib, "_ensure_finalized"),
         (jit_lib, "get_pointer_to_function"), (jit_cg, "set_env"), (ctx, "get_executable"),
-        (ctx, "get_env_name"), (disp, "add_overload"), (disp, "_insert"),
+        (ctx, "get_env_name"), (disp, "add_overload"), (disp, "_insert"), (disp, "compile"),
     )  # fmt: skip
     if any(getattr(owner, name, None) is None for owner, name in needed):
         return False
@@ -177,13 +211,24 @@ def _install_deferred() -> bool:
     _NUMBA.update(
         _finalize_final_module=lib._finalize_final_module, get_pointer_to_function=jit_lib.get_pointer_to_function,
         serialize_using_object_code=lib.serialize_using_object_code, set_env=jit_cg.set_env,
-        get_executable=ctx.get_executable, add_overload=disp.add_overload,
+        get_executable=ctx.get_executable, add_overload=disp.add_overload, compile=disp.compile,
     )  # fmt: skip
+
+    def compile(self, sig):
+        # a kernel of ftcreport compiled from Python is an entry point: the kernels below it are not
+        if getattr(_STATE, "entry", False) or not str(getattr(self.py_func, "__module__", "")).startswith("ftcreport"):
+            return _NUMBA["compile"](self, sig)
+        before = getattr(_STATE, "on", False), getattr(_STATE, "roots", ())
+        _STATE.entry, _STATE.on, _STATE.roots = True, True, (self.py_func.__qualname__,)
+        try:
+            return _NUMBA["compile"](self, sig)
+        finally:
+            _STATE.entry = False
+            _STATE.on, _STATE.roots = before
 
     def _finalize_final_module(self) -> None:
         if not _deferring(self):
-            _NUMBA["_finalize_final_module"](self)
-            _flush_envs(self._codegen)
+            _emit(self)
             return
         # what numba's finalization checks and records, without adding the module to the JIT engine
         self._finalize_dynamic_globals()
@@ -198,9 +243,17 @@ def _install_deferred() -> bool:
 
     def serialize_using_object_code(self):
         self._ensure_finalized()
-        if getattr(self, "_ftc_deferred", False):  # no object code: the cache keeps the optimized bitcode
+        if not getattr(self, "_ftc_deferred", False):
+            return _NUMBA["serialize_using_object_code"](self)
+        # no object code: the cache keeps the bitcode, its name tagged if it had the cheap passes only
+        mod = self._final_module
+        name = mod.name
+        if getattr(self, "_ftc_cheap", False):
+            mod.name = name + _CHEAP
+        try:
             return self.serialize_using_bitcode()
-        return _NUMBA["serialize_using_object_code"](self)
+        finally:
+            mod.name = name
 
     def set_env(self, env_name, env) -> None:
         if not self._engine.is_symbol_defined(env_name):  # only deferred code holds it so far
@@ -232,7 +285,7 @@ def _install_deferred() -> bool:
 
     jit_lib._ftc_jit = True
     for fn in (_finalize_final_module, get_pointer_to_function, serialize_using_object_code, set_env,
-               get_executable, add_overload):  # fmt: skip
+               get_executable, add_overload, compile):  # fmt: skip
         fn._ftcreport = True
     lib._finalize_final_module = _finalize_final_module
     jit_lib.get_pointer_to_function = get_pointer_to_function
@@ -240,6 +293,7 @@ def _install_deferred() -> bool:
     jit_cg.set_env = set_env
     ctx.get_executable = get_executable
     disp.add_overload = add_overload
+    disp.compile = compile
     return True
 
 

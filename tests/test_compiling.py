@@ -106,6 +106,8 @@ def test_every_ftcreport_kernel_cache_is_keyed_on_all_compiled_sources():
         stamp = kernel._cache._impl._locator.get_source_stamp()
         assert stamp[1] == h.hexdigest()
         assert stamp[0] == hashlib.sha256(Path(kernel.py_func.__code__.co_filename).read_bytes()).digest()
+        # numba's warning that a kernel cannot be cached reads its locator's _py_file
+        assert kernel._cache._impl._locator._py_file == kernel.py_func.__code__.co_filename
 
     @njit(cache=True)
     def elsewhere(x):  # not ftcreport's (this test module): numba's own locator, untouched

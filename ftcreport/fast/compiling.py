@@ -366,6 +366,11 @@ def install_cache_stamp() -> bool:
         def get_disambiguator(self):
             return self._inner.get_disambiguator()
 
+        def __getattr__(self, name):  # what numba reads of its own locators (_py_file for its warnings)
+            if name == "_inner":
+                raise AttributeError(name)
+            return getattr(self._inner, name)
+
         @classmethod
         def from_function(cls, py_func, py_file):
             if not str(getattr(py_func, "__module__", "")).startswith("ftcreport"):

@@ -258,3 +258,14 @@ def test_a_kernel_called_from_python_is_an_entry_point_and_its_callees_are_defer
     # the Python model (its own order of operations, as in tests/test_fast.py)
     assert out["rows"] == out["direct"]
     np.testing.assert_allclose(out["rows"], out["model"], rtol=1e-12, atol=1e-12)
+
+
+def test_numba_llvm_lock_event_is_off_while_a_kernel_compiles_and_back_after():
+    import llvmlite.binding as llb
+
+    lock = llb.ffi.lib._lock
+    numba_owned = lambda cbs: [cb for cb in cbs if cb[0].__module__ == "numba.core.base"]  # noqa: E731
+    assert numba_owned(lock._cblist)  # numba's timer feed is registered (llvmlite's internals as read)
+    with compiling._quiet_llvm_lock():
+        assert not numba_owned(lock._cblist)
+    assert numba_owned(lock._cblist)

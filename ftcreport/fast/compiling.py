@@ -186,6 +186,36 @@ def _flush_envs(cg) -> None:
             _NUMBA["set_env"](cg, name, pending.pop(name))
 
 
+@contextlib.contextmanager
+def _quiet_llvm_lock() -> Iterator[None]:
+    """Without numba's ``numba:llvm_lock`` event around each call into LLVM, while a kernel compiles.
+
+    numba broadcasts the event to a timer of every compile in progress (one per level of nesting) at
+    each of the 100,000s of calls a loop's compile makes into LLVM: measured 1.3 s per 200,000
+    calls at five levels, 0.12 s without.  It only feeds the LLVM-time entry of numba's compile
+    metadata (``dispatcher.get_metadata(sig)["timers"]``), which is then 0 for ftcreport's kernels
+    (``FTCREPORT_LLVM_EVENTS=1`` keeps the event, for profiling with numba's event recorder).
+    """
+    import os
+
+    lock = getattr(getattr(getattr(_llvm(), "ffi", None), "lib", None), "_lock", None)
+    callbacks = getattr(lock, "_cblist", None)
+    if os.environ.get("FTCREPORT_LLVM_EVENTS") == "1" or not isinstance(callbacks, list):
+        yield
+        return
+    lock._cblist = [cb for cb in callbacks if getattr(cb[0], "__module__", "") != "numba.core.base"]
+    try:
+        yield
+    finally:
+        lock._cblist = callbacks
+
+
+def _llvm():
+    import llvmlite.binding
+
+    return llvmlite.binding
+
+
 def _install_deferred() -> bool:
     try:
         from numba.core import codegen, cpu, dispatcher
@@ -221,7 +251,8 @@ def _install_deferred() -> bool:
         before = getattr(_STATE, "on", False), getattr(_STATE, "roots", ())
         _STATE.entry, _STATE.on, _STATE.roots = True, True, (self.py_func.__qualname__,)
         try:
-            return _NUMBA["compile"](self, sig)
+            with _quiet_llvm_lock():
+                return _NUMBA["compile"](self, sig)
         finally:
             _STATE.entry = False
             _STATE.on, _STATE.roots = before

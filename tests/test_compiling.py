@@ -177,6 +177,8 @@ out["leaf_deferred"] = isinstance(entry, compiling.LazyEntry) and entry.cfunc is
 out["middle"] = defmod.middle(x)  # from Python: its code is emitted on this first call
 out["middle_again"] = defmod.middle(x)  # numba's own table of wrappers now
 out["leaf"] = defmod.leaf(x)
+lib = defmod.middle.overloads[defmod.middle.signatures[0]].library
+out["middle_full"] = getattr(lib, "_ftc_cheap", None) is False  # optimized fully before its code was emitted
 with compiling.loop_compile():
     out["second_root"] = defmod.first_law(x)
 out["hits"] = [sum(f.stats.cache_hits.values()) for f in (defmod.leaf, defmod.middle, defmod.run_steps)]
@@ -207,6 +209,7 @@ def test_kernels_below_a_loop_emit_code_only_when_asked_and_cache_in_a_fresh_pro
         assert out["root"] == middle + 1.0
         assert (out["middle"], out["middle_again"], out["leaf"]) == (middle, middle, leaf)
         assert out["second_root"] == middle - leaf
+        assert out["middle_full"]  # compiled (first run) or loaded as bitcode (second): numba's full pipeline
     assert runs[0]["leaf_deferred"] and runs[0]["hits"] == [0, 0, 0]
     assert runs[1]["hits"] == [1, 1, 1]  # each from the cache: leaf and middle as bitcode, run_steps as code
 

@@ -28,8 +28,8 @@ The same rule holds for every ftcreport kernel that Python calls (the references
 metrics' kernels): its own top-level compile makes it an entry point, and the kernels compiled
 below it get the cheap passes and no machine code until asked.  A kernel asked for from Python
 after all (its module had the cheap passes only) gets numba's full optimization before its code is
-emitted, in this process or when loaded from the cache (its module's name carries the tag
-``#ftcreport-cheap`` there), so a kernel called from Python always runs numba's default code.
+emitted, in this process or when loaded from the cache (a library loaded from bitcode: only the
+deferral stores one), so a kernel called from Python always runs numba's default code.
 
 numba's cache of a kernel is keyed on its own file's content only, so a kernel cached from one
 file (fast/builtin.py's dispatchers, a plug-in's law, a loop module) kept the old code of a kernel
@@ -83,13 +83,17 @@ def _install() -> bool:
 
     def optimize_final_module(self) -> None:
         if not _below(self):
-            return full(self)
+            return optimized_fully(self)
         # numba's own first stage (inlining for reference-count pruning), without the full O3 run
         mpm, pb = self._codegen._module_pass_manager(
             loop_vectorize=False, slp_vectorize=False, opt=0, cost="cheap"
         )  # fmt: skip
         mpm.run(self._final_module, pb)
         self._ftc_cheap = True  # emitting its own code (a call from Python) optimizes it fully first
+
+    def optimized_fully(self) -> None:
+        self._ftc_cheap = False
+        full(self)
 
     optimize_final_module._ftcreport = True
     lib._optimize_final_module = optimize_final_module
@@ -141,9 +145,6 @@ class LazyEntry:
         return f"<LazyEntry {self._fndesc.qualname} ({state})>"
 
 
-_CHEAP = "#ftcreport-cheap"  # a module name's tag in the cache: optimized with the cheap passes only
-
-
 def _deferring(library) -> bool:
     """Whether a library just optimized (or loaded as bitcode) emits its machine code later."""
     return (
@@ -159,10 +160,9 @@ def _emit(library) -> None:
     A module that had the cheap passes only (below an entry point, now called from Python or
     loaded from the cache so) gets numba's full optimization first: its code is then what numba
     would have emitted by default."""
-    mod = library._final_module
-    if getattr(library, "_ftc_cheap", False) or mod.name.endswith(_CHEAP):
+    loaded = not hasattr(library, "_ftc_cheap") and not library._object_caching_enabled  # from bitcode
+    if getattr(library, "_ftc_cheap", False) or loaded:
         library._ftc_cheap = False
-        mod.name = mod.name.removesuffix(_CHEAP)
         full = _NUMBA.get("_optimize_final_module")
         if full is not None:
             full(library)
@@ -274,17 +274,9 @@ def _install_deferred() -> bool:
 
     def serialize_using_object_code(self):
         self._ensure_finalized()
-        if not getattr(self, "_ftc_deferred", False):
-            return _NUMBA["serialize_using_object_code"](self)
-        # no object code: the cache keeps the bitcode, its name tagged if it had the cheap passes only
-        mod = self._final_module
-        name = mod.name
-        if getattr(self, "_ftc_cheap", False):
-            mod.name = name + _CHEAP
-        try:
+        if getattr(self, "_ftc_deferred", False):  # no object code: the cache keeps the bitcode
             return self.serialize_using_bitcode()
-        finally:
-            mod.name = name
+        return _NUMBA["serialize_using_object_code"](self)
 
     def set_env(self, env_name, env) -> None:
         if not self._engine.is_symbol_defined(env_name):  # only deferred code holds it so far

@@ -250,8 +250,10 @@ def _install_deferred() -> bool:
             return _NUMBA["compile"](self, sig)
         before = getattr(_STATE, "on", False), getattr(_STATE, "roots", ())
         _STATE.entry, _STATE.on, _STATE.roots = True, True, (self.py_func.__qualname__,)
+        from numba.core.compiler_lock import global_compiler_lock
+
         try:
-            with _quiet_llvm_lock():
+            with global_compiler_lock, _quiet_llvm_lock():  # the lock first: one thread swaps llvmlite's list
                 return _NUMBA["compile"](self, sig)
         finally:
             _STATE.entry = False

@@ -29,7 +29,7 @@ metrics' kernels): its own top-level compile makes it an entry point, and the ke
 below it get the cheap passes and no machine code until asked.  A kernel asked for from Python
 after all (its module had the cheap passes only) gets numba's full optimization before its code is
 emitted, in this process or when loaded from the cache (a library loaded from bitcode: only the
-deferral stores one), so a kernel called from Python always runs numba's default code.
+deferral stores one), so a kernel called from Python always runs fully optimized code.
 
 numba's cache of a kernel is keyed on its own file's content only, so a kernel cached from one
 file (fast/builtin.py's dispatchers, a plug-in's law, a loop module) kept the old code of a kernel
@@ -42,9 +42,12 @@ source of the package, so any change renews every entry that could have linked i
 The hook wraps one method of numba's code library (``CPUCodeLibrary._optimize_final_module``,
 numba 0.58-0.68).  If a numba release renames it, :data:`ACTIVE` is False and every kernel is
 optimized fully, as numba does by default: slower to compile, same results.  The deferred emission
-wraps six methods of numba 0.68 (the code library's finalization, serialization and function pointer,
-the codegen's ``set_env``, the context's ``get_executable``, the dispatcher's ``add_overload``); if
-one is missing, :data:`DEFERRED` is False and numba emits every module at once, as by default.
+and the entry points of Python's calls wrap seven methods of numba 0.68 (the code library's
+finalization, serialization and function pointer, the codegen's ``set_env``, the context's
+``get_executable``, the dispatcher's ``add_overload`` and ``compile``); if one is missing,
+:data:`DEFERRED` is False and numba emits every module at once, as by default
+(tests/test_compiling.py fails on the pinned numba then).  While a kernel compiles, numba's
+``numba:llvm_lock`` event is off (:func:`_quiet_llvm_lock`: 3-4 s of CPU per cold loop).
 """
 
 from __future__ import annotations

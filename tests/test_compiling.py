@@ -125,7 +125,7 @@ def test_the_deferred_emission_is_installed_on_the_pinned_numba():
     for fn in (
         codegen.CPUCodeLibrary._finalize_final_module, codegen.CPUCodeLibrary.serialize_using_object_code,
         codegen.JITCodeLibrary.get_pointer_to_function, codegen.JITCPUCodegen.set_env,
-        cpu.CPUContext.get_executable, dispatcher.Dispatcher.add_overload,
+        cpu.CPUContext.get_executable, dispatcher.Dispatcher.add_overload, dispatcher.Dispatcher.compile,
     ):  # fmt: skip
         assert getattr(fn, "_ftcreport", False), fn
 

@@ -106,9 +106,169 @@ def test_every_ftcreport_kernel_cache_is_keyed_on_all_compiled_sources():
         stamp = kernel._cache._impl._locator.get_source_stamp()
         assert stamp[1] == h.hexdigest()
         assert stamp[0] == hashlib.sha256(Path(kernel.py_func.__code__.co_filename).read_bytes()).digest()
+        # numba's warning that a kernel cannot be cached reads its locator's _py_file
+        assert kernel._cache._impl._locator._py_file == kernel.py_func.__code__.co_filename
 
     @njit(cache=True)
     def elsewhere(x):  # not ftcreport's (this test module): numba's own locator, untouched
         return x
 
     assert not getattr(type(elsewhere._cache._impl._locator), "_ftcreport", False)
+
+
+def test_the_deferred_emission_is_installed_on_the_pinned_numba():
+    # if numba renames what the deferral wraps, every kernel's machine code is emitted at once again
+    # (numba's default: slower to compile, same numbers): this test makes that visible
+    assert compiling.DEFERRED
+    from numba.core import codegen, cpu, dispatcher
+
+    for fn in (
+        codegen.CPUCodeLibrary._finalize_final_module, codegen.CPUCodeLibrary.serialize_using_object_code,
+        codegen.JITCodeLibrary.get_pointer_to_function, codegen.JITCPUCodegen.set_env,
+        cpu.CPUContext.get_executable, dispatcher.Dispatcher.add_overload, dispatcher.Dispatcher.compile,
+    ):  # fmt: skip
+        assert getattr(fn, "_ftcreport", False), fn
+
+
+_DEFERRED_MODULE = """
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def leaf(x):
+    s = 0.0
+    for i in range(x.size):
+        s += x[i] * x[i] + 0.5
+    if x[0] > 100.0:
+        print("big", s)  # numba's Python API: needs the kernel's environment, set once code holds it
+    return s
+
+
+@njit(cache=True)
+def middle(x):
+    return leaf(x) * 2.0 + leaf(x[:2])
+
+
+@njit(cache=True)
+def run_steps(x):  # a loop's entry point (compiling.ROOTS)
+    return middle(x) + 1.0
+
+
+@njit(cache=True)
+def first_law(x):  # another entry point, compiled after: links the deferred kernels again
+    return middle(x) - leaf(x)
+"""
+
+_DEFERRED_PROBE = """
+import json
+import numpy as np
+from ftcreport.fast import compiling
+import defmod
+
+x = np.linspace(-1.0, 1.0, 5)
+out = {}
+with compiling.loop_compile():
+    out["root"] = defmod.run_steps(x)
+    out["big"] = defmod.run_steps(x + 200.0)
+sigs = defmod.leaf.signatures
+entry = defmod.leaf.overloads[sigs[0]].entry_point if sigs else None
+out["leaf_deferred"] = isinstance(entry, compiling.LazyEntry) and entry.cfunc is None
+out["middle"] = defmod.middle(x)  # from Python: its code is emitted on this first call
+out["middle_again"] = defmod.middle(x)  # numba's own table of wrappers now
+out["leaf"] = defmod.leaf(x)
+lib = defmod.middle.overloads[defmod.middle.signatures[0]].library
+out["middle_full"] = getattr(lib, "_ftc_cheap", None) is False  # optimized fully before its code was emitted
+with compiling.loop_compile():
+    out["second_root"] = defmod.first_law(x)
+out["hits"] = [sum(f.stats.cache_hits.values()) for f in (defmod.leaf, defmod.middle, defmod.run_steps)]
+print(json.dumps(out))
+"""
+
+
+def test_kernels_below_a_loop_emit_code_only_when_asked_and_cache_in_a_fresh_process(tmp_path):
+    import json
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "defmod.py").write_text(_DEFERRED_MODULE)
+    (tmp_path / "probe.py").write_text(_DEFERRED_PROBE)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), PYTHONPATH=str(tmp_path))
+    runs = []
+    for _ in range(2):  # compiles and saves, then loads from the cache in a fresh process
+        res = subprocess.run([sys.executable, "probe.py"], cwd=tmp_path, env=env, capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr
+        lines = res.stdout.splitlines()
+        assert lines[:2] == ["big 200005.0", "big 79402.25"]  # the deferred kernel's environment was set
+        runs.append(json.loads(lines[-1]))
+    x = np.linspace(-1.0, 1.0, 5)
+    leaf = float(np.sum(x * x + 0.5))  # 5.0: sums of squares of multiples of 0.5, exact in binary
+    middle = 2.0 * leaf + float(np.sum(x[:2] * x[:2] + 0.5))
+    for out in runs:
+        assert out["root"] == middle + 1.0
+        assert (out["middle"], out["middle_again"], out["leaf"]) == (middle, middle, leaf)
+        assert out["second_root"] == middle - leaf
+        assert out["middle_full"]  # compiled (first run) or loaded as bitcode (second): numba's full pipeline
+    assert runs[0]["leaf_deferred"] and runs[0]["hits"] == [0, 0, 0]
+    assert runs[1]["hits"] == [1, 1, 1]  # each from the cache: leaf and middle as bitcode, run_steps as code
+
+
+_ENTRY_PROBE = """
+import json
+import numpy as np
+from ftcreport.fast import compiling
+from ftcreport.fast import kernels as F
+from ftcreport.fast.engine import _chain
+from ftcreport.model import Chain
+
+chain = Chain.uniform(3, d=[1.0, 1.2])
+pc = _chain(chain.params)
+rng = np.random.default_rng(3)
+Q = np.array([np.concatenate((rng.normal(size=2), rng.uniform(-0.6, 0.6, 3))) for _ in range(4)])
+ETA = rng.normal(size=(4, 2))
+rows = F.wheel_speeds_rows(pc, Q, ETA)  # an entry point: reduced below it is compiled, not emitted
+sig = [s for s in F.reduced.signatures if str(s[0]).startswith("Chain")][0]
+cres = F.reduced.overloads[sig]
+deferred = isinstance(cres.entry_point, compiling.LazyEntry) and cres.entry_point.cfunc is None
+cheap = bool(getattr(cres.library, "_ftc_cheap", False))
+Bbar = F.reduced(pc, Q[1], ETA[1])[3]  # from Python: optimized fully, then emitted
+print(json.dumps({
+    "deferred": deferred, "cheap": cheap, "cheap_after": bool(getattr(cres.library, "_ftc_cheap", False)),
+    "rows": rows[1].tolist(), "direct": (Bbar[0] * ETA[1, 0] + Bbar[1] * ETA[1, 1]).tolist(),
+    "model": chain.wheel_speeds(Q[1], ETA[1]).tolist(),
+}))
+"""
+
+
+def test_a_kernel_called_from_python_is_an_entry_point_and_its_callees_are_deferred(tmp_path):
+    # the rule of loop_compile holds for every ftcreport kernel called from Python (the reference checks,
+    # the metrics' kernels): what is compiled below it gets the cheap passes and no machine code until
+    # asked; asked from Python, it is optimized fully first and computes the same numbers
+    import json
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "probe.py").write_text(_ENTRY_PROBE)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    res = subprocess.run([sys.executable, "probe.py"], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout.splitlines()[-1])
+    assert out["deferred"] and out["cheap"] and not out["cheap_after"]
+    # bit for bit: the same IEEE operations (no fast-math) in the inlined and the emitted callee (and numpy's
+    # elementwise products and sum, the kernel's order); 1e-12 to
+    # the Python model (its own order of operations, as in tests/test_fast.py)
+    assert out["rows"] == out["direct"]
+    np.testing.assert_allclose(out["rows"], out["model"], rtol=1e-12, atol=1e-12)
+
+
+def test_numba_llvm_lock_event_is_off_while_a_kernel_compiles_and_back_after():
+    import llvmlite.binding as llb
+
+    lock = llb.ffi.lib._lock
+    numba_owned = lambda cbs: [cb for cb in cbs if cb[0].__module__ == "numba.core.base"]  # noqa: E731
+    assert numba_owned(lock._cblist)  # numba's timer feed is registered (llvmlite's internals as read)
+    with compiling._quiet_llvm_lock():
+        assert not numba_owned(lock._cblist)
+    assert numba_owned(lock._cblist)

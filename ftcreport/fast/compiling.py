@@ -15,6 +15,22 @@ same numbers (LLVM's optimizations keep IEEE semantics: no fast-math flags are s
 windows (tests/test_golden.py) hold at 1e-9.  Measured on the switching loop: 57 s -> 34 s of
 CPU, and the warm run no slower (benchmarks/run.py).
 
+numba also emits the machine code of every such module at once (its ``finalize``), because it
+makes each kernel callable from Python as soon as it is compiled: the code of a leaf was emitted
+once per level above it.  While a loop compiles, the kernels below its entry points skip that
+(:class:`LazyEntry`, :data:`DEFERRED`): their module is optimized and kept, linked into the callers
+as before, and emitted only if something asks for it (a call from Python, a function pointer); the
+cache keeps such a kernel as its optimized bitcode (numba's ``serialize_using_bitcode``) instead
+of object code.  The loop's own module is emitted as always, so the code that runs is the same.
+Measured on the switching loop: machine-code emission 14 -> 6 s of CPU.
+
+The same rule holds for every ftcreport kernel that Python calls (the references' checks, the
+metrics' kernels): its own top-level compile makes it an entry point, and the kernels compiled
+below it get the cheap passes and no machine code until asked.  A kernel asked for from Python
+after all (its module had the cheap passes only) gets numba's full optimization before its code is
+emitted, in this process or when loaded from the cache (a library loaded from bitcode: only the
+deferral stores one), so a kernel called from Python always runs fully optimized code.
+
 numba's cache of a kernel is keyed on its own file's content only, so a kernel cached from one
 file (fast/builtin.py's dispatchers, a plug-in's law, a loop module) kept the old code of a kernel
 it calls in another file (fast/kernels.py) after that file changed: a `git pull` that changed
@@ -25,7 +41,13 @@ source of the package, so any change renews every entry that could have linked i
 
 The hook wraps one method of numba's code library (``CPUCodeLibrary._optimize_final_module``,
 numba 0.58-0.68).  If a numba release renames it, :data:`ACTIVE` is False and every kernel is
-optimized fully, as numba does by default: slower to compile, same results.
+optimized fully, as numba does by default: slower to compile, same results.  The deferred emission
+and the entry points of Python's calls wrap seven methods of numba 0.68 (the code library's
+finalization, serialization and function pointer, the codegen's ``set_env``, the context's
+``get_executable``, the dispatcher's ``add_overload`` and ``compile``); if one is missing,
+:data:`DEFERRED` is False and numba emits every module at once, as by default
+(tests/test_compiling.py fails on the pinned numba then).  While a kernel compiles, numba's
+``numba:llvm_lock`` event is off (:func:`_quiet_llvm_lock`: 3-4 s of CPU per cold loop).
 """
 
 from __future__ import annotations
@@ -34,11 +56,20 @@ import contextlib
 import threading
 from collections.abc import Iterator
 
-__all__ = ["ACTIVE", "ROOTS", "engine_stamp", "install_cache_stamp", "loop_compile"]
+__all__ = ["ACTIVE", "DEFERRED", "ROOTS", "LazyEntry", "engine_stamp", "install_cache_stamp", "loop_compile"]
 
 ROOTS = frozenset({"run_steps", "first_law", "first_discrete"})  # fast/loop.py's entry points
 
 _STATE = threading.local()  # numba compiles in the calling thread, under its global compiler lock
+_NUMBA: dict = {}  # numba's own methods that the hooks wrap
+
+
+def _below(library) -> bool:
+    """Whether a library is compiled below an entry point: a loop's (:data:`ROOTS`, within
+    :func:`loop_compile`) or a kernel's that Python calls (its own top-level compile)."""
+    if not getattr(_STATE, "on", False):
+        return False
+    return library.name not in ROOTS and library.name not in getattr(_STATE, "roots", ())
 
 
 def _install() -> bool:
@@ -51,14 +82,21 @@ def _install() -> bool:
     if full is None or getattr(full, "_ftcreport", False):
         return full is not None
 
+    _NUMBA["_optimize_final_module"] = full
+
     def optimize_final_module(self) -> None:
-        if not getattr(_STATE, "on", False) or self.name in ROOTS:
-            return full(self)
+        if not _below(self):
+            return optimized_fully(self)
         # numba's own first stage (inlining for reference-count pruning), without the full O3 run
         mpm, pb = self._codegen._module_pass_manager(
             loop_vectorize=False, slp_vectorize=False, opt=0, cost="cheap"
         )  # fmt: skip
         mpm.run(self._final_module, pb)
+        self._ftc_cheap = True  # emitting its own code (a call from Python) optimizes it fully first
+
+    def optimized_fully(self) -> None:
+        self._ftc_cheap = False
+        full(self)
 
     optimize_final_module._ftcreport = True
     lib._optimize_final_module = optimize_final_module
@@ -66,6 +104,228 @@ def _install() -> bool:
 
 
 ACTIVE = _install()
+
+
+class LazyEntry:
+    """A kernel's Python entry point whose machine code is emitted on its first call.
+
+    numba gives every compiled function a Python-callable wrapper at once, and so emits the machine
+    code of its whole module (the function and every kernel linked below it).  A kernel compiled
+    below a loop's entry point runs only inside the loop's own module, so its module is emitted
+    only if something asks for it: a call from Python (numba's dispatcher calls a non-builtin
+    entry point as a Python callable, and this one then puts the real wrapper in the dispatcher's
+    table), a pointer (``get_pointer_to_function``).  It is also numba's key for the function when
+    other kernels call it (``BaseContext._defns``), so it stays the entry point of record.
+    """
+
+    __slots__ = ("_context", "_env", "_fndesc", "_library", "_targets", "cfunc")
+
+    def __init__(self, context, library, fndesc, env) -> None:
+        self._context, self._library, self._fndesc, self._env = context, library, fndesc, env
+        self.cfunc = None  # numba's wrapper, once emitted
+        self._targets: list = []  # (dispatcher, compile result) to insert the wrapper into
+
+    def realize(self):
+        """numba's wrapper of the kernel (its module's machine code emitted on the first call)."""
+        if self.cfunc is None:
+            from numba.core.compiler_lock import global_compiler_lock
+
+            with global_compiler_lock:
+                if self.cfunc is None:
+                    _realize(self._library)
+                    self.cfunc = _NUMBA["get_executable"](self._context, self._library, self._fndesc, self._env)
+                    for disp, cres in self._targets:
+                        _NUMBA["add_overload"](disp, cres._replace(entry_point=self.cfunc))
+                        disp.overloads[tuple(cres.signature.args)] = cres  # the entry point of record
+                    self._targets.clear()
+        return self.cfunc
+
+    def __call__(self, *args, **kws):
+        return self.realize()(*args, **kws)
+
+    def __repr__(self) -> str:
+        state = "emitted" if self.cfunc is not None else "deferred"
+        return f"<LazyEntry {self._fndesc.qualname} ({state})>"
+
+
+def _deferring(library) -> bool:
+    """Whether a library just optimized (or loaded as bitcode) emits its machine code later."""
+    return (
+        _below(library)
+        and getattr(library, "_ftc_jit", False)
+        and getattr(library, "_compiled_object", None) is None  # not loaded as object code
+    )
+
+
+def _emit(library) -> None:
+    """numba's finalization: the module added to the JIT engine and its machine code emitted.
+
+    A module that had the cheap passes only (below an entry point, now called from Python or
+    loaded from the cache so) gets numba's full optimization first: its code is then what numba
+    would have emitted by default."""
+    loaded = not hasattr(library, "_ftc_cheap") and not library._object_caching_enabled  # from bitcode
+    if getattr(library, "_ftc_cheap", False) or loaded:
+        library._ftc_cheap = False
+        full = _NUMBA.get("_optimize_final_module")
+        if full is not None:
+            full(library)
+    _NUMBA["_finalize_final_module"](library)
+    _flush_envs(library._codegen)
+
+
+def _realize(library) -> None:
+    """Emit a deferred library's machine code (numba's own finalization, which it skipped)."""
+    if getattr(library, "_ftc_deferred", False):
+        library._ftc_deferred = False
+        library._dynamic_globals = []  # numba's finalization lists them again
+        _emit(library)
+
+
+def _flush_envs(cg) -> None:
+    """Point the environment globals of deferred kernels at their environments, once emitted code has them."""
+    pending = getattr(cg, "_ftc_pending_envs", None)
+    if pending:
+        for name in [n for n in pending if cg._engine.is_symbol_defined(n)]:
+            _NUMBA["set_env"](cg, name, pending.pop(name))
+
+
+@contextlib.contextmanager
+def _quiet_llvm_lock() -> Iterator[None]:
+    """Without numba's ``numba:llvm_lock`` event around each call into LLVM, while a kernel compiles.
+
+    numba broadcasts the event to a timer of every compile in progress (one per level of nesting) at
+    each of the 100,000s of calls a loop's compile makes into LLVM: measured 1.3 s per 200,000
+    calls at five levels, 0.12 s without.  It only feeds the LLVM-time entry of numba's compile
+    metadata (``dispatcher.get_metadata(sig)["timers"]``), which is then 0 for ftcreport's kernels
+    (``FTCREPORT_LLVM_EVENTS=1`` keeps the event, for profiling with numba's event recorder).
+    """
+    import os
+
+    lock = getattr(getattr(getattr(_llvm(), "ffi", None), "lib", None), "_lock", None)
+    callbacks = getattr(lock, "_cblist", None)
+    if os.environ.get("FTCREPORT_LLVM_EVENTS") == "1" or not isinstance(callbacks, list):
+        yield
+        return
+    lock._cblist = [cb for cb in callbacks if getattr(cb[0], "__module__", "") != "numba.core.base"]
+    try:
+        yield
+    finally:
+        lock._cblist = callbacks
+
+
+def _llvm():
+    import llvmlite.binding
+
+    return llvmlite.binding
+
+
+def _install_deferred() -> bool:
+    try:
+        from numba.core import codegen, cpu, dispatcher
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return False
+    lib = getattr(codegen, "CPUCodeLibrary", None)
+    jit_lib = getattr(codegen, "JITCodeLibrary", None)
+    jit_cg = getattr(codegen, "JITCPUCodegen", None)
+    ctx = getattr(cpu, "CPUContext", None)
+    disp = getattr(dispatcher, "Dispatcher", None)
+    needed = (
+        (lib, "_finalize_final_module"), (lib, "_finalize_dynamic_globals"), (lib, "_verify_declare_only_symbols"),
+        (lib, "serialize_using_object_code"), (lib, "serialize_using_bitcode"), (lib, "_ensure_finalized"),
+        (jit_lib, "get_pointer_to_function"), (jit_cg, "set_env"), (ctx, "get_executable"),
+        (ctx, "get_env_name"), (disp, "add_overload"), (disp, "_insert"), (disp, "compile"),
+    )  # fmt: skip
+    if any(getattr(owner, name, None) is None for owner, name in needed):
+        return False
+    if getattr(lib._finalize_final_module, "_ftcreport", False):
+        return True
+    if not all(hasattr(codegen.JitEngine, a) for a in ("is_symbol_defined",)):
+        return False
+    _NUMBA.update(
+        _finalize_final_module=lib._finalize_final_module, get_pointer_to_function=jit_lib.get_pointer_to_function,
+        serialize_using_object_code=lib.serialize_using_object_code, set_env=jit_cg.set_env,
+        get_executable=ctx.get_executable, add_overload=disp.add_overload, compile=disp.compile,
+    )  # fmt: skip
+
+    def compile(self, sig):
+        # a kernel of ftcreport compiled from Python is an entry point: the kernels below it are not
+        if getattr(_STATE, "entry", False) or not str(getattr(self.py_func, "__module__", "")).startswith("ftcreport"):
+            return _NUMBA["compile"](self, sig)
+        before = getattr(_STATE, "on", False), getattr(_STATE, "roots", ())
+        _STATE.entry, _STATE.on, _STATE.roots = True, True, (self.py_func.__qualname__,)
+        from numba.core.compiler_lock import global_compiler_lock
+
+        try:
+            with global_compiler_lock, _quiet_llvm_lock():  # the lock first: one thread swaps llvmlite's list
+                return _NUMBA["compile"](self, sig)
+        finally:
+            _STATE.entry = False
+            _STATE.on, _STATE.roots = before
+
+    def _finalize_final_module(self) -> None:
+        if not _deferring(self):
+            _emit(self)
+            return
+        # what numba's finalization checks and records, without adding the module to the JIT engine
+        self._finalize_dynamic_globals()
+        self._verify_declare_only_symbols()
+        self._ftc_deferred = True
+        self._finalized = True
+
+    def get_pointer_to_function(self, name):
+        self._ensure_finalized()
+        _realize(self)
+        return _NUMBA["get_pointer_to_function"](self, name)
+
+    def serialize_using_object_code(self):
+        self._ensure_finalized()
+        if getattr(self, "_ftc_deferred", False):  # no object code: the cache keeps the bitcode
+            return self.serialize_using_bitcode()
+        return _NUMBA["serialize_using_object_code"](self)
+
+    def set_env(self, env_name, env) -> None:
+        if not self._engine.is_symbol_defined(env_name):  # only deferred code holds it so far
+            if not hasattr(self, "_ftc_pending_envs"):
+                self._ftc_pending_envs = {}
+            self._ftc_pending_envs[env_name] = env
+            return
+        _NUMBA["set_env"](self, env_name, env)
+
+    def get_executable(self, library, fndesc, env):
+        library._ensure_finalized()
+        if getattr(library, "_ftc_deferred", False):
+            library.codegen.set_env(self.get_env_name(fndesc), env)  # pending until code holds it
+            return LazyEntry(self, library, fndesc, env)
+        cfunc = _NUMBA["get_executable"](self, library, fndesc, env)
+        _flush_envs(library.codegen)
+        return cfunc
+
+    def add_overload(self, cres) -> None:
+        entry = cres.entry_point
+        if not isinstance(entry, LazyEntry):
+            return _NUMBA["add_overload"](self, cres)
+        if entry.cfunc is not None:
+            _NUMBA["add_overload"](self, cres._replace(entry_point=entry.cfunc))
+        else:  # numba's table of wrappers takes compiled functions only: the first call goes through compile()
+            entry._targets.append((self, cres))
+        self.overloads[tuple(cres.signature.args)] = cres
+        return None
+
+    jit_lib._ftc_jit = True
+    for fn in (_finalize_final_module, get_pointer_to_function, serialize_using_object_code, set_env,
+               get_executable, add_overload, compile):  # fmt: skip
+        fn._ftcreport = True
+    lib._finalize_final_module = _finalize_final_module
+    jit_lib.get_pointer_to_function = get_pointer_to_function
+    lib.serialize_using_object_code = serialize_using_object_code
+    jit_cg.set_env = set_env
+    ctx.get_executable = get_executable
+    disp.add_overload = add_overload
+    disp.compile = compile
+    return True
+
+
+DEFERRED = _install_deferred()
 
 
 @contextlib.contextmanager
@@ -133,6 +393,11 @@ def install_cache_stamp() -> bool:
 
         def get_disambiguator(self):
             return self._inner.get_disambiguator()
+
+        def __getattr__(self, name):  # what numba reads of its own locators (_py_file for its warnings)
+            if name == "_inner":
+                raise AttributeError(name)
+            return getattr(self._inner, name)
 
         @classmethod
         def from_function(cls, py_func, py_file):

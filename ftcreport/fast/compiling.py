@@ -53,6 +53,7 @@ finalization, serialization and function pointer, the codegen's ``set_env``, the
 from __future__ import annotations
 
 import contextlib
+import os
 import threading
 from collections.abc import Iterator
 
@@ -325,7 +326,8 @@ def _install_deferred() -> bool:
     return True
 
 
-DEFERRED = _install_deferred()
+#: ``FTCREPORT_DEFER_EMISSION=0``: numba emits every kernel's code as it compiles (see docs/ENGINE.md)
+DEFERRED = os.environ.get("FTCREPORT_DEFER_EMISSION", "1") != "0" and _install_deferred()
 
 
 @contextlib.contextmanager

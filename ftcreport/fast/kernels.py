@@ -1361,7 +1361,7 @@ def _model_cost(Lw, xc, e10, e11, s):
         for j in range(nw):
             fj = 1.0 - s[j]
             if fj != 0.0:
-                c = xc[m0 + _tri(0, j + 1, D)]
+                c = xc[m0 + _tri(np.int64(0), j + 1, D)]  # not a literal 0: one compile of _tri
                 for i in range(j):
                     fi = 1.0 - s[i]
                     if fi != 0.0:
@@ -1613,7 +1613,8 @@ def _best_cost(Lw, xc, e10, e11, Jc):
     if Lw.codes.shape[0] > 0:
         Jg = _good_cost(Lw, xc, e10, e11)
         lim = Jc if not math.isnan(Jc) else np.inf
-        return _walk(Lw, xc, e10, e11, 0, Jg if Jg < lim else lim)
+        # np.int64: a literal mode would compile _walk and _walk_core once per mode (issue 20 item 1)
+        return _walk(Lw, xc, e10, e11, np.int64(0), Jg if Jg < lim else lim)
     best = np.inf
     nan = False
     for k in range(Lw.patterns.shape[0]):
@@ -1649,7 +1650,7 @@ def switching_select(Lw, t, eta, xc):
     if lim < m:
         lim = m  # a negative least cost (round-off of the integral): exact ties only, as argmin
     if Lw.codes.shape[0] > 0:
-        cand = round(_walk(Lw, xc, e10, e11, 1, lim)[0])
+        cand = round(_walk(Lw, xc, e10, e11, np.int64(1), lim)[0])
         Jn = _model_cost(Lw, xc, e10, e11, Lw.patterns[cand])
     else:
         cand = -1

@@ -57,7 +57,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .model import kernels as K
 from .model.chain import Chain
 from .model.faults import FaultSchedule, wheel_names
 
@@ -281,13 +280,14 @@ def match_events(
 
 
 def input_matrices(chain: Chain, q: np.ndarray) -> np.ndarray:
-    """Mbar1^-1 Bbar at each logged configuration, (K, 2, 2n) (both depend on q only)."""
-    eta0 = np.zeros(2)
-    out = np.empty((q.shape[0], 2, chain.n_wheels))
-    for k in range(q.shape[0]):
-        Mbar1, _, _, Bbar = K.reduced(chain.params, q[k], eta0)
-        out[k] = np.linalg.solve(Mbar1, Bbar)
-    return out
+    """Mbar1^-1 Bbar at each logged configuration, (K, 2, 2n) (both depend on q only).
+
+    One compiled call (``fast.kernels.input_matrices_rows``): a per-row call from Python would
+    load and emit the model kernel ``reduced`` in every process that computes it (issue 20 item 7).
+    """
+    from .fast.engine import input_matrices_rows
+
+    return input_matrices_rows(chain, q)
 
 
 def combined_effect(MB: np.ndarray, u: np.ndarray, rho: np.ndarray, ubar: np.ndarray) -> np.ndarray:

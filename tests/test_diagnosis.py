@@ -167,3 +167,24 @@ def test_observer_initial_estimate_is_configurable():
     ctrl = make_controller(built, "active")
     xc = ctrl.initial_state(0.0, built.q0, built.eta0)
     assert xc[ctrl._est][:4].tolist() == [0.0, 0.0, 0.0, 0.0]  # q_hat(0), the observer's first states
+
+
+def test_input_matrices_solve_the_reduced_model_at_every_row():
+    """The compiled rows equal Mbar1^-1 Bbar from the model's own face, solved by LAPACK, per row.
+
+    Tolerance 1e-14 absolute on entries of order 0.3: the closed-form 2 x 2 inverse and LU differ
+    only in round-off (a few ulps of the entries times cond(Mbar1), which is below 10 here).
+    """
+    from ftcreport.diagnosis import input_matrices
+    from ftcreport.model import kernels as K
+
+    chain = Chain.uniform(3, d=[0.5, 0.7])
+    rng = np.random.default_rng(3)
+    q = np.zeros((40, chain.n_q))
+    q[:, :2] = rng.normal(0.0, 2.0, (40, 2))
+    q[:, 2:] = rng.normal(0.0, 0.4, (40, chain.n_q - 2))  # articulations well inside +-90 deg
+    got = input_matrices(chain, q)
+    assert got.shape == (40, 2, chain.n_wheels)
+    for k in range(q.shape[0]):
+        Mbar1, _, _, Bbar = K.reduced(chain.params, q[k], np.zeros(2))
+        np.testing.assert_allclose(got[k], np.linalg.solve(Mbar1, Bbar), rtol=0, atol=1e-14)

@@ -186,6 +186,12 @@ def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
     return F.wheel_speeds_rows(_chain(chain.params), Q, ETA)
 
 
+def input_matrices_rows(chain, Q: np.ndarray) -> np.ndarray:
+    """Mbar1(q)^-1 Bbar(q), (K, 2, 2n), at K configurations: one compiled call (no per-row Python)."""
+    Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)
+    return F.input_matrices_rows(_chain(chain.params), Q)
+
+
 # --------------------------------------------------------------------------- signals from the log
 def _split_signals(
     spec: Spec, sg: np.ndarray, xc: np.ndarray, meas: np.ndarray, nq: int, costs: bool = True

@@ -439,6 +439,25 @@ def wheel_speeds_rows(p, Q, ETA):
 
 
 @jit
+def input_matrices_rows(p, Q):
+    """Mbar1(q)^-1 Bbar(q) at every row, (K, 2, 2n): what a unit wheel torque accelerates (2.70).
+
+    Both matrices depend on q only (eta = 0 here); diagnosis.input_matrices.
+    """
+    nw = 2 * p.n
+    out = np.empty((Q.shape[0], 2, nw))
+    eta0 = np.zeros(2)
+    for k in range(Q.shape[0]):
+        Mbar1, _M2, _C, Bbar, _S, _Sd = reduced(p, Q[k], eta0)
+        Minv = _inv2(Mbar1)
+        for j in range(nw):
+            # column j of Mbar1^-1 Bbar
+            out[k, 0, j] = Minv[0, 0] * Bbar[0, j] + Minv[0, 1] * Bbar[1, j]
+            out[k, 1, j] = Minv[1, 0] * Bbar[0, j] + Minv[1, 1] * Bbar[1, j]
+    return out
+
+
+@jit
 def plant_rhs(p, q, eta, tau):
     """qdot = S eta and etadot of the reduced model (2.70): Mbar1 etadot + Mbar2 eta + Cbar = Bbar tau."""
     Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(p, q, eta)

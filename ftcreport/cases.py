@@ -1011,6 +1011,12 @@ def _submodel(annotation: Any) -> type[BaseModel] | None:
 
 def known_fields(loc: tuple[Any, ...]) -> list[str]:
     """Field names of the table at ``loc`` (a pydantic location inside a case), [] when it is not a table."""
+    model = _table_model(loc)
+    return [] if model is None else list(model.model_fields)
+
+
+def _table_model(loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The model of the table at ``loc`` (a pydantic location inside a case), None when it is not a table."""
     model: type[BaseModel] = Case
     skip = 0  # keys of dict-valued fields (thresholds.<scheme>.<metric>) are not field names
     for part in loc:
@@ -1022,10 +1028,10 @@ def known_fields(loc: tuple[Any, ...]) -> list[str]:
         field = model.model_fields.get(part)
         sub = None if field is None else _submodel(field.annotation)
         if sub is None:
-            return []
+            return None
         skip = _dict_depth(field.annotation)
         model = sub
-    return list(model.model_fields)
+    return model
 
 
 def _dict_depth(annotation: Any) -> int:
@@ -1060,7 +1066,19 @@ def _message(err: dict) -> str:
         return f"must be {op} {err['ctx'][name]:g}, got {err['input']}"
     if kind in ("literal_error", "enum"):  # every Literal (and enum) field of the schema
         return _choice_message(err["input"], str((err.get("ctx") or {}).get("expected", "")))
+    if kind == "missing":
+        return _missing_message(tuple(err["loc"]))
     return err["msg"].removeprefix("Value error, ")
+
+
+def _missing_message(loc: tuple[Any, ...]) -> str:
+    """``required and missing: <the field's description>; add it to [table]`` (the schema's own words)."""
+    model = _table_model(loc[:-1])
+    field = None if model is None else model.model_fields.get(str(loc[-1]))
+    what = f": {field.description.rstrip('.')}" if field is not None and field.description else ""
+    table = _format_loc(loc[:-1])
+    where = f"; add it to [{table}]" if table and not isinstance(loc[-2], int) else ""
+    return f"required and missing{what}{where}"
 
 
 def _choice_message(value: Any, expected: str) -> str:

@@ -49,7 +49,12 @@ def _base() -> dict:
         (lambda c: c["schemes"].update(run=[]), "schemes", "no scheme"),
         (lambda c: c["schemes"].update(run=["nominal"]), "schemes.switching", "not listed in schemes.run"),
         (lambda c: c["schemes"].update(run=["nominal", "magic"]), "schemes.run[1]", "unknown scheme 'magic'"),
-        (lambda c: c.pop("reference"), "reference", "Field required"),
+        (lambda c: c.pop("reference"), "reference", "required and missing: the last robot's path ([reference])"),
+        (
+            lambda c: c["simulation"].pop("duration"),
+            "simulation.duration",
+            "required and missing: simulated time; add it to [simulation]",
+        ),
         (lambda c: c.update(expected_status_of={"adaptiv": ["ok"]}), "expected_status_of.adaptiv", "'adaptive'"),
     ],
 )

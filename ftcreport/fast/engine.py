@@ -239,7 +239,7 @@ def _split_signals(
         else:
             out["cost_selected"], out["cost_best"] = J[:, 0].copy(), J[:, 1].copy()
     if isinstance(c, AdaptiveController):
-        out["chi_hat"] = xc[:, c._chi].reshape(len(xc), c.N, nw).copy()
+        out["chi_hat"] = xc[:, c._chi].reshape(len(xc), c.N, nw)  # a view of the logged state where numpy can
         out["uf_hat"] = xc[:, c._uf].copy()
     return {name: out[name] for name in c.signal_names if name in out}
 
@@ -527,7 +527,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     pp = _chain(chain.params)
     share = not plant.noisy and all(np.array_equal(a, b) for a, b in zip(pp, spec.chain, strict=True))
     stream: dict[str, np.ndarray] = {}  # preallocated for every step on the first chunk
-    log_parts: list[dict[str, np.ndarray]] = []
+    log_parts: list[list[np.ndarray]] = []
     si = 0
     k = 0
     status, reason = "ok", ""
@@ -574,7 +574,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     if progress is not None:
         progress(t_end)
     stream = {name: v[:si] for name, v in stream.items()}
-    logs = _concat(log_parts)
+    logs = _chunk_signals(spec, plant, nq, slice(None), _concat(log_parts)) if log_parts else {}
     t_log = logs.pop("t", np.zeros(0))
     t_stream = stream.pop("t", np.zeros(0))
     return Run(
@@ -628,12 +628,22 @@ def _collect(spec, plant, nq, k0, li, is_logged, bufs, stream, si, rows, log_par
     for name, v in part.items():
         stream[name][si : si + li] = v
     keep = np.flatnonzero(is_logged[k0 : k0 + li])
-    if keep.size:  # every signal of the saved steps (fancy indexing copies them out of the chunk buffers)
-        log_parts.append(_chunk_signals(spec, plant, nq, keep, bufs))
+    if keep.size:  # the saved steps' raw buffers (fancy indexing copies them); named once, at the end
+        log_parts.append([b[keep] if b.shape[0] else b for b in bufs])  # unused buffers have no rows
     return si + li
 
 
-def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    if not parts:
-        return {}
-    return {name: np.concatenate([p[name] for p in parts], axis=0) for name in parts[0]}
+def _concat(parts: list[list[np.ndarray]]) -> tuple[np.ndarray, ...]:
+    """The chunks' raw log buffers joined, buffer by buffer; each chunk's copy is dropped once joined.
+
+    The named signals are then views and slices of the joined buffers (``_chunk_signals`` with a
+    slice), so the log is held once, not once per chunk plus once joined (the five-link adaptive
+    case's controller state is 49 MB).
+    """
+    out = []
+    for i in range(len(parts[0])):
+        out.append(np.concatenate([p[i] for p in parts], axis=0) if parts[0][i].shape[0] else parts[0][i])
+        for p in parts:
+            p[i] = None
+    parts.clear()
+    return tuple(out)

@@ -44,7 +44,7 @@ from ..errors import ModelError
 from ..model.chain import Chain
 from ..model.faults import wheel_names
 
-__all__ = ["Estimate", "FarzaObserver", "estimated_parameters", "parameter_names"]
+__all__ = ["Estimate", "FarzaObserver", "estimate_flags", "parameter_names"]
 
 
 class Estimate(NamedTuple):
@@ -60,7 +60,7 @@ class Estimate(NamedTuple):
     ubar: np.ndarray
 
 
-def estimated_parameters(estimate: Sequence[str]) -> tuple[bool, bool]:
+def estimate_flags(estimate: Sequence[str]) -> tuple[bool, bool]:
     """(est_rho, est_ubar) of an estimator's ``estimate`` (any of ``"rho"``, ``"ubar"``, not none)."""
     unknown = set(estimate) - {"rho", "ubar"}
     if unknown or not estimate:
@@ -122,7 +122,7 @@ class FarzaObserver:
         if q_hat0 not in ("measured", "zero"):
             raise ModelError(f"q_hat0: must be 'measured' or 'zero', got {q_hat0!r}")
         self.q_hat0 = q_hat0
-        self.est_rho, self.est_ubar = estimated_parameters(estimate)
+        self.est_rho, self.est_ubar = estimate_flags(estimate)
         self.chain = chain
         self.N = chain.n_q
         self.nw = chain.n_wheels

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..model.chain import Chain
-from .farza import Estimate, estimated_parameters, parameter_names
+from .farza import Estimate, estimate_flags, parameter_names
 
 __all__ = ["SigmaPoints", "UKFEstimator"]
 
@@ -87,7 +87,7 @@ class UKFEstimator:
         beta: float = 2.0,
         kappa: float | None = None,
     ) -> None:
-        self.est_rho, self.est_ubar = estimated_parameters(estimate)
+        self.est_rho, self.est_ubar = estimate_flags(estimate)
         R = np.broadcast_to(np.asarray(meas_std, dtype=float), (chain.n_q,))
         values = [q_noise, eta_noise, rho_noise, ubar_noise, rho_std0, ubar_std0, eta_std0]
         if np.any(R <= 0) or min(values) < 0 or not np.all(np.isfinite(values)):

@@ -1,4 +1,4 @@
-"""Wall time of one UKF step: compiled (ftcreport.fast.ukf) against filterpy (UKFEstimator.step).
+"""Wall time of one UKF step: compiled (ftcreport.fast.ukf) against filterpy (tests/ukf_reference.py).
 
     python benchmarks/ukf_step.py [--n 2,3] [--steps 2000] [--repeats 5] [--json FILE]
 
@@ -24,11 +24,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # the filterpy reference
+
+from ukf_reference import FilterpyUKF  # noqa: E402
 
 from ftcreport.fast import kernels as F  # noqa: E402
 from ftcreport.fast.ukf import ukf_params, ukf_step  # noqa: E402
 from ftcreport.model import Chain  # noqa: E402
-from ftcreport.observers.ukf import UKFEstimator  # noqa: E402
+from ftcreport.observers import UKFEstimator  # noqa: E402
 
 DTS = (0.005, 0.01, 0.02)  # the simulation steps of cases/*.toml
 H = 0.01  # the step used for timing (the cost does not depend on h)
@@ -69,7 +72,8 @@ def measure(n: int, steps: int, repeats: int) -> dict:
     first = time.perf_counter() - t0
     short = max(steps // 10, 50)  # filterpy: fewer steps (it is slower), same sequence
     fast = [_run(compiled, s0, u, noise, est.N) for _ in range(repeats)]
-    ref = [_run(lambda s, uk, yk: est.step(s, uk, yk, H), s0, u[:short], noise[:short], est.N) for _ in range(repeats)]
+    ref_step = FilterpyUKF(est).step
+    ref = [_run(lambda s, uk, yk: ref_step(s, uk, yk, H), s0, u[:short], noise[:short], est.N) for _ in range(repeats)]
     t_fast, t_ref = statistics.median(t for t, _ in fast), statistics.median(t for t, _ in ref)
     c_fast, c_ref = statistics.median(c for _, c in fast), statistics.median(c for _, c in ref)
     return {

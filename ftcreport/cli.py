@@ -228,6 +228,7 @@ def _fail(exc: FtcError) -> None:
 SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")]
 WorkersOpt = Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")]
 InProcessOpt = Annotated[bool, typer.Option("--in-process", help="Run in this process, without Dask.")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
 
 
 def _dask(scheduler: str | None, workers: int, in_process: bool, quiet: bool, force: bool) -> dict:
@@ -284,6 +285,7 @@ def demo(
 
     from .control import TrackingController
     from .limits import budget_problem
+    from .metrics import singularity_margin
     from .model import FaultEvent, FaultSchedule
     from .sim import Plant, SimSettings, demo_chain, simulate
 
@@ -308,7 +310,7 @@ def demo(
         typer.echo(f"velocity error at {run.t[before][-1]:.2f} s: {err[before][-1]:.3e}")
     typer.echo(f"velocity error at {run.t[-1]:.2f} s: {err[-1]:.3e}")
     typer.echo(f"peak |tau|: {np.abs(run['tau']).max():.3f} N m; wall time {run.wall_time:.2f} s")
-    margin = min(chain.singularity_margin(q) for q in run["q"])
+    margin = singularity_margin(run["q"])
     typer.echo(f"singularity margin min: {math.degrees(margin):.1f} deg")
     if not run.ok:
         raise typer.Exit(code=1)
@@ -321,7 +323,7 @@ def batch(
     jobs: Annotated[int | None, typer.Option(help="Parallel processes (default: the core count).")] = None,
     force: Annotated[bool, typer.Option("--force", help="Re-simulate cached runs.")] = False,
     duration: Annotated[float | None, typer.Option(help="Override every case's simulated time \\[s].")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    quiet: QuietOpt = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="One line per run after the summary.")] = False,
 ) -> None:
     """Run every case x scheme (cached by case content and version) and write OUT/index.html.
@@ -647,7 +649,7 @@ def campaign(
     out: Annotated[Path | None, typer.Option(help="Output directory (default reports/campaigns/<case>).")] = None,
     schemes: Annotated[str | None, typer.Option(help="Comma-separated schemes (default: all in the case).")] = None,
     in_process: InProcessOpt = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    quiet: QuietOpt = False,
     force: Annotated[
         bool, typer.Option("--force", help="Re-run stored samples of another version or case content.")
     ] = False,
@@ -675,9 +677,14 @@ def campaign(
             page = render_campaign(out_dir, read_table(res.table))
     except FtcError as exc:
         _fail(exc)
+    _done(res, "samples run", page)
+
+
+def _done(res, runs: str, page: Path, detail: str = "") -> None:
+    """The summary line of a resumable Dask command (campaign, coverage); exit 1 when a task failed."""
     typer.echo(
-        f"{len(res.completed)} samples run, {res.skipped} already done, {len(res.failed)} failed "
-        f"in {res.wall_time:.1f} s; table {res.table}; report {page}"
+        f"{len(res.completed)} {runs}, {res.skipped} already done, {len(res.failed)} failed "
+        f"in {res.wall_time:.1f} s{detail}; table {res.table}; report {page}"
     )
     if res.failed:
         raise typer.Exit(1)
@@ -807,7 +814,7 @@ def coverage(
     workers: WorkersOpt = 2,
     out: Annotated[Path | None, typer.Option(help="Output directory (default reports/coverage/<case>).")] = None,
     in_process: InProcessOpt = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    quiet: QuietOpt = False,
     force: Annotated[bool, typer.Option("--force", help="Re-run stored items of another version or case.")] = False,
 ) -> None:
     """Fault-coverage map: every scheme on every single and paired wheel loss, partial loss and friction.
@@ -837,13 +844,7 @@ def coverage(
         page = render_coverage(out_dir)
     except FtcError as exc:
         _fail(exc)
-    typer.echo(
-        f"{len(res.completed)} fault runs, {res.skipped} already done, {len(res.failed)} failed "
-        f"in {res.wall_time:.1f} s (onsets {', '.join(f'{t:g}' for t in res.times)} s); "
-        f"table {res.table}; report {page}"
-    )
-    if res.failed:
-        raise typer.Exit(1)
+    _done(res, "fault runs", page, f" (onsets {', '.join(f'{t:g}' for t in res.times)} s)")
 
 
 @app.command()
@@ -856,7 +857,7 @@ def fdi(
     workers: WorkersOpt = 2,
     out: Annotated[Path | None, typer.Option(help="Output directory (default reports/fdi/<case>).")] = None,
     in_process: InProcessOpt = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    quiet: QuietOpt = False,
     force: Annotated[bool, typer.Option("--force", help="Re-run stored traces of another version or case.")] = False,
 ) -> None:
     """FDI evaluation: ROC, delay and isolation of the estimate-based and a CUSUM residual detector.

@@ -267,18 +267,14 @@ def sweep_fdi(
     """ROC, delay and isolation of both detectors over traces of :func:`fdi_traces` (one scheme)."""
     segs = [s for s in segments if s["status"] == "ok"]
     out: dict = {"n_samples": len(segs), "skip": skip, "estimate": [], "residual": []}
-    for dwell in dwells:
-        pts = roc(segs, _estimate_state, [(c, dwell) for c in thresholds], skip)
-        for p in pts:
-            p["isolation"] = _isolation(segs, _estimate_state, p["setting"], skip, "estimate")
-            p["threshold"], p["dwell"] = p.pop("setting")
-        out["estimate"] += pts
-    for drift in cusum_drift:
-        pts = roc(segs, _cusum, [(h, drift) for h in cusum_h], skip)
-        for p in pts:
-            p["isolation"] = _isolation(segs, _cusum, p["setting"], skip, "residual")
-            p["h"], p["drift"] = p.pop("setting")
-        out["residual"] += pts
+    for kind, detector, settings, keys in (
+        ("estimate", _estimate_state, [(c, dwell) for dwell in dwells for c in thresholds], ("threshold", "dwell")),
+        ("residual", _cusum, [(h, drift) for drift in cusum_drift for h in cusum_h], ("h", "drift")),
+    ):
+        for p in roc(segs, detector, settings, skip):
+            p["isolation"] = _isolation(segs, detector, p["setting"], skip, kind)
+            p[keys[0]], p[keys[1]] = p.pop("setting")
+            out[kind].append(p)
     return out
 
 

@@ -21,7 +21,7 @@ from .control.switching import SwitchingController
 from .diagnosis import diagnosis_metrics
 from .errors import FtcError
 from .metrics import singularity_margin, switching_metrics, torque_metrics, tracking_metrics
-from .observers import FarzaObserver
+from .observers import FarzaObserver, UKFEstimator
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
@@ -149,8 +149,6 @@ def make_controller(built: Built, scheme: str):
         )
         return ActiveController(built.chain, kin, cfg.k_v, obs, u_limit=case.plant.saturation, tau=cfg.tau)
     if scheme == "active_ukf":
-        from .observers.ukf import UKFEstimator  # filterpy and scipy.stats only when a UKF runs
-
         ukf = UKFEstimator(
             built.chain,
             meas_std=cfg.meas_std,

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from chained_reference import symbolic_chained_form
 
 from ftcreport.cases import load_case, with_duration
 from ftcreport.fast import kernels as F
 from ftcreport.fast.engine import compiled_spec
 from ftcreport.model import Chain
-from ftcreport.model.chained import symbolic_chained_form
 from ftcreport.references import FlatReference, circle, eight
 from ftcreport.runner import build, make_controller
 from ftcreport.sim import Plant, SimSettings, simulate

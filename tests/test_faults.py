@@ -15,7 +15,6 @@ from ftcreport.model import (
     Chain,
     FaultEvent,
     FaultSchedule,
-    apply_faults,
     compensable_patterns,
     is_compensable_at,
     wheel_index,
@@ -106,7 +105,8 @@ def test_schedule_piecewise_constant_and_intermittent():
     assert sched.pattern(20.0) == (1, 1, 1, 0)
     assert sched.phases(40.0) == [(0.0, 10.0), (10.0, 30.0), (30.0, 40.0)]
     u = np.array([1.0, 2.0, 3.0, 4.0])
-    np.testing.assert_allclose(apply_faults(u, *sched.at(15.0)), [0.5, 2.0, 3.0, -2.0])
+    sigma, ubar = sched.at(15.0)
+    np.testing.assert_allclose(sigma * u + ubar, [0.5, 2.0, 3.0, -2.0])  # tau = sigma u + ubar (2.102)
 
 
 def test_schedule_refuses_bad_events():

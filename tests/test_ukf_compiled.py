@@ -1,4 +1,4 @@
-"""The compiled UKF step (ftcreport.fast.ukf) against filterpy's (UKFEstimator.step, the reference).
+"""The compiled UKF step (ftcreport.fast.ukf) against filterpy's (tests/ukf_reference.py, the reference).
 
 Tolerances.  Both run the same equations in the same order; they differ in the
 order of the sums (loops here, BLAS there), in round-off only.  Along 300 steps
@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from numpy.linalg import LinAlgError
+from ukf_reference import FilterpyUKF
 
 from ftcreport.fast import kernels as F
 from ftcreport.fast.ukf import (
@@ -34,7 +35,7 @@ from ftcreport.fast.ukf import (
     ukf_step,
 )
 from ftcreport.model import Chain
-from ftcreport.observers.ukf import UKFEstimator
+from ftcreport.observers import UKFEstimator
 
 STEPS = 300
 X_TOL_SD = 1e-9  # |dx_i| / sd_i (see the module docstring)
@@ -80,12 +81,13 @@ def test_compiled_step_equals_filterpy_along_300_steps(n, h, estimate):
     us, ys = _truth(pc, n, h, np.random.default_rng(n))
     assert np.ptp(ys[:, 0]) > 0.5  # the chain moves (x over the run [m])
     est = UKFEstimator(chain, meas_std=1e-3, estimate=estimate)
+    ref = FilterpyUKF(est)
     params = ukf_params(est)
     s_ref = est.initial_state(ys[0])
     s = s_ref.copy()
     worst_x = worst_P = 0.0
     for k in range(STEPS):
-        s_ref = est.step(s_ref, us[k], ys[k + 1], h)
+        s_ref = ref.step(s_ref, us[k], ys[k + 1], h)
         s, status = ukf_step(pc, params, s, us[k], ys[k + 1], h)
         assert status == UKF_OK
         x_ref, P_ref = est.unpack(s_ref)
@@ -93,7 +95,7 @@ def test_compiled_step_equals_filterpy_along_300_steps(n, h, estimate):
         sd = np.sqrt(np.diag(P_ref))
         worst_x = max(worst_x, float(np.max(np.abs(x - x_ref) / sd)))
         worst_P = max(worst_P, float(np.max(np.abs(P - P_ref) / np.outer(sd, sd))))
-        np.testing.assert_array_equal(P, P.T)  # symmetrised as UKFEstimator.step
+        np.testing.assert_array_equal(P, P.T)  # symmetrised as the reference's step
     assert worst_x <= X_TOL_SD
     assert worst_P <= P_TOL_SD
 
@@ -126,7 +128,7 @@ def test_non_positive_definite_P_gives_the_status_not_an_exception():
     P[-1, -1] = -1e-3  # one negative variance
     bad = est.pack(x, P)
     with pytest.raises(LinAlgError):  # the reference raises (scipy's cholesky)
-        est.step(bad, u, y, 0.01)
+        FilterpyUKF(est).step(bad, u, y, 0.01)
     out, status = ukf_step(pc, params, bad, u, y, 0.01)
     assert status == UKF_PRIOR_NOT_PD
     np.testing.assert_array_equal(out, bad)  # the state is returned unchanged

@@ -8,8 +8,8 @@ The dynamic law for a failure pattern sigma_(k), thesis (3.35)/(3.107) with E8::
 with the minimum-norm right inverse A^+ = A^T (A A^T)^-1.  With sigma = sigma_(k)
 the velocity error obeys ``eta_e' = -k_v eta_e - T_alpha^T f_eta`` and the total
 Lyapunov function decreases.  :class:`TrackingController` applies it with the
-healthy pattern (the ``nominal`` baseline); the FTC schemes reuse
-:func:`dynamic_law` with other patterns.
+healthy pattern (the ``nominal`` baseline); the FTC schemes' compiled laws use
+the same kernels with other patterns.
 
 The law lives once, in the compiled kernels (``fast.kernels.law_terms`` and
 ``law_for_pattern``, which cite the equations and errata); the helpers here are
@@ -36,7 +36,6 @@ from .kinematic import ChainedBackstepping, KinematicOutput, TwoLinkKinematic
 __all__ = [
     "LawTerms",
     "TrackingController",
-    "dynamic_law",
     "law_for_pattern",
     "law_terms",
 ]
@@ -95,33 +94,6 @@ def law_for_pattern(terms: LawTerms, sigma_k: np.ndarray, w_extra: np.ndarray | 
     return _F().law_for_pattern(_vec(terms.MB), _vec(w), _vec(sigma_k))
 
 
-def dynamic_law(
-    Mbar1: np.ndarray,
-    Mbar2: np.ndarray,
-    Cbar: np.ndarray,
-    Bbar: np.ndarray,
-    sigma_k: np.ndarray,
-    eta: np.ndarray,
-    eta_e: np.ndarray,
-    kin: KinematicOutput,
-    eta_c_dot: np.ndarray,
-    k_v: float,
-) -> np.ndarray:
-    r"""Control signal of the dynamic law for pattern sigma_k, thesis (3.35)/(3.107).
-
-    Parameters
-    ----------
-    sigma_k : (2n,) ndarray
-        Assumed effectiveness of every wheel (0/1 pattern or gains).
-
-    Returns
-    -------
-    u : (2n,) ndarray
-    """
-    terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin, eta_c_dot, k_v)
-    return law_for_pattern(terms, sigma_k)
-
-
 class TrackingController:
     """Kinematic controller + dynamic law for one assumed pattern (nominal: healthy).
 
@@ -168,5 +140,5 @@ class TrackingController:
     def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
         kin, eta_c_dot = self.eta_c_and_dot(t, q, eta, xc)
         Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)
-        u = dynamic_law(Mbar1, Mbar2, Cbar, Bbar, self.sigma, eta, eta - kin.eta_c, kin, eta_c_dot, self.k_v)
-        return u, np.zeros(self.n_states)
+        terms = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta - kin.eta_c, kin, eta_c_dot, self.k_v)
+        return law_for_pattern(terms, self.sigma), np.zeros(self.n_states)

@@ -4,7 +4,6 @@ from .chain import THESIS_ROBOT, Chain
 from .faults import (
     FaultEvent,
     FaultSchedule,
-    apply_faults,
     compensable_patterns,
     is_compensable_at,
     pattern_is_compensable,
@@ -17,7 +16,6 @@ __all__ = [
     "Chain",
     "FaultEvent",
     "FaultSchedule",
-    "apply_faults",
     "compensable_patterns",
     "is_compensable_at",
     "pattern_is_compensable",

@@ -151,11 +151,6 @@ class Chain:
         """Axle midpoints P_i and centres of mass C_i, each (n, 2), robot 1 first."""
         return K.positions(self.params, np.asarray(q, dtype=float))
 
-    def singularity_margin(self, q: np.ndarray) -> float:
-        """Smallest distance [rad] of an articulation angle from +/-90 deg (ERRATA P4)."""
-        c = np.abs(K.articulation_cos(self.params, np.asarray(q, dtype=float)))
-        return float(np.min(np.arcsin(np.clip(c, 0.0, 1.0))))
-
     # ------------------------------------------------------------ kinematics
     def S(self, q: np.ndarray) -> np.ndarray:
         """S(q), (n + 2, 2): qdot = S(q) eta, thesis (2.63)-(2.64)."""

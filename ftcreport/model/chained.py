@@ -15,9 +15,9 @@ The map is computed numerically, for any n, by Taylor-mode differentiation
 along the flow of g1 (``ftcreport.fast.kernels.chained_xi_T``, compiled; its
 docstring and the kernels' module docstring give the recursion): one
 implementation, used by the compiled engine and by this class alike.
-:func:`symbolic_chained_form` derives the same map with sympy (in the link
-lengths as symbols); it is the independent check the tests compare against
-(tests/test_fast.py, to 1e-12 for n = 2..5), never a run-time path.  Both
+The same map derived with sympy (in the link lengths as symbols,
+tests/chained_reference.py) is the independent check the tests compare against
+(tests/test_fast.py, to 1e-12 for n = 2..5).  Both
 replace the thesis's hand-printed three-link formulas, which ERRATA E5e-E5g
 list as wrong.  Valid while |theta_n| < 90 deg and every articulation
 angle |theta_i - theta_(i+1)| < 90 deg (the backstepping kernel refuses
@@ -31,52 +31,12 @@ recovered one by one in closed form.
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 
 import numpy as np
 
 from ..errors import ModelError, SingularityError
 
-__all__ = ["ChainedForm", "chained_form", "symbolic_chained_form"]
-
-
-@lru_cache(maxsize=16)
-def symbolic_chained_form(n: int):
-    """Symbolic derivation for n robots, lambdified: ``(f_xi(th, d), f_T(th, d))`` (tests only).
-
-    ``f_xi`` gives xi_2..xi_(m-1) and ``f_T`` gives (T21, T22) at headings ``th`` in robot
-    order; the independent check of the numeric map (Theorem 2.1, Appendix E).
-    """
-    import sympy as sp
-
-    th = sp.symbols(f"th1:{n + 1}", real=True)  # robot order theta_1..theta_n
-    d = sp.symbols(f"d1:{n}", positive=True)
-    x, y = sp.symbols("x y", real=True)
-    # first column of S, thetadot_k / v_n (robot order), from (2.64)
-    g1 = [sp.Integer(0)] * n
-    for i in range(n - 1):  # theta_(i+2) driven by phi_(i+1) = theta_(i+1) - theta_(i+2)
-        w = sp.Integer(1)
-        for j in range(i + 1, n - 1):
-            w = w / sp.cos(th[j] - th[j + 1])
-        g1[i + 1] = sp.tan(th[i] - th[i + 1]) / d[i] * w
-    m = n + 2
-    xi = [None] * (m + 1)  # 1-based
-    xi[1] = x
-    xi[m] = y
-    xi[m - 1] = sp.tan(th[n - 1])
-    cn = sp.cos(th[n - 1])
-
-    def lie(expr):
-        return sum(sp.diff(expr, th[k]) * g1[k] for k in range(n))
-
-    for k in range(m - 1, 2, -1):
-        xi[k - 1] = lie(xi[k]) / cn
-    T21 = lie(xi[2])
-    T22 = sp.diff(xi[2], th[0])
-    ang = [xi[k] for k in range(2, m)]  # xi_2..xi_(m-1): functions of the angles only
-    f_xi = sp.lambdify([th, d], ang, modules="numpy", cse=True)
-    f_T = sp.lambdify([th, d], [T21, T22], modules="numpy", cse=True)
-    return f_xi, f_T
+__all__ = ["ChainedForm"]
 
 
 class ChainedForm:
@@ -140,8 +100,3 @@ class ChainedForm:
                 raise SingularityError("chained form inverse: degenerate coefficient")
             th[i] = th[i + 1] + math.atan((xi[k - 1] - a0) / a1)
         return np.concatenate(([xi[0], xi[m - 1]], th[::-1]))
-
-
-def chained_form(d) -> ChainedForm:
-    """The chained form of a chain with link lengths d (cached derivation per n)."""
-    return ChainedForm(d)

@@ -4,7 +4,8 @@ Per wheel j (order 1r, 1l, 2r, 2l, ..., nr, nl) the applied torque is
 
     tau_j = sigma_j u_j + ubar_j,          (2.101); vector form (2.102)
 
-with effectiveness 0 <= sigma_j <= 1 and an additive friction ubar_j [N m].
+with effectiveness 0 <= sigma_j <= 1 and an additive friction ubar_j [N m] (the compiled
+loop applies it: ``fast.loop``).
 A :class:`FaultSchedule` holds time-stamped events, each setting (sigma, ubar)
 of one wheel from its time on; a later event on the same wheel replaces it,
 so intermittent faults (a wheel that recovers) are two events.
@@ -48,7 +49,6 @@ __all__ = [
     "MOTOR_KINDS",
     "FaultEvent",
     "FaultSchedule",
-    "apply_faults",
     "compensable_patterns",
     "is_compensable_at",
     "motor_row",
@@ -141,11 +141,6 @@ def is_compensable_at(Bbar: np.ndarray, sigma: Sequence[float], tol: float = 1e-
     Bs = np.asarray(Bbar, dtype=float) * np.asarray(sigma, dtype=float)[None, :]
     sv = np.linalg.svd(Bs, compute_uv=False)
     return bool(sv[0] > 0 and sv[1] > tol * max(1.0, sv[0]))
-
-
-def apply_faults(u: np.ndarray, sigma: np.ndarray, ubar: np.ndarray) -> np.ndarray:
-    """tau = sigma u + ubar, elementwise per wheel, thesis (2.101)-(2.102)."""
-    return sigma * u + ubar
 
 
 @dataclass(frozen=True)

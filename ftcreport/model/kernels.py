@@ -6,12 +6,14 @@ kernels' ``fast.kernels.Chain``, whose fields are documented there), and
 returns new arrays.
 
 What the simulation evaluates -- S and Sdot, the reduced model, the plant's
-right-hand side, the wheel speeds -- exists once, in the compiled kernels
-(:mod:`ftcreport.fast.kernels`); the functions of that name here are faces over
-them.  The full matrices A(q), M(q), C(q, qdot), B(q) below stay in numpy: they
-are the derivation, not a copy, and the tests check the kernels against them
-(S^T A^T = 0, Mbar1 = S^T M S, Bbar = S^T B, power balance) and against the
-thesis's explicit matrices and a sympy Lagrangian.
+right-hand side, the wheel speeds, the input matrix B(q) -- exists once, in the
+compiled kernels (:mod:`ftcreport.fast.kernels`, :mod:`ftcreport.fast.motor`);
+the functions of that name here are faces over them.  A(q) exists only here (the
+engine never needs it).  M(q) and C(q, qdot) are written here in numpy and again
+inside the compiled ``reduced``, which has no entry returning them alone.  The
+tests check all of them against the thesis's explicit matrices and a sympy
+Lagrangian, and the reduced model against them (S^T A^T = 0, Mbar1 = S^T M S,
+Bbar = S^T B, power balance).
 
 Conventions (used everywhere in ftcreport)
 ------------------------------------------
@@ -68,9 +70,7 @@ __all__ = [
     "M_matrix",
     "S_and_Sdot",
     "S_matrix",
-    "articulation_cos",
     "eta_dot",
-    "headings",
     "make_params",
     "packed",
     "positions",
@@ -125,17 +125,6 @@ def packed(p):
 
 def _vec(x) -> np.ndarray:
     return np.ascontiguousarray(x, dtype=float)
-
-
-def headings(q: np.ndarray) -> np.ndarray:
-    """Headings in robot order, ``[theta_1, ..., theta_n]``, from q."""
-    return q[:1:-1]
-
-
-def articulation_cos(p: ChainParams, q: np.ndarray) -> np.ndarray:
-    """cos(theta_i - theta_(i+1)), i = 1..n-1: zero at the jack-knife singularity."""
-    th = q[:1:-1]
-    return np.cos(th[:-1] - th[1:])
 
 
 def S_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
@@ -225,7 +214,7 @@ def C_vector(p: ChainParams, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
 
 
 def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
-    r"""Input matrix B(q) by virtual work, Appendix C (C.2)-(C.8), ERRATA E3.
+    r"""Input matrix B(q) by virtual work, Appendix C (C.2)-(C.8), ERRATA E3: the compiled ``fast.motor._b_and_rate``.
 
     Column ``2i`` (wheel ir) is ``(1/r_i) [U_i; D[i,k] sin(th_i - th_k) + b_i delta_ik]``,
     column ``2i+1`` (wheel il) the same with ``-b_i``.
@@ -234,21 +223,10 @@ def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
     -------
     B : (n + 2, 2 n) ndarray, columns in wheel order 1r, 1l, ..., nr, nl
     """
-    n = p.n
-    th = q[:1:-1]
-    F = np.empty((n + 2, n))  # force part per robot, rows in q order
-    F[0] = np.cos(th)
-    F[1] = np.sin(th)
-    # rows theta_k (robot order k), columns robot i: D[i, k] sin(th_i - th_k)
-    Fth = (p.D * np.sin(th[:, None] - th[None, :])).T  # [k, i]
-    F[2:] = Fth[::-1]
-    F /= p.r
-    Tm = np.zeros((n + 2, n))  # moment part: b_i / r_i on row theta_i
-    Tm[2 + (n - 1 - np.arange(n)), np.arange(n)] = p.b / p.r
-    B = np.empty((n + 2, 2 * n))
-    B[:, 0::2] = F + Tm
-    B[:, 1::2] = F - Tm
-    return B
+    from ..fast.motor import _b_and_rate
+
+    # the rate Bdot along headings at rest (thdot = 0) is not used
+    return _b_and_rate(packed(p), _vec(q), np.zeros(p.n))[0]
 
 
 def reduced(p: ChainParams, q: np.ndarray, eta: np.ndarray):

@@ -42,8 +42,9 @@ import numpy as np
 
 from ..errors import ModelError
 from ..model.chain import Chain
+from ..model.faults import wheel_names
 
-__all__ = ["Estimate", "FarzaObserver"]
+__all__ = ["Estimate", "FarzaObserver", "estimate_flags", "parameter_names"]
 
 
 class Estimate(NamedTuple):
@@ -57,6 +58,20 @@ class Estimate(NamedTuple):
     eta: np.ndarray
     rho: np.ndarray
     ubar: np.ndarray
+
+
+def estimate_flags(estimate: Sequence[str]) -> tuple[bool, bool]:
+    """(est_rho, est_ubar) of an estimator's ``estimate`` (any of ``"rho"``, ``"ubar"``, not none)."""
+    unknown = set(estimate) - {"rho", "ubar"}
+    if unknown or not estimate:
+        raise ModelError(f"estimate: choose among 'rho', 'ubar', got {list(estimate)}")
+    return "rho" in estimate, "ubar" in estimate
+
+
+def parameter_names(n: int, est_rho: bool, est_ubar: bool) -> list[str]:
+    """Names of an estimator's parameters for n robots, gains first: e.g. ``rho_1r``, ``ubar_2l``."""
+    wheels = wheel_names(n)
+    return [f"rho_{w}" for w in wheels if est_rho] + [f"ubar_{w}" for w in wheels if est_ubar]
 
 
 class FarzaObserver:
@@ -107,15 +122,11 @@ class FarzaObserver:
         if q_hat0 not in ("measured", "zero"):
             raise ModelError(f"q_hat0: must be 'measured' or 'zero', got {q_hat0!r}")
         self.q_hat0 = q_hat0
-        unknown = set(estimate) - {"rho", "ubar"}
-        if unknown or not estimate:
-            raise ModelError(f"estimate: choose among 'rho', 'ubar', got {list(estimate)}")
+        self.est_rho, self.est_ubar = estimate_flags(estimate)
         self.chain = chain
         self.N = chain.n_q
         self.nw = chain.n_wheels
         self.Theta, self.k0, self.k1, self.p0, self.p_max = float(Theta), float(k0), float(k1), float(p0), p_max
-        self.est_rho = "rho" in estimate
-        self.est_ubar = "ubar" in estimate
         self.p = self.nw * (int(self.est_rho) + int(self.est_ubar))
         self.sign = -1.0 if printed_signs else 1.0
         N, p = self.N, self.p
@@ -186,7 +197,4 @@ class FarzaObserver:
 
     def parameter_names(self) -> list[str]:
         """Names of the estimated parameters, e.g. ``rho_1r``, ``ubar_2l``."""
-        from ..model.faults import wheel_names
-
-        wheels = wheel_names(self.chain.n)
-        return [f"rho_{w}" for w in wheels if self.est_rho] + [f"ubar_{w}" for w in wheels if self.est_ubar]
+        return parameter_names(self.chain.n, self.est_rho, self.est_ubar)

@@ -50,10 +50,8 @@ RUNTIME_DEPENDENCIES: tuple[str, ...] = (
     "scipy",
     "control",
     "slycot",
-    "filterpy",
     "numba",
     "llvmlite",
-    "sympy",
     "pydantic",
     "typer",
     "click",
@@ -71,7 +69,7 @@ RUNTIME_DEPENDENCIES: tuple[str, ...] = (
     "plotly",
 )
 #: The distributions whose version can change a simulated number (part of result cache keys).
-NUMERIC_DEPENDENCIES: tuple[str, ...] = ("numpy", "scipy", "numba", "llvmlite", "control", "slycot", "filterpy")
+NUMERIC_DEPENDENCIES: tuple[str, ...] = ("numpy", "scipy", "numba", "llvmlite", "control", "slycot")
 
 
 def _dist_version(name: str) -> str | None:

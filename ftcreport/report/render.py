@@ -55,7 +55,7 @@ def _fmt(x) -> str:
 def dependency_versions() -> str:
     from ..manifest import _dist_version
 
-    names = ["numpy", "scipy", "control", "filterpy", "matplotlib", "jinja2", "pydantic", "sympy", "typer"]
+    names = ["numpy", "scipy", "control", "numba", "matplotlib", "jinja2", "pydantic", "typer"]
     return f"ftcreport {__version__}; " + ", ".join(f"{n} {_dist_version(n) or '?'}" for n in names)
 
 

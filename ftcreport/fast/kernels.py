@@ -10,14 +10,14 @@ into the NamedTuples below (``Chain``, ``Ref``, ``Kin``, ``Obs``; their
 ``packed()`` methods) and call these functions from Python.  Each function
 cites its thesis equation and erratum (docs/ERRATA.md); the formula stands as
 a comment above the line that computes it.  What checks them is independent:
-the numpy derivation of M, C, A, B (model/kernels.py), the sympy chained form,
+the numpy derivation of M, C, A, B (model/kernels.py), the sympy chained form (tests/chained_reference.py),
 the thesis's explicit matrices, invariants (S^T A^T = 0, power balance) and
 closed-form references (tests).  Nothing here does I/O.
 
 Differences of method (not of equations):
 
-* The chained-form coordinates xi = phi(q) and T_alpha (Theorem 2.1, model/
-  chained.py derives them with sympy) are computed numerically: xi_(k-1) is the
+* The chained-form coordinates xi = phi(q) and T_alpha (Theorem 2.1;
+  tests/chained_reference.py derives them with sympy) are computed numerically: xi_(k-1) is the
   derivative of xi_k with respect to x along g1 / cos(theta_n), so
   ``xi_(m-j) = j! y_j`` where ``y_j`` are the Taylor coefficients in s = x of y
   along the flow ``dtheta_(i+1)/ds = sec(theta_n) w_(i+1) tan(phi_i) / d_i``,
@@ -799,7 +799,7 @@ def xi_T(qf, d, work, xi, T):
     """Chained coordinates xi = phi(q) (m,) and T_alpha (2, 2) at q (in its frame), into xi and T.
 
     Theorem 2.1 for any n (the module doc; ERRATA E5e-E5g: the printed (2.94), (2.99), (3.98) are wrong,
-    this is checked against the sympy derivation of model/chained.py).  alpha = T_alpha eta (3.98).
+    this is checked against the sympy derivation of tests/chained_reference.py).  alpha = T_alpha eta (3.98).
     """
     n = qf.shape[0] - 2
     m = n + 2
@@ -1873,7 +1873,7 @@ def _step_jump(pp, x, xn, nq, lim, max_speed, max_position, frac, lim_far, info)
 # =========================================================================== the Python UKF's model; the active law
 @jit
 def midpoint_sigmas(pc, sigmas, u, dt, est_rho, est_ubar):
-    """UKFEstimator._fx for every sigma point: one midpoint step of the process model, u held."""
+    """The reference UKF's process model (tests/ukf_reference.py) at every sigma point: a midpoint step, u held."""
     N = pc.n + 2
     nw = 2 * pc.n
     out = sigmas.copy()

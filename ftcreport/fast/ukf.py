@@ -1,6 +1,6 @@
 r"""Compiled (numba) step of the augmented-state UKF of observers/ukf.py.
 
-:func:`ukf_step` does what :meth:`ftcreport.observers.ukf.UKFEstimator.step`
+:func:`ukf_step` does what the filterpy reference step (``tests/ukf_reference.py``)
 does through filterpy (``UnscentedKalmanFilter.predict`` then ``update`` with
 ``MerweScaledSigmaPoints``), in the same order of operations, so the two agree
 to round-off (tests/test_ukf_compiled.py).  The Python estimator stays the
@@ -26,7 +26,7 @@ One step over the sample h with the control u held:
 * predict: ``X_k <- f(X_k)``, f one midpoint (RK2) step of the process model
   ``q' = S(q) eta``, ``Mbar1 eta' = -Mbar2 eta - Cbar + Bbar (diag(rho) u + ubar)``
   (thesis (2.63), (2.70) with the fault model (2.102)), rho' = ubar' = 0: the
-  numbers of kernels.midpoint_sigmas, the kernel the Python estimator calls,
+  numbers of kernels.midpoint_sigmas, the kernel the reference UKF in tests/ calls,
   bit for bit (:func:`_propagate` shares the first stage among the points
   that differ from X_0 in the parameters only);
   ``x = sum Wm_k X_k``, ``P = sum Wc_k (X_k - x)(X_k - x)^T + Qc h``;
@@ -42,7 +42,7 @@ One step over the sample h with the control u held:
 
   S^-1 is formed by LU with partial pivoting (numpy's ``inv``, which filterpy
   calls, is LAPACK gesv on the identity: the same factorisation);
-* ``P <- (P + P^T) / 2`` (UKFEstimator.step).
+* ``P <- (P + P^T) / 2`` (the reference step).
 
 Cholesky reads the upper triangle of c P, as LAPACK potrf (scipy's
 ``cholesky``) does.  Sums run in index order; BLAS may sum in another order,
@@ -358,7 +358,7 @@ def _all_finite(a):
 
 @jit
 def ukf_step(pc, U, s, u, y, h):
-    r"""One UKF step over h: predict with u held, update with y = q (UKFEstimator.step).
+    r"""One UKF step over h: predict with u held, update with y = q (the reference UKF of tests/ukf_reference.py).
 
     Parameters
     ----------

@@ -264,14 +264,12 @@ class TwoLinkKinematic(_Face):
         return self._at(self.reference.at(t), q, 0.0)
 
     def f_alpha(self, t: float, q: np.ndarray) -> np.ndarray:
-        """f_alpha of alpha = T_alpha eta + f_alpha, from the law's outputs: alpha_c - T_alpha eta_c (3.29).
+        """f_alpha of alpha = T_alpha eta + f_alpha (3.29, Appendix G with E10): the compiled law's own.
 
-        alpha_c = [-k1 g, -k2 v_d z3 - k3 z4] (3.27)-(3.28) with E9, g = f_eta[0] (exposed for tests and analysis).
+        Exposed for tests and the linearized analysis.
         """
-        r = self.reference.at(t)
-        out = self._at(r, q, 0.0)
-        alpha_c = np.array([-self.k1 * out.f_eta[0], -self.k2 * r.v_d * out.z[2] - self.k3 * out.z[3]])
-        return alpha_c - out.T_alpha @ out.eta_c
+        self._at(self.reference.at(t), q, 0.0)
+        return self._cache.KA[0].copy()
 
 
 class ChainedBackstepping(_Face):

@@ -228,6 +228,7 @@ class Cache(NamedTuple):
     KT: np.ndarray  # (3, 2, 2) T_alpha
     KF: np.ndarray  # (3, 2) f_eta
     KZ: np.ndarray  # (3, m) error coordinates
+    KA: np.ndarray  # (3, 2) f_alpha of alpha = T_alpha eta + f_alpha (two-link law; the chained law's is 0, 3.98)
     WJ: np.ndarray  # jets of chained_xi_T
     WQ: np.ndarray  # (N,) q in the frame
     WP: np.ndarray  # (N,) q +/- h qdot
@@ -242,8 +243,8 @@ def new_cache(n):
     return Cache(
         np.zeros(4), np.zeros((3, N)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 4)), np.zeros((3, N)),
         np.zeros((3, 2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), np.zeros(2), np.zeros((2, 2 * n)), np.zeros((N, 2)),
-        np.zeros((3, 2)), np.zeros((3, 2, 2)), np.zeros((3, 2)), np.zeros((3, N)), np.zeros((9 * n, n + 2)),
-        np.zeros(N), np.zeros(N), np.zeros(N), np.zeros((3, N)), np.zeros((n + 4, max(n, 3))),
+        np.zeros((3, 2)), np.zeros((3, 2, 2)), np.zeros((3, 2)), np.zeros((3, N)), np.zeros((3, 2)),
+        np.zeros((9 * n, n + 2)), np.zeros(N), np.zeros(N), np.zeros(N), np.zeros((3, N)), np.zeros((n + 4, max(n, 3))),
     )  # fmt: skip
 
 
@@ -947,11 +948,14 @@ def _two_link_law(Kp, C, ir, q, info):
     T[0, 1] = 0.0
     T[1, 0] = T21
     T[1, 1] = T22
+    # f_alpha = [-v_d, f2]   (3.29, Appendix G with E10)
+    C.KA[ir, 0] = -vd
+    C.KA[ir, 1] = f2
     z1, z3, z4 = z[0], z[2], z[3]
     # g = z1 + z3 (z4 + (omega_d / v_d)(1 + z3^2));  alpha_c = [-k1 g, -k2 v_d z3 - k3 z4]   (3.27)-(3.28), E9
     g = z1 + z3 * (z4 + (wd / vd) * (1.0 + z3**2))
-    r0 = -Kp.k1 * g + vd
-    r1 = -Kp.k2 * vd * z3 - Kp.k3 * z4 - f2
+    r0 = -Kp.k1 * g - C.KA[ir, 0]
+    r1 = -Kp.k2 * vd * z3 - Kp.k3 * z4 - C.KA[ir, 1]
     det = T[0, 0] * T[1, 1] - T[0, 1] * T[1, 0]  # eta_c = T^-1 (alpha_c - f_alpha)   (3.29)
     eta_c[0] = (T[1, 1] * r0 - T[0, 1] * r1) / det
     eta_c[1] = (T[0, 0] * r1 - T[1, 0] * r0) / det

@@ -46,6 +46,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .control.kinematic import wrap
+
 __all__ = [
     "phase_metrics",
     "recovery_time",
@@ -57,14 +59,10 @@ __all__ = [
 ]
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def tracking_errors(q: np.ndarray, q_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Position error of P_n (K,) [m] and heading errors (K, n) [rad], headings in q order."""
     pos = np.hypot(q[:, 0] - q_d[:, 0], q[:, 1] - q_d[:, 1])
-    head = np.abs(_wrap(q[:, 2:] - q_d[:, 2:]))
+    head = np.abs(wrap(q[:, 2:] - q_d[:, 2:]))
     return pos, head
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..control.kinematic import wrap
 from ..store import write_atomic
 from .plots import SCHEME_COLORS
 
@@ -115,7 +116,7 @@ def errors_fig(series: dict[str, dict], events: list[float]) -> dict:
     for scheme, ts in series.items():
         q, qd = ts["q"], ts["q_d"]
         pos = np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])
-        head = np.abs((q[:, 2:] - qd[:, 2:] + np.pi) % (2 * np.pi) - np.pi).max(axis=1)
+        head = np.abs(wrap(q[:, 2:] - qd[:, 2:])).max(axis=1)
         t, p, h = decimate(ts["t"], np.maximum(pos, 1e-12), np.maximum(head, 1e-9))
         c = SCHEME_COLORS.get(scheme)
         data.append(_trace(t, _r(p), scheme, "%{y:.3g} m", legendgroup=scheme, line={"color": c, "width": 1.3}))

@@ -15,6 +15,8 @@ matplotlib.use("svg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ..control.kinematic import wrap
+
 __all__ = [
     "SCHEME_COLORS",
     "articulation_svg",
@@ -100,7 +102,7 @@ def articulation_svg(series: dict[str, dict], events: list[float]) -> str:
     fig, ax = plt.subplots(figsize=(6.4, 2.6))
     for scheme, ts in series.items():
         th = ts["q"][:, :1:-1]
-        art = np.degrees((th[:, :-1] - th[:, 1:] + np.pi) % (2 * np.pi) - np.pi)
+        art = np.degrees(wrap(th[:, :-1] - th[:, 1:]))
         for j in range(art.shape[1]):
             ax.plot(
                 ts["t"],

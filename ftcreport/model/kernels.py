@@ -70,6 +70,7 @@ __all__ = [
     "M_matrix",
     "S_and_Sdot",
     "S_matrix",
+    "axle_midpoints",
     "eta_dot",
     "make_params",
     "packed",
@@ -260,16 +261,23 @@ def positions(p: ChainParams, q: np.ndarray):
     -------
     P, Cm : (n, 2) ndarrays, row 0 = robot 1
     """
-    n = p.n
+    th = q[:1:-1]
+    P = axle_midpoints(q, p.d)
+    Cm = P + p.a[:, None] * np.column_stack((np.cos(th), np.sin(th)))
+    return P, Cm
+
+
+def axle_midpoints(q: np.ndarray, d) -> np.ndarray:
+    """Axle midpoints P_i, (n, 2), row 0 = robot 1, from q and the link lengths d (n - 1)."""
+    n = q.shape[0] - 2
     th = q[:1:-1]
     P = np.empty((n, 2))
     P[n - 1] = q[0], q[1]
     for i in range(n - 2, -1, -1):
         # P_i = P_(i+1) + d_i U_(i+1)
-        P[i, 0] = P[i + 1, 0] + p.d[i] * np.cos(th[i + 1])
-        P[i, 1] = P[i + 1, 1] + p.d[i] * np.sin(th[i + 1])
-    Cm = P + p.a[:, None] * np.column_stack((np.cos(th), np.sin(th)))
-    return P, Cm
+        P[i, 0] = P[i + 1, 0] + d[i] * np.cos(th[i + 1])
+        P[i, 1] = P[i + 1, 1] + d[i] * np.sin(th[i + 1])
+    return P
 
 
 def wheel_speeds(p: ChainParams, q: np.ndarray, eta: np.ndarray) -> np.ndarray:

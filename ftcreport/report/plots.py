@@ -16,6 +16,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from ..control.kinematic import wrap
+from ..model.kernels import axle_midpoints
 
 __all__ = [
     "SCHEME_COLORS",
@@ -58,17 +59,6 @@ def _shade_phases(ax, events: list[float]) -> None:
             ax.axvspan(t, end, color="0.9", zorder=0)
 
 
-def _positions(q: np.ndarray, d: list[float]) -> np.ndarray:
-    """Axle midpoints P_i (robot order) for one q."""
-    n = q.shape[0] - 2
-    th = q[:1:-1]
-    P = np.empty((n, 2))
-    P[-1] = q[:2]
-    for i in range(n - 2, -1, -1):
-        P[i] = P[i + 1] + d[i] * np.array([math.cos(th[i + 1]), math.sin(th[i + 1])])
-    return P
-
-
 def paths_svg(series: dict[str, dict], d: list[float], events: list[float], b: float = 0.75) -> str:
     """Paths of P_n for every scheme over the reference, the chain drawn at a few instants."""
     fig, ax = plt.subplots(figsize=(5.6, 4.4))
@@ -83,7 +73,7 @@ def paths_svg(series: dict[str, dict], d: list[float], events: list[float], b: f
     show = "switching" if "switching" in series else next(iter(series))
     ts = series[show]
     for k in np.linspace(0, ts["t"].size - 1, 5).astype(int):
-        P = _positions(ts["q"][k], d)
+        P = axle_midpoints(ts["q"][k], d)
         ax.plot(P[:, 0], P[:, 1], "-", color="0.35", lw=1.5)
         th = ts["q"][k, :1:-1]
         for (x, y), t in zip(P, th, strict=True):

@@ -61,11 +61,11 @@ __all__ = [
     "ACTIVE",
     "DEFERRED",
     "ROOTS",
-    "SHORT_SHAPE_MESSAGE",
     "LazyEntry",
     "engine_stamp",
     "install_cache_stamp",
     "loop_compile",
+    "short_shape_message",
 ]
 
 ROOTS = frozenset({"run_steps", "first_law", "first_discrete"})  # fast/loop.py's entry points
@@ -263,6 +263,7 @@ def _install_deferred() -> bool:
             return _NUMBA["compile"](self, sig)
         before = getattr(_STATE, "on", False), getattr(_STATE, "roots", ())
         _STATE.entry, _STATE.on, _STATE.roots = True, True, (self.py_func.__qualname__,)
+        short_shape_message()
         from numba.core.compiler_lock import global_compiler_lock
 
         try:
@@ -351,7 +352,7 @@ def _install_short_shape_message() -> bool:
     the shapes.  It is raised only by a kernel's bug (no input reaches it); nothing else changes.
     numba keeps one implementation per signature and process, so a kernel of another package that
     compiles the same signature later in the same process gets the plain message too.
-    ``FTCREPORT_SHAPE_MESSAGES=1`` keeps numba's message (then :data:`SHORT_SHAPE_MESSAGE` is False).
+    ``FTCREPORT_SHAPE_MESSAGES=1`` keeps numba's message (then :func:`short_shape_message` is False).
     """
     if os.environ.get("FTCREPORT_SHAPE_MESSAGES") == "1":
         return False
@@ -383,8 +384,16 @@ def _install_short_shape_message() -> bool:
     return found
 
 
-#: numba's plain slice-size message in ftcreport's kernels (``FTCREPORT_SHAPE_MESSAGES=1``: numba's own)
-SHORT_SHAPE_MESSAGE = _install_short_shape_message()
+_SHORT: list = []  # [whether the plain message is installed], once tried
+
+
+def short_shape_message() -> bool:
+    """Whether ftcreport's kernels compile numba's plain slice-size message (``FTCREPORT_SHAPE_MESSAGES=1``:
+    numba's own); installed by the first compile of an ftcreport kernel (numba's array module, which it
+    changes, is imported by numba's first compile anyway, not by importing ftcreport)."""
+    if not _SHORT:
+        _SHORT.append(_install_short_shape_message())
+    return _SHORT[0]
 
 
 @contextlib.contextmanager
@@ -393,6 +402,7 @@ def loop_compile() -> Iterator[None]:
     optimization of their own closure (the loop's entry point optimizes all of them, linked)."""
     before = getattr(_STATE, "on", False)
     _STATE.on = True
+    short_shape_message()
     try:
         yield
     finally:

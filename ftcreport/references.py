@@ -59,6 +59,14 @@ def _terms(terms) -> np.ndarray:
     return np.array([list(t) for t in terms], dtype=float).reshape(-1, 3)
 
 
+def _as_ref(packed):
+    """The kernels' tuple as the loop passes it to them (``fast.refs.to_ref``): one compile of each
+    kernel serves the loop and these calls from Python."""
+    from .fast.refs import to_ref
+
+    return to_ref(packed)
+
+
 def _pack(path: TrigPath, n: int, d, order: int, max_art: float, min_speed: float):
     """The kernels' ``Ref`` tuple: a path, the link lengths and the jets' order."""
     return _F().Ref(
@@ -112,7 +120,7 @@ class TrigPath:
 
     def jets(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
         """Normalized Taylor coefficients of x_d and y_d at t, each (order + 1,): the compiled ``path_jets``."""
-        return _F().path_jets(_pack(self, 1, np.zeros(0), order, math.pi, 0.0), float(t))
+        return _F().path_jets(_as_ref(_pack(self, 1, np.zeros(0), order, math.pi, 0.0)), float(t))
 
 
 def circle(
@@ -273,6 +281,7 @@ class FlatReference:
         self._cache: dict[float, RefPoint] = {}
         self._jets: tuple | None = None  # (t0, the kernels' jets at t0) of the last full evaluation
         self._packed = None
+        self._ref = None
 
     @property
     def kind(self) -> str:
@@ -283,6 +292,16 @@ class FlatReference:
         if self._packed is None:
             self._packed = _pack(self.path, self.n, self.d, self.order, self.max_articulation, self.min_speed)
         return self._packed
+
+    def __getstate__(self) -> dict:
+        # the kernels' ref is a pointer into this process's compiled objects: rebuilt on the first use
+        return {**self.__dict__, "_ref": None}
+
+    def _kernel_ref(self):
+        """:meth:`packed` as the kernels' calls from Python take it (``fast.refs.to_ref``; built once)."""
+        if self._ref is None:
+            self._ref = _as_ref(self.packed())
+        return self._ref
 
     def _raise(self, info: np.ndarray) -> None:
         F = _F()
@@ -306,14 +325,14 @@ class FlatReference:
         jets = self._jets
         if jets is None or abs(t - jets[0]) > _TAYLOR_REACH:
             # the etadot_c difference asks for t0 +/- 1e-5: the jets at t0 are its Taylor series
-            jets = (t, F.ref_jets(self.packed(), t, info))
+            jets = (t, F.ref_jets(self._kernel_ref(), t, info))
             if info[0] != 0:
                 self._raise(info)
             self._jets = jets
         n = self.n
         q_d, eta_d, eta_d_dot, sc = np.empty(n + 2), np.empty(2), np.empty(2), np.empty(4)
         work = np.empty((n + 4, max(n, 3)))
-        F.ref_point(self.packed(), jets[1], t, t - jets[0], info, q_d, eta_d, eta_d_dot, sc, work)
+        F.ref_point(self._kernel_ref(), jets[1], t, t - jets[0], info, q_d, eta_d, eta_d_dot, sc, work)
         if info[0] != 0:
             self._raise(info)
         # work[:n, :3] holds the first 3 Taylor coefficients of every heading at t

@@ -57,7 +57,16 @@ import os
 import threading
 from collections.abc import Iterator
 
-__all__ = ["ACTIVE", "DEFERRED", "ROOTS", "LazyEntry", "engine_stamp", "install_cache_stamp", "loop_compile"]
+__all__ = [
+    "ACTIVE",
+    "DEFERRED",
+    "ROOTS",
+    "LazyEntry",
+    "engine_stamp",
+    "install_cache_stamp",
+    "loop_compile",
+    "short_shape_message",
+]
 
 ROOTS = frozenset({"run_steps", "first_law", "first_discrete"})  # fast/loop.py's entry points
 
@@ -254,6 +263,7 @@ def _install_deferred() -> bool:
             return _NUMBA["compile"](self, sig)
         before = getattr(_STATE, "on", False), getattr(_STATE, "roots", ())
         _STATE.entry, _STATE.on, _STATE.roots = True, True, (self.py_func.__qualname__,)
+        short_shape_message()
         from numba.core.compiler_lock import global_compiler_lock
 
         try:
@@ -330,12 +340,69 @@ def _install_deferred() -> bool:
 DEFERRED = os.environ.get("FTCREPORT_DEFER_EMISSION", "1") != "0" and _install_deferred()
 
 
+def _install_short_shape_message() -> bool:
+    """numba's plain message for a slice assigned from an array of another size, in ftcreport's kernels.
+
+    numba's CPU target builds the message of that error with the two shapes, formatted in compiled
+    code: every slice assignment of a new dimension compiles numba's ``str(int)``, string
+    concatenation and ``str.join`` for it, 2.3 s of CPU of a cold first result (measured: the switching
+    loop and the references' checks, two runs each).  While an ftcreport kernel compiles (this
+    thread's :func:`loop_compile` or an entry point's compile), numba's own generic overload is used
+    instead: the same ``ValueError`` ("cannot assign slice from input of different size"), without
+    the shapes.  It is raised only by a kernel's bug (no input reaches it); nothing else changes.
+    numba keeps one implementation per signature and process, so a kernel of another package that
+    compiles the same signature later in the same process gets the plain message too.
+    ``FTCREPORT_SHAPE_MESSAGES=1`` keeps numba's message (then :func:`short_shape_message` is False).
+    """
+    if os.environ.get("FTCREPORT_SHAPE_MESSAGES") == "1":
+        return False
+    try:
+        from numba.core.typing import templates
+        from numba.np import arrayobj
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return False
+    stub = getattr(arrayobj, "raise_with_shape_context", None)
+    cpu = getattr(arrayobj, "ol_raise_with_shape_context_cpu", None)
+    generic = getattr(arrayobj, "ol_raise_with_shape_context_generic", None)
+    registry = getattr(getattr(templates, "builtin_registry", None), "globals", None)
+    if stub is None or cpu is None or generic is None or registry is None:
+        return False
+
+    def overload_func(src_shapes, index_shape):
+        if getattr(_STATE, "on", False):
+            return generic(src_shapes, index_shape)
+        return cpu(src_shapes, index_shape)
+
+    overload_func._ftcreport = True
+    found = False
+    for func, fnty in list(registry):
+        for tpl in getattr(fnty, "templates", ()) if func is stub else ():
+            current = getattr(tpl.__dict__.get("_overload_func"), "__func__", None)
+            if current is cpu:
+                tpl._overload_func = staticmethod(overload_func)
+            found = found or current is cpu or getattr(current, "_ftcreport", False)
+    return found
+
+
+_SHORT: list = []  # [whether the plain message is installed], once tried
+
+
+def short_shape_message() -> bool:
+    """Whether ftcreport's kernels compile numba's plain slice-size message (``FTCREPORT_SHAPE_MESSAGES=1``:
+    numba's own); installed by the first compile of an ftcreport kernel (numba's array module, which it
+    changes, is imported by numba's first compile anyway, not by importing ftcreport)."""
+    if not _SHORT:
+        _SHORT.append(_install_short_shape_message())
+    return _SHORT[0]
+
+
 @contextlib.contextmanager
 def loop_compile() -> Iterator[None]:
     """Within: the kernels compiled in this thread below a loop's entry points skip numba's full
     optimization of their own closure (the loop's entry point optimizes all of them, linked)."""
     before = getattr(_STATE, "on", False)
     _STATE.on = True
+    short_shape_message()
     try:
         yield
     finally:

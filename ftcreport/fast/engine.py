@@ -60,6 +60,7 @@ from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
 from .compiling import engine_stamp, loop_compile
+from .refs import to_ref
 
 __all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled"]
 
@@ -183,7 +184,7 @@ def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
     """Wheel speeds (K, 2n) at K states: the compiled reduced model's Bbar(q)^T eta, row by row."""
     Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)
     ETA = np.ascontiguousarray(ETA, dtype=float).reshape(-1, 2)
-    return F.wheel_speeds_rows(_chain(chain.params), Q, ETA)
+    return F.wheel_speeds_rows(to_ref(_chain(chain.params)), Q, ETA)  # a ref: the loop's compile of reduced
 
 
 def input_matrices_rows(chain, Q: np.ndarray) -> np.ndarray:
@@ -233,7 +234,7 @@ def _split_signals(
         out["selected"] = np.round(xc[:, c._sel]).astype(float)
     if isinstance(c, SwitchingController) and costs:  # (3.46) at the logged states (fast.kernels.switching_costs)
         eta = np.ascontiguousarray(meas[:, nq : nq + 2], dtype=float)
-        J = F.switching_costs_rows(c.packed(), eta, np.ascontiguousarray(xc, dtype=float), c.log_costs)
+        J = F.switching_costs_rows(to_ref(c.packed()), eta, np.ascontiguousarray(xc, dtype=float), c.log_costs)
         if c.log_costs:
             out["cost"] = J
         else:
@@ -323,7 +324,7 @@ def _initial_currents(loop, spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x
         return np.zeros(npl - nq - 2)  # the loop reports the law's failure at its first step
     sat = plant.saturation
     tau_c = sigma * (u if sat is None else np.clip(u, -sat, sat)) + ubar
-    omega = F.reduced(_chain(plant.chain.params), q, eta)[3].T @ eta
+    omega = F.reduced(to_ref(_chain(plant.chain.params)), q, eta)[3].T @ eta
     v = Mo.driver_voltage(mo, tau_c, omega, fm)
     return Mo.quasi_static_current(mo, v, omega, fm)
 
@@ -440,6 +441,25 @@ def _compiling(loop, entry) -> Iterator[None]:
 _READY: set = set()  # the loops' entry points compiled or loaded in this process
 
 
+def _timing_mark(event: str) -> None:
+    """``FTCREPORT_TIMING=path``: append one line when this process first reaches ``event``.
+
+    ``loop_call``: the loop's first call (before it, imports, the case, the references' checks, the
+    controller); ``first_chunk``: its return (the loop compiled or loaded, the first chunk simulated).
+    The line holds the wall clock (``time.time()``: whoever started the process knows when) and the
+    process's CPU time so far (``time.process_time()``, interpreter and CLI startup included); read by
+    benchmarks/run.py ``--only-first-result`` (issue 20 item 1)."""
+    path = os.environ.get("FTCREPORT_TIMING")
+    if not path or event in _MARKED:
+        return
+    _MARKED.add(event)
+    with open(path, "a") as fh:
+        fh.write(f'{{"event": "{event}", "time": {_time.time()!r}, "cpu": {_time.process_time()!r}}}\n')
+
+
+_MARKED: set = set()
+
+
 def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, progress=None):
     """sim.simulate on the compiled kernels; returns a :class:`~ftcreport.sim.Run`."""
     from ..runs import GROWTH_FACTOR, GROWTH_FLOOR, GROWTH_STEPS, GROWTH_TOTAL, JUMP_FRACTION, JUMP_MARGINS, Run
@@ -546,6 +566,8 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     with np.errstate(all="ignore"):
         while status == "ok":
             k1 = min(k + chunk - 1, n_steps)
+            if k == 0:
+                _timing_mark("loop_call")
             with _compiling(loop, loop.run_steps):  # compiles the loop on its first use (fast.compiling)
                 x, k_last, li, where = loop.run_steps(
                     spec.P, spec.kin, spec.ref, spec.chain, pp,
@@ -554,6 +576,8 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share, grow, growth,
                     lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h, mbuf,
                 )  # fmt: skip
+            if k == 0:
+                _timing_mark("first_chunk")
             if li:
                 bufs = (lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lia)
                 si = _collect(spec, plant, nq, k, li, is_logged, bufs, stream, si, n_steps + 1, log_parts)

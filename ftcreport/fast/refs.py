@@ -8,15 +8,21 @@ cold start: 160 s for the whole loop on the 2-core machine.  :func:`as_ref` copi
 into a numba StructRef with the same field names, once, at the loop's entry; the kernels then
 read ``P.gamma`` from it exactly as from the tuple, and every call passes one pointer.  Nested
 NamedTuples become nested refs.  Nothing numerical changes: the fields are the same arrays.
+
+Python passes refs too (:func:`to_ref`, a :class:`RefProxy`): a kernel that both Python and the loop
+call (the references' checks ``ref_jets``/``ref_point``, the metrics' ``wheel_speeds_rows`` and
+``switching_costs_rows``, ``reduced``) is then compiled once, for the ref, and the loop's compile
+and Python's share it; with the NamedTuple from Python every such kernel and the kernels below it
+were compiled twice (docs/ENGINE.md, "Compile time (session 9)").
 """
 
 from __future__ import annotations
 
-from numba import types
+from numba import njit, types
 from numba.core.extending import overload
 from numba.experimental import structref
 
-__all__ = ["RefType", "as_ref"]
+__all__ = ["RefProxy", "RefType", "as_ref", "to_ref"]
 
 
 @structref.register
@@ -62,3 +68,31 @@ def _as_ref(x):
     scope = {"new": structref.new, "T": T, "as_ref": as_ref}
     exec("\n".join(lines), scope)  # the fields unrolled: numba cannot loop over heterogeneous fields
     return scope["impl"]
+
+
+class RefProxy(structref.StructRefProxy):
+    """A ref held by Python (:func:`to_ref`): a kernel called with it is typed as the loop types the ref.
+
+    It keeps the tuple's arrays alive (the ref holds them); Python reads the fields from the tuple."""
+
+    __slots__ = ()
+
+    def __repr__(self) -> str:
+        return f"<RefProxy {self._type}>"
+
+
+structref.define_boxing(RefType, RefProxy)
+
+
+@njit(cache=True, nogil=True)
+def _to_ref(x):
+    return as_ref(x)
+
+
+def to_ref(x) -> RefProxy:
+    """``x`` (a NamedTuple of the kernels: ``Ref``, ``Chain``, ``Law``, ...) as the loop's ``as_ref(x)``.
+
+    A kernel that Python calls with it is compiled for the same argument types as the loop's call of it,
+    so one compile serves both.  The ref shares the tuple's arrays (no copy).
+    """
+    return _to_ref(x)

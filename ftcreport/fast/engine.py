@@ -190,7 +190,7 @@ def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
 def input_matrices_rows(chain, Q: np.ndarray) -> np.ndarray:
     """Mbar1(q)^-1 Bbar(q), (K, 2, 2n), at K configurations: one compiled call (no per-row Python)."""
     Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)
-    return F.input_matrices_rows(_chain(chain.params), Q)
+    return F.input_matrices_rows(to_ref(_chain(chain.params)), Q)  # a ref: the loop's compile of reduced
 
 
 # --------------------------------------------------------------------------- signals from the log

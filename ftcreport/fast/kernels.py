@@ -324,6 +324,63 @@ def s_matrix(p, q):
 
 
 @jit
+def _mass(p, th, sth, cth):
+    """Inertia matrix M(q) (D.5) with E5a; th, sth, cth: headings (robot order) and their sin, cos."""
+    n = p.n
+    N = n + 2
+    M = np.zeros((N, N))
+    M[0, 0] = p.m_total
+    M[1, 1] = p.m_total
+    for k in range(n):
+        ik = N - 1 - k
+        # M_xy,k = h_k U_k^perp,  M_kl = G_kl cos(theta_k - theta_l) + I_k delta_kl   (D.5, E5a)
+        M[0, ik] = -p.h[k] * sth[k]
+        M[ik, 0] = M[0, ik]
+        M[1, ik] = p.h[k] * cth[k]
+        M[ik, 1] = M[1, ik]
+        for l in range(n):
+            M[ik, N - 1 - l] = p.G[k, l] * math.cos(th[k] - th[l])
+        M[ik, ik] += p.I[k]
+    return M
+
+
+@jit
+def _coriolis(p, th, sth, cth, thdot):
+    """Centripetal/Coriolis vector C(q, qdot) = Mdot qdot - dT/dq (D.9); thdot: heading rates, robot order."""
+    n = p.n
+    N = n + 2
+    C = np.zeros(N)
+    # C_xy = -sum_k h_k thetadot_k^2 U_k,  C_l = sum_k G_lk thetadot_k^2 sin(theta_l - theta_k)
+    for k in range(n):
+        t2 = thdot[k] * thdot[k]
+        C[0] -= p.h[k] * t2 * cth[k]
+        C[1] -= p.h[k] * t2 * sth[k]
+    for l in range(n):
+        s = 0.0
+        for k in range(n):
+            s += p.G[l, k] * math.sin(th[l] - th[k]) * thdot[k] * thdot[k]
+        C[N - 1 - l] = s
+    return C
+
+
+@jit
+def mass_and_coriolis(p, q, qdot):
+    """(M(q), C(q, qdot)) of (D.5), (D.9) for any qdot (not only S(q) eta): model.kernels' faces."""
+    n = p.n
+    th = np.empty(n)
+    thdot = np.empty(n)
+    sth = np.empty(n)
+    cth = np.empty(n)
+    for k in range(n):
+        # q = [x, y, theta_n, ..., theta_1]: robot k (0-based) at q[n + 1 - k]
+        th[k] = q[n + 1 - k]
+        thdot[k] = qdot[n + 1 - k]
+        sth[k] = math.sin(th[k])
+        cth[k] = math.cos(th[k])
+    return _mass(p, th, sth, cth), _coriolis(p, th, sth, cth, thdot)
+
+
+@jit
 def reduced(p, q, eta):
     """(Mbar1, Mbar2, Cbar, Bbar, S, Sdot) of (2.70)-(2.74), M by (D.5), C by (D.9), B by (C.8).
 
@@ -362,32 +419,8 @@ def reduced(p, q, eta):
     for k in range(n):
         sth[k] = math.sin(th[k])
         cth[k] = math.cos(th[k])
-    # M (D.5)
-    M = np.zeros((N, N))
-    M[0, 0] = p.m_total
-    M[1, 1] = p.m_total
-    for k in range(n):
-        ik = N - 1 - k
-        # M_xy,k = h_k U_k^perp,  M_kl = G_kl cos(theta_k - theta_l) + I_k delta_kl   (D.5, E5a)
-        M[0, ik] = -p.h[k] * sth[k]
-        M[ik, 0] = M[0, ik]
-        M[1, ik] = p.h[k] * cth[k]
-        M[ik, 1] = M[1, ik]
-        for l in range(n):
-            M[ik, N - 1 - l] = p.G[k, l] * math.cos(th[k] - th[l])
-        M[ik, ik] += p.I[k]
-    # C (D.9) at qdot = S eta
-    C = np.zeros(N)
-    # C_xy = -sum_k h_k thetadot_k^2 U_k,  C_l = sum_k G_lk thetadot_k^2 sin(theta_l - theta_k)
-    for k in range(n):
-        t2 = thdot[k] * thdot[k]
-        C[0] -= p.h[k] * t2 * cth[k]
-        C[1] -= p.h[k] * t2 * sth[k]
-    for l in range(n):
-        s = 0.0
-        for k in range(n):
-            s += p.G[l, k] * math.sin(th[l] - th[k]) * thdot[k] * thdot[k]
-        C[N - 1 - l] = s
+    M = _mass(p, th, sth, cth)
+    C = _coriolis(p, th, sth, cth, thdot)  # at qdot = S eta
     # B (C.8), E3: columns 2i (ir), 2i+1 (il) = (1/r_i) [U_i; D[i, k] sin(theta_i - theta_k) +/- b_i delta_ik]
     B = np.zeros((N, nw))
     for i in range(n):

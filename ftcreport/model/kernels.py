@@ -6,14 +6,14 @@ kernels' ``fast.kernels.Chain``, whose fields are documented there), and
 returns new arrays.
 
 What the simulation evaluates -- S and Sdot, the reduced model, the plant's
-right-hand side, the wheel speeds, the input matrix B(q) -- exists once, in the
-compiled kernels (:mod:`ftcreport.fast.kernels`, :mod:`ftcreport.fast.motor`);
-the functions of that name here are faces over them.  A(q) exists only here (the
-engine never needs it).  M(q) and C(q, qdot) are written here in numpy and again
-inside the compiled ``reduced``, which has no entry returning them alone.  The
-tests check all of them against the thesis's explicit matrices and a sympy
-Lagrangian, and the reduced model against them (S^T A^T = 0, Mbar1 = S^T M S,
-Bbar = S^T B, power balance).
+right-hand side, the wheel speeds, the input matrix B(q), the inertia matrix M(q)
+and the vector C(q, qdot) -- exists once, in the compiled kernels
+(:mod:`ftcreport.fast.kernels`: ``reduced`` builds M and C with ``_mass`` and
+``_coriolis``, which ``mass_and_coriolis`` also serves to Python;
+:mod:`ftcreport.fast.motor`); the functions of that name here are faces over
+them.  A(q) exists only here (the engine never needs it).  The tests check them
+against the thesis's explicit matrices and a sympy Lagrangian, and the reduced
+model against them (S^T A^T = 0, Mbar1 = S^T M S, Bbar = S^T B, power balance).
 
 Conventions (used everywhere in ftcreport)
 ------------------------------------------
@@ -178,21 +178,8 @@ def M_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
     -------
     M : (n + 2, n + 2) ndarray, symmetric positive definite
     """
-    n = p.n
-    th = q[:1:-1]
-    M = np.zeros((n + 2, n + 2))
-    M[0, 0] = M[1, 1] = p.m_total
-    # M_xy,k = h_k U_k^perp = h_k (-sin th_k, cos th_k)
-    hx = (-p.h * np.sin(th))[::-1]
-    hy = (p.h * np.cos(th))[::-1]
-    M[0, 2:] = hx
-    M[2:, 0] = hx
-    M[1, 2:] = hy
-    M[2:, 1] = hy
-    # M_kl = G_kl cos(th_k - th_l) + I_k delta_kl
-    Mth = p.G * np.cos(th[:, None] - th[None, :]) + np.diag(p.I)
-    M[2:, 2:] = Mth[::-1, ::-1]
-    return M
+    q = _vec(q)
+    return _fast().mass_and_coriolis(packed(p), q, np.zeros_like(q))[0]
 
 
 def C_vector(p: ChainParams, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
@@ -202,16 +189,7 @@ def C_vector(p: ChainParams, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
     -------
     C : (n + 2,) ndarray
     """
-    th = q[:1:-1]
-    thd2 = qdot[:1:-1] ** 2
-    C = np.empty(p.n + 2)
-    # C_xy = -sum_k h_k thd_k^2 U_k
-    C[0] = -np.sum(p.h * thd2 * np.cos(th))
-    C[1] = -np.sum(p.h * thd2 * np.sin(th))
-    # C_l = sum_k G_lk thd_k^2 sin(th_l - th_k)
-    Cth = (p.G * np.sin(th[:, None] - th[None, :])) @ thd2
-    C[2:] = Cth[::-1]
-    return C
+    return _fast().mass_and_coriolis(packed(p), _vec(q), _vec(qdot))[1]
 
 
 def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:

@@ -364,6 +364,25 @@ def _coriolis(p, th, sth, cth, thdot):
 
 
 @jit
+def input_matrix(p, th, sth, cth):
+    """Input matrix B(q) (C.8) with E3, by virtual work; th, sth, cth as for ``_mass``."""
+    n = p.n
+    N = n + 2
+    B = np.zeros((N, 2 * n))
+    # B (C.8), E3: columns 2i (ir), 2i+1 (il) = (1/r_i) [U_i; D[i, k] sin(theta_i - theta_k) +/- b_i delta_ik]
+    for i in range(n):
+        ri = p.r[i]
+        for j in (2 * i, 2 * i + 1):
+            B[0, j] = cth[i] / ri
+            B[1, j] = sth[i] / ri
+            for k in range(n):
+                B[N - 1 - k, j] = p.D[i, k] * math.sin(th[i] - th[k]) / ri
+        B[N - 1 - i, 2 * i] += p.b[i] / ri
+        B[N - 1 - i, 2 * i + 1] -= p.b[i] / ri
+    return B
+
+
+@jit
 def mass_and_coriolis(p, q, qdot):
     """(M(q), C(q, qdot)) of (D.5), (D.9) for any qdot (not only S(q) eta): model.kernels' faces."""
     n = p.n
@@ -421,17 +440,7 @@ def reduced(p, q, eta):
         cth[k] = math.cos(th[k])
     M = _mass(p, th, sth, cth)
     C = _coriolis(p, th, sth, cth, thdot)  # at qdot = S eta
-    # B (C.8), E3: columns 2i (ir), 2i+1 (il) = (1/r_i) [U_i; D[i, k] sin(theta_i - theta_k) +/- b_i delta_ik]
-    B = np.zeros((N, nw))
-    for i in range(n):
-        ri = p.r[i]
-        for j in (2 * i, 2 * i + 1):
-            B[0, j] = cth[i] / ri
-            B[1, j] = sth[i] / ri
-            for k in range(n):
-                B[N - 1 - k, j] = p.D[i, k] * math.sin(th[i] - th[k]) / ri
-        B[N - 1 - i, 2 * i] += p.b[i] / ri
-        B[N - 1 - i, 2 * i + 1] -= p.b[i] / ri
+    B = input_matrix(p, th, sth, cth)
     # S^T (.) with S = [s0, e_(N-1)] and Sdot = [sd0, 0]
     Ms0 = np.zeros(N)
     Msd0 = np.zeros(N)

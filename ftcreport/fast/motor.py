@@ -68,7 +68,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kernels import _mv, _solve2, jit, reduced, s_column
+from .kernels import _mv, _solve2, input_matrix, jit, reduced, s_column
 
 MODE_NORMAL = 0
 MODE_OPEN = 1
@@ -112,25 +112,22 @@ def _b_and_rate(p, q, thdot):
     N = n + 2
     nw = 2 * n
     th = np.empty(n)
+    sth = np.empty(n)
+    cth = np.empty(n)
     for k in range(n):
         th[k] = q[N - 1 - k]
-    B = np.zeros((N, nw))
+        sth[k] = math.sin(th[k])
+        cth[k] = math.cos(th[k])
     Bd = np.zeros((N, nw))
     for i in range(n):
         ri = p.r[i]
-        ci, si = math.cos(th[i]), math.sin(th[i])
         for j in (2 * i, 2 * i + 1):
-            B[0, j] = ci / ri
-            B[1, j] = si / ri
-            Bd[0, j] = -si * thdot[i] / ri
-            Bd[1, j] = ci * thdot[i] / ri
+            # d/dt of B's columns (C.8): U_i' = thetadot_i U_i^perp, d/dt sin(theta_i - theta_k)
+            Bd[0, j] = -sth[i] * thdot[i] / ri
+            Bd[1, j] = cth[i] * thdot[i] / ri
             for k in range(n):
-                dth = th[i] - th[k]
-                B[N - 1 - k, j] = p.D[i, k] * math.sin(dth) / ri
-                Bd[N - 1 - k, j] = p.D[i, k] * math.cos(dth) * (thdot[i] - thdot[k]) / ri
-        B[N - 1 - i, 2 * i] += p.b[i] / ri
-        B[N - 1 - i, 2 * i + 1] -= p.b[i] / ri
-    return B, Bd
+                Bd[N - 1 - k, j] = p.D[i, k] * math.cos(th[i] - th[k]) * (thdot[i] - thdot[k]) / ri
+    return input_matrix(p, th, sth, cth), Bd
 
 
 @jit

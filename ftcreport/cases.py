@@ -23,7 +23,15 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from .errors import CaseError, FtcError
 from .limits import budget_problem, name_problem
@@ -58,9 +66,29 @@ def _f(default: Any, description: str, unit: str, **kw: Any) -> Any:
     return Field(default, description=description, json_schema_extra={"unit": unit}, **kw)
 
 
+def _a_number(v: Any) -> Any:
+    """Refuse a boolean or a text where a number belongs (pydantic would read ``true`` as 1, ``"12"`` as 12)."""
+    if isinstance(v, bool):
+        raise ValueError(f"a number is expected, got the boolean {str(v).lower()}")
+    if isinstance(v, str):
+        try:
+            float(v)
+        except ValueError:
+            raise ValueError(f"a number is expected, got the text {v!r}") from None
+        raise ValueError(f"a number is expected, got the text {v!r} (write it without quotes)")
+    return v
+
+
+_NUMBER = BeforeValidator(_a_number)
+
+
 def _num(lo: float | None = None, hi: float | None = None, *, gt: float | None = None, lt: float | None = None):
-    """A finite float in a documented range (ge ``lo`` or gt ``gt``; le ``hi`` or lt ``lt``)."""
-    return Annotated[float, Field(ge=lo, gt=gt, le=hi, lt=lt, allow_inf_nan=False)]
+    """A finite float in a documented range (ge ``lo`` or gt ``gt``; le ``hi`` or lt ``lt``); no boolean or text."""
+    return Annotated[float, Field(ge=lo, gt=gt, le=hi, lt=lt, allow_inf_nan=False), _NUMBER]
+
+
+#: A whole number (its range in the field): no boolean or text either.
+Int = Annotated[int, _NUMBER]
 
 
 #: Documented ranges (issue 23 asks for one on every numeric field; the fuzzer relies on them).
@@ -92,7 +120,7 @@ class _Strict(BaseModel):
 class Robots(_Strict):
     """Per-robot parameters: a scalar applies to every robot, a list is leader first."""
 
-    n: int = _f(..., "number of robots (robot 1 is the leader)", "1", ge=2, le=12)
+    n: Int = _f(..., "number of robots (robot 1 is the leader)", "1", ge=2, le=12)
     a: Signed | list[Signed] = _f(
         THESIS_ROBOT["a"], "signed distance from the axle midpoint P_i to the centre of mass C_i", "m"
     )
@@ -559,20 +587,21 @@ class Simulation(_Strict):
         " ETD2RK, exact on the motors' currents (DC-motor cases: one step per control sample)",
         "-",
     )
-    log_every: int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
+    log_every: Int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
     singularity_margin_deg: _num(0.0, lt=90) = _f(
         2.0, "stop (status singular) when an articulation angle comes this close to 90 deg", "deg"
     )
     sample_time: _num(None, 10.0, gt=0) | None = _f(
         None,
-        "sampled (digital) control: the controller's period, a whole number of steps dt; its command is held "
+        "sampled (digital) control: the controller's period, a whole number of steps dt and at most the duration; "
+        "its command is held "
         "between samples (zero-order hold). Absent: continuous-time control",
         "s",
     )
-    measurement_delay: int = _f(
+    measurement_delay: Int = _f(
         0,
         "sampled control: the controller sees the measurements of this many samples before (a transport delay "
-        "of whole samples; the first sample's measurement until there is one that old)",
+        "of whole samples, shorter than the run; the first sample's measurement until there is one that old)",
         "samples",
         ge=0,
         le=1000,
@@ -591,6 +620,18 @@ class Simulation(_Strict):
                 raise _FieldError(
                     "simulation.sample_time", f"{self.sample_time} s is not a whole number of steps dt = {self.dt} s"
                 )
+            if self.sample_time > self.duration:
+                raise _FieldError(
+                    "simulation.sample_time",
+                    f"{self.sample_time} s is longer than the run ({self.duration} s): the controller would act once",
+                )
+            delay = self.measurement_delay * self.sample_time
+            if self.measurement_delay and delay >= self.duration:
+                raise _FieldError(
+                    "simulation.measurement_delay",
+                    f"{self.measurement_delay} samples of {self.sample_time} s ({delay:g} s) is not shorter than the "
+                    f"run ({self.duration} s): the controller would never see a measurement taken after t = 0",
+                )
         return self
 
 
@@ -601,7 +642,7 @@ class Noise(_Strict):
     heading: Std = _f(0.0, "on every theta", "rad")
     velocity: Std = _f(0.0, "on v_n and omega_1", "m/s, rad/s")
     # 63 bits: campaigns give each sample a SeedSequence child of 63 bits (ftcreport.campaign.sample_seeds)
-    seed: int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**63 - 1)
+    seed: Int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**63 - 1)
 
 
 class Mismatch(_Strict):
@@ -632,7 +673,7 @@ class Bound(_Strict):
     max: Limit | None = _f(None, "upper bound", "unit of the metric")
 
 
-_Count = Annotated[int, Field(ge=0, le=100)]
+_Count = Annotated[int, Field(ge=0, le=100), _NUMBER]
 
 
 class Claim(_Strict):
@@ -650,7 +691,7 @@ class Claim(_Strict):
     min: Limit | None = _f(None, "lower bound on the metric (or on the ratio with relative_to)", "metric's")
     max: Limit | None = _f(None, "upper bound on the metric (or on the ratio with relative_to)", "metric's")
     relative_to: str | None = _f(None, "bound on metric(scheme) / metric(relative_to)", "-")
-    sequence: list[Annotated[int, Field(ge=1, le=10**6)]] | None = _f(
+    sequence: list[Annotated[int, Field(ge=1, le=10**6), _NUMBER]] | None = _f(
         None, "switch_sequence: the applied models, 1-based, repeats merged", "-"
     )
 
@@ -1221,8 +1262,8 @@ def load_case(path: str | Path) -> Case:
     try:
         return parse_case(merged, str(path))
     except CaseError as exc:
-        lines = [_name_base_field(line, str(path), data) for line in exc.lines]
-        raise CaseError(_name_base_field(str(exc), str(path), data), lines) from None
+        lines = [_name_base_field(line, str(path), data, merged) for line in exc.lines]
+        raise CaseError(_name_base_field(str(exc), str(path), data, merged), lines) from None
 
 
 #: Fields an overlay never takes from its base: they describe the base's own results or identity.
@@ -1274,25 +1315,35 @@ def resolve_overlay(path: Path, data: dict, _seen: tuple[Path, ...] = ()) -> dic
     return _merge(base, data)
 
 
-def _name_base_field(message: str, source: str, overlay: dict) -> str:
-    """Say so when the field an error names has its value from the base case, not from the overlay."""
-    rest = message.removeprefix(f"{source}: ")
-    loc = rest.split(": ", 1)[0]
-    parts = [p for p in loc.replace("[", ".[").split(".") if p]
-    node: Any = overlay
+_ABSENT = object()
+
+
+def _lookup(node: Any, parts: list[str]) -> Any:
+    """The value at a field path's parts (``["faults", "[1]", "value"]``) in parsed TOML, or _ABSENT."""
     for part in parts:
         if part.startswith("[") and isinstance(node, list):
             i = int(part.strip("[]"))
             if i >= len(node):
-                node = None
-                break
+                return _ABSENT
             node = node[i]
         elif isinstance(node, dict) and part in node:
             node = node[part]
         else:
-            node = None
-            break
-    if node is None and loc not in ("<root>", "name") and parts:
+            return _ABSENT
+    return node
+
+
+def _name_base_field(message: str, source: str, overlay: dict, merged: dict) -> str:
+    """Say so when the field an error names has its value from the base case, not from the overlay.
+
+    A field in neither (a required field missing, an event's value left out) is nobody's: no note.
+    """
+    rest = message.removeprefix(f"{source}: ")
+    loc = rest.split(": ", 1)[0]
+    parts = [p for p in loc.replace("[", ".[").split(".") if p]
+    if not parts or loc in ("<root>", "name"):
+        return message
+    if _lookup(overlay, parts) is _ABSENT and _lookup(merged, parts) is not _ABSENT:
         return f"{message} (the value comes from the base case {overlay['base_case']})"
     return message
 
@@ -1428,7 +1479,18 @@ def with_duration(case: Case, duration: float) -> Case:
     """The same case simulated for ``duration`` s (events at or after it dropped)."""
     if not (math.isfinite(duration) and duration > 0):
         raise CaseError(f"{case.name}: --duration: must be a finite number of seconds > 0, got {duration}")
-    sim = case.simulation.model_copy(update={"duration": float(duration), "dt": min(case.simulation.dt, duration)})
+    s = case.simulation
+    if s.sample_time is not None and duration < s.sample_time:
+        raise CaseError(
+            f"{case.name}: --duration {duration:g}: shorter than one control sample (simulation.sample_time = "
+            f"{s.sample_time:g} s)"
+        )
+    try:  # validated again: the sampling's limits depend on the duration
+        sim = Simulation.model_validate({**s.model_dump(), "duration": float(duration), "dt": min(s.dt, duration)})
+    except ValidationError as exc:
+        loc, why = _field_errors(exc.errors())[0]
+        loc = loc if loc.startswith("simulation") else f"simulation.{loc}"
+        raise CaseError(f"{case.name}: --duration {duration:g}: {loc}: {why}") from None
     faults = [f for f in case.faults if f.time < duration]
     # the campaign table's ranges refer to the full duration; a shortened run is not a campaign base
     short = case.model_copy(update={"simulation": sim, "faults": faults, "campaign": None})

@@ -13,9 +13,10 @@ from ftcreport.runner import build
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 ALL = sorted(CASES.glob("*.toml"))
+MOTORS = sorted(CASES.glob("motors/*.toml"))  # the DC-motor overlays (issue 19)
 
 
-@pytest.mark.parametrize("path", ALL, ids=[p.stem for p in ALL])
+@pytest.mark.parametrize("path", ALL + MOTORS, ids=[p.stem for p in ALL + MOTORS])
 def test_every_case_validates_and_builds(path):
     case = load_case(path)
     assert case.name == path.stem
@@ -36,7 +37,7 @@ def _base() -> dict:
         (lambda c: c["robots"].update(r=[0.15, 0.0, 0.15]), "robots.r[1]", "must be > 0"),
         (lambda c: c["robots"].update(colour="red"), "robots.colour", "unknown field"),
         (lambda c: c["faults"].reverse(), "faults", "sorted by time"),
-        (lambda c: c["simulation"].update(dt="fast"), "simulation.dt", "valid number"),
+        (lambda c: c["simulation"].update(dt="fast"), "simulation.dt", "a number is expected, got the text 'fast'"),
         (lambda c: c["faults"][0].update(sigma=1.5), "faults[0].sigma", "must be <= 1, got 1.5"),
         (lambda c: c["robots"].update(d=[1.0]), "robots.d", "1 link lengths given, a 3-robot chain needs 2"),
         (lambda c: c["faults"][-1].update(time=500.0), "faults[9].time", "before the end"),
@@ -56,6 +57,23 @@ def _base() -> dict:
             "required and missing: simulated time; add it to [simulation]",
         ),
         (lambda c: c.update(expected_status_of={"adaptiv": ["ok"]}), "expected_status_of.adaptiv", "'adaptive'"),
+        # session 9 fuzzing (tests/test_fuzz.py): a boolean or a quoted number was read as a number
+        (lambda c: c["faults"][0].update(sigma=True), "faults[0].sigma", "a number is expected, got the boolean true"),
+        (lambda c: c["robots"].update(n=True), "robots.n", "a number is expected, got the boolean true"),
+        (lambda c: c["robots"].update(d="1.0"), "robots.d", "got the text '1.0' (write it without quotes)"),
+        (lambda c: c["simulation"].update(log_every="5"), "simulation.log_every", "a number is expected, got the text"),
+        (lambda c: c.update(actuators={"R_a": [0.3, True, 0.3]}), "actuators.R_a[1]", "got the boolean true"),
+        # ... a sampling period or a measurement delay longer than the run was accepted
+        (
+            lambda c: c["simulation"].update(duration=5.0, sample_time=6.0),
+            "simulation.sample_time",
+            "6.0 s is longer than the run (5.0 s): the controller would act once",
+        ),
+        (
+            lambda c: c["simulation"].update(duration=5.0, sample_time=0.02, measurement_delay=250),
+            "simulation.measurement_delay",
+            "250 samples of 0.02 s (5 s) is not shorter than the run (5.0 s)",
+        ),
     ],
 )
 def test_malformed_cases_name_file_field_and_reason(mutate, where, why):
@@ -158,6 +176,36 @@ def test_an_overlay_names_the_base_on_every_line(tmp_path):
     assert info.value.lines[0] == f"{src}: robots.colour: unknown field"  # the overlay's own field
     assert info.value.lines[1] == f"{src}: simulation.dt: must be > 0, got -1.0 {why}"
     assert info.value.lines[2].startswith(f"{src}: reference.kind: got 'circel'") and why in info.value.lines[2]
+
+
+def test_an_overlay_blames_the_base_only_for_the_base_values(tmp_path):
+    """A field missing from the overlay and the base both (a motor fault's value) is the overlay's error alone."""
+    (tmp_path / "base.toml").write_text((CASES / "two_link_switching.toml").read_text())
+    (tmp_path / "over.toml").write_text(
+        'base_case = "base.toml"\n[actuators]\n[[faults]]\ntime = 1.0\nwheel = "1r"\nmotor = "stuck"\n'
+    )
+    with pytest.raises(CaseError) as info:
+        load_case(tmp_path / "over.toml")
+    assert str(info.value) == f"{tmp_path / 'over.toml'}: faults[0].value: a motor fault 'stuck' needs a value"
+
+
+# ------------------------------------------------------------------ --duration on a sampled case (session 9)
+def test_a_shortened_run_keeps_the_sampling_valid():
+    """``--duration`` below one sample or one delay is refused naming the option (the engine blamed dt)."""
+    from ftcreport.cases import with_duration
+
+    case = load_case(CASES / "motors" / "two_link_switching_motors.toml")  # T_s = dt = 5 ms
+    with pytest.raises(CaseError) as info:
+        with_duration(case, 0.003)
+    assert str(info.value) == (
+        "two_link_switching_motors: --duration 0.003: shorter than one control sample "
+        "(simulation.sample_time = 0.005 s)"
+    )
+    delayed = case.model_copy(update={"simulation": case.simulation.model_copy(update={"measurement_delay": 40})})
+    with pytest.raises(CaseError, match=r"--duration 0\.2: simulation\.measurement_delay: 40 samples of 0\.005 s"):
+        with_duration(delayed, 0.2)  # 40 x 5 ms = 0.2 s: the controller would see only the first sample
+    short = with_duration(delayed, 0.25)
+    assert (short.simulation.duration, short.simulation.dt, short.simulation.sample_time) == (0.25, 0.005, 0.005)
 
 
 # ------------------------------------------------------------------ Literal fields in plain words (audit item 3)

@@ -594,8 +594,7 @@ class Simulation(_Strict):
     sample_time: _num(None, 10.0, gt=0) | None = _f(
         None,
         "sampled (digital) control: the controller's period, a whole number of steps dt and at most the duration; "
-        "its command is held "
-        "between samples (zero-order hold). Absent: continuous-time control",
+        "its command is held between samples (zero-order hold). Absent: continuous-time control",
         "s",
     )
     measurement_delay: Int = _f(
@@ -877,6 +876,7 @@ class Case(_Strict):
                 raise _FieldError(f"plant.mismatch.{key}", f"{len(v)} factors given, {count} needed")
         if self.initial.headings_deg is not None and len(self.initial.headings_deg) != n:
             raise _FieldError("initial.headings_deg", f"{len(self.initial.headings_deg)} values for {n} robots")
+        _check_initial_articulation(self.initial, self.simulation.singularity_margin_deg)
         if self.campaign is not None:
             if self.campaign.fault_time[1] >= self.simulation.duration:
                 raise _FieldError(
@@ -985,6 +985,28 @@ def _check_motor_fault(i: int, f: Fault, has_actuators: bool) -> None:
         motor_row(f.motor, f.value)
     except FtcError as exc:
         raise _FieldError(f"faults[{i}].value", str(exc)) from None
+
+
+def _check_initial_articulation(ini: Initial, margin_deg: float) -> None:
+    """Absolute headings whose articulation angle starts within the singularity margin of 90 deg (ERRATA P4).
+
+    The engine's test (fast.kernels._check_state: |cos(theta_i - theta_(i+1))| <= sin(margin)) on the
+    headings as given, so the run that would stop at t = 0 is refused here, naming the field.  Offset
+    mode adds the reference's headings at t = 0 (built only with the reference): the run checks those.
+    """
+    if ini.mode != "absolute" or ini.headings_deg is None:
+        return
+    lim = math.sin(math.radians(margin_deg))
+    th = [math.radians(h) for h in ini.headings_deg]
+    for i in range(len(th) - 1):
+        if abs(math.cos(th[i] - th[i + 1])) <= lim:
+            phi = ini.headings_deg[i] - ini.headings_deg[i + 1]
+            raise _FieldError(
+                "initial.headings_deg",
+                f"the articulation angle theta_{i + 1} - theta_{i + 2} = {phi:g} deg starts within "
+                f"simulation.singularity_margin_deg = {margin_deg:g} deg of +/-90 deg: the chain is singular "
+                "there (ERRATA P4) and the run would stop at t = 0",
+            )
 
 
 def _check_name(v: str | None) -> str | None:

@@ -63,6 +63,12 @@ def _base() -> dict:
         (lambda c: c["robots"].update(d="1.0"), "robots.d", "got the text '1.0' (write it without quotes)"),
         (lambda c: c["simulation"].update(log_every="5"), "simulation.log_every", "a number is expected, got the text"),
         (lambda c: c.update(actuators={"R_a": [0.3, True, 0.3]}), "actuators.R_a[1]", "got the boolean true"),
+        # ... absolute headings at the articulation singularity: validated, then the run stopped at t = 0
+        (
+            lambda c: c["initial"].update(mode="absolute", headings_deg=[0.0, 30.0, 118.5]),
+            "initial.headings_deg",
+            "theta_2 - theta_3 = -88.5 deg starts within simulation.singularity_margin_deg = 2 deg of +/-90 deg",
+        ),
         # ... a sampling period or a measurement delay longer than the run was accepted
         (
             lambda c: c["simulation"].update(duration=5.0, sample_time=6.0),

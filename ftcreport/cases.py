@@ -857,13 +857,28 @@ class Case(_Strict):
             sw = getattr(self.schemes, sname)
             if sw is None or sw.patterns == "all":
                 continue
+            if not sw.patterns:
+                raise _FieldError(
+                    f"schemes.{sname}.patterns",
+                    'no pattern: the scheme needs at least one model (e.g. [[]], the healthy one) or "all"',
+                )
+            seen_patterns: dict[tuple[int, ...], int] = {}
             for i, failed in enumerate(sw.patterns):
                 pat = [1] * (2 * n)
                 for w in failed:
                     try:
-                        pat[wheel_index(w, n)] = 0
+                        k = wheel_index(w, n)
                     except FtcError as exc:
                         raise _FieldError(f"schemes.{sname}.patterns[{i}]", str(exc)) from None
+                    if pat[k] == 0:
+                        raise _FieldError(f"schemes.{sname}.patterns[{i}]", f"wheel {w!r} is listed twice")
+                    pat[k] = 0
+                first = seen_patterns.setdefault(tuple(pat), i)
+                if first != i:
+                    raise _FieldError(
+                        f"schemes.{sname}.patterns[{i}]",
+                        f"{failed} is the model of patterns[{first}] again (each model once)",
+                    )
                 if not pattern_is_compensable(pat):
                     raise _FieldError(
                         f"schemes.{sname}.patterns[{i}]",

@@ -63,6 +63,18 @@ def _base() -> dict:
         (lambda c: c["robots"].update(d="1.0"), "robots.d", "got the text '1.0' (write it without quotes)"),
         (lambda c: c["simulation"].update(log_every="5"), "simulation.log_every", "a number is expected, got the text"),
         (lambda c: c.update(actuators={"R_a": [0.3, True, 0.3]}), "actuators.R_a[1]", "got the boolean true"),
+        # ... a model bank without a model (the run failed with exit 1), or with one model twice
+        (lambda c: c["schemes"]["switching"].update(patterns=[]), "schemes.switching.patterns", "no pattern"),
+        (
+            lambda c: c["schemes"]["switching"].update(patterns=[[], ["2l", "1r"], ["1R", "2l"]]),
+            "schemes.switching.patterns[2]",
+            "['1R', '2l'] is the model of patterns[1] again",
+        ),
+        (
+            lambda c: c["schemes"]["switching"].update(patterns=[["2l", "2l"]]),
+            "schemes.switching.patterns[0]",
+            "wheel '2l' is listed twice",
+        ),
         # ... absolute headings at the articulation singularity: validated, then the run stopped at t = 0
         (
             lambda c: c["initial"].update(mode="absolute", headings_deg=[0.0, 30.0, 118.5]),

@@ -1257,6 +1257,10 @@ def _load_plugins(data: dict, source: str) -> dict:
             load_plugin(path)
         except FtcError as exc:
             raise CaseError(f"{source}: plugins[{i}]: {exc}") from None
+        except SystemExit as exc:  # not an Exception: load_plugin lets it through, and the CLI exited silently
+            raise CaseError(
+                f"{source}: plugins[{i}]: {path}: the scheme file called sys.exit({exc.code!r}) on import"
+            ) from None
         resolved.append(str(path.resolve()))
     return {**data, "plugins": resolved}
 

@@ -283,3 +283,14 @@ def test_a_literal_typo_in_a_file():
     assert str(info.value) == (
         "cases/x.toml: simulation.method: got 'rk5'; expected one of 'rk4', 'ros2', 'etd2' (did you mean 'rk4'?)"
     )
+
+
+def test_a_scheme_file_that_exits_on_import_is_named(tmp_path):
+    """A plug-in file calling sys.exit on import ended `cases validate` with exit 3 and no message (session 9)."""
+    (tmp_path / "exits_on_import_s9.py").write_text("import sys\nsys.exit(3)\n")
+    data = tomllib.loads((CASES / "two_link_active.toml").read_text())
+    data["plugins"] = ["exits_on_import_s9.py"]
+    with pytest.raises(CaseError) as info:
+        parse_case(data, str(tmp_path / "x.toml"))
+    src, where = tmp_path / "x.toml", tmp_path / "exits_on_import_s9.py"
+    assert str(info.value) == f"{src}: plugins[0]: {where}: the scheme file called sys.exit(3) on import"

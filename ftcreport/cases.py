@@ -146,16 +146,23 @@ class Robots(_Strict):
         return list(v) if isinstance(v, list) else [float(v)] * count
 
 
+_MAX_RADIUS = 1e5  # [m] a circle's radius, and a unicycle's v_d / |omega_d|
+
+
 class Reference(_Strict):
     """Path of the last robot's axle midpoint P_n (a flat output of the chain)."""
 
     kind: Literal["unicycle", "circle", "eight", "line", "sinusoid"] = _f(..., "shape of the path", "-")
     v_d: Speed | None = _f(None, "unicycle: forward speed (required)", "m/s")
-    omega_d: Rate | None = _f(None, "unicycle: turn rate (required)", "rad/s")
+    omega_d: Rate | None = _f(
+        None,
+        "unicycle: turn rate (required; 0, or at least v_d / 1e5 m in magnitude: a circle of radius <= 1e5 m)",
+        "rad/s",
+    )
     x0: Coord = _f(0.0, "unicycle: start x", "m")
     y0: Coord = _f(0.0, "unicycle: start y", "m")
     theta0_deg: Angle | None = _f(None, "unicycle, eight: start heading (eight: 45 as in the thesis)", "deg")
-    radius: _num(None, 1e5, gt=0) | None = _f(None, "circle: radius (required)", "m")
+    radius: _num(None, _MAX_RADIUS, gt=0) | None = _f(None, "circle: radius (required)", "m")
     speed: Speed | None = _f(None, "circle, line, sinusoid: path speed (required)", "m/s")
     center: tuple[Coord, Coord] = _f((0.0, 0.0), "circle: centre [x, y]", "m")
     start_angle_deg: Angle = _f(-90.0, "circle: polar angle of the start point (-90: bottom, heading +x)", "deg")
@@ -179,6 +186,13 @@ class Reference(_Strict):
         missing = [k for k in need if getattr(self, k) is None]
         if missing:
             raise ValueError(f"a '{self.kind}' reference needs {', '.join(missing)}")
+        if self.kind == "unicycle" and self.omega_d != 0 and self.v_d / abs(self.omega_d) > _MAX_RADIUS:
+            raise _FieldError(
+                "reference.omega_d",
+                f"{self.omega_d:g} rad/s turns on a circle of radius v_d / |omega_d| = "
+                f"{self.v_d / abs(self.omega_d):.3g} m, beyond {_MAX_RADIUS:g} m (the circle's radius limit; its "
+                "centre that far away loses every digit of the position): give 0 for a straight line",
+            )
         return self
 
     def path(self):

@@ -63,6 +63,12 @@ def _base() -> dict:
         (lambda c: c["robots"].update(d="1.0"), "robots.d", "got the text '1.0' (write it without quotes)"),
         (lambda c: c["simulation"].update(log_every="5"), "simulation.log_every", "a number is expected, got the text"),
         (lambda c: c.update(actuators={"R_a": [0.3, True, 0.3]}), "actuators.R_a[1]", "got the boolean true"),
+        # ... a unicycle turning so slowly its circle's centre lies 1e210 m away (the run "diverged" to 1e194 m)
+        (
+            lambda c: c.update(reference={"kind": "unicycle", "v_d": 0.5, "omega_d": -4.6e-211}),
+            "reference.omega_d",
+            "radius v_d / |omega_d| = 1.09e+210 m, beyond 100000 m",
+        ),
         # ... a model bank without a model (the run failed with exit 1), or with one model twice
         (lambda c: c["schemes"]["switching"].update(patterns=[]), "schemes.switching.patterns", "no pattern"),
         (

@@ -396,6 +396,8 @@ def _check_one(path: Path, name: str, label: str, out: Path, rec: dict) -> None:
         args.append("--no-report")
     run = runner.invoke(app, args)
     rec["run"] = run.exit_code
+    if run.exit_code:
+        rec["error"] = next((ln for ln in run.stderr.splitlines() if ln.startswith("ftcreport: error:")), "")[:400]
     if isinstance(run.exception, _HangError):
         raise run.exception
     assert run.exit_code in RUN_CODES, (label, run.exit_code, run.output, _trace(run))

@@ -28,6 +28,7 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    StrictBool,
     ValidationError,
     field_validator,
     model_validator,
@@ -166,7 +167,7 @@ class Reference(_Strict):
     speed: Speed | None = _f(None, "circle, line, sinusoid: path speed (required)", "m/s")
     center: tuple[Coord, Coord] = _f((0.0, 0.0), "circle: centre [x, y]", "m")
     start_angle_deg: Angle = _f(-90.0, "circle: polar angle of the start point (-90: bottom, heading +x)", "deg")
-    ccw: bool = _f(True, "circle: counter-clockwise", "-")
+    ccw: StrictBool = _f(True, "circle: counter-clockwise", "-")
     heading_deg: Angle = _f(0.0, "line, sinusoid: direction of travel", "deg")
     start: tuple[Coord, Coord] = _f((0.0, 0.0), "line, sinusoid: start point [x, y]", "m")
     amplitude: _num(-1e4, 1e4) | None = _f(None, "sinusoid: amplitude (required)", "m")
@@ -642,7 +643,7 @@ class Simulation(_Strict):
             if self.measurement_delay and delay >= self.duration:
                 raise _FieldError(
                     "simulation.measurement_delay",
-                    f"{self.measurement_delay} samples of {self.sample_time} s ({delay:g} s) is not shorter than the "
+                    f"{self.measurement_delay} sample(s) of {self.sample_time} s ({delay:g} s) is not shorter than the "
                     f"run ({self.duration} s): the controller would never see a measurement taken after t = 0",
                 )
         return self
@@ -743,7 +744,7 @@ class CampaignSpec(_Strict):
     mismatch: _num(0.0, lt=1) = _f(0.0, "+/- relative error of the plant's mass and inertia", "1")
     noise_position: tuple[Std, Std] = _f((0.0, 0.0), "sensor-noise standard deviation on x, y", "m")
     noise_heading: tuple[Std, Std] = _f((0.0, 0.0), "sensor-noise standard deviation on the headings", "rad")
-    keep_base_faults: bool = _f(False, "keep the case's own faults and add the drawn ones", "-")
+    keep_base_faults: StrictBool = _f(False, "keep the case's own faults and add the drawn ones", "-")
     success: dict[str, Bound] = _f(
         {"position_error_final": Bound(max=0.05)},
         "a sample succeeds for a scheme when its run completes and every bound holds",
@@ -936,6 +937,17 @@ class Case(_Strict):
             if run is not None and s not in run:
                 raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")
         known = known_schemes()
+        outcomes = ", ".join(repr(v) for v in get_args(Status))
+        if not self.expected_status:
+            raise _FieldError(
+                "expected_status", f"empty: every run would count as failed, even 'ok'; list some of {outcomes}"
+            )
+        for s, listed in self.expected_status_of.items():
+            if not listed:
+                raise _FieldError(
+                    f"expected_status_of.{s}",
+                    f"empty: every run of {s} would count as failed, even 'ok'; list some of {outcomes}",
+                )
         for s in self.expected_status_of:
             if s not in known:
                 raise _FieldError(
@@ -1160,11 +1172,56 @@ def _message(err: dict) -> str:
         return _choice_message(err["input"], str((err.get("ctx") or {}).get("expected", "")))
     if kind == "missing":
         return _missing_message(tuple(err["loc"]))
+    if kind in _EXPECTED:
+        return f"{_EXPECTED[kind]} is expected, got {_describe(err['input'])}"
+    if kind == "finite_number":
+        return f"must be a finite number, got {err['input']}"
+    if kind in ("too_long", "too_short"):  # a fixed-length pair ([x, y]) or a bounded list
+        ctx = err.get("ctx") or {}
+        most, least = ctx.get("max_length"), ctx.get("min_length")
+        bound = f"at most {most}" if kind == "too_long" else f"at least {least}"
+        return f"{bound} values are expected, got {ctx.get('actual_length', '?')}"
     return err["msg"].removeprefix("Value error, ")
+
+
+#: pydantic's type errors in the file's words (its own say "a valid dictionary or instance of Simulation")
+_EXPECTED = {
+    "model_type": "a table",
+    "model_attributes_type": "a table",
+    "dict_type": "a table",
+    "list_type": "a list",
+    "tuple_type": "a list",
+    "string_type": "a text (in quotes)",
+    "float_type": "a number",
+    "float_parsing": "a number",
+    "int_type": "a whole number",
+    "int_parsing": "a whole number",
+    "int_parsing_size": "a whole number of at most 19 digits",
+    "int_from_float": "a whole number",
+    "bool_type": "true or false",
+    "bool_parsing": "true or false",
+}
+
+
+def _describe(v: Any) -> str:
+    """A TOML value as the user wrote it: ``the number 1.5``, ``the text 'x'``, ``a table``."""
+    if isinstance(v, bool):
+        return f"the boolean {str(v).lower()}"
+    if isinstance(v, int | float):
+        return f"the number {v!r}"
+    if isinstance(v, str):
+        return f"the text {v[:60]!r}" + ("..." if len(v) > 60 else "")
+    if isinstance(v, dict):
+        return "a table"
+    if isinstance(v, list | tuple):
+        return "a list"
+    return f"a {type(v).__name__}"  # a TOML date or time
 
 
 def _missing_message(loc: tuple[Any, ...]) -> str:
     """``required and missing: <the field's description>; add it to [table]`` (the schema's own words)."""
+    if isinstance(loc[-1], int):  # an item of a fixed-length list ([x, y]) left out
+        return f"item {loc[-1]} is missing: {_format_loc(loc[:-1])} needs {loc[-1] + 1} values or more"
     model = _table_model(loc[:-1])
     field = None if model is None else model.model_fields.get(str(loc[-1]))
     what = f": {field.description.rstrip('.')}" if field is not None and field.description else ""

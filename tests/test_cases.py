@@ -63,11 +63,27 @@ def _base() -> dict:
         (lambda c: c["robots"].update(d="1.0"), "robots.d", "got the text '1.0' (write it without quotes)"),
         (lambda c: c["simulation"].update(log_every="5"), "simulation.log_every", "a number is expected, got the text"),
         (lambda c: c.update(actuators={"R_a": [0.3, True, 0.3]}), "actuators.R_a[1]", "got the boolean true"),
+        # ... pydantic's words for a wrong type ("Input should be a valid dictionary or instance of Simulation")
+        (lambda c: c.update(simulation=3), "simulation", "a table is expected, got the number 3"),
+        (lambda c: c.update(description=3), "description", "a text (in quotes) is expected, got the number 3"),
+        (lambda c: c["robots"].update(d={}), "robots.d", "a number is expected, got a table"),
+        (lambda c: c["simulation"].update(log_every=1.5), "simulation.log_every", "a whole number is expected"),
+        (lambda c: c["reference"].update(ccw="yes"), "reference.ccw", "true or false is expected, got the text 'yes'"),
+        (lambda c: c["initial"].update(eta=[1.0, 2.0, 3.0]), "initial.eta", "at most 2 values are expected, got 3"),
+        (lambda c: c["initial"].update(eta=[1.0]), "initial.eta[1]", "item 1 is missing: initial.eta needs 2 values"),
+        (lambda c: c["simulation"].update(dt=float("nan")), "simulation.dt", "must be a finite number, got nan"),
         # ... a unicycle turning so slowly its circle's centre lies 1e210 m away (the run "diverged" to 1e194 m)
         (
             lambda c: c.update(reference={"kind": "unicycle", "v_d": 0.5, "omega_d": -4.6e-211}),
             "reference.omega_d",
             "radius v_d / |omega_d| = 1.09e+210 m, beyond 100000 m",
+        ),
+        # ... an empty list of expected outcomes: a run ending 'ok' failed with "active: ok: -"
+        (lambda c: c.update(expected_status=[]), "expected_status", "empty: every run would count as failed"),
+        (
+            lambda c: c.update(expected_status_of={"switching": []}),
+            "expected_status_of.switching",
+            "empty: every run of switching would count as failed, even 'ok'; list some of 'ok', 'singular'",
         ),
         # ... a model bank without a model (the run failed with exit 1), or with one model twice
         (lambda c: c["schemes"]["switching"].update(patterns=[]), "schemes.switching.patterns", "no pattern"),
@@ -96,7 +112,7 @@ def _base() -> dict:
         (
             lambda c: c["simulation"].update(duration=5.0, sample_time=0.02, measurement_delay=250),
             "simulation.measurement_delay",
-            "250 samples of 0.02 s (5 s) is not shorter than the run (5.0 s)",
+            "250 sample(s) of 0.02 s (5 s) is not shorter than the run (5.0 s)",
         ),
     ],
 )
@@ -226,7 +242,7 @@ def test_a_shortened_run_keeps_the_sampling_valid():
         "(simulation.sample_time = 0.005 s)"
     )
     delayed = case.model_copy(update={"simulation": case.simulation.model_copy(update={"measurement_delay": 40})})
-    with pytest.raises(CaseError, match=r"--duration 0\.2: simulation\.measurement_delay: 40 samples of 0\.005 s"):
+    with pytest.raises(CaseError, match=r"--duration 0\.2: simulation\.measurement_delay: 40 sample\(s\) of 0\.005 s"):
         with_duration(delayed, 0.2)  # 40 x 5 ms = 0.2 s: the controller would see only the first sample
     short = with_duration(delayed, 0.25)
     assert (short.simulation.duration, short.simulation.dt, short.simulation.sample_time) == (0.25, 0.005, 0.005)

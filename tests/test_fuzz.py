@@ -36,6 +36,7 @@ import datetime
 import json
 import math
 import os
+import re
 import signal
 import time
 import tomllib
@@ -314,6 +315,20 @@ def _check_failure_message(res, path: Path, label: str) -> None:
     assert all(str(path) in ln for ln in errors), (label, errors)
 
 
+#: what may follow ``<file>: `` in a refusal: a field path (``faults[2].wheel``), or the file itself is unreadable
+_FIELD = re.compile(r"(<root>|[^\s:\[\]][^\s:]*): \S")
+_FILE_LEVEL = ("not valid TOML", "not UTF-8 text", "cannot read")
+
+
+def _check_names_a_field(res, path: Path, label: str) -> None:
+    """Every line of a refused file names the field (the project's standard), unless the file is not TOML."""
+    for ln in res.stderr.splitlines():
+        rest = ln.removeprefix(f"ftcreport: error: {path}: ")
+        if rest == ln or rest.startswith(_FILE_LEVEL):
+            continue
+        assert _FIELD.match(rest), (label, ln)
+
+
 def _reject_constant(c):
     raise ValueError(f"non-finite number {c} in metrics.json")
 
@@ -391,6 +406,7 @@ def _check_one(path: Path, name: str, label: str, out: Path, rec: dict) -> None:
     assert res.exit_code in VALIDATE_CODES, (label, res.exit_code, res.output, _trace(res))
     if res.exit_code != 0:
         _check_failure_message(res, path, label)
+        _check_names_a_field(res, path, label)
     args = ["run", str(path), "--duration", "1", "--out", str(out), "-q"]
     if name in SLOW_PAGES and not RENDER_ALL:
         args.append("--no-report")

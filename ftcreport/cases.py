@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import difflib
 import hashlib
-import json
 import math
 import re
 import tomllib
@@ -1477,7 +1476,25 @@ def overlay_text(path: str | Path) -> str | None:
 
 
 def _toml_key(key: str) -> str:
-    return key if key and all(c.isalnum() or c in "_-" for c in key) else json.dumps(key)
+    return key if key and all(c.isascii() and (c.isalnum() or c in "_-") for c in key) else _toml_string(key)
+
+
+def _toml_string(s: str) -> str:
+    """A TOML basic string: quote, backslash and control characters escaped (TOML 1.0, "String").
+
+    Not ``json.dumps``: JSON writes a character beyond U+FFFF as a surrogate pair of escapes, which
+    TOML refuses (a stored overlay with such a description read back as damaged), and leaves U+007F as is.
+    """
+    out = []
+    for ch in s:
+        o = ord(ch)
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif (o < 0x20 and ch != "\t") or o == 0x7F:
+            out.append(f"\\u{o:04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
 
 
 def _toml_value(v: Any) -> str:
@@ -1487,7 +1504,7 @@ def _toml_value(v: Any) -> str:
     if isinstance(v, int | float):
         return repr(v)
     if isinstance(v, str):
-        return json.dumps(v)  # a JSON string is a TOML basic string
+        return _toml_string(v)
     if isinstance(v, dict):
         return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
     if isinstance(v, list):

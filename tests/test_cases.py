@@ -316,3 +316,19 @@ def test_a_scheme_file_that_exits_on_import_is_named(tmp_path):
         parse_case(data, str(tmp_path / "x.toml"))
     src, where = tmp_path / "x.toml", tmp_path / "exits_on_import_s9.py"
     assert str(info.value) == f"{src}: plugins[0]: {where}: the scheme file called sys.exit(3) on import"
+
+
+def test_a_stored_overlay_keeps_any_text(tmp_path):
+    """The stored copy of an overlay (overlay_text) read back as 'damaged' when a text held a character beyond
+    U+FFFF: json.dumps wrote it as a surrogate pair, which TOML refuses (session 9 fuzzing)."""
+    import tomli_w
+
+    from ftcreport.cases import overlay_text
+
+    text = 'astral \U0001f916 and \U0006ea22, DEL \x7f, NUL \x00, tab \t, quote " and backslash \\ end'
+    data = {"base_case": str(CASES / "two_link_switching.toml"), "description": text}
+    data["thresholds"] = {"switching": {"position_error_final": {"max": 1.0}}, "nëw": {"x": {"max": 2.0}}}
+    (tmp_path / "over.toml").write_text(tomli_w.dumps(data))
+    stored = tomllib.loads(overlay_text(tmp_path / "over.toml"))
+    assert stored["description"] == text
+    assert stored["thresholds"] == data["thresholds"]

@@ -986,8 +986,12 @@ class Case(_Strict):
         return None if self.actuators is None else self.actuators.params(self.robots.n)
 
     def warnings(self) -> list[str]:
-        """Uncompensable phases, naming the event that makes them so."""
+        """Uncompensable phases, naming the event that makes them so; an RK4 step the motors' currents defeat."""
         out = []
+        motors = self.motor_params()
+        rk4 = None if motors is None else _rk4_on_currents(self.simulation, motors)
+        if rk4 is not None:
+            out.append(rk4)
         sched = self.fault_schedule()
         names = wheel_names(self.robots.n)
         for start, end, pat in sched.uncompensable_intervals(self.simulation.duration):
@@ -1047,6 +1051,33 @@ def _check_initial_articulation(ini: Initial, margin_deg: float) -> None:
                 f"simulation.singularity_margin_deg = {margin_deg:g} deg of +/-90 deg: the chain is singular "
                 "there (ERRATA P4) and the run would stop at t = 0",
             )
+
+
+#: The leftmost point of RK4's stability region |1 + z + z^2/2 + z^3/6 + z^4/24| <= 1, on the real axis
+#: (z = -2.7853; a scan of the complex plane finds no point of the region further left).
+RK4_REAL_LIMIT = 2.785
+
+
+def _rk4_on_currents(sim: Simulation, motors: list[MotorParams]) -> str | None:
+    """RK4 with a step no armature current survives (the run stops step_unstable): a warning, else None.
+
+    A motor's current and speed obey L_a J s^2 + (R_a J + L_a b) s + (R_a b + k_m k_b) = 0 (thesis
+    (2.26)-(2.29)); the roots sum to -(R_a / L_a + b / J), so the fast one (or a complex pair's real part)
+    lies at or left of -R_a / (2 L_a), and RK4 is unstable for certain once dt R_a / (2 L_a) > 2.785.
+    Steps between 2.785 L_a / R_a and twice that may fail too (the run says so); ETD2 is exact on the
+    currents at any step (fast.loop._etd2).
+    """
+    if sim.method != "rk4":
+        return None
+    tau = min(m.L_a / m.R_a for m in motors)  # [s] the fastest electrical time constant
+    if sim.dt / (2.0 * tau) <= RK4_REAL_LIMIT:
+        return None
+    return (
+        f"simulation.dt: {sim.dt:g} s with method = 'rk4' cannot integrate the armature currents of [actuators] "
+        f"(L_a / R_a = {tau * 1e3:.3g} ms: RK4 is unstable beyond dt = {2 * RK4_REAL_LIMIT * tau * 1e3:.3g} ms "
+        f"for certain, likely beyond {RK4_REAL_LIMIT * tau * 1e3:.3g} ms): the runs will stop step_unstable; use "
+        'method = "etd2" (exact on the currents at any step) or a smaller dt'
+    )
 
 
 def _check_name(v: str | None) -> str | None:

@@ -332,3 +332,19 @@ def test_a_stored_overlay_keeps_any_text(tmp_path):
     stored = tomllib.loads(overlay_text(tmp_path / "over.toml"))
     assert stored["description"] == text
     assert stored["thresholds"] == data["thresholds"]
+
+
+def test_motors_under_rk4_at_a_step_the_currents_defeat_warn():
+    """validate said nothing; every run then stopped step_unstable at t = 0.01 s (session 9 fuzzing)."""
+    data = _base()  # dt = 10 ms, RK4
+    data["actuators"] = {}  # the defaults: L_a / R_a = 0.161 mH / 0.365 ohm = 0.441 ms
+    case = parse_case(data, "x.toml")
+    # the fast root of the motor is >= R_a / (2 L_a) in magnitude: RK4 (|h lambda| <= 2.785) fails beyond 2.46 ms
+    assert case.warnings()[0].startswith(
+        "simulation.dt: 0.01 s with method = 'rk4' cannot integrate the armature currents of [actuators] "
+        "(L_a / R_a = 0.441 ms: RK4 is unstable beyond dt = 2.46 ms for certain, likely beyond 1.23 ms)"
+    )
+    data["simulation"].update(dt=0.002)  # inside the certain bound: no warning (the run decides)
+    assert not any("armature" in w for w in parse_case(data, "x.toml").warnings())
+    data["simulation"].update(dt=0.01, method="etd2")
+    assert not any("armature" in w for w in parse_case(data, "x.toml").warnings())

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import difflib
 import hashlib
-import json
 import math
 import re
 import tomllib
@@ -23,7 +22,16 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StrictBool,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from .errors import CaseError, FtcError
 from .limits import budget_problem, name_problem
@@ -58,9 +66,29 @@ def _f(default: Any, description: str, unit: str, **kw: Any) -> Any:
     return Field(default, description=description, json_schema_extra={"unit": unit}, **kw)
 
 
+def _a_number(v: Any) -> Any:
+    """Refuse a boolean or a text where a number belongs (pydantic would read ``true`` as 1, ``"12"`` as 12)."""
+    if isinstance(v, bool):
+        raise ValueError(f"a number is expected, got the boolean {str(v).lower()}")
+    if isinstance(v, str):
+        try:
+            float(v)
+        except ValueError:
+            raise ValueError(f"a number is expected, got the text {v!r}") from None
+        raise ValueError(f"a number is expected, got the text {v!r} (write it without quotes)")
+    return v
+
+
+_NUMBER = BeforeValidator(_a_number)
+
+
 def _num(lo: float | None = None, hi: float | None = None, *, gt: float | None = None, lt: float | None = None):
-    """A finite float in a documented range (ge ``lo`` or gt ``gt``; le ``hi`` or lt ``lt``)."""
-    return Annotated[float, Field(ge=lo, gt=gt, le=hi, lt=lt, allow_inf_nan=False)]
+    """A finite float in a documented range (ge ``lo`` or gt ``gt``; le ``hi`` or lt ``lt``); no boolean or text."""
+    return Annotated[float, Field(ge=lo, gt=gt, le=hi, lt=lt, allow_inf_nan=False), _NUMBER]
+
+
+#: A whole number (its range in the field): no boolean or text either.
+Int = Annotated[int, _NUMBER]
 
 
 #: Documented ranges (issue 23 asks for one on every numeric field; the fuzzer relies on them).
@@ -92,7 +120,7 @@ class _Strict(BaseModel):
 class Robots(_Strict):
     """Per-robot parameters: a scalar applies to every robot, a list is leader first."""
 
-    n: int = _f(..., "number of robots (robot 1 is the leader)", "1", ge=2, le=12)
+    n: Int = _f(..., "number of robots (robot 1 is the leader)", "1", ge=2, le=12)
     a: Signed | list[Signed] = _f(
         THESIS_ROBOT["a"], "signed distance from the axle midpoint P_i to the centre of mass C_i", "m"
     )
@@ -118,20 +146,27 @@ class Robots(_Strict):
         return list(v) if isinstance(v, list) else [float(v)] * count
 
 
+_MAX_RADIUS = 1e5  # [m] a circle's radius, and a unicycle's v_d / |omega_d|
+
+
 class Reference(_Strict):
     """Path of the last robot's axle midpoint P_n (a flat output of the chain)."""
 
     kind: Literal["unicycle", "circle", "eight", "line", "sinusoid"] = _f(..., "shape of the path", "-")
     v_d: Speed | None = _f(None, "unicycle: forward speed (required)", "m/s")
-    omega_d: Rate | None = _f(None, "unicycle: turn rate (required)", "rad/s")
+    omega_d: Rate | None = _f(
+        None,
+        "unicycle: turn rate (required; 0, or at least v_d / 1e5 m in magnitude: a circle of radius <= 1e5 m)",
+        "rad/s",
+    )
     x0: Coord = _f(0.0, "unicycle: start x", "m")
     y0: Coord = _f(0.0, "unicycle: start y", "m")
     theta0_deg: Angle | None = _f(None, "unicycle, eight: start heading (eight: 45 as in the thesis)", "deg")
-    radius: _num(None, 1e5, gt=0) | None = _f(None, "circle: radius (required)", "m")
+    radius: _num(None, _MAX_RADIUS, gt=0) | None = _f(None, "circle: radius (required)", "m")
     speed: Speed | None = _f(None, "circle, line, sinusoid: path speed (required)", "m/s")
     center: tuple[Coord, Coord] = _f((0.0, 0.0), "circle: centre [x, y]", "m")
     start_angle_deg: Angle = _f(-90.0, "circle: polar angle of the start point (-90: bottom, heading +x)", "deg")
-    ccw: bool = _f(True, "circle: counter-clockwise", "-")
+    ccw: StrictBool = _f(True, "circle: counter-clockwise", "-")
     heading_deg: Angle = _f(0.0, "line, sinusoid: direction of travel", "deg")
     start: tuple[Coord, Coord] = _f((0.0, 0.0), "line, sinusoid: start point [x, y]", "m")
     amplitude: _num(-1e4, 1e4) | None = _f(None, "sinusoid: amplitude (required)", "m")
@@ -151,6 +186,13 @@ class Reference(_Strict):
         missing = [k for k in need if getattr(self, k) is None]
         if missing:
             raise ValueError(f"a '{self.kind}' reference needs {', '.join(missing)}")
+        if self.kind == "unicycle" and self.omega_d != 0 and self.v_d / abs(self.omega_d) > _MAX_RADIUS:
+            raise _FieldError(
+                "reference.omega_d",
+                f"{self.omega_d:g} rad/s turns on a circle of radius v_d / |omega_d| = "
+                f"{self.v_d / abs(self.omega_d):.3g} m, beyond {_MAX_RADIUS:g} m (the circle's radius limit; its "
+                "centre that far away loses every digit of the position): give 0 for a straight line",
+            )
         return self
 
     def path(self):
@@ -559,20 +601,20 @@ class Simulation(_Strict):
         " ETD2RK, exact on the motors' currents (DC-motor cases: one step per control sample)",
         "-",
     )
-    log_every: int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
+    log_every: Int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
     singularity_margin_deg: _num(0.0, lt=90) = _f(
         2.0, "stop (status singular) when an articulation angle comes this close to 90 deg", "deg"
     )
     sample_time: _num(None, 10.0, gt=0) | None = _f(
         None,
-        "sampled (digital) control: the controller's period, a whole number of steps dt; its command is held "
-        "between samples (zero-order hold). Absent: continuous-time control",
+        "sampled (digital) control: the controller's period, a whole number of steps dt and at most the duration; "
+        "its command is held between samples (zero-order hold). Absent: continuous-time control",
         "s",
     )
-    measurement_delay: int = _f(
+    measurement_delay: Int = _f(
         0,
         "sampled control: the controller sees the measurements of this many samples before (a transport delay "
-        "of whole samples; the first sample's measurement until there is one that old)",
+        "of whole samples, shorter than the run; the first sample's measurement until there is one that old)",
         "samples",
         ge=0,
         le=1000,
@@ -591,6 +633,18 @@ class Simulation(_Strict):
                 raise _FieldError(
                     "simulation.sample_time", f"{self.sample_time} s is not a whole number of steps dt = {self.dt} s"
                 )
+            if self.sample_time > self.duration:
+                raise _FieldError(
+                    "simulation.sample_time",
+                    f"{self.sample_time} s is longer than the run ({self.duration} s): the controller would act once",
+                )
+            delay = self.measurement_delay * self.sample_time
+            if self.measurement_delay and delay >= self.duration:
+                raise _FieldError(
+                    "simulation.measurement_delay",
+                    f"{self.measurement_delay} sample(s) of {self.sample_time} s ({delay:g} s) is not shorter than the "
+                    f"run ({self.duration} s): the controller would never see a measurement taken after t = 0",
+                )
         return self
 
 
@@ -601,7 +655,7 @@ class Noise(_Strict):
     heading: Std = _f(0.0, "on every theta", "rad")
     velocity: Std = _f(0.0, "on v_n and omega_1", "m/s, rad/s")
     # 63 bits: campaigns give each sample a SeedSequence child of 63 bits (ftcreport.campaign.sample_seeds)
-    seed: int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**63 - 1)
+    seed: Int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**63 - 1)
 
 
 class Mismatch(_Strict):
@@ -632,7 +686,7 @@ class Bound(_Strict):
     max: Limit | None = _f(None, "upper bound", "unit of the metric")
 
 
-_Count = Annotated[int, Field(ge=0, le=100)]
+_Count = Annotated[int, Field(ge=0, le=100), _NUMBER]
 
 
 class Claim(_Strict):
@@ -650,7 +704,7 @@ class Claim(_Strict):
     min: Limit | None = _f(None, "lower bound on the metric (or on the ratio with relative_to)", "metric's")
     max: Limit | None = _f(None, "upper bound on the metric (or on the ratio with relative_to)", "metric's")
     relative_to: str | None = _f(None, "bound on metric(scheme) / metric(relative_to)", "-")
-    sequence: list[Annotated[int, Field(ge=1, le=10**6)]] | None = _f(
+    sequence: list[Annotated[int, Field(ge=1, le=10**6), _NUMBER]] | None = _f(
         None, "switch_sequence: the applied models, 1-based, repeats merged", "-"
     )
 
@@ -689,7 +743,7 @@ class CampaignSpec(_Strict):
     mismatch: _num(0.0, lt=1) = _f(0.0, "+/- relative error of the plant's mass and inertia", "1")
     noise_position: tuple[Std, Std] = _f((0.0, 0.0), "sensor-noise standard deviation on x, y", "m")
     noise_heading: tuple[Std, Std] = _f((0.0, 0.0), "sensor-noise standard deviation on the headings", "rad")
-    keep_base_faults: bool = _f(False, "keep the case's own faults and add the drawn ones", "-")
+    keep_base_faults: StrictBool = _f(False, "keep the case's own faults and add the drawn ones", "-")
     success: dict[str, Bound] = _f(
         {"position_error_final": Bound(max=0.05)},
         "a sample succeeds for a scheme when its run completes and every bound holds",
@@ -817,13 +871,28 @@ class Case(_Strict):
             sw = getattr(self.schemes, sname)
             if sw is None or sw.patterns == "all":
                 continue
+            if not sw.patterns:
+                raise _FieldError(
+                    f"schemes.{sname}.patterns",
+                    'no pattern: the scheme needs at least one model (e.g. [[]], the healthy one) or "all"',
+                )
+            seen_patterns: dict[tuple[int, ...], int] = {}
             for i, failed in enumerate(sw.patterns):
                 pat = [1] * (2 * n)
                 for w in failed:
                     try:
-                        pat[wheel_index(w, n)] = 0
+                        k = wheel_index(w, n)
                     except FtcError as exc:
                         raise _FieldError(f"schemes.{sname}.patterns[{i}]", str(exc)) from None
+                    if pat[k] == 0:
+                        raise _FieldError(f"schemes.{sname}.patterns[{i}]", f"wheel {w!r} is listed twice")
+                    pat[k] = 0
+                first = seen_patterns.setdefault(tuple(pat), i)
+                if first != i:
+                    raise _FieldError(
+                        f"schemes.{sname}.patterns[{i}]",
+                        f"{failed} is the model of patterns[{first}] again (each model once)",
+                    )
                 if not pattern_is_compensable(pat):
                     raise _FieldError(
                         f"schemes.{sname}.patterns[{i}]",
@@ -836,6 +905,7 @@ class Case(_Strict):
                 raise _FieldError(f"plant.mismatch.{key}", f"{len(v)} factors given, {count} needed")
         if self.initial.headings_deg is not None and len(self.initial.headings_deg) != n:
             raise _FieldError("initial.headings_deg", f"{len(self.initial.headings_deg)} values for {n} robots")
+        _check_initial_articulation(self.initial, self.simulation.singularity_margin_deg)
         if self.campaign is not None:
             if self.campaign.fault_time[1] >= self.simulation.duration:
                 raise _FieldError(
@@ -866,6 +936,17 @@ class Case(_Strict):
             if run is not None and s not in run:
                 raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")
         known = known_schemes()
+        outcomes = ", ".join(repr(v) for v in get_args(Status))
+        if not self.expected_status:
+            raise _FieldError(
+                "expected_status", f"empty: every run would count as failed, even 'ok'; list some of {outcomes}"
+            )
+        for s, listed in self.expected_status_of.items():
+            if not listed:
+                raise _FieldError(
+                    f"expected_status_of.{s}",
+                    f"empty: every run of {s} would count as failed, even 'ok'; list some of {outcomes}",
+                )
         for s in self.expected_status_of:
             if s not in known:
                 raise _FieldError(
@@ -905,8 +986,12 @@ class Case(_Strict):
         return None if self.actuators is None else self.actuators.params(self.robots.n)
 
     def warnings(self) -> list[str]:
-        """Uncompensable phases, naming the event that makes them so."""
+        """Uncompensable phases, naming the event that makes them so; an RK4 step the motors' currents defeat."""
         out = []
+        motors = self.motor_params()
+        rk4 = None if motors is None else _rk4_on_currents(self.simulation, motors)
+        if rk4 is not None:
+            out.append(rk4)
         sched = self.fault_schedule()
         names = wheel_names(self.robots.n)
         for start, end, pat in sched.uncompensable_intervals(self.simulation.duration):
@@ -944,6 +1029,55 @@ def _check_motor_fault(i: int, f: Fault, has_actuators: bool) -> None:
         motor_row(f.motor, f.value)
     except FtcError as exc:
         raise _FieldError(f"faults[{i}].value", str(exc)) from None
+
+
+def _check_initial_articulation(ini: Initial, margin_deg: float) -> None:
+    """Absolute headings whose articulation angle starts within the singularity margin of 90 deg (ERRATA P4).
+
+    The engine's test (fast.kernels._check_state: |cos(theta_i - theta_(i+1))| <= sin(margin)) on the
+    headings as given, so the run that would stop at t = 0 is refused here, naming the field.  Offset
+    mode adds the reference's headings at t = 0 (built only with the reference): the run checks those.
+    """
+    if ini.mode != "absolute" or ini.headings_deg is None:
+        return
+    lim = math.sin(math.radians(margin_deg))
+    th = [math.radians(h) for h in ini.headings_deg]
+    for i in range(len(th) - 1):
+        if abs(math.cos(th[i] - th[i + 1])) <= lim:
+            phi = ini.headings_deg[i] - ini.headings_deg[i + 1]
+            raise _FieldError(
+                "initial.headings_deg",
+                f"the articulation angle theta_{i + 1} - theta_{i + 2} = {phi:g} deg starts within "
+                f"simulation.singularity_margin_deg = {margin_deg:g} deg of +/-90 deg: the chain is singular "
+                "there (ERRATA P4) and the run would stop at t = 0",
+            )
+
+
+#: The leftmost point of RK4's stability region |1 + z + z^2/2 + z^3/6 + z^4/24| <= 1, on the real axis
+#: (z = -2.7853; a scan of the complex plane finds no point of the region further left).
+RK4_REAL_LIMIT = 2.785
+
+
+def _rk4_on_currents(sim: Simulation, motors: list[MotorParams]) -> str | None:
+    """RK4 with a step no armature current survives (the run stops step_unstable): a warning, else None.
+
+    A motor's current and speed obey L_a J s^2 + (R_a J + L_a b) s + (R_a b + k_m k_b) = 0 (thesis
+    (2.26)-(2.29)); the roots sum to -(R_a / L_a + b / J), so the fast one (or a complex pair's real part)
+    lies at or left of -R_a / (2 L_a), and RK4 is unstable for certain once dt R_a / (2 L_a) > 2.785.
+    Steps between 2.785 L_a / R_a and twice that may fail too (the run says so); ETD2 is exact on the
+    currents at any step (fast.loop._etd2).
+    """
+    if sim.method != "rk4":
+        return None
+    tau = min(m.L_a / m.R_a for m in motors)  # [s] the fastest electrical time constant
+    if sim.dt / (2.0 * tau) <= RK4_REAL_LIMIT:
+        return None
+    return (
+        f"simulation.dt: {sim.dt:g} s with method = 'rk4' cannot integrate the armature currents of [actuators] "
+        f"(L_a / R_a = {tau * 1e3:.3g} ms: RK4 is unstable beyond dt = {2 * RK4_REAL_LIMIT * tau * 1e3:.3g} ms "
+        f"for certain, likely beyond {RK4_REAL_LIMIT * tau * 1e3:.3g} ms): the runs will stop step_unstable; use "
+        'method = "etd2" (exact on the currents at any step) or a smaller dt'
+    )
 
 
 def _check_name(v: str | None) -> str | None:
@@ -1068,11 +1202,56 @@ def _message(err: dict) -> str:
         return _choice_message(err["input"], str((err.get("ctx") or {}).get("expected", "")))
     if kind == "missing":
         return _missing_message(tuple(err["loc"]))
+    if kind in _EXPECTED:
+        return f"{_EXPECTED[kind]} is expected, got {_describe(err['input'])}"
+    if kind == "finite_number":
+        return f"must be a finite number, got {err['input']}"
+    if kind in ("too_long", "too_short"):  # a fixed-length pair ([x, y]) or a bounded list
+        ctx = err.get("ctx") or {}
+        most, least = ctx.get("max_length"), ctx.get("min_length")
+        bound = f"at most {most}" if kind == "too_long" else f"at least {least}"
+        return f"{bound} values are expected, got {ctx.get('actual_length', '?')}"
     return err["msg"].removeprefix("Value error, ")
+
+
+#: pydantic's type errors in the file's words (its own say "a valid dictionary or instance of Simulation")
+_EXPECTED = {
+    "model_type": "a table",
+    "model_attributes_type": "a table",
+    "dict_type": "a table",
+    "list_type": "a list",
+    "tuple_type": "a list",
+    "string_type": "a text (in quotes)",
+    "float_type": "a number",
+    "float_parsing": "a number",
+    "int_type": "a whole number",
+    "int_parsing": "a whole number",
+    "int_parsing_size": "a whole number of at most 19 digits",
+    "int_from_float": "a whole number",
+    "bool_type": "true or false",
+    "bool_parsing": "true or false",
+}
+
+
+def _describe(v: Any) -> str:
+    """A TOML value as the user wrote it: ``the number 1.5``, ``the text 'x'``, ``a table``."""
+    if isinstance(v, bool):
+        return f"the boolean {str(v).lower()}"
+    if isinstance(v, int | float):
+        return f"the number {v!r}"
+    if isinstance(v, str):
+        return f"the text {v[:60]!r}" + ("..." if len(v) > 60 else "")
+    if isinstance(v, dict):
+        return "a table"
+    if isinstance(v, list | tuple):
+        return "a list"
+    return f"a {type(v).__name__}"  # a TOML date or time
 
 
 def _missing_message(loc: tuple[Any, ...]) -> str:
     """``required and missing: <the field's description>; add it to [table]`` (the schema's own words)."""
+    if isinstance(loc[-1], int):  # an item of a fixed-length list ([x, y]) left out
+        return f"item {loc[-1]} is missing: {_format_loc(loc[:-1])} needs {loc[-1] + 1} values or more"
     model = _table_model(loc[:-1])
     field = None if model is None else model.model_fields.get(str(loc[-1]))
     what = f": {field.description.rstrip('.')}" if field is not None and field.description else ""
@@ -1179,6 +1358,10 @@ def _load_plugins(data: dict, source: str) -> dict:
             load_plugin(path)
         except FtcError as exc:
             raise CaseError(f"{source}: plugins[{i}]: {exc}") from None
+        except SystemExit as exc:  # not an Exception: load_plugin lets it through, and the CLI exited silently
+            raise CaseError(
+                f"{source}: plugins[{i}]: {path}: the scheme file called sys.exit({exc.code!r}) on import"
+            ) from None
         resolved.append(str(path.resolve()))
     return {**data, "plugins": resolved}
 
@@ -1221,8 +1404,8 @@ def load_case(path: str | Path) -> Case:
     try:
         return parse_case(merged, str(path))
     except CaseError as exc:
-        lines = [_name_base_field(line, str(path), data) for line in exc.lines]
-        raise CaseError(_name_base_field(str(exc), str(path), data), lines) from None
+        lines = [_name_base_field(line, str(path), data, merged) for line in exc.lines]
+        raise CaseError(_name_base_field(str(exc), str(path), data, merged), lines) from None
 
 
 #: Fields an overlay never takes from its base: they describe the base's own results or identity.
@@ -1274,25 +1457,35 @@ def resolve_overlay(path: Path, data: dict, _seen: tuple[Path, ...] = ()) -> dic
     return _merge(base, data)
 
 
-def _name_base_field(message: str, source: str, overlay: dict) -> str:
-    """Say so when the field an error names has its value from the base case, not from the overlay."""
-    rest = message.removeprefix(f"{source}: ")
-    loc = rest.split(": ", 1)[0]
-    parts = [p for p in loc.replace("[", ".[").split(".") if p]
-    node: Any = overlay
+_ABSENT = object()
+
+
+def _lookup(node: Any, parts: list[str]) -> Any:
+    """The value at a field path's parts (``["faults", "[1]", "value"]``) in parsed TOML, or _ABSENT."""
     for part in parts:
         if part.startswith("[") and isinstance(node, list):
             i = int(part.strip("[]"))
             if i >= len(node):
-                node = None
-                break
+                return _ABSENT
             node = node[i]
         elif isinstance(node, dict) and part in node:
             node = node[part]
         else:
-            node = None
-            break
-    if node is None and loc not in ("<root>", "name") and parts:
+            return _ABSENT
+    return node
+
+
+def _name_base_field(message: str, source: str, overlay: dict, merged: dict) -> str:
+    """Say so when the field an error names has its value from the base case, not from the overlay.
+
+    A field in neither (a required field missing, an event's value left out) is nobody's: no note.
+    """
+    rest = message.removeprefix(f"{source}: ")
+    loc = rest.split(": ", 1)[0]
+    parts = [p for p in loc.replace("[", ".[").split(".") if p]
+    if not parts or loc in ("<root>", "name"):
+        return message
+    if _lookup(overlay, parts) is _ABSENT and _lookup(merged, parts) is not _ABSENT:
         return f"{message} (the value comes from the base case {overlay['base_case']})"
     return message
 
@@ -1314,7 +1507,25 @@ def overlay_text(path: str | Path) -> str | None:
 
 
 def _toml_key(key: str) -> str:
-    return key if key and all(c.isalnum() or c in "_-" for c in key) else json.dumps(key)
+    return key if key and all(c.isascii() and (c.isalnum() or c in "_-") for c in key) else _toml_string(key)
+
+
+def _toml_string(s: str) -> str:
+    """A TOML basic string: quote, backslash and control characters escaped (TOML 1.0, "String").
+
+    Not ``json.dumps``: JSON writes a character beyond U+FFFF as a surrogate pair of escapes, which
+    TOML refuses (a stored overlay with such a description read back as damaged), and leaves U+007F as is.
+    """
+    out = []
+    for ch in s:
+        o = ord(ch)
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif (o < 0x20 and ch != "\t") or o == 0x7F:
+            out.append(f"\\u{o:04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
 
 
 def _toml_value(v: Any) -> str:
@@ -1324,7 +1535,7 @@ def _toml_value(v: Any) -> str:
     if isinstance(v, int | float):
         return repr(v)
     if isinstance(v, str):
-        return json.dumps(v)  # a JSON string is a TOML basic string
+        return _toml_string(v)
     if isinstance(v, dict):
         return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
     if isinstance(v, list):
@@ -1428,7 +1639,18 @@ def with_duration(case: Case, duration: float) -> Case:
     """The same case simulated for ``duration`` s (events at or after it dropped)."""
     if not (math.isfinite(duration) and duration > 0):
         raise CaseError(f"{case.name}: --duration: must be a finite number of seconds > 0, got {duration}")
-    sim = case.simulation.model_copy(update={"duration": float(duration), "dt": min(case.simulation.dt, duration)})
+    s = case.simulation
+    if s.sample_time is not None and duration < s.sample_time:
+        raise CaseError(
+            f"{case.name}: --duration {duration:g}: shorter than one control sample (simulation.sample_time = "
+            f"{s.sample_time:g} s)"
+        )
+    try:  # validated again: the sampling's limits depend on the duration
+        sim = Simulation.model_validate({**s.model_dump(), "duration": float(duration), "dt": min(s.dt, duration)})
+    except ValidationError as exc:
+        loc, why = _field_errors(exc.errors())[0]
+        loc = loc if loc.startswith("simulation") else f"simulation.{loc}"
+        raise CaseError(f"{case.name}: --duration {duration:g}: {loc}: {why}") from None
     faults = [f for f in case.faults if f.time < duration]
     # the campaign table's ranges refer to the full duration; a shortened run is not a campaign base
     short = case.model_copy(update={"simulation": sim, "faults": faults, "campaign": None})

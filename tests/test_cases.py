@@ -13,9 +13,10 @@ from ftcreport.runner import build
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 ALL = sorted(CASES.glob("*.toml"))
+MOTORS = sorted(CASES.glob("motors/*.toml"))  # the DC-motor overlays (issue 19)
 
 
-@pytest.mark.parametrize("path", ALL, ids=[p.stem for p in ALL])
+@pytest.mark.parametrize("path", ALL + MOTORS, ids=[p.stem for p in ALL + MOTORS])
 def test_every_case_validates_and_builds(path):
     case = load_case(path)
     assert case.name == path.stem
@@ -36,7 +37,7 @@ def _base() -> dict:
         (lambda c: c["robots"].update(r=[0.15, 0.0, 0.15]), "robots.r[1]", "must be > 0"),
         (lambda c: c["robots"].update(colour="red"), "robots.colour", "unknown field"),
         (lambda c: c["faults"].reverse(), "faults", "sorted by time"),
-        (lambda c: c["simulation"].update(dt="fast"), "simulation.dt", "valid number"),
+        (lambda c: c["simulation"].update(dt="fast"), "simulation.dt", "a number is expected, got the text 'fast'"),
         (lambda c: c["faults"][0].update(sigma=1.5), "faults[0].sigma", "must be <= 1, got 1.5"),
         (lambda c: c["robots"].update(d=[1.0]), "robots.d", "1 link lengths given, a 3-robot chain needs 2"),
         (lambda c: c["faults"][-1].update(time=500.0), "faults[9].time", "before the end"),
@@ -56,6 +57,63 @@ def _base() -> dict:
             "required and missing: simulated time; add it to [simulation]",
         ),
         (lambda c: c.update(expected_status_of={"adaptiv": ["ok"]}), "expected_status_of.adaptiv", "'adaptive'"),
+        # session 9 fuzzing (tests/test_fuzz.py): a boolean or a quoted number was read as a number
+        (lambda c: c["faults"][0].update(sigma=True), "faults[0].sigma", "a number is expected, got the boolean true"),
+        (lambda c: c["robots"].update(n=True), "robots.n", "a number is expected, got the boolean true"),
+        (lambda c: c["robots"].update(d="1.0"), "robots.d", "got the text '1.0' (write it without quotes)"),
+        (lambda c: c["simulation"].update(log_every="5"), "simulation.log_every", "a number is expected, got the text"),
+        (lambda c: c.update(actuators={"R_a": [0.3, True, 0.3]}), "actuators.R_a[1]", "got the boolean true"),
+        # ... pydantic's words for a wrong type ("Input should be a valid dictionary or instance of Simulation")
+        (lambda c: c.update(simulation=3), "simulation", "a table is expected, got the number 3"),
+        (lambda c: c.update(description=3), "description", "a text (in quotes) is expected, got the number 3"),
+        (lambda c: c["robots"].update(d={}), "robots.d", "a number is expected, got a table"),
+        (lambda c: c["simulation"].update(log_every=1.5), "simulation.log_every", "a whole number is expected"),
+        (lambda c: c["reference"].update(ccw="yes"), "reference.ccw", "true or false is expected, got the text 'yes'"),
+        (lambda c: c["initial"].update(eta=[1.0, 2.0, 3.0]), "initial.eta", "at most 2 values are expected, got 3"),
+        (lambda c: c["initial"].update(eta=[1.0]), "initial.eta[1]", "item 1 is missing: initial.eta needs 2 values"),
+        (lambda c: c["simulation"].update(dt=float("nan")), "simulation.dt", "must be a finite number, got nan"),
+        # ... a unicycle turning so slowly its circle's centre lies 1e210 m away (the run "diverged" to 1e194 m)
+        (
+            lambda c: c.update(reference={"kind": "unicycle", "v_d": 0.5, "omega_d": -4.6e-211}),
+            "reference.omega_d",
+            "radius v_d / |omega_d| = 1.09e+210 m, beyond 100000 m",
+        ),
+        # ... an empty list of expected outcomes: a run ending 'ok' failed with "active: ok: -"
+        (lambda c: c.update(expected_status=[]), "expected_status", "empty: every run would count as failed"),
+        (
+            lambda c: c.update(expected_status_of={"switching": []}),
+            "expected_status_of.switching",
+            "empty: every run of switching would count as failed, even 'ok'; list some of 'ok', 'singular'",
+        ),
+        # ... a model bank without a model (the run failed with exit 1), or with one model twice
+        (lambda c: c["schemes"]["switching"].update(patterns=[]), "schemes.switching.patterns", "no pattern"),
+        (
+            lambda c: c["schemes"]["switching"].update(patterns=[[], ["2l", "1r"], ["1R", "2l"]]),
+            "schemes.switching.patterns[2]",
+            "['1R', '2l'] is the model of patterns[1] again",
+        ),
+        (
+            lambda c: c["schemes"]["switching"].update(patterns=[["2l", "2l"]]),
+            "schemes.switching.patterns[0]",
+            "wheel '2l' is listed twice",
+        ),
+        # ... absolute headings at the articulation singularity: validated, then the run stopped at t = 0
+        (
+            lambda c: c["initial"].update(mode="absolute", headings_deg=[0.0, 30.0, 118.5]),
+            "initial.headings_deg",
+            "theta_2 - theta_3 = -88.5 deg starts within simulation.singularity_margin_deg = 2 deg of +/-90 deg",
+        ),
+        # ... a sampling period or a measurement delay longer than the run was accepted
+        (
+            lambda c: c["simulation"].update(duration=5.0, sample_time=6.0),
+            "simulation.sample_time",
+            "6.0 s is longer than the run (5.0 s): the controller would act once",
+        ),
+        (
+            lambda c: c["simulation"].update(duration=5.0, sample_time=0.02, measurement_delay=250),
+            "simulation.measurement_delay",
+            "250 sample(s) of 0.02 s (5 s) is not shorter than the run (5.0 s)",
+        ),
     ],
 )
 def test_malformed_cases_name_file_field_and_reason(mutate, where, why):
@@ -160,6 +218,36 @@ def test_an_overlay_names_the_base_on_every_line(tmp_path):
     assert info.value.lines[2].startswith(f"{src}: reference.kind: got 'circel'") and why in info.value.lines[2]
 
 
+def test_an_overlay_blames_the_base_only_for_the_base_values(tmp_path):
+    """A field missing from the overlay and the base both (a motor fault's value) is the overlay's error alone."""
+    (tmp_path / "base.toml").write_text((CASES / "two_link_switching.toml").read_text())
+    (tmp_path / "over.toml").write_text(
+        'base_case = "base.toml"\n[actuators]\n[[faults]]\ntime = 1.0\nwheel = "1r"\nmotor = "stuck"\n'
+    )
+    with pytest.raises(CaseError) as info:
+        load_case(tmp_path / "over.toml")
+    assert str(info.value) == f"{tmp_path / 'over.toml'}: faults[0].value: a motor fault 'stuck' needs a value"
+
+
+# ------------------------------------------------------------------ --duration on a sampled case (session 9)
+def test_a_shortened_run_keeps_the_sampling_valid():
+    """``--duration`` below one sample or one delay is refused naming the option (the engine blamed dt)."""
+    from ftcreport.cases import with_duration
+
+    case = load_case(CASES / "motors" / "two_link_switching_motors.toml")  # T_s = dt = 5 ms
+    with pytest.raises(CaseError) as info:
+        with_duration(case, 0.003)
+    assert str(info.value) == (
+        "two_link_switching_motors: --duration 0.003: shorter than one control sample "
+        "(simulation.sample_time = 0.005 s)"
+    )
+    delayed = case.model_copy(update={"simulation": case.simulation.model_copy(update={"measurement_delay": 40})})
+    with pytest.raises(CaseError, match=r"--duration 0\.2: simulation\.measurement_delay: 40 sample\(s\) of 0\.005 s"):
+        with_duration(delayed, 0.2)  # 40 x 5 ms = 0.2 s: the controller would see only the first sample
+    short = with_duration(delayed, 0.25)
+    assert (short.simulation.duration, short.simulation.dt, short.simulation.sample_time) == (0.25, 0.005, 0.005)
+
+
 # ------------------------------------------------------------------ Literal fields in plain words (audit item 3)
 def _literal_fields() -> list[tuple[str, str, tuple]]:
     """(model, field, allowed values) of every Literal in the case schema's models (unions and lists included)."""
@@ -217,3 +305,46 @@ def test_a_literal_typo_in_a_file():
     assert str(info.value) == (
         "cases/x.toml: simulation.method: got 'rk5'; expected one of 'rk4', 'ros2', 'etd2' (did you mean 'rk4'?)"
     )
+
+
+def test_a_scheme_file_that_exits_on_import_is_named(tmp_path):
+    """A plug-in file calling sys.exit on import ended `cases validate` with exit 3 and no message (session 9)."""
+    (tmp_path / "exits_on_import_s9.py").write_text("import sys\nsys.exit(3)\n")
+    data = tomllib.loads((CASES / "two_link_active.toml").read_text())
+    data["plugins"] = ["exits_on_import_s9.py"]
+    with pytest.raises(CaseError) as info:
+        parse_case(data, str(tmp_path / "x.toml"))
+    src, where = tmp_path / "x.toml", tmp_path / "exits_on_import_s9.py"
+    assert str(info.value) == f"{src}: plugins[0]: {where}: the scheme file called sys.exit(3) on import"
+
+
+def test_a_stored_overlay_keeps_any_text(tmp_path):
+    """The stored copy of an overlay (overlay_text) read back as 'damaged' when a text held a character beyond
+    U+FFFF: json.dumps wrote it as a surrogate pair, which TOML refuses (session 9 fuzzing)."""
+    import tomli_w
+
+    from ftcreport.cases import overlay_text
+
+    text = 'astral \U0001f916 and \U0006ea22, DEL \x7f, NUL \x00, tab \t, quote " and backslash \\ end'
+    data = {"base_case": str(CASES / "two_link_switching.toml"), "description": text}
+    data["thresholds"] = {"switching": {"position_error_final": {"max": 1.0}}, "nëw": {"x": {"max": 2.0}}}
+    (tmp_path / "over.toml").write_text(tomli_w.dumps(data))
+    stored = tomllib.loads(overlay_text(tmp_path / "over.toml"))
+    assert stored["description"] == text
+    assert stored["thresholds"] == data["thresholds"]
+
+
+def test_motors_under_rk4_at_a_step_the_currents_defeat_warn():
+    """validate said nothing; every run then stopped step_unstable at t = 0.01 s (session 9 fuzzing)."""
+    data = _base()  # dt = 10 ms, RK4
+    data["actuators"] = {}  # the defaults: L_a / R_a = 0.161 mH / 0.365 ohm = 0.441 ms
+    case = parse_case(data, "x.toml")
+    # the fast root of the motor is >= R_a / (2 L_a) in magnitude: RK4 (|h lambda| <= 2.785) fails beyond 2.46 ms
+    assert case.warnings()[0].startswith(
+        "simulation.dt: 0.01 s with method = 'rk4' cannot integrate the armature currents of [actuators] "
+        "(L_a / R_a = 0.441 ms: RK4 is unstable beyond dt = 2.46 ms for certain, likely beyond 1.23 ms)"
+    )
+    data["simulation"].update(dt=0.002)  # inside the certain bound: no warning (the run decides)
+    assert not any("armature" in w for w in parse_case(data, "x.toml").warnings())
+    data["simulation"].update(dt=0.01, method="etd2")
+    assert not any("armature" in w for w in parse_case(data, "x.toml").warnings())

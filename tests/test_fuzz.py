@@ -1,6 +1,6 @@
 """Fuzzer (issue 23): every field of every shipped case, mutated, through the CLI.
 
-Each example takes one shipped case, mutates it (a field replaced by a value of another
+Each example takes one case of the corpus, mutates it (a field replaced by a value of another
 type, NaN, inf, a negative, zero or huge number, an empty list, a table; a field deleted;
 an unknown key added; or the file's bytes truncated, broken by non-UTF-8 bytes or
 overwritten) and runs ``ftcreport cases validate`` and ``ftcreport run --duration 1`` on it
@@ -11,10 +11,23 @@ in this process (typer's CliRunner).  Every mutant must end
 * within a per-example deadline (a hang fails the test through SIGALRM);
 * with every written ``metrics.json`` free of NaN/inf and every null explained in ``null_reasons``.
 
+The corpus is every shipped case: ``cases/*.toml`` and the DC-motor overlays ``cases/motors/*.toml``,
+their relative paths (``plugins``, ``base_case``) made absolute so a mutant written elsewhere still
+finds its scheme file and its base.  The motor overlays get every ``[actuators]`` field written out
+(the shipped ones take the defaults, so there would be nothing to mutate) and
+``measurement_delay``; ``motor_faults`` is two_link_switching_motors resolved over its base with one
+event of every motor-fault kind inside the first second (the runs last 1 s), per-robot motor lists
+and a one-sample measurement delay.  Half the examples draw a motor case, and a quarter of those
+apply a targeted motor mutation (:func:`_motor_mutation`: a sample_time off the step grid or beyond
+the run, a delay that is negative, fractional or longer than the run, a motor fault with a missing,
+superfluous or out-of-range value, a method name, etd2 without motors, ...).
+
 CI runs ``FUZZ_EXAMPLES`` examples (default 60, derandomized so CI is reproducible; about
 a minute on one core).  ``FUZZ_EXAMPLES=2000 pytest -n 0 tests/test_fuzz.py -s`` runs more,
-with fresh random draws (``FUZZ_LOG=file`` appends one JSON line per example;
-``FUZZ_RENDER_ALL=1`` also renders the slow pages of the five-link and Table 4.2 cases).
+with fresh random draws (``FUZZ_LOG=file`` appends one JSON line per example, with its time;
+``FUZZ_KEEP_GOING=1`` logs a failing example and goes on, failing the test at the end with the list,
+instead of stopping at the first and shrinking it; ``FUZZ_RENDER_ALL=1`` also renders the slow pages
+of the five-link and Table 4.2 cases).
 """
 
 from __future__ import annotations
@@ -23,8 +36,11 @@ import datetime
 import json
 import math
 import os
+import re
 import signal
+import time
 import tomllib
+import traceback
 from pathlib import Path
 
 import pytest
@@ -33,10 +49,68 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
+from ftcreport.cases import Actuators, resolve_overlay
 from ftcreport.cli import app
+from ftcreport.model.faults import MOTOR_KINDS
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
-SHIPPED = {p.stem: tomllib.loads(p.read_text()) for p in sorted(CASES.glob("*.toml"))}
+
+
+def _absolute(data: dict, where: Path) -> dict:
+    """``data`` with its relative ``plugins`` and ``base_case`` paths made absolute (from ``where``)."""
+    out = dict(data)
+    if "plugins" in out:
+        out["plugins"] = [str((where / p).resolve()) for p in out["plugins"]]
+    if "base_case" in out:
+        out["base_case"] = str((where / out["base_case"]).resolve())
+    return out
+
+
+def _motor_overlay(path: Path) -> dict:
+    """A shipped motor overlay with every [actuators] field and measurement_delay written out."""
+    data = _absolute(tomllib.loads(path.read_text()), path.parent)
+    fields = {k: v for k, v in Actuators().model_dump().items() if v is not None}
+    data["actuators"] = {**fields, "I_max": 400.0, **data.get("actuators", {})}
+    data["simulation"] = {**data["simulation"], "measurement_delay": 0}
+    return data
+
+
+def _motor_faults() -> dict:
+    """two_link_switching_motors resolved over its base, with a motor fault of every kind before 1 s."""
+    path = CASES / "motors" / "two_link_switching_motors.toml"
+    over = tomllib.loads(path.read_text())
+    data = resolve_overlay(path, over)
+    data.pop("base_case")
+    data["actuators"] = {
+        "R_a": [0.365, 0.4],
+        "L_a": 0.161e-3,
+        "k_m": [0.123, 0.123],
+        "k_b": 0.123,
+        "N": 20.0,
+        "eta_g": [0.75, 0.7],
+        "J_m": 1340e-7,
+        "b_m": 9.25e-5,
+        "V_max": [48.0, 48.0],
+        "I_max": 400.0,
+    }
+    data["faults"] = [
+        {"time": 0.1, "wheel": "2l", "motor": "short"},
+        {"time": 0.2, "wheel": "1r", "motor": "stuck", "value": -12.0},
+        {"time": 0.3, "wheel": "2l", "motor": "none"},
+        {"time": 0.4, "wheel": "1l", "motor": "km_loss", "value": 0.4},
+        {"time": 0.5, "wheel": "2r", "motor": "resistance", "value": 3.0},
+        {"time": 0.6, "wheel": "2r", "motor": "open"},
+        {"time": 0.7, "wheel": "1r", "sigma": 0.5, "ubar": 0.1},
+    ]
+    data["simulation"] = {**data["simulation"], "measurement_delay": 1}
+    data["claims"] = []  # they are about the shipped case's faults
+    return data
+
+
+SHIPPED = {p.stem: _absolute(tomllib.loads(p.read_text()), p.parent) for p in sorted(CASES.glob("*.toml"))}
+MOTORS = {p.stem: _motor_overlay(p) for p in sorted((CASES / "motors").glob("*.toml"))}
+MOTORS["motor_faults"] = _motor_faults()
+CORPUS = {**SHIPPED, **MOTORS}
 EXAMPLES = int(os.environ.get("FUZZ_EXAMPLES", "60"))
 LONG = "FUZZ_EXAMPLES" in os.environ
 DEADLINE_S = 120  # per example: validate + a 1 s run (+ its page)
@@ -44,6 +118,9 @@ DEADLINE_S = 120  # per example: validate + a 1 s run (+ its page)
 # analysis (~10 s a page) or the Table 4.2 analyses: rendered only with FUZZ_RENDER_ALL=1
 SLOW_PAGES = {"five_link_cascade", "three_link_active"}
 RENDER_ALL = os.environ.get("FUZZ_RENDER_ALL") == "1"
+# FUZZ_KEEP_GOING=1: a failing example is logged (FUZZ_LOG) and listed at the end instead of stopping the run
+KEEP_GOING = os.environ.get("FUZZ_KEEP_GOING") == "1"
+FAILURES: list[dict] = []
 LOG = os.environ.get("FUZZ_LOG")  # a file: one JSON line per example (counts survive an interrupted run)
 VALIDATE_CODES = {0, 2}
 RUN_CODES = {0, 1, 2}
@@ -64,7 +141,7 @@ def _paths(obj, prefix=()):
     return out
 
 
-PATHS = {name: _paths(data) for name, data in SHIPPED.items()}
+PATHS = {name: _paths(data) for name, data in CORPUS.items()}
 
 SPECIAL = [
     math.nan,
@@ -124,14 +201,64 @@ def _delete(data, path):
         del node[path[-1]]
 
 
+_ACT_FIELDS = list(Actuators.model_fields)
+_ACT_VALUES = [0.0, -1.0, math.nan, math.inf, 1e-300, 1e300, 1e4, [1.0], [1.0, math.nan], [1.0, 2.0, 3.0], "1", True]
+
+
+def _motor_mutation(draw, data: dict) -> str:
+    """A mutation that matters for the motor cases (sampling, delay, motor faults, method), applied to
+    ``data`` (a motor case of the corpus); its label."""
+    sim = data["simulation"]
+    dt = sim["dt"]
+    what = draw(st.sampled_from(["sample_time", "delay", "method", "no_motors", "motor_fault", "actuator"]))
+    if what == "sample_time":
+        value = draw(st.sampled_from([0.5 * dt, 1.5 * dt, 2.0000001 * dt, 3 * dt, 0.999 * dt, 0.9, 1.0, 5.0, 9.99]))
+        sim["sample_time"] = value
+        return f"simulation.sample_time = {value!r} (dt = {dt})"
+    if what == "delay":
+        value = draw(st.sampled_from([-1, 1, 2, 1.5, 199, 200, 201, 1000, 1001, 10**9, "1", True]))
+        sim["measurement_delay"] = value
+        return f"simulation.measurement_delay = {value!r}"
+    if what == "method":
+        value = draw(st.sampled_from(["rk4", "ros2", "etd2", "ETD2", "etd", "exp", ""]))
+        sim["method"] = value
+        return f"simulation.method = {value!r}"
+    if what == "no_motors":
+        data.pop("actuators", None)
+        if draw(st.booleans()):
+            sim.pop("sample_time", None)
+        return f"etd2 without [actuators] (sample_time {'kept' if 'sample_time' in sim else 'dropped'})"
+    if what == "motor_fault":
+        kind = draw(st.sampled_from([*MOTOR_KINDS, "melted", "Short", 3]))
+        value = draw(st.sampled_from([None, math.nan, 0.0, -1.0, 0.5, 1.0, 1000.0, 1001.0, 1e300, -1e5, True, "x"]))
+        time = draw(st.sampled_from([0.0, 0.25, 0.5, 0.999]))
+        wheel = draw(st.sampled_from(["1r", "1l", "2r", "2l", "3l", "9r"]))
+        event = {"time": time, "wheel": wheel, "motor": kind}
+        if value is not None:
+            event["value"] = value
+        if draw(st.booleans()):
+            event["sigma"] = 0.5
+        faults = [f for f in data.get("faults", []) if f["time"] < time] + [event]
+        data["faults"] = faults + [f for f in data.get("faults", []) if f["time"] >= time]
+        return f"faults += {event!r}"
+    key = draw(st.sampled_from(_ACT_FIELDS))
+    value = draw(st.sampled_from(_ACT_VALUES))
+    data.setdefault("actuators", {})[key] = value
+    return f"actuators.{key} = {value!r}"
+
+
 @st.composite
 def mutants(draw):
     """(case stem, file bytes, a label of the mutation)."""
-    name = draw(st.sampled_from(sorted(SHIPPED)))
-    data = json.loads(json.dumps(SHIPPED[name]))  # deep copy (shipped cases hold only JSON types)
-    kind = draw(st.sampled_from(["replace", "replace", "replace", "replace", "delete", "unknown", "bytes"]))
+    group = MOTORS if draw(st.booleans()) else SHIPPED
+    name = draw(st.sampled_from(sorted(group)))
+    data = json.loads(json.dumps(CORPUS[name]))  # deep copy (the corpus holds only JSON types)
+    kinds = ["replace", "replace", "replace", "replace", "delete", "unknown", "bytes"]
+    kind = draw(st.sampled_from(kinds + ["motor"] * 2 if group is MOTORS else kinds))
     paths = PATHS[name]
-    if kind == "replace":
+    if kind == "motor":
+        label = _motor_mutation(draw, data)
+    elif kind == "replace":
         path = draw(st.sampled_from(paths))
         value = draw(VALUES)
         _set(data, path, value)
@@ -147,9 +274,9 @@ def mutants(draw):
         label = f"unknown key in {'.'.join(map(str, where)) or '<root>'}"
     try:
         raw = tomli_w.dumps(data).encode()
-    except (TypeError, ValueError):  # a value TOML cannot hold: write the shipped file's text
-        raw = (CASES / f"{name}.toml").read_bytes()
-        label += " (not TOML-encodable; shipped text)"
+    except (TypeError, ValueError):  # a value TOML cannot hold: write the unmutated case
+        raw = tomli_w.dumps(CORPUS[name]).encode()
+        label += " (not TOML-encodable; unmutated)"
     if kind == "bytes":
         op = draw(st.sampled_from(["truncate", "non-utf8", "overwrite", "nul"]))
         at = draw(st.integers(min_value=0, max_value=len(raw)))
@@ -186,6 +313,20 @@ def _check_failure_message(res, path: Path, label: str) -> None:
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
     assert errors, (label, res.stderr)
     assert all(str(path) in ln for ln in errors), (label, errors)
+
+
+#: what may follow ``<file>: `` in a refusal: a field path (``faults[2].wheel``), or the file itself is unreadable
+_FIELD = re.compile(r"(<root>|[^\s:\[\]][^\s:]*): \S")
+_FILE_LEVEL = ("not valid TOML", "not UTF-8 text", "cannot read")
+
+
+def _check_names_a_field(res, path: Path, label: str) -> None:
+    """Every line of a refused file names the field (the project's standard), unless the file is not TOML."""
+    for ln in res.stderr.splitlines():
+        rest = ln.removeprefix(f"ftcreport: error: {path}: ")
+        if rest == ln or rest.startswith(_FILE_LEVEL):
+            continue
+        assert _FIELD.match(rest), (label, ln)
 
 
 def _reject_constant(c):
@@ -236,42 +377,79 @@ def test_mutated_cases_never_crash(mutant, tmp_path_factory):
     path.write_bytes(raw)
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.alarm(DEADLINE_S)
+    start = time.perf_counter()
+    rec = {"case": name, "mutation": label}
     try:
-        res = runner.invoke(app, ["cases", "validate", str(path)])
-        assert res.exit_code in VALIDATE_CODES, (label, res.exit_code, res.output)
-        if res.exit_code != 0:
-            _check_failure_message(res, path, label)
-        out = d / "out"
-        args = ["run", str(path), "--duration", "1", "--out", str(out), "-q"]
-        if name in SLOW_PAGES and not RENDER_ALL:
-            args.append("--no-report")
-        run = runner.invoke(app, args)
-        if isinstance(run.exception, _HangError):
-            raise run.exception
-        assert run.exit_code in RUN_CODES, (label, run.exit_code, run.output, run.exception)
-        if run.exit_code != 0:
-            _check_failure_message(run, path, label)
-        if res.exit_code == 2:
-            assert run.exit_code == 2, (label, run.output)  # an invalid file is refused by run too
-        written = _check_metrics(out, label) if out.exists() else 0
+        _check_one(path, name, label, d / "out", rec)
+    except (AssertionError, _HangError) as exc:
+        if not KEEP_GOING:
+            raise
+        rec["failure"] = repr(exc)[:2000]
+        FAILURES.append(rec)
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
-    key = f"validate={res.exit_code} run={run.exit_code}"
+    rec["seconds"] = round(time.perf_counter() - start, 2)
     if LOG:
-        rec = {"case": name, "mutation": label, "validate": res.exit_code, "run": run.exit_code, "metrics": written}
         with open(LOG, "a") as fh:
             fh.write(json.dumps(rec) + "\n")
-    COUNTS[key] = COUNTS.get(key, 0) + 1
-    COUNTS["metrics_files"] = COUNTS.get("metrics_files", 0) + written
+    if "failure" not in rec:
+        key = f"validate={rec['validate']} run={rec['run']}"
+        COUNTS[key] = COUNTS.get(key, 0) + 1
+        COUNTS["metrics_files"] = COUNTS.get("metrics_files", 0) + rec["metrics"]
+
+
+def _check_one(path: Path, name: str, label: str, out: Path, rec: dict) -> None:
+    """validate and run one mutant; its exit codes and metrics count into ``rec``."""
+    res = runner.invoke(app, ["cases", "validate", str(path)])
+    rec["validate"] = res.exit_code
+    assert res.exit_code in VALIDATE_CODES, (label, res.exit_code, res.output, _trace(res))
+    if res.exit_code != 0:
+        _check_failure_message(res, path, label)
+        _check_names_a_field(res, path, label)
+    args = ["run", str(path), "--duration", "1", "--out", str(out), "-q"]
+    if name in SLOW_PAGES and not RENDER_ALL:
+        args.append("--no-report")
+    run = runner.invoke(app, args)
+    rec["run"] = run.exit_code
+    if run.exit_code:
+        rec["error"] = next((ln for ln in run.stderr.splitlines() if ln.startswith("ftcreport: error:")), "")[:400]
+    if isinstance(run.exception, _HangError):
+        raise run.exception
+    assert run.exit_code in RUN_CODES, (label, run.exit_code, run.output, _trace(run))
+    if run.exit_code != 0:
+        _check_failure_message(run, path, label)
+    if res.exit_code == 2:
+        assert run.exit_code == 2, (label, run.output)  # an invalid file is refused by run too
+    rec["metrics"] = _check_metrics(out, label) if out.exists() else 0
+
+
+def _trace(res) -> str:
+    """The last lines of the traceback of an exception the CLI did not handle ('' when none)."""
+    if res.exc_info is None or isinstance(res.exception, SystemExit):
+        return ""
+    return "".join(traceback.format_exception(*res.exc_info)[-3:])
+
+
+@pytest.mark.parametrize("name", sorted(CORPUS))
+def test_the_corpus_validates_unmutated(name, tmp_path):
+    """Every corpus case is valid as written (its scheme file and base found): the mutants start from a live case."""
+    path = tmp_path / f"{name}.toml"
+    path.write_text(tomli_w.dumps(CORPUS[name]))
+    res = runner.invoke(app, ["cases", "validate", str(path)])
+    assert res.exit_code == 0, res.output
 
 
 @pytest.fixture(scope="module", autouse=True)
 def _report_counts():
     yield
+    for rec in FAILURES:
+        print(f"\nfuzz failure: {rec}")
     if COUNTS:
         total = sum(v for k, v in COUNTS.items() if k.startswith("validate="))
         print(f"\nfuzz: {total} examples; " + ", ".join(f"{k}: {v}" for k, v in sorted(COUNTS.items())))
+    if FAILURES:
+        pytest.fail(f"{len(FAILURES)} failing examples (FUZZ_KEEP_GOING=1), listed above")
 
 
 @pytest.mark.slow

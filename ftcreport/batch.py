@@ -559,7 +559,8 @@ def _collect(pending, futures, q, display: BatchDisplay, out: Path, res: BatchRe
                 )
             res.simulated.append((name, scheme))
             if name not in expected or status not in expected[name].expected_for(scheme):
-                res.failed_runs.append((name, scheme, f"{status}: {reason}"))
+                why = expected[name].unexpected(scheme, status, reason) if name in expected else f"{status}: {reason}"
+                res.failed_runs.append((name, scheme, why))
             display.finished(name, scheme)
 
 

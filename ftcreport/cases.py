@@ -975,6 +975,14 @@ class Case(_Strict):
         """Outcomes of ``scheme``'s run that are not failures (expected_status_of, else expected_status)."""
         return set(self.expected_status_of.get(scheme, self.expected_status))
 
+    def unexpected(self, scheme: str, status: str, reason: str | None) -> str:
+        """Why a run of ``scheme`` that ended ``status`` is a failure: its reason, or which field expected otherwise."""
+        if reason:
+            return f"{status}: {reason}"
+        field = f"expected_status_of.{scheme}" if scheme in self.expected_status_of else "expected_status"
+        want = " or ".join(repr(s) for s in sorted(self.expected_for(scheme)))
+        return f"{status}, where the case expects {want} ({field})"
+
     def fault_schedule(self) -> FaultSchedule:
         return FaultSchedule(
             self.robots.n,
@@ -1356,12 +1364,8 @@ def _load_plugins(data: dict, source: str) -> dict:
             raise CaseError(f"{source}: plugins[{i}]: no such scheme file: {path}")
         try:
             load_plugin(path)
-        except FtcError as exc:
+        except FtcError as exc:  # a file that fails or calls sys.exit on import (load_plugin names it)
             raise CaseError(f"{source}: plugins[{i}]: {exc}") from None
-        except SystemExit as exc:  # not an Exception: load_plugin lets it through, and the CLI exited silently
-            raise CaseError(
-                f"{source}: plugins[{i}]: {path}: the scheme file called sys.exit({exc.code!r}) on import"
-            ) from None
         resolved.append(str(path.resolve()))
     return {**data, "plugins": resolved}
 

@@ -443,7 +443,10 @@ def run(
         typer.echo(f"results in {out / c.name}/" + (f", report {page}" if page else ""))
     failed = [m for m in rows if m["status"] not in c.expected_for(m["scheme"])]
     for m in failed:
-        typer.echo(f"ftcreport: error: {case}: {m['scheme']}: {m['status']}: {m.get('reason') or '-'}", err=True)
+        typer.echo(
+            f"ftcreport: error: {case}: {m['scheme']}: {c.unexpected(m['scheme'], m['status'], m.get('reason'))}",
+            err=True,
+        )
     loose = [m for m in rows if not m.get("verify_dt", {}).get("converged", True)]
     for m in loose:
         v = m["verify_dt"]

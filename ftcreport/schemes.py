@@ -186,6 +186,9 @@ def load_plugin(path: str | Path) -> None:
     sys.modules[name] = module
     try:
         spec.loader.exec_module(module)
+    except SystemExit as exc:  # not an Exception; the half-imported module must not stay loaded either
+        del sys.modules[name]
+        raise ModelError(f"{path}: the scheme file called sys.exit({exc.code!r}) on import") from None
     except Exception as exc:
         del sys.modules[name]
         raise ModelError(f"{path}: the scheme file failed to import: {type(exc).__name__}: {exc}") from exc

@@ -348,3 +348,16 @@ def test_motors_under_rk4_at_a_step_the_currents_defeat_warn():
     assert not any("armature" in w for w in parse_case(data, "x.toml").warnings())
     data["simulation"].update(dt=0.01, method="etd2")
     assert not any("armature" in w for w in parse_case(data, "x.toml").warnings())
+
+
+def test_an_unexpected_ok_names_the_field_that_expected_otherwise():
+    """A run that ends 'ok' has no reason: the failure must say what the case expected, and where
+    (it printed 'ok: -' before)."""
+    data = _base()
+    data["expected_status_of"] = {"switching": ["singular"]}
+    case = parse_case(data, "cases/x.toml")
+    got = case.unexpected("switching", "ok", None)
+    assert got == "ok, where the case expects 'singular' (expected_status_of.switching)"
+    want = " or ".join(repr(s) for s in sorted(case.expected_status))  # the file's own list (or the default)
+    assert case.unexpected("nominal", "singular", "") == f"singular, where the case expects {want} (expected_status)"
+    assert case.unexpected("nominal", "diverged", "|q| > 1e6 at t = 3 s") == "diverged: |q| > 1e6 at t = 3 s"

@@ -268,3 +268,19 @@ def test_the_sliding_mode_bound_on_its_case():
     assert 0.85 < lam < 0.9 and lam * k_w >= dev  # 0.875 and 0.125
     lam, dev = out["after"]
     assert 0.1 < lam < 0.15 and lam * k_w < dev and 7.0 < dev / lam < 7.5  # 0.127, 0.916: k_w >= 7.2
+
+
+def test_a_scheme_file_that_exits_on_import_is_named_every_time(tmp_path):
+    """sys.exit in a scheme file is no Exception: both loads must name it, and nothing stays loaded
+    (a second case of a batch listing the same file got 'unknown field' before)."""
+    import sys
+
+    from ftcreport.errors import ModelError
+    from ftcreport.schemes import load_plugin
+
+    bad = tmp_path / "exits_on_import.py"
+    bad.write_text("import sys\nsys.exit(3)\n")
+    for _ in range(2):
+        with pytest.raises(ModelError, match=r"exits_on_import\.py: the scheme file called sys\.exit\(3\) on import"):
+            load_plugin(bad)
+    assert "ftcreport_plugin_exits_on_import" not in sys.modules

@@ -34,7 +34,7 @@ import control
 import numpy as np
 
 from .control.kinematic import TwoLinkKinematic
-from .errors import FtcError
+from .errors import FtcError, ModelError
 from .model import kernels as K
 from .model.chain import Chain
 from .model.faults import pattern_is_compensable
@@ -193,7 +193,11 @@ def pattern_controllability(
 
     ``A = -k_v I`` (the velocity loop closed by the dynamic law), ``B = Mbar1^-1 Bbar``
     at the state (q, eta); sorted from best to worst conditioned.  ``max_failed``: see
-    :func:`fault_patterns`.
+    :func:`fault_patterns`.  With A a multiple of the identity the Gramian has a closed form,
+    ``W = int_0^inf e^(A t) B B^T e^(A^T t) dt = B B^T / (2 k_v)`` (the Lyapunov equation
+    A W + W A^T + B B^T = 0), used here: exact, and no Lyapunov solve per pattern
+    (``control.gram`` agrees to round-off, tests/test_analysis.py).  Raises ModelError when
+    k_v is so small that W overflows.
     """
     Mbar1, _, _, Bbar = chain.reduced(q, eta)
     MB = np.linalg.solve(Mbar1, Bbar)
@@ -202,9 +206,11 @@ def pattern_controllability(
     for pat in fault_patterns(chain.n_wheels, max_failed):
         B = MB * np.asarray(pat, dtype=float)[None, :]
         rank = int(np.linalg.matrix_rank(control.ctrb(A, B), tol=1e-9 * max(1.0, np.abs(MB).max())))
-        sys = control.ss(A, B, np.eye(2), 0)
-        W = control.gram(sys, "c") if np.any(B) else np.zeros((2, 2))
-        lam = float(np.linalg.eigvalsh(0.5 * (W + W.T)).min())
+        # W = B B^T / (2 k_v): its smallest eigenvalue
+        with np.errstate(over="ignore"):
+            lam = float(np.linalg.eigvalsh(B @ B.T).min()) / (2.0 * float(k_v))
+        if not math.isfinite(lam):
+            raise ModelError(f"k_v = {k_v:g} 1/s: the controllability Gramian B B^T / (2 k_v) overflows")
         rows.append(
             {
                 "pattern": list(pat),
@@ -598,7 +604,11 @@ def analyze_case(case) -> dict:
         "total": 2**chain.n_wheels,
         "compensable_total": 3 * 2 ** (chain.n_wheels - 2) - 2,  # the rule of (2.103), ftcreport patterns
     }
-    out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v0, mf)
+    try:
+        out["controllability"] = pattern_controllability(chain, q0, ref.at(0.0).eta_d, k_v0, mf)
+    except FtcError as exc:  # an absurd gain: say so on the page, do not crash it
+        out["controllability"] = []
+        out["note"] = (out.get("note", "") + f"; controllability not computed: {exc}").lstrip("; ")
     # passive robustness of the healthy (nominal) law: the true patterns it keeps stable, and how fast
     vl = velocity_loop(chain, q0, ref.at(0.0).eta_d, k_v0, np.ones(chain.n_wheels), mf)
     stable = [r for r in vl if r["stable"]]

@@ -108,6 +108,35 @@ def test_controllability_rank_is_the_redundancy_rule(n):
     assert all(not r["compensable_rule"] for r in rows[-(2 ** (2 * n) - (3 * 2 ** (2 * n - 2) - 2)) :])
 
 
+def test_gramian_closed_form_equals_python_control():
+    """W = B B^T / (2 k_v) for A = -k_v I is python-control's Lyapunov solution: smallest eigenvalues
+    agree to 1e-12 relative (round-off of slycot's Schur solve on a 2 x 2 problem)."""
+    chain = Chain.uniform(3, d=1.2)
+    q = chain.q_from_headings(0.0, 0.0, np.radians([25.0, 10.0, 0.0]))
+    k_v = 7.0
+    rows = pattern_controllability(chain, q, np.array([0.5, 0.1]), k_v=k_v)
+    Mbar1, _, _, Bbar = chain.reduced(q, np.array([0.5, 0.1]))
+    MB = np.linalg.solve(Mbar1, Bbar)
+    for r in rows[:12]:
+        B = MB * np.asarray(r["pattern"], dtype=float)[None, :]
+        W = control.gram(control.ss(-k_v * np.eye(2), B, np.eye(2), 0), "c")
+        want = max(float(np.linalg.eigvalsh(0.5 * (W + W.T)).min()), 0.0)
+        assert r["gramian_min_eig"] == pytest.approx(want, rel=1e-12, abs=1e-15), r
+
+
+def test_an_absurd_velocity_gain_is_named_not_a_crash():
+    """k_v = 1e-308 made slycot raise inside control.gram while the page rendered (exit 3)."""
+    from ftcreport.errors import ModelError
+
+    chain = Chain.uniform(2, d=1.2)
+    q = chain.q_from_headings(0.0, 0.0, np.radians([10.0, 0.0]))
+    rows = pattern_controllability(chain, q, np.array([0.5, 0.1]), k_v=1e-308)  # huge but finite: exact
+    assert all(math.isfinite(r["gramian_min_eig"]) for r in rows)
+    # 1e-320 is subnormal: printed as stored, 9.99989e-321
+    with pytest.raises(ModelError, match=r"k_v = 9.99989e-321 1/s: the controllability Gramian .* overflows"):
+        pattern_controllability(chain, q, np.array([0.5, 0.1]), k_v=1e-320)
+
+
 def test_pole_table_fields():
     rows = pole_table(np.diag([-2.0, -0.5]))
     assert [r["re"] for r in rows] == [-0.5, -2.0]

@@ -138,14 +138,15 @@ def reference_speed_reason(t: float, robot: int, speed: float, min_speed: float)
     """``robot``: 1-based index of the robot whose reference speed vanishes."""
     return (
         f"infeasible reference at t = {t:.4g} s: the speed of P_{robot} is {speed:.3g} m/s "
-        f"(below {min_speed:g}); the chain needs v_d != 0"
+        f"(below {min_speed:g}); the chain needs v_d != 0 (see the [reference] table)"
     )
 
 
 def reference_articulation_reason(t: float, i: int, angle_deg: float, max_rad: float) -> str:
     return (
         f"infeasible reference at t = {t:.4g} s: articulation angle theta_{i + 1} - theta_{i + 2} "
-        f"= {angle_deg:.1f} deg exceeds {math.degrees(max_rad):.0f} deg (path too curved for these link lengths)"
+        f"= {angle_deg:.1f} deg exceeds {math.degrees(max_rad):.0f} deg (path too curved for these link lengths: "
+        "make the [reference] path's turns wider or robots.d shorter)"
     )
 
 
@@ -161,9 +162,11 @@ def step_growth_reason(t: float, g0: float, g1: float, steps: int, factor: float
 def trial_stage_reason(t: float, detail: str, dt: float, method: str, stage: bool = True) -> str:
     """A trial stage of the integrator (or the new state of the step) left the domain from a regular state."""
     where = f"a {method} trial stage left the domain" if stage else f"the {method} step blew up"
+    start = "; at t = 0, the start pose (initial.headings_deg) may be too close to the singularity" if t == 0.0 else ""
     return (
         f"step unstable at t = {t:.6g} s: {where} ({detail}) while the accepted state is regular; "
-        f"dt = {dt:g} s does not resolve the loop here: halve dt (a stop that persists is the loop's own instability)"
+        f"dt = {dt:g} s does not resolve the loop here: halve dt (a stop that persists is the loop's own instability"
+        f"{start})"
     )
 
 

@@ -19,6 +19,7 @@ import json
 import math
 import os
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -183,8 +184,15 @@ def output_lock(out: Path, command: str):
     try:
         fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
-        fh.seek(0)
-        holder = fh.read().strip() or "another process"
+        # the holder writes its name just after it takes the lock: wait a moment for it
+        holder = ""
+        for _ in range(50):
+            fh.seek(0)
+            holder = fh.read().strip()
+            if holder:
+                break
+            time.sleep(0.01)
+        holder = holder or "another process"
         fh.close()
         raise OutputBusyError(
             f"{out}: --out: in use by {holder}; wait for it to finish or choose another --out "

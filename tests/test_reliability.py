@@ -270,7 +270,10 @@ def test_switching_models_of_a_long_chain_are_refused():
 def test_duration_override_is_checked_against_the_limits(tmp_path):
     p = _case(tmp_path)
     res = runner.invoke(app, ["run", str(p), "--duration", "1e9", "--out", str(tmp_path / "o")])
-    _one_error_line(res, 2, "--duration", "simulation.dt", "steps")
+    # the override is validated as the case's own field would be: the schema's bound on the duration
+    _one_error_line(res, 2, "--duration", "simulation.duration", "must be <= 1e+06")
+    res = runner.invoke(app, ["run", str(p), "--duration", "5e5", "--out", str(tmp_path / "o")])
+    _one_error_line(res, 2, "--duration", "simulation.dt", "steps")  # within the bound: over the step limit
     res = runner.invoke(app, ["run", str(p), "--duration", "nan", "--out", str(tmp_path / "o")])
     _one_error_line(res, 2, "--duration", "finite")
 

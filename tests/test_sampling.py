@@ -62,14 +62,24 @@ def test_sampled_control_converges_to_continuous_at_first_order():
     assert np.all((ratios > 1.4) & (ratios < 3.0)), (errs, ratios)
 
 
-def test_sample_time_must_be_whole_steps():
-    with pytest.raises(ModelError, match=r"sample_time: 0\.007 s is not a whole number of steps dt = 0\.005 s"):
-        SimSettings(dt=0.005, duration=1.0, sample_time=0.007)
+def _refused_in_settings_and_case(field: str, value, settings_match: str, case_match: str) -> None:
+    """``field = value`` is refused by SimSettings (the library) and by the case file (its field named)."""
+    with pytest.raises(ModelError, match=settings_match):
+        SimSettings(dt=0.005, duration=1.0, **{field: value})
     with open(CASE, "rb") as fh:
         data = tomllib.load(fh)
-    data["simulation"]["sample_time"] = 0.007
-    with pytest.raises(FtcError, match=r"simulation\.sample_time.*whole number of steps"):
+    data["simulation"][field] = value
+    with pytest.raises(FtcError, match=case_match):
         parse_case(data, source="x.toml")
+
+
+def test_sample_time_must_be_whole_steps():
+    _refused_in_settings_and_case(
+        "sample_time",
+        0.007,
+        r"sample_time: 0\.007 s is not a whole number of steps dt = 0\.005 s",
+        r"simulation\.sample_time.*whole number of steps",
+    )
 
 
 def test_etd2_without_motors_is_second_order():
@@ -124,10 +134,9 @@ def test_measurement_delay_feeds_the_law_the_state_of_d_samples_before(delay):
 
 
 def test_measurement_delay_needs_sampled_control():
-    with pytest.raises(ModelError, match=r"measurement_delay: 2 samples needs sampled control"):
-        SimSettings(dt=0.005, duration=1.0, measurement_delay=2)
-    with open(CASE, "rb") as fh:
-        data = tomllib.load(fh)
-    data["simulation"]["measurement_delay"] = 2
-    with pytest.raises(FtcError, match=r"simulation\.measurement_delay.*needs sampled control"):
-        parse_case(data, source="x.toml")
+    _refused_in_settings_and_case(
+        "measurement_delay",
+        2,
+        r"measurement_delay: 2 samples needs sampled control",
+        r"simulation\.measurement_delay.*needs sampled control",
+    )

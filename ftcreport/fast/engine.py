@@ -54,6 +54,7 @@ from ..errors import (
     two_link_reason,
     with_step,
 )
+from ..model.kernels import kernel_ref, packed
 from ..observers.farza import FarzaObserver
 from ..observers.ukf import UKFEstimator
 from ..references import FlatReference
@@ -82,8 +83,6 @@ class Spec(NamedTuple):
 
 
 def _chain(params) -> F.Chain:
-    from ..model.kernels import packed
-
     return packed(params)  # Chain.params is already the kernels' tuple (model.kernels.make_params)
 
 
@@ -184,13 +183,13 @@ def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
     """Wheel speeds (K, 2n) at K states: the compiled reduced model's Bbar(q)^T eta, row by row."""
     Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)
     ETA = np.ascontiguousarray(ETA, dtype=float).reshape(-1, 2)
-    return F.wheel_speeds_rows(to_ref(_chain(chain.params)), Q, ETA)  # a ref: the loop's compile of reduced
+    return F.wheel_speeds_rows(kernel_ref(chain.params), Q, ETA)  # a ref: the loop's compile of reduced
 
 
 def input_matrices_rows(chain, Q: np.ndarray) -> np.ndarray:
     """Mbar1(q)^-1 Bbar(q), (K, 2, 2n), at K configurations: one compiled call (no per-row Python)."""
     Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)
-    return F.input_matrices_rows(to_ref(_chain(chain.params)), Q)  # a ref: the loop's compile of reduced
+    return F.input_matrices_rows(kernel_ref(chain.params), Q)  # a ref: the loop's compile of reduced
 
 
 # --------------------------------------------------------------------------- signals from the log
@@ -324,7 +323,7 @@ def _initial_currents(loop, spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x
         return np.zeros(npl - nq - 2)  # the loop reports the law's failure at its first step
     sat = plant.saturation
     tau_c = sigma * (u if sat is None else np.clip(u, -sat, sat)) + ubar
-    omega = F.reduced(to_ref(_chain(plant.chain.params)), q, eta)[3].T @ eta
+    omega = F.reduced(kernel_ref(plant.chain.params), q, eta)[3].T @ eta
     v = Mo.driver_voltage(mo, tau_c, omega, fm)
     return Mo.quasi_static_current(mo, v, omega, fm)
 

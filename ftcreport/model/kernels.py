@@ -72,6 +72,7 @@ __all__ = [
     "S_matrix",
     "axle_midpoints",
     "eta_dot",
+    "kernel_ref",
     "make_params",
     "packed",
     "positions",
@@ -124,6 +125,17 @@ def packed(p):
     )
 
 
+def kernel_ref(p):
+    """p as the loop passes it to the kernels (``fast.refs.to_ref`` of :func:`packed`).
+
+    A kernel called from Python with it is compiled for the loop's argument types, so the loop's
+    compile and the faces' calls share one compile (docs/ENGINE.md, "Compile time (session 9)").
+    """
+    from ..fast.refs import to_ref
+
+    return to_ref(packed(p))
+
+
 def _vec(x) -> np.ndarray:
     return np.ascontiguousarray(x, dtype=float)
 
@@ -135,7 +147,7 @@ def S_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
     -------
     S : (n + 2, 2) ndarray
     """
-    return _fast().s_matrix(packed(p), _vec(q))
+    return _fast().s_matrix(kernel_ref(p), _vec(q))
 
 
 def S_and_Sdot(p: ChainParams, q: np.ndarray, eta: np.ndarray):
@@ -145,7 +157,7 @@ def S_and_Sdot(p: ChainParams, q: np.ndarray, eta: np.ndarray):
     -------
     S, Sdot : (n + 2, 2) ndarrays
     """
-    return _fast().reduced(packed(p), _vec(q), _vec(eta))[4:]
+    return _fast().reduced(kernel_ref(p), _vec(q), _vec(eta))[4:]
 
 
 def A_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
@@ -179,7 +191,7 @@ def M_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
     M : (n + 2, n + 2) ndarray, symmetric positive definite
     """
     q = _vec(q)
-    return _fast().mass_and_coriolis(packed(p), q, np.zeros_like(q))[0]
+    return _fast().mass_and_coriolis(kernel_ref(p), q, np.zeros_like(q))[0]
 
 
 def C_vector(p: ChainParams, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
@@ -189,7 +201,7 @@ def C_vector(p: ChainParams, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
     -------
     C : (n + 2,) ndarray
     """
-    return _fast().mass_and_coriolis(packed(p), _vec(q), _vec(qdot))[1]
+    return _fast().mass_and_coriolis(kernel_ref(p), _vec(q), _vec(qdot))[1]
 
 
 def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
@@ -205,7 +217,7 @@ def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
     from ..fast.motor import _b_and_rate
 
     # the rate Bdot along headings at rest (thdot = 0) is not used
-    return _b_and_rate(packed(p), _vec(q), np.zeros(p.n))[0]
+    return _b_and_rate(kernel_ref(p), _vec(q), np.zeros(p.n))[0]
 
 
 def reduced(p: ChainParams, q: np.ndarray, eta: np.ndarray):
@@ -219,7 +231,7 @@ def reduced(p: ChainParams, q: np.ndarray, eta: np.ndarray):
     -------
     Mbar1 : (2, 2), Mbar2 : (2, 2), Cbar : (2,), Bbar : (2, 2 n) ndarrays
     """
-    return _fast().reduced(packed(p), _vec(q), _vec(eta))[:4]
+    return _fast().reduced(kernel_ref(p), _vec(q), _vec(eta))[:4]
 
 
 def eta_dot(p: ChainParams, q: np.ndarray, eta: np.ndarray, tau: np.ndarray):
@@ -229,7 +241,7 @@ def eta_dot(p: ChainParams, q: np.ndarray, eta: np.ndarray, tau: np.ndarray):
     -------
     qdot : (n + 2,), etadot : (2,) ndarrays
     """
-    return _fast().plant_rhs(packed(p), _vec(q), _vec(eta), _vec(tau))
+    return _fast().plant_rhs(kernel_ref(p), _vec(q), _vec(eta), _vec(tau))
 
 
 def positions(p: ChainParams, q: np.ndarray):
@@ -264,4 +276,4 @@ def wheel_speeds(p: ChainParams, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
     By virtual work the power delivered by the torques is ``tau . wheel_speeds``:
     omega_ir = (v_i + b_i omega_i) / r_i, omega_il = (v_i - b_i omega_i) / r_i.
     """
-    return _fast().wheel_speeds_rows(packed(p), _vec(q)[None, :], _vec(eta)[None, :])[0]
+    return _fast().wheel_speeds_rows(kernel_ref(p), _vec(q)[None, :], _vec(eta)[None, :])[0]

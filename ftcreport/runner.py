@@ -118,13 +118,8 @@ def make_controller(built: Built, scheme: str):
             kin,
             cfg.k_v,
             patterns=switching_patterns(case, built.chain),
-            gamma=cfg.gamma,
-            T_min=cfg.T_min,
-            c_inst=cfg.c_inst,
-            c_int=cfg.c_int,
-            forgetting=cfg.forgetting,
-            hysteresis=cfg.hysteresis,
             u_limit=case.plant.saturation,
+            **cfg.model_dump(include={"gamma", "T_min", "c_inst", "c_int", "forgetting", "hysteresis"}),
         )
     if scheme in ("adaptive", "adaptive_frozen"):
         return AdaptiveController(
@@ -149,16 +144,8 @@ def make_controller(built: Built, scheme: str):
         )
         return ActiveController(built.chain, kin, cfg.k_v, obs, u_limit=case.plant.saturation, tau=cfg.tau)
     if scheme == "active_ukf":
-        ukf = UKFEstimator(
-            built.chain,
-            meas_std=cfg.meas_std,
-            eta_noise=cfg.eta_noise,
-            rho_noise=cfg.rho_noise,
-            ubar_noise=cfg.ubar_noise,
-            rho_std0=cfg.rho_std0,
-            ubar_std0=cfg.ubar_std0,
-            estimate=tuple(dict.fromkeys(cfg.estimate)),
-        )
+        noise = cfg.model_dump(include={"meas_std", "eta_noise", "rho_noise", "ubar_noise", "rho_std0", "ubar_std0"})
+        ukf = UKFEstimator(built.chain, estimate=tuple(dict.fromkeys(cfg.estimate)), **noise)
         return ActiveController(built.chain, kin, cfg.k_v, ukf, u_limit=case.plant.saturation, tau=cfg.tau)
     raise FtcError(f"unknown scheme '{scheme}'")
 

@@ -251,6 +251,11 @@ class Fault(_Strict):
 _ACT = "a scalar applies to every robot, a list is leader first"
 
 
+def _each(t: Any) -> Any:
+    """A per-robot field: one value for every robot, or a list of them, leader first."""
+    return t | list[t]
+
+
 class Actuators(_Strict):
     """DC motors of the wheels (thesis 2.3.3, issue 19): both wheels of a robot get the robot's values.
 
@@ -259,30 +264,24 @@ class Actuators(_Strict):
     the armature currents; without it the wheel torque is the command (today's ideal plant).
     """
 
-    R_a: _num(None, 1e3, gt=0) | list[_num(None, 1e3, gt=0)] = _f(MAXON_RE65.R_a, f"armature resistance; {_ACT}", "ohm")
-    L_a: _num(None, 10.0, gt=0) | list[_num(None, 10.0, gt=0)] = _f(
-        MAXON_RE65.L_a, f"armature inductance (> 0); {_ACT}", "H"
-    )
-    k_m: _num(None, 100.0, gt=0) | list[_num(None, 100.0, gt=0)] = _f(
-        MAXON_RE65.k_m, f"torque constant; {_ACT}", "N m/A"
-    )
-    k_b: _num(None, 100.0, gt=0) | list[_num(None, 100.0, gt=0)] = _f(
+    R_a: _each(_num(None, 1e3, gt=0)) = _f(MAXON_RE65.R_a, f"armature resistance; {_ACT}", "ohm")
+    L_a: _each(_num(None, 10.0, gt=0)) = _f(MAXON_RE65.L_a, f"armature inductance (> 0); {_ACT}", "H")
+    k_m: _each(_num(None, 100.0, gt=0)) = _f(MAXON_RE65.k_m, f"torque constant; {_ACT}", "N m/A")
+    k_b: _each(_num(None, 100.0, gt=0)) = _f(
         MAXON_RE65.k_b, f"back-EMF constant (= k_m in SI units); {_ACT}", "V s/rad"
     )
-    N: _num(None, 1e4, gt=0) | list[_num(None, 1e4, gt=0)] = _f(
-        MAXON_RE65.N, f"gear ratio motor speed / wheel speed; {_ACT}", "1"
-    )
-    eta_g: _num(None, 1.0, gt=0) | list[_num(None, 1.0, gt=0)] = _f(
+    N: _each(_num(None, 1e4, gt=0)) = _f(MAXON_RE65.N, f"gear ratio motor speed / wheel speed; {_ACT}", "1")
+    eta_g: _each(_num(None, 1.0, gt=0)) = _f(
         MAXON_RE65.eta_g, f"gear efficiency (wheel torque = eta_g N motor torque); {_ACT}", "1"
     )
-    J_m: _num(0.0, 10.0) | list[_num(0.0, 10.0)] = _f(
+    J_m: _each(_num(0.0, 10.0)) = _f(
         MAXON_RE65.J_m, f"rotor inertia (eta_g N^2 J_m on the wheel axis); {_ACT}", "kg m^2"
     )
-    b_m: _num(0.0, 100.0) | list[_num(0.0, 100.0)] = _f(MAXON_RE65.b_m, f"rotor viscous damping; {_ACT}", "N m s/rad")
-    V_max: _num(None, 1e5, gt=0) | list[_num(None, 1e5, gt=0)] = _f(
+    b_m: _each(_num(0.0, 100.0)) = _f(MAXON_RE65.b_m, f"rotor viscous damping; {_ACT}", "N m s/rad")
+    V_max: _each(_num(None, 1e5, gt=0)) = _f(
         MAXON_RE65.V_max, f"supply voltage: the driver saturates at +-V_max; {_ACT}", "V"
     )
-    I_max: _num(None, 1e6, gt=0) | list[_num(None, 1e6, gt=0)] | None = _f(
+    I_max: _each(_num(None, 1e6, gt=0)) | None = _f(
         None, f"limit on the driver's target current (none by default); {_ACT}", "A"
     )
 

@@ -74,7 +74,7 @@ class _ErrorBoundary(TyperGroup):
                 raise typer.Exit(code=2) from None
             raise
         except BaseException as exc:
-            if ctx.params.get("debug") and not isinstance(exc, KeyboardInterrupt):
+            if ctx.params.get("debug") and not isinstance(exc, KeyboardInterrupt | FtcError):
                 raise
             line, code = _classify(exc)
             files = [a for a in argv if isinstance(a, str) and a.endswith(".toml")]
@@ -219,11 +219,6 @@ def main(
     """ftcreport command-line interface."""
 
 
-def _fail(exc: FtcError) -> None:
-    typer.echo(f"ftcreport: error: {exc}", err=True)
-    raise typer.Exit(code=getattr(exc, "exit_code", 2))
-
-
 # options shared by the commands that run on Dask (campaign, coverage, fdi)
 SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler, e.g. tcp://host:8786.")]
 WorkersOpt = Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")]
@@ -255,9 +250,9 @@ def patterns(
     from .model import compensable_patterns, wheel_names
 
     if robots < 2:
-        _fail(FtcError(f"robots: a chain needs at least 2 robots, got {robots}"))
+        raise FtcError(f"robots: a chain needs at least 2 robots, got {robots}")
     if robots > 8:
-        _fail(FtcError(f"robots: {robots} robots give 2^{2 * robots} patterns; list at most 8 robots"))
+        raise FtcError(f"robots: {robots} robots give 2^{2 * robots} patterns; list at most 8 robots")
     names = wheel_names(robots)
     pats = compensable_patterns(robots)
     typer.echo(" ".join(f"{w:>3}" for w in names) + "   failed")
@@ -290,18 +285,15 @@ def demo(
     from .sim import Plant, SimSettings, demo_chain, simulate
 
     if not 2 <= robots <= 12:
-        _fail(FtcError(f"--robots: must be between 2 and 12, got {robots}"))
+        raise FtcError(f"--robots: must be between 2 and 12, got {robots}")
     if (problem := budget_problem(robots, duration, dt, 1)) is not None:
         opt = "--dt" if problem[0] == "simulation.dt" else "--duration"  # demo logs every step
-        _fail(FtcError(f"demo: {opt}: {problem[1]}"))
-    try:
-        chain, kin, q0 = demo_chain(robots)  # 1 m links, a 5 m circle at 0.5 m/s
-        faults = FaultSchedule(robots, [FaultEvent(fault_time, "2l", sigma=0.0, ubar=0.0)])
-        ctrl = TrackingController(chain, kin, k_v=5.0)
-        eta0 = kin.reference.at(0.0).eta_d
-        run = simulate(Plant(chain, faults), ctrl, q0, eta0, SimSettings(dt=dt, duration=duration))
-    except FtcError as exc:
-        _fail(exc)
+        raise FtcError(f"demo: {opt}: {problem[1]}")
+    chain, kin, q0 = demo_chain(robots)  # 1 m links, a 5 m circle at 0.5 m/s
+    faults = FaultSchedule(robots, [FaultEvent(fault_time, "2l", sigma=0.0, ubar=0.0)])
+    ctrl = TrackingController(chain, kin, k_v=5.0)
+    eta0 = kin.reference.at(0.0).eta_d
+    run = simulate(Plant(chain, faults), ctrl, q0, eta0, SimSettings(dt=dt, duration=duration))
     err = np.abs(run["eta"] - run["eta_c"]).max(axis=1)
     before = run.t < fault_time
     typer.echo(f"{robots}-robot chain on a 5 m circle at 0.5 m/s, nominal scheme, wheel 2l lost at {fault_time} s")
@@ -394,18 +386,15 @@ def run(
             c = with_duration(c, duration)
         schemes = configured_schemes(c)
     except FtcError as exc:
-        _fail(exc if str(exc).startswith(str(case)) else FtcError(f"{case}: {exc}"))
+        raise (exc if str(exc).startswith(str(case)) else FtcError(f"{case}: {exc}")) from None
     if scheme:  # a mistyped --scheme is the option's fault, not the case file's
-        try:
-            option_schemes("--scheme", scheme, c)
-        except FtcError as exc:
-            _fail(exc)
+        option_schemes("--scheme", scheme, c)
         schemes = [s for s in schemes if s in scheme]
     try:
         built = build(c)
         half = halve_dt(c, str(case)) if verify_dt else None
     except FtcError as exc:
-        _fail(exc if str(exc).startswith(str(case)) else FtcError(f"{case}: {exc}"))
+        raise (exc if str(exc).startswith(str(case)) else FtcError(f"{case}: {exc}")) from None
     if not quiet:
         for w in c.warnings():
             typer.echo(f"warning: {case}: {w}", err=True)
@@ -523,7 +512,7 @@ def report(
     from .report.render import render_all
 
     if not out.is_dir():
-        _fail(FtcError(f"{out}: no stored results (run 'ftcreport batch' first)"))
+        raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
     from .store import output_lock
 
     with output_lock(out, "report"):
@@ -618,10 +607,7 @@ def analyze(
     from .analysis import analyze_case
     from .cases import load_case
 
-    try:
-        res = analyze_case(load_case(case))
-    except FtcError as exc:
-        _fail(exc)
+    res = analyze_case(load_case(case))
     if as_json:
         from .store import _jsonable
 
@@ -669,17 +655,14 @@ def campaign(
     from .report.campaign import render_campaign
     from .store import output_lock
 
-    try:
-        base = load_case(case)
-        out_dir = out or Path("reports") / "campaigns" / base.name
-        chosen = _names(schemes)
-        select_schemes(base, chosen)  # a wrong --schemes before the output directory is made
-        with output_lock(out_dir, "campaign"):
-            dask = _dask(scheduler, workers, in_process, quiet, force)
-            res = run_campaign(base, samples, out_dir, seed=seed, schemes=chosen, **dask)
-            page = render_campaign(out_dir, read_table(res.table))
-    except FtcError as exc:
-        _fail(exc)
+    base = load_case(case)
+    out_dir = out or Path("reports") / "campaigns" / base.name
+    chosen = _names(schemes)
+    select_schemes(base, chosen)  # a wrong --schemes before the output directory is made
+    with output_lock(out_dir, "campaign"):
+        dask = _dask(scheduler, workers, in_process, quiet, force)
+        res = run_campaign(base, samples, out_dir, seed=seed, schemes=chosen, **dask)
+        page = render_campaign(out_dir, read_table(res.table))
     _done(res, "samples run", page)
 
 
@@ -708,10 +691,7 @@ def export(
     """
     from .tidy import export as _export
 
-    try:
-        paths = _export(out, dest)
-    except FtcError as exc:
-        _fail(exc)
+    paths = _export(out, dest)
     n_nc = sum(p.suffix == ".nc" for p in paths)
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")
 
@@ -735,7 +715,7 @@ def cases_validate(
 
     files = discover(paths)
     if not files:
-        _fail(FtcError(f"no case files (*.toml) in {', '.join(map(str, paths))}"))
+        raise FtcError(f"no case files (*.toml) in {', '.join(map(str, paths))}")
     bad = 0
     for f in files:
         try:
@@ -770,15 +750,15 @@ def cases_new(
     from .limits import name_problem
 
     if (why := name_problem(name)) is not None:
-        _fail(FtcError(f"{directory}: name: {why}"))
+        raise FtcError(f"{directory}: name: {why}")
     path = directory / f"{name}.toml"
     if directory.exists() and not directory.is_dir():
-        _fail(FtcError(f"{directory}: --dir: exists and is not a directory"))
+        raise FtcError(f"{directory}: --dir: exists and is not a directory")
     directory.mkdir(parents=True, exist_ok=True)
     try:  # O_EXCL: never overwrite, even when another process creates the file meanwhile
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
     except FileExistsError:
-        _fail(FtcError(f"{path}: exists already; not overwritten"))
+        raise FtcError(f"{path}: exists already; not overwritten") from None
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(TEMPLATE)
@@ -800,7 +780,7 @@ def _floats(text: str | None, option: str) -> list[float] | None:
     try:
         return [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        _fail(FtcError(f"{option}: expected comma-separated numbers, got '{text}'"))
+        raise FtcError(f"{option}: expected comma-separated numbers, got '{text}'") from None
 
 
 @app.command()
@@ -831,22 +811,19 @@ def coverage(
     from .coverage import run_coverage
     from .report.coverage import render_coverage
 
-    try:
-        base = load_case(case)
-        out_dir = out or Path("reports") / "coverage" / base.name
-        res = run_coverage(
-            base,
-            out_dir,
-            times=_floats(times, "--times"),
-            schemes=_names(schemes),
-            sigmas=tuple(_floats(sigmas, "--sigmas") or ()),
-            friction=friction,
-            kinds=tuple(_names(kinds) or ()),
-            **_dask(scheduler, workers, in_process, quiet, force),
-        )
-        page = render_coverage(out_dir)
-    except FtcError as exc:
-        _fail(exc)
+    base = load_case(case)
+    out_dir = out or Path("reports") / "coverage" / base.name
+    res = run_coverage(
+        base,
+        out_dir,
+        times=_floats(times, "--times"),
+        schemes=_names(schemes),
+        sigmas=tuple(_floats(sigmas, "--sigmas") or ()),
+        friction=friction,
+        kinds=tuple(_names(kinds) or ()),
+        **_dask(scheduler, workers, in_process, quiet, force),
+    )
+    page = render_coverage(out_dir)
     _done(res, "fault runs", page, f" (onsets {', '.join(f'{t:g}' for t in res.times)} s)")
 
 
@@ -871,14 +848,11 @@ def fdi(
     from .fdi import run_fdi
     from .report.fdi import render_fdi
 
-    try:
-        base = load_case(case)
-        out_dir = out or Path("reports") / "fdi" / base.name
-        dask = _dask(scheduler, workers, in_process, quiet, force)
-        res = run_fdi(base, samples, out_dir, seed=seed, schemes=_names(schemes), **dask)
-        page = render_fdi(out_dir)
-    except FtcError as exc:
-        _fail(exc)
+    base = load_case(case)
+    out_dir = out or Path("reports") / "fdi" / base.name
+    dask = _dask(scheduler, workers, in_process, quiet, force)
+    res = run_fdi(base, samples, out_dir, seed=seed, schemes=_names(schemes), **dask)
+    page = render_fdi(out_dir)
     typer.echo(f"{len(res['failed'])} failed; results {out_dir / 'fdi.json'}; report {page}")
     if res["failed"]:
         raise typer.Exit(1)
@@ -919,19 +893,16 @@ def schemes_cmd(
     from .schemes import BUILT_IN, load_plugin, registered
 
     sizes: dict[str, int] = {}
-    try:
-        if source is not None and source.suffix == ".py":
-            load_plugin(source)
-        elif source is not None:
-            from .cases import configured_schemes, load_case
-            from .runner import build, make_controller
+    if source is not None and source.suffix == ".py":
+        load_plugin(source)
+    elif source is not None:
+        from .cases import configured_schemes, load_case
+        from .runner import build, make_controller
 
-            case = load_case(source)
-            built = build(case)
-            for s in configured_schemes(case):
-                sizes[s] = int(getattr(make_controller(built, s), "n_states", 0))
-    except FtcError as exc:
-        _fail(exc)
+        case = load_case(source)
+        built = build(case)
+        for s in configured_schemes(case):
+            sizes[s] = int(getattr(make_controller(built, s), "n_states", 0))
     rows = [(name, *info, "built-in") for name, info in BUILT_IN.items()]
     for name, sc in sorted(registered().items()):
         law = getattr(sc.law, "py_func", sc.law)

@@ -24,6 +24,7 @@ pandas and xarray are imported inside the functions: the numeric core does not l
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -117,17 +118,11 @@ def run_dataset(run: Run) -> xr.Dataset:
     for name, arr in run.signals.items():
         arr = np.asarray(arr)
         known = UNITS.get(name)
-        dims: tuple[str, ...]
-        if known is not None and len(known[0]) == arr.ndim - 1:
-            dims = known[0]
-        else:
-            dims = tuple(f"{name}_dim{i}" for i in range(1, arr.ndim))
-        for d, size in zip(dims, arr.shape[1:], strict=True):
-            if d in sizes and sizes[d] != size:  # a signal whose width differs from the shared dimension
-                dims = tuple(f"{name}_dim{i}" for i in range(1, arr.ndim))
-                break
-        for d, size in zip(dims, arr.shape[1:], strict=True):
-            sizes[d] = size
+        generic = tuple(f"{name}_dim{i}" for i in range(1, arr.ndim))
+        dims = known[0] if known is not None and len(known[0]) == arr.ndim - 1 else generic
+        if any(sizes.get(d, size) != size for d, size in zip(dims, arr.shape[1:], strict=True)):
+            dims = generic  # a signal whose width differs from the shared dimension
+        sizes.update(zip(dims, arr.shape[1:], strict=True))
         attrs = {"units": known[1], "long_name": known[2]} if known is not None else {"units": "unknown"}
         data_vars[name] = (("time", *dims), arr, attrs)
     for dim, labs in labels.items():
@@ -201,10 +196,7 @@ def run_frame(run: Run) -> pd.DataFrame:
                 [str(v) for v in ds[d].values] if d in ds.coords else [str(i) for i in range(ds.sizes[d])]
                 for d in var.dims[1:]
             ]
-            combos = [[]]
-            for ax in axes:
-                combos = [[*c, a] for c in combos for a in ax]
-            keys = [f"{name}[{','.join(c)}]" for c in combos]
+            keys = [f"{name}[{','.join(c)}]" for c in itertools.product(*axes)]
         for k, col in zip(keys, arr.T, strict=True):
             cols[k] = col
             units[k] = var.attrs.get("units", "")
@@ -327,17 +319,8 @@ def _phase_rows(m: dict, key: str) -> list[dict]:
     phases = m.get("phases") or []
     if not phases:
         return [base | {"phase": None}]
-    rows = []
-    for i, p in enumerate(phases):
-        row = dict(base)
-        row["phase"] = i
-        row["phase_start"] = p.get("start")
-        row["phase_end"] = p.get("end")
-        for k in ("position_error_max", "position_error_rms", "position_error_final", "position_error_iae"):
-            row[f"phase_{k}"] = p.get(k)
-        row["phase_recovery_time"] = p.get("recovery_time")
-        rows.append(row)
-    return rows
+    per_phase = [c for c in METRICS_DTYPES if c.startswith("phase_")]  # phase_start <- the phase's "start", ...
+    return [base | {"phase": i} | {c: p.get(c.removeprefix("phase_")) for c in per_phase} for i, p in enumerate(phases)]
 
 
 def metrics_table(out: Path) -> pd.DataFrame:

@@ -41,7 +41,7 @@ import io
 import json
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -613,7 +613,7 @@ def run_tasks(
         if on_store is not None:
             on_store(rec)
 
-    with _Progress(show_progress, len(args)) as bar, _noting_stored(res, what):
+    with _progress(show_progress, len(args)) as bar, _noting_stored(res, what):
         info = execute(
             func,
             args,
@@ -672,36 +672,22 @@ def _write_manifest(out, base, expected, seed, schemes, samples, records, res, s
     write_manifest(out / "manifest.json", m)
 
 
-class _Progress:
-    """A rich progress bar with samples done / failed / rate (or nothing)."""
+@contextlib.contextmanager
+def _progress(show: bool, total: int) -> Iterator[Callable[[int, int], None]]:
+    """A rich progress bar with samples done / failed / rate (or nothing); yields ``update(done, failed)``."""
+    if not show:
+        yield lambda done, failed: None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    def __init__(self, show: bool, total: int) -> None:
-        self.show, self.total = show, total
-        self.p = None
-
-    def __enter__(self):
-        if not self.show:
-            return lambda done, failed: None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        self.p = Progress(
-            TextColumn("campaign"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("failed {task.fields[failed]}"),
-            TextColumn("{task.fields[rate]:.1f} samples/min"),
-            TimeElapsedColumn(),
-        )
-        self.p.__enter__()
-        task = self.p.add_task("run", total=self.total, failed=0, rate=0.0)
+    columns = (TextColumn("campaign"), BarColumn(), MofNCompleteColumn(), TextColumn("failed {task.fields[failed]}"))
+    rate_column = TextColumn("{task.fields[rate]:.1f} samples/min")
+    with Progress(*columns, rate_column, TimeElapsedColumn()) as bar:
+        task = bar.add_task("run", total=total, failed=0, rate=0.0)
         t0 = time.perf_counter()
 
         def update(done: int, failed: int) -> None:
             rate = 60.0 * (done + failed) / max(time.perf_counter() - t0, 1e-9)
-            self.p.update(task, completed=done + failed, failed=failed, rate=rate)
+            bar.update(task, completed=done + failed, failed=failed, rate=rate)
 
-        return update
-
-    def __exit__(self, *exc) -> None:
-        if self.p is not None:
-            self.p.__exit__(*exc)
+        yield update

@@ -1,10 +1,8 @@
 """Command-line interface (Typer): thin commands over the library.
 
-Every command parses its arguments, calls the library and turns an
-:class:`~ftcreport.errors.FtcError` into one line on stderr and an exit code;
-:class:`_ErrorBoundary` does the same for every other exception (README, "Errors,
-exit codes, interruptions").
-Commands of DESIGN.md that are not built yet say so and exit 2.
+Every command parses its arguments and calls the library; :class:`_ErrorBoundary` turns an
+:class:`~ftcreport.errors.FtcError`, or any other exception, into one line on stderr and an
+exit code (README, "Errors, exit codes, interruptions").
 """
 
 from __future__ import annotations

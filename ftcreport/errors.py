@@ -13,7 +13,6 @@ __all__ = [
     "FaultError",
     "FtcError",
     "ModelError",
-    "NotBuiltError",
     "SingularityError",
     "UncompensableError",
     "articulation_reason",
@@ -66,10 +65,6 @@ class UncompensableError(FtcError):
 
 class SingularityError(FtcError):
     """The state approaches a singular configuration (ERRATA P4)."""
-
-
-class NotBuiltError(FtcError):
-    """A CLI command that is registered but not implemented yet."""
 
 
 class ReferenceError(FtcError, ValueError):

@@ -68,16 +68,9 @@ class Built:
             motors=case.motor_params(),
         )
         self.q0, self.eta0 = initial_state(case, self.reference)
-        s = case.simulation
-        self.settings = SimSettings(
-            dt=s.dt,
-            duration=s.duration,
-            method=s.method,
-            log_every=s.log_every,
-            singularity_margin=math.radians(s.singularity_margin_deg),
-            sample_time=s.sample_time,
-            measurement_delay=s.measurement_delay,
-        )
+        s = case.simulation  # the same fields by name; the margin in radians
+        margin = math.radians(s.singularity_margin_deg)
+        self.settings = SimSettings(**s.model_dump(exclude={"singularity_margin_deg"}), singularity_margin=margin)
 
     def kinematic(self) -> TwoLinkKinematic | ChainedBackstepping:
         k = self.case.kinematic

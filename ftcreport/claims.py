@@ -102,18 +102,9 @@ def bound_text(lo, hi) -> str:
 
 def evaluate_claim(case_name: str, claim, metrics_by_scheme: dict[str, dict | None]) -> ClaimResult:
     """Evaluate one claim (a ``cases.Claim`` or its dict) against the stored metrics."""
-    cid, expect = _get(claim, "id"), _get(claim, "expect")
-    scheme, metric = _get(claim, "scheme"), _get(claim, "metric")
-    base = {
-        "case": case_name,
-        "id": cid,
-        "source": _get(claim, "source"),
-        "words": _get(claim, "words"),
-        "scheme": scheme,
-        "metric": metric,
-        "expect": expect,
-        "note": _get(claim, "note") or "",
-    }
+    base = {k: _get(claim, k) for k in ("id", "source", "words", "scheme", "metric", "expect")}
+    base.update(case=case_name, note=_get(claim, "note") or "")
+    expect, scheme, metric = base["expect"], base["scheme"], base["metric"]
 
     def result(outcome: str, reason: str, measured: str = "-") -> ClaimResult:
         return ClaimResult(**base, measured=measured, outcome=outcome, reason=reason, ok=outcome == expect)

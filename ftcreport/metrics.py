@@ -89,22 +89,16 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
 
 
+_PHASE_METRICS = (*(f"position_error_{k}" for k in ("max", "rms", "final", "iae")), "recovery_time")
+
+
 def phase_metrics(t: np.ndarray, pos_err: np.ndarray, phases: Sequence[tuple[float, float]], band: float) -> list[dict]:
     """Per-phase tracking metrics (see the module docstring)."""
     out = []
     for start, end in phases:
         m = (t >= start) & (t < end) if end < t[-1] else (t >= start) & (t <= end)
-        if not np.any(m):
-            out.append(
-                {
-                    "start": start,
-                    "end": end,
-                    "position_error_max": None,
-                    "position_error_rms": None,
-                    "position_error_final": None,
-                    "recovery_time": None,
-                }
-            )
+        if not np.any(m):  # no logged sample in the phase: every metric unknown
+            out.append({"start": start, "end": end} | dict.fromkeys(_PHASE_METRICS))
             continue
         e = pos_err[m]
         out.append(

@@ -90,6 +90,11 @@ def _p(p: float) -> str:
     return "p < 0.0001" if p < 1e-4 else f"p = {p:.2g}"
 
 
+def _verdict(name_a: str, name_b: str, metric: str, test: str, result: dict, sig: bool, text: str) -> dict:
+    """The record of a paired comparison: the two schemes, the metric, the test, its numbers and its sentence."""
+    return {"a": name_a, "b": name_b, "metric": metric, "test": test, **result, "significant": sig, "text": text}
+
+
 def compare_success(name_a: str, name_b: str, a: Sequence[bool], b: Sequence[bool], alpha: float = 0.05) -> dict:
     """Paired comparison of success (exact McNemar) with the sentence the report prints."""
     t = mcnemar_exact(a, b)
@@ -106,15 +111,7 @@ def compare_success(name_a: str, name_b: str, a: Sequence[bool], b: Sequence[boo
             f"{name_a} vs {name_b} on success: no significant difference (exact McNemar {_p(t['p'])}; "
             f"{t['a_only']} vs {t['b_only']} discordant samples of {t['n']})"
         )
-    return {
-        "a": name_a,
-        "b": name_b,
-        "metric": "success",
-        "test": "mcnemar_exact",
-        **t,
-        "significant": sig,
-        "text": text,
-    }
+    return _verdict(name_a, name_b, "success", "mcnemar_exact", t, sig, text)
 
 
 def compare_metric(
@@ -141,20 +138,10 @@ def compare_metric(
         text = f"{name_a} vs {name_b} on {metric}: too few paired samples ({ci['n']})"
     else:
         span = f"mean difference {_fmt(ci['mean'])}{u}, {level} CI [{_fmt(ci['low'])}, {_fmt(ci['high'])}]"
+        why = f"({name_a} - {name_b}: {span}; bootstrap, {ci['n']} pairs)"
         if sig:
             win, lose = (name_a, name_b) if ci["high"] < 0 else (name_b, name_a)
-            text = f"{win} beats {lose} on {metric} ({name_a} - {name_b}: {span}; bootstrap, {ci['n']} pairs)"
+            text = f"{win} beats {lose} on {metric} {why}"
         else:
-            text = (
-                f"{name_a} vs {name_b} on {metric}: no significant difference "
-                f"({name_a} - {name_b}: {span}; bootstrap, {ci['n']} pairs)"
-            )
-    return {
-        "a": name_a,
-        "b": name_b,
-        "metric": metric,
-        "test": "bootstrap_mean_difference",
-        **ci,
-        "significant": sig,
-        "text": text,
-    }
+            text = f"{name_a} vs {name_b} on {metric}: no significant difference {why}"
+    return _verdict(name_a, name_b, metric, "bootstrap_mean_difference", ci, sig, text)

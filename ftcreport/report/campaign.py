@@ -14,7 +14,7 @@ import numpy as np
 from ..campaign import summarize
 from ..store import _jsonable, write_atomic
 from . import plots
-from .render import dependency_versions, figure, write_page
+from .render import figure, write_page
 
 __all__ = ["render_campaign"]
 
@@ -86,5 +86,4 @@ def render_campaign(out: Path, rows: list[dict]) -> Path:
         success=(meta.get("base", {}).get("campaign") or {}).get("success", {}),
         summary=summary,
         figures=figures,
-        versions=dependency_versions(),
     )

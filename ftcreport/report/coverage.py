@@ -13,7 +13,7 @@ import numpy as np
 
 from ..model import wheel_names
 from . import plots
-from .render import dependency_versions, figure, write_page
+from .render import figure, write_page
 
 __all__ = ["coverage_grids", "render_coverage"]
 
@@ -123,5 +123,4 @@ def render_coverage(out: Path) -> Path:
         meta=meta,
         summary=summary,
         figures=figures,
-        versions=dependency_versions(),
     )

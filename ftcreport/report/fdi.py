@@ -11,7 +11,7 @@ matplotlib.use("svg")
 import matplotlib.pyplot as plt
 
 from . import plots
-from .render import dependency_versions, figure, write_page
+from .render import figure, write_page
 
 __all__ = ["render_fdi"]
 
@@ -52,6 +52,4 @@ def render_fdi(out: Path) -> Path:
         figures.append(figure(f"{s}-roc", f"{s}: ROC, detection probability against false alarms per hour.", svg=roc))
         delay = _svg(res, "mean_delay", "mean detection delay [s]")
         figures.append(figure(f"{s}-delay", f"{s}: mean detection delay against false alarms per hour.", svg=delay))
-    return write_page(
-        out / "index.html", "fdi.html", "../../", result=result, figures=figures, versions=dependency_versions()
-    )
+    return write_page(out / "index.html", "fdi.html", "../../", result=result, figures=figures)

@@ -64,10 +64,11 @@ def _now() -> str:
 
 
 def write_page(page: Path, template: str, root: str, **context) -> Path:
-    """Render ``template`` with ``context``, the package version and the time, and write it to ``page`` atomically.
+    """Render ``template`` with ``context``, the versions and the time, and write it to ``page`` atomically.
 
     ``root`` is the relative path from the page to the output directory (shared assets, links).
     """
+    context.setdefault("versions", dependency_versions())
     html = _env().get_template(template).render(root=root, version=__version__, rendered=_now(), **context)
     write_atomic(page, html.encode())
     return page
@@ -101,23 +102,8 @@ def render_case(out: Path, name: str) -> Path | None:
             "../",
             name=name,
             description=rec.get("error", ""),
-            n="?",
-            reference="?",
-            kinematic="?",
-            duration="?",
-            dt="?",
-            method="?",
-            log_every="?",
-            engines="",
-            warnings=[],
-            faults=[],
-            runs=[],
             n_phases=0,
-            phase_labels=[],
-            checks=[],
-            figures=[],
             key=rec.get("key", "-"),
-            versions=dependency_versions(),
             simulated=rec.get("time", "-"),
             case_text=rec.get("source_text", ""),
         )
@@ -288,7 +274,6 @@ def render_case(out: Path, name: str) -> Path | None:
         checks=checks,
         figures=figures,
         key=rec.get("key", "-"),
-        versions=dependency_versions(),
         simulated=rec.get("time", "-"),
         case_text=text,
         manifest=_manifest(out, name),

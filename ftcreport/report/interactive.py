@@ -120,18 +120,8 @@ def errors_fig(series: dict[str, dict], events: list[float]) -> dict:
         t, p, h = decimate(ts["t"], np.maximum(pos, 1e-12), np.maximum(head, 1e-9))
         c = SCHEME_COLORS.get(scheme)
         data.append(_trace(t, _r(p), scheme, "%{y:.3g} m", legendgroup=scheme, line={"color": c, "width": 1.3}))
-        data.append(
-            _trace(
-                t,
-                _r(h),
-                scheme,
-                "%{y:.3g} rad",
-                legendgroup=scheme,
-                showlegend=False,
-                line={"color": c, "width": 1.0},
-                yaxis="y2",
-            )
-        )
+        heading = {"legendgroup": scheme, "showlegend": False, "line": {"color": c, "width": 1.0}, "yaxis": "y2"}
+        data.append(_trace(t, _r(h), scheme, "%{y:.3g} rad", **heading))
     lay = _layout(
         "tracking errors (shaded: fault phases; drag to zoom, double-click to reset)",
         events,
@@ -191,21 +181,11 @@ def switching_fig(ts: dict, patterns: list[list[int]], events: list[float]) -> d
     pats = [tuple(p) for p in patterns]
     truth = np.array([pats.index(k) if (k := tuple((s >= 1.0).astype(int))) in pats else -1 for s in ts["sigma"]])
     t, sel, tr = decimate(ts["t"], np.asarray(ts["selected"], float), truth.astype(float))
+    truth_line = {"shape": "hv", "color": "rgba(0,0,0,0.35)", "width": 4}  # wide and grey, under the model's
+    model_line = {"shape": "hv", "color": SCHEME_COLORS["switching"], "width": 1.2}
     data = [
-        _trace(
-            t,
-            tr.astype(int).tolist(),
-            "true pattern",
-            "true %{y}",
-            line={"shape": "hv", "color": "rgba(0,0,0,0.35)", "width": 4},
-        ),
-        _trace(
-            t,
-            sel.astype(int).tolist(),
-            "applied model",
-            "model %{y}",
-            line={"shape": "hv", "color": SCHEME_COLORS["switching"], "width": 1.2},
-        ),
+        _trace(t, tr.astype(int).tolist(), "true pattern", "true %{y}", line=truth_line),
+        _trace(t, sel.astype(int).tolist(), "applied model", "model %{y}", line=model_line),
     ]
     lay = _layout(
         "switching: applied model against the true pattern (-1: the true pattern is not a model)",

@@ -305,13 +305,8 @@ def velocity_loop(
 # ---------------------------------------------------------------------- any closed loop, chained form
 def central_jacobian(f, x0: np.ndarray, h: float = 1e-6) -> np.ndarray:
     """Jacobian of f at x0 by central differences of step h (error O(h^2))."""
-    n = x0.size
-    cols = []
-    for j in range(n):
-        dx = np.zeros(n)
-        dx[j] = h
-        cols.append((f(x0 + dx) - f(x0 - dx)) / (2 * h))
-    return np.column_stack(cols)
+    # column j: (f(x0 + h e_j) - f(x0 - h e_j)) / (2 h)
+    return np.column_stack([(f(x0 + dx) - f(x0 - dx)) / (2 * h) for dx in h * np.eye(x0.size)])
 
 
 def closed_loop_jacobian(chain: Chain, controller, t: float, q: np.ndarray, eta: np.ndarray, xc, h: float = 1e-6):

@@ -313,14 +313,18 @@ METRICS_DTYPES: dict[str, str] = {
 }
 
 
+_PHASE_COLUMNS = [c for c in METRICS_DTYPES if c.startswith("phase_")]  # phase_start <- the phase's "start", ...
+
+
 def _phase_rows(m: dict, key: str) -> list[dict]:
     base = {c: m.get(c) for c in METRICS_DTYPES if not c.startswith("phase")}
     base["case_hash"] = m.get("case_hash") or key
     phases = m.get("phases") or []
     if not phases:
         return [base | {"phase": None}]
-    per_phase = [c for c in METRICS_DTYPES if c.startswith("phase_")]  # phase_start <- the phase's "start", ...
-    return [base | {"phase": i} | {c: p.get(c.removeprefix("phase_")) for c in per_phase} for i, p in enumerate(phases)]
+    return [
+        base | {"phase": i} | {c: p.get(c.removeprefix("phase_")) for c in _PHASE_COLUMNS} for i, p in enumerate(phases)
+    ]
 
 
 def metrics_table(out: Path) -> pd.DataFrame:

@@ -13,6 +13,7 @@ self-contained (inline CSS, SVG, a few lines of JS for sorting): they work offli
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import hashlib
 import json
 import math
@@ -52,6 +53,7 @@ def _fmt(x) -> str:
     return str(x)
 
 
+@functools.cache  # one lookup per process: every page of a report shows the same versions
 def dependency_versions() -> str:
     from ..manifest import _dist_version
 

@@ -39,6 +39,7 @@ from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, whe
 from .model.actuators import MAXON_RE65, MotorParams
 from .model.chain import THESIS_ROBOT
 from .model.faults import MOTOR_KINDS, motor_row
+from .runs import AUTO_METHODS
 from .schemes import BUILT_IN
 
 __all__ = [
@@ -592,13 +593,33 @@ def ordered_schemes(names) -> list[str]:
 class Simulation(_Strict):
     """Integration settings."""
 
-    dt: _num(None, 10.0, gt=0) = _f(..., "step", "s")
+    dt: _num(None, 10.0, gt=0) = _f(
+        ...,
+        "step of the fixed-step methods; the longest step of the error-controlled ones (and the period at which "
+        "they draw sensor noise and run the UKF)",
+        "s",
+    )
     duration: _num(None, 1e6, gt=0) = _f(..., "simulated time", "s")
-    method: Literal["rk4", "ros2", "etd2"] = _f(
+    method: Literal["rk4", "ros2", "etd2", "auto", "dopri5", "ros2ec", "etd2ec"] = _f(
         "rk4",
-        "RK4; the stiff-capable Rosenbrock W-method (for k_v in the thousands); or the exponential"
-        " ETD2RK, exact on the motors' currents (DC-motor cases: one step per control sample)",
+        "fixed step: RK4; the stiff-capable Rosenbrock W-method ROS2 (for k_v in the thousands); the exponential"
+        " ETD2RK, exact on the motors' currents (DC-motor cases: one step per control sample). Error-controlled"
+        " (rtol, atol): dopri5 (Dormand-Prince 5(4), non-stiff), ros2ec (ROS2, stiff loops), etd2ec (ETD2, motors"
+        " under sampled control), both with step doubling's estimate, or auto: one of them picked from the loop's"
+        " linearization at t0",
         "-",
+    )
+    # Defaults: six digits on every state (positions of metres: a micrometre, the resolution of the
+    # tracking metrics the cases quote), and atol for the states that pass through zero (velocities,
+    # filter states, weights): 1e-8 in their units; benchmarks/accuracy.py measures what they give.
+    rtol: _num(1e-12, 0.1) = _f(
+        1e-6, "error-controlled methods: relative tolerance of every state's local error per step", "1"
+    )
+    atol: _num(1e-15, 1.0) = _f(
+        1e-8, "error-controlled methods: absolute tolerance of every state's local error per step", "state's unit"
+    )
+    min_step: _num(None, 1.0, gt=0) = _f(
+        1e-8, "error-controlled methods: the run stops (status and reason) when the step falls below this", "s"
     )
     log_every: Int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
     singularity_margin_deg: _num(0.0, lt=90) = _f(
@@ -606,7 +627,8 @@ class Simulation(_Strict):
     )
     sample_time: _num(None, 10.0, gt=0) | None = _f(
         None,
-        "sampled (digital) control: the controller's period, a whole number of steps dt and at most the duration; "
+        "sampled (digital) control: the controller's period, a whole number of steps dt (fixed-step methods; the "
+        "error-controlled ones land on every sample) and at most the duration; "
         "its command is held between samples (zero-order hold). Absent: continuous-time control",
         "s",
     )
@@ -626,9 +648,15 @@ class Simulation(_Strict):
                 "simulation.measurement_delay",
                 f"{self.measurement_delay} samples needs sampled control: set simulation.sample_time",
             )
+        auto = self.method in AUTO_METHODS
+        if auto and self.min_step >= self.dt:
+            raise _FieldError(
+                "simulation.min_step", f"{self.min_step} s is not below the longest step dt = {self.dt} s"
+            )
         if self.sample_time is not None:
             ratio = self.sample_time / self.dt
-            if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+            # error-controlled steps land on the samples whatever dt is
+            if not auto and (ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio):
                 raise _FieldError(
                     "simulation.sample_time", f"{self.sample_time} s is not a whole number of steps dt = {self.dt} s"
                 )
@@ -1578,6 +1606,8 @@ def case_hash(case: Case, version: str) -> str:
         exclude["actuators"] = True
     if case.base_case is None:  # the overlay field (issue 19 item 4): older cases keep their hashes
         exclude["base_case"] = True
+    if case.simulation.method not in AUTO_METHODS:  # the tolerances (issue 36) change only error-controlled runs
+        exclude["simulation"] = {"rtol", "atol", "min_step"}
     plain = {i: {"motor", "value"} for i, f in enumerate(case.faults) if f.motor is None and f.value is None}
     if plain:
         exclude["faults"] = plain
@@ -1706,9 +1736,11 @@ T_min = 0.01
 k_v = 5.0
 
 [simulation]
-dt = 0.02           # [s]
+method = "auto"     # error-controlled: DOPRI5, or ROS2/ETD2 for a stiff loop (the page says which); "rk4": fixed
+dt = 0.02           # [s] the longest step (metrics and figures read the steps); auto takes shorter ones where needed
+rtol = 1e-6         # each step's local error at most atol + rtol |x| for every state
+atol = 1e-8
 duration = 60.0     # [s]
-method = "rk4"      # or "ros2" for stiff velocity loops, "etd2" with DC motors
 log_every = 5
 
 [thresholds.switching]

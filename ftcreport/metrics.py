@@ -37,7 +37,10 @@ Every metric reads the run's metric stream (:attr:`ftcreport.sim.Run.stream`):
 the state, torques and estimates at every accepted integration step, taken at
 the start of the step (where the law is evaluated and the torque applied). So
 ``log_every`` changes what is saved, never a metric: extrema, counts and delays
-are exact to the step, and integrals are trapezoids over the steps.
+are exact to the step, and integrals are trapezoids over the steps.  Means over
+time (RMS, fractions of time) weigh each sample by the step it starts
+(:func:`time_mean`): the error-controlled methods' steps are not equal, and on
+equal steps this is the plain mean over the samples.
 """
 
 from __future__ import annotations
@@ -53,6 +56,8 @@ __all__ = [
     "recovery_time",
     "singularity_margin",
     "switching_metrics",
+    "time_mean",
+    "time_weights",
     "torque_metrics",
     "tracking_errors",
     "tracking_metrics",
@@ -85,8 +90,34 @@ def _iae(t: np.ndarray, e: np.ndarray) -> float:
     return float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t))) if e.size > 1 else 0.0
 
 
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+def time_weights(t: np.ndarray) -> np.ndarray:
+    """Each sample's share of time (K,): the length of the step it starts; the last sample (the run's
+    end, or the end of a window) weighs as the step before it, so equal steps weigh equally."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return np.ones(t.size)
+    w = np.empty(t.size)
+    w[:-1] = np.diff(t)
+    w[-1] = w[-2]
+    return w
+
+
+def time_mean(t: np.ndarray, x: np.ndarray) -> np.ndarray | float:
+    """Mean over time of x (K, ...) sampled at t (K,), each sample weighted by :func:`time_weights`.
+
+    On equal steps it is the mean over the samples (to round-off); on the unequal steps of an
+    error-controlled run it does not count a stretch of short steps (a transient) more than its time.
+    """
+    x = np.asarray(x, dtype=float)
+    w = time_weights(t)
+    total = w.sum()
+    if not total > 0:  # a single sample, or no time: the samples' mean
+        return np.mean(x, axis=0)
+    return np.tensordot(w, x, axes=(0, 0)) / total
+
+
+def _rms(t: np.ndarray, x: np.ndarray) -> float:
+    return float(np.sqrt(time_mean(t, np.square(x)))) if x.size else float("nan")
 
 
 _PHASE_METRICS = (*(f"position_error_{k}" for k in ("max", "rms", "final", "iae")), "recovery_time")
@@ -106,7 +137,7 @@ def phase_metrics(t: np.ndarray, pos_err: np.ndarray, phases: Sequence[tuple[flo
                 "start": float(start),
                 "end": float(end),
                 "position_error_max": float(e.max()),
-                "position_error_rms": _rms(e),
+                "position_error_rms": _rms(t[m], e),
                 "position_error_final": float(e[-1]),
                 "position_error_iae": _iae(t[m], e),
                 "recovery_time": recovery_time(t, pos_err, start, end, band),
@@ -125,7 +156,7 @@ def tracking_metrics(
     rec = [p["recovery_time"] for p in ph[1:]]  # phases that start with a fault event
     return {
         "position_error_max": float(pos.max()),
-        "position_error_rms": _rms(pos),
+        "position_error_rms": _rms(t, pos),
         "position_error_final": float(pos[-1]),
         "position_error_iae": _iae(t, pos),
         "heading_error_max": float(hmax.max()),
@@ -138,11 +169,16 @@ def tracking_metrics(
 def torque_metrics(
     tau: np.ndarray, u: np.ndarray, u_limit: float | None, t: np.ndarray | None = None, omega: np.ndarray | None = None
 ) -> dict:
-    """Peak and RMS torque, fraction of instants at saturation, and (given wheel speeds) energy."""
-    rms_per_wheel = np.sqrt(np.mean(np.square(tau), axis=0))
+    """Peak and RMS torque, fraction of time at saturation, and (given wheel speeds) energy.
+
+    ``t`` (K,): the samples' instants, for the means over time (:func:`time_mean`); without it the
+    samples weigh equally.
+    """
+    tt = np.arange(tau.shape[0], dtype=float) if t is None else t
+    rms_per_wheel = np.sqrt(time_mean(tt, np.square(tau)))
     sat = 0.0
     if u_limit is not None:
-        sat = float(np.mean(np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1)))
+        sat = float(time_mean(tt, np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1)))
     out = {
         "torque_peak": float(np.abs(tau).max()),
         "torque_rms": float(rms_per_wheel.max()),
@@ -202,8 +238,8 @@ def switching_metrics(
     return {
         "switching_missed_detections": len(delays) - len(known),
         "switch_count": int(np.sum(sel[1:] != sel[:-1])),
-        "switching_match_fraction": float(np.mean(effective)),
-        "switching_exact_match_fraction": float(np.mean(exact)),
+        "switching_match_fraction": float(time_mean(t, effective)),
+        "switching_exact_match_fraction": float(time_mean(t, exact)),
         "detection_delays": delays,
         "detection_delay_max": (None if len(known) < len(delays) else (max(known) if known else 0.0)),
         "switch_sequence": _sequence(t, sel)[:100],

@@ -78,7 +78,7 @@ import numpy as np
 from .errors import ModelError
 from .model.chain import Chain
 from .model.faults import FaultSchedule
-from .runs import REDUCED_SIGNALS, STREAM_SIGNALS, Run, stream_of
+from .runs import AUTO_METHODS, METHODS, REDUCED_SIGNALS, STREAM_SIGNALS, Run, stream_of
 
 __all__ = [
     "REDUCED_SIGNALS",
@@ -90,6 +90,10 @@ __all__ = [
     "stream_of",
     "time_grid",
 ]
+
+
+#: defaults of the error-controlled methods (cases.Simulation's say why)
+RTOL, ATOL, MIN_STEP = 1e-6, 1e-8, 1e-8
 
 
 @dataclass(frozen=True)
@@ -113,9 +117,19 @@ class SimSettings:
     max_position : float
         Stop (diverged) when |x| or |y| exceeds this [m].
     method : str
-        ``"rk4"`` (classical, fixed step), ``"ros2"`` (Rosenbrock W-method, stiff-capable) or
+        Fixed step: ``"rk4"`` (classical), ``"ros2"`` (Rosenbrock W-method, stiff-capable) or
         ``"etd2"`` (exponential ETD2RK, exact on the linear [eta, i_a] block: the motor cases at
-        one step per control sample, fast.loop._etd2).
+        one step per control sample, fast.loop._etd2).  Error-controlled (fast.integrators):
+        ``"dopri5"`` (Dormand-Prince 5(4), non-stiff), ``"ros2ec"`` (ROS2, stiff loops), ``"etd2ec"``
+        (ETD2, motors under sampled control), both with step doubling's estimate, or ``"auto"``: one of
+        them picked at t0 from the loop's spectral radius (fast.loop.run_auto).  With these ``dt``
+        is the longest step, and the clock of the sensor noise and of a discrete-time filter (the
+        UKF): steps land on its multiples when the plant is noisy or the scheme has one.
+    rtol, atol : float
+        Error-controlled methods: a step is accepted when every state's local error estimate is at
+        most atol + rtol |x_i| (fast.integrators.error_ratio).
+    min_step : float
+        Error-controlled methods: the run stops (with the reason) when the step falls below it [s].
     sample_time : float or None
         Sampled (digital) control: the controller runs every ``sample_time`` [s], a whole number
         of steps, its command held in between (zero-order hold) and its own state advanced by a
@@ -136,10 +150,19 @@ class SimSettings:
     method: str = "rk4"
     sample_time: float | None = None
     measurement_delay: int = 0
+    rtol: float = RTOL
+    atol: float = ATOL
+    min_step: float = MIN_STEP
 
     def __post_init__(self) -> None:
-        if self.method not in ("rk4", "ros2", "etd2"):
-            raise ModelError(f"method: must be 'rk4', 'ros2' or 'etd2', got {self.method!r}")
+        if self.method not in METHODS:
+            raise ModelError(f"method: must be one of {', '.join(map(repr, METHODS))}, got {self.method!r}")
+        for name in ("rtol", "atol", "min_step"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ModelError(f"{name}: must be a positive number, got {v}")
+        if self.min_step >= self.dt and self.method in AUTO_METHODS:
+            raise ModelError(f"min_step: {self.min_step} s is not below the longest step dt = {self.dt} s")
         if not (math.isfinite(self.dt) and self.dt > 0):
             raise ModelError(f"dt: must be a positive number of seconds, got {self.dt}")
         if not (math.isfinite(self.duration) and self.duration > 0):
@@ -154,7 +177,7 @@ class SimSettings:
             raise ModelError(f"measurement_delay: must be a whole number of samples >= 0, got {self.measurement_delay}")
         if self.measurement_delay and self.sample_time is None:
             raise ModelError(f"measurement_delay: {self.measurement_delay} samples needs sampled control (sample_time)")
-        if self.sample_time is not None:
+        if self.sample_time is not None and self.method not in AUTO_METHODS:  # error-controlled: steps land on samples
             ratio = self.sample_time / self.dt
             if not (math.isfinite(ratio) and ratio >= 1 - 1e-9 and abs(ratio - round(ratio)) <= 1e-9 * ratio):
                 raise ModelError(
@@ -294,10 +317,13 @@ def simulate(
             f"controller: {type(controller).__name__} has no compiled counterpart; a new law runs as a scheme "
             "(ftcreport.schemes, README 'Write your own scheme')"
         )
-    grid = time_grid(settings.t0, settings.duration, settings.dt, plant.faults.times)
-    n_steps = grid.shape[0] - 1
-    log_idx = np.unique(np.append(np.arange(0, n_steps + 1, int(settings.log_every)), n_steps))
-    run = simulate_compiled(spec, plant, q0, eta0, settings, grid, log_idx, progress)
+    if settings.method in AUTO_METHODS:  # error-controlled: the steps are the controller's (no grid)
+        run = simulate_compiled(spec, plant, q0, eta0, settings, None, None, progress)
+    else:
+        grid = time_grid(settings.t0, settings.duration, settings.dt, plant.faults.times)
+        n_steps = grid.shape[0] - 1
+        log_idx = np.unique(np.append(np.arange(0, n_steps + 1, int(settings.log_every)), n_steps))
+        run = simulate_compiled(spec, plant, q0, eta0, settings, grid, log_idx, progress)
     run.meta["fault_schedule"] = _fault_records(plant)
     return run
 

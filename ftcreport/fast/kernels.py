@@ -63,6 +63,7 @@ E_REF_ART = 12  # info: t, link index, angle [deg]
 E_STEP_GROWTH = 13  # info: t, max |tau| at the streak start, max |tau| now [N m]
 E_UKF = 15  # info: the UKF step's status (fast.ukf.UKF_*), t
 E_STEP_JUMP = 14  # info: kind, before, after (_step_jump: non-finite new state or a check failed in one step)
+E_MIN_STEP = 16  # info: t, the step that fell below the minimum (error-controlled methods, fast.loop.run_auto)
 
 # where run_steps stopped (its 4th return value)
 AT_STATE = 0  # at the accepted state of step k (checks, the law at the step start, growth)

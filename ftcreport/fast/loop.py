@@ -21,11 +21,28 @@ import math
 
 import numpy as np
 
-from ftcreport.fast.expo import phi12, phi12_scalar
+from ftcreport.fast.integrators import (
+    DP_A,
+    DP_B,
+    DP_C,
+    DP_E,
+    erk_solution,
+    erk_stage_point,
+    error_ratio,
+    etd2_first,
+    etd2_second,
+    first_guess,
+    power_step,
+    ros2_first,
+    ros2_second,
+    starting_step,
+    step_factor,
+)
 from ftcreport.fast.kernels import (
     AT_DISCRETE,
     AT_STATE,
     AT_TRIAL,
+    E_MIN_STEP,
     E_NONFINITE_DERIV,
     E_NONFINITE_STATE,
     E_STEP_GROWTH,
@@ -125,40 +142,6 @@ def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
 
 
 @jit
-def _solve_small(A, b):
-    """A x = b for the W-method's small system: closed form for 2 x 2, else Gaussian elimination (partial pivoting)."""
-    m = b.shape[0]
-    if m == 2:
-        return _solve2(A, b)
-    M = A.copy()
-    y = b.copy()
-    for c in range(m):
-        p = c
-        for r in range(c + 1, m):
-            if abs(M[r, c]) > abs(M[p, c]):
-                p = r
-        if p != c:
-            for j in range(m):
-                M[c, j], M[p, j] = M[p, j], M[c, j]
-            y[c], y[p] = y[p], y[c]
-        for r in range(c + 1, m):
-            f = M[r, c] / M[c, c]
-            for j in range(c, m):
-                M[r, j] -= f * M[c, j]
-            y[r] -= f * y[c]
-    out = np.empty(m)
-    for c in range(m - 1, -1, -1):
-        acc = y[c]
-        for j in range(c + 1, m):
-            acc -= M[c, j] * out[j]
-        out[c] = acc / M[c, c]
-    return out
-
-
-ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
-
-
-@jit
 def _plant_deriv(ctx, x, u, sigma, ubar, fm, v_h):
     """(f, u, tau) with the control held (sampled control): the plant's rates, the controller's frozen.
 
@@ -209,6 +192,27 @@ def _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
 
 
 @jit
+def _plant_jacobian(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
+    """d f / d [q, eta, i_a] at x, (nx, nq + 2 + nm): q's columns by forward differences (nq evaluations),
+    then :func:`_jacobian_columns`' (ros2ec's W: fast.integrators' module docstring)."""
+    nq = ctx[5]
+    G = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+    F = np.zeros((x.shape[0], nq + G.shape[1]))
+    if info[0] != 0:
+        return F
+    for j in range(nq):
+        delta = 1e-7 * max(1.0, abs(x[j]))
+        xp = x.copy()
+        xp[j] += delta
+        fp = _stage(P, ctx, t, xp, sigma, ubar, fm, nz, info, u_h, v_h)
+        if info[0] != 0:
+            return F
+        F[:, j] = (fp - f0) / delta
+    F[:, nq:] = G
+    return F
+
+
+@jit
 def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
     r"""One ETD2RK step (Cox & Matthews 2002, J. Comput. Phys. 176, (22); Hochbruck & Ostermann 2010, (5.8)).
 
@@ -226,27 +230,35 @@ def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
     integrated exactly however long the step: its torque impulse reaches eta in full.
     """
     nq, nm = ctx[5], ctx[9]
-    nx = x.shape[0]
     m = 2 + nm
     F = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
     if info[0] != 0:
         return x
     J = np.ascontiguousarray(F[nq : nq + m, :])
-    P1, P2 = phi12(h * J)
-    p1 = np.empty(nx)
-    p2 = np.empty(nx)
-    for i in range(nx):
-        p1[i], p2[i] = phi12_scalar(h * diag[i])
-    a = x + h * p1 * f0
-    a[nq : nq + m] = x[nq : nq + m] + h * (P1 @ f0[nq : nq + m])
+    return _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J)
+
+
+@jit
+def _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J):
+    """One ETD2RK step (:func:`_etd2`) with its linear block J given (the algebra in fast.integrators)."""
+    nq = ctx[5]
+    a, P2, p2 = etd2_first(J, diag, x, f0, h, nq)
     f1 = _stage(P, ctx, t + h, a, sigma, ubar, fm, nz, info, u_h, v_h)
     if info[0] != 0:
         return x
-    g = f1 - f0 - diag * (a - x)
-    g[nq : nq + m] = f1[nq : nq + m] - f0[nq : nq + m] - J @ (a[nq : nq + m] - x[nq : nq + m])
-    xn = a + h * p2 * g
-    xn[nq : nq + m] = a[nq : nq + m] + h * (P2 @ g[nq : nq + m])
-    return xn
+    return etd2_second(J, diag, x, a, f0, f1, P2, p2, h, nq)
+
+
+@jit
+def _ros2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, F, ft):
+    """One ROS2 step whose W holds the whole plant's columns F and the time derivative ft (``ros2ec``)."""
+    kk1, DF, small, dinv = ros2_first(F, diag, f0, ft, h, 0)
+    f2 = _stage(P, ctx, t + h, x + h * kk1, sigma, ubar, fm, nz, info, u_h, v_h)
+    if info[0] != 0:
+        return x
+    kk2 = ros2_second(DF, small, dinv, kk1, f2, ft, h, 0)
+    # x+ = x + 3/2 h k1 + 1/2 h k2
+    return x + 1.5 * h * kk1 + 0.5 * h * kk2
 
 
 @jit
@@ -355,6 +367,7 @@ def run_steps(
     noisy = noise.shape[0] > 1
     nz = noise[0]
     sampled = u_h.shape[0] > 0
+    empty_ft = np.zeros(nx)
     for k in range(k0, k1 + 1):
         t = grid[k]
         sigma = fsig[fidx[k]]
@@ -445,28 +458,16 @@ def run_steps(
             xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
         elif method == 1:
             # W-method Jacobian: the columns of eta and the motors' currents (_jacobian_columns), the
-            # stiff diagonal for the controller's linear filters (Sherman-Morrison-Woodbury solve)
-            m = 2 + nm
+            # stiff diagonal for the controller's linear filters (fast.integrators.ros2_first)
             F = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
-            gh = ROS2_GAMMA * h
-            dinv = 1.0 / (1.0 - gh * diag)
-            DF = np.empty((nx, m))
-            for i in range(nx):
-                for j in range(m):
-                    DF[i, j] = dinv[i] * F[i, j]
-            small = np.empty((m, m))
-            for i in range(m):
-                for j in range(m):
-                    small[i, j] = (1.0 if i == j else 0.0) - gh * DF[nq + i, j]
-            rd = dinv * f0
-            kk1 = rd + gh * (DF @ _solve_small(small, rd[nq : nq + m]))
+            # the shipped ROS2 leaves out the rates' time derivative (ros2ec has it, _attempt)
+            kk1, DF, small, dinv = ros2_first(F, diag, f0, empty_ft, h, nq)
             f2 = _stage(P, ctx, t + h, x + h * kk1, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
-            rd = dinv * (f2 - 2.0 * kk1)
-            kk2 = rd + gh * (DF @ _solve_small(small, rd[nq : nq + m]))
+            kk2 = ros2_second(DF, small, dinv, kk1, f2, empty_ft, h, nq)
             xn = x + 1.5 * h * kk1 + 0.5 * h * kk2
         if MOTORS and method == 2:  # the motor variant only (fast.engine.loop_for): others never compile ETD2
             xn = _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag)
@@ -490,3 +491,330 @@ def run_steps(
             return x, k, li, AT_DISCRETE
         x = xn
     return x, k1, li, AT_STATE
+
+
+# =========================================================================== error-controlled steps
+# ``opt`` (run_auto's settings, written by fast.engine.simulate_compiled):
+O_RTOL, O_ATOL, O_HMAX, O_HMIN, O_TEND, O_TCHUNK, O_CLOCK, O_T0, O_DWELL, O_TMIN, O_METHOD, O_CLOCK_DISC = range(12)
+# ``ctl`` (its state, carried across calls; fast.engine reads the counts and the method):
+C_T, C_H, C_RPREV, C_ACCEPTED, C_REJECTED, C_EVALS, C_SEG, C_TICK, C_METHOD, C_RHO, C_CAUSE = range(11)
+#: stiffness: the real stability boundary of DOPRI5 (R(z) = 1 at z = -3.31 on the negative axis)
+DOPRI5_REAL_BOUND = 3.3
+#: auto picks the stiff method when rho h_max exceeds this: stability alone would hold DOPRI5 below a third
+#: of the longest step.  Measured over 5 s of a two-link computed-torque loop (tests/test_step_unstable.py's):
+#: k_v = 3000 at h_max = 5 ms (rho h_max = 18), DOPRI5 32,831 rate evaluations, ros2ec 19,008; k_v = 225 at
+#: 20 ms (5.4), DOPRI5 4,145, ros2ec 12,302 (ros2ec costs 12 evaluations per step, DOPRI5 7)
+STIFF_BOUND = 3.0 * DOPRI5_REAL_BOUND
+#: a step whose trial stage leaves the domain (or jumps past a check) is retried this much shorter
+REJECT_SHRINK = 0.25
+
+
+@jit
+def _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, K):
+    """One trial step of an error-controlled method: (x+, err, rate evaluations); info set if a stage failed.
+
+    3 = dopri5: the stages by fast.integrators.erk_stage_point, the solution and its embedded error by
+    erk_solution.  4 = ros2ec, 5 = etd2ec: the step once and as two halves with the same linear part
+    (W or L at x), err = (two halves - once) / 3, Richardson's estimate of the two halves' error (both
+    second order: err = O(h^3)); the two halves are the solution.  An embedded first-order estimate
+    (x + h k1, ETD1) is O(h^2): at rtol = 1e-6 it held the step of a k_v = 3000 loop to 0.35 ms, where
+    the second-order solution is accurate at 5 ms.
+    """
+    nq, nm = ctx[5], ctx[9]
+    if method == 3:
+        K[0] = f0
+        for s in range(1, 7):
+            y = erk_stage_point(x, K, s, h, DP_A)
+            K[s] = _stage(P, ctx, t + DP_C[s] * h, y, sigma, ubar, fm, nz, info, u_h, v_h)
+            if info[0] != 0:
+                return x, x, s
+        xn, err = erk_solution(x, K, h, DP_B, DP_E)
+        return xn, err, 6
+    # the linear part at x: ETD2's block J of [eta, i_a]; ROS2's W of the whole plant and f_t
+    sampled = SAMPLED and u_h.shape[0] > 0
+    J = np.zeros((0, 0))
+    F = np.zeros((0, 0))
+    ft = np.zeros(x.shape[0])
+    if MOTORS and method == 5:
+        G = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+        J = np.ascontiguousarray(G[nq : nq + 2 + nm, :])
+        ev = 2
+    else:
+        F = _plant_jacobian(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+        ev = nq + 2
+        if info[0] == 0 and not sampled:  # the law reads t (the reference): f_t by a forward difference
+            dt = 1e-7 * max(1.0, abs(t))
+            ft = (_stage(P, ctx, t + dt, x, sigma, ubar, fm, nz, info, u_h, v_h) - f0) / dt
+            ev += 1
+    if info[0] != 0:
+        return x, x, ev
+    one = _linear_step(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
+    ev += 1
+    if info[0] != 0:
+        return x, x, ev
+    half = 0.5 * h
+    mid = _linear_step(P, ctx, t, half, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
+    ev += 1
+    if info[0] != 0:
+        return x, x, ev
+    fmid = _stage(P, ctx, t + half, mid, sigma, ubar, fm, nz, info, u_h, v_h)
+    ev += 1
+    if info[0] != 0:
+        return x, x, ev
+    two = _linear_step(P, ctx, t + half, half, mid, fmid, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
+    ev += 1
+    return two, (two - one) / 3.0, ev
+
+
+@jit
+def _linear_step(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft):
+    """One ETD2 (method 5) or ROS2 (4) step with the linear part given."""
+    if MOTORS and method == 5:
+        return _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J)
+    return _ros2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, F, ft)
+
+
+@jit
+def _spectral_radius(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
+    """(rho, evaluations): an estimate of the largest |eigenvalue| of the loop's Jacobian at (t, x).
+
+    The nonlinear power method of fast.integrators.power_step from the direction of f0 (plus a
+    small constant so that no mode starts at zero), 20 iterations, the largest of the last five
+    ratios times 1.2 (RKC's safety factor); a stage outside the domain ends it early.
+    """
+    nx = x.shape[0]
+    v = f0.copy()
+    for i in range(nx):
+        v[i] += 1e-3 * (1.0 + abs(f0[i]))
+    v /= math.sqrt(np.sum(v * v))
+    eps = 1e-7 * (1.0 + math.sqrt(np.sum(x * x)))
+    rho = 0.0
+    last = 0.0
+    evals = 0
+    for it in range(20):
+        fv = _stage(P, ctx, t, x + eps * v, sigma, ubar, fm, nz, info, u_h, v_h)
+        evals += 1
+        if info[0] != 0:
+            info[:] = 0.0
+            break
+        last, v = power_step(v, fv, f0, eps)
+        if it >= 15:
+            rho = max(rho, last)
+    return 1.2 * max(rho, last), evals
+
+
+@jit
+def _next_event(events, seg, t, opt, hold_t, sampled, x, npl):
+    """The first instant after t that a step must land on: a fault time, a sample, a tick of the clock
+    (sensor noise, a discrete-time filter), the end of a switching dwell, the run's end."""
+    t_ev = opt[O_TEND]
+    if seg < events.shape[0]:
+        t_ev = min(t_ev, events[seg])
+    if SAMPLED and sampled and hold_t[0] > t:
+        t_ev = min(t_ev, hold_t[0])
+    clock = opt[O_CLOCK]
+    if not math.isnan(clock):
+        j = math.floor((t - opt[O_T0]) / clock + 1e-9) + 1.0
+        t_ev = min(t_ev, opt[O_T0] + j * clock)
+    if opt[O_DWELL] >= 0.0:
+        end = x[npl + int(opt[O_DWELL])] + opt[O_TMIN]
+        if end > t + 1e-12 * max(1.0, abs(t)):
+            t_ev = min(t_ev, end)
+    return t_ev
+
+
+@jit
+def run_auto(
+    P0, Kp0, R0, pc0, pp0,
+    events, fsig, fubar, noise, sat, diag, lim, max_speed, max_position,
+    x, opt, ctl, rows,
+    lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share,
+    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf, growth,
+):  # fmt: skip
+    r"""Accepted steps of an error-controlled run, from t = ctl[C_T] to the chunk's end; returns (x, li, where).
+
+    The order of each accepted step is run_steps': checks, the law, the stream row, the step, the
+    discrete updates.  The step: h from the controller (fast.integrators.step_factor), clipped to
+    the longest step and to the next instant it must land on (:func:`_next_event`: faults, samples,
+    the clock of noise and discrete-time filters, dwell ends, the end); a trial step whose error
+    ratio exceeds 1 is rejected and retried shorter, and one whose stage leaves the domain (or whose
+    new state jumps past a check, fast.kernels._step_jump) is retried at a quarter of its length.
+    Below the minimum step the run stops (E_MIN_STEP, the last rejection's cause in ctl[C_CAUSE:]).
+
+    At the first step of ``method`` auto (opt[O_METHOD] < 0) the loop's spectral radius rho at
+    (t0, x0) decides: stiff when rho h_max > STIFF_BOUND = 3 x 3.3, three times DOPRI5's stability
+    boundary on the real axis (stability, not accuracy, would hold the explicit method below a third
+    of its longest step): then ETD2 (etd2ec) for sampled motors, ROS2 (ros2ec) otherwise; else DOPRI5.
+
+    Logs every accepted step into the chunk buffers (``rows`` of them; the engine keeps the stream
+    and the decimated log); returns when the buffers are full, past opt[O_TCHUNK], at the end
+    (t = opt[O_TEND], its row logged) or at a stop (``where`` as in run_steps).
+    """
+    P, Kp, R, pc, pp, mo = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0)
+    nq = pp.n + 2
+    nx = x.shape[0]
+    sig_buf = np.zeros(n_sig)
+    C = as_ref(new_cache(pp.n))
+    nm = mo.R_a.shape[0]
+    ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)
+    npl = nq + 2 + nm
+    noisy = noise.shape[0] > 1
+    nz = noise[0]
+    sampled = u_h.shape[0] > 0
+    K = np.zeros((7, nx))
+    rtol, atol, h_max, h_min = opt[O_RTOL], opt[O_ATOL], opt[O_HMAX], opt[O_HMIN]
+    t = ctl[C_T]
+    seg = int(ctl[C_SEG])
+    li = 0
+    while True:
+        if li >= rows or (li > 0 and t >= opt[O_TCHUNK]):
+            ctl[C_T] = t
+            return x, li, AT_STATE
+        new_seg = seg
+        while new_seg < events.shape[0] and t >= events[new_seg]:
+            new_seg += 1
+        if MOTORS and nm > 0 and new_seg != seg:  # a winding opened: its current drops to 0
+            x[nq + 2 : npl] = reset_current(fmot[new_seg], x[nq + 2 : npl])
+        seg = new_seg
+        ctl[C_SEG] = seg
+        sigma, ubar, fm = fsig[seg], fubar[seg], fmot[seg]
+        if noisy:  # the sensor's draw of the clock tick at or before t
+            nz = noise[min(math.floor((t - opt[O_T0]) / opt[O_CLOCK] + 1e-9), noise.shape[0] - 1)]
+        for i in range(nx):
+            if not math.isfinite(x[i]):
+                info[0] = E_NONFINITE_STATE
+                info[1] = t
+                return x, li, AT_STATE
+        _check_state(pp, x, nq, lim, max_speed, max_position, info)
+        if info[0] != 0:
+            return x, li, AT_STATE
+        if SAMPLED and sampled:
+            if t >= hold_t[0] - 1e-9 * hold_t[2]:
+                sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf)
+                if info[0] != 0:
+                    return x, li, AT_STATE
+            f0, u, tau = _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)
+            sig_buf[:] = sig_h
+        else:
+            f0, u, tau = _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig_buf)
+        ctl[C_EVALS] += 1.0
+        if info[0] != 0:
+            return x, li, AT_STATE
+        ok = True
+        for i in range(nx):
+            if not math.isfinite(f0[i]):
+                ok = False
+        for i in range(u.shape[0]):
+            if not math.isfinite(u[i]):
+                ok = False
+        if not ok:
+            info[0] = E_NONFINITE_DERIV
+            info[1] = t
+            return x, li, AT_STATE
+        lt[li] = t
+        lq[li] = x[:nq]
+        leta[li] = x[nq : nq + 2]
+        lu[li] = u
+        ltau[li] = tau
+        if MOTORS and nm > 0:
+            lsig[li], lubar[li] = true_faults(ctx, x, sigma, ubar, fm)
+            lia[li] = x[nq + 2 : npl]
+        else:
+            lsig[li] = sigma
+            lubar[li] = ubar
+        lxc[li] = x[npl:]
+        if lmeas.shape[0] > 0:
+            lmeas[li] = x[: nq + 2] + nz
+        lsg[li] = sig_buf
+        li += 1
+        if t >= opt[O_TEND]:
+            ctl[C_T] = t
+            return x, li, AT_STATE
+        if ctl[C_METHOD] < 0.0:  # the first step: the method (auto) and the starting step
+            method = opt[O_METHOD]
+            if method < 0.0:
+                rho, ev = _spectral_radius(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+                ctl[C_EVALS] += ev
+                ctl[C_RHO] = rho
+                method = 3.0
+                if rho * h_max > STIFF_BOUND:
+                    # ETD2 when the plant between samples is autonomous and linear in its currents (its
+                    # ETD1 estimate then holds); ROS2 with the time derivative otherwise
+                    method = 5.0 if MOTORS and nm > 0 and sampled else 4.0
+            ctl[C_METHOD] = method
+            h0 = min(first_guess(x, f0, rtol, atol), h_max)
+            f1 = _stage(P, ctx, t + h0, x + h0 * f0, sigma, ubar, fm, nz, info, u_h, v_h)
+            ctl[C_EVALS] += 1.0
+            if info[0] != 0:
+                info[:] = 0.0
+                ctl[C_H] = h0
+            else:
+                ctl[C_H] = starting_step(x, f0, f1, h0, 5.0 if method == 3.0 else 2.0, rtol, atol)
+        method = int(ctl[C_METHOD])
+        k_err = 5.0 if method == 3 else 3.0  # err = O(h^k)
+        beta = 0.04 if method == 3 else 0.0  # PI control for DOPRI5 (Hairer's code), elementary otherwise
+        rejected = False
+        while True:
+            t_ev = _next_event(events, seg, t, opt, hold_t, sampled, x, npl)
+            h = min(ctl[C_H], h_max)
+            land = t + h >= t_ev - 1e-12 * max(1.0, abs(t_ev))
+            if land:
+                h = t_ev - t
+            elif t + 2.0 * h > t_ev:  # two equal steps to the event, not one long and one short
+                h = 0.5 * (t_ev - t)
+            xn, err, ev = _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, K)
+            ctl[C_EVALS] += ev
+            r = math.inf
+            cause = 0
+            if info[0] != 0:
+                cause = 1
+            else:
+                r = error_ratio(err, x, xn, rtol, atol)
+                kind = _step_jump(pp, x, xn, nq, lim, max_speed, max_position, growth[3], growth[4], info)
+                if kind != 0:
+                    info[0] = E_STEP_JUMP
+                    info[1] = kind
+                    cause = 1
+                elif r <= 1.0:
+                    break
+            if cause:
+                ctl[C_CAUSE : C_CAUSE + 4] = info
+                info[:] = 0.0
+                h_new = REJECT_SHRINK * h
+            else:
+                ctl[C_CAUSE] = 0.0
+                ctl[C_CAUSE + 1] = r
+                h_new = h * step_factor(r, ctl[C_RPREV], k_err, beta, True)
+            ctl[C_REJECTED] += 1.0
+            rejected = True
+            if h_new < h_min:
+                info[0] = E_MIN_STEP
+                info[1] = t
+                info[2] = h_new
+                ctl[C_T] = t
+                return x, li, AT_TRIAL
+            ctl[C_H] = h_new
+        t_new = t_ev if land else t + h
+        h_next = h * step_factor(r, ctl[C_RPREV], k_err, beta, rejected)
+        if land and h < ctl[C_H]:  # a step cut short by an event does not shorten the next
+            h_next = max(h_next, ctl[C_H])
+        ctl[C_H] = h_next
+        ctl[C_RPREV] = max(r, 1e-4)
+        ctl[C_ACCEPTED] += 1.0
+        if not (SAMPLED and sampled):
+            on_clock = True
+            if opt[O_CLOCK_DISC] > 0.0:  # a discrete-time filter (the UKF) runs on its clock only
+                tick = (t_new - opt[O_T0]) / opt[O_CLOCK]
+                on_clock = abs(tick - round(tick)) <= 1e-9 * max(1.0, tick) or t_new >= opt[O_TEND]
+            if on_clock:
+                xcn = xn[npl:]
+                kin_discrete(Kp, R, C, t_new, xcn, info)
+                if info[0] != 0:
+                    ctl[C_T] = t
+                    return x, li, AT_DISCRETE
+                DISC(P, Kp, R, C, t_new, xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xcn, info)
+                if info[0] != 0:
+                    ctl[C_T] = t
+                    return x, li, AT_DISCRETE
+        x = xn
+        t = t_new

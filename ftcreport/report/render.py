@@ -29,6 +29,7 @@ from ..cases import ordered_schemes, parse_case, with_duration
 from ..check import evaluate
 from ..errors import FtcError
 from ..model.faults import wheel_names
+from ..runner import integrator_words
 from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
 from . import interactive, plots
 from .replay import replay_data
@@ -268,6 +269,7 @@ def render_case(out: Path, name: str) -> Path | None:
         method=case.simulation.method,
         log_every=case.simulation.log_every,
         engines=", ".join(f"{m['scheme']} {m['engine']}" for m in runs if "engine" in m),
+        integrators="; ".join(f"{m['scheme']}: {integrator_words(m)}" for m in runs if m.get("integrator")),
         warnings=rec.get("warnings", []),
         faults=faults,
         runs=runs,

@@ -13,7 +13,9 @@ for a controller built by the package (:func:`ftcreport.runner.make_controller`,
 loop in Python (issue 17: each equation exists once): a new law is written as a scheme (README,
 "Write your own scheme").  The controller's continuous state ``xc`` is stepped with the plant's.
 
-Integrators (:attr:`SimSettings.method`): fixed-step classical RK4 (``"rk4"``, the default), or
+Integrators (:attr:`SimSettings.method`; the error-controlled ones, ``"auto"``, ``"dopri5"``,
+``"ros2ec"``, ``"etd2ec"``, are in :mod:`ftcreport.fast.integrators`): fixed-step classical RK4
+(``"rk4"``, the default), or
 the two-stage Rosenbrock W-method ROS2 (``"ros2"``, Verwer, Spee, Blom, Hundsdorfer 1999) for
 stiff velocity loops, with gamma = 1 + 1/sqrt(2)::
 
@@ -34,34 +36,38 @@ first-instant torque peaks do not (they last ~1/k4 s).  With DC motors, ``method
 the linear [eta, i_a] block, so a current's transient after a held-voltage step is integrated
 whole over a step of one control sample, where ROS2 only damps it.
 
-Fault events land exactly on step boundaries: the time grid is ``t0 + k dt``
-with every event time inserted (:func:`time_grid`; the step before an event is shortened), and
-sigma, ubar are held over each step at their value at its start, so the fault
-model is exact.  After each step the controller's
-discrete update runs (switching logic and the like).
+Fault events land exactly on step boundaries: the fixed-step grid is ``t0 + k dt``
+with every event time inserted (:func:`time_grid`; the step before an event is shortened),
+and an error-controlled step is clipped to land on every fault time, control sample,
+tick of the noise/UKF clock and switching dwell end (fast.loop.run_auto); sigma, ubar
+are held over each step at their value at its start, so the fault model is exact.
+After each step the controller's discrete update runs (switching logic and the like).
 
 A run that approaches a singular configuration (an articulation angle
 within ``singularity_margin`` of 90 deg, ERRATA P4, or a controller singular at
 the accepted state) stops with status ``"singular"``; a non-finite or
-out-of-bounds state stops with ``"diverged"``.  A step that blows up stops with
-``"step_unstable"`` and a reason naming ``dt``, never as a singularity: either a
-trial stage of the integrator left the domain (a controller singularity, a
-non-finite value) while the accepted state at the step's start is regular, or
-the new state fails a check that the accepted state was far from (a speed or
-position bound crossed from within ``JUMP_FRACTION`` of it, the singular set
-reached from ``JUMP_MARGINS`` margins away: a change no resolved step makes), or
-the applied torque grew geometrically from accepted step to accepted step
-(max_j |tau_j| more than ``GROWTH_FACTOR`` = e times larger than at the step
-before, ``GROWTH_STEPS`` = 3 steps in a row, ``GROWTH_TOTAL`` = 20 times larger
-overall, ending above ``GROWTH_FLOOR`` = 1 N m; the constants are in :mod:`ftcreport.runs`).
-Growth by e per step is a rate
-of 1 / dt: a mode with lambda dt > 1 is not resolved by the step (RK4's local
-error on it is about (lambda dt)^5 / 120 per step, 1 % at lambda dt = 1 and
-growing fast), so either the integrator is unstable there or the run is not
-converged in dt.  A fault that makes the torque jump is one step of growth, not
-three.  A slower blow-up ends as ``"diverged"`` at the speed or position bound,
-with ``dt`` named in the reason: a resolved exponential growth, such as
-e^(50 t) at dt = 0.01 s (1.65x per step), is divergence, not a step problem.
+out-of-bounds state stops with ``"diverged"``.  Three detectors stop a
+fixed-step run whose step blows up: a trial stage of the integrator left the
+domain (a controller singularity, a non-finite value) while the accepted state
+at the step's start is regular; the new state fails a check that the accepted
+state was far from (a speed or position bound crossed from within
+``JUMP_FRACTION`` of it, the singular set reached from ``JUMP_MARGINS`` margins
+away: a change no resolved step makes); or the applied torque grew
+geometrically from accepted step to accepted step (max_j |tau_j| more than
+``GROWTH_FACTOR`` = e times larger than at the step before, ``GROWTH_STEPS`` = 3
+steps in a row, ``GROWTH_TOTAL`` = 20 times larger overall, ending above
+``GROWTH_FLOOR`` = 1 N m; the constants are in :mod:`ftcreport.runs`): growth by
+e per step is a rate of 1 / dt, a mode with lambda dt > 1 that the step does not
+resolve.  Such a stop, and a divergence at a bound, is labelled by what a
+smaller step does to it (issue 36 item 4, :func:`ftcreport.fast.engine._relabel`):
+the interval is run again from a checkpoint before it with the method's
+error-controlled twin, and the stop is ``"step_unstable"`` only if that run
+passes it or stops later; ``"singular"`` if it also stops, no later, with the
+state in a law's singular set (named in the reason); ``"diverged"`` if the
+blow-up persists (a resolved exponential growth, such as e^(50 t) at dt = 0.01 s,
+1.65x per step, is divergence, not a step problem).  An error-controlled run is
+never ``"step_unstable"``: a trial stage that leaves the domain is a rejected
+step, and a step below ``min_step`` stops the run with the tolerances named.
 The log up to that point is kept and the reason is
 recorded; a NaN is never returned silently.
 """

@@ -585,7 +585,6 @@ class _Loop:
             )  # fmt: skip
         return int(k_last), int(li), int(where)
 
-
     def auto_steps(self, events, fsig, fubar, fmot, noise, opt, ctl, rows: int) -> tuple[int, int]:
         """run_auto from t = ctl[0] (fast.loop: error-controlled steps): (rows logged, where); updates x."""
         spec, st = self.spec, self.settings
@@ -728,7 +727,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     """An error-controlled run (fast.loop.run_auto): chunks by time (1 % of the run, for the progress
     callback), each logged at every accepted step into buffers that the stream and the decimated log
     (every ``log_every``-th accepted step, and the last) take from, as for the fixed steps."""
-    from ..limits import MAX_STEPS
+    from ..limits import MAX_STEPS, MEMORY_BUDGET_BYTES
     from ..runs import Run
 
     t0, duration = float(settings.t0), float(settings.duration)
@@ -739,7 +738,9 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     n_ticks = math.floor(duration / settings.dt + 1e-9) + 2
     L = _Loop(spec, plant, q0, eta0, settings, np.concatenate(([t0], events)), n_ticks)
     nq = L.nq
-    rows = max(64, min(4096, math.ceil(duration / settings.dt / 100) * 4 + 8))
+    # the chunk buffers: about 4x the steps of 1 % of the run at the longest step, at most 32 MB
+    row_bytes = 8 * (L.nc + spec.n_sig + 5 * L.nw + 2 * (L.nq + 2) + L.nm + 1)
+    rows = max(64, min(math.ceil(duration / settings.dt / 100) * 4 + 8, (32 << 20) // row_bytes))
     L.buffers(rows)
     opt, ctl = _auto_arrays(spec, settings, t0, t_end, t0, clock, _AUTO_CODES[settings.method])
     stream: dict[str, np.ndarray] = {}
@@ -748,7 +749,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     status, reason = "ok", ""
     t_now = t0
     every = int(settings.log_every)
-    cap = MAX_STEPS
+    cap = None
     wall0 = _time.perf_counter()
     if L.info[0] != 0:
         status, reason, _ = _stop(L.info, F.AT_STATE, t0, t0, settings, spec.ref)
@@ -774,12 +775,15 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
                 break
             if done:
                 break
-            if si > cap:
+            if cap is None and stream:  # the stream's rows within the memory budget (ftcreport.limits)
+                width = sum(v[0].size for v in stream.values())
+                cap = min(MAX_STEPS, MEMORY_BUDGET_BYTES // (8 * width))
+            if cap is not None and si > cap:
                 status = "error"
                 reason = (
                     f"at t = {t_now:.6g} s the error-controlled run has taken {si} steps, the limit of "
-                    f"ftcreport.limits.MAX_STEPS (mean step {(t_now - t0) / si:.3g} s): loosen simulation.rtol/atol, "
-                    "or name a stiff method (ros2ec, etd2ec)"
+                    f"ftcreport.limits (MAX_STEPS, or its metric stream over MEMORY_BUDGET_BYTES; mean step "
+                    f"{(t_now - t0) / si:.3g} s): loosen simulation.rtol/atol, or name a stiff method (ros2ec, etd2ec)"
                 )
                 break
             if float(ctl[0]) >= opt[5]:
@@ -800,6 +804,9 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
             "rejected": int(ctl[4]),
             "evaluations": int(ctl[5]),
             "spectral_radius": None if math.isnan(ctl[9]) else float(ctl[9]),
+            # steps taken at min_step with the error over the tolerance (a discontinuity: fast.loop.run_auto)
+            "forced_steps": int(ctl[15]),
+            "first_forced_at": float(ctl[16]) if ctl[15] else None,
         }
     }
     return _finish(Run, spec, plant, settings, nq, stream, si, log_parts, status, reason, t_now, int(ctl[3]), wall,
@@ -816,14 +823,31 @@ def _auto_arrays(spec: Spec, settings, t_start: float, t_end: float, t0: float, 
             T_min, float(method), 1.0 if spec.start else 0.0,
         ]
     )  # fmt: skip
-    ctl = np.zeros(15)
+    ctl = np.zeros(18)
     ctl[0] = t_start  # t
+    ctl[7] = -math.inf  # the chained frame's next re-anchoring: none located yet
     ctl[8] = -1.0  # the method: not chosen yet
     ctl[9] = NAN  # the spectral radius: not estimated (a named method)
     return opt, ctl
 
 
+#: fast.loop.FORCED_STREAK (tests/test_auto.py checks they agree)
+FORCED_STREAK = 100
+
+
 def _auto_stop(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> tuple[str, str]:
+    """(status, reason) of an error-controlled run's stop (:func:`_auto_cause`), with the steps forced at
+    min_step named when there were some."""
+    status, reason = _auto_cause(L, where, ctl, settings, spec)
+    if ctl[15]:
+        reason += (
+            f"; {int(ctl[15])} step(s) were taken at min_step = {settings.min_step:g} s with the error over the "
+            f"tolerance, the first at t = {ctl[16]:.6g} s"
+        )
+    return status, reason
+
+
+def _auto_cause(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> tuple[str, str]:
     """(status, reason) of an error-controlled run's stop.  No ``step_unstable``: the step is the
     controller's, so a stop at an accepted state is the loop's (singular, diverged, error); below the
     minimum step the label follows the last rejection's cause (a singular set: ``singular``; the
@@ -843,8 +867,9 @@ def _auto_stop(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> t
     code = int(cause[0])
     if code == 0:
         why = (
-            f"the local error stayed {float(cause[1]):.3g} times the tolerance: the rates change faster than any "
-            "step resolves (a finite-time blow-up or a discontinuity of the loop)"
+            f"the local error stayed {float(cause[1]):.3g} times the tolerance for {FORCED_STREAK} steps in a row at "
+            "min_step: the rates change faster than any step resolves (a finite-time blow-up, or a discontinuity "
+            "crossed at every step)"
         )
         return "diverged", min_step_reason(t, float(info[2]), how, settings.min_step, why)
     if code == F.E_STEP_JUMP:

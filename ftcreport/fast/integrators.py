@@ -298,9 +298,7 @@ def etd2_first(J, diag, x, f0, h, nq):
 
 @jit
 def etd2_second(J, diag, x, a, f0, f1, P2, p2, h, nq):
-    r"""ETD2RK's step x+ = a + h phi_2(hL) (f(a) - f(x) - L (a - x)); ``f1`` = f(t + h, a).
-
-    """
+    r"""ETD2RK's step x+ = a + h phi_2(hL) (f(a) - f(x) - L (a - x)); ``f1`` = f(t + h, a)."""
     m = J.shape[0]
     g = f1 - f0 - diag * (a - x)
     g[nq : nq + m] = f1[nq : nq + m] - f0[nq : nq + m] - J @ (a[nq : nq + m] - x[nq : nq + m])

@@ -47,17 +47,20 @@ from ftcreport.fast.kernels import (
     E_NONFINITE_STATE,
     E_STEP_GROWTH,
     E_STEP_JUMP,
+    KIN_CHAINED,
     _check_state,
     _clip,
     _mv,
     _solve2,
     _step_jump,
+    _wrap,
     jit,
     kin_discrete,
     new_cache,
     no_discrete,
     plant_rhs,
     reduced,
+    ref_side,
     tracking_law,
 )
 from ftcreport.fast.motor import current_jacobian, driver_voltage, fault_equivalent, motor_plant_rhs, reset_current
@@ -497,7 +500,10 @@ def run_steps(
 # ``opt`` (run_auto's settings, written by fast.engine.simulate_compiled):
 O_RTOL, O_ATOL, O_HMAX, O_HMIN, O_TEND, O_TCHUNK, O_CLOCK, O_T0, O_DWELL, O_TMIN, O_METHOD, O_CLOCK_DISC = range(12)
 # ``ctl`` (its state, carried across calls; fast.engine reads the counts and the method):
-C_T, C_H, C_RPREV, C_ACCEPTED, C_REJECTED, C_EVALS, C_SEG, C_TICK, C_METHOD, C_RHO, C_CAUSE = range(11)
+C_T, C_H, C_RPREV, C_ACCEPTED, C_REJECTED, C_EVALS, C_SEG, C_REANCHOR, C_METHOD, C_RHO, C_CAUSE = range(11)
+C_FORCED, C_FORCED_T, C_STREAK = 15, 16, 17  # steps taken at min_step over the tolerance, the first's t, in a row
+#: this many steps in a row at min_step with the error over the tolerance stop the run (E_MIN_STEP)
+FORCED_STREAK = 100
 #: stiffness: the real stability boundary of DOPRI5 (R(z) = 1 at z = -3.31 on the negative axis)
 DOPRI5_REAL_BOUND = 3.3
 #: auto picks the stiff method when rho h_max exceeds this: stability alone would hold DOPRI5 below a third
@@ -604,10 +610,41 @@ def _spectral_radius(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
 
 
 @jit
-def _next_event(events, seg, t, opt, hold_t, sampled, x, npl):
+def _reanchor_time(Kp, R, C, t_a, t_b, psi, info):
+    """When in (t_a, t_b] the chained law's frame psi must re-anchor (fast.kernels.kin_discrete: once the
+    reference heading theta_d(t) leaves psi +/- band): t_b if it need not, else the first instant found
+    by bisection on theta_d (a function of t alone: an event known from the reference), to 1e-12 s
+    relative, on the side where it must (so that the discrete update there re-anchors)."""
+    if Kp.kind != KIN_CHAINED:
+        return t_b
+    ref_side(Kp, R, C, t_b, psi, info)
+    if info[0] != 0 or abs(_wrap(C.QD[0, 2] - psi)) <= Kp.band:
+        info[:] = 0.0
+        return t_b
+    a, b = t_a, t_b
+    for _ in range(80):
+        if b - a <= 1e-12 * max(1.0, abs(b)):
+            break
+        m = 0.5 * (a + b)
+        ref_side(Kp, R, C, m, psi, info)
+        if info[0] != 0:
+            info[:] = 0.0
+            return t_b
+        if abs(_wrap(C.QD[0, 2] - psi)) > Kp.band:
+            b = m
+        else:
+            a = m
+    return b
+
+
+@jit
+def _next_event(events, seg, t, opt, hold_t, sampled, x, npl, ctl):
     """The first instant after t that a step must land on: a fault time, a sample, a tick of the clock
-    (sensor noise, a discrete-time filter), the end of a switching dwell, the run's end."""
+    (sensor noise, a discrete-time filter), the end of a switching dwell, the chained frame's
+    re-anchoring (located by :func:`_reanchor_time`), the run's end."""
     t_ev = opt[O_TEND]
+    if ctl[C_REANCHOR] > t:
+        t_ev = min(t_ev, ctl[C_REANCHOR])
     if seg < events.shape[0]:
         t_ev = min(t_ev, events[seg])
     if SAMPLED and sampled and hold_t[0] > t:
@@ -639,7 +676,10 @@ def run_auto(
     the clock of noise and discrete-time filters, dwell ends, the end); a trial step whose error
     ratio exceeds 1 is rejected and retried shorter, and one whose stage leaves the domain (or whose
     new state jumps past a check, fast.kernels._step_jump) is retried at a quarter of its length.
-    Below the minimum step the run stops (E_MIN_STEP, the last rejection's cause in ctl[C_CAUSE:]).
+    At the minimum step a step whose error estimate is still over the tolerance (a discontinuity of
+    the rates inside it: the adaptive law's projection at its bounds) is taken and counted
+    (ctl[C_FORCED]); FORCED_STREAK of them in a row, or a trial stage that leaves the domain at the
+    minimum step, stop the run (E_MIN_STEP, the last rejection's cause in ctl[C_CAUSE:]).
 
     At the first step of ``method`` auto (opt[O_METHOD] < 0) the loop's spectral radius rho at
     (t0, x0) decides: stiff when rho h_max > STIFF_BOUND = 3 x 3.3, three times DOPRI5's stability
@@ -751,12 +791,14 @@ def run_auto(
             else:
                 ctl[C_H] = starting_step(x, f0, f1, h0, 5.0 if method == 3.0 else 2.0, rtol, atol)
         method = int(ctl[C_METHOD])
+        # the chained frame re-anchors after the steps (continuous control, discrete updates every step)
+        reanchors = Kp.kind == KIN_CHAINED and not (SAMPLED and sampled) and opt[O_CLOCK_DISC] == 0.0
         k_err = 5.0 if method == 3 else 3.0  # err = O(h^k)
         beta = 0.04 if method == 3 else 0.0  # PI control for DOPRI5 (Hairer's code), elementary otherwise
         rejected = False
         while True:
-            t_ev = _next_event(events, seg, t, opt, hold_t, sampled, x, npl)
-            h = min(ctl[C_H], h_max)
+            t_ev = _next_event(events, seg, t, opt, hold_t, sampled, x, npl, ctl)
+            h = min(max(ctl[C_H], h_min), h_max)
             land = t + h >= t_ev - 1e-12 * max(1.0, abs(t_ev))
             if land:
                 h = t_ev - t
@@ -776,7 +818,24 @@ def run_auto(
                     info[1] = kind
                     cause = 1
                 elif r <= 1.0:
+                    t_try = t_ev if land else t + h
+                    if reanchors:  # a re-anchoring inside the step: land on it instead (not a rejection)
+                        t_star = _reanchor_time(Kp, R, C, t, t_try, xn[npl], info)
+                        if t_star < t_try:
+                            ctl[C_REANCHOR] = t_star
+                            continue
+                    ctl[C_STREAK] = 0.0
                     break
+            at_min = h <= h_min * (1.0 + 1e-9)
+            if not cause and at_min and math.isfinite(r) and ctl[C_STREAK] < FORCED_STREAK:
+                # the error estimate is over the tolerance at the minimum step: a discontinuity of the
+                # rates inside the step (the adaptive law's projection, a bound), whose error is O(h jump):
+                # the step is taken, counted and reported; FORCED_STREAK of them in a row stop the run
+                ctl[C_FORCED] += 1.0
+                if ctl[C_FORCED] == 1.0:
+                    ctl[C_FORCED_T] = t
+                ctl[C_STREAK] += 1.0
+                break
             if cause:
                 ctl[C_CAUSE : C_CAUSE + 4] = info
                 info[:] = 0.0
@@ -787,13 +846,13 @@ def run_auto(
                 h_new = h * step_factor(r, ctl[C_RPREV], k_err, beta, True)
             ctl[C_REJECTED] += 1.0
             rejected = True
-            if h_new < h_min:
+            if h_new < h_min and at_min:
                 info[0] = E_MIN_STEP
                 info[1] = t
                 info[2] = h_new
                 ctl[C_T] = t
                 return x, li, AT_TRIAL
-            ctl[C_H] = h_new
+            ctl[C_H] = max(h_new, h_min)  # the last try is at the minimum step itself
         t_new = t_ev if land else t + h
         h_next = h * step_factor(r, ctl[C_RPREV], k_err, beta, rejected)
         if land and h < ctl[C_H]:  # a step cut short by an event does not shorten the next

@@ -16,7 +16,7 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
   error over time [m s] (trapezoid over every integration step);
 * torques: ``torque_peak`` = max |tau| over wheels and time [N m], ``torque_rms``
   = RMS over time of the per-wheel torques (largest wheel), ``saturation_fraction``
-  = fraction of steps with some |u_j| at the limit, ``energy`` = the motors'
+  = fraction of time with some |u_j| at the limit, ``energy`` = the motors'
   absolute mechanical work int sum_j |tau_j omega_j| dt [J] (trapezoid over every
   step);
 * ``singularity_margin_min``: the smallest distance of an articulation angle
@@ -38,9 +38,9 @@ the state, torques and estimates at every accepted integration step, taken at
 the start of the step (where the law is evaluated and the torque applied). So
 ``log_every`` changes what is saved, never a metric: extrema, counts and delays
 are exact to the step, and integrals are trapezoids over the steps.  Means over
-time (RMS, fractions of time) weigh each sample by the step it starts
-(:func:`time_mean`): the error-controlled methods' steps are not equal, and on
-equal steps this is the plain mean over the samples.
+time are too (:func:`time_mean`; the error-controlled methods' steps are not
+equal): RMS values by the trapezoid, and fractions of time of what is held over
+each step (the applied model, saturation) by the steps they start.
 """
 
 from __future__ import annotations
@@ -90,28 +90,38 @@ def _iae(t: np.ndarray, e: np.ndarray) -> float:
     return float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t))) if e.size > 1 else 0.0
 
 
-def time_weights(t: np.ndarray) -> np.ndarray:
-    """Each sample's share of time (K,): the length of the step it starts; the last sample (the run's
-    end, or the end of a window) weighs as the step before it, so equal steps weigh equally."""
+def time_weights(t: np.ndarray, rule: str = "trapezoid") -> np.ndarray:
+    """Each sample's share of the time t[-1] - t[0] (K,).
+
+    ``"trapezoid"``: half of each step on either side (second order for a signal that varies within
+    the steps: positions, torques, estimates); ``"step"``: the whole step it starts, the last sample
+    the step before it (exact for a signal held over each step: the applied model, a saturation flag).
+    """
     t = np.asarray(t, dtype=float)
     if t.size < 2:
         return np.ones(t.size)
+    h = np.diff(t)
     w = np.empty(t.size)
-    w[:-1] = np.diff(t)
-    w[-1] = w[-2]
+    if rule == "step":
+        w[:-1] = h
+        w[-1] = h[-1]
+        return w
+    w[:-1] = 0.5 * h
+    w[-1] = 0.0
+    w[1:] += 0.5 * h
     return w
 
 
-def time_mean(t: np.ndarray, x: np.ndarray) -> np.ndarray | float:
+def time_mean(t: np.ndarray, x: np.ndarray, rule: str = "trapezoid") -> np.ndarray | float:
     """Mean over time of x (K, ...) sampled at t (K,), each sample weighted by :func:`time_weights`.
 
-    On equal steps it is the mean over the samples (to round-off); on the unequal steps of an
-    error-controlled run it does not count a stretch of short steps (a transient) more than its time.
+    The error-controlled methods' steps are not equal: a stretch of short steps (a transient) counts by
+    its time, not by its samples.  A single sample is its own mean.
     """
     x = np.asarray(x, dtype=float)
-    w = time_weights(t)
+    w = time_weights(t, rule)
     total = w.sum()
-    if not total > 0:  # a single sample, or no time: the samples' mean
+    if not total > 0:
         return np.mean(x, axis=0)
     return np.tensordot(w, x, axes=(0, 0)) / total
 
@@ -178,7 +188,7 @@ def torque_metrics(
     rms_per_wheel = np.sqrt(time_mean(tt, np.square(tau)))
     sat = 0.0
     if u_limit is not None:
-        sat = float(time_mean(tt, np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1)))
+        sat = float(time_mean(tt, np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1), "step"))
     out = {
         "torque_peak": float(np.abs(tau).max()),
         "torque_rms": float(rms_per_wheel.max()),
@@ -238,8 +248,8 @@ def switching_metrics(
     return {
         "switching_missed_detections": len(delays) - len(known),
         "switch_count": int(np.sum(sel[1:] != sel[:-1])),
-        "switching_match_fraction": float(time_mean(t, effective)),
-        "switching_exact_match_fraction": float(time_mean(t, exact)),
+        "switching_match_fraction": float(time_mean(t, effective, "step")),  # the model is held over a step
+        "switching_exact_match_fraction": float(time_mean(t, exact, "step")),
         "detection_delays": delays,
         "detection_delay_max": (None if len(known) < len(delays) else (max(known) if known else 0.0)),
         "switch_sequence": _sequence(t, sel)[:100],

@@ -66,6 +66,7 @@ class Built:
             noise_eta=[nz.velocity, nz.velocity],
             seed=nz.seed,
             motors=case.motor_params(),
+            drive=case.drive_params(),
         )
         self.q0, self.eta0 = initial_state(case, self.reference)
         s = case.simulation  # the same fields by name; the margin in radians

@@ -309,9 +309,17 @@ def _no_motors():
     return Motors(z, z, z, z, z, z, z, z, z, z)
 
 
-def _initial_currents(loop, spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x: np.ndarray, npl: int) -> np.ndarray:
-    """The motors' currents at t0: quasi-static for the first command (its wheel torque is the command)."""
-    from . import motor as Mo
+def _no_drive():
+    from .drive import DRIVER_STATIC, Drive
+
+    z = np.zeros(0)
+    return Drive(DRIVER_STATIC, z, z, z, z, z, z, z, z, z, z, z, z, NAN)
+
+
+def _initial_currents(loop, spec: Spec, plant, mo, dr, sigma, ubar, fm, t0: float, x: np.ndarray, npl: int):
+    """The motor states at t0 (currents, drive states): quasi-static for the first command (its wheel
+    torque is the command; fast.drive.initial_motor_states)."""
+    from .drive import initial_motor_states
 
     nq = plant.chain.n_q
     pc = spec.chain
@@ -324,8 +332,7 @@ def _initial_currents(loop, spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x
     sat = plant.saturation
     tau_c = sigma * (u if sat is None else np.clip(u, -sat, sat)) + ubar
     omega = F.reduced(kernel_ref(plant.chain.params), q, eta)[3].T @ eta
-    v = Mo.driver_voltage(mo, tau_c, omega, fm)
-    return Mo.quasi_static_current(mo, v, omega, fm)
+    return initial_motor_states(mo, dr, tau_c, omega, fm)
 
 
 def _cache_dir() -> Path:
@@ -485,16 +492,22 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     else:
         noise = np.zeros((1, nq + 2))
 
-    # DC motors: their currents follow eta in the state, their fault tables follow the segments
+    # DC motors: their currents and drive states follow eta in the state, their fault tables follow
+    # the segments
     if plant.motors is not None:
         from ..model.actuators import pack as pack_motors
+        from ..model.actuators import pack_drive
 
         mo = pack_motors(plant.motors, chain.n)
+        dr = pack_drive(getattr(plant, "drive", None), plant.motors, chain.n)
         fmot = np.array([plant.faults.motor(float(grid[k])) for k in firsts], dtype=float).reshape(-1, nw, 4)
     else:
         mo = _no_motors()
+        dr = _no_drive()
         fmot = np.zeros((len(firsts), 0, 4))
-    nm = mo.R_a.shape[0]
+    from .drive import motor_state_count
+
+    nm = motor_state_count(mo.R_a.shape[0], dr.kind)  # the currents and the drives' states
     npl = nq + 2 + nm
     # ETD2 is compiled in the motor variant only (it needs no motors: with none its block is eta's)
     motor_loop = nm > 0 or settings.method == "etd2"
@@ -506,7 +519,9 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
         with _compiling(loop, loop.first_discrete):
             loop.first_discrete(spec.P, spec.kin, spec.ref, spec.chain, float(grid[0]), q0, eta0, x[npl:], info)
     if nm and info[0] == 0:
-        x[nq + 2 : npl] = _initial_currents(loop, spec, plant, mo, fsig[0], fubar[0], fmot[0], float(grid[0]), x, npl)
+        x[nq + 2 : npl] = _initial_currents(
+            loop, spec, plant, mo, dr, fsig[0], fubar[0], fmot[0], float(grid[0]), x, npl
+        )
     # The kernels log every step of a chunk (about 1 % of the run) into chunk buffers; after each chunk
     # the light signals go to the full-rate metric stream and every signal of the logged steps
     # (log_every) to the saved log, so the heavy ones (xc, switching costs, weights) are never held
@@ -553,12 +568,13 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     t_end = float(grid[0])
     # sampled control: [next sample time, last sample time, T_s] and the held u, rates and signals
     ts = settings.sample_time
-    hold_t = np.array([float(grid[0]), NAN, NAN if ts is None else float(ts), 0.0])
+    # and a sampled PI drive's [next sample time, period] (fast.drive)
+    hold_t = np.array([float(grid[0]), NAN, NAN if ts is None else float(ts), 0.0, float(grid[0]), dr.T_d])
     mbuf = np.zeros((int(settings.measurement_delay) + 1, nq + 2))  # the delayed measurements' ring
     u_h = np.zeros(0 if ts is None else nw)
     dx_h = np.zeros(nc)
     sig_h = np.zeros(spec.n_sig)
-    v_h = np.zeros(0 if ts is None else nm)
+    v_h = np.zeros(0 if ts is None else mo.R_a.shape[0])  # the drives' inputs held by sampled control
     wall0 = _time.perf_counter()
     if info[0] != 0:  # the first command failed (at t0, before any step)
         status, reason, t_end = _stop(info, F.AT_STATE, t_end, t_end, settings, spec.ref)
@@ -573,7 +589,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, settings.max_speed, settings.max_position,
                     x, k, k1, every_step, 0,
                     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, spec.n_sig, info, share, grow, growth,
-                    lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h, mbuf,
+                    lia, hold_t, u_h, dx_h, sig_h, mo, fmot, v_h, mbuf, dr,
                 )  # fmt: skip
             if k == 0:
                 _timing_mark("first_chunk")
@@ -628,8 +644,11 @@ def _chunk_signals(spec: Spec, plant, nq: int, rows, bufs, costs: bool = True) -
         "t": lt[rows], "q": lq[rows], "eta": leta[rows], "u": lu[rows], "tau": ltau[rows], "sigma": lsig[rows],
         "ubar": lubar[rows], "xc": lxc[rows],
     }  # fmt: skip
-    if lia.shape[1]:
-        out["i_a"] = lia[rows]
+    if lia.shape[1]:  # the motor states: the currents, then the drives' states (fast.drive)
+        nw = plant.chain.n_wheels
+        out["i_a"] = lia[rows][:, :nw]
+        if lia.shape[1] > nw:
+            out["z_drive"] = lia[rows][:, nw:]
     meas = lmeas[rows] if plant.noisy else np.concatenate((out["q"], out["eta"]), axis=1)
     out |= _split_signals(spec, lsg[rows], out["xc"], meas, nq, costs)
     if plant.noisy:

@@ -27,8 +27,11 @@ The gear model ``tau_w = eta_g N tau_l`` holds in both directions of power flow,
 drives the motor the "gear loss" (1 - eta_g) tau_l omega_m is negative.  That is the model of E19,
 kept as it is; the power balance (tests/test_motor.py) holds as an identity either way.
 
-Driver (command -> voltage): a static inversion, not a current loop
---------------------------------------------------------------------
+Driver (command -> voltage): the static inversion
+-------------------------------------------------
+The drives (the static inversion, a PI current loop, each with its own model of the motor) are in
+fast/drive.py; :func:`driver_voltage` here is the static driver with the plant's own model, the
+default drive (fast.drive.static_voltage gives its bits when the drive's model is the plant's).
 The controllers command wheel torque tau_c, as in the thesis.  :func:`driver_voltage` inverts the
 motor's steady state with its nominal parameters (it knows no fault):
 
@@ -331,9 +334,13 @@ def quasi_static_current(mo, v_a, omega_w, fault):
 
 @jit
 def reset_current(fault, i_a):
-    """The currents at a fault-segment start: 0 on open windings, unchanged elsewhere."""
+    """The currents at a fault-segment start: 0 on open windings, unchanged elsewhere.
+
+    ``i_a`` may be the whole motor-state vector ``[i_a, drive states]`` (fast.drive): only its first
+    nw entries (the currents) are touched.
+    """
     out = i_a.copy()
-    for j in range(i_a.shape[0]):
+    for j in range(fault.shape[0]):
         if int(fault[j, F_MODE]) == MODE_OPEN:
             out[j] = 0.0
     return out

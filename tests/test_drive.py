@@ -10,7 +10,6 @@ test_motor.py does); loop tests run short cases through the engine.  What is che
 * the exact Jacobian columns of the drive's states against finite differences;
 * the quasi-static equivalents (sigma, ubar) of a drive whose model differs from the plant's, and
   of the PI drive, against simulation;
-* the rotor inertia folded into the chain (model.actuators.rotor_chain) is the motor plant's;
 * in the loop: ETD2 at the control sample against fine RK4 with the PI drive, the sampled PI
   tending to the continuous one, the case fields and their messages.
 """
@@ -32,7 +31,7 @@ from ftcreport.fast import drive as D
 from ftcreport.fast import kernels as K
 from ftcreport.fast import motor as M
 from ftcreport.fast.engine import _chain, wheel_speeds_rows
-from ftcreport.model.actuators import MAXON_RE65, DriveParams, pack, pack_drive, rotor_chain
+from ftcreport.model.actuators import MAXON_RE65, DriveParams, pack, pack_drive
 from ftcreport.model.chain import Chain
 from ftcreport.runner import run_scheme
 
@@ -354,29 +353,6 @@ def test_drive_equivalents_hold_in_quasi_steady_state(driver, model, row):
         assert sig[2] == 1.0 and ub[2] == 0.0  # the current loop makes R_a x 2 invisible
     if "b_m_compensation" in model:
         assert np.all(ub[[0, 1, 3]] < 0.0)  # the drag the drive does not compensate brakes the healthy wheels
-
-
-# ------------------------------------------------------------------ the rotors in the chain
-@pytest.mark.parametrize("n", [2, 3])
-def test_rotor_chain_is_the_motor_plant_without_rotors(n, rng):
-    """model.actuators.rotor_chain: the chain with each robot's rotors folded into m, a and I gives the
-    motor plant's etadot with J_m = 0, to round-off (the same Lagrangian)."""
-    chain = random_chain(rng, n)
-    motors = [dataclasses.replace(MAXON_RE65, N=20.0 * (1 + 0.1 * i)) for i in range(n)]
-    mo = pack(motors, n)
-    mo0 = mo._replace(J_m=np.zeros(2 * n))
-    pc, pc2 = _chain(chain.params), _chain(rotor_chain(chain, motors).params)
-    fault = M.healthy_faults(2 * n)
-    for _ in range(5):
-        q = random_q(rng, n)
-        eta = rng.normal(size=2)
-        i = rng.normal(size=2 * n) * 10.0
-        v = rng.normal(size=2 * n) * 10.0
-        a = M.motor_plant_rhs(pc, mo, q, eta, i, v, fault)[1]
-        b = M.motor_plant_rhs(pc2, mo0, q, eta, i, v, fault)[1]
-        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(a).max())
-    c = _chain(chain.params)
-    assert np.all(pc2.m > c.m) and np.all(pc2.I > c.I)  # heavier: the rotors' 0.04 kg m^2 each on the axes
 
 
 # ------------------------------------------------------------------ in the loop

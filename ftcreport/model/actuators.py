@@ -43,7 +43,7 @@ import numpy as np
 
 from ..errors import ModelError
 
-__all__ = ["MAXON_RE65", "DriveParams", "MotorParams", "pack", "pack_drive", "rotor_chain"]
+__all__ = ["MAXON_RE65", "DriveParams", "MotorParams", "pack", "pack_drive", "rotor_inertia_wheels"]
 
 
 @dataclass(frozen=True)
@@ -219,27 +219,9 @@ class DriveParams:
         return self.b_m_compensation * self.b_m
 
 
-def rotor_chain(chain, motors: Sequence[MotorParams]):
-    r"""The chain with each robot's two rotors folded into its mass, centre of mass and yaw inertia.
-
-    A rotor of inertia J_w = eta_g N^2 J_m on a wheel axis (ERRATA E19) turning at omega = (v_i +- b_i
-    omega_i) / r_i stores J_w (v_i^2 + b_i^2 omega_i^2) / r_i^2 for the pair, the kinetic energy of a
-    point mass 2 J_w / r_i^2 at the axle midpoint P_i plus a yaw inertia 2 J_w b_i^2 / r_i^2.  So
-    m' = m + 2 J_w / r^2, a' = m a / m' (the centre of mass moves toward P_i) and
-    I' = I + 2 J_w b^2 / r^2 + m a^2 - m' a'^2 (parallel axes): the Lagrangian (D.5) of this chain is the
-    motor plant's (fast.motor.motor_plant_rhs) with J_m = 0 (tests/test_drive.py checks the rates
-    agree to round-off).  A controller built on it knows the rotors' inertia.
-    """
-    from .chain import Chain
-
-    p = chain.params
-    a, b, r, m, inertia = (np.asarray(v, dtype=float) for v in (p.a, p.b, p.r, p.m, p.I))
-    Jw = np.array([mp.eta_g * mp.N**2 * mp.J_m for mp in motors])
-    dm = 2.0 * Jw / r**2
-    m2 = m + dm
-    a2 = m * a / m2
-    I2 = inertia + 2.0 * Jw * b**2 / r**2 + m * a**2 - m2 * a2**2
-    return Chain(a=a2.tolist(), b=b.tolist(), r=r.tolist(), m=m2.tolist(), I=I2.tolist(), d=list(p.d))
+def rotor_inertia_wheels(motors: Sequence[MotorParams]) -> np.ndarray:
+    """eta_g N^2 J_m of every wheel, (2 n,) [kg m^2]: the rotor inertia on the wheel axis (ERRATA E19)."""
+    return np.repeat([m.eta_g * m.N**2 * m.J_m for m in motors], 2).astype(float)
 
 
 def pack(motors: MotorParams | Sequence[MotorParams], n: int):

@@ -392,8 +392,9 @@ def test_etd2_with_the_pi_drive_converges_to_fine_rk4():
         k = np.searchsorted(ref.t, run.t[-1] - 1e-9)
         errs.append(float(np.abs(run.signals["q"][-1, :2] - ref.signals["q"][k, :2]).max()))
     errs = np.array(errs)
+    # measured 8.0e-6, 1.6e-6, 1.3e-7 m: ratios 5.0 and 12 (second order, the finer step nearing RK4's own error)
     assert errs[0] < 1e-4, errs  # m after 2 s
-    assert np.all(errs[:-1] / errs[1:] > 3.0), errs  # second order: 4x per halving
+    assert np.all(errs[:-1] / errs[1:] > 3.0), errs
     assert "z_drive" in ref.signals and ref.signals["z_drive"].shape[1] == 4
 
 
@@ -402,7 +403,7 @@ def test_ros2_with_the_pi_drive_agrees_with_etd2():
     a = _run(_case(PI, 5e-3, "etd2"))
     b = _run(_case(PI, 5e-4, "ros2"))
     k = np.searchsorted(b.t, a.t[-1] - 1e-9)
-    assert np.abs(a.signals["q"][-1, :2] - b.signals["q"][k, :2]).max() < 1e-4
+    assert np.abs(a.signals["q"][-1, :2] - b.signals["q"][k, :2]).max() < 1e-4  # measured 7.9e-6 m
 
 
 def test_sampled_pi_drive_tends_to_the_continuous_one():
@@ -415,8 +416,27 @@ def test_sampled_pi_drive_tends_to_the_continuous_one():
         run = _run(_case(PI | {"drive_rate": rate}, dt, "etd2", T=1.0))
         errs.append(float(np.abs(run.signals["i_a"] - cont.signals["i_a"]).max()))
     errs = np.array(errs)
+    # measured 0.73, 0.32, 0.15 A of 76 A: ratios 2.3 and 2.1
     assert np.all(errs[:-1] / errs[1:] > 1.6), errs
     assert errs[-1] < 0.05 * np.abs(cont.signals["i_a"]).max()
+
+
+def test_sampled_pi_drive_under_continuous_control_with_each_integrator():
+    """drive_rate with continuous-time control: the drive's samples ask the law for the command (one more
+    evaluation at each); RK4, ROS2 and ETD2 agree, and the sampled PI stays near the continuous one."""
+    dt, T = 5e-5, 0.5
+    act = PI | {"V_max": 1e5}
+    cont = _run(_case(act, dt, "rk4", T=T, sample_time=None))
+    runs = {
+        m: _run(_case(act | {"drive_rate": 20_000.0}, dt, m, T=T, sample_time=None)) for m in ("rk4", "ros2", "etd2")
+    }
+    scale = np.abs(cont.signals["i_a"]).max()
+    # measured, relative to the largest current: ROS2 2.3e-4 and ETD2 3.6e-8 from RK4; the sampled PI
+    # 2.3e-4 from the continuous one (its voltage held for 50 us)
+    for m, run in runs.items():
+        assert run.signals["z_drive"].shape[1] == 8  # z and the held voltage per wheel
+        assert np.abs(run.signals["i_a"] - runs["rk4"].signals["i_a"]).max() < 1e-3 * scale, m
+        assert np.abs(run.signals["i_a"] - cont.signals["i_a"]).max() < 2e-3 * scale, m
 
 
 def test_electrical_power_balance_in_the_loop_with_the_pi_drive():

@@ -292,7 +292,7 @@ def identification_fig(ts: dict, patterns: list[list[int]], events: list[float])
         _trace(t, _r(b), "cost excess of the healthy model", "%{y:.3g}", yaxis="y2",
                line={"color": "#1f77b4", "width": 1, "dash": "dot"}),
         _trace(t, _r(c), "cost excess of the applied model", "%{y:.3g}", yaxis="y2",
-               line={"color": "#d62728", "width": 1}),
+               line={"color": "#d62728", "width": 1, "dash": "dash"}),
     ]  # fmt: skip
     lay = _layout(
         "switching with motors: applied model against the true pattern (top); (J_k - min J) / min J (bottom)",

@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from ftcreport.fast.drive import (
+    DRIVER_PI,
     DRIVER_PI_SAMPLED,
     DRIVER_STATIC,
     current_target,
@@ -71,14 +72,11 @@ def _drive_speeds(ctx, qm, etam):
 
 
 @jit
-def _drive_input(ctx, tau_c, fm, qm, etam):
-    """What a drive makes of the commanded torques at the measured state (held under sampled control).
-
-    The static driver's voltage (fast.drive.static_voltage of the current target), or the PI's
-    current target i* (fast.drive.current_target): both at the measured wheel speeds.
-    """
+def _drive_input(ctx, tau_c, fm, om):
+    """What a drive makes of the commanded torques at its measured wheel speeds ``om`` (held under
+    sampled control): the static driver's voltage (fast.drive.static_voltage of the current
+    target), or the PI's current target i* (fast.drive.current_target)."""
     dr = ctx[10]
-    om = _drive_speeds(ctx, qm, etam)
     i_star = current_target(dr, tau_c, om)
     if dr.kind == DRIVER_STATIC:
         return static_voltage(dr, i_star, om, fm)
@@ -86,12 +84,9 @@ def _drive_input(ctx, tau_c, fm, qm, etam):
 
 
 @jit
-def _motor_speeds(ctx, v_h, qm, etam):
-    """The drive's speeds where its output reads them: always for a continuous PI with feedforward."""
-    dr = ctx[10]
-    if dr.kind != DRIVER_STATIC and dr.ff.shape[0] > 0 and dr.ff.max() != 0.0:
-        return _drive_speeds(ctx, qm, etam)
-    return np.zeros(ctx[8].R_a.shape[0])
+def _reads_speed(dr):
+    """A PI drive with back-EMF feedforward reads the wheel speeds between control samples too."""
+    return dr.kind != DRIVER_STATIC and dr.ff.shape[0] > 0 and dr.ff.max() != 0.0
 
 
 @jit
@@ -106,13 +101,15 @@ def _motors(ctx, x, tau_c, fm, v_h, qm, etam):
     pp, nq, mo, nm, dr = ctx[4], ctx[5], ctx[8], ctx[9], ctx[10]
     nw = mo.R_a.shape[0]
     xm = x[nq + 2 : nq + 2 + nm]
+    held = dr.kind == DRIVER_PI_SAMPLED or v_h.shape[0] > 0
+    om = _drive_speeds(ctx, qm, etam) if not held or _reads_speed(dr) else np.zeros(nw)
     if dr.kind == DRIVER_PI_SAMPLED:  # its own samples hold its voltage (_drive_tick)
         din = np.zeros(0)
     elif v_h.shape[0] > 0:
         din = v_h
     else:
-        din = _drive_input(ctx, tau_c, fm, qm, etam)
-    v, ddot = drive_output(dr, xm, din, _motor_speeds(ctx, v_h, qm, etam), fm)
+        din = _drive_input(ctx, tau_c, fm, om)
+    v, ddot = drive_output(dr, xm, din, om, fm)
     qdot, etadot, idot, tau_w = motor_plant_rhs(pp, mo, x[:nq], x[nq : nq + 2], xm[:nw], v, fm)
     if nm == nw:
         return qdot, etadot, idot, tau_w, v
@@ -152,18 +149,19 @@ def _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
     held (sampled control), or from the law's command at x (one more evaluation of the law).
     """
     pp, nq, mo, nm, dr = ctx[4], ctx[5], ctx[8], ctx[9], ctx[10]
-    qm = x[:nq] + nz[:nq]
-    etam = x[nq : nq + 2] + nz[nq:]
+    nw = mo.R_a.shape[0]
     din = np.zeros(0)
-    if dr.kind != DRIVER_STATIC and dr.kind != DRIVER_PI_SAMPLED:
-        if v_h.shape[0] > 0:  # sampled control holds i*
+    om = np.zeros(nw)
+    if dr.kind == DRIVER_PI:  # the others' columns do not depend on their input
+        if v_h.shape[0] > 0:  # sampled control holds i*; the drive reads the true speeds (_plant_deriv)
+            om = _drive_speeds(ctx, x[:nq], x[nq : nq + 2])
             din = v_h
-        else:
+        else:  # continuous control: the measured state, as _deriv
+            om = _drive_speeds(ctx, x[:nq] + nz[:nq], x[nq : nq + 2] + nz[nq:])
             u = _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, np.zeros(0))[1]
             sat = ctx[6]
             us = u if math.isnan(sat) else _clip(u, -sat, sat)
-            din = current_target(dr, sigma * us + ubar, _drive_speeds(ctx, qm, etam))
-    om = _motor_speeds(ctx, v_h, qm, etam)
+            din = current_target(dr, sigma * us + ubar, om)
     return drive_jacobian(pp, mo, dr, x[:nq], x[nq : nq + 2], x[nq + 2 : nq + 2 + nm], din, om, fm)
 
 
@@ -399,7 +397,7 @@ def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_
     dx_h[:] = dx
     if MOTORS and nm > 0:  # the drive's input of this sample: the static voltage or the PI's i*
         us = u if math.isnan(sat) else _clip(u, -sat, sat)
-        v_h[:] = _drive_input(ctx, sigma * us + ubar, fm, q, eta)
+        v_h[:] = _drive_input(ctx, sigma * us + ubar, fm, _drive_speeds(ctx, q, eta))
     hold_t[0] = t + hold_t[2]
     hold_t[1] = t
 

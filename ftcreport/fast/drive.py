@@ -94,7 +94,6 @@ __all__ = [
     "motor_state_count",
     "pi_sample",
     "pi_voltage",
-    "states_per_wheel",
 ]
 
 DRIVER_STATIC = 0
@@ -119,11 +118,6 @@ class Drive(NamedTuple):
     I_max: np.ndarray  # current-target limit [A] (inf: none)
     ff: np.ndarray  # 1.0: back-EMF feedforward, 0.0: none
     T_d: float  # the sampled PI's period [s] (nan: continuous)
-
-
-def states_per_wheel(kind: int) -> int:
-    """The plant states a drive of this kind adds per wheel: 0 static, 1 PI (z), 2 sampled PI (z, v held)."""
-    return (0, 1, 2)[kind]
 
 
 @jit

@@ -61,6 +61,7 @@ from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
 from .compiling import engine_stamp, loop_compile
+from .drive import motor_state_count
 from .refs import to_ref
 
 __all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled"]
@@ -505,8 +506,6 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
         mo = _no_motors()
         dr = _no_drive()
         fmot = np.zeros((len(firsts), 0, 4))
-    from .drive import motor_state_count
-
     nm = motor_state_count(mo.R_a.shape[0], dr.kind)  # the currents and the drives' states
     npl = nq + 2 + nm
     # ETD2 is compiled in the motor variant only (it needs no motors: with none its block is eta's)

@@ -21,6 +21,7 @@ from .control.switching import SwitchingController
 from .diagnosis import diagnosis_metrics
 from .errors import FtcError
 from .metrics import singularity_margin, switching_metrics, torque_metrics, tracking_metrics
+from .model.actuators import rotor_inertia_wheels
 from .observers import FarzaObserver, UKFEstimator
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
@@ -67,6 +68,7 @@ class Built:
             noise_eta=[nz.velocity, nz.velocity],
             seed=nz.seed,
             motors=case.motor_params(),
+            drive=case.drive_params(),
         )
         self.q0, self.eta0 = initial_state(case, self.reference)
         s = case.simulation  # the same fields by name; the margin in radians
@@ -107,12 +109,14 @@ def make_controller(built: Built, scheme: str):
     if scheme == "oracle":
         return OracleController(built.chain, kin, cfg.k_v)
     if scheme == "switching":
+        motors = case.motor_params() if cfg.rotor_inertia else None  # the bank's filters know the rotors (#36)
         return SwitchingController(
             built.chain,
             kin,
             cfg.k_v,
             patterns=switching_patterns(case, built.chain),
             u_limit=case.plant.saturation,
+            rotor_inertia=None if motors is None else rotor_inertia_wheels(motors),
             **cfg.model_dump(include={"gamma", "T_min", "c_inst", "c_int", "forgetting", "hysteresis"}),
         )
     if scheme in ("adaptive", "adaptive_frozen"):

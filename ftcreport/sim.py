@@ -216,6 +216,10 @@ class Plant:
         A DC motor per wheel (one set per robot, leader first), thesis (2.26)-(2.29): the command
         becomes armature voltages (the driver's static inversion, ftcreport.fast.motor) and the
         wheel torque follows the currents.  None: the ideal torque plant (tau = command).
+    drive : DriveParams or sequence of DriveParams, optional
+        The motors' drives (ftcreport.model.actuators.DriveParams: the static inversion or a PI
+        current loop, and the drive's model of the motor); None: the static driver with the plant's
+        own model of every motor.
     """
 
     def __init__(
@@ -227,9 +231,11 @@ class Plant:
         noise_eta=None,
         seed: int = 0,
         motors=None,
+        drive=None,
     ):
         self.chain = chain
         self.motors = motors
+        self.drive = drive
         self.faults = faults if faults is not None else FaultSchedule(chain.n)
         if self.faults.n != chain.n:
             raise ModelError(f"faults: schedule is for {self.faults.n} robots, chain has {chain.n}")

@@ -62,6 +62,7 @@ from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
 from .compiling import engine_stamp, loop_compile
+from .drive import motor_state_count
 from .integrators import AUTO_METHODS, METHOD_CODES
 from .refs import to_ref
 
@@ -319,9 +320,17 @@ def _no_motors():
     return Motors(z, z, z, z, z, z, z, z, z, z)
 
 
-def _initial_currents(loop, spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x: np.ndarray, npl: int) -> np.ndarray:
-    """The motors' currents at t0: quasi-static for the first command (its wheel torque is the command)."""
-    from . import motor as Mo
+def _no_drive():
+    from .drive import DRIVER_STATIC, Drive
+
+    z = np.zeros(0)
+    return Drive(DRIVER_STATIC, z, z, z, z, z, z, z, z, z, z, z, z, NAN)
+
+
+def _initial_currents(loop, spec: Spec, plant, mo, dr, sigma, ubar, fm, t0: float, x: np.ndarray, npl: int):
+    """The motor states at t0 (currents, drive states): quasi-static for the first command (its wheel
+    torque is the command; fast.drive.initial_motor_states)."""
+    from .drive import initial_motor_states
 
     nq = plant.chain.n_q
     pc = spec.chain
@@ -334,8 +343,7 @@ def _initial_currents(loop, spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x
     sat = plant.saturation
     tau_c = sigma * (u if sat is None else np.clip(u, -sat, sat)) + ubar
     omega = F.reduced(kernel_ref(plant.chain.params), q, eta)[3].T @ eta
-    v = Mo.driver_voltage(mo, tau_c, omega, fm)
-    return Mo.quasi_static_current(mo, v, omega, fm)
+    return initial_motor_states(mo, dr, tau_c, omega, fm)
 
 
 def _cache_dir() -> Path:
@@ -490,16 +498,20 @@ class _Loop:
             self.noise = rng.standard_normal((n_noise, nq + 2)) * plant.noise_std
         else:
             self.noise = np.zeros((1, nq + 2))
-        # DC motors: their currents follow eta in the state, their fault tables follow the segments
+        # DC motors: their currents and drive states follow eta in the state, their fault tables follow
+        # the segments
         if plant.motors is not None:
             from ..model.actuators import pack as pack_motors
+            from ..model.actuators import pack_drive
 
             self.mo = pack_motors(plant.motors, chain.n)
+            self.dr = pack_drive(getattr(plant, "drive", None), plant.motors, chain.n)
             self.fmot = np.array([plant.faults.motor(float(t)) for t in starts], dtype=float).reshape(-1, nw, 4)
         else:
             self.mo = _no_motors()
+            self.dr = _no_drive()
             self.fmot = np.zeros((len(starts), 0, 4))
-        self.nm = nm = self.mo.R_a.shape[0]
+        self.nm = nm = motor_state_count(self.mo.R_a.shape[0], self.dr.kind)  # the currents and the drives' states
         self.npl = npl = nq + 2 + nm
         # ETD2 is compiled in the motor variant only (it needs no motors: with none its block is eta's)
         motor_loop = nm > 0 or settings.method in ("etd2", "etd2ec")
@@ -512,7 +524,7 @@ class _Loop:
                 loop.first_discrete(spec.P, spec.kin, spec.ref, spec.chain, t0, q0, eta0, self.x[npl:], self.info)
         if nm and self.info[0] == 0:
             self.x[nq + 2 : npl] = _initial_currents(
-                loop, spec, plant, self.mo, self.fsig[0], self.fubar[0], self.fmot[0], t0, self.x, npl
+                loop, spec, plant, self.mo, self.dr, self.fsig[0], self.fubar[0], self.fmot[0], t0, self.x, npl
             )
         self.grow = np.zeros(3)  # step-growth detector state, carried across chunks
         self.growth = np.array(
@@ -533,14 +545,15 @@ class _Loop:
         self.lim = math.sin(settings.singularity_margin)
         self.pp = pp = _chain(chain.params)
         self.share = not plant.noisy and all(np.array_equal(a, b) for a, b in zip(pp, spec.chain, strict=True))
-        # sampled control: [next sample time, last sample time, T_s, samples taken], the held u, rates, signals
+        # sampled control: [next sample time, last sample time, T_s, samples taken], the held u, rates, signals,
+        # and a sampled PI drive's [next sample time, period] (fast.drive)
         ts = settings.sample_time
-        self.hold_t = np.array([t0, NAN, NAN if ts is None else float(ts), 0.0])
+        self.hold_t = np.array([t0, NAN, NAN if ts is None else float(ts), 0.0, t0, self.dr.T_d])
         self.mbuf = np.zeros((int(settings.measurement_delay) + 1, nq + 2))  # the delayed measurements' ring
         self.u_h = np.zeros(0 if ts is None else nw)
         self.dx_h = np.zeros(nc)
         self.sig_h = np.zeros(spec.n_sig)
-        self.v_h = np.zeros(0 if ts is None else nm)
+        self.v_h = np.zeros(0 if ts is None else self.mo.R_a.shape[0])  # the drives' inputs held by sampled control
 
     def buffers(self, rows: int) -> None:
         """The chunk buffers: every accepted step of a chunk is logged into them (``rows`` at most)."""
@@ -582,6 +595,7 @@ class _Loop:
                 self.lq, self.leta, self.lu, self.ltau, self.lsig, self.lubar, self.lxc, self.lmeas, self.lsg, self.lt,
                 spec.n_sig, self.info, self.share, self.grow, self.growth,
                 self.lia, self.hold_t, self.u_h, self.dx_h, self.sig_h, self.mo, self.fmot, self.v_h, self.mbuf,
+                self.dr,
             )  # fmt: skip
         return int(k_last), int(li), int(where)
 
@@ -595,7 +609,7 @@ class _Loop:
                 self.x, opt, ctl, rows,
                 self.lq, self.leta, self.lu, self.ltau, self.lsig, self.lubar, self.lxc, self.lmeas, self.lsg, self.lt,
                 spec.n_sig, self.info, self.share, self.lia, self.hold_t, self.u_h, self.dx_h, self.sig_h, self.mo,
-                fmot, self.v_h, self.mbuf, self.growth,
+                fmot, self.v_h, self.mbuf, self.growth, self.dr,
             )  # fmt: skip
         return int(li), int(where)
 
@@ -1052,8 +1066,11 @@ def _chunk_signals(spec: Spec, plant, nq: int, rows, bufs, costs: bool = True) -
         "t": lt[rows], "q": lq[rows], "eta": leta[rows], "u": lu[rows], "tau": ltau[rows], "sigma": lsig[rows],
         "ubar": lubar[rows], "xc": lxc[rows],
     }  # fmt: skip
-    if lia.shape[1]:
-        out["i_a"] = lia[rows]
+    if lia.shape[1]:  # the motor states: the currents, then the drives' states (fast.drive)
+        nw = plant.chain.n_wheels
+        out["i_a"] = lia[rows][:, :nw]
+        if lia.shape[1] > nw:
+            out["z_drive"] = lia[rows][:, nw:]
     meas = lmeas[rows] if plant.noisy else np.concatenate((out["q"], out["eta"]), axis=1)
     out |= _split_signals(spec, lsg[rows], out["xc"], meas, nq, costs)
     if plant.noisy:

@@ -21,6 +21,18 @@ import math
 
 import numpy as np
 
+from ftcreport.fast.drive import (
+    DRIVER_PI,
+    DRIVER_PI_SAMPLED,
+    DRIVER_STATIC,
+    current_target,
+    drive_fault_equivalent,
+    drive_jacobian,
+    drive_output,
+    motor_state_count,
+    pi_sample,
+    static_voltage,
+)
 from ftcreport.fast.integrators import (
     DP_A,
     DP_B,
@@ -63,7 +75,7 @@ from ftcreport.fast.kernels import (
     ref_side,
     tracking_law,
 )
-from ftcreport.fast.motor import current_jacobian, driver_voltage, fault_equivalent, motor_plant_rhs, reset_current
+from ftcreport.fast.motor import motor_plant_rhs, reset_current
 from ftcreport.fast.refs import as_ref
 
 LAW, DISC = tracking_law, no_discrete  # LOOP-BINDING
@@ -73,21 +85,104 @@ MOTORS, SAMPLED = True, True  # LOOP-VARIANT
 
 
 @jit
-def _motors(ctx, x, tau_c, fm, v_h, qm, etam):
-    """(qdot, etadot, i_dot, tau_w, v_a) of the chain driven by its DC motors, (2.26)-(2.29) with E19.
+def _drive_speeds(ctx, qm, etam):
+    """The drive's wheel speeds: Bbar(q)^T eta at the measured state (the controller's chain model)."""
+    Bm = reduced(ctx[3], qm, etam)[3]
+    return _mv(Bm.T, etam)
 
-    The driver turns the commanded torques tau_c into armature voltages by its static inversion at
-    the measured wheel speeds (fast.motor.driver_voltage), or holds ``v_h`` (sampled control).
+
+@jit
+def _drive_input(ctx, tau_c, fm, om):
+    """What a drive makes of the commanded torques at its measured wheel speeds ``om`` (held under
+    sampled control): the static driver's voltage (fast.drive.static_voltage of the current
+    target), or the PI's current target i* (fast.drive.current_target)."""
+    dr = ctx[10]
+    i_star = current_target(dr, tau_c, om)
+    if dr.kind == DRIVER_STATIC:
+        return static_voltage(dr, i_star, om, fm)
+    return i_star
+
+
+@jit
+def _reads_speed(dr):
+    """A PI drive with back-EMF feedforward reads the wheel speeds between control samples too."""
+    return dr.kind != DRIVER_STATIC and dr.ff.shape[0] > 0 and dr.ff.max() != 0.0
+
+
+@jit
+def _motors(ctx, x, tau_c, fm, v_h, qm, etam):
+    """(qdot, etadot, motor-state rates, tau_w, v_a) of the chain driven by its DC motors and drives.
+
+    The plant is (2.26)-(2.29) with E19 (fast.motor.motor_plant_rhs); the motor states after eta are
+    the currents and the drives' states (fast.drive).  The drive turns the commanded torques tau_c
+    at the measured wheel speeds into its input (:func:`_drive_input`), or holds ``v_h`` (sampled
+    control: the static driver's voltage, the PI's current target), and its output into v_a.
     """
-    pc, pp, nq, mo, nm = ctx[3], ctx[4], ctx[5], ctx[8], ctx[9]
-    if v_h.shape[0] > 0:
-        v = v_h
+    pp, nq, mo, nm, dr = ctx[4], ctx[5], ctx[8], ctx[9], ctx[10]
+    nw = mo.R_a.shape[0]
+    xm = x[nq + 2 : nq + 2 + nm]
+    held = dr.kind == DRIVER_PI_SAMPLED or v_h.shape[0] > 0
+    om = _drive_speeds(ctx, qm, etam) if not held or _reads_speed(dr) else np.zeros(nw)
+    if dr.kind == DRIVER_PI_SAMPLED:  # its own samples hold its voltage (_drive_tick)
+        din = np.zeros(0)
+    elif v_h.shape[0] > 0:
+        din = v_h
     else:
-        Bm = reduced(pc, qm, etam)[3]
-        # the driver's wheel speeds: Bbar(q)^T eta at the measured state
-        v = driver_voltage(mo, tau_c, _mv(Bm.T, etam), fm)
-    qdot, etadot, idot, tau_w = motor_plant_rhs(pp, mo, x[:nq], x[nq : nq + 2], x[nq + 2 : nq + 2 + nm], v, fm)
-    return qdot, etadot, idot, tau_w, v
+        din = _drive_input(ctx, tau_c, fm, om)
+    v, ddot = drive_output(dr, xm, din, om, fm)
+    qdot, etadot, idot, tau_w = motor_plant_rhs(pp, mo, x[:nq], x[nq : nq + 2], xm[:nw], v, fm)
+    if nm == nw:
+        return qdot, etadot, idot, tau_w, v
+    xmdot = np.empty(nm)
+    xmdot[:nw] = idot
+    xmdot[nw:] = ddot
+    return qdot, etadot, xmdot, tau_w, v
+
+
+@jit
+def _drive_tick(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
+    """A sampled PI drive's sample at t (fast.drive.pi_sample), in place on x's drive states.
+
+    The current target: the one held at the last control sample (sampled control), or the law's
+    command at t (continuous control); the drive measures its current and the wheel speeds now.
+    """
+    nq, sat, nm, dr = ctx[5], ctx[6], ctx[9], ctx[10]
+    qm = x[:nq] + nz[:nq]
+    etam = x[nq : nq + 2] + nz[nq:]
+    om = _drive_speeds(ctx, qm, etam)
+    if v_h.shape[0] > 0:
+        i_star = v_h
+    else:
+        u = _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, np.zeros(0))[1]
+        if info[0] != 0:
+            return
+        us = u if math.isnan(sat) else _clip(u, -sat, sat)
+        i_star = current_target(dr, sigma * us + ubar, om)
+    pi_sample(dr, x[nq + 2 : nq + 2 + nm], i_star, om, fm)
+
+
+@jit
+def _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
+    """d(etadot, motor-state rates) / d(motor states) at x, exact (fast.drive.drive_jacobian).
+
+    The continuous PI's columns depend on whether its output saturates, so on its current target:
+    held (sampled control), or from the law's command at x (one more evaluation of the law).
+    """
+    pp, nq, mo, nm, dr = ctx[4], ctx[5], ctx[8], ctx[9], ctx[10]
+    nw = mo.R_a.shape[0]
+    din = np.zeros(0)
+    om = np.zeros(nw)
+    if dr.kind == DRIVER_PI:  # the others' columns do not depend on their input
+        if v_h.shape[0] > 0:  # sampled control holds i*; the drive reads the true speeds (_plant_deriv)
+            om = _drive_speeds(ctx, x[:nq], x[nq : nq + 2])
+            din = v_h
+        else:  # continuous control: the measured state, as _deriv
+            om = _drive_speeds(ctx, x[:nq] + nz[:nq], x[nq : nq + 2] + nz[nq:])
+            u = _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, np.zeros(0))[1]
+            sat = ctx[6]
+            us = u if math.isnan(sat) else _clip(u, -sat, sat)
+            din = current_target(dr, sigma * us + ubar, om)
+    return drive_jacobian(pp, mo, dr, x[:nq], x[nq : nq + 2], x[nq + 2 : nq + 2 + nm], din, om, fm)
 
 
 @jit
@@ -95,13 +190,14 @@ def true_faults(ctx, x, sigma, ubar, fm):
     """The (sigma, ubar) the chain sees: the command faults composed with the motors' equivalents.
 
     tau_w ~ s_m (sigma u + ubar) + u_m, so sigma_true = s_m sigma, ubar_true = s_m ubar + u_m
-    (fast.motor.fault_equivalent at the wheel speeds of x); without motors, (sigma, ubar).
+    (fast.drive.drive_fault_equivalent at the wheel speeds of x: the motors' faults, and what the
+    drive's model of a healthy motor gets wrong); without motors, (sigma, ubar).
     """
     if ctx[9] == 0:
         return sigma, ubar
     pp, nq = ctx[4], ctx[5]
     Bb = reduced(pp, x[:nq], x[nq : nq + 2])[3]
-    sm, um = fault_equivalent(ctx[8], fm, _mv(Bb.T, x[nq : nq + 2]))
+    sm, um = drive_fault_equivalent(ctx[8], ctx[10], fm, _mv(Bb.T, x[nq : nq + 2]))
     return sm * sigma, sm * ubar + um
 
 
@@ -109,12 +205,13 @@ def true_faults(ctx, x, sigma, ubar, fm):
 def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
     """(f, u, tau) of the closed loop: the plant's and the controller's rates at (t, x).
 
-    ``ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)``; ``share``: the controller's
+    ``ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm, dr)``; ``share``: the controller's
     model is the plant's and there is no noise, so the reduced matrices the
-    controller computed at (q, eta) are the plant's; ``nm``: the motors' currents in x
-    (0: the ideal torque plant).
+    controller computed at (q, eta) are the plant's; ``nm``: the plant states the motors add
+    after eta, their currents and their drives' states (fast.drive.motor_state_count; 0: the
+    ideal torque plant); ``dr`` the drives (fast.drive.Drive).
     """
-    Kp, R, C, pc, pp, nq, sat, share, _mo, nm = ctx
+    Kp, R, C, pc, pp, nq, sat, share, _mo, nm, _dr = ctx
     q = x[:nq]
     eta = x[nq : nq + 2]
     xc = x[nq + 2 + nm :]
@@ -175,10 +272,10 @@ def _stage(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
 
 @jit
 def _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
-    """d f / d [eta, i_a] at x, (nx, 2 + nm): eta's columns by forward differences (2 evaluations of
-    the stage's rates), the currents' exact (fast.motor.current_jacobian: rows eta and i_a; no other
-    rate reads a current)."""
-    pp, nq, mo, nm = ctx[4], ctx[5], ctx[8], ctx[9]
+    """d f / d [eta, motor states] at x, (nx, 2 + nm): eta's columns by forward differences (2
+    evaluations of the stage's rates), the motor states' (currents, drive states) exact
+    (:func:`_motor_columns`: rows eta and the motor states; no other rate reads them)."""
+    nq, nm = ctx[5], ctx[9]
     F = np.zeros((x.shape[0], 2 + nm))
     for j in range(2):
         c = nq + j
@@ -190,7 +287,7 @@ def _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
             return F
         F[:, j] = (fp - f0) / delta
     if MOTORS and nm > 0:
-        F[nq : nq + 2 + nm, 2:] = current_jacobian(pp, mo, x[:nq], x[nq : nq + 2], fm)
+        F[nq : nq + 2 + nm, 2:] = _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)
     return F
 
 
@@ -286,8 +383,8 @@ def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_
     The controller's state is advanced over the last sample by a forward-Euler step of its rates
     (held since that sample), then its discrete updates run, then the law: its u is held (zero-order
     hold) until the next sample, its rates and logged signals too, and with motors the driver's
-    voltages.  Measurements: q + noise, eta + noise, taken ``len(mbuf) - 1`` samples before
-    (:func:`_delayed`; the law and the driver both see them).
+    voltages (the PI drive's current targets).  Measurements: q + noise, eta + noise, taken
+    ``len(mbuf) - 1`` samples before (:func:`_delayed`; the law and the driver both see them).
     """
     Kp, R, C, pc, nq, sat, nm = ctx[0], ctx[1], ctx[2], ctx[3], ctx[5], ctx[6], ctx[9]
     xc = x[nq + 2 + nm :]
@@ -313,9 +410,9 @@ def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_
     u, dx = LAW(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig_h)
     u_h[:] = u
     dx_h[:] = dx
-    if MOTORS and nm > 0:
+    if MOTORS and nm > 0:  # the drive's input of this sample: the static voltage or the PI's i*
         us = u if math.isnan(sat) else _clip(u, -sat, sat)
-        v_h[:] = _motors(ctx, x, sigma * us + ubar, fm, np.zeros(0), q, eta)[4]
+        v_h[:] = _drive_input(ctx, sigma * us + ubar, fm, _drive_speeds(ctx, q, eta))
     hold_t[0] = t + hold_t[2]
     hold_t[1] = t
 
@@ -340,7 +437,7 @@ def run_steps(
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
     x, k0, k1, is_logged, li,
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
-    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf,
+    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf, dr0,
 ):  # fmt: skip
     """Steps k0..k1 of a run (sim.simulate through fast.engine.simulate_compiled); returns (x, k, li, where).
 
@@ -354,18 +451,20 @@ def run_steps(
     integrates with its u held; ``u_h, dx_h, sig_h`` carry the held control, rates and signals
     across calls, ``mbuf`` the last d + 1 samples' measurements (a delay of d samples).
 
-    DC motors when ``mo`` has wheels: the state is [q, eta, i_a, xc]; ``fmot`` holds the motor-fault
-    table of each fault segment (fast.motor), ``v_h`` the held armature voltages.
+    DC motors when ``mo`` has wheels: the state is [q, eta, i_a, drive states, xc]; ``fmot`` holds the
+    motor-fault table of each fault segment (fast.motor), ``dr0`` the drives (fast.drive), ``v_h``
+    the drive inputs held by sampled control; a sampled PI drive runs at ``hold_t[4]`` (its next
+    sample time), period ``hold_t[5]``.
     """
     # the parameter tuples behind one pointer each, for every kernel below (fast.refs)
-    P, Kp, R, pc, pp, mo = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0)
+    P, Kp, R, pc, pp, mo, dr = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0), as_ref(dr0)
     nq = pp.n + 2
     nx = x.shape[0]
     sig_buf = np.zeros(n_sig)
     C = as_ref(new_cache(pp.n))
-    nm = mo.R_a.shape[0]
-    ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)
-    npl = nq + 2 + nm  # the plant's states: q, eta, the motors' currents
+    nm = motor_state_count(mo.R_a.shape[0], dr.kind)  # the one place: the plant states the motors add
+    ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm, dr)
+    npl = nq + 2 + nm  # the plant's states: q, eta, the motors' currents and drive states
     empty = np.zeros(0)
     noisy = noise.shape[0] > 1
     nz = noise[0]
@@ -389,11 +488,16 @@ def run_steps(
         if info[0] != 0:
             return x, k, li, AT_STATE
         want = is_logged[k]
+        if SAMPLED and sampled and t >= hold_t[0] - 1e-9 * hold_t[2]:
+            sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf)
+            if info[0] != 0:
+                return x, k, li, AT_STATE
+        if MOTORS and nm > 0 and dr.kind == DRIVER_PI_SAMPLED and t >= hold_t[4] - 1e-9 * hold_t[5]:
+            _drive_tick(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)  # after the control's sample
+            if info[0] != 0:
+                return x, k, li, AT_STATE
+            hold_t[4] = t + hold_t[5]
         if SAMPLED and sampled:
-            if t >= hold_t[0] - 1e-9 * hold_t[2]:
-                sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf)
-                if info[0] != 0:
-                    return x, k, li, AT_STATE
             f0, u, tau = _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)
             sig_buf[:] = sig_h
         else:
@@ -666,7 +770,7 @@ def run_auto(
     events, fsig, fubar, noise, sat, diag, lim, max_speed, max_position,
     x, opt, ctl, rows,
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share,
-    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf, growth,
+    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf, growth, dr0,
 ):  # fmt: skip
     r"""Accepted steps of an error-controlled run, from t = ctl[C_T] to the chunk's end; returns (x, li, where).
 
@@ -690,13 +794,14 @@ def run_auto(
     and the decimated log); returns when the buffers are full, past opt[O_TCHUNK], at the end
     (t = opt[O_TEND], its row logged) or at a stop (``where`` as in run_steps).
     """
-    P, Kp, R, pc, pp, mo = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0)
+    P, Kp, R, pc, pp, mo, dr = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0), as_ref(dr0)
     nq = pp.n + 2
     nx = x.shape[0]
     sig_buf = np.zeros(n_sig)
     C = as_ref(new_cache(pp.n))
-    nm = mo.R_a.shape[0]
-    ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)
+    nm = motor_state_count(mo.R_a.shape[0], dr.kind)  # the plant states the motors add (run_steps')
+    ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm, dr)
+    pi_sampled = MOTORS and nm > 0 and dr.kind == DRIVER_PI_SAMPLED
     npl = nq + 2 + nm
     noisy = noise.shape[0] > 1
     nz = noise[0]
@@ -728,11 +833,16 @@ def run_auto(
         _check_state(pp, x, nq, lim, max_speed, max_position, info)
         if info[0] != 0:
             return x, li, AT_STATE
+        if SAMPLED and sampled and t >= hold_t[0] - 1e-9 * hold_t[2]:
+            sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf)
+            if info[0] != 0:
+                return x, li, AT_STATE
+        if pi_sampled and t >= hold_t[4] - 1e-9 * hold_t[5]:
+            _drive_tick(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)  # after the control's sample
+            if info[0] != 0:
+                return x, li, AT_STATE
+            hold_t[4] = t + hold_t[5]
         if SAMPLED and sampled:
-            if t >= hold_t[0] - 1e-9 * hold_t[2]:
-                sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf)
-                if info[0] != 0:
-                    return x, li, AT_STATE
             f0, u, tau = _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)
             sig_buf[:] = sig_h
         else:
@@ -798,6 +908,8 @@ def run_auto(
         rejected = False
         while True:
             t_ev = _next_event(events, seg, t, opt, hold_t, sampled, x, npl, ctl)
+            if pi_sampled and hold_t[4] > t:  # the sampled drive's next sample
+                t_ev = min(t_ev, hold_t[4])
             h = min(max(ctl[C_H], h_min), h_max)
             land = t + h >= t_ev - 1e-12 * max(1.0, abs(t_ev))
             if land:

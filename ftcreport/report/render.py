@@ -32,6 +32,7 @@ from ..model.faults import wheel_names
 from ..runner import integrator_words
 from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
 from . import interactive, plots
+from .plant import plant_block
 from .replay import replay_data
 
 __all__ = ["dependency_versions", "render_all", "render_case", "render_index"]
@@ -244,6 +245,7 @@ def render_case(out: Path, name: str) -> Path | None:
         )
     if analysis is not None and analysis.get("pole_tables"):
         analysis["pole_groups"] = _group_tables(analysis["pole_tables"])
+    plant = plant_block(case, runs, series, out, rec.get("base"))  # templates/_plant.html (issue 36)
     return write_page(
         page,
         "case.html",
@@ -282,6 +284,7 @@ def render_case(out: Path, name: str) -> Path | None:
         case_text=text,
         manifest=_manifest(out, name),
         base_cmp=base_cmp,
+        plant=plant,
     )
 
 

@@ -18,9 +18,11 @@ were compiled twice (docs/ENGINE.md, "Compile time (session 9)").
 
 from __future__ import annotations
 
-from numba import njit, types
+from numba import types
 from numba.core.extending import overload
 from numba.experimental import structref
+
+from .compiling import jit
 
 __all__ = ["RefProxy", "RefType", "as_ref", "to_ref"]
 
@@ -84,7 +86,7 @@ class RefProxy(structref.StructRefProxy):
 structref.define_boxing(RefType, RefProxy)
 
 
-@njit(cache=True, nogil=True)
+@jit(error_model="python")
 def _to_ref(x):
     return as_ref(x)
 

@@ -59,6 +59,7 @@ import inspect
 import os
 import threading
 import warnings
+import weakref
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -87,6 +88,7 @@ TESTED = frozenset({(0, 61), (0, 68)})
 _STATE = threading.local()  # depth: ftcreport compiles in progress in this thread (numba compiles in the caller's)
 _FAILED: list[str] = []  # the first failure of the acceleration in this process (then it is off)
 _PENDING_ENVS: dict[str, object] = {}  # environments of deferred kernels, set once emitted code defines them
+_KERNEL_FUNCS: weakref.WeakSet = weakref.WeakSet()  # the Python functions of KernelDispatchers
 
 
 class AccelerationWarning(RuntimeWarning):
@@ -126,6 +128,7 @@ class KernelLibrary(JITCodeLibrary):
     """numba's JIT code library; below an entry point: cheap passes and its machine code deferred."""
 
     _ftc_below = False  # compiled (or loaded) below an entry point, with the acceleration on
+    _ftc_defer = True  # its machine code may wait (a kernel's: its dispatcher takes a LazyEntry)
     _ftc_cheap = False  # has had the cheap passes only (numba's full optimization runs before emission)
     _ftc_deferred = False  # finalized without its machine code
     _ftc_bitcode: bytes | None = None  # linking IR kept unparsed (a cache load)
@@ -142,7 +145,8 @@ class KernelLibrary(JITCodeLibrary):
         return None
 
     def _finalize_final_module(self) -> None:
-        if not (self._ftc_below and accelerated() and getattr(self, "_compiled_object", None) is None):
+        deferrable = self._ftc_below and self._ftc_defer and getattr(self, "_compiled_object", None) is None
+        if not (deferrable and accelerated()):
             self._emit()
             return
         try:  # what numba's finalization checks and records, without adding the module to the JIT engine
@@ -157,8 +161,9 @@ class KernelLibrary(JITCodeLibrary):
         self._finalized = True
 
     def _emit(self) -> None:
-        """numba's finalization (the module added to the JIT engine, machine code emitted), fully optimized."""
-        if self._ftc_cheap:
+        """numba's finalization (the module added to the JIT engine, machine code emitted), fully optimized
+        (an overload's implementation below an entry point excepted: its code is only ever linked)."""
+        if self._ftc_cheap and self._ftc_defer:
             self._ftc_cheap = False
             super()._optimize_final_module()
         super()._finalize_final_module()
@@ -306,16 +311,23 @@ class LazyEntry:
 
 # --------------------------------------------------------------------------- the compiler and the dispatcher
 class KernelCompiler(compiler.Compiler):
-    """numba's default compiler (its pipelines unchanged) writing into a :class:`KernelLibrary`."""
+    """numba's default compiler (its pipelines unchanged) writing into a :class:`KernelLibrary`.
+
+    It compiles the kernels of :func:`jit` and ftcreport's own overloads (``jit_options={"pipeline_class":
+    KernelCompiler}``, fast/refs.py): an overload's implementation is held by numba's dispatcher, which
+    takes compiled functions only, so its machine code is never deferred (the cheap passes below an entry
+    point still apply)."""
 
     def compile_extra(self, func):
         if not accelerated() or self.state.library is not None:
             return super().compile_extra(func)
         context = self.state.targetctx  # this compile's own copy of numba's context (numba's subtarget)
+        kernel = func in _KERNEL_FUNCS  # compiled by a KernelDispatcher (its depth counts this compile)
         try:
             library = KernelLibrary(context.codegen(), func.__qualname__)
             library.enable_object_caching()
-            library._ftc_below = _depth() > 1  # the outermost ftcreport compile of the thread is an entry point
+            library._ftc_below = _depth() > int(kernel)  # the outermost ftcreport compile of a thread: an entry point
+            library._ftc_defer = kernel
         except Exception as exc:
             _fail("code library", exc)
             return super().compile_extra(func)
@@ -332,6 +344,7 @@ class KernelDispatcher(registry.CPUDispatcher):
 
     def __init__(self, py_func, locals=None, targetoptions=None, pipeline_class=KernelCompiler):
         super().__init__(py_func, locals=locals or {}, targetoptions=targetoptions or {}, pipeline_class=pipeline_class)
+        _KERNEL_FUNCS.add(py_func)
 
     def compile(self, sig):
         depth = _depth()

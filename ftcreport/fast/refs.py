@@ -22,7 +22,7 @@ from numba import types
 from numba.core.extending import overload
 from numba.experimental import structref
 
-from .compiling import jit
+from .compiling import KernelCompiler, jit
 
 __all__ = ["RefProxy", "RefType", "as_ref", "to_ref"]
 
@@ -50,7 +50,7 @@ def as_ref(x):
     raise NotImplementedError("as_ref runs in compiled code only")
 
 
-@overload(as_ref)
+@overload(as_ref, jit_options={"pipeline_class": KernelCompiler})  # ftcreport's compiler: cheap below an entry
 def _as_ref(x):
     if isinstance(x, types.BaseTuple) and not isinstance(x, types.BaseNamedTuple):  # a plain tuple: each item
         items = ", ".join(f"as_ref(x[{i}])" for i in range(len(x.types)))

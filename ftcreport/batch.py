@@ -276,8 +276,12 @@ def merge_manifest(old: dict | None, new: dict, out: Path) -> dict:
     with the cases, runs and seeds of the earlier batches into the same directory that this one did
     not redo and whose results are still there, and ``batches``: one entry per batch (its time,
     cases, settings and package version), so the manifest covers every case the index shows."""
-    this = {"created": new["created"], "cases": sorted(new["cases"]), "settings": new.get("settings"),
-            "ftcreport": new["ftcreport"]["version"]}  # fmt: skip
+    this = {
+        "created": new["created"],
+        "cases": sorted(new["cases"]),
+        "settings": new.get("settings"),
+        "ftcreport": new["ftcreport"]["version"],
+    }
     if not isinstance(old, dict) or old.get("kind") != "batch":
         return new | {"batches": [this]}
     mine = set(new["cases"])
@@ -288,8 +292,9 @@ def merge_manifest(old: dict | None, new: dict, out: Path) -> dict:
     merged["cases"] = kept | new["cases"]
     merged["runs"] = [r for r in old.get("runs") or [] if r.get("case") in kept] + new["runs"]
     merged["seeds"] = {c: s for c, s in (old.get("seeds") or {}).items() if c in kept} | new["seeds"]
-    earlier = old.get("batches") or [{"created": old.get("created"), "cases": sorted(old.get("cases") or {}),
-                                      "settings": old.get("settings")}]  # fmt: skip
+    earlier = old.get("batches") or [
+        {"created": old.get("created"), "cases": sorted(old.get("cases") or {}), "settings": old.get("settings")}
+    ]
     merged["batches"] = [b for b in earlier if set(b.get("cases") or ()) & set(kept)] + [this]
     return merged
 

@@ -710,6 +710,31 @@ def campaign(
     _done(res, "samples run", page)
 
 
+@app.command()
+def sample(
+    campaign_dir: Annotated[Path, typer.Argument(help="A campaign's output directory (reports/campaigns/<case>).")],
+    index: Annotated[list[int], typer.Argument(help="Sample numbers (the 'sample' column of results.csv).")],
+) -> None:
+    """Render the page of campaign samples: the sample's variant re-simulated from its seeds, as a case page
+    (verdict, replay, signals), linked from the campaign's page.
+
+    Example: ftcreport sample reports/campaigns/two_link_campaign 17
+    """
+    from .campaign import read_table
+    from .report.campaign import render_campaign, render_sample
+    from .store import output_lock
+
+    if not (campaign_dir / "campaign.json").is_file():
+        raise FtcError(f"{campaign_dir}: not a campaign directory (no campaign.json); run 'ftcreport campaign' first")
+    with output_lock(campaign_dir, "sample"):
+        for i in index:
+            with _running(f"sample {i}", False):
+                page = render_sample(campaign_dir, i)
+            typer.echo(f"sample {i}: {page}")
+        if (campaign_dir / "results.csv").exists():  # the campaign's page links the new pages
+            render_campaign(campaign_dir, read_table(campaign_dir / "results.csv"), worst=0)
+
+
 def _done(res, runs: str, page: Path, detail: str = "") -> None:
     """The summary line of a resumable Dask command (campaign, coverage); exit 1 when a task failed."""
     typer.echo(
@@ -761,10 +786,7 @@ def cases_validate(
     from .errors import CaseError
 
     paths = paths or [Path("cases")]
-    missing = [p for p in paths if not p.exists()]
-    if missing:
-        raise FtcError(f"{missing[0]}: no such file or directory")
-    files = [f for p in paths for f in ([p] if p.is_file() else sorted(p.rglob("*.toml")))]
+    files = [f for p in paths for f in (sorted(p.rglob("*.toml")) if p.is_dir() else [p])]
     if not files:
         raise FtcError(f"no case files (*.toml) in {', '.join(map(str, paths))}")
     bad = 0

@@ -371,18 +371,19 @@ def fmt_ratio(x: float | None, tie: bool = False) -> str:
 
 def fmt_relative(mv: MetricVerdict, which: str) -> str:
     """Regret (``which="regret"``) or benefit of a verdict in words for a table cell: the ratio, or
-    the absolute difference when the denominator is below the metric's floor (module docstring)."""
+    the absolute difference when the denominator is below the metric's floor (module docstring), or
+    which side is "never" (inf: no ratio and no difference)."""
     r, tie, diff = getattr(mv, which), getattr(mv, f"{which}_tie"), getattr(mv, f"{which}_diff")
     if tie or r is not None:
         return fmt_ratio(r, tie)
-    den = mv.oracle if which == "regret" else mv.best
+    num, den = (mv.best, mv.oracle) if which == "regret" else (mv.nominal, mv.best)
+    who = ("the winner", "oracle") if which == "regret" else ("nominal", "the winner")
+    for side, x in zip(who, (num, den), strict=True):
+        if x is not None and math.isinf(x):
+            return f"n/a ({side}: never)"
     if diff is None:
-        if den is not None and mv.best is not None and math.isinf(den):
-            return "n/a (never)"
         return "n/a"
     unit = f" {mv.spec.unit}" if mv.spec.unit else ""
-    if math.isinf(diff):
-        return "never (no ratio)"
     return f"{diff:+.3g}{unit} (difference: {fmt_value(den)}{unit} is below the {mv.spec.floor:g}{unit} floor)"
 
 

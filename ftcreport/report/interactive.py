@@ -275,10 +275,10 @@ def band_fig(
     a, b = _window(np.asarray(t_main, float), phases)
     lay = {
         "title": {"text": f"{title}, {main}", "font": {"size": 13}},
-        "height": 260 * nrow + 80,
-        "margin": {"l": 60, "r": 20, "t": 50, "b": 40},
+        "height": 260 * nrow + 120,
+        "margin": {"l": 60, "r": 20, "t": 50, "b": 90},
         "hovermode": "closest",
-        "legend": {"orientation": "h", "y": -0.08},
+        "legend": {"orientation": "h", "y": 0, "yref": "container", "yanchor": "bottom"},
         "shapes": [],
         "annotations": [],
         "updatemenus": [
@@ -287,7 +287,7 @@ def band_fig(
                 "direction": "down",
                 "x": 1.0,
                 "xanchor": "right",
-                "y": 1.0 + 40 / (260 * nrow + 80),
+                "y": 1.0 + 40 / (260 * nrow + 120),
                 "yanchor": "bottom",
                 "active": schemes.index(main) if main in schemes else 0,
             }
@@ -314,7 +314,11 @@ def band_fig(
             lay[yname]["title"] = {"text": rows[r][1]}
             if k in lims:
                 lay[yname]["range"] = lims[k]
-            lay["shapes"] += [{**s, "xref": ax["x"], "yref": f"{ax['y']} domain"} for s in _phases(phases, t_end)]
+            shades = _phases(phases, t_end)
+            lay["shapes"] += [
+                {**s, "xref": ax["x"], "yref": f"{ax['y']} domain"} | ({"showlegend": False} if r else {})
+                for s in shades
+            ]
         lim = rows[r][2]
         if lim is not None:
             for sign in (1, -1):

@@ -177,7 +177,7 @@ def articulation_svg(series: dict[str, dict], phases: list[dict]) -> str:
     ax.set_ylabel("theta_i - theta_(i+1) [deg]")
     ax.set_xlabel("t [s]")
     _shade_phases(ax, phases)
-    ax.legend(loc="upper right", fontsize=6)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=6, frameon=False)
     ax.set_title("articulation angles (red: singular at +/-90 deg)")
     return _svg(fig)
 
@@ -280,8 +280,8 @@ def velocities_svg(ts: dict, chain, phases: list[dict], scheme: str) -> str:
         if lim is not None:
             ax.set_ylim(*lim)
         _shade_phases(ax, phases)
-        ax.legend(loc="upper right", ncol=min(4, v.shape[1] + 1), fontsize=6)
-    axes[0].set_title(f"linear and angular velocity of each robot, {scheme}")
+    axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.08), ncol=3, fontsize=6, frameon=False)
+    fig.suptitle(f"linear and angular velocity of each robot, {scheme}", fontsize=8)
     return _svg(fig)
 
 

@@ -192,8 +192,11 @@ def _record(out: Path, name: str) -> dict | None:
     return read_json(out / name / "case.json")
 
 
-def render_case(out: Path, name: str) -> Path | None:
-    """Render ``<out>/<name>/index.html``; returns its path (None if the case has no record)."""
+def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases") -> Path | None:
+    """Render ``<out>/<name>/index.html``; returns its path (None if the case has no record).
+
+    ``root``: the page's way to the top of the report (its navigation link, ``nav``, goes there).
+    """
     out = Path(out)
     rec = _record(out, name)
     if rec is None:
@@ -203,7 +206,8 @@ def render_case(out: Path, name: str) -> Path | None:
         return write_page(
             page,
             "case.html",
-            "../",
+            root,
+            nav_label=nav,
             name=name,
             description=rec.get("error", ""),
             n_phases=0,
@@ -255,7 +259,7 @@ def render_case(out: Path, name: str) -> Path | None:
             figure(
                 "errors",
                 "Tracking errors per scheme (log scale; hover for values, drag to zoom, double-click to "
-                f"reset); {SHADING}",
+                f"reset). {SHADING}",
                 plotly=interactive.errors_fig(series, shading),
             )
         )
@@ -300,7 +304,7 @@ def render_case(out: Path, name: str) -> Path | None:
         figures.append(
             figure(
                 "articulation",
-                f"Articulation angles with the singular configuration at +/-90 deg; {SHADING}",
+                f"Articulation angles with the singular configuration at +/-90 deg. {SHADING}",
                 svg=plots.articulation_svg(series, shading),
             )
         )
@@ -349,7 +353,8 @@ def render_case(out: Path, name: str) -> Path | None:
     return write_page(
         page,
         "case.html",
-        "../",
+        root,
+        nav_label=nav,
         verdict=verdict,
         verdict_rows=_verdict_rows(verdict) if verdict else [],
         not_run=rec.get("not_run", {}),
@@ -622,32 +627,38 @@ def oracle_notes(v, case, base_verdict=None) -> list[str]:
     if not beaten:
         return []
 
-    def one(mv, b=None) -> str:
+    def one(mv) -> str:
         u = mv.spec.unit
-        txt = (
-            f"{mv.spec.label}: {_names(mv.winners)} {compare.fmt_value(mv.best, u)} against "
-            f"{compare.fmt_value(mv.oracle, u)}, regret {compare.fmt_ratio(mv.regret)}"
+        return (
+            f"{mv.spec.label} ({_names(mv.winners)} {compare.fmt_value(mv.best, u)} against the oracle's "
+            f"{compare.fmt_value(mv.oracle, u)}, regret {compare.fmt_ratio(mv.regret)})"
         )
-        if b is not None:
-            txt += f"; base case: oracle {compare.fmt_value(b.oracle, u)}, best other {compare.fmt_value(b.best, u)}"
-        return txt
+
+    def there(mv) -> str:
+        b, u = base[mv.spec.key], mv.spec.unit
+        return f"{mv.spec.label}: oracle {compare.fmt_value(b.oracle, u)}, best other {compare.fmt_value(b.best, u)}"
 
     base = {mv.spec.key: base_verdict.metrics.get(mv.spec.key) for mv in beaten} if base_verdict and plant else {}
-    led = [mv for mv in beaten if (b := base.get(mv.spec.key)) is not None and b.oracle is not None
-           and (b.regret_tie or b.regret is None or b.regret >= 1.0)]  # fmt: skip
+    led = [
+        mv
+        for mv in beaten
+        if (b := base.get(mv.spec.key)) is not None
+        and b.oracle is not None
+        and (b.regret_tie or b.regret is None or b.regret >= 1.0)
+    ]
     rest = [mv for mv in beaten if mv not in led]
     out = []
     if led:
         out.append(
-            "The oracle is beaten here (" + "; ".join(one(mv, base[mv.spec.key]) for mv in led) + f") but leads or "
-            f"ties on the base case {base_verdict.case} (ideal torques, continuous control): its law is matched to "
-            f"that plant, and with {' and '.join(plant)} it is no bound."
+            f"The oracle is beaten here on {'; '.join(one(mv) for mv in led)}. On the base case {base_verdict.case} "
+            f"(ideal torques, continuous control) it leads or ties on each ({'; '.join(there(mv) for mv in led)}): "
+            f"its law is matched to that plant, and with {' and '.join(plant)} it is no bound."
         )
     if rest:
         why = f"; and it was derived for the ideal plant, not for {' and '.join(plant)}" if plant and not led else ""
         out.append(
-            "The oracle is beaten on " + "; ".join(one(mv) for mv in rest) + ": its law, matched to the true "
-            f"faults, is a reference for tracking, not the optimum of every metric{why}."
+            f"The oracle is beaten on {'; '.join(one(mv) for mv in rest)}: its law, matched to the true faults, is a "
+            f"reference for tracking, not the optimum of every metric{why}."
         )
     return out
 
@@ -769,7 +780,7 @@ def other_pages(out: Path) -> list[dict]:
     pages = []
     for page in sorted(out.rglob("*.html")):
         rel = page.relative_to(out)
-        if page == out / "index.html" or page.parent in cases or "samples" in rel.parts[:-1]:
+        if page == out / "index.html" or page.parent in cases or "sample_pages" in rel.parts[:-1]:
             continue
         if any(part.startswith(".") for part in rel.parts):
             continue

@@ -131,7 +131,7 @@ def test_verdict_replay_and_interactive_figures(reports, driver):
     assert 2 <= len(sentences) <= 4 and "After the faults at 10 and 20 s" in sentences[0].text
     rows = first.find_elements(By.CSS_SELECTOR, "#verdict-table tbody tr")
     metrics = [r.get_attribute("data-metric") for r in rows]
-    head = ["after_fault_error_max", "position_error_final", "recovery_time_max", "torque_peak", "energy"]
+    head = ["after_fault_error_max", "position_error_final", "recovery_time_max", "torque_peak_after_fault", "energy"]
     assert metrics[:5] == head
     assert {"detection_delay_max", "false_alarms"} <= set(metrics)
     # the replay advances when played, stops when paused, and the scrubber moves it
@@ -161,14 +161,14 @@ def test_verdict_replay_and_interactive_figures(reports, driver):
     time.sleep(0.5)
     labels = [e.text for e in driver.find_elements(By.CSS_SELECTOR, "#plot-errors .hoverlayer text")]
     assert any(" m" in x and any(c.isdigit() for c in x) for x in labels), labels
-    # fault phases shaded: every phase with a fault (10-20 s: 2l lost; after 20 s: healthy again, unshaded),
+    # fault phases shaded: every phase with a fault (10-20 s: 1l lost; after 20 s: healthy again, unshaded),
     # colored by pattern, with the pattern's gains in the legend
     shapes = driver.execute_script("return document.getElementById('plot-errors').layout.shapes")
     rects = [s for s in shapes if s["type"] == "rect"]
     assert [(r["x0"], r["x1"]) for r in rects] == [(10.0, 20.0)]
-    assert rects[0]["showlegend"] and "gains 1 1 1 0" in rects[0]["name"]
+    assert rects[0]["showlegend"] and "gains 1 0 1 1" in rects[0]["name"]
     legend = " ".join(e.text for e in driver.find_elements(By.CSS_SELECTOR, "#plot-errors .legendtext"))
-    assert "gains 1 1 1 0" in legend
+    assert "gains 1 0 1 1" in legend
     assert _console_errors(driver) == []
 
 

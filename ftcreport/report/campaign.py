@@ -69,12 +69,15 @@ def _ecdf_svg(summary: dict, key: str, label: str, log: bool, never: str | None 
             color=plots.SCHEME_COLORS.get(s, f"C{i}"),
             label=f"{s} ({d.size}/{n})",
         )
-    if log:
+    if log and ax.lines:
         ax.set_xscale("log")
     ax.set_ylim(0, 1.02)
     ax.set_xlabel(label)
     ax.set_ylabel("fraction of samples <= x")
-    ax.legend(fontsize=6, loc="lower right", title=never, title_fontsize=6)
+    if ax.lines:
+        ax.legend(fontsize=6, loc="lower right", title=never, title_fontsize=6)
+    else:
+        ax.text(0.5, 0.5, "no sample has a value", ha="center", va="center", transform=ax.transAxes)
     return plots._svg(fig)
 
 

@@ -161,6 +161,13 @@ def _window(t: np.ndarray, phases: list[dict], samples: int = 60) -> tuple[int, 
     return a, min(t.size, a + samples)
 
 
+def _scale_from(t: np.ndarray, phases: list[dict]) -> float:
+    """Where a band figure's whole-run axis takes its scale from: the first fault (what the verdict
+    ranks: the peak after it), or 1 s after the start without a fault (or a sample after it)."""
+    events = [p["start"] for p in phases if p["start"] > 0 and p["start"] < t[-1]]
+    return events[0] if events else float(t[0]) + 1.0
+
+
 def band_fig(
     series: dict[str, dict],
     signals: dict[str, np.ndarray],
@@ -172,8 +179,9 @@ def band_fig(
 ) -> dict:
     """Per-wheel signals of every scheme (a menu picks the scheme, ``main`` first), in three columns:
     the first second (the start-up transient at its own scale), the whole run (each bucket's min-max
-    band and mean, so chatter reads as a band of its amplitude; axis from t >= 1 s), and a zoom of
-    60 logged samples from the first fault (every sample, the chatter's shape).
+    band and mean, so chatter reads as a band of its amplitude; the axis scaled on the samples from
+    the first fault on, or from t = 1 s without one: :func:`_scale_from`), and a zoom of 60 logged
+    samples from the first fault (every sample, the chatter's shape).
 
     ``signals``: ``{f"{scheme}/{row}": (K, nw) array}`` on each scheme's log times; ``rows``: (key,
     axis title, limit) per row of panels, the limit drawn at +-limit (None: none).
@@ -183,7 +191,7 @@ def band_fig(
     nrow = len(rows)
     gap = 0.1 / max(1, nrow - 1) if nrow > 1 else 0.0
     height = (1.0 - gap * (nrow - 1)) / nrow
-    cols = ((0.0, 0.13), (0.19, 0.74), (0.8, 1.0))  # first second | whole run | zoom
+    cols = ((0.0, 0.12), (0.22, 0.75), (0.82, 1.0))  # first second | whole run | zoom
     axes: dict = {}
     t_end = _t_end(series)
     for r in range(nrow):
@@ -202,7 +210,7 @@ def band_fig(
         first = t <= t[0] + 1.0
         for r, (key, _label, _lim) in enumerate(rows):
             y = np.asarray(signals[f"{scheme}/{key}"], float)
-            rng = plots.robust_range(t, y)
+            rng = plots.robust_range(t, y, start=_scale_from(t, phases))
             if rng is not None:
                 old = lims.setdefault(3 * r + 2, list(rng))
                 lims[3 * r + 2] = [min(old[0], rng[0]), max(old[1], rng[1])]

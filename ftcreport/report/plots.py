@@ -182,11 +182,14 @@ def articulation_svg(series: dict[str, dict], phases: list[dict]) -> str:
     return _svg(fig)
 
 
-def robust_range(t: np.ndarray, y: np.ndarray, skip: float = 1.0, pad: float = 0.08) -> tuple[float, float] | None:
-    """An axis range from the samples at t >= t[0] + ``skip`` (padded by ``pad`` of the span): a
-    start-up transient before then is drawn but does not set the scale.  None without such samples."""
+def robust_range(
+    t: np.ndarray, y: np.ndarray, skip: float = 1.0, pad: float = 0.08, start: float | None = None
+) -> tuple[float, float] | None:
+    """An axis range from the samples at t >= ``start`` (default t[0] + ``skip``), padded by ``pad`` of
+    the span: a start-up transient before then is drawn but does not set the scale.  None without
+    such samples."""
     t = np.asarray(t, float)
-    y = np.asarray(y, float).reshape(t.size, -1)[t >= t[0] + skip]
+    y = np.asarray(y, float).reshape(t.size, -1)[t >= (t[0] + skip if start is None else start)]
     y = y[np.isfinite(y)]
     if y.size == 0:
         return None
@@ -280,7 +283,8 @@ def velocities_svg(ts: dict, chain, phases: list[dict], scheme: str) -> str:
         if lim is not None:
             ax.set_ylim(*lim)
         _shade_phases(ax, phases)
-    axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.08), ncol=3, fontsize=6, frameon=False)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=3, fontsize=6, frameon=False)
     fig.suptitle(f"linear and angular velocity of each robot, {scheme}", fontsize=8)
     return _svg(fig)
 

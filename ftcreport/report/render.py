@@ -90,8 +90,9 @@ SHADING = (
 BAND_COLUMNS = (
     "Left: the first second (the start-up transient at its own scale); middle: the whole run, each "
     "line the mean of a bucket of samples with its min-max range as a band (chatter reads as a band "
-    "of its amplitude), the axis scaled on t >= 1 s; right: 60 logged samples from the first fault, "
-    "every sample (the chatter's shape)."
+    "of its amplitude), the axis scaled on the samples from the first fault on (from t = 1 s without a "
+    "fault), so what comes before may run off it; right: 60 logged samples from the first fault, every "
+    "sample (the chatter's shape)."
 )
 
 

@@ -377,7 +377,7 @@ def fmt_relative(mv: MetricVerdict, which: str) -> str:
     if tie or r is not None:
         return fmt_ratio(r, tie)
     num, den = (mv.best, mv.oracle) if which == "regret" else (mv.nominal, mv.best)
-    who = ("the winner", "oracle") if which == "regret" else ("nominal", "the winner")
+    who = ("best", "oracle") if which == "regret" else ("nominal", "best")
     for side, x in zip(who, (num, den), strict=True):
         if x is not None and math.isinf(x):
             return f"n/a ({side}: never)"

@@ -109,12 +109,12 @@ def _phases(phases: list[dict], t_end: float) -> list[dict]:
 def _layout(title: str, phases: list[dict], t_end: float, height: int = 360, **extra) -> dict:
     lay = {
         "title": {"text": title, "font": {"size": 13}},
-        "height": height,
-        "margin": {"l": 60, "r": 20, "t": 40, "b": 40},
+        "height": height + 50,
+        "margin": {"l": 60, "r": 20, "t": 40, "b": 100},
         "hovermode": "x unified",
         "xaxis": {"title": {"text": "t [s]"}, "range": [0, t_end]},
         "shapes": _phases(phases, t_end),
-        "legend": {"orientation": "h", "y": -0.18},
+        "legend": {"orientation": "h", "y": 0, "yref": "container", "yanchor": "bottom"},
     }
     lay.update(extra)
     return lay

@@ -69,9 +69,9 @@ def fault_phases(schedule, duration: float, wheels: list[str]) -> list[dict]:
         sigma, ubar = schedule.at(start)
         healthy = bool(np.all(sigma == 1.0) and np.all(ubar == 0.0))
         key = (tuple(np.round(sigma, 6)), tuple(np.round(ubar, 6)))
-        label = "gains " + " ".join(f"{x:g}" for x in sigma)
+        label = "gains " + " ".join(f"{x:.3g}" for x in sigma)
         if np.any(ubar != 0.0):
-            label += "; frictions " + " ".join(f"{x:g}" for x in ubar)
+            label += "; frictions " + " ".join(f"{x:.3g}" for x in ubar)
         lost = [w for w, x in zip(wheels, sigma, strict=True) if x < 1.0]
         if lost:
             label += f" ({', '.join(lost)} below 1)"

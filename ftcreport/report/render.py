@@ -102,7 +102,7 @@ def _fault_rows(case, sched, names) -> list[dict]:
     for f in case.faults:
         sigma, ubar = sched.at(f.time)
         failed = [w for w, x in zip(names, sigma, strict=True) if x == 0.0]
-        partial = [f"{w} {x:g}" for w, x in zip(names, sigma, strict=True) if 0.0 < x < 1.0]
+        partial = [f"{w} {x:.3g}" for w, x in zip(names, sigma, strict=True) if 0.0 < x < 1.0]
         notes = [f"{what}: {', '.join(ws)}" for what, ws in (("failed", failed), ("partial", partial)) if ws]
         rows.append(
             {
@@ -111,8 +111,8 @@ def _fault_rows(case, sched, names) -> list[dict]:
                 "sigma": f.sigma,
                 "ubar": f.ubar,
                 "motor": f.motor,
-                "pattern": " ".join(f"{x:g}" for x in sigma) + (f"  ({'; '.join(notes)})" if notes else ""),
-                "frictions": " ".join(f"{x:g}" for x in ubar) if any(ubar != 0.0) else "",
+                "pattern": " ".join(f"{x:.3g}" for x in sigma) + (f"  ({'; '.join(notes)})" if notes else ""),
+                "frictions": " ".join(f"{x:.3g}" for x in ubar) if any(ubar != 0.0) else "",
             }
         )
     return rows

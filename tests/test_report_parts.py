@@ -113,3 +113,17 @@ def test_identical_tables_are_shown_once_with_every_scheme():
     groups = _group_tables({"nominal": rows, "switching": list(rows), "oracle": rows, "active": other})
     assert [g["schemes"] for g in groups] == [["nominal", "switching", "oracle"], ["active"]]
     assert groups[0]["rows"] == rows
+
+
+def test_fault_timeline_shows_partial_gains():
+    """Issue 35 item 6: the timeline's pattern column showed '1 1 1 1 1 1' for gains down to 0.1."""
+    from pathlib import Path
+
+    from ftcreport.cases import load_case
+    from ftcreport.model import wheel_names
+    from ftcreport.report.render import _fault_rows
+
+    case = load_case(Path(__file__).resolve().parents[1] / "cases" / "three_link_active.toml")
+    rows = _fault_rows(case, case.fault_schedule(), wheel_names(3))
+    assert rows[-1]["pattern"].startswith("0.8 0.3 0.4 0.2 0.1 0.7")
+    assert "partial: 1r 0.8" in rows[-1]["pattern"] and "failed" not in rows[-1]["pattern"]

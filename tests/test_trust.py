@@ -33,10 +33,10 @@ BASE = {
 }
 
 
-def _write(tmp_path: Path, name: str = "c", **top) -> Path:
-    """A case file ``<name>.toml``: BASE with top-level tables replaced or added."""
+def _write(tmp_path: Path, stem: str = "c", **top) -> Path:
+    """A case file ``<stem>.toml``: BASE with top-level tables replaced or added."""
     data = json.loads(json.dumps(BASE)) | top
-    p = tmp_path / f"{name}.toml"
+    p = tmp_path / f"{stem}.toml"
     p.write_text(tomli_w.dumps(data))
     return p
 
@@ -169,8 +169,8 @@ def _truncate(p: Path) -> None:
 
 DAMAGE = {
     "metrics truncated": ("metrics.json", _truncate, "truncated"),
-    "metrics null": ("metrics.json", lambda p: p.write_text("null"), "size"),
-    "metrics a list": ("metrics.json", lambda p: p.write_text("[]"), "size"),
+    "metrics null": ("metrics.json", lambda p: p.write_text("null"), "truncated"),
+    "metrics a list": ("metrics.json", lambda p: p.write_text("[]"), "truncated"),
     "metrics without scheme": (
         "metrics.json",
         lambda p: p.write_text(json.dumps({k: v for k, v in json.loads(p.read_text()).items() if k != "scheme"})),
@@ -195,8 +195,8 @@ def test_3_a_damaged_stored_run_is_named_and_re_run(stored, tmp_path, damage):
     assert rep.exit_code == 1, rep.output
     line = next(ln for ln in _errors(rep) if where in ln)
     assert why in line, line
-    index = (out / "index.html").read_text()
-    assert "damaged" in index  # the run is on the page as damaged, not gone from it
+    page = (out / "st" / "index.html").read_text()
+    assert "damaged stored result" in page  # the run is on its page as damaged, not gone from it
 
     again = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
     _no_crash(again)
@@ -324,7 +324,12 @@ def test_10_a_malformed_scheduler_is_bad_input(tmp_path, address):
 
 
 def test_10_a_duration_that_drops_a_fault_says_which(tmp_path):
-    case = _write(tmp_path, "df", faults=[{"time": 0.2, "wheel": "1r"}, {"time": 0.8, "wheel": "2l", "sigma": 0.5}])
+    case = _write(
+        tmp_path,
+        "df",
+        faults=[{"time": 0.2, "wheel": "1r"}, {"time": 0.8, "wheel": "2l", "sigma": 0.5}],
+        simulation={"dt": 0.01, "duration": 1.0},
+    )
     out = tmp_path / "o"
     res = runner.invoke(app, ["run", str(case), "--duration", "0.5", "--out", str(out), "--no-report"])
     assert res.exit_code == 0, res.output
@@ -402,8 +407,8 @@ def test_10_a_plugin_that_registers_no_scheme_is_an_error(tmp_path):
 
 
 def test_10_the_readme_says_validation_imports_plugins():
-    text = (ROOT / "README.md").read_text()
-    assert "`cases validate` imports the scheme files" in text
+    text = " ".join((ROOT / "README.md").read_text().split())
+    assert "`cases validate` imports the scheme files a case lists, and so runs their code" in text
 
 
 # ------------------------------------------------------------------ 11. run gates on the case's thresholds and claims

@@ -492,7 +492,7 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
             continue
         res.cases.append(case.name)
         loaded.append(case)
-        for line in notes:
+        for line in notes if show_progress else ():  # --quiet: on the case's page only
             _note(f"ftcreport: warning: {path}: {line}")
         record_case(out, case, Path(path), duration, notes)
         expected[case.name] = case

@@ -953,15 +953,15 @@ class Case(_Strict):
         for i, c in enumerate(self.claims):
             if ids.count(c.id) > 1:
                 raise _FieldError(f"claims[{i}].id", f"'{c.id}' is used by more than one claim")
+            for key in ("scheme", "relative_to"):
+                s = getattr(c, key)
+                if s is not None and run is not None and s not in run:
+                    raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not run by this case (schemes.run)")
             if c.not_applicable is None and c.metric is not None:
                 kinds = ("sequence",) if c.sequence is not None else ("number", "table", "list")
                 for s in (c.scheme, c.relative_to):
                     if s is not None and (why := metric_problem(s, c.metric, kinds)) is not None:
                         raise _FieldError(f"claims[{i}].metric", why)
-            for key in ("scheme", "relative_to"):
-                s = getattr(c, key)
-                if s is not None and run is not None and s not in run:
-                    raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not run by this case (schemes.run)")
         for scheme, metrics in self.thresholds.items():
             if scheme not in known:
                 raise _FieldError(
@@ -1397,14 +1397,19 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
     The scheme files of ``plugins`` are loaded first (their schemes register themselves), and the
     case keeps their absolute paths, so a worker that parses the case's JSON loads them too.
     """
-    _refuse_controls(data, source)
-    data = _load_plugins(data, source)
+    controls = _control_errors(data)  # reported with the other fields in error, the field once
     try:
+        data = _load_plugins(data, source)
         case = Case.model_validate(data)
     except ValidationError as exc:
-        lines = [f"{source}: {loc}: {why}" for loc, why in _field_errors(exc.errors())]
-        more = f" (and {len(lines) - 1} more; 'ftcreport cases validate' lists every one)" if len(lines) > 1 else ""
-        raise CaseError(lines[0] + more, lines) from None
+        found = {loc for loc, _ in controls}
+        _refuse(source, controls + [(loc, why) for loc, why in _field_errors(exc.errors()) if loc not in found])
+    except CaseError:
+        if controls:  # a plugins path with a control character is not looked for
+            _refuse(source, controls)
+        raise
+    if controls:
+        _refuse(source, controls)
     if case.name is None:
         stem = Path(source).stem
         if (why := name_problem(stem)) is not None:
@@ -1423,8 +1428,15 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
 _PROSE = ("words", "note")
 
 
-def _refuse_controls(data: Any, source: str) -> None:
-    """Refuse a control character (C0, DEL, C1) in any text of the case, keys included, naming each field.
+def _refuse(source: str, errors: list[tuple[str, str]]) -> None:
+    """Raise the CaseError of every (field, reason), the first in its message with the count of the others."""
+    lines = [f"{printable(source)}: {loc}: {why}" for loc, why in errors]
+    more = f" (and {len(lines) - 1} more; 'ftcreport cases validate' lists every one)" if len(lines) > 1 else ""
+    raise CaseError(lines[0] + more, lines) from None
+
+
+def _control_errors(data: Any) -> list[tuple[str, str]]:
+    """(field, reason) of every text of the case, keys included, that holds a control character (C0, DEL, C1).
 
     Every text of a case reaches a terminal line, a page or a JUnit file; an escape sequence rewrites
     the terminal, NUL and most others make XML ill-formed (issue 34 item 7).  Only the claims' prose
@@ -1432,39 +1444,33 @@ def _refuse_controls(data: Any, source: str) -> None:
     """
     import unicodedata
 
-    lines = []
+    out: list[tuple[str, str]] = []
+
+    def why(text: str, allowed: str = "") -> str | None:
+        bad = next(((i, c) for i, c in enumerate(text) if unicodedata.category(c) == "Cc" and c not in allowed), None)
+        if bad is None:
+            return None
+        shown = printable(text[:60]) + ("..." if len(text) > 60 else "")
+        return (
+            f"control character U+{ord(bad[1]):04X} at position {bad[0]} of '{shown}': a text of a case holds "
+            "printable characters only (a control character breaks the terminal, the pages and the JUnit file)"
+        )
 
     def walk(v: Any, path: str, key: str) -> None:
         if isinstance(v, dict):
             for k, x in v.items():
                 sub = f"{path}.{printable(k)}" if path else printable(k)
-                if isinstance(k, str) and printable(k) != k:
-                    lines.append(_control_line(source, sub, k))
+                if isinstance(k, str) and (w := why(k)) is not None:
+                    out.append((sub, w))
                 walk(x, sub, str(k))
         elif isinstance(v, list):
             for i, x in enumerate(v):
                 walk(x, f"{path}[{i}]", key)
-        elif isinstance(v, str):
-            allowed = "\t\n\r" if key in _PROSE else ""
-            if any(unicodedata.category(c) == "Cc" and c not in allowed for c in v):
-                lines.append(_control_line(source, path, v, allowed))
+        elif isinstance(v, str) and (w := why(v, "\t\n\r" if key in _PROSE else "")) is not None:
+            out.append((path or "<root>", w))
 
     walk(data, "", "")
-    if lines:
-        more = f" (and {len(lines) - 1} more; 'ftcreport cases validate' lists every one)" if len(lines) > 1 else ""
-        raise CaseError(lines[0] + more, lines)
-
-
-def _control_line(source: str, path: str, text: str, allowed: str = "") -> str:
-    import unicodedata
-
-    at, ch = next((i, c) for i, c in enumerate(text) if unicodedata.category(c) == "Cc" and c not in allowed)
-    shown = printable(text[:60]) + ("..." if len(text) > 60 else "")
-    return (
-        f"{printable(source)}: {path or '<root>'}: control character U+{ord(ch):04X} at position {at} of "
-        f"'{shown}': a text of a case holds printable characters only (a control character breaks the "
-        "terminal, the pages and the JUnit file)"
-    )
+    return out
 
 
 def _load_plugins(data: dict, source: str) -> dict:

@@ -448,7 +448,8 @@ def run(
                 rows.append(m)
                 del r  # stored: the next scheme and the report do not hold this run's arrays too
             write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
-            gate = _run_gate(out, c.name, [m["scheme"] for m in rows])
+            ended = [m["scheme"] for m in rows if m["status"] in c.expected_for(m["scheme"])]
+            gate = _run_gate(out, c.name, ended) if duration is None else []
             page = None
             if not no_report:  # matplotlib and jinja2 only for the report (--no-report: about 45 MB less)
                 from .report.render import render_case, render_index
@@ -466,6 +467,12 @@ def run(
             typer.echo(_dt_table(rows))
         for item in gate:
             typer.echo(printable(item.line()))
+        if duration is not None and (c.thresholds or c.claims):
+            typer.echo(
+                f"note: {case}: --duration {duration:g}: the case's thresholds and claims are stated for its own "
+                "duration and are not judged (run without --duration, or 'ftcreport check', to judge them)",
+                err=True,
+            )
         typer.echo(f"results in {out / c.name}/" + (f", report {page}" if page else ""))
     failed = [m for m in rows if m["status"] not in c.expected_for(m["scheme"])]
     for m in failed:
@@ -495,7 +502,8 @@ def run(
 def _run_gate(out: Path, name: str, schemes: list[str]):
     """The gate items of the runs ``run`` just stored (thresholds, claims and the other kinds of
     ftcreport.check.CASE_ITEMS, not the runs' status: ``run`` reports those itself), restricted to
-    ``schemes``: an item that reads a scheme not run (``--scheme``) is not judged."""
+    ``schemes``: an item that reads a scheme not run (``--scheme``) or a run that failed (already
+    reported as such) is not judged."""
     from .check import CASE_ITEMS, run_items, stored_case
 
     case = stored_case(out, name)

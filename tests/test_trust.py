@@ -337,7 +337,7 @@ def test_10_a_duration_that_drops_a_fault_says_which(tmp_path):
     assert len(warn) == 1 and "faults[1] (t = 0.8 s, wheel 2l)" in warn[0] and "faults[0]" not in warn[0], warn
     rec = json.loads((out / "df" / "case.json").read_text())
     assert any("faults[1]" in w for w in rec["warnings"])
-    res = runner.invoke(app, ["batch", str(case), "--duration", "0.5", "--out", str(out), "-q"])
+    res = runner.invoke(app, ["batch", str(case), "--duration", "0.5", "--out", str(out)])
     assert "faults[1] (t = 0.8 s, wheel 2l)" in res.stderr
 
 

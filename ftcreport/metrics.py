@@ -245,7 +245,7 @@ _ACTIVE = ("active", "active_ukf")
 
 #: Every entry a run writes beside its identity (case, scheme, settings, status, reason, engine): the
 #: functions of this module, :func:`ftcreport.diagnosis.diagnosis_metrics` and
-#: :func:`ftcreport.runner.run_metrics` (tests/test_trust.py checks that a run of every scheme writes
+#: :func:`ftcreport.runner.run_metrics` (tests/test_batch.py checks that a run of every scheme writes
 #: exactly these).  Case validation checks the metric names of ``[thresholds.<scheme>]`` and
 #: ``[[claims]]`` against it (``ftcreport.cases``).
 METRICS: dict[str, Metric] = {

@@ -160,8 +160,37 @@ def save_run(
         "failure": (failure or f"{status}: {metrics.get('reason') or 'no reason given'}") if failed else None,
         "files": {name: _digest(files[name]) for name in RUN_FILES},
     }
-    write_json(d / RECORD, record)
+    write_json(d / RECORD, record | {"sha256": _seal(record)})
     return d
+
+
+def _is(value: Any, t: type | tuple[type, ...]) -> bool:
+    """isinstance, where a boolean is not an int (JSON's true is not the number 1)."""
+    return isinstance(value, t) and (isinstance(value, bool) == (t is bool))
+
+
+def _seal(record: dict) -> str:
+    """SHA-256 of a record's fields (canonical JSON): an edited record (a status or failed flag changed by
+    hand, a field dropped) no longer matches it."""
+    return hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+#: The fields of a record and their types (a record missing one, or with another type, is not a record)
+_RECORD_FIELDS = {
+    "format": int,
+    "case": str,
+    "scheme": str,
+    "key": str,
+    "case_hash": str,
+    "package_version": str,
+    "status": str,
+    "reason": str,
+    "expected": list,
+    "failed": bool,
+    "failure": (str, type(None)),
+    "files": dict,
+    "sha256": str,
+}
 
 
 @dataclass(frozen=True)
@@ -221,8 +250,17 @@ def check_run(
         rec = json.loads(rp.read_bytes())
     except (OSError, ValueError) as exc:
         return bad(f"{rp}: unreadable ({_short(exc)})")
-    files = rec.get("files") if isinstance(rec, dict) else None
-    if not isinstance(files, dict) or not all(isinstance(files.get(f), dict) for f in RUN_FILES):
+    if not isinstance(rec, dict):
+        return bad(f"{rp}: unreadable (not a run record: a JSON {type(rec).__name__})")
+    wrong = [k for k, t in _RECORD_FIELDS.items() if not _is(rec.get(k), t)]
+    if wrong:
+        return bad(f"{rp}: unreadable (not a run record: {', '.join(wrong)} missing or of another type)")
+    if rec.get("format") != RECORD_FORMAT:
+        return bad(f"{rp}: a record of format {rec.get('format')}, this ftcreport reads {RECORD_FORMAT}")
+    if _seal({k: v for k, v in rec.items() if k != "sha256"}) != rec["sha256"]:
+        return bad(f"{rp}: hash mismatch (its fields were changed after the run)")
+    files = rec["files"]
+    if not all(isinstance(files.get(f), dict) for f in RUN_FILES):
         return bad(f"{rp}: unreadable (not a run record: no size and hash of {', '.join(RUN_FILES)})")
     if (rec.get("case"), rec.get("scheme")) != (case_name, scheme):
         return bad(f"{rp}: the record of another run ({rec.get('case')} / {rec.get('scheme')})")

@@ -64,6 +64,25 @@ def test_every_case_runs_through_every_scheme(batch_dir):
     assert all((out / n / "index.html").exists() for n in names)
 
 
+def test_every_run_writes_exactly_the_metrics_validation_knows(batch_dir):
+    """ftcreport.metrics.METRICS is the list case validation checks threshold and claim names against
+    (issue 34 item 12): a run of every scheme writes exactly its entries beside its identity."""
+    from ftcreport.cases import load_case
+    from ftcreport.metrics import metrics_of
+    from ftcreport.runner import _identity
+
+    out, _ = batch_dir
+    seen = set()
+    for rec in sorted(out.glob("*/case.json")):
+        case = load_case(CASES / f"{rec.parent.name}.toml")
+        for s in json.loads(rec.read_text())["schemes"]:
+            m = json.loads((out / rec.parent.name / s / "metrics.json").read_text())
+            written = set(m) - set(_identity(case, s)) - {"status", "reason", "engine", "null_reasons"}
+            assert written == set(metrics_of(s)) - {"verify_dt"}, (rec.parent.name, s, written ^ set(metrics_of(s)))
+            seen.add(s)
+    assert {"nominal", "oracle", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf"} <= seen
+
+
 def test_rerun_simulates_nothing(batch_dir):
     out, first = batch_dir
     page = out / "two_link_uncompensable" / "index.html"

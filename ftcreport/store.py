@@ -272,16 +272,14 @@ def check_run(
     if key is not None and rec.get("key") != key:
         return bad(f"{rp}: of another cache key ({rec.get('key')}, now {key}: the case, its scheme's engine or a "
                    "numeric library changed)")  # fmt: skip
-    data = {}
     for name in RUN_FILES:
         p, want = d / name, files[name]
         try:
-            data[name] = p.read_bytes()
+            size, digest = _file_digest(p)
         except FileNotFoundError:
             return bad(f"{p}: missing")
         except OSError as exc:
             return bad(f"{p}: unreadable ({_short(exc)})")
-        size = len(data[name])
         if size != want.get("size"):
             short = isinstance(want.get("size"), int) and size < want["size"]
             why = (
@@ -290,8 +288,15 @@ def check_run(
                 else f"size {size} bytes, the record says {want.get('size')}"
             )
             return bad(f"{p}: {why}")
-        if hashlib.sha256(data[name]).hexdigest() != want.get("sha256"):
+        if digest != want.get("sha256"):
             return bad(f"{p}: hash mismatch (SHA-256 differs from the record's: the file was changed after the run)")
+    try:
+        raw = (d / "metrics.json").read_bytes()
+    except OSError as exc:
+        return bad(f"{d / 'metrics.json'}: unreadable ({_short(exc)})")
+    if hashlib.sha256(raw).hexdigest() != files["metrics.json"].get("sha256"):  # replaced since it was hashed
+        return bad(f"{d / 'metrics.json'}: hash mismatch (SHA-256 differs from the record's: the file was changed)")
+    data = {"metrics.json": raw}
     try:
         metrics = json.loads(data["metrics.json"])
     except ValueError as exc:
@@ -299,6 +304,31 @@ def check_run(
     if not isinstance(metrics, dict) or metrics.get("scheme") != scheme or not isinstance(metrics.get("status"), str):
         return bad(f"{d / 'metrics.json'}: not the metrics of {case_name} / {scheme}")
     return StoredRun(case_name, scheme, d, record=rec, metrics=metrics)
+
+
+#: (size, SHA-256) of the files this process hashed, by path, with the (inode, size, mtime) they had: a
+#: batch checks a run several times (cache decision, manifest, pages, table) and hashes a file once.
+#: Every file of a run is replaced (a new inode), never written in place, so a changed file is hashed again.
+_DIGESTS: dict[str, tuple[tuple[int, int, int], tuple[int, str]]] = {}
+
+
+def _file_digest(p: Path) -> tuple[int, str]:
+    """(size, SHA-256) of a file, from :data:`_DIGESTS` when it has not changed since it was hashed."""
+    st = os.stat(p)
+    stamp = (st.st_ino, st.st_size, st.st_mtime_ns)
+    known = _DIGESTS.get(str(p))
+    if known is not None and known[0] == stamp:
+        return known[1]
+    h = hashlib.sha256()
+    size = 0
+    with open(p, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+            size += len(block)
+    result = (size, h.hexdigest())
+    if size == st.st_size:
+        _DIGESTS[str(p)] = (stamp, result)
+    return result
 
 
 def _short(exc: BaseException) -> str:

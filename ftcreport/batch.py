@@ -403,21 +403,14 @@ def _worker(case_data: dict, source: str, scheme: str, out: str, key: str) -> tu
 def _not_the_case(exc: BaseException) -> str:
     """Why a run failed when the failure is not its case's outcome: the environment's words, or a bug's
     one line with the log holding its traceback."""
-    from .errors import RunEnvironmentError, environment_cause
+    from .errors import RunEnvironmentError, environment_cause, write_crash_log
 
     if isinstance(exc, RunEnvironmentError):
         return str(exc)
     cause = environment_cause(exc)
     if cause is not None:
         return cause
-    return f"unexpected {type(exc).__name__}: {str(exc)[:200]} (a bug: traceback in {_crash_log(exc)})"
-
-
-def _crash_log(exc: BaseException) -> str:
-    """The traceback of a bug met in a worker, in a log file (the CLI's crash log); its path."""
-    from .cli import _crash_log as log
-
-    return log(exc)
+    return f"unexpected {type(exc).__name__}: {str(exc)[:200]} (a bug: traceback in {write_crash_log(exc)})"
 
 
 def worker_count(jobs: int | None, runs: int) -> tuple[int, str | None]:

@@ -159,24 +159,9 @@ def _classify(exc: BaseException) -> tuple[str, int]:
 
 def _crash_log(exc: BaseException) -> str:
     """Write the traceback to a log file (FTCREPORT_LOG_DIR or the temp directory); return its path."""
-    import datetime as _dt
-    import os
-    import tempfile
-    import traceback
+    from .errors import write_crash_log
 
-    text = "".join(traceback.format_exception(exc))
-    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    for d in (os.environ.get("FTCREPORT_LOG_DIR"), tempfile.gettempdir()):
-        if not d:
-            continue
-        try:
-            path = Path(d) / f"ftcreport-crash-{stamp}-{os.getpid()}.log"
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(f"ftcreport {__version__}\n{text}")
-            return str(path)
-        except OSError:
-            continue
-    return "<no writable log directory>"
+    return write_crash_log(exc)
 
 
 # Help text is rich markup: a unit such as [s] or a table such as [campaign] is written \\[s] in it,

@@ -151,7 +151,7 @@ def save_run(
         "case": case_name,
         "scheme": scheme,
         "key": key,
-        "case_hash": metrics.get("case_hash"),
+        "case_hash": metrics.get("case_hash") or "",
         "package_version": __version__,
         "status": status,
         "reason": metrics.get("reason") or "",
@@ -296,9 +296,8 @@ def check_run(
         return bad(f"{d / 'metrics.json'}: unreadable ({_short(exc)})")
     if hashlib.sha256(raw).hexdigest() != files["metrics.json"].get("sha256"):  # replaced since it was hashed
         return bad(f"{d / 'metrics.json'}: hash mismatch (SHA-256 differs from the record's: the file was changed)")
-    data = {"metrics.json": raw}
     try:
-        metrics = json.loads(data["metrics.json"])
+        metrics = json.loads(raw)
     except ValueError as exc:
         return bad(f"{d / 'metrics.json'}: unreadable ({_short(exc)})")
     if not isinstance(metrics, dict) or metrics.get("scheme") != scheme or not isinstance(metrics.get("status"), str):

@@ -22,7 +22,6 @@ from importlib import resources
 from pathlib import Path
 
 import jinja2
-import markupsafe
 import numpy as np
 
 from .. import __version__, compare
@@ -47,8 +46,8 @@ def _env() -> jinja2.Environment:
 def _no_controls(value):
     """Every value a page prints with its control characters escaped (a file name or a stored reason may
     hold them; HTML shows them as nothing or breaks on them: issue 34 item 7); markup stays markup."""
-    if isinstance(value, markupsafe.Markup):
-        return markupsafe.Markup(printable(value, keep="\t\n\r"))
+    if hasattr(value, "__html__"):  # markupsafe.Markup (jinja2's): built again as markup
+        return type(value)(printable(value, keep="\t\n\r"))
     return printable(value, keep="\t\n\r") if isinstance(value, str) else value
 
 

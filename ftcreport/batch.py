@@ -403,7 +403,8 @@ def _worker(case_data: dict, source: str, scheme: str, out: str, key: str) -> tu
 def _not_the_case(exc: BaseException) -> str:
     """Why a run failed when the failure is not its case's outcome: the environment's words, or a bug's
     one line with the log holding its traceback."""
-    from .errors import RunEnvironmentError, environment_cause, write_crash_log
+    from .crashlog import write_crash_log
+    from .errors import RunEnvironmentError, environment_cause
 
     if isinstance(exc, RunEnvironmentError):
         return str(exc)

@@ -159,7 +159,7 @@ def _classify(exc: BaseException) -> tuple[str, int]:
 
 def _crash_log(exc: BaseException) -> str:
     """Write the traceback to a log file (FTCREPORT_LOG_DIR or the temp directory); return its path."""
-    from .errors import write_crash_log
+    from .crashlog import write_crash_log
 
     return write_crash_log(exc)
 

@@ -33,7 +33,6 @@ __all__ = [
     "trial_stage_reason",
     "two_link_reason",
     "with_step",
-    "write_crash_log",
 ]
 
 
@@ -104,41 +103,14 @@ def environment_cause(exc: BaseException) -> str | None:
     (``EOFError``, ``pickle.UnpicklingError``, ``ImportError`` of a cached module).  These say
     nothing about the case: the same run elsewhere or later may succeed.
     """
-    import pickle
-
-    env = (OSError, MemoryError, EOFError, pickle.UnpicklingError, ImportError, KeyboardInterrupt, SystemExit)
-    module = type(exc).__module__ or ""
-    if isinstance(exc, (RunEnvironmentError, *env)) or module.split(".")[0] in ("numba", "llvmlite"):
+    env = (RunEnvironmentError, OSError, MemoryError, EOFError, ImportError, KeyboardInterrupt, SystemExit)
+    module = (type(exc).__module__ or "").split(".")[0]
+    unpickling = any(
+        c.__name__ == "UnpicklingError" and c.__module__ in ("pickle", "_pickle") for c in type(exc).__mro__
+    )
+    if isinstance(exc, env) or unpickling or module in ("numba", "llvmlite"):
         return f"{type(exc).__name__}: {exc}".rstrip(": ")
     return None
-
-
-def write_crash_log(exc: BaseException) -> str:
-    """Write the traceback of a bug to a log file (FTCREPORT_LOG_DIR or the temp directory); return its path.
-
-    The CLI's error boundary names it in its one line (exit 3); a batch names it for a run whose worker met
-    a bug (the run is not stored)."""
-    import datetime as _dt
-    import os
-    import tempfile
-    import traceback
-    from pathlib import Path
-
-    from . import __version__
-
-    text = "".join(traceback.format_exception(exc))
-    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    for d in (os.environ.get("FTCREPORT_LOG_DIR"), tempfile.gettempdir()):
-        if not d:
-            continue
-        try:
-            path = Path(d) / f"ftcreport-crash-{stamp}-{os.getpid()}.log"
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(f"ftcreport {__version__}\n{text}")
-            return str(path)
-        except OSError:
-            continue
-    return "<no writable log directory>"
 
 
 # --------------------------------------------------------------------------- text that cannot break a file

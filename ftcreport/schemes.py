@@ -184,6 +184,7 @@ def load_plugin(path: str | Path) -> None:
         raise ModelError(f"{path}: not a Python file")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
+    before = dict(_REGISTRY)
     try:
         spec.loader.exec_module(module)
     except SystemExit as exc:  # not an Exception; the half-imported module must not stay loaded either
@@ -192,6 +193,11 @@ def load_plugin(path: str | Path) -> None:
     except Exception as exc:
         del sys.modules[name]
         raise ModelError(f"{path}: the scheme file failed to import: {type(exc).__name__}: {exc}") from exc
+    if all(before.get(k) is v for k, v in _REGISTRY.items()):  # nothing new: a wrong file, or a typo in it
+        del sys.modules[name]
+        raise ModelError(
+            f"{path}: registers no scheme (a scheme file calls ftcreport.schemes.register(Scheme(...)) when imported)"
+        )
 
 
 class SchemeController:

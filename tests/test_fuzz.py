@@ -479,3 +479,171 @@ def test_mutated_cases_through_one_batch(batch, tmp_path_factory):
             assert f"ftcreport: error: {p}" in res.stderr, (p, res.stderr)
     _check_metrics(out, "; ".join(labels))
     assert (out / "index.html").exists()
+
+
+# ------------------------------------------------------------------ stored results (issue 34)
+# A stored batch (one case, two runs) is damaged the ways a disk, a copy or a hand can damage it, then
+# read back: ``report`` must name every damaged run and exit 1 (an undamaged store: 0), never exit 3
+# or drop a run silently; the batch's cache decision (ftcreport.store.check_run with the run's key) must
+# re-run exactly the damaged runs; for a few examples ``batch`` itself re-runs them and the store is
+# whole again.  FUZZ_STORED_EXAMPLES (default 16, about 3.5 s each: report renders the page, export
+# writes netCDF) sets the count; a tenth of them (at least 2) also go through ``batch`` (about 18 s each:
+# a worker starts and loads the compiled loop).  30 + 3 examples took 109 + 54 s on 2 shared cores.
+STORED_EXAMPLES = int(os.environ.get("FUZZ_STORED_EXAMPLES", "16"))
+STORED_BATCHES = max(2, STORED_EXAMPLES // 10)
+STORED_CASE = {
+    "name": "st",
+    "robots": {"n": 2, "d": 1.7},
+    "reference": {"kind": "unicycle", "v_d": 0.5, "omega_d": 0.1},
+    "initial": {"x": 0.1, "y": 0.05},
+    "kinematic": {"kind": "two_link", "k1": 10.0, "k2": 2.0, "k3": 0.5},
+    "schemes": {"run": ["nominal", "oracle"], "nominal": {"k_v": 5.0}, "oracle": {"k_v": 5.0}},
+    "simulation": {"dt": 0.01, "duration": 0.5},
+    "thresholds": {"oracle": {"position_error_final": {"max": 1.0}}},
+}
+STORED_RUNS = ("nominal", "oracle")
+STORED_FILES = ("metrics.json", "timeseries.npz", "record.json")
+WRONG_JSON = [None, [], {}, "", "x", 0, -1.5, True, [1, 2], {"scheme": "nominal"}, {"status": "ok", "scheme": "oracle"}]
+STORED_KINDS = ["truncate", "empty", "json", "drop key", "retype", "swap", "swap runs", "delete", "flip", "append"]
+
+
+@pytest.fixture(scope="module")
+def stored_store(tmp_path_factory):
+    d = tmp_path_factory.mktemp("stored")
+    case = d / "st.toml"
+    case.write_text(tomli_w.dumps(STORED_CASE))
+    out = d / "base"
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    return case, out
+
+
+@st.composite
+def stored_mutations(draw):
+    """(kind, run, file, argument) of one damage to a stored run."""
+    kind = draw(st.sampled_from(STORED_KINDS))
+    run = draw(st.sampled_from(STORED_RUNS))
+    json_only = kind in ("drop key", "retype")
+    fname = draw(st.sampled_from(["metrics.json", "record.json"] if json_only else STORED_FILES))
+    if kind in ("truncate", "flip"):
+        arg = (draw(st.floats(0.0, 1.0, exclude_max=True)), draw(st.integers(1, 255)))
+    elif kind in ("json", "retype"):
+        arg = (draw(st.integers(0, 99)), draw(st.sampled_from(WRONG_JSON)))
+    elif kind == "drop key":
+        arg = (draw(st.integers(0, 99)), None)
+    elif kind == "append":
+        arg = (0.0, draw(st.binary(min_size=1, max_size=8)))
+    else:
+        arg = None
+    return kind, run, fname, arg
+
+
+def _damage(out: Path, mutation) -> str:
+    """Apply a stored_mutations draw to the store under ``out``; its label."""
+    kind, run, fname, arg = mutation
+    d = out / "st" / run
+    other = out / "st" / next(s for s in STORED_RUNS if s != run)
+    p = d / fname
+    raw = p.read_bytes()
+    if kind == "truncate":
+        p.write_bytes(raw[: int(arg[0] * len(raw))])
+    elif kind == "empty":
+        p.write_bytes(b"")
+    elif kind == "json":
+        p.write_text(json.dumps(arg[1]))
+    elif kind in ("drop key", "retype"):
+        data = json.loads(raw)
+        key = sorted(data)[arg[0] % len(data)]
+        if kind == "drop key":
+            del data[key]
+        else:
+            data[key] = arg[1]
+        p.write_text(json.dumps(data, indent=2))
+    elif kind == "swap":
+        theirs = (other / fname).read_bytes()
+        (other / fname).write_bytes(raw)
+        p.write_bytes(theirs)
+    elif kind == "swap runs":
+        d.rename(out / "st" / "tmp")
+        other.rename(d)
+        (out / "st" / "tmp").rename(other)
+    elif kind == "delete":
+        p.unlink()
+    elif kind == "flip":
+        at = int(arg[0] * len(raw))
+        p.write_bytes(raw[:at] + bytes([raw[at] ^ arg[1]]) + raw[at + 1 :])
+    elif kind == "append":
+        p.write_bytes(raw + arg[1])
+    return f"{kind} {run}/{fname} {arg!r:.60}"
+
+
+def _stored_bytes(out: Path) -> dict[str, dict[str, bytes | None]]:
+    return {
+        s: {f: (out / "st" / s / f).read_bytes() if (out / "st" / s / f).exists() else None for f in STORED_FILES}
+        for s in STORED_RUNS
+    }
+
+
+def _damaged_store(stored_store, tmp_path, mutation):
+    """A copy of the stored batch with one damage: (case file, out, label, the runs whose bytes changed)."""
+    import shutil
+
+    case, base = stored_store
+    out = tmp_path / "out"
+    shutil.copytree(base, out)
+    before = _stored_bytes(out)
+    label = _damage(out, mutation)
+    after = _stored_bytes(out)
+    return case, out, label, {s for s in STORED_RUNS if before[s] != after[s]}
+
+
+@settings(
+    max_examples=STORED_EXAMPLES,
+    deadline=None,
+    derandomize=not LONG,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+    database=None,
+)
+@given(mutation=stored_mutations())
+def test_a_damaged_stored_result_is_named_never_served(stored_store, tmp_path_factory, mutation):
+    from ftcreport.batch import run_key
+    from ftcreport.cases import load_case
+    from ftcreport.store import check_run
+
+    case, out, label, changed = _damaged_store(stored_store, tmp_path_factory.mktemp("dmg"), mutation)
+    res = runner.invoke(app, ["report", "--out", str(out)])
+    assert res.exit_code == (1 if changed else 0), (label, res.exit_code, res.output, _trace(res))
+    assert "Traceback" not in res.output and "a bug" not in res.output, (label, res.output)
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
+    for s in changed:  # each damaged run named by its file (or its directory), once
+        assert sum(str(out / "st" / s) in ln for ln in errors) == 1, (label, s, errors)
+    assert len(errors) == len(changed), (label, errors)
+    page = (out / "st" / "index.html").read_text()
+    for s in STORED_RUNS:  # a damaged run is on the page as such, not gone from it
+        assert (f"damaged stored result: {out / 'st' / s}" in page) == (s in changed), (label, s)
+    c = load_case(case)
+    for s in STORED_RUNS:  # the batch's cache decision: exactly the damaged runs are re-run
+        assert check_run(out, "st", s, key=run_key(c, s)).sound == (s not in changed), (label, s)
+    exported = runner.invoke(app, ["export", "--out", str(out)])
+    assert exported.exit_code == (1 if changed else 0), (label, exported.output, _trace(exported))
+
+
+@settings(
+    max_examples=STORED_BATCHES,
+    deadline=None,
+    derandomize=not LONG,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+    database=None,
+)
+@given(mutation=stored_mutations())
+def test_batch_re_runs_a_damaged_stored_result(stored_store, tmp_path_factory, mutation):
+    from ftcreport.store import check_run
+
+    case, out, label, changed = _damaged_store(stored_store, tmp_path_factory.mktemp("dmgb"), mutation)
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
+    assert res.exit_code == 0, (label, res.output, _trace(res))
+    assert f"{len(changed)} run(s) simulated, {2 - len(changed)} cached, 0 failed" in res.stdout, (label, res.stdout)
+    notes = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: note:")]
+    assert sorted(ln.rsplit("re-running st / ", 1)[-1] for ln in notes) == sorted(changed), (label, notes)
+    assert all(check_run(out, "st", s).sound for s in STORED_RUNS), label
+    assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0, label

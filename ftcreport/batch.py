@@ -49,6 +49,7 @@ from . import __version__
 from .cases import Case, case_hash, configured_schemes, load_case, overlay_text, with_duration
 from .display import BatchDisplay
 from .errors import CaseError, note_stored
+from .inputs import read_input
 from .schemes import BUILT_IN
 from .store import cached_key, output_lock, save_run, write_atomic, write_json
 
@@ -144,7 +145,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
     key = case_hash(case, __version__)
     # an overlay (base_case) is stored resolved, so the copy parses on its own
     resolved = overlay_text(path) if case.base_case is not None else None
-    write_atomic(out / case.name / "case.toml", Path(path).read_bytes() if resolved is None else resolved.encode())
+    write_atomic(out / case.name / "case.toml", read_input(path) if resolved is None else resolved.encode())
     schemes = configured_schemes(case)
     thresholds = {s: {m: b.model_dump() for m, b in t.items()} for s, t in case.thresholds.items()}
     payload = {
@@ -328,8 +329,8 @@ def _record_error(out: Path, path: Path, error: str, avoid: Iterable[str] = ()) 
     """Record a rejected case file (shown on the index) without letting its name escape ``out``
     or overwrite a valid case's record."""
     try:
-        raw = path.read_bytes()[:200_000]
-    except OSError:
+        raw = read_input(path)[:200_000]
+    except CaseError:  # not a regular file, too large, unreadable: the error says so
         raw = b""
     text = raw.decode("utf-8", errors="replace")
     record = {"source": str(path), "status": "error", "error": error, "source_text": text}

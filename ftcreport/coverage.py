@@ -44,7 +44,7 @@ from .campaign import (
 from .cases import Case, ordered_schemes, parse_case
 from .errors import FtcError
 from .model import pattern_is_compensable, wheel_names
-from .store import _jsonable, write_atomic
+from .store import _jsonable, locked, write_atomic
 
 __all__ = [
     "FAULT_KINDS",
@@ -285,6 +285,7 @@ class CoverageResult(CampaignResult):
     times: list[float] = field(default_factory=list)
 
 
+@locked("coverage")
 def run_coverage(
     base: Case,
     out: Path,

@@ -176,6 +176,7 @@ class OutputError(FtcError):
 KIND_NAME = ".ftcreport.kind"  # which command family's results a directory holds (see output_lock)
 #: the family of each locking command: commands of one family share a directory's layout
 KINDS = {"batch": "results", "run": "results", "check": "results", "report": "results", "export": "results"}
+KINDS |= {"sample": "campaign"}  # ftcreport sample: a campaign's sample pages
 _HOMES = {
     "results": "reports",
     "campaign": "reports/campaigns/<case>",

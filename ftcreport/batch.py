@@ -49,6 +49,7 @@ import sys
 import threading
 from collections.abc import Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,8 +57,9 @@ from . import __version__
 from .cases import Case, case_hash, configured_schemes, dropped_faults, load_case, overlay_text, with_duration
 from .display import BatchDisplay
 from .errors import CaseError, FtcError, note_stored, printable
+from .inputs import read_input
 from .schemes import BUILT_IN
-from .store import check_run, output_lock, read_json, save_run, write_atomic, write_json
+from .store import OutputError, check_inside, check_run, output_lock, read_json, save_run, write_atomic, write_json
 
 __all__ = [
     "BatchResult",
@@ -158,7 +160,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
     key = case_hash(case, __version__)
     # an overlay (base_case) is stored resolved, so the copy parses on its own
     resolved = overlay_text(path) if case.base_case is not None else None
-    write_atomic(out / case.name / "case.toml", Path(path).read_bytes() if resolved is None else resolved.encode())
+    write_atomic(out / case.name / "case.toml", read_input(path) if resolved is None else resolved.encode())
     schemes = configured_schemes(case)
     thresholds = {s: {m: b.model_dump() for m, b in t.items()} for s, t in case.thresholds.items()}
     payload = {
@@ -376,21 +378,60 @@ def _record_error(out: Path, path: Path, error: str, avoid: Iterable[str] = ()) 
     """Record a rejected case file (shown on the index) without letting its name escape ``out``
     or overwrite a valid case's record."""
     try:
-        raw = path.read_bytes()[:200_000]
-    except OSError:
+        raw = read_input(path)[:200_000]
+    except CaseError:  # not a regular file, too large, unreadable: the error says so
         raw = b""
     text = raw.decode("utf-8", errors="replace")
     record = {"source": str(path), "status": "error", "error": error, "source_text": text}
-    _record(out, error_record_name(path, avoid), record)
+    try:
+        _record(out, error_record_name(path, avoid), record)
+    except OutputError:  # its stem is a folder linked out of --out: the record goes under a hash of the path
+        _record(out, error_record_name(path, (*avoid, Path(path).stem.lower())), record)
 
 
 #: a batch worker's progress queue (set by :func:`_init_worker`; None outside a batch's workers)
 _PROGRESS_Q: list = [None]
+_TIE: list = [None]  # a batch worker's tie to its batch (its lock's descriptor held for the worker's life)
 
 
-def _init_worker(progress_q) -> None:
-    """Initializer of a batch worker process: the queue its runs report their simulated time on."""
+class _Tie:
+    """What ties a batch worker to its batch: the batch's pid, its output directory and its lock.
+
+    Pickled when a worker starts (its initializer's argument): the lock's file descriptor passes to
+    the worker (``multiprocessing.reduction.DupFd``, as multiprocessing passes its own pipes), so the
+    worker holds the batch's lock too and the kernel frees it only when the last of them is gone.
+    """
+
+    def __init__(self, parent: int, out: str, lock: int | None) -> None:
+        self.parent, self.out, self.lock = parent, out, lock
+
+    def __reduce__(self):
+        from multiprocessing.reduction import DupFd
+
+        return (_Tie._rebuild, (self.parent, self.out, None if self.lock is None else DupFd(self.lock)))
+
+    @staticmethod
+    def _rebuild(parent: int, out: str, dup) -> _Tie:
+        return _Tie(parent, out, None if dup is None else dup.detach())
+
+    def bind(self) -> None:
+        """In the worker: die with the batch, write only inside its ``out`` and only while it lives."""
+        from .lifetime import die_with_parent
+        from .store import confine, set_write_guard
+
+        die_with_parent(self.parent)
+        confine(Path(self.out))
+        parent = self.parent
+        set_write_guard(lambda: os.getppid() == parent)  # else the batch is gone (its lock may be another's)
+
+
+def _init_worker(progress_q, tie: _Tie | None = None) -> None:
+    """Initializer of a batch worker process: the queue its runs report their simulated time on, and
+    its tie to the batch (:class:`_Tie`)."""
     _PROGRESS_Q[0] = progress_q
+    if tie is not None:
+        _TIE[0] = tie  # holds the lock's descriptor for the worker's life
+        tie.bind()
 
 
 def _worker(case_data: dict, source: str, scheme: str, out: str, key: str) -> tuple[dict, dict]:
@@ -511,7 +552,9 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
                     f"{path}: name: '{case.name}' is already the name of {first} (names must differ in more than "
                     "letter case: each is a directory of the report)"
                 )
-        except CaseError as exc:
+            for s in configured_schemes(case):  # a case or scheme folder linked out of --out is refused
+                check_inside(out / case.name / s / "record.json")
+        except (CaseError, OutputError) as exc:
             res.case_errors[str(path)] = str(exc)
             continue
         res.cases.append(case.name)
@@ -578,10 +621,14 @@ def _parquet_stale(out: Path) -> bool:
 
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict, finish) -> None:
     """Run ``todo`` in worker processes, then ``finish(pool)`` (the pages render in the same workers)."""
+    from .lifetime import shielded, stop_processes
+    from .store import lock_fd
+
     ctx = mp.get_context("spawn")
     q = ctx.Queue()  # the workers' progress reports, handed to each worker as it starts
     display = BatchDisplay.make(len(todo), show_progress)
-    pool = _Pool(max_workers=max(1, jobs), mp_context=ctx, initializer=_init_worker, initargs=(q,))
+    tie = _Tie(os.getpid(), str(out), lock_fd(out))
+    pool = _Pool(max_workers=max(1, jobs), mp_context=ctx, initializer=_init_worker, initargs=(q, tie))
     with display, pool:
         futures = {}
         for case, source, scheme, key in todo:
@@ -592,15 +639,21 @@ def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, 
         try:
             _collect(pending, futures, q, display, out, res, expected)
             display.stop()
-            finish(pool)
-        except BaseException:  # Ctrl-C, SIGTERM: stop the workers now; every stored run is complete
-            display.stop()
-            for proc in list((getattr(pool, "_processes", None) or {}).values()):
-                with contextlib.suppress(Exception):
-                    proc.terminate()
-            # the pool cancels the waiting runs itself: a future cancelled here, which the pool then
-            # finds broken (its workers terminated), raised InvalidStateError in its thread (Python 3.11)
-            pool.shutdown(wait=False, cancel_futures=True)
+            try:
+                finish(pool)
+            except BrokenProcessPool:  # a worker was killed: the pages render here instead
+                finish(None)
+        except BaseException:  # Ctrl-C, SIGTERM, SIGHUP: stop the workers now; every stored run is complete
+            with shielded():
+                display.stop()
+                # terminated and waited for: none writes after this, and their temporary files can go
+                stop_processes(list((getattr(pool, "_processes", None) or {}).values()))
+                # the pool cancels the waiting runs itself: a future cancelled here, which the pool then
+                # finds broken (its workers terminated), raised InvalidStateError in its thread (Python 3.11)
+                pool.shutdown(wait=False, cancel_futures=True)
+                # what is on disk now, complete with this batch's key (a worker may have stored a run
+                # whose result this process had not collected yet)
+                res.stored = sum(check_run(out, c.name, s, key=key).sound for c, _, s, key in todo)
             raise
         finally:
             q.close()

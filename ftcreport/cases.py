@@ -16,6 +16,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import math
+import os
 import re
 import tomllib
 from pathlib import Path
@@ -34,6 +35,7 @@ from pydantic import (
 )
 
 from .errors import CaseError, FtcError, printable
+from .inputs import input_problem, read_input
 from .limits import budget_problem, name_problem
 from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
 from .model.actuators import MAXON_RE65, MotorParams
@@ -1487,7 +1489,7 @@ def _load_plugins(data: dict, source: str) -> dict:
     for i, p in enumerate(plugins):
         path = Path(p).expanduser()
         path = path if path.is_absolute() else base / path
-        if not path.is_file():
+        if not os.path.lexists(path):
             raise CaseError(f"{source}: plugins[{i}]: no such scheme file: {path}")
         try:
             load_plugin(path)
@@ -1504,8 +1506,8 @@ def plugin_digest(case: Case) -> str:
     h = hashlib.sha256()
     for p in case.plugins:
         try:
-            h.update(Path(p).name.encode() + b"\0" + Path(p).read_bytes())
-        except OSError:
+            h.update(Path(p).name.encode() + b"\0" + read_input(p, "scheme file"))
+        except CaseError:
             h.update(f"{p}: unreadable".encode())
     return h.hexdigest()[:16]
 
@@ -1571,6 +1573,8 @@ def resolve_overlay(path: Path, data: dict, _seen: tuple[Path, ...] = ()) -> dic
     ref = data.get("base_case")
     if not isinstance(ref, str) or not ref.strip():
         raise CaseError(f"{path}: base_case: must be the path of a case file (a string), got {ref!r}")
+    if (why := input_problem(path.parent / ref)) is not None:  # a FIFO, device, directory, link loop: never opened
+        raise CaseError(f"{path}: base_case: '{ref}': {why}")
     base_path = (path.parent / ref).resolve()
     seen = (*_seen, path.resolve())
     if base_path in seen:
@@ -1632,7 +1636,7 @@ def overlay_text(path: str | Path) -> str | None:
     if "base_case" not in data:
         return None
     merged = resolve_overlay(path, data)
-    own = "".join(f"# | {line}\n" for line in path.read_text(encoding="utf-8").splitlines())
+    own = "".join(f"# | {line}\n" for line in read_input(path).decode("utf-8").splitlines())
     body = "".join(f"{_toml_key(k)} = {_toml_value(v)}\n" for k, v in merged.items())
     return f"# {path} resolved over its base case {data['base_case']}; the file itself:\n{own}\n{body}"
 
@@ -1676,10 +1680,7 @@ def _toml_value(v: Any) -> str:
 
 def _read_toml(path: Path) -> dict:
     """A TOML file as a dict; CaseError naming the file when it cannot be read or parsed."""
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise CaseError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    raw = read_input(path)  # a regular file of a bounded size, or CaseError naming it (never blocks)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -10,9 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import signal
 import sys
-import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -50,19 +48,16 @@ class _ErrorBoundary(TyperGroup):
             return self._invoke(ctx, argv)
         import warnings
 
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGINT, _on_interrupt)
-        with warnings.catch_warnings(record=True) as caught:  # library warnings: one summary line, not a dump
-            warnings.simplefilter("default")
+        from .lifetime import handle_stop_signals
+
+        # SIGINT, SIGTERM, SIGHUP: Interrupted inside the command, ignored once it is over (ftcreport.lifetime)
+        with warnings.catch_warnings(record=True) as caught, handle_stop_signals():
+            warnings.simplefilter("default")  # library warnings: one summary line, not a dump
             for quiet in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
                 warnings.simplefilter("ignore", quiet)  # Python's own default for these
             try:
                 return self._invoke(ctx, argv)
             finally:
-                # the command is over (done or already reported): an interrupt from here to the exit has
-                # nothing left to stop, and uncaught it would end the process by SIGINT (-2) with no message
-                if threading.current_thread() is threading.main_thread():
-                    signal.signal(signal.SIGINT, signal.SIG_IGN)
                 if caught:
                     w = caught[0]
                     more = f" (and {len(caught) - 1} more)" if len(caught) > 1 else ""
@@ -83,6 +78,9 @@ class _ErrorBoundary(TyperGroup):
                 raise typer.Exit(code=2) from None
             raise
         except BaseException as exc:
+            from .lifetime import interrupt_of
+
+            exc = interrupt_of(exc) or exc  # a stop signal that came back wrapped (compiled code) is one
             if ctx.params.get("debug") and not isinstance(exc, KeyboardInterrupt | FtcError):
                 raise
             line, code = _classify(exc)
@@ -92,7 +90,8 @@ class _ErrorBoundary(TyperGroup):
                     line = f"{files[0]}: " + line.removeprefix(unnamed)
             if code == 3:
                 line += f" (a bug: traceback in {_crash_log(exc)}; --debug shows it)"
-            typer.echo(f"ftcreport: error: {printable(line)}", err=True)
+            with contextlib.suppress(OSError):  # a hung-up terminal (SIGHUP): the exit code still tells
+                typer.echo(f"ftcreport: error: {printable(line)}", err=True)
             raise typer.Exit(code=code) from None
 
 
@@ -106,24 +105,6 @@ def _plain_flags(cmd, ctx) -> None:
             p.metavar = ""
     for sub in getattr(cmd, "commands", {}).values():
         _plain_flags(sub, ctx)
-
-
-def _on_interrupt(signum, frame) -> None:
-    """Ctrl-C: KeyboardInterrupt, except inside a finaliser or a weakref callback.
-
-    Python runs signal handlers between bytecodes, also inside garbage-collection callbacks, where
-    an exception is printed ("Exception ignored in ...", with a traceback) and dropped: the command
-    would go on as if nothing happened. There the interrupt is sent again 50 ms later instead.
-    """
-    f, depth = frame, 0
-    while f is not None and depth < 8:
-        if f.f_code.co_name == "__del__" or f.f_code.co_filename.endswith("weakref.py"):
-            import os
-
-            threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()
-            return
-        f, depth = f.f_back, depth + 1
-    raise KeyboardInterrupt
 
 
 def _cli_flow() -> tuple[type[BaseException], ...]:
@@ -148,10 +129,11 @@ def _classify(exc: BaseException) -> tuple[str, int]:
     """(message, exit code) of an exception reaching the boundary."""
     import errno
 
-    if isinstance(exc, KeyboardInterrupt):
+    if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, SIGTERM, SIGHUP: 128 + the signal's number
         from .errors import interrupted_message
+        from .lifetime import exit_code
 
-        return interrupted_message(exc), 130
+        return interrupted_message(exc), exit_code(exc)
     if isinstance(exc, FtcError):
         return str(exc), getattr(exc, "exit_code", 2)
     if isinstance(exc, UnicodeDecodeError):
@@ -464,10 +446,12 @@ def run(
 
                 page = render_case(out, c.name)
                 render_index(out)
-    except KeyboardInterrupt as exc:  # the interrupt message says how many schemes' runs are stored
+    except BaseException as exc:  # the interrupt message says how many schemes' runs are stored
         from .errors import note_stored
+        from .lifetime import interrupt_of
 
-        note_stored(exc, len(rows))
+        if (stop := interrupt_of(exc)) is not None:
+            note_stored(stop, len(rows))
         raise
     if not quiet:
         typer.echo(_table(rows))
@@ -802,10 +786,17 @@ def export(
 
     Example: ftcreport export --out reports
     """
+    from .store import output_lock
     from .tidy import export as _export
 
+    if not out.is_dir():
+        raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
     damaged: list[str] = []
-    paths = _export(out, dest, damaged)
+    with contextlib.ExitStack() as locks:  # the results read and the directory written: no batch meanwhile
+        locks.enter_context(output_lock(out, "export"))
+        if dest is not None:
+            locks.enter_context(output_lock(dest, "export"))
+        paths = _export(out, dest, damaged)
     n_nc = sum(p.suffix == ".nc" for p in paths)
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")
     for problem in damaged:  # left out of the netCDF files, a row with status error in the table
@@ -932,20 +923,20 @@ def coverage(
     from .cases import load_case
     from .coverage import run_coverage
     from .report.coverage import render_coverage
+    from .store import output_lock
 
     base = load_case(case)
     out_dir = out or Path("reports") / "coverage" / base.name
-    res = run_coverage(
-        base,
-        out_dir,
-        times=_floats(times, "--times"),
-        schemes=_names(schemes),
-        sigmas=tuple(_floats(sigmas, "--sigmas") or ()),
-        friction=friction,
-        kinds=tuple(_names(kinds) or ()),
-        **_dask(scheduler, workers, in_process, quiet, force),
-    )
-    page = render_coverage(out_dir)
+    options = {
+        "times": _floats(times, "--times"),
+        "schemes": _names(schemes),
+        "sigmas": tuple(_floats(sigmas, "--sigmas") or ()),
+        "friction": friction,
+        "kinds": tuple(_names(kinds) or ()),
+    }
+    with output_lock(out_dir, "coverage"):  # a second coverage into out_dir is refused, naming this one
+        res = run_coverage(base, out_dir, **options, **_dask(scheduler, workers, in_process, quiet, force))
+        page = render_coverage(out_dir)
     _done(res, "fault runs", page, f" (onsets {', '.join(f'{t:g}' for t in res.times)} s)")
 
 
@@ -969,12 +960,14 @@ def fdi(
     from .cases import load_case
     from .fdi import run_fdi
     from .report.fdi import render_fdi
+    from .store import output_lock
 
     base = load_case(case)
     out_dir = out or Path("reports") / "fdi" / base.name
     dask = _dask(scheduler, workers, in_process, quiet, force)
-    res = run_fdi(base, samples, out_dir, seed=seed, schemes=_names(schemes), **dask)
-    page = render_fdi(out_dir)
+    with output_lock(out_dir, "fdi"):
+        res = run_fdi(base, samples, out_dir, seed=seed, schemes=_names(schemes), **dask)
+        page = render_fdi(out_dir)
     typer.echo(f"{len(res['failed'])} failed; results {out_dir / 'fdi.json'}; report {page}")
     if res["failed"]:
         raise typer.Exit(1)

@@ -149,14 +149,16 @@ def interrupted_message(exc: BaseException) -> str:
 
     A command that stores nothing (or was interrupted before it could) says only that it was interrupted.
     """
+    signum = getattr(exc, "signum", None)  # ftcreport.lifetime.Interrupted: SIGTERM and SIGHUP are named
+    how = "interrupted" if signum in (None, 2) else f"interrupted by {exc.args[0] if exc.args else signum}"
     stored = getattr(exc, "ftc_stored", None)
     if stored is None:
-        return "interrupted"
+        return how
     count, noun = stored
     if count == 0:
-        return f"interrupted before any {noun} finished; nothing was stored"
+        return f"{how} before any {noun} finished; nothing was stored"
     them = f"1 finished {noun} is" if count == 1 else f"{count} finished {noun}s are"
-    return f"interrupted; {them} stored, re-run the same command to resume"
+    return f"{how}; {them} stored, re-run the same command to resume"
 
 
 # --------------------------------------------------------------------------- reasons

@@ -50,6 +50,7 @@ GENERATED_NAMES: dict[str, str] = {
     "coverage": "coverage's pages and tables (reports/coverage/<case>)",
     "fdi": "fdi's pages and results (reports/fdi/<case>)",
     ".ftcreport.lock": "the output directory's lock",
+    ".ftcreport.kind": "which command's results the output directory holds",
 }
 #: names the output directory uses itself (compared lower-case); ``index`` too, the pages' link name
 RESERVED_NAMES = frozenset({"index", *GENERATED_NAMES})

@@ -39,20 +39,27 @@ import numpy as np
 
 from . import __version__
 from .errors import FtcError
+from .lifetime import shielded
 from .sim import Run
 
 __all__ = [
     "RECORD",
     "RUN_FILES",
     "OutputBusyError",
+    "OutputError",
     "StoredRun",
+    "check_inside",
     "check_run",
     "clean_partial",
+    "confine",
     "load_metrics",
     "load_timeseries",
+    "lock_fd",
+    "locked",
     "output_lock",
     "read_json",
     "save_run",
+    "set_write_guard",
     "stored_metrics",
     "stored_runs",
     "stored_schemes",
@@ -67,6 +74,9 @@ LOCK_NAME = ".ftcreport.lock"
 def write_atomic(path: Path, data: bytes) -> None:
     """Write bytes to ``path`` atomically (temporary file + rename)."""
     path = Path(path)
+    if _roots:
+        check_inside(path)
+    _check_may_write()
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)
     try:
@@ -75,6 +85,7 @@ def write_atomic(path: Path, data: bytes) -> None:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
+        _check_may_write(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -136,6 +147,7 @@ def save_run(
     so that every later command reports the cached run as the failure it is.
     """
     d = Path(out) / case_name / scheme
+    check_inside(d / RECORD)  # a case folder linked out of --out is refused, not written (nor its record removed)
     (d / RECORD).unlink(missing_ok=True)  # the directory is incomplete until the new record is written
     (d / "key").unlink(missing_ok=True)  # the record's predecessor (ftcreport before issue 34)
     buf = io.BytesIO()
@@ -391,7 +403,24 @@ class OutputBusyError(FtcError):
     exit_code = 2
 
 
-_held: dict[str, list] = {}  # resolved directory -> [open lock file, depth] (re-entrant in one process)
+class OutputError(FtcError):
+    """An output directory ftcreport must not write as asked (a symbolic link leaving it, another command's)."""
+
+    exit_code = 2
+
+
+KIND_NAME = ".ftcreport.kind"  # which command family's results a directory holds (see output_lock)
+#: the family of each locking command: commands of one family share a directory's layout
+KINDS = {"batch": "results", "run": "results", "check": "results", "report": "results", "export": "results"}
+KINDS |= {"sample": "campaign"}  # ftcreport sample: a campaign's sample pages
+_HOMES = {
+    "results": "reports",
+    "campaign": "reports/campaigns/<case>",
+    "coverage": "reports/coverage/<case>",
+    "fdi": "reports/fdi/<case>",
+}
+
+_held: dict[str, list] = {}  # resolved directory -> [lock file descriptor, depth] (re-entrant in one process)
 
 
 @contextlib.contextmanager
@@ -400,13 +429,20 @@ def output_lock(out: Path, command: str):
 
     Two processes never write to the same directory at once: the second one fails at
     once with :class:`OutputBusyError` naming the holder.  The kernel drops the lock when
-    its holder exits, however it exits (SIGKILL included), so no stale lock remains.
-    Re-entrant within one process (``batch`` renders the report under its own lock).
-    """
-    import fcntl
+    the last process holding it exits, however it exits (SIGKILL included), so no stale lock
+    remains; a batch's worker processes hold it with their parent (:func:`lock_fd`), so it is
+    free only once every one of them is gone.  Re-entrant within one process (``batch``
+    renders the report under its own lock).
 
+    The lock file is opened without following a symbolic link and must be a regular file with
+    one link: its holder text is never written into another file.  Under the lock, the directory
+    is claimed for the command's family (:data:`KINDS`; ``<out>/.ftcreport.kind``): a campaign,
+    coverage map or FDI evaluation never writes into a batch's directory or another family's
+    (:class:`OutputError`), and no file is written through a symbolic link below ``out``
+    (:func:`write_atomic`).  On leaving, the temporary files of writers killed meanwhile are
+    removed; the lock is released last.
+    """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     key = str(out.resolve())
     if key in _held:
         _held[key][1] += 1
@@ -415,39 +451,246 @@ def output_lock(out: Path, command: str):
         finally:
             _held[key][1] -= 1
         return
-    path = out / LOCK_NAME
-    fh = open(path, "a+")  # noqa: SIM115 - held open for the lock's lifetime
+    created = not out.exists()
+    fd = _acquire(out)
+    roots = _confine(out)
     try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        # the holder writes its name just after it takes the lock: wait a moment for it
-        holder = ""
-        for _ in range(50):
-            fh.seek(0)
-            holder = fh.read().strip()
-            if holder:
-                break
-            time.sleep(0.01)
-        holder = holder or "another process"
-        fh.close()
-        raise OutputBusyError(
-            f"{out}: --out: in use by {holder}; wait for it to finish or choose another --out "
-            "(one ftcreport process writes to an output directory at a time)"
-        ) from None
-    try:
-        fh.seek(0)
-        fh.truncate()
-        fh.write(f"ftcreport {command} (pid {os.getpid()})")
-        fh.flush()
-        _held[key] = [fh, 1]
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"ftcreport {command} (pid {os.getpid()})".encode(), 0)
+        _held[key] = [fd, 1]
+        _claim(out, KINDS.get(command, command), command)
         clean_partial(out)
         yield
     finally:
-        _held.pop(key, None)
+        with shielded():  # a stop signal meanwhile does not cut this short
+            _release(out, key, fd, roots, created)
+
+
+def _release(out: Path, key: str, fd: int, roots: list[str], created: bool) -> None:
+    """Leave ``out``: a killed writer's temporary files removed, then the lock released (last)."""
+    _held.pop(key, None)
+    with contextlib.suppress(OSError):
+        clean_partial(out)  # a terminated worker's temporary files (this command's writers are gone)
+    for r in roots:
+        _roots[r] -= 1
+        if not _roots[r]:
+            del _roots[r]
+    with contextlib.suppress(OSError):
+        os.ftruncate(fd, 0)
+        if created and _untouched(out):  # a command refused before it wrote anything leaves nothing
+            for name in (KIND_NAME, LOCK_NAME):  # removed while locked: see _acquire
+                (out / name).unlink(missing_ok=True)
+    os.close(fd)  # releases the flock (once no worker holds it either)
+    if created:
         with contextlib.suppress(OSError):
-            fh.seek(0)
-            fh.truncate()
-        fh.close()  # releases the flock
+            out.rmdir()  # only when empty
+
+
+def _acquire(out: Path) -> int:
+    """Open ``out``'s lock file and take its lock (non-blocking); its descriptor, or OutputBusyError.
+
+    A holder that created ``out`` and wrote nothing removes the lock file before it releases it: a
+    lock taken on a file no longer at ``out/.ftcreport.lock`` is dropped and taken again on the new one.
+    """
+    import fcntl
+
+    for _ in range(10):
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / LOCK_NAME
+        try:
+            fd = _open_lock(path)
+        except FileNotFoundError:  # the directory was removed meanwhile (see above): make it again
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            # the holder writes its name just after it takes the lock: wait a moment for it
+            holder = ""
+            for _ in range(50):
+                holder = os.pread(fd, 200, 0).decode("utf-8", "replace").strip()
+                if holder:
+                    break
+                time.sleep(0.01)
+            holder = holder or "another process"
+            os.close(fd)
+            raise OutputBusyError(
+                f"{out}: --out: in use by {holder}; wait for it to finish or choose another --out "
+                "(one ftcreport process writes to an output directory at a time)"
+            ) from None
+        try:
+            now = os.stat(path, follow_symlinks=False)
+        except OSError:
+            now = None
+        mine = os.fstat(fd)
+        if now is not None and (now.st_dev, now.st_ino) == (mine.st_dev, mine.st_ino):
+            return fd
+        os.close(fd)  # the file was removed after this process opened it
+    raise OutputBusyError(f"{out}: --out: its lock file keeps being replaced; another process is cleaning it up")
+
+
+def _untouched(out: Path) -> bool:
+    """``out`` holds nothing but its lock and kind files."""
+    return set(os.listdir(out)) <= {LOCK_NAME, KIND_NAME}
+
+
+def locked(command: str):
+    """Decorator: the function runs under ``output_lock(out, command)``, ``out`` being its argument of that name.
+
+    For the library functions that write a directory (``run_campaign``, ``run_coverage``, ``run_fdi``);
+    the CLI holds the same lock around them and their page (the lock is re-entrant).
+    """
+    import functools
+    import inspect
+
+    def wrap(fn):
+        sig = inspect.signature(fn)
+
+        @functools.wraps(fn)
+        def under_lock(*args, **kwargs):
+            with output_lock(Path(sig.bind(*args, **kwargs).arguments["out"]), command):
+                return fn(*args, **kwargs)
+
+        return under_lock
+
+    return wrap
+
+
+def lock_fd(out: Path) -> int | None:
+    """The descriptor of the lock this process holds on ``out`` (None when it holds none).
+
+    A batch hands it to its worker processes (:mod:`multiprocessing.reduction` ``DupFd``): they hold
+    the same lock, so the kernel releases it only when the batch and all its workers are gone.
+    """
+    held = _held.get(str(Path(out).resolve()))
+    return None if held is None else held[0]
+
+
+def _open_lock(path: Path) -> int:
+    """Open (or create) a lock file without following a symbolic link; refuse anything but a plain file."""
+    import errno
+    import stat
+
+    flags = os.O_RDWR | os.O_CREAT | os.O_CLOEXEC
+    flags |= getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP or os.path.islink(path):
+            raise OutputError(
+                f"{path}: the lock file is a symbolic link (to {_link_target(path)}); ftcreport never writes "
+                "through it: remove it"
+            ) from None
+        raise
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+        os.close(fd)
+        what = "has other hard links" if stat.S_ISREG(st.st_mode) else "is not a regular file"
+        raise OutputError(f"{path}: the lock file {what}; ftcreport never writes into another file: remove it")
+    return fd
+
+
+def _link_target(path: Path) -> str:
+    try:
+        return os.readlink(path)
+    except OSError:
+        return "?"
+
+
+def _claim(out: Path, kind: str, command: str) -> None:
+    """Mark ``out`` as holding ``kind`` results, or refuse when it holds another family's (OutputError)."""
+    marker = out / KIND_NAME
+    try:
+        mine = marker.read_text(encoding="utf-8", errors="replace").strip() if not marker.is_symlink() else ""
+    except OSError:
+        mine = ""
+    held = (mine or _legacy_kind(out)) if not _untouched(out) else None  # an empty directory is anyone's
+    if held is not None and held != kind:
+        raise OutputError(
+            f"{out}: --out: holds the results of another kind of command ({_describe(held)}); ftcreport "
+            f"{command} writes {_describe(kind)}, which would overwrite its index.html and manifest.json: "
+            f"choose another --out (the default is {_HOMES.get(kind, 'reports')})"
+        )
+    if mine != kind:
+        write_atomic(marker, f"{kind}\n".encode())
+
+
+def _describe(kind: str) -> str:
+    return {
+        "results": "case results of batch/run",
+        "campaign": "a campaign",
+        "coverage": "a coverage map",
+        "fdi": "an FDI evaluation",
+    }.get(kind, kind)
+
+
+def _legacy_kind(out: Path) -> str | None:
+    """The family of a directory written before the kind marker existed (its manifest, its files), or None."""
+    manifest = read_json(out / "manifest.json")
+    kind = manifest.get("kind") if isinstance(manifest, dict) else None
+    if isinstance(kind, str):
+        return KINDS.get(kind, kind)
+    for k in ("campaign", "coverage", "fdi"):
+        if (out / f"{k}.json").is_file():
+            return k
+    if next(out.glob("*/case.json"), None) is not None or (out / "index.html").exists():
+        return "results"
+    return None
+
+
+# ------------------------------------------------------------------ writes stay inside --out
+_roots: dict[str, int] = {}  # absolute paths of the output directories this process writes -> uses
+_write_guard: list = [None]  # a worker's check that it still may write (set_write_guard)
+
+
+def _confine(out: Path) -> list[str]:
+    """Register ``out`` (as given and resolved): :func:`write_atomic` refuses a symbolic link below it."""
+    roots = list(dict.fromkeys([os.path.abspath(out), str(Path(out).resolve())]))
+    for r in roots:
+        _roots[r] = _roots.get(r, 0) + 1
+    return roots
+
+
+def confine(out: Path) -> None:
+    """Refuse writes through a symbolic link below ``out`` in this process (a worker writing for a batch)."""
+    _confine(out)
+
+
+def set_write_guard(may_write) -> None:
+    """``may_write()`` is asked before every :func:`write_atomic` in this process, and again before its
+    rename: when it says False (a worker whose batch is gone), the process exits at once, its
+    temporary file removed: it writes nothing more."""
+    _write_guard[0] = may_write
+
+
+def _check_may_write(tmp: str | None = None) -> None:
+    if _write_guard[0] is not None and not _write_guard[0]():
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        os._exit(1)
+
+
+def check_inside(path: Path) -> None:
+    """Refuse (:class:`OutputError`) a path below a registered output directory that passes through a
+    symbolic link below it (a case folder linked elsewhere): results never leave ``--out``."""
+    import stat
+
+    p = os.path.abspath(path)
+    for root in _roots:
+        if not p.startswith(root.rstrip(os.sep) + os.sep):
+            continue
+        cur = root
+        for part in Path(p[len(root) :].lstrip(os.sep)).parts[:-1]:
+            cur = os.path.join(cur, part)
+            try:
+                st = os.lstat(cur)
+            except FileNotFoundError:
+                break
+            if stat.S_ISLNK(st.st_mode):
+                raise OutputError(
+                    f"{cur}: is a symbolic link (to {_link_target(Path(cur))}) inside the output directory {root}; "
+                    "ftcreport writes results only inside --out: remove the link or choose another --out"
+                )
 
 
 def clean_partial(out: Path) -> int:

@@ -317,7 +317,7 @@ def _check_failure_message(res, path: Path, label: str) -> None:
 
 #: what may follow ``<file>: `` in a refusal: a field path (``faults[2].wheel``), or the file itself is unreadable
 _FIELD = re.compile(r"(<root>|[^\s:\[\]][^\s:]*): \S")
-_FILE_LEVEL = ("not valid TOML", "not UTF-8 text", "cannot read")
+_FILE_LEVEL = ("not valid TOML", "not UTF-8 text", "cannot read", "not a regular file", "too large")
 
 
 def _check_names_a_field(res, path: Path, label: str) -> None:
@@ -647,3 +647,101 @@ def test_batch_re_runs_a_damaged_stored_result(stored_store, tmp_path_factory, m
     assert sorted(ln.rsplit("re-running st / ", 1)[-1] for ln in notes) == sorted(changed), (label, notes)
     assert all(check_run(out, "st", s).sound for s in STORED_RUNS), label
     assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0, label
+
+
+# ------------------------------------------------------------------ the input's file type (issue 34)
+#: what a case file, its base case or its scheme file may be instead of a regular file of a sane size
+FILE_TYPES = (
+    "fifo",
+    "dev_zero",
+    "dev_null",
+    "dev_urandom",
+    "directory",
+    "socket",
+    "oversize",
+    "link_to_fifo",
+    "link_to_dev_zero",
+    "link_to_directory",
+    "dangling_link",
+    "link_loop",
+    "link_to_regular",  # the one mutation that must still be accepted
+)
+
+
+def _make(path: Path, kind: str, regular: Path) -> None:
+    """Make ``path`` a ``kind`` of file (``regular``: the real file a link to a regular file points at)."""
+    import socket
+
+    d = path.parent
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind.startswith("dev_"):
+        path.symlink_to(f"/dev/{kind[4:]}")
+    elif kind == "directory":
+        path.mkdir()
+    elif kind == "socket":
+        s = socket.socket(socket.AF_UNIX)
+        s.bind(str(path))
+        s.close()
+    elif kind == "oversize":  # valid TOML and Python: comments only, 1.5 MB
+        path.write_bytes(b"# padding\n" * 150_000)
+    elif kind == "link_to_fifo":
+        os.mkfifo(d / "target")
+        path.symlink_to(d / "target")
+    elif kind == "link_to_dev_zero":
+        (d / "target").symlink_to("/dev/zero")
+        path.symlink_to(d / "target")
+    elif kind == "link_to_directory":
+        (d / "target").mkdir()
+        path.symlink_to(d / "target")
+    elif kind == "dangling_link":
+        path.symlink_to(d / "nowhere")
+    elif kind == "link_loop":
+        (d / "loop").symlink_to(path)
+        path.symlink_to(d / "loop")
+    elif kind == "link_to_regular":
+        path.symlink_to(regular)
+
+
+@pytest.mark.parametrize("role", ["case", "base_case", "plugin"])
+@pytest.mark.parametrize("kind", FILE_TYPES)
+def test_input_file_types(tmp_path, role, kind):
+    """The case file, its ``base_case`` or its scheme file mutated into a FIFO, a device, a directory, a socket,
+    a file over the size bound or a symbolic link (to those, dangling, in a loop, or to a regular file).
+
+    ``cases validate`` and ``run``: refused at once (exit 2, no hang: SIGALRM, the file named with the
+    field that names it), never read without end; a link to a regular file is accepted.
+    """
+    d = tmp_path / "in"
+    d.mkdir()
+    if role == "case":
+        path = d / "m.toml"
+        _make(path, kind, CASES / "two_link_switching.toml")
+        needle = f"{path}: "
+    elif role == "base_case":
+        _make(d / "base.toml", kind, CASES / "two_link_switching.toml")
+        path = d / "m.toml"
+        path.write_text('base_case = "base.toml"\nname = "m"\n')
+        needle = f"{path}: base_case: 'base.toml': "
+    else:
+        _make(d / "law.py", kind, Path(CORPUS["two_link_sliding_mode"]["plugins"][0]))
+        path = d / "m.toml"
+        path.write_text(tomli_w.dumps({**CORPUS["two_link_sliding_mode"], "plugins": [str(d / "law.py")]}))
+        needle = f"{path}: plugins[0]: "
+    old = signal.signal(signal.SIGALRM, _alarm)
+    signal.alarm(60)
+    try:
+        res = runner.invoke(app, ["cases", "validate", str(path)])
+        if kind == "link_to_regular":
+            assert res.exit_code == 0, res.output
+            return
+        assert res.exit_code == 2, (res.exit_code, res.output, _trace(res))
+        _check_failure_message(res, path, kind)
+        _check_names_a_field(res, path, kind)
+        searched = role == "case" and kind in ("directory", "link_to_directory")  # validate searches a directory
+        assert needle in res.stderr or (searched and f"no case files (*.toml) in {path}" in res.stderr), res.stderr
+        run = runner.invoke(app, ["run", str(path), "--duration", "1", "--out", str(tmp_path / "o"), "-q"])
+        assert run.exit_code == 2 and needle in run.stderr, (run.exit_code, run.output, _trace(run))
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)

@@ -213,7 +213,7 @@ def test_name_too_long_out_directory_is_one_line(tmp_path):
 
 def test_unreadable_case_path_is_one_line(tmp_path):
     res = runner.invoke(app, ["run", str(tmp_path), "--out", str(tmp_path / "o")])  # a directory
-    _one_error_line(res, 2, str(tmp_path), "cannot read")
+    _one_error_line(res, 2, str(tmp_path), "not a regular file (a directory)")
 
 
 # ------------------------------------------------------------------ unexpected errors

@@ -501,4 +501,3 @@ def test_readme_exit_code_table_names_run_and_check_gates():
     table = text[text.index("| exit |") :].split("\n\n")[0]
     for needle in ("| 0 |", "| 1 |", "| 2 |", "| 3 |", "threshold", "claim", "cached", "damaged"):
         assert needle in table, needle
-

@@ -12,8 +12,8 @@ here, vectorized, from the log.
 
 The loop runs in chunks of about 1 % of the steps so that the progress
 callback is called every ~1 % of the run.  numba compiles the kernels
-on first use and caches the machine code beside the package (``__pycache__``):
-a fresh clone builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
+on first use and caches the machine code in the user's cache directory
+(:mod:`ftcreport.paths`): a fresh install builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
 explicitly and reports the time).
 """
 
@@ -61,7 +61,7 @@ from ..observers.ukf import UKFEstimator
 from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
-from .compiling import engine_stamp, loop_compile
+from .compiling import engine_stamp
 from .drive import motor_state_count
 from .integrators import AUTO_METHODS, METHOD_CODES
 from .refs import to_ref
@@ -347,18 +347,11 @@ def _initial_currents(loop, spec: Spec, plant, mo, dr, sigma, ubar, fm, t0: floa
 
 
 def _cache_dir() -> Path:
-    """Where the generated loop modules live: $FTCREPORT_CACHE, else beside the package, else ~/.cache."""
-    env = os.environ.get("FTCREPORT_CACHE")
-    if env:
-        return Path(env) / "loops"
-    here = Path(__file__).resolve().parent / "_loops"
-    try:
-        here.mkdir(exist_ok=True)
-        if os.access(here, os.W_OK):
-            return here
-    except OSError:
-        pass
-    return Path.home() / ".cache" / "ftcreport" / "loops"
+    """Where the generated loop modules live: ``ftcreport.paths.cache_dir("loops")`` (the user's cache
+    directory or ``$FTCREPORT_CACHE``, keyed by versions and CPU), never inside the installed package."""
+    from ..paths import cache_dir
+
+    return cache_dir("loops")
 
 
 _LOOPS: dict[tuple, object] = {}
@@ -441,18 +434,22 @@ def _compiling(loop, entry) -> Iterator[None]:
     """Around a call of a loop's entry point: its first call in this process compiles it (or loads it
     from numba's cache) under a file lock beside its module, so that two processes that need the
     same loop (a batch's workers) compile it once: the second waits and then loads the first's."""
-    with loop_compile():
-        if entry in _READY or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
+    if entry in _READY or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
+        yield
+        return
+    t0 = _time.perf_counter()
+    with open(Path(loop.__file__).with_suffix(".lock"), "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
             yield
-            return
-        with open(Path(loop.__file__).with_suffix(".lock"), "a") as fh:
-            fcntl.flock(fh, fcntl.LOCK_EX)
-            try:
-                yield
-            finally:
-                fcntl.flock(fh, fcntl.LOCK_UN)
-        if entry.signatures:
-            _READY.add(entry)  # numba's signature list costs 0.3 ms to read: once per entry point
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+    if entry.signatures:
+        _READY.add(entry)  # numba's signature list costs 0.3 ms to read: once per entry point
+    _FIRST_CALLS[0] += _time.perf_counter() - t0
+
+
+_FIRST_CALLS = [0.0]  # seconds in the entry points' first calls in this process (compile or cache load)
 
 
 _READY: set = set()  # the loops' entry points compiled or loaded in this process
@@ -631,7 +628,9 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     seg = np.searchsorted(times, grid, side="right")
     firsts = np.unique(seg, return_index=True)[1]
     fidx = np.searchsorted(np.unique(seg), seg).astype(np.int64)
+    compile0 = _FIRST_CALLS[0]  # compile_time below
     L = _Loop(spec, plant, q0, eta0, settings, grid[firsts], n_steps + 1)
+    steps_new = L.loop.run_steps not in _READY
     nq = L.nq
     # The kernels log every step of a chunk (about 1 % of the run) into chunk buffers; after each chunk
     # the light signals go to the full-rate metric stream and every signal of the logged steps
@@ -650,6 +649,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     checkpoints: list[tuple[int, tuple]] = []  # (step, carried state) at chunk starts: the re-check's restarts
     recheck = None
     wall0 = _time.perf_counter()
+    first_s, chunks = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if L.info[0] != 0:  # the first command failed (at t0, before any step)
         status, reason, t_end = _stop(L.info, F.AT_STATE, t_end, t_end, settings, spec.ref)
     with np.errstate(all="ignore"):
@@ -661,6 +661,8 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
             k_last, li, where = L.steps(grid, fidx, L.noise, method, k, k1, every_step)
             if k == 0:
                 _timing_mark("first_chunk")
+                first_s = _time.perf_counter() - wall0
+            chunks += 1
             if li:
                 keep = is_logged[k : k + li]
                 si = _collect(spec, plant, nq, li, keep, L.bufs, stream, si, n_steps + 1, log_parts)
@@ -685,8 +687,17 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     meta = {"integrator": {"method": settings.method, "dt": settings.dt, "steps": int(k)}}
     if recheck is not None:  # what the error-controlled step found (plain values: run metadata)
         meta["integrator"]["recheck"] = recheck
+    meta["compile_time"] = _compile_time(compile0, wall, first_s, chunks, steps_new)
     return _finish(Run, spec, plant, settings, nq, stream, si, log_parts, status, reason, t_end, int(k), wall, meta,
                    progress)  # fmt: skip
+
+
+def _compile_time(compile0: float, wall: float, first_s: float, chunks: int, new: bool) -> float:
+    """Compiling or loading the loop: its entry points' first calls here since ``compile0``, less the first
+    chunk's own simulation (estimated by the mean of the other chunks, which are about the same size)
+    when the loop's stepping entry point was new here."""
+    sim_first = (wall - first_s) / (chunks - 1) if chunks > 1 else 0.0
+    return max(0.0, _FIRST_CALLS[0] - compile0 - (sim_first if new else 0.0))
 
 
 def _finish(Run, spec, plant, settings, nq, stream, si, log_parts, status, reason, t_end, steps, wall, meta, progress):
@@ -750,7 +761,9 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     events = times[(times > t0) & (times < t_end)]
     clock = float(settings.dt) if (plant.noisy or spec.start) else NAN  # noise draws and the UKF tick at dt
     n_ticks = math.floor(duration / settings.dt + 1e-9) + 2
+    compile0 = _FIRST_CALLS[0]  # compile_time below
     L = _Loop(spec, plant, q0, eta0, settings, np.concatenate(([t0], events)), n_ticks)
+    steps_new = L.loop.run_auto not in _READY
     nq = L.nq
     # the chunk buffers: about 4x the steps of 1 % of the run at the longest step, at most 32 MB
     row_bytes = 8 * (L.nc + spec.n_sig + 5 * L.nw + 2 * (L.nq + 2) + L.nm + 1)
@@ -765,6 +778,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     every = int(settings.log_every)
     cap = None
     wall0 = _time.perf_counter()
+    first_s, calls = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if L.info[0] != 0:
         status, reason, _ = _stop(L.info, F.AT_STATE, t0, t0, settings, spec.ref)
     chunk = 0
@@ -776,6 +790,9 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
             li, where = L.auto_steps(events, L.fsig, L.fubar, L.fmot, L.noise, opt, ctl, rows)
             if si == 0:
                 _timing_mark("first_chunk")
+            if calls == 0:
+                first_s = _time.perf_counter() - wall0
+            calls += 1
             done = L.info[0] == 0 and li > 0 and L.lt[li - 1] >= t_end
             if li:
                 keep = (np.arange(si, si + li) % every) == 0
@@ -821,7 +838,8 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
             # steps taken at min_step with the error over the tolerance (a discontinuity: fast.loop.run_auto)
             "forced_steps": int(ctl[15]),
             "first_forced_at": float(ctl[16]) if ctl[15] else None,
-        }
+        },
+        "compile_time": _compile_time(compile0, wall, first_s, calls, steps_new),
     }
     return _finish(Run, spec, plant, settings, nq, stream, si, log_parts, status, reason, t_now, int(ctl[3]), wall,
                    meta, progress)  # fmt: skip

@@ -52,6 +52,7 @@ TWINS = {
     "two_link_uncompensable": "oracle",
     "motors/three_link_adaptive_motors": "adaptive",  # DC motors, 200 Hz control: etd2ec
     "motors/three_link_switching_motors": "switching",
+    "motors/three_link_switching_pi": "switching",  # PI current drives (continuous): the drive's states under control
     "motors/two_link_active_motors": "active",
     "motors/two_link_adaptive_eight_motors": "nominal",
     "motors/two_link_switching_motors": "oracle",  # its switching's limit cycle no step resolves

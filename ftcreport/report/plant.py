@@ -296,7 +296,7 @@ def identification_fig(ts: dict, patterns: list[list[int]], events: list[float])
     ]  # fmt: skip
     lay = _layout(
         "switching with motors: applied model against the true pattern (top); (J_k - min J) / min J (bottom)",
-        events,
+        [{"start": e, "end": e, "color": None, "label": ""} for e in events],  # a dotted line at each fault event
         t_end,
         height=480,
         yaxis={"title": {"text": "model index"}, "domain": [0.58, 1.0]},

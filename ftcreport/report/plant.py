@@ -25,6 +25,7 @@ from ..cases import Case, configured_schemes
 from ..control.switching import TIE_RTOL
 from ..model.actuators import DRIVE_MODEL_FIELDS
 from ..model.faults import wheel_names
+from ..runs import AUTO_METHODS
 from ..store import stored_metrics
 from .interactive import _layout, _r, _trace, decimate
 
@@ -198,7 +199,11 @@ def _idealizations(case: Case) -> list[dict]:
         {
             "aspect": "integration",
             "includes": f"{sim.method} at dt = {sim.dt:g} s: every number carries the integrator's error "
-            "('ftcreport run --verify-dt' compares dt/2)",
+            "('ftcreport run --verify-dt' compares dt/2)"
+            if sim.method not in AUTO_METHODS
+            else f"{sim.method}, error-controlled at rtol = {sim.rtol:g}, atol = {sim.atol:g}, longest step "
+            f"{sim.dt:g} s (the method each run took: Provenance): every number carries a local error within "
+            "that tolerance per step ('ftcreport run --verify-dt' re-runs at rtol/10)",
             "leaves_out": "-",
         }
     )

@@ -244,29 +244,33 @@ def with_step(reason: str, how: str) -> str:
     return f"{reason} ({how})"
 
 
-# The re-check of a fixed-step stop (issue 36 item 4): the interval again with an error-controlled step.
-def vanishes_reason(reason: str, how: str, t_to: float, h_min: float | None) -> str:
-    """``step_unstable``: the error-controlled step passes the instant where the fixed step stopped."""
-    small = f"; its steps fell to {h_min:.2g} s there" if h_min is not None else ""
+# The re-check of a fixed-step stop (issue 36 item 4): the interval again at dt/4 by the same method
+# (``finer``: "at dt/4 = 0.005 s").
+def vanishes_reason(reason: str, finer: str, t_to: float) -> str:
+    """``step_unstable``: the run at dt/4 passes the instant where the step dt stopped."""
     return (
-        f"step unstable: {reason}; an error-controlled step ({how}) passes this instant (checked to "
-        f't = {t_to:.6g} s{small}): the step, not the loop, stopped it (a smaller dt, or method = "auto")'
+        f"step unstable: {reason}; {finer} the same run passes this instant (checked to t = {t_to:.6g} s): "
+        'the step, not the loop, stopped it (a smaller dt, or method = "auto")'
     )
 
 
-def moves_reason(reason: str, how: str, t_fine: float, fine_reason: str) -> str:
-    """``step_unstable``: the error-controlled step stops later, elsewhere."""
+def moves_reason(reason: str, finer: str, t_fine: float, fine_reason: str) -> str:
+    """``step_unstable``: the run at dt/4 stops later, elsewhere."""
     return (
-        f"step unstable: {reason}; an error-controlled step ({how}) stops at t = {t_fine:.6g} s instead "
-        f'({fine_reason}): the stop moves with the step (a smaller dt, or method = "auto")'
+        f"step unstable: {reason}; {finer} the same run stops at t = {t_fine:.6g} s instead ({fine_reason}): "
+        'the stop moves with the step (a smaller dt, or method = "auto")'
     )
 
 
-def persists_reason(reason: str, dt: float, how: str, t: float, t_fine: float, singular: bool) -> str:
-    """``singular`` or ``diverged``: the error-controlled step stops too, no later."""
-    again = f"at dt = {dt:g} s (t = {t:.6g} s) and with an error-controlled step ({how}, t = {t_fine:.6g} s)"
+def persists_reason(
+    reason: str, dt: float, finer: str, t: float, t_fine: float, singular: bool, trial: bool = False
+) -> str:
+    """``singular`` or ``diverged``: the run at dt/4 stops too, no later (``trial``: the step dt's stop was
+    a trial stage reaching the set)."""
+    by = " by a trial stage" if trial else ""
+    again = f"at dt = {dt:g} s (t = {t:.6g} s) and again {finer} (t = {t_fine:.6g} s)"
     if singular:
-        return f"{reason}; reached {again}: the law's own singular set, not the step"
+        return f"{reason}; reached{by} {again}: the law's own singular set, not the step"
     return f"{reason}; the blow-up persists {again}: the loop's own divergence, not the step's"
 
 

@@ -326,6 +326,7 @@ METRICS: dict[str, Metric] = {
     "energy": Metric("number", "J"),
     "singularity_margin_min": Metric("number", "rad"),
     "verify_dt": Metric("record", "-"),  # run --verify-dt only
+    "integrator": Metric("record", "-"),  # the method that ran (auto's pick), its steps, its stop's re-check
     # switching (switching_metrics)
     "switching_missed_detections": Metric("number", "1", _SWITCHING),
     "switch_count": Metric("number", "1", _SWITCHING),

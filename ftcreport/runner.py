@@ -376,7 +376,7 @@ def integrator_words(metrics: dict) -> str:
         words = f"{g.get('method')} at dt = {g.get('dt'):g} s, {g.get('steps')} steps"
         check = g.get("recheck")
         if check:
-            words += f" (its stop re-checked by {check['method']}: {check['status']})"
+            words += f" (its stop re-checked at dt = {check['dt']:g} s: {check['status']})"
         return words
     rho = g.get("spectral_radius")
     pick = ""

@@ -672,8 +672,8 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 )
                 if status in ("step_unstable", "diverged"):  # does a smaller step remove the stop? (36 item 4)
                     code = int(L.info[0])
-                    recheck = _recheck(L, grid, checkpoints, k_last)
-                    status, reason = _relabel(code, reason, recheck, settings, spec, t_end)
+                    recheck = _recheck(L, grid, fidx, checkpoints, k_last)
+                    status, reason = _relabel(code, where, reason, recheck, settings, t_end)
                 k = k_last
                 break
             k = k_last
@@ -685,7 +685,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
             k += 1
     wall = _time.perf_counter() - wall0
     meta = {"integrator": {"method": settings.method, "dt": settings.dt, "steps": int(k)}}
-    if recheck is not None:  # what the error-controlled step found (plain values: run metadata)
+    if recheck is not None:  # what the run at dt/4 found (plain values: run metadata)
         meta["integrator"]["recheck"] = recheck
     meta["compile_time"] = _compile_time(compile0, wall, first_s, chunks, steps_new)
     return _finish(Run, spec, plant, settings, nq, stream, si, log_parts, status, reason, t_end, int(k), wall, meta,
@@ -921,10 +921,10 @@ def _auto_cause(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> 
 # --------------------------------------------------------------------------- the stop's re-check (fixed steps)
 #: the re-check restarts at least this many steps before the stop (a checkpoint at a chunk start) ...
 RECHECK_BACK = 32
-#: ... and runs the error-controlled step up to this many steps of dt past it
+#: ... and runs up to this many steps of dt past it
 RECHECK_PAST = 10
-#: the error-controlled twin of each fixed-step method
-_CHECKED_BY = {"rk4": "dopri5", "ros2": "ros2ec", "etd2": "etd2ec"}
+#: ... at this fraction of the step (the issue's test: a stop that blames the step runs at dt/4)
+RECHECK_SPLIT = 4
 
 
 def _keep_checkpoints(checkpoints: list, k: int, L: _Loop) -> list:
@@ -935,101 +935,97 @@ def _keep_checkpoints(checkpoints: list, k: int, L: _Loop) -> list:
     return checkpoints
 
 
-def _recheck(L: _Loop, grid, checkpoints, k_stop: int) -> dict:
-    """Run the stop's interval again with an error-controlled step (36 item 4): from a checkpoint at
-    least 32 steps before the stop to 10 steps past it, by the fixed method's error-controlled twin
-    (dopri5 for rk4, ros2ec for ros2, etd2ec for etd2) at the case's rtol/atol and dt as its longest step.
+def _recheck(L: _Loop, grid, fidx, checkpoints, k_stop: int) -> dict:
+    """Run the stop's interval again at dt/4 by the same fixed-step method (36 item 4): from a checkpoint
+    at least 32 steps before the stop to 10 steps past it, each step of the grid split in four.
 
-    Returns ``{"method", "from", "to", "status", "reason", "t_end", "min_step_taken", "growth"}``: status
-    "ok" when it passes the stop; ``growth`` the ratio of max |tau| over the growth detector's window
-    (the stop and the GROWTH_STEPS steps of dt before it).  Faults, samples and dwell ends fall where
-    they fell; the noise of each coarse step is held over it (the clock dt).
+    Returns ``{"method", "dt", "from", "to", "status", "reason", "t_end", "growth"}``: status "ok" when
+    the finer run passes the stop's interval; ``growth`` the ratio of max |tau| over the growth
+    detector's window (the stop and the GROWTH_STEPS steps of dt before it) in the finer run.  Faults,
+    samples and dwell ends fall where they fell (the fine grid holds every coarse instant); the noise of
+    each coarse step is held over its four.
     """
     import dataclasses
 
     from ..runs import GROWTH_STEPS
 
     settings = L.settings
-    method = _CHECKED_BY[settings.method]
-    fine_settings = dataclasses.replace(settings, method=method)
+    split = RECHECK_SPLIT
+    fine_settings = dataclasses.replace(settings, dt=settings.dt / split)
     back = [c for c in checkpoints if c[0] <= k_stop - RECHECK_BACK]
     k0, saved = back[-1] if back else checkpoints[0]
-    t_from = float(grid[k0])
-    t_to = float(grid[min(k_stop + RECHECK_PAST, grid.shape[0] - 1)])
-    times = np.array(sorted(set(float(v) for v in L.plant.faults.times)), dtype=float)
-    events = times[(times > t_from) & (times < t_to)]
-    seg_all = np.unique(np.searchsorted(times, grid, side="right"))
-    rows_of = np.searchsorted(seg_all, np.searchsorted(times, np.concatenate(([t_from], events)), side="right"))
-    t0 = float(grid[0])
-    clock = float(settings.dt) if (L.plant.noisy or L.spec.start) else NAN
+    k_to = min(k_stop + RECHECK_PAST, grid.shape[0] - 1)
+    coarse = np.arange(k0, k_to)  # the coarse steps re-run, each split in four
+    frac = np.arange(split) / split
+    fine = (grid[coarse][:, None] + np.diff(grid)[coarse][:, None] * frac[None, :]).ravel()
+    fine = np.append(fine, grid[k_to])
+    owner = np.append(np.repeat(coarse, split), k_to)  # the coarse step each fine instant falls in
+    first = 0
+    if k0 > 0:  # the step before the checkpoint: a fault at k0 resets the windings as in the coarse run
+        fine, owner, first = np.concatenate(([grid[k0 - 1]], fine)), np.concatenate(([k0 - 1], owner)), 1
+    fine_fidx = np.ascontiguousarray(fidx[owner])
     noise = L.noise
-    if noise.shape[0] > 1:  # tick j of the clock holds the draw of the coarse step it falls in
-        ticks = t0 + settings.dt * np.arange(math.floor((t_to - t0) / settings.dt + 1e-9) + 2)
-        noise = np.ascontiguousarray(noise[np.clip(np.searchsorted(grid, ticks, side="right") - 1, 0, None)])
-    opt, ctl = _auto_arrays(L.spec, fine_settings, t_from, t_to, t0, clock, _AUTO_CODES[method])
-    opt[5] = t_to  # one chunk
+    if noise.shape[0] > 1:
+        noise = np.ascontiguousarray(noise[owner])
     L.restore(saved)
     L.info[:] = 0.0
-    L.buffers(256)
-    window = (float(grid[max(k_stop - GROWTH_STEPS, 0)]), float(grid[k_stop]))
-    t_rows: list[np.ndarray] = []
-    tau_rows: list[np.ndarray] = []
-    while True:
-        li, where = L.auto_steps(events, L.fsig[rows_of], L.fubar[rows_of], L.fmot[rows_of], noise, opt, ctl, 256)
-        t_rows.append(L.lt[:li].copy())
-        tau_rows.append(np.max(np.abs(L.ltau[:li]), axis=1) if li else np.zeros(0))
-        if L.info[0] != 0 or li == 0 or L.lt[li - 1] >= t_to or ctl[3] > 1_000_000:
-            break
-    tt, tau = np.concatenate(t_rows), np.concatenate(tau_rows)
-    steps = np.diff(tt)
+    n_fine = fine.shape[0]
+    L.buffers(n_fine)
+    k_last, li, where = L.steps(fine, fine_fidx, noise, METHOD_CODES[settings.method], first, n_fine - 1,
+                                np.ones(n_fine, dtype=np.bool_))  # fmt: skip
+    tt, tau = L.lt[:li].copy(), np.max(np.abs(L.ltau[:li]), axis=1) if li else np.zeros(0)
     out = {
-        "method": method,
-        "from": t_from,
-        "to": t_to,
+        "method": settings.method,
+        "dt": fine_settings.dt,
+        "from": float(grid[k0]),
+        "to": float(grid[k_to]),
         "status": "ok",
         "reason": "",
-        "t_end": float(tt[-1]) if tt.size else t_from,
-        "min_step_taken": float(steps.min()) if steps.size else None,
+        "t_end": float(tt[-1]) if tt.size else float(grid[k0]),
         "growth": None,
     }
-    a, b = np.searchsorted(tt, window[0]), np.searchsorted(tt, window[1], side="right") - 1
+    window = (float(grid[max(k_stop - GROWTH_STEPS, 0)]), float(grid[k_stop]))
+    a, b = np.searchsorted(tt, window[0] - 1e-12), np.searchsorted(tt, window[1] + 1e-12, side="right") - 1
     if 0 <= a < b < tt.size and tau[a] > 0 and tt[b] >= window[1] - 1e-9:
         out["growth"] = float(tau[b] / tau[a])
     if L.info[0] != 0:
-        st, why = _auto_stop(L, where, ctl, fine_settings, L.spec)
-        out |= {"status": st, "reason": why, "t_end": float(ctl[0])}
+        t_state, t_next = float(fine[k_last]), float(fine[min(k_last + 1, n_fine - 1)])
+        st, why, t_end = _stop(L.info, where, t_state, t_next, fine_settings, L.spec.ref)
+        if _in_singular_set(L.info, where, L.x, t_state, fine_settings, L.spec):  # the state at the set's edge
+            st, why = "singular", _message(L.info, t_state, fine_settings, L.spec.ref)[1]
+        out |= {"status": st, "reason": why, "t_end": t_end, "where": int(where)}
     return out
 
 
-def _relabel(code: int, reason: str, recheck: dict, settings, spec: Spec, t_stop: float) -> tuple[str, str]:
-    """The stop's label from its re-check by an error-controlled step (36 item 4).
+def _relabel(code: int, where: int, reason: str, recheck: dict, settings, t_stop: float) -> tuple[str, str]:
+    """The stop's label from its re-check at dt/4 (36 item 4).
 
-    ``step_unstable`` only when the error-controlled step passes the stop or stops later (the stop
-    moves); ``singular`` or ``diverged`` when it stops too, no later, as it labels its own stop (the
-    state in a law's singular set, or a blow-up it follows), or when the growth detector's stop
-    (``code`` E_STEP_GROWTH) finds the torque growing as fast in time under error control (more than
-    e-fold per step of dt over the detector's window: a fast mode of the loop itself, which the
-    controlled step resolves).  One that stops earlier is no step problem either: the coarse step hid
-    the blow-up for a while.
+    ``step_unstable`` only when the finer run passes the stop or stops later (the stop moves with the
+    step); ``singular`` when it stops too, no later, with the state in a law's singular set; ``diverged``
+    when it stops too, no later, otherwise (a blow-up it follows), or when the growth detector's stop
+    (``code`` E_STEP_GROWTH) finds the torque growing as fast in time at dt/4 (more than e-fold per step
+    of dt over the detector's window: a fast mode of the loop itself, which the finer step resolves).
+    One that stops earlier is no step problem either: the coarse step hid the blow-up for a while.
     """
     from ..errors import moves_reason, persists_reason, vanishes_reason
     from ..runs import GROWTH_FACTOR, GROWTH_STEPS
 
     fine = recheck
-    how = step_words(settings.dt, fine["method"], settings.rtol, settings.atol)
     growth = fine["growth"]
+    finer = f"at dt/{RECHECK_SPLIT} = {fine['dt']:g} s"
     if code == F.E_STEP_GROWTH and growth is not None and growth > GROWTH_FACTOR**GROWTH_STEPS:
         return "diverged", (
-            f"{reason}; with an error-controlled step ({how}) the torque grows as fast ({growth:.3g}x over the same "
-            f"{GROWTH_STEPS} steps of dt): the loop's own fast mode, not the step's"
+            f"{reason}; {finer} the torque grows as fast ({growth:.3g}x over the same {GROWTH_STEPS} steps of dt): "
+            "the loop's own fast mode, not the step's"
         )
     if fine["status"] == "ok":
-        return "step_unstable", vanishes_reason(reason, how, fine["to"], fine["min_step_taken"])
+        return "step_unstable", vanishes_reason(reason, finer, fine["to"])
     if fine["t_end"] > t_stop + 2.0 * settings.dt:
-        return "step_unstable", moves_reason(reason, how, fine["t_end"], fine["reason"])
+        return "step_unstable", moves_reason(reason, finer, fine["t_end"], fine["reason"])
     if fine["status"] == "singular":
-        return "singular", persists_reason(fine["reason"], settings.dt, how, t_stop, fine["t_end"], True)
-    return "diverged", persists_reason(reason, settings.dt, how, t_stop, fine["t_end"], False)
+        trial = where == F.AT_TRIAL and code in _SINGULAR_CODES  # the step dt's trial stage reached the set
+        return "singular", persists_reason(fine["reason"], settings.dt, finer, t_stop, fine["t_end"], True, trial)
+    return "diverged", persists_reason(reason, settings.dt, finer, t_stop, fine["t_end"], False)
 
 
 def _in_singular_set(info, where: int, x: np.ndarray, t: float, settings, spec: Spec) -> bool:

@@ -25,7 +25,6 @@ __all__ = [
     "interrupted_message",
     "kappa_reason",
     "min_step_reason",
-    "moves_reason",
     "nonfinite_reason",
     "note_stored",
     "persists_reason",
@@ -254,18 +253,10 @@ def vanishes_reason(reason: str, finer: str, t_to: float) -> str:
     )
 
 
-def moves_reason(reason: str, finer: str, t_fine: float, fine_reason: str) -> str:
-    """``step_unstable``: the run at dt/4 stops later, elsewhere."""
-    return (
-        f"step unstable: {reason}; {finer} the same run stops at t = {t_fine:.6g} s instead ({fine_reason}): "
-        'the stop moves with the step (a smaller dt, or method = "auto")'
-    )
-
-
 def persists_reason(
     reason: str, dt: float, finer: str, t: float, t_fine: float, singular: bool, trial: bool = False
 ) -> str:
-    """``singular`` or ``diverged``: the run at dt/4 stops too, no later (``trial``: the step dt's stop was
+    """``singular`` or ``diverged``: the run at dt/4 stops too, in the stop's window (``trial``: the step dt's stop was
     a trial stage reaching the set)."""
     by = " by a trial stage" if trial else ""
     again = f"at dt = {dt:g} s (t = {t:.6g} s) and again {finer} (t = {t_fine:.6g} s)"

@@ -21,6 +21,7 @@ __all__ = [
     "articulation_reason",
     "bound_reason",
     "chained_reason",
+    "controlled_reason",
     "environment_cause",
     "interrupted_message",
     "kappa_reason",
@@ -250,6 +251,16 @@ def vanishes_reason(reason: str, finer: str, t_to: float) -> str:
     return (
         f"step unstable: {reason}; {finer} the same run passes this instant (checked to t = {t_to:.6g} s): "
         'the step, not the loop, stopped it (a smaller dt, or method = "auto")'
+    )
+
+
+def controlled_reason(reason: str, finer: str, t_fine: float, how: str, t_to: float, h_min: float | None) -> str:
+    """``step_unstable``: the run at dt/4 stops too, but an error-controlled step passes the instant."""
+    small = f"; its steps fell to {h_min:.2g} s there" if h_min is not None else ""
+    return (
+        f"step unstable: {reason}; {finer} the same run stops too (t = {t_fine:.6g} s), but an error-controlled step "
+        f"({how}) passes this instant (checked to t = {t_to:.6g} s{small}): the step, not the loop, stopped it "
+        '(a much smaller dt, or method = "auto")'
     )
 
 

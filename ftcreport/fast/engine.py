@@ -673,6 +673,8 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 if status in ("step_unstable", "diverged"):  # does a smaller step remove the stop? (36 item 4)
                     code = int(L.info[0])
                     recheck = _recheck(L, grid, fidx, checkpoints, k_last)
+                    if recheck["status"] not in ("ok", "singular"):  # it persists at dt/4: a second opinion
+                        recheck["controlled"] = _controlled_recheck(L, grid, checkpoints, k_last, recheck["k_to"])
                     status, reason = _relabel(code, where, reason, recheck, settings, t_end)
                 k = k_last
                 break
@@ -919,6 +921,8 @@ def _auto_cause(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> 
 
 
 # --------------------------------------------------------------------------- the stop's re-check (fixed steps)
+#: the error-controlled twin of each fixed-step method (the second opinion on a stop that persists at dt/4)
+_CHECKED_BY = {"rk4": "dopri5", "ros2": "ros2ec", "etd2": "etd2ec"}
 #: the re-check restarts at least this many steps before the stop (a checkpoint at a chunk start) ...
 RECHECK_BACK = 32
 #: ... and runs past it by this many steps of dt or this fraction of the time run so far, the longer: a
@@ -985,6 +989,7 @@ def _recheck(L: _Loop, grid, fidx, checkpoints, k_stop: int) -> dict:
         "dt": fine_settings.dt,
         "from": float(grid[k0]),
         "to": float(grid[k_to]),
+        "k_to": int(k_to),
         "status": "ok",
         "reason": "",
         "t_end": float(tt[-1]) if tt.size else float(grid[k0]),
@@ -1003,17 +1008,86 @@ def _recheck(L: _Loop, grid, fidx, checkpoints, k_stop: int) -> dict:
     return out
 
 
+def _controlled_recheck(L: _Loop, grid, checkpoints, k_stop: int, k_to: int) -> dict:
+    """The second opinion on a stop that persists at dt/4 (:func:`_recheck`): its window again with an
+    error-controlled step, from the same checkpoint to step ``k_to``, by the fixed method's
+    error-controlled twin (dopri5 for rk4, ros2ec for ros2, etd2ec for etd2) at the case's rtol/atol
+    and dt as its longest step (three_link_eight_faults' adaptive law stops at 26.265 s at dt/4 too;
+    this step passes it with steps down to 4e-8 s, and the whole run is ok with ``auto``).
+
+    Returns ``{"method", "from", "to", "status", "reason", "t_end", "min_step_taken", "growth"}``: status
+    "ok" when it passes the stop; ``growth`` the ratio of max |tau| over the growth detector's window
+    (the stop and the GROWTH_STEPS steps of dt before it).  Faults, samples and dwell ends fall where
+    they fell; the noise of each coarse step is held over it (the clock dt).
+    """
+    import dataclasses
+
+    from ..runs import GROWTH_STEPS
+
+    settings = L.settings
+    method = _CHECKED_BY[settings.method]
+    fine_settings = dataclasses.replace(settings, method=method)
+    back = [c for c in checkpoints if c[0] <= k_stop - RECHECK_BACK]
+    k0, saved = back[-1] if back else checkpoints[0]
+    t_from = float(grid[k0])
+    t_to = float(grid[k_to])
+    times = np.array(sorted(set(float(v) for v in L.plant.faults.times)), dtype=float)
+    events = times[(times > t_from) & (times < t_to)]
+    seg_all = np.unique(np.searchsorted(times, grid, side="right"))
+    rows_of = np.searchsorted(seg_all, np.searchsorted(times, np.concatenate(([t_from], events)), side="right"))
+    t0 = float(grid[0])
+    clock = float(settings.dt) if (L.plant.noisy or L.spec.start) else NAN
+    noise = L.noise
+    if noise.shape[0] > 1:  # tick j of the clock holds the draw of the coarse step it falls in
+        ticks = t0 + settings.dt * np.arange(math.floor((t_to - t0) / settings.dt + 1e-9) + 2)
+        noise = np.ascontiguousarray(noise[np.clip(np.searchsorted(grid, ticks, side="right") - 1, 0, None)])
+    opt, ctl = _auto_arrays(L.spec, fine_settings, t_from, t_to, t0, clock, _AUTO_CODES[method])
+    opt[5] = t_to  # one chunk
+    L.restore(saved)
+    L.info[:] = 0.0
+    L.buffers(256)
+    window = (float(grid[max(k_stop - GROWTH_STEPS, 0)]), float(grid[k_stop]))
+    t_rows: list[np.ndarray] = []
+    tau_rows: list[np.ndarray] = []
+    while True:
+        li, where = L.auto_steps(events, L.fsig[rows_of], L.fubar[rows_of], L.fmot[rows_of], noise, opt, ctl, 256)
+        t_rows.append(L.lt[:li].copy())
+        tau_rows.append(np.max(np.abs(L.ltau[:li]), axis=1) if li else np.zeros(0))
+        if L.info[0] != 0 or li == 0 or L.lt[li - 1] >= t_to or ctl[3] > 1_000_000:
+            break
+    tt, tau = np.concatenate(t_rows), np.concatenate(tau_rows)
+    steps = np.diff(tt)
+    out = {
+        "method": method,
+        "from": t_from,
+        "to": t_to,
+        "status": "ok",
+        "reason": "",
+        "t_end": float(tt[-1]) if tt.size else t_from,
+        "min_step_taken": float(steps.min()) if steps.size else None,
+        "growth": None,
+    }
+    a, b = np.searchsorted(tt, window[0]), np.searchsorted(tt, window[1], side="right") - 1
+    if 0 <= a < b < tt.size and tau[a] > 0 and tt[b] >= window[1] - 1e-9:
+        out["growth"] = float(tau[b] / tau[a])
+    if L.info[0] != 0:
+        st, why = _auto_stop(L, where, ctl, fine_settings, L.spec)
+        out |= {"status": st, "reason": why, "t_end": float(ctl[0])}
+    return out
+
+
 def _relabel(code: int, where: int, reason: str, recheck: dict, settings, t_stop: float) -> tuple[str, str]:
     """The stop's label from its re-check at dt/4 (36 item 4).
 
     ``step_unstable`` only when the finer run passes the stop's window (RECHECK_PAST, RECHECK_AHEAD: the
     stop vanishes, or moves out of it); ``singular`` when it stops within it with the state in a law's
     singular set; ``diverged`` when it stops within it otherwise (a blow-up that persists at the smaller
-    step, if a little later or earlier), or when the growth detector's stop
+    step, if a little later or earlier) unless the error-controlled step passes the window (then
+    ``step_unstable``: only a much smaller step removes it), or when the growth detector's stop
     (``code`` E_STEP_GROWTH) finds the torque growing as fast in time at dt/4 (more than e-fold per step
     of dt over the detector's window: a fast mode of the loop itself, which the finer step resolves).
     """
-    from ..errors import persists_reason, vanishes_reason
+    from ..errors import controlled_reason, persists_reason, vanishes_reason
     from ..runs import GROWTH_FACTOR, GROWTH_STEPS
 
     fine = recheck
@@ -1029,6 +1103,12 @@ def _relabel(code: int, where: int, reason: str, recheck: dict, settings, t_stop
     if fine["status"] == "singular":
         trial = where == F.AT_TRIAL and code in _SINGULAR_CODES  # the step dt's trial stage reached the set
         return "singular", persists_reason(fine["reason"], settings.dt, finer, t_stop, fine["t_end"], True, trial)
+    controlled = fine.get("controlled")
+    if controlled is not None and controlled["status"] == "ok":  # only a much smaller step passes it
+        how = step_words(settings.dt, controlled["method"], settings.rtol, settings.atol)
+        return "step_unstable", controlled_reason(
+            reason, finer, fine["t_end"], how, controlled["to"], controlled["min_step_taken"]
+        )
     return "diverged", persists_reason(reason, settings.dt, finer, t_stop, fine["t_end"], False)
 
 

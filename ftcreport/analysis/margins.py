@@ -1,0 +1,165 @@
+r"""Loop-at-a-time and disk margins at the actuator inputs, with their Bode data (python-control; pure).
+
+The loop is broken at one actuator input j (the torque command on the ideal plant, the armature
+voltage with motors), every other input closed, and the controller's own use of its command left as
+it is (switching's filters read u).  With the loop ``x' = A_j x + B_j a_j``, ``a_j = K_j x`` (continuous)
+or its sampled form (:func:`~ftcreport.analysis.sampled.open_loop_at_input`), the loop transfer
+function in python-control's negative-feedback convention is ``L_j = -K_j (sI - A_j)^-1 B_j``; then
+
+* ``control.stability_margins(L_j)``: gain margin (a factor; in dB too), phase margin, the crossover
+  frequencies and the stability margin (the least distance of L_j(jw) to -1);
+* the disk margin and the gain and phase variations it guarantees together, for each loop
+  (:func:`disk_margin_siso`, equal to ``control.disk_margins``) and for all the inputs at once
+  (``control.disk_margins`` of the MIMO loop: slycot's ab13md; python-control 0.10.2 and later,
+  skipped and said so where the installed version has none);
+* the Bode data of the loop with the smallest stability margin, for the page's figure.
+
+Margins are reported only for a stable closed loop.  With the other inputs closed, L_j may itself
+have unstable poles (``open_loop_unstable``); its crossover margins are then not a Nyquist certificate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import control
+import numpy as np
+
+from .closed_loop import Blocks
+from .sampled import open_loop_at_input, parts
+
+__all__ = ["HAS_DISK_MARGINS", "frequency_grid", "loop_margins", "loop_systems"]
+
+HAS_DISK_MARGINS = hasattr(control, "disk_margins")
+POINTS = 200
+
+
+def loop_systems(blk: Blocks, T: float | None, delay: int = 0) -> list[control.StateSpace]:
+    """``L_j`` for every actuator input j, as python-control systems (sampled when T is given)."""
+    out = []
+    if T is None:
+        A = blk.continuous()
+        B, K = blk.feedback()
+        for j in range(blk.na):
+            Aj = A - B[:, [j]] @ K[[j]]
+            out.append(control.ss(Aj, B[:, [j]], -K[[j]], np.zeros((1, 1))))
+    else:
+        for j in range(blk.na):
+            Aj, Bj, Kj = open_loop_at_input(blk, T, delay, j)
+            out.append(control.ss(Aj, Bj, -Kj, np.zeros((1, 1)), dt=T))
+    return out
+
+
+def mimo_loop(blk: Blocks, T: float | None, delay: int = 0) -> control.StateSpace:
+    """L = -K (sI - A_0)^-1 B with every actuator input broken at once (na x na)."""
+    if T is None:
+        A = blk.continuous()
+        B, K = blk.feedback()
+        return control.ss(A - B @ K, B, -K, np.zeros((blk.na, blk.na)))
+    M0, Bz, Ka = parts(blk, T, delay)
+    return control.ss(M0, Bz, -Ka, np.zeros((blk.na, blk.na)), dt=T)
+
+
+def frequency_grid(poles: np.ndarray, T: float | None, points: int = POINTS) -> np.ndarray:
+    """rad/s, log-spaced: a decade below the slowest nonzero pole's magnitude to a decade above the
+    fastest (continuous), or to the Nyquist frequency pi / T (sampled)."""
+    mags = np.abs(np.log(poles[poles != 0]) / T) if T else np.abs(poles)
+    mags = mags[np.isfinite(mags) & (mags > 0)]
+    lo = 0.1 * float(mags.min()) if mags.size else 1e-2
+    hi = math.pi / T if T else 10.0 * float(mags.max()) if mags.size else 1e4
+    lo = min(lo, hi / 1e3)
+    return np.logspace(math.log10(lo), math.log10(hi * (0.999 if T else 1.0)), points)
+
+
+def disk_margin_siso(Ljw: np.ndarray) -> dict:
+    r"""The balanced disk margin of one loop from its frequency response (skew 0, Blight et al. 1994).
+
+    ``alpha = 1 / max_w |(1 - L) / (2 (1 + L))|`` (the least distance, in that metric, of L(jw) to
+    -1); the loop tolerates gain changes in ``[(2 - alpha) / (2 + alpha), (2 + alpha) / (2 - alpha)]``
+    and phase changes up to ``2 atan(alpha / 2)``, simultaneously.  This is what
+    ``control.disk_margins(L, omega)`` returns for one loop (tests/test_margins.py checks it); the
+    closed form avoids its per-frequency call of slycot's ab13md, which one loop does not need.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        peak = float(np.max(np.abs((1.0 - Ljw) / (2.0 * (1.0 + Ljw))), initial=0.0))
+    if not peak > 0.0 or not math.isfinite(peak):
+        return {"disk_margin": None, "disk_gain_margin_db": None, "disk_phase_margin_deg": None}
+    a = 1.0 / peak
+    gmax = (2.0 + a) / (2.0 - a) if a < 2.0 else math.inf
+    gmin = (2.0 - a) / (2.0 + a)
+    dgm = 20.0 * math.log10(min(1.0 / gmin, gmax)) if math.isfinite(gmax) else None
+    dpm = math.degrees(math.acos((1.0 + gmin * gmax) / (gmin + gmax))) if math.isfinite(gmax) else 90.0
+    return {"disk_margin": a, "disk_gain_margin_db": dgm, "disk_phase_margin_deg": dpm}
+
+
+def _f(x) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def loop_margins(blk: Blocks, T: float | None, delay: int, names, unit: str) -> dict:
+    """Margins of every actuator loop of a stable closed loop (module docstring), as data.
+
+    ``names``: the inputs' names (wheel order); ``unit``: the actuator signal's.  Infinite margins
+    (no crossover) are reported as null with ``"crossover": false``.
+    """
+    systems = loop_systems(blk, T, delay)
+    loops = []
+    best = None
+    for j, L in enumerate(systems):
+        row = {"input": names[j]}
+        if not np.any(L.B) or not np.any(L.C):
+            row["note"] = "no loop through this input (a failed actuator or an unused input)"
+            loops.append(row)
+            continue
+        poles = L.poles()
+        unstable = int(np.sum(np.abs(poles) > 1.0 + 1e-9)) if T else int(np.sum(poles.real > 1e-9))
+        with np.errstate(all="ignore"):
+            gm, pm, sm, wpc, wgc, _wms = control.stability_margins(L)
+        row |= {
+            "gain_margin": _f(gm),
+            "gain_margin_db": _f(20.0 * math.log10(gm)) if gm and math.isfinite(gm) and gm > 0 else None,
+            "phase_margin_deg": _f(pm),
+            "stability_margin": _f(sm),
+            "phase_crossover": _f(wpc),
+            "gain_crossover": _f(wgc),
+            "open_loop_unstable": unstable,
+        }
+        omega = frequency_grid(poles, T)
+        Ljw = control.frequency_response(L, omega).complex.ravel()
+        row |= disk_margin_siso(Ljw)
+        loops.append(row)
+        s = row["stability_margin"]
+        if s is not None and (best is None or s < best[0]):
+            best = (s, j, L, omega)
+    out = {"input": "voltage" if unit == "V" else "torque", "unit": unit, "loops": loops,
+           "disk_margins": HAS_DISK_MARGINS}  # fmt: skip
+    if best is not None:
+        _s, j, L, omega = best
+        out["worst"] = loops[j]["input"]
+        Ljw = control.frequency_response(L, omega).complex.ravel()
+        with np.errstate(divide="ignore"):
+            out["_bode"] = {
+                "input": loops[j]["input"],
+                "omega": omega.tolist(),
+                "mag_db": (20.0 * np.log10(np.maximum(np.abs(Ljw), 1e-300))).tolist(),
+                "phase_deg": np.degrees(np.unwrap(np.angle(Ljw))).tolist(),
+                "gain_crossover": loops[j].get("gain_crossover"),
+                "phase_crossover": loops[j].get("phase_crossover"),
+                "gain_margin_db": loops[j].get("gain_margin_db"),
+                "phase_margin_deg": loops[j].get("phase_margin_deg"),
+            }
+    if HAS_DISK_MARGINS and blk.na > 1 and any("gain_margin" in r for r in loops):
+        Lm = mimo_loop(blk, T, delay)
+        omega = frequency_grid(Lm.poles(), T, 100)
+        try:
+            with np.errstate(all="ignore"):
+                dm, dgm, dpm = control.disk_margins(Lm, omega)
+            out["all_inputs"] = {
+                "disk_margin": _f(dm),
+                "disk_gain_margin_db": _f(dgm),
+                "disk_phase_margin_deg": _f(dpm),
+            }
+        except (ValueError, np.linalg.LinAlgError, ImportError) as exc:  # slycot's ab13md missing or failing
+            out["all_inputs"] = {"note": f"not computed: {exc}"}
+    return out

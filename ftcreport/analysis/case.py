@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import FtcError
 from .classic import classic_analyses
 from .confirm import confirm_limit, needs_confirmation
-from .phases import analyze_scheme
+from .phases import analyze_scheme, case_frames
 
 __all__ = ["analyze_case"]
 
@@ -54,14 +54,17 @@ def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: b
     out["phases"], out["limits"], out["velocity_loop"], out["limit_notes"] = {}, {}, {}, {}
     out["confirmation"] = {}
     out["not_analyzed"] = {}
+    out["k_v"] = {}
+    psis = case_frames(case, built)
     for scheme in configured_schemes(case):
         t1 = time.perf_counter()
         try:
-            res = analyze_scheme(case, scheme, built, (runs or {}).get(scheme), margins, limits)
+            res = analyze_scheme(case, scheme, built, (runs or {}).get(scheme), margins, limits, psis)
         except (FtcError, ValueError, np.linalg.LinAlgError) as exc:
             out["not_analyzed"][scheme] = str(exc)
             continue
         out["phases"][scheme] = res["phases"]
+        out["k_v"][scheme] = res["k_v"]
         if limits:
             out["limits"][scheme] = res["limits"]
             out["velocity_loop"][scheme] = res["velocity_loop"]

@@ -252,6 +252,9 @@ class Blocks:
     decoupled (:func:`relevant_states`), ``parameter_block`` : the size of the block replaced by its
     image in the actuator space (:func:`_parameter_block`), 0 if none.
 
+    ``basis``: the parameter block's orthonormal basis in the actuator space (to linearize the same
+    loop at another gain in the same coordinates).
+
     ``omega`` and ``frame``: the reference's turning rate and the index pairs (in ``[x_p, c]``) of the
     vectors written in the world frame (the position of P_n, an observer's estimate of it and of its
     velocity).  The loop is linearized about a moving reference; in world coordinates the frozen
@@ -276,6 +279,7 @@ class Blocks:
     parameter_block: int = 0
     omega: float = 0.0
     frame: list = field(default_factory=list)
+    basis: np.ndarray | None = None
 
     @property
     def nc(self) -> int:
@@ -426,8 +430,9 @@ class SchemeLoop:
         return Point(float(t), faults, xp, xc, a, applied, omega)
 
     # ------------------------------------------------------------------------------------------ Jacobians
-    def blocks(self, pt: Point, period: float | None = None) -> Blocks:
-        """The loop's Jacobians at ``pt`` (``period``: the sample time a discrete update is linearized for)."""
+    def blocks(self, pt: Point, period: float | None = None, basis: np.ndarray | None = None) -> Blocks:
+        """The loop's Jacobians at ``pt`` (``period``: the sample time a discrete update is linearized for;
+        ``basis``: a parameter block's basis to use, from :attr:`Blocks.basis` of the same point)."""
         ny = self.n_q + 2
         fz, t = pt.faults, pt.t
         Fx = self.plant.state_columns(pt.xp, pt.a, fz)
@@ -457,13 +462,14 @@ class SchemeLoop:
                 raise ModelError(f"scheme {self.scheme}: its discrete update needs a sample time to be linearized")
             disc = self._discrete_map(pt, period, lin)
         elif lin.size and not np.any(Gx):
-            block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na)
+            block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis)
             if block is not None:
-                Gy_r, Gc_r = block
+                Gy_r, Gc_r, U = block
                 rank = Gc_r.shape[1]
                 return Blocks(
                     Fx, Fa, np.zeros((na + rank, Fx.shape[0])), Gy_r, Gc_r, np.eye(rank), np.zeros((rank, ny)), na,
                     dropped=int(lin.size - rank), parameter_block=int(lin.size), omega=pt.omega, frame=[(0, 1)],
+                    basis=U,
                 )  # fmt: skip
         Gc = central_columns(lambda c: g(pt.xp, y0, with_c(c)), c0)
         if disc is None:
@@ -517,8 +523,10 @@ def _layout(ctrl, nk: int) -> tuple[set[int], bool]:
     discrete update is a smooth map to linearize (the UKF's step and law) rather than a decision.
 
     Held: the kinematic frame (re-anchored by jumps), switching's selected model and dwell timer, the
-    UKF's covariance and its last sample time.  A plug-in's discrete update (switches, projections,
-    README "Write your own scheme") is held too: only its law's rates are linearized.
+    UKF's covariance and its last sample time, the Farza observer's sensitivity Y and gain P (4.4)-(4.11):
+    at zero estimation error they multiply the innovation, zero, so they are decoupled exactly (their
+    values still set the observer's gains).  A plug-in's discrete update (switches, projections, README
+    "Write your own scheme") is held too: only its law's rates are linearized.
     """
     from ..control.active import ActiveController
     from ..control.switching import SwitchingController
@@ -534,6 +542,9 @@ def _layout(ctrl, nk: int) -> tuple[set[int], bool]:
         held |= set(range(start + o.nx, start + o.n_states))  # the covariance
         held |= set(range(ctrl._t.start, ctrl._t.stop))
         disc = True
+    elif isinstance(ctrl, ActiveController):  # the Farza observer
+        o, start = ctrl.est, ctrl._est.start
+        held |= set(range(start + o._Y.start, start + o._P.stop))
     return held, disc
 
 
@@ -554,12 +565,13 @@ def _world_pairs(ctrl) -> list[tuple[int, int]]:
     return [(e, e + 1), (e + N, e + N + 1)]
 
 
-def frames(kin, times) -> dict[float, float]:
+def frames(kin, times, step: float = 0.01) -> dict[float, float]:
     """The chained law's frame psi at each of ``times`` as the controller holds it along the reference.
 
     psi starts at theta_nd(0) and re-anchors to theta_nd when |theta_nd - psi| exceeds the band
-    (``kin_discrete``): stepped along the reference at 0.01 s (the band is 45 deg; the reference turns at
-    most a few degrees per 0.01 s).  Empty for the two-link law (no frame).
+    (``kin_discrete``): stepped along the reference at ``step`` (the case's dt, at least 0.01 s: the
+    engine re-anchors after every step; the band is 45 deg and the references turn a few degrees per
+    0.01 s at most).  Empty for the two-link law (no frame).
     """
     if kin.n_states == 0:
         return {}
@@ -568,7 +580,7 @@ def frames(kin, times) -> dict[float, float]:
     xc = np.asarray(kin.initial_state(0.0, kin.reference.at(0.0).q_d), dtype=float)
     t = 0.0
     for target in ts:
-        grid = np.arange(t, target, 0.01)[1:] if target > t else []
+        grid = np.arange(t, target, step)[1:] if target > t else []
         for s in [*grid, target]:
             xc = kin.discrete(float(s), None, xc)
         t = target
@@ -629,7 +641,13 @@ def operating_state(loop: SchemeLoop, t: float, q, eta, fz: Faults, psi=None, ap
 
 def _observer_point(loop, ctrl, t, q, eta, sigma_t, ubar_t, xc, own: bool, period) -> tuple[np.ndarray, list]:
     """An active scheme's state: its estimates of q and eta on the plant's, its parameter estimates at
-    the truth (or the run's), its estimate filters converged, the UKF's held command recomputed."""
+    the truth (or the run's), its estimate filters converged.
+
+    The UKF scheme runs at the samples: its state before the update at t is the previous sample's,
+    so its estimates sit on the reference at ``t - T`` and its held command is the law's there (its
+    update run with no time elapsed computes just the law); the update at t then predicts over T
+    and meets the measurement at t with (almost) no innovation.
+    """
     from ..observers.ukf import UKFEstimator
 
     o = ctrl.est
@@ -637,25 +655,27 @@ def _observer_point(loop, ctrl, t, q, eta, sigma_t, ubar_t, xc, own: bool, perio
     est = xc[ctrl._est].copy()
     params = np.concatenate(([sigma_t] if o.est_rho else []) + ([ubar_t] if o.est_ubar else [])) if o.p else _EMPTY
     if isinstance(o, UKFEstimator):
+        T = loop.case.simulation.dt if period is None else period
+        r = ctrl.kin.reference.at(float(t) - T)
+        q_prev, eta_prev = np.asarray(r.q_d, dtype=float), np.asarray(r.eta_d, dtype=float)
         x = est[: o.nx]
-        x[: o.N] = q
-        x[o.N : o.N + 2] = eta
+        x[: o.N] = q_prev
+        x[o.N : o.N + 2] = eta_prev
         if not own:
             x[o.N + 2 :] = params
         est[: o.nx] = x
+        xc[ctrl._est] = est
+        xc[ctrl._t] = t - T  # no time elapsed: the update computes the law on these estimates only
+        xc[ctrl._u] = loop.discrete(t - T, q_prev, eta_prev, xc)[ctrl._u]
     else:
         N = o.N
         est[:N] = q
         est[N : 2 * N] = ctrl.chain.S(q) @ eta
         if not own:
             est[o._rho] = params
-    xc[ctrl._est] = est
+        xc[ctrl._est] = est
     if ctrl.tau is not None and not own:
         xc[ctrl._filt] = np.concatenate((sigma_t, ubar_t))
-    if ctrl.discrete_time:  # the held command: what the update computes at this point
-        T = loop.case.simulation.dt if period is None else period
-        xc[ctrl._t] = t - T
-        xc = _settle_held_command(loop, t, q, eta, xc)
     rho = xc[ctrl._filt][:nw] if ctrl.tau is not None else (sigma_t if not o.est_rho else _rho_of(o, xc[ctrl._est]))
     return xc, [float(v) for v in np.clip(rho, 0.0, 1.0)]
 
@@ -666,15 +686,6 @@ def _rho_of(o, est: np.ndarray) -> np.ndarray:
     if isinstance(o, UKFEstimator):
         return est[o.N + 2 : o.N + 2 + o.nw]
     return est[o._rho][: o.nw]
-
-
-def _settle_held_command(loop, t, q, eta, xc) -> np.ndarray:
-    """The UKF scheme's held command at the point: its update run once, the estimates put back."""
-    ctrl = loop.ctrl
-    new = loop.discrete(t, q, eta, xc)
-    out = xc.copy()
-    out[ctrl._u] = new[ctrl._u]
-    return out
 
 
 def _inside(chi: np.ndarray) -> np.ndarray:
@@ -733,7 +744,7 @@ def _closure(dep: np.ndarray, seed: np.ndarray) -> np.ndarray:
         member = new
 
 
-def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int):
+def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarray | None = None):
     r"""Scheme states without dynamics of their own, replaced by the part of their image the loop reaches.
 
     When the states c have ``dc'/dc = 0`` at the point and reach the plant only through a (the
@@ -749,7 +760,8 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int):
     check that the rates do not read the states probes ``na + 2`` random directions.  Costs
     O(ny + na) law evaluations instead of O(len(c)) (7,670 weights for five robots).  ``g(c)`` returns
     [a, c'] at the point's measurement, ``Gy`` its Jacobian in y (a rows first).  Returns (Gy, Gc) of
-    [a, xi], or None when the states have dynamics of their own (then each is differentiated).
+    [a, xi] and the basis U (``basis``: use this one, e.g. the same loop's at another gain), or None
+    when the states have dynamics of their own (then each is differentiated).
     """
     rng = np.random.default_rng(0)
     probes = na + 2
@@ -761,8 +773,10 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int):
         return None  # the states' rates read the states: differentiate them all
     # W = K_c G_cy: the torque's rate along each measurement direction
     W = np.column_stack([directional(lambda c: g(c)[:na], c0, Gy[na:, k]) for k in range(Gy.shape[1])])
-    U, s, _ = np.linalg.svd(W, full_matrices=False)
-    # directions below 1e-6 of the largest are the differences' error (~1e-9 here), not dynamics
-    rank = int(np.sum(s > 1e-6 * max(float(s.max()) if s.size else 0.0, 1e-300)))
-    U = U[:, :rank]
-    return np.vstack((Gy[:na], U.T @ W)), np.vstack((U, np.zeros((rank, rank))))
+    if basis is None:
+        U, s, _ = np.linalg.svd(W, full_matrices=False)
+        # directions below 1e-6 of the largest are the differences' error (~1e-9 here), not dynamics
+        rank = int(np.sum(s > 1e-6 * max(float(s.max()) if s.size else 0.0, 1e-300)))
+        basis = U[:, :rank]
+    rank = basis.shape[1]
+    return np.vstack((Gy[:na], basis.T @ W)), np.vstack((basis, np.zeros((rank, rank)))), basis

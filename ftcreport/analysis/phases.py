@@ -32,15 +32,20 @@ import numpy as np
 
 from ..errors import FtcError, ModelError
 from .closed_loop import Blocks, Faults, SchemeLoop, frames
-from .limits import continuous_margin, fastest_pole, gain_family, largest_gain, largest_sample_time, sampled_radius
+from .limits import (
+    MARGINAL_Z,
+    continuous_margin,
+    fastest_pole,
+    gain_family,
+    largest_gain,
+    largest_sample_time,
+    sampled_radius,
+)
+from .limits import stability as limits_stability
 from .margins import loop_margins
 from .sampled import closed_loop_matrix
 
 __all__ = ["RunStates", "analyze_scheme", "fault_phases", "instants", "pole_rows", "time_varying"]
-
-#: a pole this close to the stability boundary (relative) is called marginal
-MARGINAL = 1e-9
-
 
 def fault_phases(case) -> list[tuple[float, float]]:
     """The phases of the fault schedule: [0, first event), ..., [last event, duration]."""
@@ -70,6 +75,23 @@ def instants(case, t0: float, t1: float) -> list[float]:
     if not time_varying(case):
         return [0.5 * (t0 + t1)]
     return [t0 + (k + 0.5) / 3.0 * (t1 - t0) for k in range(3)]
+
+
+#: where the applied pattern comes from without a run (with one: the run's states)
+_ORIGIN = {
+    "nominal": "the healthy law (no FTC)",
+    "oracle": "the true faults",
+    "adaptive": "weights on the design of the true pattern",
+    "adaptive_frozen": "weights on the design of the true pattern",
+    "active": "estimates at the truth",
+    "active_ukf": "estimates at the truth",
+}
+
+
+def case_frames(case, built) -> dict[float, float]:
+    """The chained law's frame at every frozen instant of the case (empty for the two-link law)."""
+    times = [t for p in fault_phases(case) for t in instants(case, *p)]
+    return frames(built.kinematic(), times, step=max(float(case.simulation.dt), 0.01))
 
 
 def phase_faults(built, t: float) -> Faults:
@@ -137,23 +159,13 @@ def pole_rows(poles: np.ndarray, T: float | None) -> list[dict]:
     return sorted(rows, key=key)
 
 
-def _verdict(measure: float, poles: np.ndarray, discrete: bool) -> str:
-    if discrete:
-        if measure < 1.0 - MARGINAL:
-            return "stable"
-        return "marginal" if measure <= 1.0 + MARGINAL else "unstable"
-    scale = MARGINAL * max(1.0, float(np.abs(poles).max(initial=0.0)))
-    if measure < -scale:
-        return "stable"
-    return "marginal" if measure <= scale else "unstable"
-
-
 def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: bool = True,
-                   limits: bool = True) -> dict:  # fmt: skip
+                   limits: bool = True, psis: dict | None = None) -> dict:  # fmt: skip
     """One scheme of a case: per phase the true and applied pattern, poles, stability, margins; its limits.
 
     ``run``: the scheme's stored run (``store.load_timeseries``), for the states it held and the model
-    switching selected.  Returns ``{"phases": [...], "limits": {...}, "velocity_loop": {...}, ...}``
+    switching selected; ``psis``: the chained law's frame at the instants (:func:`case_frames`, shared
+    by the schemes of a case).  Returns ``{"phases": [...], "limits": {...}, "velocity_loop": {...}, ...}``
     (the keys are documented in README, "Linearized analysis").
     """
     loop = SchemeLoop(case, scheme, built)
@@ -165,11 +177,12 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
     states = RunStates(run) if run else None
     phases = fault_phases(case)
     times = {p: instants(case, *p) for p in phases}
-    psis = frames(loop.ctrl.kin, [t for ts in times.values() for t in ts])
+    if psis is None:
+        psis = case_frames(case, built)
     out_phases = []
     for t0, t1 in phases:
         fz = phase_faults(built, t0)
-        applied, applied_from = None, "truth"
+        applied, applied_from = None, _ORIGIN.get(scheme, "its initial state (no run)")
         if scheme == "switching":
             sel = states.selected(t0, t1) if states else None
             if sel is not None:
@@ -218,9 +231,9 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
             continue
         worst = max(good, key=lambda r: r["measure"])
         pt, blk = worst["pt"], worst["blk"]
-        if applied_from == "truth" and worst["run"]:
-            applied_from = "run"
-        stability = _verdict(worst["measure"], worst["poles"], discrete)
+        if worst["run"] and scheme not in ("nominal", "oracle", "switching"):
+            applied_from = "its run's states"
+        stability = limits_stability(worst["measure"], worst["poles"], discrete)
         entry |= {
             "pattern_applied": pt.applied,
             "applied_from": applied_from if pt.applied is not None else "the law applies no pattern",
@@ -239,7 +252,9 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
             },
         }
         entry["margins"] = (
-            loop_margins(blk, period if discrete else None, delay, loop.ctrl.chain.wheels, loop.plant.input_unit)
+            loop_margins(
+                blk, period if discrete else None, delay, loop.ctrl.chain.wheels, loop.plant.input_unit, not out_phases
+            )
             if margins and stability == "stable"
             else {"note": f"the closed loop is {stability}: margins are defined for a stable loop only"}
             if margins
@@ -253,59 +268,73 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
 
 
 def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay) -> dict:
-    """``limits`` and ``velocity_loop`` of one scheme: healthy pattern, the case's gains (module limits)."""
-    motors = built.plant.motors is not None
-    fz = Faults.healthy(built.chain.n_wheels, motors)
+    """``limits`` and ``velocity_loop`` of one scheme: healthy pattern, the case's gains (module limits).
+
+    The velocity loop alone (q held, :meth:`Blocks.velocity_loop`) is given for a law that measures
+    eta; an active scheme sees the velocity only through its observer of q, so holding q opens its
+    loop: its ``velocity_loop`` limits are null, and say so.
+    """
+    fz = Faults.healthy(built.chain.n_wheels, built.plant.motors is not None)
     out = {"limits": {}, "velocity_loop": {}, "limit_notes": {}}
     try:
         blocks = [loop.blocks(loop.point(t, fz, psis.get(t), None, None, period), period) for t in ts]
     except (FtcError, ValueError, np.linalg.LinAlgError) as exc:
-        out["limits"] = {"sample_time_max": None, "k_v_max": None}
-        out["velocity_loop"] = {"sample_time_max": None, "k_v_max": None}
-        out["limit_notes"] = {"sample_time_max": f"not computed: {exc}", "k_v_max": f"not computed: {exc}"}
+        for name in ("limits", "velocity_loop"):
+            out[name] = {"sample_time_max": None, "k_v_max": None}
+            out["limit_notes"] |= {f"{name}.{k}": f"not computed: {exc}" for k in out[name]}
         return out
-    for name, pick in (("limits", lambda b: b), ("velocity_loop", Blocks.velocity_loop)):
+    nq = loop.n_q
+    picks = {"limits": lambda b: b}
+    if np.any(blocks[0].Gy[:, nq : nq + 2]):
+        picks["velocity_loop"] = Blocks.velocity_loop
+    else:
+        out["velocity_loop"] = {"sample_time_max": None, "k_v_max": None}
+        why = "the law does not read eta (it estimates the velocity from q): without q there is no velocity loop"
+        out["limit_notes"] |= {"velocity_loop.sample_time_max": why, "velocity_loop.k_v_max": why}
+    for name, pick in picks.items():
+        if loop.has_disc:
+            out[name]["sample_time_max"] = None
+            out["limit_notes"][f"{name}.sample_time_max"] = (
+                "not searched: the UKF's gain comes from its covariance, the run's (or the initial one) at its own "
+                "period; at another sample time the filter would settle to another gain"
+            )
+            continue
         guess = 2.0 / max(fastest_pole(pick(b)) for b in blocks)
-        if loop.has_disc:  # the UKF scheme: its update's map depends on T
-            res = largest_sample_time(lambda T, p=pick: max(_ukf_radius(loop, fz, psis, ts, T, delay, p)), guess)
-        else:
-            res = largest_sample_time(lambda T, p=pick: max(sampled_radius(p(b), T, delay) for b in blocks), guess)
+        rho = lambda T, p=pick: max(sampled_radius(p(b), T, delay) for b in blocks)  # noqa: E731
+        res = largest_sample_time(rho, guess)
         out[name]["sample_time_max"] = res["value"]
         out["limit_notes"][f"{name}.sample_time_max"] = res["note"]
-        if name == "limits" and res["value"] is not None and not loop.has_disc:
-            out["rho_above"] = {"sample_time_max": max(sampled_radius(b, 1.1 * res["value"], delay) for b in blocks)}
+        if name == "limits" and res["value"] is not None:
+            out["rho_above"] = {"sample_time_max": rho(1.1 * res["value"])}
+    k_v = loop.k_v
     try:
-        fam = [gain_family(lambda k, t=t: _blocks_at_gain(case, scheme, built, fz, psis.get(t), t, k, period), loop.k_v)
-               for t in ts]  # fmt: skip
+        fam = [
+            gain_family(lambda k, t=t, b=b: _blocks_at_gain(case, scheme, built, fz, psis.get(t), t, k, period, b), k_v)
+            for t, b in zip(ts, blocks, strict=True)
+        ]
     except ModelError as exc:  # a plug-in without a k_v field
-        for name in ("limits", "velocity_loop"):
+        for name in picks:
             out[name]["k_v_max"] = None
             out["limit_notes"][f"{name}.k_v_max"] = str(exc)
         return out
-    for name, pick in (("limits", lambda b: b), ("velocity_loop", Blocks.velocity_loop)):
+    for name, pick in picks.items():
         if period is not None:
-            margin = lambda k, p=pick: max(sampled_radius(p(f(k)), period, delay) for f in fam) - 1.0  # noqa: E731
+            radius = lambda k, p=pick: max(sampled_radius(p(f(k)), period, delay) for f in fam)  # noqa: E731
+            margin = lambda k, r=radius: r(k) - 1.0 - MARGINAL_Z  # noqa: E731
         else:
             margin = lambda k, p=pick: max(continuous_margin(p(f(k))) for f in fam)  # noqa: E731
         res = largest_gain(margin, loop.k_v)
         out[name]["k_v_max"] = res["value"]
         out["limit_notes"][f"{name}.k_v_max"] = res["note"]
         if name == "limits" and res["value"] is not None and period is not None:
-            k = 1.1 * res["value"]
-            out.setdefault("rho_above", {})["k_v_max"] = max(sampled_radius(f(k), period, delay) for f in fam)
+            out.setdefault("rho_above", {})["k_v_max"] = radius(1.1 * res["value"])
     return out
 
 
-def _blocks_at_gain(case, scheme, built, fz, psi, t, k, period) -> Blocks:
+def _blocks_at_gain(case, scheme, built, fz, psi, t, k, period, base: Blocks) -> Blocks:
+    """The loop linearized with velocity gain k, in the coordinates of ``base`` (the same point's blocks)."""
     lp = SchemeLoop(case, scheme, built, k_v=k)
-    return lp.blocks(lp.point(t, fz, psi, None, None, period), period)
-
-
-def _ukf_radius(loop, fz, psis, ts, T, delay, pick):
-    """The UKF scheme's spectral radius at T: its update (predict over T, then the law) linearized anew."""
-    for t in ts:
-        blk = loop.blocks(loop.point(t, fz, psis.get(t), None, None, T), T)
-        yield sampled_radius(pick(blk), T, delay)
+    return lp.blocks(lp.point(t, fz, psi, None, None, period), period, basis=base.basis)
 
 
 _MODES = {1: "open", 2: "short", 3: "stuck"}

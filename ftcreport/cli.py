@@ -627,7 +627,8 @@ def analyze(
 
     c = load_case(case)
     runs = _current_runs(results, c) if results is not None else None
-    say = None if quiet else (lambda line: typer.echo(f"  analysed {line}", err=True))
+    # progress on a terminal only (as batch): nothing when piped or -q
+    say = None if quiet or not sys.stderr.isatty() else (lambda line: typer.echo(f"  analysed {line}", err=True))
     res = analyze_case(c, runs=runs, confirm=confirm, progress=say)
     if as_json:
         from .store import _jsonable

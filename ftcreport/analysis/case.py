@@ -69,6 +69,7 @@ def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: b
             out["limits"][scheme] = res["limits"]
             out["velocity_loop"][scheme] = res["velocity_loop"]
             out["limit_notes"][scheme] = {k: v for k, v in res["limit_notes"].items() if v}
+            out.setdefault("_curves", {})[scheme] = res.get("_curves")
             if confirm and needs_confirmation(case):
                 out["confirmation"][scheme] = _confirm(case, scheme, res)
         if progress is not None:

@@ -306,6 +306,9 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         out["limit_notes"][f"{name}.sample_time_max"] = res["note"]
         if name == "limits" and res["value"] is not None:
             out["rho_above"] = {"sample_time_max": rho(1.1 * res["value"])}
+        if name == "limits":
+            grid = _grid(res["value"] or guess, period)
+            out["_curves"] = {"T": grid.tolist(), "rho_T": [rho(T) for T in grid]}
     k_v = loop.k_v
     try:
         fam = [
@@ -326,9 +329,22 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         res = largest_gain(margin, loop.k_v)
         out[name]["k_v_max"] = res["value"]
         out["limit_notes"][f"{name}.k_v_max"] = res["note"]
+        if name == "limits":
+            grid = _grid(res["value"] or k_v, k_v)
+            key = "rho_k" if period is not None else "max_re_k"
+            curve = radius if period is not None else margin
+            out.setdefault("_curves", {}).update({"k": grid.tolist(), key: [curve(k) for k in grid]})
         if name == "limits" and res["value"] is not None and period is not None:
             out.setdefault("rho_above", {})["k_v_max"] = radius(1.1 * res["value"])
     return out
+
+
+def _grid(limit: float, case_value: float | None, points: int = 48) -> np.ndarray:
+    """A log grid for the figures: from a tenth of the smaller of the limit and the case's value to three
+    times the larger."""
+    lo = min(limit, case_value or limit)
+    hi = max(limit, case_value or limit)
+    return np.geomspace(lo / 10.0, hi * 3.0, points)
 
 
 def _blocks_at_gain(case, scheme, built, fz, psi, t, k, period, base: Blocks) -> Blocks:

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["fmt_limit", "pattern_text", "text_summary", "verdict_sentence"]
+__all__ = ["analysis_sentences", "fmt_limit", "pattern_text", "text_summary", "verdict_sentence"]
+
+#: at most this many sentences of the analysis in a verdict
+MAX_SENTENCES = 3
 
 
 def pattern_text(p) -> str:
@@ -127,3 +130,38 @@ def verdict_sentence(scheme: str, analysis: dict, why: str) -> str | None:
             "what it applies, not on stability."
         )
     return None
+
+
+def analysis_sentences(analysis: dict, ranking: list[str], winners: list[str], stopped: list[str]) -> list[str]:
+    """The verdict's sentences citing the analysis (issue 37 item 7), at most :data:`MAX_SENTENCES`.
+
+    ``ranking``: the schemes ranked on the largest error after the faults, best first; ``winners`` its
+    winners; ``stopped``: the schemes whose run did not complete.  In this order: a scheme whose loop the
+    analysis predicts unstable in a phase (it "chatters" when its run completed: a sampled loop beyond
+    its limit runs on at the drive's limit), nominal among the winners with its loop stable in every
+    phase, and the last-ranked FTC scheme (it "loses") when its loop is stable.
+    """
+    if not analysis or not analysis.get("phases"):
+        return []
+    out: list[str] = []
+    cited: set[str] = set()
+    for scheme in [*ranking, *stopped]:
+        phases = analysis["phases"].get(scheme) or []
+        if scheme in cited or not any(p.get("stability") == "unstable" for p in phases):
+            continue
+        why = "loses" if scheme in stopped else "chatters"
+        line = verdict_sentence(scheme, analysis, why)
+        if line:
+            out.append(line)
+            cited.add(scheme)
+    if "nominal" in winners and "nominal" not in cited:
+        line = verdict_sentence("nominal", analysis, "nominal wins")
+        if line:
+            out.append(line)
+            cited.add("nominal")
+    contestants = [s for s in ranking if s not in ("nominal", "oracle")]
+    if contestants and contestants[-1] not in cited and contestants[-1] not in winners:
+        line = verdict_sentence(contestants[-1], analysis, "loses")
+        if line:
+            out.append(line)
+    return out[:MAX_SENTENCES]

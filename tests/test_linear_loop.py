@@ -63,7 +63,7 @@ def test_block_jacobian_equals_the_older_face_and_central_differences():
         old = closed_loop_jacobian(built.chain, loop.ctrl, t, pt.xp[:nq], pt.xp[nq:], pt.xc)
         assert _rel(A, old) < 1e-5
 
-        def F(x):
+        def F(x, t=t, nq=nq, pt=pt):
             a, _ = loop.controller(t, x, x[: nq + 2], pt.xc, fz)
             return loop.plant.rates(x, a, fz)
 

@@ -71,7 +71,10 @@ def frequency_grid(poles: np.ndarray, T: float | None, points: int = POINTS) -> 
     lo = 0.1 * float(mags.min()) if mags.size else 1e-2
     hi = math.pi / T if T else 10.0 * float(mags.max()) if mags.size else 1e4
     lo = min(lo, hi / 1e3)
-    return np.logspace(math.log10(lo), math.log10(hi), points)
+    grid = np.logspace(math.log10(lo), math.log10(hi), points)
+    if T:
+        grid[-1] = math.pi / T  # exactly: the log of it, raised again, may land above the Nyquist frequency
+    return grid
 
 
 def crossover_margins(L: control.StateSpace, omega: np.ndarray, Ljw: np.ndarray):

@@ -263,7 +263,9 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
         out_phases.append(entry)
     result = {"phases": out_phases, "discrete": bool(discrete), "sample_time": period, "k_v": loop.k_v}
     if limits:
-        result |= scheme_limits(case, scheme, built, loop, times[phases[0]], psis, period, delay)
+        # at the first phase's worst frozen instant (the limits' searches cost tens of linearizations each)
+        t_lim = out_phases[0].get("t_worst", times[phases[0]][0])
+        result |= scheme_limits(case, scheme, built, loop, [t_lim], psis, period, delay)
     return result
 
 

@@ -22,6 +22,7 @@ from importlib import resources
 from pathlib import Path
 
 import jinja2
+import numpy as np
 
 from .. import __version__, compare
 from ..cases import ordered_schemes, parse_case, with_duration

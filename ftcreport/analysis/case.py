@@ -89,5 +89,6 @@ def _confirm(case, scheme: str, res: dict) -> dict:
         limit = res["limits"].get(which)
         if limit is None:
             continue
-        out[which] = confirm_limit(case, scheme, which, limit, res.get("rho_above", {}).get(which), unit)
+        z = res.get("crossing", {}).get(which)
+        out[which] = confirm_limit(case, scheme, which, limit, None if z is None else complex(*z), unit)
     return out

@@ -167,6 +167,12 @@ def sampled_radius(blk: Blocks, T: float, delay: int) -> float:
     return spectral_radius(closed_loop_matrix(blk, T, delay, zoh(blk.Fx, blk.Fa, T)))
 
 
+def dominant_pole(blk: Blocks, T: float, delay: int) -> complex:
+    """The sampled loop's eigenvalue of largest modulus at T (the mode that crosses at the limit)."""
+    ev = np.linalg.eigvals(closed_loop_matrix(blk, T, delay, zoh(blk.Fx, blk.Fa, T)))
+    return complex(ev[np.argmax(np.abs(ev))])
+
+
 def continuous_margin(blk: Blocks) -> float:
     """The largest real part of the continuous loop's poles beyond the marginal band (< 0: not unstable)."""
     A = blk.continuous()

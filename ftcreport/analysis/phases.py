@@ -35,6 +35,7 @@ from .closed_loop import Blocks, Faults, SchemeLoop, frames
 from .limits import (
     MARGINAL_Z,
     continuous_margin,
+    dominant_pole,
     fastest_pole,
     gain_family,
     largest_gain,
@@ -285,9 +286,8 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
             out[name] = {"sample_time_max": None, "k_v_max": None}
             out["limit_notes"] |= {f"{name}.{k}": f"not computed: {exc}" for k in out[name]}
         return out
-    nq = loop.n_q
     picks = {"limits": lambda b: b}
-    if np.any(blocks[0].Gy[:, nq : nq + 2]):
+    if _law_reads_eta(loop, ts[0], fz, psis, period):
         picks["velocity_loop"] = Blocks.velocity_loop
     else:
         out["velocity_loop"] = {"sample_time_max": None, "k_v_max": None}
@@ -307,7 +307,8 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         out[name]["sample_time_max"] = res["value"]
         out["limit_notes"][f"{name}.sample_time_max"] = res["note"]
         if name == "limits" and res["value"] is not None:
-            out["rho_above"] = {"sample_time_max": rho(1.1 * res["value"])}
+            z = dominant_pole(blocks[0], 1.1 * res["value"], delay)
+            out["crossing"] = {"sample_time_max": [z.real, z.imag]}
         if name == "limits":
             grid = _grid(res["value"] or guess, period)
             out["_curves"] = {"T": grid.tolist(), "rho_T": [rho(T) for T in grid]}
@@ -337,8 +338,19 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
             curve = radius if period is not None else margin
             out.setdefault("_curves", {}).update({"k": grid.tolist(), key: [curve(k) for k in grid]})
         if name == "limits" and res["value"] is not None and period is not None:
-            out.setdefault("rho_above", {})["k_v_max"] = radius(1.1 * res["value"])
+            z = dominant_pole(fam[0](1.1 * res["value"]), period, delay)
+            out.setdefault("crossing", {})["k_v_max"] = [z.real, z.imag]
     return out
+
+
+def _law_reads_eta(loop: SchemeLoop, t: float, fz: Faults, psis: dict, period) -> bool:
+    """Whether the scheme's law (not the driver, which reads the measured wheel speeds) reads eta."""
+    pt = loop.point(t, fz, psis.get(t), None, None, period)
+    nq = loop.n_q
+    st, ut = loop.plant.true_faults(pt.xp, fz)
+    q, eta = pt.xp[:nq], pt.xp[nq : nq + 2]
+    u0 = loop.law(t, q, eta, pt.xc, st, ut)[0]
+    return any(np.any(loop.law(t, q, eta + 1e-4 * e, pt.xc, st, ut)[0] != u0) for e in np.eye(2))
 
 
 def _grid(limit: float, case_value: float | None, points: int = 48) -> np.ndarray:

@@ -159,7 +159,7 @@ def crossover_margins(L, omega: np.ndarray, Ljw: np.ndarray):
     grid (0.3 s a loop, 36 s for a three-link motor case).  tests/test_margins.py checks these against
     its exact results on low-order loops and the gain margins against the gain that loses stability.
     """
-    from scipy.optimize import brentq, minimize_scalar
+    from scipy.optimize import minimize_scalar
 
     if callable(L) and not isinstance(L, control.StateSpace):
         at, dt = L, getattr(L, "dt", None)
@@ -173,10 +173,11 @@ def crossover_margins(L, omega: np.ndarray, Ljw: np.ndarray):
     with np.errstate(all="ignore"):
         im, mag = Ljw.imag, np.abs(Ljw) - 1.0
         w_pc = [
-            brentq(lambda w: at(w).imag, omega[i], omega[i + 1])
+            _root(lambda w: at(w).imag, omega[i], omega[i + 1])
             for i in np.flatnonzero(np.diff(np.sign(im)) != 0)
             if Ljw[i].real < 0.0 or Ljw[i + 1].real < 0.0
         ]
+        w_pc = [w for w in w_pc if w is not None]
         dist = np.abs(np.angle(-Ljw))
         for i in np.flatnonzero((dist[1:-1] <= dist[:-2]) & (dist[1:-1] <= dist[2:]) & (dist[1:-1] < 0.2)) + 1:
             r = minimize_scalar(lambda w: abs(np.angle(-at(w))), bounds=(omega[i - 1], omega[i + 1]), method="bounded",
@@ -187,7 +188,7 @@ def crossover_margins(L, omega: np.ndarray, Ljw: np.ndarray):
             w_pc.append(float(omega[-1]))  # at the Nyquist frequency L is real: a crossing if negative
         w_pc = [w for w in w_pc if at(w).real <= 0.0]
         gain_cross = np.flatnonzero(np.diff(np.sign(mag)) != 0)
-        w_gc = [brentq(lambda w: abs(at(w)) - 1.0, omega[i], omega[i + 1]) for i in gain_cross]
+        w_gc = [w for w in (_root(lambda w: abs(at(w)) - 1.0, omega[i], omega[i + 1]) for i in gain_cross) if w]
         gms = [1.0 / abs(at(w)) for w in w_pc]
         pms = [float(np.remainder(np.degrees(np.angle(at(w))), 360.0) - 180.0) for w in w_gc]
         k = int(np.argmin(np.abs(1.0 + Ljw)))
@@ -204,6 +205,19 @@ def crossover_margins(L, omega: np.ndarray, Ljw: np.ndarray):
         i = int(np.argmin(np.abs(pms)))
         pm, w2 = pms[i], w_gc[i]
     return gm, pm, sm, w1, w2, w_sm
+
+
+def _root(f, a: float, b: float) -> float | None:
+    """Brent's root of f in [a, b], or None when f has one sign at the ends (the grid's sign change was
+    the round-off of a value at zero: the response on the grid and at one point are computed apart)."""
+    from scipy.optimize import brentq
+
+    fa, fb = f(a), f(b)
+    if fa == 0.0:
+        return float(a)
+    if fb == 0.0:
+        return float(b)
+    return float(brentq(f, a, b)) if (fa < 0.0) != (fb < 0.0) else None
 
 
 def disk_margin_siso(Ljw: np.ndarray) -> dict:

@@ -227,10 +227,16 @@ def pole_map_fig(res: dict) -> dict:
     }
     if discrete:
         layout["yaxis"] |= {"scaleanchor": "x", "scaleratio": 1}
+    else:  # the slow poles, where the phases differ, fill the view; double-click shows the fast ones too
+        re = np.abs([a for ph in res["phases"].values() for p in ph for a, _b in p.get("poles", [])])
+        if re.size:
+            x = 3.0 * float(np.percentile(re, 50))
+            layout["xaxis"]["range"] = [-x, 0.15 * x]
     where = "z-plane, unit circle dotted" if discrete else "s-plane, imaginary axis dotted"
     cap = (
         f"Closed-loop poles of each fault phase ({where}; at the phase's worst frozen instant), one scheme at a time "
-        "(menu); hover for damping and time constant."
+        "(menu); hover for damping and time constant"
+        + ("." if discrete else "; the view shows the slower half of the poles, double-click for all.")
     )
     if res.get("time_varying"):
         cap += " The loop is time-varying here: frozen-instant poles are evidence, not proof."

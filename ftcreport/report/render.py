@@ -27,7 +27,7 @@ import numpy as np
 from .. import __version__, compare
 from ..cases import ordered_schemes, parse_case, with_duration
 from ..check import evaluate
-from ..errors import FtcError
+from ..errors import FtcError, printable
 from ..model.faults import wheel_names
 from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
 from . import interactive, plots
@@ -39,9 +39,17 @@ __all__ = ["dependency_versions", "render_all", "render_case", "render_index"]
 
 def _env() -> jinja2.Environment:
     loader = jinja2.FileSystemLoader(str(resources.files("ftcreport.templates")))
-    env = jinja2.Environment(loader=loader, autoescape=jinja2.select_autoescape(["html"]))
+    env = jinja2.Environment(loader=loader, autoescape=jinja2.select_autoescape(["html"]), finalize=_no_controls)
     env.globals["fmt"] = _fmt
     return env
+
+
+def _no_controls(value):
+    """Every value a page prints with its control characters escaped (a file name or a stored reason may
+    hold them; HTML shows them as nothing or breaks on them: issue 34 item 7); markup stays markup."""
+    if hasattr(value, "__html__"):  # markupsafe.Markup (jinja2's): built again as markup
+        return type(value)(printable(value, keep="\t\n\r"))
+    return printable(value, keep="\t\n\r") if isinstance(value, str) else value
 
 
 def _fmt(x) -> str:

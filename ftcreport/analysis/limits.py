@@ -34,7 +34,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .closed_loop import Blocks
+from .blocks import Blocks
 from .sampled import closed_loop_matrix, spectral_radius, zoh
 
 __all__ = ["K_MAX", "T_MAX", "T_MIN", "boundary", "continuous_margin", "fastest_pole", "gain_family", "largest_gain"]

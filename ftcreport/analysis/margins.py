@@ -25,7 +25,7 @@ import math
 import control
 import numpy as np
 
-from .closed_loop import Blocks
+from .blocks import Blocks
 from .sampled import open_loop_at_input, parts
 
 __all__ = ["HAS_DISK_MARGINS", "Loops", "frequency_grid", "loop_margins", "loop_systems"]

@@ -42,7 +42,7 @@ import math
 
 import numpy as np
 
-from .closed_loop import Blocks
+from .blocks import Blocks
 
 __all__ = ["closed_loop_matrix", "open_loop_at_input", "parts", "spectral_radius", "zoh"]
 

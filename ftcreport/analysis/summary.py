@@ -28,10 +28,21 @@ def fmt_limit(value, unit: str) -> str:
     return f"{value * 1e3:.4g} ms" if unit == "s" else f"{value:.4g} 1/s"
 
 
+def measure_text(v: float | None, discrete: bool) -> str:
+    """A spectral radius or a largest real part as text, its distance from the boundary kept: a radius of
+    1.00003 reads "1 + 3e-05", not "1" beside "unstable"."""
+    if v is None:
+        return "-"
+    edge = 1.0 if discrete else 0.0
+    d = v - edge
+    if discrete and d != 0.0 and abs(d) < 1e-3:
+        return f"1 {'+' if d > 0 else '-'} {abs(d):.2g}"
+    return f"{v:.4g}"
+
+
 def _measure(p: dict) -> str:
     if p.get("discrete"):
-        v = p.get("spectral_radius")
-        return "spectral radius -" if v is None else f"spectral radius {v:.4g}"
+        return f"spectral radius {measure_text(p.get('spectral_radius'), True)}"
     v = p.get("max_real_part")
     return "max Re -" if v is None else f"max Re {v:.4g} 1/s"
 
@@ -65,8 +76,17 @@ def text_summary(res: dict) -> list[str]:
             f"k_v {fmt_limit(lim.get('k_v_max'), '1/s')} (velocity loop alone: "
             f"{fmt_limit(vl.get('sample_time_max'), 's')}, {fmt_limit(vl.get('k_v_max'), '1/s')})"
         )
-        for note in res.get("limit_notes", {}).get(scheme, {}).values():
-            lines.append(f"      {note}")
+        factors = []
+        if res.get("sample_time") and lim.get("sample_time_max"):
+            factors.append(f"T_s {res['sample_time'] * 1e3:g} ms = {res['sample_time'] / lim['sample_time_max']:.3g}x")
+        k_v = res.get("k_v", {}).get(scheme)
+        if k_v and lim.get("k_v_max"):
+            factors.append(f"k_v {k_v:g} 1/s = {k_v / lim['k_v_max']:.3g}x")
+        if factors:
+            lines.append(f"      the case's own settings against these limits: {', '.join(factors)} (stable below 1x)")
+        for key, note in res.get("limit_notes", {}).get(scheme, {}).items():
+            where, _, which = key.rpartition(".")
+            lines.append(f"      {which}{' (velocity loop alone)' if where == 'velocity_loop' else ''}: {note}")
         for which, c in res.get("confirmation", {}).get(scheme, {}).items():
             lines.append(f"      {which}: {c['sentence']}")
     for scheme, phases in res.get("phases", {}).items():

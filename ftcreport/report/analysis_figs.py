@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from ..analysis.summary import measure_text
 from ..errors import FtcError
 from . import plots
 
@@ -116,13 +117,15 @@ def phase_rows(res: dict) -> list[dict]:
             m = p.get("margins") or {}
             loops = [r for r in m.get("loops", []) if r.get("stability_margin") is not None]
             worst = min(loops, key=lambda r: r["stability_margin"]) if loops else None
+            measure = p.get("spectral_radius", p.get("max_real_part"))
             cells.append(
                 {
                     "applied": _pattern(p.get("pattern_applied")),
                     "differs": p.get("pattern_applied") is not None
                     and [round(v, 6) for v in p["pattern_applied"]] != [round(v, 6) for v in p["pattern_true"]],
                     "from": p.get("applied_from"),
-                    "measure": p.get("spectral_radius", p.get("max_real_part")),
+                    "measure": measure,
+                    "measure_text": measure_text(measure, bool(p.get("discrete"))),
                     "discrete": p.get("discrete"),
                     "stability": p.get("stability"),
                     "worst": worst,

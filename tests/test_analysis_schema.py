@@ -147,6 +147,28 @@ def test_the_verdict_cites_the_analysis():
     assert "analysis" not in " ".join(compare.compare_case("c", runs, {"ok"}, [20.0], {}).sentences)
 
 
+def test_schemes_the_analysis_says_the_same_of_share_one_sentence():
+    """two_link_switching_motors: all three loops unstable in every phase with the same radius and limits read
+    as one sentence ("in every fault phase", the worst one named), not three near-copies; a scheme with another
+    radius keeps its own."""
+    from ftcreport.analysis.summary import analysis_sentences
+
+    names = ("switching", "oracle", "nominal", "other")
+    analysis = {
+        "sample_time": 0.005,
+        "k_v": dict.fromkeys(names, 3000.0),
+        "limits": {s: {"sample_time_max": 1.37e-3, "k_v_max": 559.0} for s in names},
+        "phases": {s: [_phase(0, 20, "unstable", 10.66), _phase(20, 50, "unstable", 10.6)] for s in names[:3]},
+    }
+    analysis["phases"]["other"] = [_phase(0, 20, "stable", 0.9), _phase(20, 50, "unstable", 2.5)]
+    out = analysis_sentences(analysis, list(names), ["switching"], [])
+    assert out[0].startswith("The analysis predicts the loops of switching, oracle and nominal unstable in every "
+                             "fault phase (worst 0-20 s, spectral radius 10.66; the case's sample time 5 ms is "
+                             "beyond their limit 1.37 ms")  # fmt: skip
+    assert out[1].startswith("The analysis predicts other's loop unstable in the phase 20-50 s (spectral radius 2.5;")
+    assert len(out) == 2
+
+
 def test_the_page_section_from_a_case_without_runs():
     """report.analysis_figs builds the section's rows and its four interactive figures, each with its SVG."""
     from ftcreport.report.analysis_figs import analysis_section

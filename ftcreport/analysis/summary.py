@@ -134,7 +134,9 @@ def verdict_sentence(scheme: str, analysis: dict, why: str) -> str | None:
         )
     if bad:
         p = max(bad, key=lambda p: p.get("spectral_radius") or p.get("max_real_part") or 0.0)
-        text = f"The analysis predicts {scheme}'s loop {p['stability']} in the phase {span(p)} ({_measure(p)}"
+        every = len(done) > 1 and all(q["stability"] == p["stability"] for q in done)
+        where = f"in every fault phase (worst {span(p)}, " if every else f"in the phase {span(p)} ("
+        text = f"The analysis predicts {scheme}'s loop {p['stability']} {where}{_measure(p)}"
         T, tmax = analysis.get("sample_time"), lim.get("sample_time_max")
         if p.get("discrete") and T and tmax and tmax < T:
             text += f"; its sample time {T * 1e3:g} ms is beyond its limit {tmax * 1e3:.3g} ms"
@@ -165,6 +167,7 @@ def analysis_sentences(analysis: dict, ranking: list[str], winners: list[str], s
         return []
     out: list[str] = []
     cited: set[str] = set()
+    same: dict[str, list[str]] = {}  # one sentence for the schemes the analysis says the same of
     for scheme in [*ranking, *stopped]:
         phases = analysis["phases"].get(scheme) or []
         if scheme in cited or not any(p.get("stability") == "unstable" for p in phases):
@@ -172,8 +175,15 @@ def analysis_sentences(analysis: dict, ranking: list[str], winners: list[str], s
         why = "loses" if scheme in stopped else "chatters"
         line = verdict_sentence(scheme, analysis, why)
         if line:
-            out.append(line)
+            same.setdefault(line.replace(f"predicts {scheme}'s loop ", "predicts {who} "), []).append(scheme)
             cited.add(scheme)
+    for template, schemes in same.items():
+        who = f"{schemes[0]}'s loop"
+        if len(schemes) > 1:
+            who = f"the loops of {', '.join(schemes[:-1])} and {schemes[-1]}"
+            template = template.replace("its sample time", "the case's sample time")
+            template = template.replace("beyond its", "beyond their")
+        out.append(template.replace("{who}", who))
     if "nominal" in winners and "nominal" not in cited:
         line = verdict_sentence("nominal", analysis, "nominal wins")
         if line:

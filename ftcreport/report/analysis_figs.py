@@ -222,8 +222,8 @@ def pole_map_fig(res: dict) -> dict:
     layout = {
         "height": 420,
         "margin": {"l": 60, "r": 20, "t": 60, "b": 50},
-        "xaxis": {"title": "Re z" if discrete else "Re s [1/s]", "zeroline": True},
-        "yaxis": {"title": "Im z" if discrete else "Im s [1/s]", "zeroline": True},
+        "xaxis": {"title": {"text": "Re z" if discrete else "Re s [1/s]"}, "zeroline": True},
+        "yaxis": {"title": {"text": "Im z" if discrete else "Im s [1/s]"}, "zeroline": True},
         "shapes": shapes,
         "updatemenus": _menu(labels, groups, len(traces)),
         "legend": {"orientation": "h", "y": -0.2},
@@ -292,6 +292,15 @@ def sweep_fig(res: dict, which: str) -> dict | None:
         lim = res["limits"].get(scheme, {}).get("sample_time_max" if which == "T" else "k_v_max")
         if lim is not None:
             marks.append((scheme, lim * (1e3 if which == "T" else 1), color))
+        own = T_case if which == "T" else res.get("k_v", {}).get(scheme)
+        if own and x.size > 1 and x[0] <= own <= x[-1] and np.all(x > 0):
+            at = float(np.interp(math.log(own), np.log(x), y))  # the curve at the case's own setting
+            shown = own * (1e3 if which == "T" else 1)
+            traces.append({"type": "scatter", "mode": "markers", "x": [_r(shown)], "y": [_r(at)],
+                           "name": f"{scheme}: the case", "showlegend": False,
+                           "marker": {"symbol": "circle-open", "size": 12, "color": color, "line": {"width": 2}},
+                           "hovertext": f"{scheme}: the case's {'T_s' if which == 'T' else 'k_v'} {shown:.4g}, "
+                                        f"{ylabel} {at:.4g}"})  # fmt: skip
     if not traces:
         return None
     edge = 0.0 if ylabel and ylabel.startswith("largest") else 1.0
@@ -314,18 +323,19 @@ def sweep_fig(res: dict, which: str) -> dict | None:
     layout = {
         "height": 360,
         "margin": {"l": 60, "r": 20, "t": 30, "b": 50},
-        "xaxis": {"title": xtitle, "type": "log"},
-        "yaxis": {"title": ylabel, "type": "log" if edge == 1.0 else "linear"},
+        "xaxis": {"title": {"text": xtitle}, "type": "log"},
+        "yaxis": {"title": {"text": ylabel}, "type": "log" if edge == 1.0 else "linear"},
         "shapes": shapes,
         "legend": {"orientation": "h", "y": -0.25},
     }
     where = f"at the case's sample time {T_case * 1e3:g} ms" if T_case else "in continuous time"
     if which == "T":
-        cap = ("Spectral radius of each scheme's sampled loop (healthy pattern, the case's gains) against the sample "
-               "time; dotted: 1, grey: the case's sample time, diamonds: the limits.")  # fmt: skip
+        cap = ("Spectral radius of each scheme's sampled loop (healthy pattern, the case's gains) against the "
+               "sample time; dotted: 1, grey line and open circles: the case's sample time, diamonds: the "
+               "limits.")  # fmt: skip
     else:
         cap = (f"{ylabel.capitalize()} of each scheme's loop against its velocity gain k_v {where}; dotted: the "
-               "stability boundary, grey: the case's gain, diamonds: the limits.")  # fmt: skip
+               "stability boundary, grey line and open circles: the case's gain, diamonds: the limits.")  # fmt: skip
     spec = {"data": traces, "layout": layout}
     return _figure(f"analysis-sweep-{which}", cap, spec, _sweep_svg(traces, shapes, layout))
 
@@ -337,6 +347,8 @@ def _sweep_svg(traces, shapes, layout) -> str:
     for tr in traces:
         if tr["mode"] == "lines":
             ax.plot(tr["x"], tr["y"], color=tr["line"]["color"], label=tr["name"])
+        elif tr["marker"]["symbol"] == "circle-open":
+            ax.plot(tr["x"], tr["y"], "o", mfc="none", color=tr["marker"]["color"], ms=7)
         else:
             ax.plot(tr["x"], tr["y"], "D", color=tr["marker"]["color"], ms=5)
     for s in shapes:
@@ -347,8 +359,8 @@ def _sweep_svg(traces, shapes, layout) -> str:
     ax.set_xscale("log")
     if layout["yaxis"]["type"] == "log":
         ax.set_yscale("log")
-    ax.set_xlabel(layout["xaxis"]["title"])
-    ax.set_ylabel(layout["yaxis"]["title"])
+    ax.set_xlabel(layout["xaxis"]["title"]["text"])
+    ax.set_ylabel(layout["yaxis"]["title"]["text"])
     ax.legend(fontsize=6)
     return plots._svg(fig)
 
@@ -393,10 +405,10 @@ def bode_fig(res: dict) -> dict | None:
         "height": 520,
         "margin": {"l": 60, "r": 20, "t": 60, "b": 50},
         "grid": {"rows": 2, "columns": 1, "pattern": "independent"},
-        "xaxis": {"type": "log", "title": "", "matches": "x2"},
-        "yaxis": {"title": "|L| [dB]"},
-        "xaxis2": {"type": "log", "title": "frequency [rad/s]"},
-        "yaxis2": {"title": "phase of L [deg]"},
+        "xaxis": {"type": "log", "matches": "x2"},
+        "yaxis": {"title": {"text": "|L| [dB]"}},
+        "xaxis2": {"type": "log", "title": {"text": "frequency [rad/s]"}},
+        "yaxis2": {"title": {"text": "phase of L [deg]"}},
         "shapes": [_hline("y", 0.0), _hline("y2", -180.0)],
         "updatemenus": _menu(labels, groups, len(traces)),
         "legend": {"orientation": "h", "y": -0.15},
@@ -468,5 +480,8 @@ def _classic_figures(res: dict, series: dict, events: list[float], duration: flo
                 f"Predicted envelope (rate {rate:.4g} 1/s) against the simulated error of the {scheme} run before "
                 f"the first fault (fitted rate {fitted:.4g} 1/s over {ta:.0f}-{tb:.0f} s)."
             )
+            if res.get("sampled") or res.get("actuator_input") == "voltage":
+                cap += (" The predicted rate is the ideal continuous-time loop's (the case-wide analyses below), not "
+                        "this case's loop with its sampling and motors: that one is analysed above.")  # fmt: skip
             figs.append({"id": "decay", "svg": plots.decay_svg(series[scheme], rate, (ta, tb), scheme), "caption": cap})
     return figs

@@ -92,11 +92,26 @@ def limit_rows(res: dict) -> list[dict]:
                 "k_factor": _factor(lim.get("k_v_max"), k_v),
                 "vl_T_max": vl.get("sample_time_max"),
                 "vl_k_max": vl.get("k_v_max"),
-                "notes": sorted(set(res.get("limit_notes", {}).get(scheme, {}).values())),
+                "notes": _limit_notes(res.get("limit_notes", {}).get(scheme, {})),
                 "confirm": [{"which": w, **c} for w, c in conf.items()],
             }
         )
     return out
+
+
+_LIMIT_NAMES = {"limits.sample_time_max": "T_s max", "limits.k_v_max": "k_v max",
+                "velocity_loop.sample_time_max": "velocity loop alone, T_s max",
+                "velocity_loop.k_v_max": "velocity loop alone, k_v max"}  # fmt: skip
+
+
+def _limit_notes(notes: dict) -> list[str]:
+    """Each note named by the limit it is about ("velocity loop alone, T_s max: stable at every sample time
+    up to 10 s"), one line for the limits a note is the same for."""
+    by_text: dict[str, list[str]] = {}
+    for key, text in notes.items():
+        if text:
+            by_text.setdefault(text, []).append(_LIMIT_NAMES.get(key, key))
+    return [f"{' and '.join(names)}: {text}" for text, names in by_text.items()]
 
 
 def phase_rows(res: dict) -> list[dict]:
@@ -480,8 +495,9 @@ def _classic_figures(res: dict, series: dict, events: list[float], duration: flo
                 f"Predicted envelope (rate {rate:.4g} 1/s) against the simulated error of the {scheme} run before "
                 f"the first fault (fitted rate {fitted:.4g} 1/s over {ta:.0f}-{tb:.0f} s)."
             )
-            if res.get("sampled") or res.get("actuator_input") == "voltage":
-                cap += (" The predicted rate is the ideal continuous-time loop's (the case-wide analyses below), not "
-                        "this case's loop with its sampling and motors: that one is analysed above.")  # fmt: skip
             figs.append({"id": "decay", "svg": plots.decay_svg(series[scheme], rate, (ta, tb), scheme), "caption": cap})
+    if res.get("sampled") or res.get("actuator_input") == "voltage":
+        for f in figs:  # these are of the laws on the ideal plant, not of the loop the tables above analyse
+            f["caption"] += (" Of the ideal plant in continuous time (the case-wide analyses below), not this case's "
+                             "loop with its sampling and motors: that one is analysed above.")  # fmt: skip
     return figs

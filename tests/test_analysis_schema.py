@@ -182,3 +182,21 @@ def test_the_page_section_from_a_case_without_runs():
     assert row["T_factor"] == pytest.approx(1.371e-3 / 5e-3, rel=2e-3) and row["k_factor"] < 0.2
     assert [c["agrees"] for c in row["confirm"]] == [True, True]
     assert all(c["stability"] == "unstable" for r in sec["phase_rows"] for c in r["cells"])
+
+
+def test_each_limit_note_names_its_limit():
+    """A note is shown beside the scheme's limits: it says which limit it is about (three_link_switching_motors
+    showed the velocity loop's 'stable at every sample time up to 10 s' under a 107 ms limit), one line for
+    the limits a note is the same for, and empty notes left out."""
+    from ftcreport.report.analysis_figs import _limit_notes
+
+    notes = {
+        "limits.sample_time_max": "",
+        "limits.k_v_max": "the case's own gain is unstable",
+        "velocity_loop.sample_time_max": "stable at every sample time up to 10 s",
+        "velocity_loop.k_v_max": "the case's own gain is unstable",
+    }
+    assert _limit_notes(notes) == [
+        "k_v max and velocity loop alone, k_v max: the case's own gain is unstable",
+        "velocity loop alone, T_s max: stable at every sample time up to 10 s",
+    ]

@@ -34,6 +34,8 @@ import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from .schemes import built_in
+
 __all__ = [
     "ACTIVE",
     "CONTESTANTS",
@@ -52,18 +54,11 @@ __all__ = [
     "tied",
 ]
 
-ACTIVE = ("active", "active_ukf")
+# from the registry of schemes (each built-in scheme's file gives its family and its name in sentences)
+ACTIVE = tuple(name for name, sc in built_in().items() if sc.family == "active")
 # display names of the schemes in sentences
-LABEL = {
-    "nominal": "nominal (no FTC)",
-    "switching": "switching",
-    "adaptive": "adaptive",
-    "adaptive_frozen": "adaptive with frozen weights",
-    "active": "active (Farza)",
-    "active_ukf": "active (UKF)",
-    "oracle": "the oracle",
-}
-CONTESTANTS = ("switching", "adaptive", "active", "active_ukf")  # the three FTC families
+LABEL = {name: sc.display for name, sc in built_in().items()}
+CONTESTANTS = tuple(name for name, sc in built_in().items() if sc.contestant)  # the three FTC families
 
 
 def contestant(scheme: str) -> bool:

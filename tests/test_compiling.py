@@ -81,12 +81,16 @@ def test_loop_compile_is_per_thread_and_nests():
 
 
 def test_variants_are_separate_modules_with_their_constants():
-    plain = loop_for(F.tracking_law, F.no_discrete, motors=False, sampled=False)
-    motors = loop_for(F.tracking_law, F.no_discrete, motors=True, sampled=False)
-    assert plain is not motors
-    assert (plain.MOTORS, plain.SAMPLED) == (False, False)
+    from ftcreport.schemes.laws.passive import passive_discrete, passive_law
+
+    plain = loop_for(passive_law, passive_discrete, motors=False, sampled=False)
+    motors = loop_for(passive_law, passive_discrete, motors=True, sampled=False)
+    own = loop_for(passive_law, passive_discrete, motors=False, sampled=False, terms=1)
+    assert plain is not motors and own is not plain
+    assert (plain.MOTORS, plain.SAMPLED, plain.TERMS_MODE) == (False, False, 0)
     assert (motors.MOTORS, motors.SAMPLED) == (True, False)
-    assert loop_for(F.tracking_law, F.no_discrete, motors=False, sampled=False) is plain  # one per process
+    assert own.TERMS_MODE == 1
+    assert loop_for(passive_law, passive_discrete, motors=False, sampled=False) is plain  # one per process
 
 
 def test_every_ftcreport_kernel_cache_is_keyed_on_all_compiled_sources():
@@ -95,14 +99,15 @@ def test_every_ftcreport_kernel_cache_is_keyed_on_all_compiled_sources():
     import hashlib
     from pathlib import Path
 
-    from ftcreport.fast import builtin
+    from ftcreport.schemes.laws import passive
 
-    root = Path(F.__file__).parent
+    root = Path(F.__file__).parents[1]
     h = hashlib.sha256()
-    for path in sorted(root.glob("*.py")):
-        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    for sub in ("fast", "schemes", "schemes/laws"):  # the engine, the scheme interface, the built-in laws
+        for path in sorted((root / sub).glob("*.py")):
+            h.update(path.name.encode() + b"\0" + path.read_bytes())
     assert compiling.engine_stamp() == h.hexdigest()
-    for kernel in (F._solve2, builtin.passive_law):
+    for kernel in (F._solve2, passive.passive_law):
         stamp = kernel._cache._impl._locator.get_source_stamp()
         assert stamp[1] == h.hexdigest()
         assert stamp[0] == hashlib.sha256(Path(kernel.py_func.__code__.co_filename).read_bytes()).digest()

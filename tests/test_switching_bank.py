@@ -24,7 +24,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ftcreport import limits
 from ftcreport.control import switching as S
 from ftcreport.control.switching import TIE_RTOL, SwitchingController
 from ftcreport.fast import kernels as F
@@ -247,7 +246,6 @@ def test_engine_selects_the_per_model_banks_sequence(n, c_int, events):
 def test_large_banks_log_the_selected_and_least_cost_only():
     chain, kin, q0 = demo_chain(7)  # 12286 models > MAX_LOGGED_COSTS
     ctrl = SwitchingController(chain, kin, 2.0)
-    assert S.MAX_LOGGED_COSTS == limits.MAX_LOGGED_COSTS
     assert ctrl.N > S.MAX_LOGGED_COSTS and "cost" not in ctrl.signal_names
     run = simulate(Plant(chain), ctrl, q0, np.array([0.5, 0.0]), SimSettings(0.01, 0.3))
     assert run.ok

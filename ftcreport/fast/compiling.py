@@ -409,7 +409,7 @@ def loop_compile() -> Iterator[None]:
         _STATE.on = before
 
 
-_ENGINE_FILES = ("fast",)  # the package's compiled sources: ftcreport/fast/*.py
+_ENGINE_FILES = ("fast", "schemes", "schemes/laws")  # the compiled sources: the engine, the scheme interface, laws
 
 
 def engine_stamp() -> str:

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..control.kinematic import wrap
 from ..model.kernels import axle_midpoints
+from ..schemes import built_in
 
 __all__ = [
     "SCHEME_COLORS",
@@ -31,15 +32,7 @@ __all__ = [
     "velocities_svg",
 ]
 
-SCHEME_COLORS = {
-    "nominal": "#d62728",
-    "switching": "#1f77b4",
-    "adaptive": "#9467bd",
-    "adaptive_frozen": "#8c564b",
-    "active": "#ff7f0e",
-    "active_ukf": "#17becf",
-    "oracle": "#2ca02c",
-}
+SCHEME_COLORS = {name: sc.color for name, sc in built_in().items() if sc.color}  # each scheme's file gives its own
 plt.rcParams.update({"font.size": 8, "svg.fonttype": "none", "axes.grid": True, "grid.alpha": 0.3})
 
 

@@ -16,10 +16,11 @@ Progress (on a terminal's stderr only, not with ``--quiet``): one overall bar (r
 batch's total, elapsed time, an estimate of the time left) and one line per run a worker is on
 (case / scheme and its fraction of simulated time); a finished run leaves the display (rich).
 
-Provenance: ``<out>/manifest.json`` describes the batch (:mod:`ftcreport.manifest`: package,
-git revision, dependency versions, Python, platform, CPU; per run the engine, status, cache key
-and noise seed; per case its content hash); ``<out>/<case>/manifest.json`` the same for one case
-(its page shows it).  ``<out>/metrics.parquet`` holds every run's metrics, one row per
+Provenance: ``<out>/manifest.json`` describes the batches into ``out`` (:mod:`ftcreport.manifest`:
+package, git revision, dependency versions, Python, platform, CPU of the last; per run the engine,
+status, cache key and noise seed; per case its content hash; ``batches``: each batch's time and
+cases), merged across batches (:func:`merge_manifest`); ``<out>/<case>/manifest.json`` the same for
+one case (its page shows it).  ``<out>/metrics.parquet`` holds every run's metrics, one row per
 (case, scheme, phase) (:func:`ftcreport.tidy.metrics_table`).
 
 Memory: each worker returns its peak resident memory with its result (:func:`peak_rss_mb`); the
@@ -49,12 +50,13 @@ from . import __version__
 from .cases import Case, case_hash, configured_schemes, load_case, overlay_text, with_duration
 from .display import BatchDisplay
 from .errors import CaseError, note_stored
-from .store import cached_key, output_lock, save_run, write_atomic, write_json
+from .store import cached_key, output_lock, read_json, save_run, write_atomic, write_json
 
 __all__ = [
     "BatchResult",
     "discover",
     "failures_summary",
+    "merge_manifest",
     "peak_rss_mb",
     "record_case",
     "run_batch",
@@ -265,7 +267,35 @@ def write_manifests(
         settings=settings,
         **({"memory": memory_summary(res)} if res is not None else {}),
     )
-    return write_manifest(out / "manifest.json", m)
+    return write_manifest(out / "manifest.json", merge_manifest(read_json(out / "manifest.json"), m, out))
+
+
+def merge_manifest(old: dict | None, new: dict, out: Path) -> dict:
+    """The batch manifest of ``out`` after a batch: ``new`` (this batch: environment, settings, memory)
+    with the cases, runs and seeds of the earlier batches into the same directory that this one did
+    not redo and whose results are still there, and ``batches``: one entry per batch (its time,
+    cases, settings and package version), so the manifest covers every case the index shows."""
+    this = {
+        "created": new["created"],
+        "cases": sorted(new["cases"]),
+        "settings": new.get("settings"),
+        "ftcreport": new["ftcreport"]["version"],
+    }
+    if not isinstance(old, dict) or old.get("kind") != "batch":
+        return new | {"batches": [this]}
+    mine = set(new["cases"])
+    kept = {
+        c: h for c, h in (old.get("cases") or {}).items() if c not in mine and (Path(out) / c / "case.json").exists()
+    }
+    merged = dict(new)
+    merged["cases"] = kept | new["cases"]
+    merged["runs"] = [r for r in old.get("runs") or [] if r.get("case") in kept] + new["runs"]
+    merged["seeds"] = {c: s for c, s in (old.get("seeds") or {}).items() if c in kept} | new["seeds"]
+    earlier = old.get("batches") or [
+        {"created": old.get("created"), "cases": sorted(old.get("cases") or {}), "settings": old.get("settings")}
+    ]
+    merged["batches"] = [b for b in earlier if set(b.get("cases") or ()) & set(kept)] + [this]
+    return merged
 
 
 def memory_summary(res: BatchResult) -> dict:

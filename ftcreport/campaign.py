@@ -620,7 +620,7 @@ def run_tasks(
         if on_store is not None:
             on_store(rec)
 
-    with _progress(show_progress, len(args)) as bar, _noting_stored(res, what):
+    with _progress(show_progress, len(args), kind) as bar, _noting_stored(res, what):
         info = execute(
             func,
             args,
@@ -679,16 +679,21 @@ def _write_manifest(out, base, expected, seed, schemes, samples, records, res, s
     write_manifest(out / "manifest.json", m)
 
 
+#: What a progress bar counts, by the kind of run (``run_tasks``'s ``kind``).
+UNITS = {"campaign": "samples", "coverage": "fault onsets", "fdi": "traces"}
+
+
 @contextlib.contextmanager
-def _progress(show: bool, total: int) -> Iterator[Callable[[int, int], None]]:
-    """A rich progress bar with samples done / failed / rate (or nothing); yields ``update(done, failed)``."""
+def _progress(show: bool, total: int, kind: str = "campaign") -> Iterator[Callable[[int, int], None]]:
+    """A rich progress bar named after ``kind`` (campaign, coverage, fdi) with tasks done / failed / rate
+    (or nothing); yields ``update(done, failed)``."""
     if not show:
         yield lambda done, failed: None
         return
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    columns = (TextColumn("campaign"), BarColumn(), MofNCompleteColumn(), TextColumn("failed {task.fields[failed]}"))
-    rate_column = TextColumn("{task.fields[rate]:.1f} samples/min")
+    columns = (TextColumn(kind), BarColumn(), MofNCompleteColumn(), TextColumn("failed {task.fields[failed]}"))
+    rate_column = TextColumn(f"{{task.fields[rate]:.1f}} {UNITS.get(kind, 'tasks')}/min")
     with Progress(*columns, rate_column, TimeElapsedColumn()) as bar:
         task = bar.add_task("run", total=total, failed=0, rate=0.0)
         t0 = time.perf_counter()

@@ -32,6 +32,17 @@ class _ErrorBoundary(TyperGroup):
     traceback, exit 3.  ``ftcreport --debug`` re-raises instead (full traceback).
     """
 
+    def get_command(self, ctx: typer.Context, cmd_name: str):
+        cmd = super().get_command(ctx, cmd_name)
+        if cmd is not None:
+            _plain_flags(cmd, ctx)
+        return cmd
+
+    def get_params(self, ctx: typer.Context):
+        params = super().get_params(ctx)
+        _plain_flags(self, ctx)
+        return params
+
     def invoke(self, ctx: typer.Context):
         protected = ctx._protected_args if hasattr(ctx, "_protected_args") else getattr(ctx, "protected_args", [])
         argv = [*protected, *ctx.args]
@@ -83,6 +94,18 @@ class _ErrorBoundary(TyperGroup):
                 line += f" (a bug: traceback in {_crash_log(exc)}; --debug shows it)"
             typer.echo(f"ftcreport: error: {line}", err=True)
             raise typer.Exit(code=code) from None
+
+
+def _plain_flags(cmd, ctx) -> None:
+    """Flags (``--force``, ``--help``) listed bare in ``--help``: typer 0.2x writes each option's type,
+    ``<bool>`` for a flag that takes no value; an empty metavar (click's ``Parameter.metavar``) says none.
+    A group's commands too (``cases validate``)."""
+    help_opt = cmd.get_help_option(ctx)
+    for p in [*cmd.params, *([help_opt] if help_opt is not None else [])]:
+        if getattr(p, "is_flag", False) and p.metavar is None:
+            p.metavar = ""
+    for sub in getattr(cmd, "commands", {}).values():
+        _plain_flags(sub, ctx)
 
 
 def _on_interrupt(signum, frame) -> None:
@@ -513,9 +536,32 @@ def report(
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
     from .store import output_lock
 
-    with output_lock(out, "report"):
-        page = render_all(out, force=True)
+    with output_lock(out, "report"), _render_progress() as (notify, done):
+        page = render_all(out, force=True, notify=notify, done=done)
     typer.echo(f"report: {page}")
+
+
+@contextlib.contextmanager
+def _render_progress():
+    """A bar of the case pages rendered (on a terminal's stderr; nothing when piped)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        yield None, None
+        return
+    cols = (
+        TextColumn("rendering pages"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("{task.fields[page]}"),
+    )
+    with Progress(*cols, console=console, transient=True) as bar:
+        task = bar.add_task("pages", total=None, page="")
+
+        yield (lambda k: bar.update(task, total=k)), (lambda name: bar.update(task, advance=1, page=name))
 
 
 @app.command()
@@ -664,6 +710,31 @@ def campaign(
     _done(res, "samples run", page)
 
 
+@app.command()
+def sample(
+    campaign_dir: Annotated[Path, typer.Argument(help="A campaign's output directory (reports/campaigns/<case>).")],
+    index: Annotated[list[int], typer.Argument(help="Sample numbers (the 'sample' column of results.csv).")],
+) -> None:
+    """Render the page of campaign samples: the sample's variant re-simulated from its seeds, as a case page
+    (verdict, replay, signals), linked from the campaign's page.
+
+    Example: ftcreport sample reports/campaigns/two_link_campaign 17
+    """
+    from .campaign import read_table
+    from .report.campaign import render_campaign, render_sample
+    from .store import output_lock
+
+    if not (campaign_dir / "campaign.json").is_file():
+        raise FtcError(f"{campaign_dir}: not a campaign directory (no campaign.json); run 'ftcreport campaign' first")
+    with output_lock(campaign_dir, "sample"):
+        for i in index:
+            with _running(f"sample {i}", False):
+                page = render_sample(campaign_dir, i)
+            typer.echo(f"sample {i}: {page}")
+        if (campaign_dir / "results.csv").exists():  # the campaign's page links the new pages
+            render_campaign(campaign_dir, read_table(campaign_dir / "results.csv"), worst=0)
+
+
 def _done(res, runs: str, page: Path, detail: str = "") -> None:
     """The summary line of a resumable Dask command (campaign, coverage); exit 1 when a task failed."""
     typer.echo(
@@ -699,19 +770,23 @@ _MAX_ERRORS = 50  # errors shown per case file by 'cases validate'
 
 @cases_app.command("validate")
 def cases_validate(
-    paths: Annotated[list[Path], typer.Argument(help="Case files or directories.")],
+    paths: Annotated[
+        list[Path] | None,
+        typer.Argument(help="Case files or directories, searched recursively (default: cases/ and its subfolders)."),
+    ] = None,
 ) -> None:
     """Validate case files: 'ok' per valid file, every error of the others; exit 0 if all are valid, 2 otherwise.
 
     Each error is one line 'file: field: reason' (at most 50 per file, then the count of the rest).
+    A directory is searched recursively (cases/ holds cases/motors/).
 
-    Example: ftcreport cases validate cases/
+    Example: ftcreport cases validate
     """
-    from .batch import discover
     from .cases import load_case
     from .errors import CaseError
 
-    files = discover(paths)
+    paths = paths or [Path("cases")]
+    files = [f for p in paths for f in (sorted(p.rglob("*.toml")) if p.is_dir() else [p])]
     if not files:
         raise FtcError(f"no case files (*.toml) in {', '.join(map(str, paths))}")
     bad = 0

@@ -14,7 +14,10 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
   with a fault event (``None`` when one of them never recovers);
 * ``position_error_iae`` (whole run and per phase): integral of the position
   error over time [m s] (trapezoid over every integration step);
-* torques: ``torque_peak`` = max |tau| over wheels and time [N m], ``torque_rms``
+* torques: ``torque_peak`` = max |tau| over wheels and time [N m] (start-up included),
+  ``torque_peak_after_fault`` = the same from the first fault event on (``None`` without a
+  fault: the start-up transient, e.g. k_v times the initial velocity error, does not decide it),
+  ``torque_rms``
   = RMS over time of the per-wheel torques (largest wheel), ``saturation_fraction``
   = fraction of steps with some |u_j| at the limit, ``energy`` = the motors'
   absolute mechanical work int sum_j |tau_j omega_j| dt [J] (trapezoid over every
@@ -136,9 +139,15 @@ def tracking_metrics(
 
 
 def torque_metrics(
-    tau: np.ndarray, u: np.ndarray, u_limit: float | None, t: np.ndarray | None = None, omega: np.ndarray | None = None
+    tau: np.ndarray,
+    u: np.ndarray,
+    u_limit: float | None,
+    t: np.ndarray | None = None,
+    omega: np.ndarray | None = None,
+    first_fault: float | None = None,
 ) -> dict:
-    """Peak and RMS torque, fraction of instants at saturation, and (given wheel speeds) energy."""
+    """Peak and RMS torque, fraction of instants at saturation, (given wheel speeds) energy, and
+    (given the times and ``first_fault``) the peak from the first fault on."""
     rms_per_wheel = np.sqrt(np.mean(np.square(tau), axis=0))
     sat = 0.0
     if u_limit is not None:
@@ -150,6 +159,9 @@ def torque_metrics(
     }
     if t is not None and omega is not None:
         out["energy"] = _iae(t, np.sum(np.abs(tau * omega), axis=1))
+    if t is not None:
+        after = np.asarray(t) >= first_fault if first_fault is not None else np.zeros(len(tau), dtype=bool)
+        out["torque_peak_after_fault"] = float(np.abs(tau[after]).max()) if np.any(after) else None
     return out
 
 

@@ -121,6 +121,8 @@ def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=Non
         return empty, explain_nulls(_identity(case, scheme) | {"status": "error", "reason": str(exc), "wall_time": 0.0})
     metrics = run_metrics(case, scheme, run, built, ctrl)
     metrics["wall_time"] = time.perf_counter() - wall0
+    # of which compiling or loading the engine's loop, when this process had not yet (fast.engine)
+    metrics["compile_time"] = float(run.meta.get("compile_time", 0.0))
     run.meta |= {  # what the arrays do not carry (Run.to_xarray, notebook views)
         "case": case.name,
         "scheme": scheme,
@@ -163,7 +165,8 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     from .fast.engine import wheel_speeds_rows
 
     omega = wheel_speeds_rows(chain, S["q"], S["eta"])  # every step: compiled, one call
-    out |= torque_metrics(S["tau"], S["u"], case.plant.saturation, t, omega)
+    first_fault = min(built.faults.times, default=None)
+    out |= torque_metrics(S["tau"], S["u"], case.plant.saturation, t, omega, first_fault)
     out["singularity_margin_min"] = singularity_margin(S["q"])
     hook = ctrl.scheme.metrics  # the scheme's own metrics (switching detection, adaptive weights, diagnosis)
     if hook is not None:
@@ -175,6 +178,7 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
 _NULL_WHY = {
     "recovery_time": "the position error did not enter the recovery band and stay in it before the phase ended",
     "recovery_time_max": "some phase that starts with a fault never recovers (see phases[*].recovery_time)",
+    "torque_peak_after_fault": "the run has no fault (or stopped before the first one)",
     "delay": "the applied model never matched the true pattern after this event",
     "detection_delay_max": "some fault was never detected (see the per-event delays)",
     "t_declared": "the fault was never declared",
@@ -221,6 +225,7 @@ HEADLINE_METRICS = (
     "heading_error_max",
     "recovery_time_max",
     "torque_peak",
+    "torque_peak_after_fault",
     "torque_rms",
     "energy",
 )

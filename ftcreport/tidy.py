@@ -299,6 +299,7 @@ METRICS_DTYPES: dict[str, str] = {
     "heading_error_final": "float64",  # [rad]
     "recovery_time_max": "float64",  # [s]
     "torque_peak": "float64",  # [N m]
+    "torque_peak_after_fault": "float64",  # [N m], from the first fault on
     "torque_rms": "float64",  # [N m]
     "saturation_fraction": "float64",
     "energy": "float64",  # [J]
@@ -308,7 +309,8 @@ METRICS_DTYPES: dict[str, str] = {
     "detection_delay_max": "float64",  # [s]
     "missed_detections": "Int32",
     "false_alarms": "Int32",
-    "wall_time": "float64",  # [s]
+    "wall_time": "float64",  # [s], compile_time included
+    "compile_time": "float64",  # [s], compiling or loading the engine's loop in the run's process
     "package_version": "string",
 }
 

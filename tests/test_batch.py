@@ -257,6 +257,40 @@ def test_expected_status_keeps_a_designed_loss_from_failing_the_batch(tmp_path):
         assert m["status"] in ("singular", "diverged"), m["status"]
         outcomes[len(expected)] = len(res.failed_runs)
     assert outcomes == {1: 1, 3: 0}
+    # issue 35 item 5: the index counts the stop the case expects apart from the one it does not
+    html = (tmp_path / "r" / "index.html").read_text()
+    counts = html[html.index('id="counts"') : html.index("</p>", html.index('id="counts"'))]
+    assert "1 stopped as their case expects" in counts and "1 stopped or failed unexpectedly" in counts
+    assert "(expected)" in html  # the matrix marks the expected stop
+
+
+def test_manifests_merge_across_batches_and_the_index_links_every_page(tmp_path):
+    """Issue 35 items 5 and 8: a second batch into the same --out overwrote manifest.json with its own
+    cases while the index showed every case; other pages under --out (campaign, coverage, FDI) were not
+    linked."""
+    data = tomllib.loads((CASES / "two_link_uncompensable.toml").read_text())
+    data["schemes"] = {"run": ["oracle"], "oracle": data["schemes"]["oracle"]}
+    out = tmp_path / "r"
+    for name in ("first", "second"):
+        (tmp_path / f"{name}.toml").write_text(tomli_w.dumps(data))
+        run_batch([tmp_path / f"{name}.toml"], out, jobs=1, duration=1.0, show_progress=False, render=False)
+    man = json.loads((out / "manifest.json").read_text())
+    assert set(man["cases"]) == {"first", "second"}
+    assert sorted(r["case"] for r in man["runs"]) == ["first", "second"]
+    assert [b["cases"] for b in man["batches"]] == [["first"], ["second"]]
+    # the first case again: its entry is replaced, nothing doubles
+    run_batch([tmp_path / "first.toml"], out, jobs=1, duration=1.0, show_progress=False, render=False)
+    man = json.loads((out / "manifest.json").read_text())
+    assert sorted(r["case"] for r in man["runs"]) == ["first", "second"]
+    assert [b["cases"] for b in man["batches"]] == [["second"], ["first"]]
+    # a page another command wrote under --out is found and linked from the index
+    other = out / "campaigns" / "x"
+    other.mkdir(parents=True)
+    (other / "index.html").write_text("<html><head><title>ftcreport campaign: x</title></head></html>")
+    from ftcreport.report.render import render_index
+
+    html = render_index(out).read_text()
+    assert '<a href="campaigns/x/index.html">campaign: x</a>' in html and 'id="batches"' in html
 
 
 def test_every_thesis_case_page_has_its_claims_section(batch_dir):

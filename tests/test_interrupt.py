@@ -2,7 +2,7 @@
 
 * A batch killed with SIGINT or SIGKILL at a random moment (its whole process group,
   workers included, as Ctrl-C or a kill of the job does), then re-run, ends with every
-  run complete, metrics identical to an uninterrupted batch (``wall_time`` aside) and no
+  run complete, metrics identical to an uninterrupted batch (``wall_time``, ``compile_time`` aside) and no
   truncated or temporary file left.
 * Two batches started at once on the same ``--out``: the output directory's lock lets
   one run; the other fails at once with a message naming the holder (exit 2).  The
@@ -74,6 +74,7 @@ def _snapshot(out: Path) -> dict:
         d = m.parent
         metrics = json.loads(m.read_text())
         metrics.pop("wall_time", None)
+        metrics.pop("compile_time", None)  # times, not results
         assert (d / "key").read_text().strip(), d
         with np.load(d / "timeseries.npz") as z:
             series = {k: z[k].copy() for k in z.files}

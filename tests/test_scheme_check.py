@@ -134,7 +134,7 @@ def test_the_guard_cells_catch_a_write_past_the_signals_in_a_real_run(tmp_path, 
 
     monkeypatch.setattr(check, "ensure_checked", lambda ctrl: None)
     case = _overrun_case(tmp_path, "sm_past_guard", "4")  # two cells past the three declared values
-    run, m = run_scheme(case, "sm_past_guard")
+    _, m = run_scheme(case, "sm_past_guard")
     assert m["status"] == "error", m
     assert "scheme 'sm_past_guard'" in m["reason"] and "past 'K'" in m["reason"] and "s (2), K (1)" in m["reason"]
     assert "t = 0 s" in m["reason"]  # the first call of the law
@@ -148,7 +148,7 @@ def test_the_guards_catch_a_write_past_the_state_rates(tmp_path, monkeypatch):
     data = __import__("tomllib").loads(CASE.read_text())
     data["plugins"] = [str(path)]
     data["schemes"] = {"run": ["sm_past_dx"], "k_v": 20.0}
-    run, m = run_scheme(with_duration(parse_case(data, str(CASE)), 1.0), "sm_past_dx")
+    _, m = run_scheme(with_duration(parse_case(data, str(CASE)), 1.0), "sm_past_dx")
     assert m["status"] == "error" and "wrote past out.dx (0 state rates" in m["reason"], m
 
 

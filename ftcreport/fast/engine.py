@@ -387,6 +387,7 @@ def _compiling(loop, entry) -> Iterator[None]:
         if entry in _READY or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
             yield
             return
+        t0 = _time.perf_counter()
         with open(Path(loop.__file__).with_suffix(".lock"), "a") as fh:
             fcntl.flock(fh, fcntl.LOCK_EX)
             try:
@@ -395,6 +396,10 @@ def _compiling(loop, entry) -> Iterator[None]:
                 fcntl.flock(fh, fcntl.LOCK_UN)
         if entry.signatures:
             _READY.add(entry)  # numba's signature list costs 0.3 ms to read: once per entry point
+        _FIRST_CALLS[0] += _time.perf_counter() - t0
+
+
+_FIRST_CALLS = [0.0]  # seconds in the entry points' first calls in this process (compile or cache load)
 
 
 _READY: set = set()  # the loops' entry points compiled or loaded in this process
@@ -482,6 +487,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     # ETD2 is compiled in the motor variant only (it needs no motors: with none its block is eta's)
     motor_loop = nm > 0 or settings.method == "etd2"
     loop = loop_for(spec.law, spec.disc, motors=motor_loop, sampled=settings.sample_time is not None, terms=spec.terms)
+    compile0, steps_new = _FIRST_CALLS[0], loop.run_steps not in _READY  # compile_time below
     xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
     x = np.concatenate((q0, eta0, np.zeros(nm), xc0))
     info = np.zeros(4)
@@ -544,6 +550,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     sig_h = np.zeros(spec.n_sig)
     v_h = np.zeros(0 if ts is None else nm)
     wall0 = _time.perf_counter()
+    first_s, chunks = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if info[0] != 0:  # the first command failed (at t0, before any step)
         status, reason, t_end = _stop(info, F.AT_STATE, t_end, t_end, settings, spec.ref, spec)
     with np.errstate(all="ignore"):
@@ -561,6 +568,8 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 )  # fmt: skip
             if k == 0:
                 _timing_mark("first_chunk")
+                first_s = _time.perf_counter() - wall0
+            chunks += 1
             if li:
                 bufs = (lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lia)
                 si = _collect(spec, plant, nq, k, li, is_logged, bufs, stream, si, n_steps + 1, log_parts)
@@ -584,6 +593,10 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 progress(float(grid[k + 1]))
             k += 1
     wall = _time.perf_counter() - wall0
+    # compiling or loading the loop: its first calls here, less the first chunk's own simulation
+    # (estimated by the mean of the other chunks, which are the same size)
+    sim_first = (wall - first_s) / (chunks - 1) if chunks > 1 else 0.0
+    compile_s = max(0.0, _FIRST_CALLS[0] - compile0 - (sim_first if steps_new else 0.0))
     if progress is not None:
         progress(t_end)
     stream = {name: v[:si] for name, v in stream.items()}
@@ -605,6 +618,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
             "sample_time": settings.sample_time,
             "measurement_delay": int(settings.measurement_delay),
             "engine": "compiled",
+            "compile_time": compile_s,
         },
         t_stream=t_stream,
         stream=stream,

@@ -133,7 +133,7 @@ def paths_svg(series: dict[str, dict], d: list[float], events: list[float], b: f
             k = int(np.searchsorted(ts["t"], te))
             if k < ts["t"].size:
                 ax.plot(ts["q"][k, 0], ts["q"][k, 1], "x", color=SCHEME_COLORS.get(scheme), ms=6)
-    show = "switching" if "switching" in series else next(iter(series))
+    show = next((s for s in series if "selected" in series[s]), next(iter(series)))  # a switching scheme first
     ts = series[show]
     for k in np.linspace(0, ts["t"].size - 1, 5).astype(int):
         P = axle_midpoints(ts["q"][k], d)

@@ -88,6 +88,32 @@ def _user_line(message: str, files: set[str]) -> str | None:
     return None
 
 
+_NAMED = re.compile(r"(?:name '(\w+)' is not defined|Untyped global name '(\w+)'|Unknown attribute '(\w+)')")
+
+
+def _name_line(message: str, *fns) -> str | None:
+    """``file:line`` of the first use of the name numba could not resolve, in the law (or the discrete update)
+    then anywhere in its file: numba names an undefined global without its line (only the caller's)."""
+    m = _NAMED.search(message)
+    if m is None:
+        return None
+    name = next(g for g in m.groups() if g)
+    word = re.compile(rf"(?<![\w.]){re.escape(name)}\b" if "attribute" not in m.group(0) else rf"\.{re.escape(name)}\b")
+    for fn in fns:
+        if fn is None:
+            continue
+        py = getattr(fn, "py_func", fn)
+        try:
+            lines, first = inspect.getsourcelines(py)
+            path = inspect.getsourcefile(py)
+        except (TypeError, OSError):
+            continue
+        for i, line in enumerate(lines):
+            if word.search(line.split("#")[0]):
+                return f"{path}:{first + i}"
+    return None
+
+
 def _numba_reason(message: str) -> str:
     """The one line of a numba TypingError that says what is wrong."""
     lines = [x.strip() for x in message.splitlines() if x.strip()]
@@ -506,7 +532,7 @@ def _compile_or_bounds_failure(exc, law, disc, files, head, path, ctrl, state) -
 
     msg = str(exc)
     if isinstance(exc, TypingError):
-        where = _user_line(msg, files) or _where(law)
+        where = _user_line(msg, files) or _name_line(msg, law, disc) or _where(law)
         reason = _numba_reason(msg)
         fn = "discrete" if disc is not None and _fn_name(disc) in msg and _fn_name(law) not in msg else "law"
         return Finding(False, f"{where}: {head}: {fn}: numba TypingError: {reason} ({_typing_hint(reason)})", msg)

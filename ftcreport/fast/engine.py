@@ -101,7 +101,7 @@ def compiled_spec(controller) -> Spec | None:
         return None
     scheme = controller.scheme
     law = resolve(scheme.law)
-    disc = resolve(scheme.discrete) if scheme.discrete is not None else _no_discrete()
+    disc = resolve(scheme.discrete) if scheme.discrete is not None else _no_discrete(law)
     n_kin = 4 + len(kin_obj.z_names) + controller.chain.n_q + 2  # eta_c, eta_c_dot, z, q_d, eta_d
     n_sig = n_kin + sum(controller.widths.values())
     pc = _chain(controller.chain.params)
@@ -110,10 +110,12 @@ def compiled_spec(controller) -> Spec | None:
     )
 
 
-def _no_discrete():
-    from ..schemes.kernels import no_discrete
+def _no_discrete(law):
+    """The discrete update of a scheme without one (the round-2 form's for a round-2 law)."""
+    from ..schemes.kernels import legacy_no_discrete, no_discrete
+    from ..schemes.registry import legacy
 
-    return no_discrete
+    return legacy_no_discrete if legacy(law) else no_discrete
 
 
 def law_buffers(spec: Spec) -> tuple:

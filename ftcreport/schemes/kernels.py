@@ -36,6 +36,7 @@ __all__ = [
     "kinematic_eval",
     "kinematic_signals",
     "legacy_matched_terms",
+    "legacy_no_discrete",
     "new_kinematic_cache",
     "no_discrete",
     "no_law",
@@ -148,6 +149,12 @@ def kinematic_signals(sig, Kp, C):
 @njit(nogil=True, error_model="numpy")  # not cached: it takes any scheme's P (a plug-in's types too)
 def no_discrete(P, step, x):
     """The discrete update of a scheme that has none."""
+    return
+
+
+@njit(nogil=True, error_model="numpy")
+def legacy_no_discrete(P, Kp, R, C, t, q, eta, xc, info):
+    """The round-2 form's discrete update of a scheme that has none (the adapter's)."""
     return
 
 

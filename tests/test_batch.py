@@ -312,7 +312,7 @@ def test_every_thesis_case_page_has_its_claims_section(batch_dir):
 
 
 def test_a_cold_batch_starts_every_loop_in_the_first_wave():
-    # issue 20 item 3: the workers compile distinct loops side by side (fast.builtin's two groups,
+    # issue 20 item 3: the workers compile distinct loops side by side (schemes/laws' two dispatchers,
     # each plug-in's, each motor/sampled variant) before any loop's second run
     from ftcreport.batch import _compile_first, _loop_of
     from ftcreport.cases import configured_schemes, load_case

@@ -12,8 +12,8 @@ here, vectorized, from the log.
 
 The loop runs in chunks of about 1 % of the steps so that the progress
 callback is called every ~1 % of the run.  numba compiles the kernels
-on first use and caches the machine code beside the package (``__pycache__``):
-a fresh clone builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
+on first use and caches the machine code in the user's cache directory
+(:mod:`ftcreport.paths`): a fresh install builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
 explicitly and reports the time).
 """
 
@@ -52,7 +52,7 @@ from ..model.kernels import kernel_ref, packed
 from ..schemes.api import GUARD, N_GUARD, TERMS_MODES
 from ..schemes.controller import SchemeController
 from . import kernels as F
-from .compiling import engine_stamp, loop_compile
+from .compiling import engine_stamp
 
 __all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled"]
 
@@ -271,18 +271,11 @@ def _initial_currents(loop, spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x
 
 
 def _cache_dir() -> Path:
-    """Where the generated loop modules live: $FTCREPORT_CACHE, else beside the package, else ~/.cache."""
-    env = os.environ.get("FTCREPORT_CACHE")
-    if env:
-        return Path(env) / "loops"
-    here = Path(__file__).resolve().parent / "_loops"
-    try:
-        here.mkdir(exist_ok=True)
-        if os.access(here, os.W_OK):
-            return here
-    except OSError:
-        pass
-    return Path.home() / ".cache" / "ftcreport" / "loops"
+    """Where the generated loop modules live: ``ftcreport.paths.cache_dir("loops")`` (the user's cache
+    directory or ``$FTCREPORT_CACHE``, keyed by versions and CPU), never inside the installed package."""
+    from ..paths import cache_dir
+
+    return cache_dir("loops")
 
 
 _LOOPS: dict[tuple, object] = {}
@@ -385,20 +378,19 @@ def _compiling(loop, entry) -> Iterator[None]:
     """Around a call of a loop's entry point: its first call in this process compiles it (or loads it
     from numba's cache) under a file lock beside its module, so that two processes that need the
     same loop (a batch's workers) compile it once: the second waits and then loads the first's."""
-    with loop_compile():
-        if entry in _READY or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
+    if entry in _READY or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
+        yield
+        return
+    t0 = _time.perf_counter()
+    with open(Path(loop.__file__).with_suffix(".lock"), "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
             yield
-            return
-        t0 = _time.perf_counter()
-        with open(Path(loop.__file__).with_suffix(".lock"), "a") as fh:
-            fcntl.flock(fh, fcntl.LOCK_EX)
-            try:
-                yield
-            finally:
-                fcntl.flock(fh, fcntl.LOCK_UN)
-        if entry.signatures:
-            _READY.add(entry)  # numba's signature list costs 0.3 ms to read: once per entry point
-        _FIRST_CALLS[0] += _time.perf_counter() - t0
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+    if entry.signatures:
+        _READY.add(entry)  # numba's signature list costs 0.3 ms to read: once per entry point
+    _FIRST_CALLS[0] += _time.perf_counter() - t0
 
 
 _FIRST_CALLS = [0.0]  # seconds in the entry points' first calls in this process (compile or cache load)

@@ -41,9 +41,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
-jit = njit(cache=True, nogil=True, error_model="numpy")
+from .compiling import jit  # numba's njit through ftcreport's compiler: cache=True, nogil, error_model="numpy"
 
 TIE_RTOL = 1e-9  # control.switching.TIE_RTOL (tests/test_fast.py checks they agree)
 

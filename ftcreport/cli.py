@@ -197,6 +197,11 @@ app = typer.Typer(
 )
 cases_app = typer.Typer(help="Validate case files or start a new one.", no_args_is_help=True)
 app.add_typer(cases_app, name="cases")
+baseline_app = typer.Typer(
+    help="Baselines for 'check --baseline': headline metrics and key signals of every case x scheme.",
+    no_args_is_help=True,
+)
+app.add_typer(baseline_app, name="baseline")
 
 
 def _version(value: bool) -> None:
@@ -427,6 +432,10 @@ def run(
         typer.echo(_table(rows))
         if half is not None:
             typer.echo(_dt_table(rows))
+        from .requirements import summary_lines
+
+        for line in summary_lines(c.name, {m["scheme"]: m for m in rows}):
+            typer.echo(line)
         typer.echo(f"results in {out / c.name}/" + (f", report {page}" if page else ""))
     failed = [m for m in rows if m["status"] not in c.expected_for(m["scheme"])]
     for m in failed:
@@ -525,14 +534,23 @@ def check(
     out: Annotated[Path, typer.Option(help="Output directory (results are reused when cached).")] = Path("reports"),
     jobs: Annotated[int | None, typer.Option(help="Parallel processes.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only failures.")] = False,
+    baseline: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also compare every case x scheme with this baseline ('ftcreport baseline save'): metrics and "
+            "signals within their tolerances; a change beyond them fails. Writes OUT/baseline.html."
+        ),
+    ] = None,
 ) -> None:
-    """Compare each case's metrics with its thresholds and thesis claims: exit 0 if all hold, 1 if not, 2 for bad files.
+    """Gate: thresholds, thesis claims, requirements (and a baseline): exit 0 if all hold, 1 if not, 2 for bad files.
 
     A thesis claim holds when its outcome (reproduced, not reproduced, not applicable) is the expected one.
+    A requirement ([[requirements]]) holds in a window when every step's value is within its bound; a
+    window violated or not evaluated (empty, or cut by a stopped run) fails.
 
     Runs what is not cached first (as 'batch' does).
 
-    Example: ftcreport check cases/ --junit reports/junit.xml
+    Example: ftcreport check cases/ --junit reports/junit.xml --baseline baselines/main
     """
     import datetime as _dt
     import time as _time
@@ -541,13 +559,19 @@ def check(
     from .check import evaluate
     from .claims import evaluate_claims
     from .report.junit import write_junit
+    from .requirements import requirement_items
     from .store import load_metrics, read_json
 
+    if baseline is not None:
+        from .baseline import check_dest
+
+        check_dest(baseline)  # a mistyped --baseline before anything runs
     started = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     wall0 = _time.perf_counter()
     res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
     results = []
     claims = []
+    items = []  # requirement windows and baseline deltas (GateItem)
     run_times = {}
     for name in res.cases:
         rec = json.loads((out / name / "case.json").read_text())
@@ -555,6 +579,17 @@ def check(
         run_times |= {(name, s): (m or {}).get("wall_time") or 0.0 for s, m in metrics.items()}
         results += evaluate(name, rec.get("thresholds", {}), metrics)
         claims += evaluate_claims(name, rec.get("claims", []), metrics)
+        items += requirement_items(name, rec.get("requirements", []), metrics)
+    baseline_page = None
+    if baseline is not None:
+        from .baseline import baseline_items
+        from .report.gate_pages import render_baseline
+        from .store import output_lock
+
+        found, comparisons = baseline_items(out, res.cases, baseline)
+        items += found
+        with output_lock(out, "check"):
+            baseline_page = render_baseline(out, baseline, comparisons)
     if junit is not None:
         write_junit(
             junit,
@@ -565,6 +600,7 @@ def check(
             time=_time.perf_counter() - wall0,
             timestamp=started,
             run_times=run_times,
+            items=items,
         )
     for r in results:
         if not r.ok or not quiet:
@@ -577,16 +613,69 @@ def check(
         if not c.ok or not quiet:
             mark = "pass" if c.ok else "FAIL"
             typer.echo(f"{mark:4}  {c.case} / claim {c.id} ({c.source}): {c.outcome} (expected {c.expect}); {c.reason}")
+    for it in items:
+        if not it.passed:
+            for line in it.details or (f"{it.classname} / {it.name}: {it.message}",):
+                typer.echo(f"FAIL  {line}")
+        elif not quiet:
+            typer.echo(f"pass  {it.classname}: {it.message}")
     for msg in res.case_errors.values():
         typer.echo(f"ftcreport: error: {msg}", err=True)
     failed = sum(not r.ok for r in results)
     failed_claims = sum(not c.ok for c in claims)
+    failed_items = sum(not it.passed for it in items)
     typer.echo(f"{len(results) - failed}/{len(results)} thresholds hold")
     if claims:
         typer.echo(f"{len(claims) - failed_claims}/{len(claims)} thesis claims have their expected outcome")
+    for kind, label in (("requirement", "requirement windows hold"), ("baseline", "runs match the baseline")):
+        if mine := [it for it in items if it.kind == kind]:
+            typer.echo(f"{sum(it.passed for it in mine)}/{len(mine)} {label}")
+    if baseline_page is not None:
+        typer.echo(f"baseline comparison: {baseline_page}")
     if res.case_errors:
         raise typer.Exit(code=2)
-    if failed or failed_claims:
+    if failed or failed_claims or failed_items:
+        raise typer.Exit(code=1)
+
+
+@baseline_app.command("save")
+def baseline_save(
+    cases: Annotated[list[Path] | None, typer.Argument(help="Case files or directories (default: cases/).")] = None,
+    dest: Annotated[
+        Path, typer.Option(help="The baseline directory to write (created; a saved case is replaced).")
+    ] = ...,
+    out: Annotated[Path, typer.Option(help="Output directory of the results (runs what is not cached).")] = Path(
+        "reports"
+    ),
+    jobs: Annotated[int | None, typer.Option(help="Parallel processes.")] = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Save the baseline of every case x scheme: headline metrics, key signals and their provenance.
+
+    Per case DEST/<case>/baseline.json (git revision, versions, case hash, the case file and its fields,
+    per scheme status and metrics) and signals.npz (position error, heading error per robot, torque per
+    wheel: minimum and maximum over 500 intervals). 'ftcreport check CASES --baseline DEST' compares
+    with it. A case whose runs did not end as it expects is not saved (exit 1).
+
+    Example: ftcreport baseline save cases/ --dest baselines/main
+    """
+    from .baseline import save_baseline
+    from .batch import run_batch
+    from .store import output_lock
+
+    if dest.exists() and not dest.is_dir():
+        raise FtcError(f"{dest}: --dest: exists and is not a directory")
+    res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
+    with output_lock(dest, "baseline save"):
+        refused = save_baseline(out, res.cases, dest)
+    for name, why in refused:
+        typer.echo(f"ftcreport: error: {name}: not saved: {why}", err=True)
+    for msg in res.case_errors.values():
+        typer.echo(f"ftcreport: error: {msg}", err=True)
+    typer.echo(f"{len(res.cases) - len(refused)} case(s) saved to {dest}, {len(refused)} refused")
+    if res.case_errors:
+        raise typer.Exit(code=2)
+    if refused:
         raise typer.Exit(code=1)
 
 

@@ -44,6 +44,7 @@ def junit_xml(
     time: float | None = None,
     timestamp: str | None = None,
     run_times: Mapping[tuple[str, str], float] | None = None,
+    items=(),
 ) -> bytes:
     """JUnit XML; case files that failed to load appear as errored testcases.
 
@@ -52,6 +53,8 @@ def junit_xml(
 
     ``properties``: the manifest (nested; flattened into ``<property name value>``); ``time`` [s] and
     ``timestamp`` of the suite; ``run_times``: wall time per (case, scheme) for the testcases.
+    ``items``: further gate items (ftcreport.requirements.GateItem: requirement windows, baseline
+    deltas), one testcase each, failed with its message when it does not pass.
     """
     errors = errors or {}
     run_times = run_times or {}
@@ -86,10 +89,17 @@ def junit_xml(
             n_fail += 1
             msg = f"claim {c.id}: {c.outcome}, expected {c.expect}: {c.reason}"
             ET.SubElement(tc, "failure", message=msg).text = f"{c.case} / claim {c.id}: {msg}"
+    items = list(items)
+    for it in items:
+        tc = ET.SubElement(suite, "testcase", classname=it.classname, name=it.name)
+        ET.SubElement(tc, "system-out").text = "\n".join([it.message, *it.details])
+        if not it.passed:
+            n_fail += 1
+            ET.SubElement(tc, "failure", message=it.message).text = "\n".join(it.details) or it.message
     for name, msg in errors.items():
         tc = ET.SubElement(suite, "testcase", classname=name, name="load")
         ET.SubElement(tc, "error", message=msg).text = msg
-    suite.set("tests", str(len(results) + len(claims) + len(errors)))
+    suite.set("tests", str(len(results) + len(claims) + len(items) + len(errors)))
     suite.set("failures", str(n_fail))
     suite.set("errors", str(len(errors)))
     suite.set("time", f"{0.0 if time is None else float(time):.3f}")

@@ -232,6 +232,9 @@ def render_case(out: Path, name: str) -> Path | None:
     if analysis is not None:
         figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
+    from .gate_pages import requirements_section
+
+    requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)
     verdict = _verdict(case, name, runs)
     replay = None
@@ -274,6 +277,7 @@ def render_case(out: Path, name: str) -> Path | None:
         n_phases=len(phases),
         phase_labels=[f"{a:g}-{b:g}" for a, b in phases],
         checks=checks,
+        requirements=requirements,
         figures=figures,
         key=rec.get("key", "-"),
         simulated=rec.get("time", "-"),

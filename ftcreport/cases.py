@@ -1167,8 +1167,8 @@ def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> 
     """[[requirements]]: ids unique, the scheme known and run, robots and wheels of this chain."""
     ids = [r.id for r in case.requirements]
     for i, r in enumerate(case.requirements):
-        if ids.count(r.id) > 1:
-            raise _FieldError(f"requirements[{i}].id", f"'{r.id}' is used by more than one requirement")
+        if r.id in ids[:i]:
+            raise _FieldError(f"requirements[{i}].id", f"'{r.id}' is already the id of requirements[{ids.index(r.id)}]")
         if r.scheme != "*" and r.scheme not in known:
             raise _FieldError(
                 f"requirements[{i}].scheme",

@@ -752,8 +752,8 @@ class Requirement(_Strict):
         "[m/s], turn_rate (omega_1) [rad/s]",
         "-",
     )
-    robot: Int | None = _f(
-        None, "heading_error: the robot (1 = leader); absent: the largest error over the robots", "1", ge=1, le=12
+    robot: Annotated[int, Field(ge=1, le=12), _NUMBER] | None = _f(
+        None, "heading_error: the robot (1 = leader); absent: the largest error over the robots", "1"
     )
     wheel: str | None = _f(
         None, 'torque (required), torque_abs (absent: the largest over the wheels): "1r", "1l", ..., "nl"', "-"

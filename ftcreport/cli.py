@@ -545,12 +545,12 @@ def check(
     """Gate: thresholds, thesis claims, requirements (and a baseline): exit 0 if all hold, 1 if not, 2 for bad files.
 
     A thesis claim holds when its outcome (reproduced, not reproduced, not applicable) is the expected one.
-    A requirement ([[requirements]]) holds in a window when every step's value is within its bound; a
+    A time-windowed requirement holds in a window when every step's value is within its bound; a
     window violated or not evaluated (empty, or cut by a stopped run) fails.
 
     Runs what is not cached first (as 'batch' does).
 
-    Example: ftcreport check cases/ --junit reports/junit.xml --baseline baselines/main
+    Example: ftcreport check cases/ --baseline baselines/main
     """
     import datetime as _dt
     import time as _time

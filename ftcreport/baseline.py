@@ -230,14 +230,23 @@ class SignalDelta:
     band_lo: float
     band_hi: float
     excess: float
+    note: str = ""  # a signal in one run only: why it is not compared
 
     def line(self) -> str:
+        if self.note:
+            return f"signal {self.signal}: {self.note}"
         u = f" {self.unit}"
         return (
             f"signal {self.signal}: outside the band in {self.bins_out} of {self.bins_compared} intervals from "
             f"{self.first_time:.4g} s; worst at {self.worst_time:.4g} s: new {self.worst_value:.4g}{u}, band "
             f"[{self.band_lo:.4g}, {self.band_hi:.4g}]{u} (beyond by {self.excess:.3g}{u})"
         )
+
+
+def _unmatched(signal: str, where: str) -> SignalDelta:
+    """A signal in one run only (the chain's robots or wheels changed): a change, not compared."""
+    nan = math.nan
+    return SignalDelta(signal, "", 0, 0, nan, nan, nan, nan, nan, math.inf, f"{where} (the chain changed)")
 
 
 def compare_signal(
@@ -424,6 +433,7 @@ def save_baseline(out: Path, names: Iterable[str], dest: Path) -> list[tuple[str
     Returns the (case, reason) pairs not saved: a case whose runs ended with a status the case
     does not expect (a failure is never kept as the reference), or that has no stored run.
     """
+    from .cases import configured_schemes
     from .manifest import environment, numeric_versions
     from .model.faults import wheel_names
     from .store import load_metrics, load_timeseries, read_json, write_atomic, write_json
@@ -434,8 +444,6 @@ def save_baseline(out: Path, names: Iterable[str], dest: Path) -> list[tuple[str
     created = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     for name in names:
         case, text, rec = stored_case(out, name)
-        from .cases import configured_schemes
-
         schemes = configured_schemes(case)
         metrics = {s: load_metrics(out, name, s) for s in schemes}
         bad = [
@@ -594,7 +602,7 @@ def compare_case(out: Path, name: str, dest: Path) -> CaseComparison:
                 if ignore:
                     continue
                 if sig not in new:
-                    sc.signals.append(SignalDelta(sig, "", 0, 0, 0.0, 0.0, math.nan, math.nan, math.nan, math.inf))
+                    sc.signals.append(_unmatched(sig, "in the baseline, not in the new run"))
                     continue
                 unit = BASELINE_SIGNAL_FAMILIES.get(family(sig), "")
                 delta, drawn = compare_signal(
@@ -614,6 +622,8 @@ def compare_case(out: Path, name: str, dest: Path) -> CaseComparison:
                 if delta is not None:
                     sc.signals.append(delta)
                     sc.drawn[sig] = drawn
+            for sig in (x for x in new if x not in old.get("signals", [])):
+                sc.signals.append(_unmatched(sig, "in the new run, not in the baseline"))
         cmp.schemes.append(sc)
     return cmp
 

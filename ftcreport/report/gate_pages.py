@@ -137,14 +137,19 @@ def _label(req: Any) -> str:
 
 
 def requirements_section(case, runs: list[dict], series: dict[str, dict]) -> dict | None:
-    """Rows and figures of the case page's requirements section (None when the case states none)."""
+    """What the case page's requirements section shows (None when the case states none).
+
+    ``groups``: one per requirement x scheme, its windows' outcomes summed up (the first window that
+    does not hold named, with its first violation) and each window's row kept for a folded list;
+    ``figures``: one per requirement (:func:`requirement_figure`).
+    """
     from ..model.faults import wheel_names
 
     reqs = list(case.requirements)
     if not reqs:
         return None
     by_scheme = {m["scheme"]: m for m in runs}
-    rows, figures = [], []
+    groups, figures = [], []
     wheels = list(wheel_names(case.robots.n))
     for req in reqs:
         records: dict[str, list[dict]] = {}
@@ -155,8 +160,8 @@ def requirements_section(case, runs: list[dict], series: dict[str, dict]) -> dic
             records[scheme] = recs
             if not recs:
                 why = f"no result stored (run {m.get('status')}: {m.get('reason') or 'no reason given'})"
-                rows.append(_row(req, scheme, {"window_label": "-", "outcome": "not evaluated", "reason": why}))
-            rows += [_row(req, scheme, r) for r in recs]
+                recs = [{"window_label": "-", "outcome": "not evaluated", "reason": why}]
+            groups.append(_group(req, scheme, recs))
         spec = requirement_figure(req, records, series, wheels) if series else None
         if spec is not None:
             cap = (
@@ -165,26 +170,40 @@ def requirements_section(case, runs: list[dict], series: dict[str, dict]) -> dic
                 "are the logged samples)."
             )
             figures.append({"id": f"req-{req.id}", "plotly": spec, "caption": cap})
-    held = sum(r["outcome"] == "holds" for r in rows)
-    return {"rows": rows, "figures": figures, "held": held, "total": len(rows)}
+    held = sum(g["held"] for g in groups)
+    return {"groups": groups, "figures": figures, "held": held, "total": sum(g["total"] for g in groups)}
 
 
-def _row(req, scheme: str, r: dict) -> dict:
-    first = r.get("first_violation")
-    worst = r.get("worst")
+def _group(req, scheme: str, recs: list[dict]) -> dict:
+    """One requirement x scheme: its windows, how many hold, the first that does not, the extreme value."""
+    windows = [
+        {
+            "window": r.get("window_label", "-"),
+            "outcome": r.get("outcome", "not evaluated"),
+            "reason": r.get("reason", ""),
+        }
+        for r in recs
+    ]
+    bad = next((r for r in recs if r.get("outcome") != "holds"), None)
+    outcome = "violated" if any(r.get("outcome") == "violated" for r in recs) else (bad or recs[0]).get("outcome")
+    key = "value_max" if req.max is not None else "value_min"
+    vals = [r for r in recs if r.get(key) is not None]
+    pick = max if req.max is not None else min
+    extreme = pick(vals, key=lambda r: r[key]) if vals else None
     return {
         "id": req.id,
         "description": req.description,
         "scheme": scheme,
-        "signal": r.get("label") or _label(req),
-        "bound": r.get("bound", ""),
-        "window": r.get("window_label", "-"),
-        "outcome": r.get("outcome", "not evaluated"),
-        "reason": r.get("reason", ""),
-        "first": first,
-        "worst": worst,
-        "unit": r.get("unit", ""),
-        "samples": r.get("samples", 0),
+        "signal": recs[0].get("label") or _label(req),
+        "bound": recs[0].get("bound", ""),
+        "unit": recs[0].get("unit", ""),
+        "held": sum(r.get("outcome") == "holds" for r in recs),
+        "total": len(recs),
+        "outcome": outcome,
+        "bad": None if bad is None else {"window": bad.get("window_label"), "reason": bad.get("reason", "")},
+        "first": None if bad is None else bad.get("first_violation"),
+        "extreme": None if extreme is None else {"value": extreme[key], "time": extreme["t_" + key]},
+        "windows": windows,
     }
 
 

@@ -73,6 +73,16 @@ from typing import Any
 
 import numpy as np
 
+from .cases import (
+    BASELINE_ABS_TOL,
+    BASELINE_METRIC_NAMES,
+    BASELINE_REL_TOL,
+    BASELINE_SIGNAL_FAMILIES,
+    BaselineSpec,
+    configured_schemes,
+    parse_case,
+    with_duration,
+)
 from .requirements import GateItem
 
 __all__ = [
@@ -96,8 +106,6 @@ __all__ = [
 
 FORMAT = 1
 BINS = 500
-BASELINE_REL_TOL = 1e-3
-BASELINE_ABS_TOL = 1e-9
 #: compared by default when the run has them (metrics.json names)
 COMPARED_METRICS: tuple[str, ...] = (
     "position_error_max",
@@ -114,25 +122,6 @@ COMPARED_METRICS: tuple[str, ...] = (
     "detection_delay_max",
     "fault_estimation_error_final",
 )
-#: every scalar metric a [baseline.metrics.<name>] table may name
-BASELINE_METRIC_NAMES: tuple[str, ...] = (
-    *COMPARED_METRICS,
-    "position_error_iae",
-    "heading_error_final",
-    "saturation_fraction",
-    "singularity_margin_min",
-    "switching_exact_match_fraction",
-    "switching_missed_detections",
-    "chi_hat_min",
-    "chi_hat_max",
-    "P_max",
-    "false_alarms",
-    "missed_detections",
-    "combined_effect_error_rms",
-    "combined_effect_rms",
-)
-#: signal families of [baseline.signals.<name>] -> unit
-BASELINE_SIGNAL_FAMILIES: dict[str, str] = {"position_error": "m", "heading_error": "rad", "torque": "N m"}
 _UNITS = {
     "position_error_max": "m", "position_error_rms": "m", "position_error_final": "m", "position_error_iae": "m s",
     "heading_error_max": "rad", "heading_error_final": "rad", "recovery_time_max": "s", "torque_peak": "N m",
@@ -389,7 +378,6 @@ def _file_hash(path: Path) -> str:
 
 def stored_case(out: Path, name: str):
     """(the case as stored beside its runs, its text, its record); raises FtcError when unreadable."""
-    from .cases import parse_case, with_duration
     from .errors import FtcError
     from .store import read_json
 
@@ -406,8 +394,6 @@ def stored_case(out: Path, name: str):
 
 def _spec(case):
     """The case's [baseline] table, or the defaults."""
-    from .cases import BaselineSpec
-
     return case.baseline if case.baseline is not None else BaselineSpec()
 
 
@@ -433,7 +419,6 @@ def save_baseline(out: Path, names: Iterable[str], dest: Path) -> list[tuple[str
     Returns the (case, reason) pairs not saved: a case whose runs ended with a status the case
     does not expect (a failure is never kept as the reference), or that has no stored run.
     """
-    from .cases import configured_schemes
     from .manifest import environment, numeric_versions
     from .model.faults import wheel_names
     from .store import load_metrics, load_timeseries, read_json, write_atomic, write_json
@@ -559,7 +544,6 @@ def _load(dest: Path, name: str) -> tuple[dict | None, dict[str, np.ndarray] | N
 
 def compare_case(out: Path, name: str, dest: Path) -> CaseComparison:
     """Compare the stored runs of one case under ``out`` with its baseline in ``dest``."""
-    from .cases import configured_schemes
     from .model.faults import wheel_names
     from .store import load_metrics, load_timeseries
 

@@ -33,7 +33,6 @@ from pydantic import (
     model_validator,
 )
 
-from .baseline import BASELINE_ABS_TOL, BASELINE_METRIC_NAMES, BASELINE_REL_TOL, BASELINE_SIGNAL_FAMILIES
 from .errors import CaseError, FtcError
 from .limits import budget_problem, name_problem
 from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
@@ -813,6 +812,22 @@ class Requirement(_Strict):
         if isinstance(s, float) and isinstance(e, float) and e <= s:
             out.append(("end", f"{e:g} s is not after start = {s:g} s: the window would be empty"))
         return out
+
+
+#: [baseline] defaults: ftcreport.baseline's module docstring and cases/README.md ("Baselines") say why
+BASELINE_REL_TOL = 1e-3
+BASELINE_ABS_TOL = 1e-9
+#: the scalar metrics of metrics.json a [baseline.metrics.<name>] table may name (ftcreport.baseline
+#: compares COMPARED_METRICS, a part of them, by default)
+BASELINE_METRIC_NAMES: tuple[str, ...] = (
+    "position_error_max", "position_error_rms", "position_error_final", "position_error_iae", "heading_error_max",
+    "heading_error_final", "recovery_time_max", "torque_peak", "torque_rms", "energy", "saturation_fraction",
+    "singularity_margin_min", "t_end", "switch_count", "switching_match_fraction", "switching_exact_match_fraction",
+    "switching_missed_detections", "detection_delay_max", "chi_hat_min", "chi_hat_max", "P_max", "false_alarms",
+    "missed_detections", "fault_estimation_error_final", "combined_effect_error_rms", "combined_effect_rms",
+)  # fmt: skip
+#: the signal families of [baseline.signals.<name>] and their units
+BASELINE_SIGNAL_FAMILIES: dict[str, str] = {"position_error": "m", "heading_error": "rad", "torque": "N m"}
 
 
 class Tolerance(_Strict):

@@ -583,7 +583,7 @@ def check(
     baseline_page = None
     if baseline is not None:
         from .baseline import baseline_items
-        from .report.gate_pages import render_baseline
+        from .report.baseline_page import render_baseline
         from .store import output_lock
 
         found, comparisons = baseline_items(out, res.cases, baseline)

@@ -183,3 +183,10 @@ def test_a_missing_baseline_fails_and_a_missing_directory_is_bad_input(tmp_path)
     res = runner.invoke(app, ["check", str(src), "--out", str(out), "--baseline", str(tmp_path / "nowhere"), "-q"])
     assert res.exit_code == 2
     assert "--baseline: no baseline here" in res.output
+
+
+def test_the_compared_metrics_are_names_a_case_may_tune():
+    from ftcreport.baseline import COMPARED_METRICS
+    from ftcreport.cases import BASELINE_METRIC_NAMES
+
+    assert set(COMPARED_METRICS) <= set(BASELINE_METRIC_NAMES)

@@ -232,7 +232,7 @@ def render_case(out: Path, name: str) -> Path | None:
     if analysis is not None:
         figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
-    from .gate_pages import requirements_section
+    from .requirements_page import requirements_section
 
     requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)

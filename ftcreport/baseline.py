@@ -83,7 +83,7 @@ from .cases import (
     parse_case,
     with_duration,
 )
-from .requirements import GateItem
+from .check import GateItem
 
 __all__ = [
     "BASELINE_ABS_TOL",
@@ -421,7 +421,7 @@ def save_baseline(out: Path, names: Iterable[str], dest: Path) -> list[tuple[str
     """
     from .manifest import environment, numeric_versions
     from .model.faults import wheel_names
-    from .store import load_metrics, load_timeseries, read_json, write_atomic, write_json
+    from .store import check_run, load_timeseries, read_json, write_atomic, write_json
 
     out, dest = Path(out), Path(dest)
     refused: list[tuple[str, str]] = []
@@ -430,11 +430,12 @@ def save_baseline(out: Path, names: Iterable[str], dest: Path) -> list[tuple[str
     for name in names:
         case, text, rec = stored_case(out, name)
         schemes = configured_schemes(case)
-        metrics = {s: load_metrics(out, name, s) for s in schemes}
+        stored = {s: check_run(out, name, s) for s in schemes}  # the record checked against its files
+        metrics = {s: r.metrics if r.sound else None for s, r in stored.items()}
         bad = [
-            f"{s} {(m or {}).get('status', 'not run')}"
-            for s, m in metrics.items()
-            if m is None or m.get("status") not in case.expected_for(s)
+            f"{s} {'not run' if r.absent else ('damaged: ' + r.problem) if not r.sound else r.metrics.get('status')}"
+            for s, r in stored.items()
+            if not r.sound or r.metrics.get("status") not in case.expected_for(s)
         ]
         if bad:
             refused.append((name, f"runs that did not end as the case expects: {', '.join(bad)}"))
@@ -452,11 +453,10 @@ def save_baseline(out: Path, names: Iterable[str], dest: Path) -> list[tuple[str
                     lo, hi = envelope(ts["t"], y, edges)
                     arrays[f"{s}|{sig}|lo"], arrays[f"{s}|{sig}|hi"] = lo, hi
                     sig_names.append(sig)
-            key_path = out / name / s / "key"
             entry[s] = {
                 "status": m.get("status"),
                 "reason": m.get("reason", ""),
-                "key": key_path.read_text().strip() if key_path.exists() else None,
+                "key": (stored[s].record or {}).get("key"),
                 "metrics": scalar_metrics(m),
                 "signals": sig_names,
             }
@@ -635,10 +635,10 @@ def gate_items(cmp: CaseComparison) -> list[GateItem]:
         else ""
     )
     for sc in cmp.schemes:
-        cls, head = f"{cmp.case}.{sc.scheme}", f"{cmp.case} / {sc.scheme}"
+        head = f"{cmp.case} / {sc.scheme}"
         if sc.missing:
             msg = f"baseline missing: {sc.missing}"
-            items.append(GateItem("baseline", cls, False, msg, (f"{head} / {msg}",), "baseline"))
+            items.append(_item(cmp.case, sc.scheme, False, msg, (f"{head} / {msg}",)))
             continue
         changes = []
         if sc.status[0] != sc.status[1]:
@@ -648,14 +648,31 @@ def gate_items(cmp: CaseComparison) -> list[GateItem]:
         n_m, n_s = len(sc.metrics), sc.signals_compared
         if not changes:
             msg = f"within tolerance of the baseline ({_where(cmp)}): {n_m} metrics, {n_s} signals"
-            items.append(GateItem("baseline", cls, True, msg + (f"; {inputs}" if inputs else ""), (), "baseline"))
+            items.append(_item(cmp.case, sc.scheme, True, msg + (f"; {inputs}" if inputs else ""), ()))
             continue
         msg = f"{len(changes)} change(s) beyond tolerance against the baseline ({_where(cmp)}): " + "; ".join(changes)
         if inputs:
             msg += f". {inputs}"
         lines = ([f"{head}: {inputs}"] if inputs else []) + [f"{head} / {c}" for c in changes]
-        items.append(GateItem("baseline", cls, False, msg, tuple(lines), "baseline"))
+        items.append(_item(cmp.case, sc.scheme, False, msg, tuple(lines)))
     return items
+
+
+def _item(case: str, scheme: str, ok: bool, message: str, lines: tuple[str, ...]) -> GateItem:
+    """The gate item of one scheme's comparison (``lines``: its findings, a terminal line each)."""
+    return GateItem(
+        "baseline",
+        case,
+        f"{scheme} / baseline",
+        ok,
+        message,
+        schemes=(scheme,),
+        field="--baseline",
+        classname=f"{case}.{scheme}",
+        testname="baseline",
+        detail="\n".join(lines) or message,
+        lines=lines,
+    )
 
 
 def baseline_items(out: Path, names: Iterable[str], dest: Path) -> tuple[list[GateItem], list[CaseComparison]]:

@@ -52,7 +52,7 @@ from .cases import Case, configured_schemes, ordered_schemes, parse_case, plugin
 from .errors import CaseError, FtcError
 from .model import pattern_is_compensable, wheel_names
 from .stats import compare_metric, compare_success, wilson_interval
-from .store import _jsonable, write_atomic
+from .store import _jsonable, locked, write_atomic
 
 __all__ = [
     "CampaignResult",
@@ -471,6 +471,7 @@ def load_records(folder: Path, expected: dict, force: bool, what: str = "sample"
     return got, stale
 
 
+@locked("campaign")
 def run_campaign(
     base: Case,
     samples: int,
@@ -613,7 +614,7 @@ def run_tasks(
         if on_store is not None:
             on_store(rec)
 
-    with _progress(show_progress, len(args)) as bar, _noting_stored(res, what):
+    with _progress(show_progress, len(args), kind) as bar, _noting_stored(res, what):
         info = execute(
             func,
             args,
@@ -672,16 +673,21 @@ def _write_manifest(out, base, expected, seed, schemes, samples, records, res, s
     write_manifest(out / "manifest.json", m)
 
 
+#: What a progress bar counts, by the kind of run (``run_tasks``'s ``kind``).
+UNITS = {"campaign": "samples", "coverage": "fault onsets", "fdi": "traces"}
+
+
 @contextlib.contextmanager
-def _progress(show: bool, total: int) -> Iterator[Callable[[int, int], None]]:
-    """A rich progress bar with samples done / failed / rate (or nothing); yields ``update(done, failed)``."""
+def _progress(show: bool, total: int, kind: str = "campaign") -> Iterator[Callable[[int, int], None]]:
+    """A rich progress bar named after ``kind`` (campaign, coverage, fdi) with tasks done / failed / rate
+    (or nothing); yields ``update(done, failed)``."""
     if not show:
         yield lambda done, failed: None
         return
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    columns = (TextColumn("campaign"), BarColumn(), MofNCompleteColumn(), TextColumn("failed {task.fields[failed]}"))
-    rate_column = TextColumn("{task.fields[rate]:.1f} samples/min")
+    columns = (TextColumn(kind), BarColumn(), MofNCompleteColumn(), TextColumn("failed {task.fields[failed]}"))
+    rate_column = TextColumn(f"{{task.fields[rate]:.1f}} {UNITS.get(kind, 'tasks')}/min")
     with Progress(*columns, rate_column, TimeElapsedColumn()) as bar:
         task = bar.add_task("run", total=total, failed=0, rate=0.0)
         t0 = time.perf_counter()

@@ -16,6 +16,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import math
+import os
 import re
 import tomllib
 from pathlib import Path
@@ -33,7 +34,8 @@ from pydantic import (
     model_validator,
 )
 
-from .errors import CaseError, FtcError
+from .errors import CaseError, FtcError, printable
+from .inputs import input_problem, read_input
 from .limits import budget_problem, name_problem
 from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
 from .model.actuators import MAXON_RE65, MotorParams
@@ -49,8 +51,10 @@ __all__ = [
     "case_schema",
     "configured_schemes",
     "did_you_mean",
+    "dropped_faults",
     "known_schemes",
     "load_case",
+    "metric_problem",
     "option_schemes",
     "ordered_schemes",
     "parse_case",
@@ -917,7 +921,8 @@ class Case(_Strict):
     name: str | None = _f(
         None,
         "defaults to the file name without .toml; a safe name: [A-Za-z0-9][A-Za-z0-9_.-]{0,63}, not a name the "
-        "report uses itself (index, assets, ...), unique within a batch ignoring letter case (see Limits)",
+        "report uses itself (index, *.html, manifest.json, metrics.parquet, assets, campaigns, coverage, fdi, "
+        "junit.xml), unique within a batch ignoring letter case (see Limits)",
         "-",
     )
     description: str = _f("", "one line shown in reports", "-")
@@ -1071,12 +1076,7 @@ class Case(_Strict):
                     "campaign.fault_time",
                     f"upper bound must be before the end of the run ({self.simulation.duration} s)",
                 )
-            if self.campaign.wheels != "any":
-                for i, w in enumerate(self.campaign.wheels):
-                    try:
-                        wheel_index(w, n)
-                    except FtcError as exc:
-                        raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
+            _check_campaign_draws(self.campaign, n, keeps=bool(self.faults))
         run = self.schemes.run
         if run is not None and not run:
             raise _FieldError(
@@ -1119,6 +1119,11 @@ class Case(_Strict):
                 s = getattr(c, key)
                 if s is not None and run is not None and s not in run:
                     raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not run by this case (schemes.run)")
+            if c.not_applicable is None and c.metric is not None:
+                kinds = ("sequence",) if c.sequence is not None else ("number", "table", "list")
+                for s in (c.scheme, c.relative_to):
+                    if s is not None and (why := metric_problem(s, c.metric, kinds)) is not None:
+                        raise _FieldError(f"claims[{i}].metric", why)
         _check_requirements(self, run, known)
         for scheme, metrics in self.thresholds.items():
             if scheme not in known:
@@ -1126,6 +1131,8 @@ class Case(_Strict):
                     f"thresholds.{scheme}", f"unknown scheme{did_you_mean(scheme, known)} (known: {', '.join(known)})"
                 )
             for metric, bound in metrics.items():
+                if (why := metric_problem(scheme, metric)) is not None:
+                    raise _FieldError(f"thresholds.{scheme}.{metric}", why)
                 if bound.min is None and bound.max is None:
                     raise _FieldError(f"thresholds.{scheme}.{metric}", "give min, max or both")
         return self
@@ -1193,6 +1200,72 @@ def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> 
             raise _FieldError(f"requirements[{i}].scheme", f"scheme '{r.scheme}' is not run by this case (schemes.run)")
         for key, why in r.problems(case.robots.n):
             raise _FieldError(f"requirements[{i}].{key}", why)
+def metric_problem(scheme: str, name: str, kinds: tuple[str, ...] = ("number",)) -> str | None:
+    """Why the metric ``name`` cannot be compared on a run of ``scheme`` as one of ``kinds``, or None.
+
+    The names are those a run writes (:data:`ftcreport.metrics.METRICS`, the one list); ``name`` may be
+    ``metric.key``, an entry of a table metric.  An unknown name gets the closest of the scheme's own.
+    """
+    from .metrics import METRICS, metrics_of
+
+    base, _, key = name.partition(".")
+    own = metrics_of(scheme)
+    if base not in METRICS:
+        hint = did_you_mean(base, own) or f" (a {scheme} run writes {', '.join(_numbers(own))})"
+        return f"unknown metric{hint}"
+    m = METRICS[base]
+    if base not in own:
+        return f"'{base}' is not a metric of the {scheme} scheme (only {', '.join(m.schemes or ())} runs write it)"
+    if key and m.kind != "table":
+        return f"'{base}' is a {m.kind}, not a table of numbers: '{name}' reads no entry of it"
+    kind = "number" if key else m.kind
+    if kind not in kinds:
+        return f"'{base}' is not a number (a {m.kind}); compare {' or '.join(kinds)} metrics here"
+    return None
+
+
+def _numbers(names: list[str]) -> list[str]:
+    from .metrics import METRICS
+
+    return [k for k in names if METRICS[k].kind == "number"]
+
+
+def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
+    """The faults a campaign draws exist: its wheels are wheels of the chain, each listed once, at least
+    as many as the faults it draws per sample (each on a distinct wheel), and it draws a fault at all
+    (unless the case keeps faults of its own)."""
+    lo, hi = spec.faults
+    if spec.wheels == "any":
+        wheels, which = wheel_names(n), f"the {2 * n} wheels of the {n}-robot chain"
+    else:
+        if not spec.wheels:
+            raise _FieldError(
+                "campaign.wheels", 'no wheel: a sample could draw no fault; list the wheels a fault may hit, or "any"'
+            )
+        seen: dict[str, int] = {}
+        for i, w in enumerate(spec.wheels):
+            try:
+                wheel_index(w, n)
+            except FtcError as exc:
+                raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
+            first = seen.setdefault(w.strip().lower(), i)
+            if first != i:
+                raise _FieldError(
+                    f"campaign.wheels[{i}]", f"{w!r} is listed twice (wheels[{first}]); faults hit distinct wheels"
+                )
+        wheels, which = list(seen), f"the {len(seen)} wheels of campaign.wheels"
+    if hi > len(wheels):
+        raise _FieldError(
+            "campaign.faults",
+            f"up to {hi} faults per sample, each on a distinct wheel, but only {len(wheels)} wheels can fail "
+            f"({which}); the draw would be cut silently",
+        )
+    if hi == 0 and not (spec.keep_base_faults and keeps):
+        raise _FieldError(
+            "campaign.faults",
+            f"[{lo}, {hi}] draws no fault and keeps none of the case's (keep_base_faults): every sample would be "
+            "fault-free and 'succeed'; give an upper bound of 1 or more",
+        )
 
 
 def _check_motor_fault(i: int, f: Fault, has_actuators: bool) -> None:
@@ -1502,13 +1575,19 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
     The scheme files of ``plugins`` are loaded first (their schemes register themselves), and the
     case keeps their absolute paths, so a worker that parses the case's JSON loads them too.
     """
-    data = _load_plugins(data, source)
+    controls = _control_errors(data)  # reported with the other fields in error, the field once
     try:
+        data = _load_plugins(data, source)
         case = Case.model_validate(data)
     except ValidationError as exc:
-        lines = [f"{source}: {loc}: {why}" for loc, why in _field_errors(exc.errors())]
-        more = f" (and {len(lines) - 1} more; 'ftcreport cases validate' lists every one)" if len(lines) > 1 else ""
-        raise CaseError(lines[0] + more, lines) from None
+        found = {loc for loc, _ in controls}
+        _refuse(source, controls + [(loc, why) for loc, why in _field_errors(exc.errors()) if loc not in found])
+    except CaseError:
+        if controls:  # a plugins path with a control character is not looked for
+            _refuse(source, controls)
+        raise
+    if controls:
+        _refuse(source, controls)
     if case.name is None:
         stem = Path(source).stem
         if (why := name_problem(stem)) is not None:
@@ -1521,6 +1600,55 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         "active": ActiveScheme, "active_ukf": ActiveUKFScheme,
     }  # fmt: skip
     return fill_defaults(case, models)
+
+
+#: Fields of prose that may span lines (a TOML multi-line string): tabs and line ends are allowed there.
+_PROSE = ("words", "note")
+
+
+def _refuse(source: str, errors: list[tuple[str, str]]) -> None:
+    """Raise the CaseError of every (field, reason), the first in its message with the count of the others."""
+    lines = [f"{printable(source)}: {loc}: {why}" for loc, why in errors]
+    more = f" (and {len(lines) - 1} more; 'ftcreport cases validate' lists every one)" if len(lines) > 1 else ""
+    raise CaseError(lines[0] + more, lines) from None
+
+
+def _control_errors(data: Any) -> list[tuple[str, str]]:
+    """(field, reason) of every text of the case, keys included, that holds a control character (C0, DEL, C1).
+
+    Every text of a case reaches a terminal line, a page or a JUnit file; an escape sequence rewrites
+    the terminal, NUL and most others make XML ill-formed (issue 34 item 7).  Only the claims' prose
+    (:data:`_PROSE`) may hold tabs and line ends.
+    """
+    import unicodedata
+
+    out: list[tuple[str, str]] = []
+
+    def why(text: str, allowed: str = "") -> str | None:
+        bad = next(((i, c) for i, c in enumerate(text) if unicodedata.category(c) == "Cc" and c not in allowed), None)
+        if bad is None:
+            return None
+        shown = printable(text[:60]) + ("..." if len(text) > 60 else "")
+        return (
+            f"control character U+{ord(bad[1]):04X} at position {bad[0]} of '{shown}': a text of a case holds "
+            "printable characters only (a control character breaks the terminal, the pages and the JUnit file)"
+        )
+
+    def walk(v: Any, path: str, key: str) -> None:
+        if isinstance(v, dict):
+            for k, x in v.items():
+                sub = f"{path}.{printable(k)}" if path else printable(k)
+                if isinstance(k, str) and (w := why(k)) is not None:
+                    out.append((sub, w))
+                walk(x, sub, str(k))
+        elif isinstance(v, list):
+            for i, x in enumerate(v):
+                walk(x, f"{path}[{i}]", key)
+        elif isinstance(v, str) and (w := why(v, "\t\n\r" if key in _PROSE else "")) is not None:
+            out.append((path or "<root>", w))
+
+    walk(data, "", "")
+    return out
 
 
 def _load_plugins(data: dict, source: str) -> dict:
@@ -1537,7 +1665,7 @@ def _load_plugins(data: dict, source: str) -> dict:
     for i, p in enumerate(plugins):
         path = Path(p).expanduser()
         path = path if path.is_absolute() else base / path
-        if not path.is_file():
+        if not os.path.lexists(path):
             raise CaseError(f"{source}: plugins[{i}]: no such scheme file: {path}")
         try:
             load_plugin(path)
@@ -1554,8 +1682,8 @@ def plugin_digest(case: Case) -> str:
     h = hashlib.sha256()
     for p in case.plugins:
         try:
-            h.update(Path(p).name.encode() + b"\0" + Path(p).read_bytes())
-        except OSError:
+            h.update(Path(p).name.encode() + b"\0" + read_input(p, "scheme file"))
+        except CaseError:
             h.update(f"{p}: unreadable".encode())
     return h.hexdigest()[:16]
 
@@ -1623,6 +1751,8 @@ def resolve_overlay(path: Path, data: dict, _seen: tuple[Path, ...] = ()) -> dic
     ref = data.get("base_case")
     if not isinstance(ref, str) or not ref.strip():
         raise CaseError(f"{path}: base_case: must be the path of a case file (a string), got {ref!r}")
+    if (why := input_problem(path.parent / ref)) is not None:  # a FIFO, device, directory, link loop: never opened
+        raise CaseError(f"{path}: base_case: '{ref}': {why}")
     base_path = (path.parent / ref).resolve()
     seen = (*_seen, path.resolve())
     if base_path in seen:
@@ -1684,7 +1814,7 @@ def overlay_text(path: str | Path) -> str | None:
     if "base_case" not in data:
         return None
     merged = resolve_overlay(path, data)
-    own = "".join(f"# | {line}\n" for line in path.read_text(encoding="utf-8").splitlines())
+    own = "".join(f"# | {line}\n" for line in read_input(path).decode("utf-8").splitlines())
     body = "".join(f"{_toml_key(k)} = {_toml_value(v)}\n" for k, v in merged.items())
     return f"# {path} resolved over its base case {data['base_case']}; the file itself:\n{own}\n{body}"
 
@@ -1728,10 +1858,7 @@ def _toml_value(v: Any) -> str:
 
 def _read_toml(path: Path) -> dict:
     """A TOML file as a dict; CaseError naming the file when it cannot be read or parsed."""
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise CaseError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    raw = read_input(path)  # a regular file of a bounded size, or CaseError naming it (never blocks)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -1822,8 +1949,27 @@ def switching_patterns(case: Case, chain: Chain, scheme: str = "switching") -> l
     return out
 
 
+def dropped_faults(case: Case, duration: float) -> str | None:
+    """The warning for the events a ``--duration`` drops (those at or after it), each named, or None.
+
+    Not a refusal (issue 34 item 10 allows either): shortening every case is how a batch is smoke-tested
+    (``batch cases/ --duration 2``, the README's ``run ... --duration 30``), and the warning names
+    what the shortened run no longer covers.  The same event in a case file is an error
+    (``faults[i].time``): there nothing says the user chose to cut the run.
+    """
+    late = [(i, f) for i, f in enumerate(case.faults) if f.time >= duration]
+    if not late:
+        return None
+    named = ", ".join(f"faults[{i}] (t = {f.time:g} s, wheel {f.wheel})" for i, f in late)
+    return (
+        f"--duration {duration:g}: drops {named}, at or after the end of the shortened run; "
+        f"the run covers only the events before {duration:g} s"
+    )
+
+
 def with_duration(case: Case, duration: float) -> Case:
-    """The same case simulated for ``duration`` s (events at or after it dropped)."""
+    """The same case simulated for ``duration`` s (events at or after it dropped: :func:`dropped_faults`
+    words the warning)."""
     if not (math.isfinite(duration) and duration > 0):
         raise CaseError(f"{case.name}: --duration: must be a finite number of seconds > 0, got {duration}")
     s = case.simulation

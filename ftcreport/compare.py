@@ -23,8 +23,12 @@ Definitions (every headline metric is "lower is better"):
   ranked scheme (nominal included) competes; the winners are those tied with the best of them.
 * **Regret against the oracle** = winner / oracle and **benefit against nominal** = nominal /
   winner, both ratios (regret 1.12: 12 % worse than the oracle; benefit 4: a quarter of
-  nominal's value).  Values tied within the tolerance give the ratio 1 (flagged ``tie``); a zero
-  denominator with a non-zero numerator gives ``inf``.
+  nominal's value).  Values tied within the tolerance give the ratio 1 (flagged ``tie``).  A
+  ratio needs a denominator above the metric's **resolution floor** (:attr:`MetricSpec.floor`,
+  the same absolute floor as ties: 0.1 mm, 0.1 s, 0.1 N m, 0.1 J, one count): below it the
+  denominator is numerical residue (an oracle's final error of 1e-9 m made "regret 5.8e6") and
+  the verdict gives the absolute difference instead (``regret_diff``, ``benefit_diff``).  A value
+  that is "never" (inf) has no ratio either.  So no ratio is ever inf or astronomically large.
 """
 
 from __future__ import annotations
@@ -46,6 +50,8 @@ __all__ = [
     "compare_case",
     "compare_metric",
     "contestant",
+    "difference",
+    "fmt_relative",
     "ratio",
     "scoreboard",
     "tidy",
@@ -81,16 +87,25 @@ class MetricSpec:
     rel_tol: float
     abs_tol: float
     only: tuple[str, ...] | None = None  # schemes the metric exists for (None: every scheme)
+    note: str = ""  # what the metric covers (start-up included or not), for the pages
+
+    @property
+    def floor(self) -> float:
+        """The resolution floor of a ratio's denominator: the tie floor ``abs_tol`` (a count: 0, so
+        any non-zero count).  Below it differences are numerical rather than physical (module docstring)."""
+        return self.abs_tol
 
 
 HEADLINE: tuple[MetricSpec, ...] = (
-    MetricSpec("after_fault_error_max", "max error after faults", "m", 0.05, 1e-4),
-    MetricSpec("position_error_final", "final error", "m", 0.05, 1e-4),
-    MetricSpec("recovery_time_max", "worst recovery time", "s", 0.05, 0.1),
-    MetricSpec("torque_peak", "peak torque", "N m", 0.05, 0.1),
-    MetricSpec("energy", "energy", "J", 0.05, 0.1),
-    MetricSpec("detection_delay_max", "worst detection delay", "s", 0.05, 0.1, ACTIVE),
-    MetricSpec("false_alarms", "false alarms", "", 0.0, 0.0, ACTIVE),
+    MetricSpec("after_fault_error_max", "max error after faults", "m", 0.05, 1e-4, note="from the first fault on"),
+    MetricSpec("position_error_final", "final error", "m", 0.05, 1e-4, note="at the end of the run"),
+    MetricSpec("recovery_time_max", "worst recovery time", "s", 0.05, 0.1, note="phases that start with a fault"),
+    MetricSpec(
+        "torque_peak_after_fault", "peak torque after the first fault", "N m", 0.05, 0.1, note="from the first fault on"
+    ),
+    MetricSpec("energy", "energy", "J", 0.05, 0.1, note="whole run, start-up included"),
+    MetricSpec("detection_delay_max", "worst detection delay", "s", 0.05, 0.1, ACTIVE, note="every fault"),
+    MetricSpec("false_alarms", "false alarms", "", 0.0, 0.0, ACTIVE, note="whole run"),
 )
 SPECS = {s.key: s for s in HEADLINE}
 
@@ -144,6 +159,13 @@ def _extract(key: str, m: Mapping) -> tuple[float | None, str]:
         vals = [_num(p.get("position_error_max")) for p in phases[1:]]
         vals = [v for v in vals if v is not None]
         return (max(vals), "") if vals else (None, "no sample after the faults")
+    if key == "torque_peak_after_fault":
+        if key not in m:
+            return None, "not computed (stored before this metric existed: re-run with --force)"
+        v = _num(m[key])
+        if v is None and len(m.get("phases") or []) <= 1 and _num(m.get("torque_peak")) is not None:
+            return _num(m["torque_peak"]), "no fault: whole run, start-up included"
+        return (v, "") if v is not None else (None, "no sample after the first fault")
     if key == "recovery_time_max":
         if key not in m:
             return None, "not computed"
@@ -173,18 +195,22 @@ def tied(a: float, b: float, spec: MetricSpec) -> bool:
 
 
 def ratio(num: float | None, den: float | None, spec: MetricSpec) -> tuple[float | None, bool]:
-    """(num / den, tie): 1 when tied within tolerance, inf when only den is 0 or num is inf."""
+    """(num / den, tie): 1 when tied within tolerance; None when either is missing or "never" (inf),
+    or when the denominator is not above the metric's resolution floor (then :func:`difference`)."""
     if num is None or den is None:
         return None, False
     if tied(num, den, spec):
         return 1.0, True
-    if math.isinf(num):
-        return math.inf, False
-    if math.isinf(den):
-        return 0.0, False
-    if den == 0.0:
-        return math.inf, False
+    if math.isinf(num) or math.isinf(den) or abs(den) <= spec.floor:
+        return None, False
     return num / den, False
+
+
+def difference(num: float | None, den: float | None) -> float | None:
+    """num - den, where a ratio has no meaning (None when either is missing; inf when num is "never")."""
+    if num is None or den is None or math.isinf(den):
+        return None
+    return num - den
 
 
 @dataclass
@@ -205,12 +231,14 @@ class MetricVerdict:
     best: float | None
     oracle: float | None
     nominal: float | None
-    regret: float | None  # best / oracle
+    regret: float | None  # best / oracle (None: no ratio, see regret_diff)
     regret_tie: bool
-    benefit: float | None  # nominal / best
+    benefit: float | None  # nominal / best (None: no ratio, see benefit_diff)
     benefit_tie: bool
     failed: list[tuple[str, str]] = field(default_factory=list)  # (scheme, status)
     missing: list[tuple[str, str]] = field(default_factory=list)  # (scheme, why)
+    regret_diff: float | None = None  # best - oracle, when the oracle is below the floor
+    benefit_diff: float | None = None  # nominal - best, when the best is below the floor
 
     def value(self, scheme: str) -> float | None:
         return next((r.value for r in self.ranking if r.scheme == scheme), None)
@@ -244,7 +272,20 @@ def compare_metric(rows: Sequence[Row], spec: MetricSpec) -> MetricVerdict:
     regret, regret_tie = ratio(best, oracle, spec)
     benefit, benefit_tie = ratio(nominal, best, spec)
     return MetricVerdict(
-        spec, ranking, winners, best, oracle, nominal, regret, regret_tie, benefit, benefit_tie, failed, missing
+        spec,
+        ranking,
+        winners,
+        best,
+        oracle,
+        nominal,
+        regret,
+        regret_tie,
+        benefit,
+        benefit_tie,
+        failed,
+        missing,
+        None if regret is not None or regret_tie else difference(best, oracle),
+        None if benefit is not None or benefit_tie else difference(nominal, best),
     )
 
 
@@ -320,13 +361,30 @@ def fmt_value(x: float | None, unit: str = "") -> str:
 
 
 def fmt_ratio(x: float | None, tie: bool = False) -> str:
-    if x is None:
-        return "n/a"
+    """A ratio for a page: 3 significant digits, '1 (tie)', 'n/a'; never 'inf' (ratio() gives none)."""
     if tie:
         return "1 (tie)"
-    if math.isinf(x):
-        return "inf"
+    if x is None or not math.isfinite(x):
+        return "n/a"
     return f"{x:.3g}"
+
+
+def fmt_relative(mv: MetricVerdict, which: str) -> str:
+    """Regret (``which="regret"``) or benefit of a verdict in words for a table cell: the ratio, or
+    the absolute difference when the denominator is below the metric's floor (module docstring), or
+    which side is "never" (inf: no ratio and no difference)."""
+    r, tie, diff = getattr(mv, which), getattr(mv, f"{which}_tie"), getattr(mv, f"{which}_diff")
+    if tie or r is not None:
+        return fmt_ratio(r, tie)
+    num, den = (mv.best, mv.oracle) if which == "regret" else (mv.nominal, mv.best)
+    who = ("best", "oracle") if which == "regret" else ("nominal", "best")
+    for side, x in zip(who, (num, den), strict=True):
+        if x is not None and math.isinf(x):
+            return f"n/a ({side}: never)"
+    if diff is None:
+        return "n/a"
+    unit = f" {mv.spec.unit}" if mv.spec.unit else ""
+    return f"{diff:+.3g}{unit} (difference: {fmt_value(den)}{unit} is below the {mv.spec.floor:g}{unit} floor)"
 
 
 def _names(schemes: Sequence[str]) -> str:
@@ -368,17 +426,19 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
             f"{fmt_value(after.best, 'm')}"
         ]
         if after.oracle is not None:
-            parts.append(
-                "matching the oracle within the tolerance"
-                if after.regret_tie
-                else f"{fmt_ratio(after.regret)} times the oracle's {fmt_value(after.oracle, 'm')}"
-            )
+            if after.regret_tie:
+                parts.append("matching the oracle within the tolerance")
+            elif after.regret is not None:
+                parts.append(f"{fmt_ratio(after.regret)} times the oracle's {fmt_value(after.oracle, 'm')}")
+            elif after.regret_diff is not None:
+                parts.append(f"{fmt_value(after.regret_diff, 'm')} above the oracle's {fmt_value(after.oracle, 'm')}")
         if after.nominal is not None and "nominal" not in after.winners:
-            parts.append(
-                "no better than nominal"
-                if after.benefit_tie
-                else f"{fmt_ratio(after.benefit)} times smaller than nominal's"
-            )
+            if after.benefit_tie:
+                parts.append("no better than nominal")
+            elif after.benefit is not None:
+                parts.append(f"{fmt_ratio(after.benefit)} times smaller than nominal's")
+            elif after.benefit_diff is not None:
+                parts.append(f"{fmt_value(after.benefit_diff, 'm')} smaller than nominal's")
         out.append(", ".join(parts) + ".")
         if "nominal" in after.winners and not whole and any(contestant(s) for s in ok):
             out.append(_why_nominal(facts, after))
@@ -435,9 +495,11 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
                 bits.append(f"{LABEL[s]} detects every change within {fmt_value(v, 's')}{alarms}")
         if bits:
             out.append(_cap("; ".join(bits)) + ".")
-    elif (tq := verdicts.get("torque_peak")) and tq.winners:
+    elif (tq := verdicts.get("torque_peak_after_fault")) and tq.winners:
+        whole = any(r.note.startswith("no fault") for r in tq.ranking)
         out.append(
-            f"Smallest peak torque: {_names(tq.winners)}, {fmt_value(tq.best, 'N m')}"
+            f"Smallest peak torque{' (no fault: whole run)' if whole else ' after the first fault'}: "
+            f"{_names(tq.winners)}, {fmt_value(tq.best, 'N m')}"
             + (f" (the oracle needs {fmt_value(tq.oracle, 'N m')})" if tq.oracle is not None else "")
             + "."
         )
@@ -473,6 +535,7 @@ class Scoreboard:
     wins: dict[str, dict[str, int]]  # scheme -> metric -> number of cases won (ties count for each)
     contests: dict[str, int]  # metric -> number of cases with a winner
     median_regret: dict[str, dict[str, float | None]]  # scheme -> metric -> median of scheme / oracle
+    regret_counts: dict[str, dict[str, tuple[int, int]]]  # scheme -> metric -> (cases with a ratio, cases ranked)
     outside_expected: dict[str, int]  # scheme -> runs whose status is not in the case's expected_status
     runs: dict[str, int]  # scheme -> runs
     cases: list[dict]  # one row per case: name, winners per metric, outside expected
@@ -482,6 +545,7 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
     """Aggregate case verdicts (the index page's scoreboard)."""
     wins = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
     regrets: dict[str, dict[str, list[float]]] = {s: {m.key: [] for m in HEADLINE} for s in schemes}
+    ranked: dict[str, dict[str, int]] = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
     outside = dict.fromkeys(schemes, 0)
     runs = dict.fromkeys(schemes, 0)
     contests = {m.key: 0 for m in HEADLINE}
@@ -502,10 +566,12 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
                 if s in wins:
                     wins[s][key] += 1
             for r in mv.ranking:
-                if r.scheme in regrets and r.scheme != "oracle":
+                if r.scheme in regrets and r.scheme != "oracle" and mv.oracle is not None:
+                    ranked[r.scheme][key] += 1
                     g = mv.regret_of(r.scheme)
                     if g is not None:
                         regrets[r.scheme][key].append(g)
         cases.append(row)
     med = {s: {k: (statistics.median(v) if v else None) for k, v in d.items()} for s, d in regrets.items()}
-    return Scoreboard(list(schemes), list(HEADLINE), wins, contests, med, outside, runs, cases)
+    counts = {s: {k: (len(v), ranked[s][k]) for k, v in d.items()} for s, d in regrets.items()}
+    return Scoreboard(list(schemes), list(HEADLINE), wins, contests, med, counts, outside, runs, cases)

@@ -38,6 +38,7 @@ import numpy as np
 
 from . import __version__
 from .errors import FtcError
+from .store import locked
 
 __all__ = [
     "cusum_state",
@@ -298,6 +299,7 @@ def _isolation(segs, detector, setting, skip, kind: str) -> float | None:
 ACTIVE = ("active", "active_ukf")
 
 
+@locked("fdi")
 def run_fdi(
     base,
     samples: int,

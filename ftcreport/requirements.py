@@ -41,14 +41,14 @@ must see (cases/README.md, "Requirements").
 
 :func:`evaluate_requirements` runs where the stream exists (:func:`ftcreport.runner.run_metrics`),
 and the records are stored with the run's metrics (``metrics.json``, key ``requirements``);
-:func:`requirement_items` turns the stored records into gate items for ``check`` and JUnit.
+:func:`ftcreport.check.requirement_items` turns the stored records into gate items for ``check`` and JUnit.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -56,11 +56,9 @@ import numpy as np
 __all__ = [
     "OUTCOMES",
     "SIGNALS",
-    "GateItem",
     "Window",
     "bound_words",
     "evaluate_requirements",
-    "requirement_items",
     "signal_label",
     "signal_values",
     "windows",
@@ -83,23 +81,6 @@ SELECTORS: dict[str, tuple[str, bool]] = {
 }
 OUTCOMES = ("holds", "violated", "not evaluated")
 EDGE_SLACK = 1e-9  # [s] a sample this close to a window edge is on it
-
-
-@dataclass(frozen=True)
-class GateItem:
-    """One item of the ``check`` gate: a JUnit testcase and the terminal lines.
-
-    ``classname`` and ``name`` name the testcase; ``message`` is its one-line summary (the JUnit
-    failure message); ``details`` are the terminal lines of a failed item (one per change or
-    violation, each naming the case and scheme), shown also in the testcase's output.
-    """
-
-    name: str
-    classname: str
-    passed: bool
-    message: str
-    details: tuple[str, ...] = field(default_factory=tuple)
-    kind: str = ""  # "requirement", "baseline": what the summary line counts it as
 
 
 @dataclass(frozen=True)
@@ -347,44 +328,6 @@ def evaluate_requirements(
         for w in wins:
             out.append(_window_record(req, w, t, cache[key], t_end, status, duration))
     return out
-
-
-# ---------------------------------------------------------------------------------- the gate
-def requirement_items(
-    case: str, requirements: Sequence[Any], metrics_by_scheme: Mapping[str, dict | None]
-) -> list[GateItem]:
-    """Gate items of one case: a testcase per requirement x scheme x window (``check``, JUnit).
-
-    ``requirements``: the case's ``[[requirements]]`` (models or dicts); ``metrics_by_scheme``: the
-    stored metrics (None: the scheme was not run).  A scheme whose stored run has no record of a
-    requirement (the run failed before its metrics) gives one failed item saying so.
-    """
-    items: list[GateItem] = []
-    for scheme, m in metrics_by_scheme.items():
-        wanted = [r for r in requirements if applies_to(r, scheme)]
-        if not wanted:
-            continue
-        stored = (m or {}).get("requirements") or []
-        for req in wanted:
-            rid = _get(req, "id")
-            cls = f"{case}.{scheme}.requirements"
-            recs = [r for r in stored if r.get("id") == rid]
-            if not recs:
-                why = (
-                    "the scheme was not run"
-                    if m is None
-                    else f"no result stored (run {m.get('status')}: {m.get('reason') or 'no reason given'})"
-                )
-                msg = f"requirement {rid}: not evaluated: {why}"
-                items.append(GateItem(rid, cls, False, msg, (f"{case} / {scheme} / {msg}",), "requirement"))
-                continue
-            for r in recs:
-                ok = r.get("outcome") == "holds"
-                what = f"{r.get('label')} {r.get('bound')}: {r.get('outcome')}: {r.get('reason')}"
-                msg = f"requirement {rid} [{r.get('window_label')}]: {what}"
-                details = () if ok else (f"{case} / {scheme} / {msg}",)
-                items.append(GateItem(f"{rid} [{r.get('window_label')}]", cls, ok, msg, details, "requirement"))
-    return items
 
 
 def summary_lines(case: str, metrics_by_scheme: Mapping[str, dict | None]) -> list[str]:

@@ -19,13 +19,15 @@ from .control.baselines import OracleController, nominal
 from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
 from .control.switching import SwitchingController
 from .diagnosis import diagnosis_metrics
-from .errors import FtcError
+from .errors import CASE_ERRORS as _FTC_CASE_ERRORS
+from .errors import FtcError, RunEnvironmentError, environment_cause
 from .metrics import singularity_margin, switching_metrics, torque_metrics, tracking_metrics
 from .observers import FarzaObserver, UKFEstimator
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
 __all__ = [
+    "CASE_ERRORS",
     "HEADLINE_METRICS",
     "Built",
     "build",
@@ -37,6 +39,11 @@ __all__ = [
     "run_metrics",
     "run_scheme",
 ]
+
+
+#: The exceptions of a run that are its case's own outcome, stored as the run's result (status ``error``):
+#: ftcreport.errors.CASE_ERRORS and numpy's LinAlgError (a linear solve on the case's numbers).
+CASE_ERRORS: tuple[type[BaseException], ...] = (*_FTC_CASE_ERRORS, np.linalg.LinAlgError)
 
 
 def expected_engine(scheme: str) -> str:
@@ -147,15 +154,32 @@ def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=Non
     """Simulate one scheme of a case; always returns (run, metrics), failures included.
 
     A run that stops early (singular, diverged) keeps its log and its metrics
-    over the simulated part; an error while building is reported with status
-    ``error`` and an empty run.
+    over the simulated part; the case's own error while building or simulating
+    (:data:`CASE_ERRORS`: an impossible setting, a numeric failure) is reported with
+    status ``error`` and an empty run.  Any other exception is not the case's outcome
+    and is never returned as a result: one of the environment (a compiled-code cache
+    that cannot be loaded, an OS error, memory; :func:`ftcreport.errors.environment_cause`)
+    is raised as :class:`~ftcreport.errors.RunEnvironmentError`, anything else (a bug) as it is.
     """
+    try:
+        return _run_scheme(case, scheme, built, progress)
+    except RunEnvironmentError:
+        raise
+    except Exception as exc:
+        if (cause := environment_cause(exc)) is not None:
+            raise RunEnvironmentError(cause) from exc
+        raise
+
+
+def _run_scheme(case: Case, scheme: str, built: Built | None, progress) -> tuple[Run, dict]:
     wall0 = time.perf_counter()
     try:
         built = built or build(case)
         ctrl = make_controller(built, scheme)
         run = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings, progress=progress)
-    except (FtcError, ArithmeticError, np.linalg.LinAlgError) as exc:
+    except RunEnvironmentError:
+        raise
+    except CASE_ERRORS as exc:
         # a numeric failure inside the engine (e.g. a linear solve on non-finite values) is a failed run
         why = str(exc) if isinstance(exc, FtcError) else f"numeric error in the simulation: {type(exc).__name__}: {exc}"
         exc = FtcError(why)
@@ -163,6 +187,8 @@ def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=Non
         return empty, explain_nulls(_identity(case, scheme) | {"status": "error", "reason": str(exc), "wall_time": 0.0})
     metrics = run_metrics(case, scheme, run, built, ctrl)
     metrics["wall_time"] = time.perf_counter() - wall0
+    # of which compiling or loading the engine's loop, when this process had not yet (fast.engine)
+    metrics["compile_time"] = float(run.meta.get("compile_time", 0.0))
     run.meta |= {  # what the arrays do not carry (Run.to_xarray, notebook views)
         "case": case.name,
         "scheme": scheme,
@@ -207,7 +233,8 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     from .fast.engine import wheel_speeds_rows
 
     omega = wheel_speeds_rows(chain, S["q"], S["eta"])  # every step: compiled, one call
-    out |= torque_metrics(S["tau"], S["u"], case.plant.saturation, t, omega)
+    first_fault = min(built.faults.times, default=None)
+    out |= torque_metrics(S["tau"], S["u"], case.plant.saturation, t, omega, first_fault)
     out["singularity_margin_min"] = singularity_margin(S["q"])
     if scheme == "switching":
         out |= switching_metrics(t, S["selected"], ctrl.patterns, S["sigma"], list(built.faults.times))
@@ -268,6 +295,7 @@ def _requirements(case: Case, scheme: str, run: Run, built: Built, t: np.ndarray
 _NULL_WHY = {
     "recovery_time": "the position error did not enter the recovery band and stay in it before the phase ended",
     "recovery_time_max": "some phase that starts with a fault never recovers (see phases[*].recovery_time)",
+    "torque_peak_after_fault": "the run has no fault (or stopped before the first one)",
     "delay": "the applied model never matched the true pattern after this event",
     "detection_delay_max": "some fault was never detected (see the per-event delays)",
     "t_declared": "the fault was never declared",
@@ -314,6 +342,7 @@ HEADLINE_METRICS = (
     "heading_error_max",
     "recovery_time_max",
     "torque_peak",
+    "torque_peak_after_fault",
     "torque_rms",
     "energy",
 )

@@ -166,6 +166,24 @@ def table(model: type[BaseModel], skip: tuple[str, ...] = ()) -> str:
     return "\n".join(lines)
 
 
+def metrics_table() -> str:
+    """The metrics a threshold or a claim may name (:data:`ftcreport.metrics.METRICS`), one row each."""
+    from .metrics import METRICS
+
+    what = {
+        "number": "a number: thresholds and claims bound it",
+        "table": "numbers by name: a claim reads `name.entry` or the largest",
+        "list": "numbers: a claim compares the largest",
+        "sequence": "the applied models: a claim's `sequence`",
+        "record": "shown on the page, not compared",
+    }
+    lines = ["| metric | kind | unit | written by |", "|---|---|---|---|"]
+    for name, m in METRICS.items():
+        who = ", ".join(m.schemes) if m.schemes else "every scheme"
+        lines.append(f"| `{name}` | {what[m.kind]} | {m.unit} | {who} |")
+    return "\n".join(lines)
+
+
 def markdown_tables() -> str:
     """Every section's table with its heading (``ftcreport cases schema --markdown``)."""
     parts = []
@@ -182,6 +200,8 @@ def update_readme(text: str) -> str:
 
     def repl(m: re.Match) -> str:
         key = m.group(2)
+        if key == "metrics":
+            return m.group(1) + metrics_table() + "\n" + m.group(3)
         if key not in SECTIONS:
             raise KeyError(f"cases/README.md: unknown schema section '{key}'")
         _, model, skip = SECTIONS[key]

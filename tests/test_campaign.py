@@ -58,7 +58,7 @@ def base():
 
 
 def _metric_rows(path: Path) -> list[dict]:
-    return [{k: v for k, v in r.items() if k != "wall_time"} for r in read_table(path)]
+    return [{k: v for k, v in r.items() if k not in ("wall_time", "compile_time")} for r in read_table(path)]
 
 
 def test_seeds_and_draws_are_reproducible(base):
@@ -99,6 +99,7 @@ def test_identical_seeds_give_identical_samples(base):
     for rec in (a, b):
         for r in rec["rows"]:
             r.pop("wall_time")
+            r.pop("compile_time")  # the first run in this process compiled or loaded the loop
     assert a == b
     assert a["version"] == __version__ and a["campaign"] == campaign_hash(base, ["oracle"], 9)
     assert a["rows"][0]["noise_seed"] == sample_seeds(9, 2).noise
@@ -449,3 +450,74 @@ def test_coverage_runs_on_the_real_scheduler(scheduler, tmp_path):
     assert len(a.completed) == 4 and not a.failed and len(a.workers) == 2
     ra = read_table(a.table)
     assert ra == read_table(b.table) and all(r["recovered"] for r in ra)
+
+
+@pytest.fixture(scope="module")
+def failing_campaign(tmp_path_factory):
+    """3 samples with a success bound no run meets (final error <= 1 nm): every sample fails, so the
+    campaign's page has failing samples to link; the worst one's page is rendered with it."""
+    data = _base_data()
+    data["campaign"]["success"] = {"position_error_final": {"max": 1e-9}}
+    base = parse_case(data, "two_link_campaign_strict")
+    out = tmp_path_factory.mktemp("campaign_pages")
+    res = run_campaign(base, 3, out, seed=5, schemes=SCHEMES, in_process=True, show_progress=False)
+    assert not res.failed
+    page = render_campaign(out, read_table(res.table), worst=1)
+    return out, page
+
+
+def test_the_worst_failing_sample_has_its_page_with_the_campaigns_runs(failing_campaign):
+    """Issue 35 item 7: a failing sample opens from the campaign's table; its page is a case page of the
+    sample's variant, re-simulated from its seeds, so its metrics are the campaign's (to round-off)."""
+    from ftcreport.report.campaign import failing_samples, render_sample, sample_name
+
+    out, page = failing_campaign
+    rows = read_table(out / "results.csv")
+    failing = failing_samples(rows)
+    assert len(failing) == 3 and all(e["failed"] == ["nominal"] for e in failing)  # the oracle is not judged
+    worst = failing[0]["sample"]
+    assert failing[0]["max_error"] == max(e["max_error"] for e in failing)
+    html = page.read_text()
+    href = f'href="sample_pages/{sample_name(worst)}/index.html"'
+    assert href in html, "the failing-samples table links the rendered sample"
+    others = [e["sample"] for e in failing[1:]]
+    assert all(f"ftcreport sample {out} {i}" in html for i in others)  # the command that renders the rest
+    sample_page = out / "sample_pages" / sample_name(worst) / "index.html"
+    shtml = sample_page.read_text()
+    for marker in ('id="verdict"', 'id="replay"', 'id="fig-errors"', 'id="fig-torques"', 'href="../../index.html"'):
+        assert marker in shtml, marker
+    for s in SCHEMES:
+        mine = json.loads((out / "sample_pages" / sample_name(worst) / s / "metrics.json").read_text())
+        row = next(r for r in rows if r["sample"] == worst and r["scheme"] == s)
+        for k in ("position_error_final", "position_error_max", "torque_peak"):
+            assert mine[k] == pytest.approx(row[k], rel=1e-9, abs=1e-12), (s, k)
+    # on demand: another sample's page
+    again = render_sample(out, others[0])
+    assert again.exists() and again.parent.name == sample_name(others[0])
+    with pytest.raises(FtcError, match="not a campaign directory"):
+        render_sample(out / "sample_pages", 0)
+
+
+def test_pairwise_comparisons_are_a_matrix_and_distributions_ecdfs(failing_campaign):
+    from ftcreport.report.campaign import comparison_matrices
+
+    out, page = failing_campaign
+    summary = json.loads((out / "summary.json").read_text())
+    mats = comparison_matrices(summary)
+    assert [m["metric"] for m in mats] == ["success", "position_error_final", "position_error_max", "recovery_time_max"]
+    success = mats[0]
+    assert success["schemes"] == SCHEMES
+    (row_nominal,) = [r for r in success["rows"] if r["scheme"] == "nominal"]
+    diag, vs_oracle = row_nominal["cells"]
+    assert diag is None and vs_oracle["text"] == "n.s."  # both fail every sample: no discordant pair
+    fin = mats[1]
+    (row_nominal,) = [r for r in fin["rows"] if r["scheme"] == "nominal"]
+    (row_oracle,) = [r for r in fin["rows"] if r["scheme"] == "oracle"]
+    # the same comparison seen from both sides: mirrored classes, opposite mean differences
+    a, b = row_nominal["cells"][1], row_oracle["cells"][0]
+    assert {a["cls"], b["cls"]} in ({"win", "loss"}, {"ns"}) and a["title"] == b["title"]
+    mean_a, mean_b = (float(c["short"].split()[0]) for c in (a, b))
+    assert mean_a == pytest.approx(-mean_b)
+    html = page.read_text()
+    assert 'id="matrix-success"' in html and 'id="matrix-position_error_final"' in html
+    assert "Empirical CDF" in html and "fraction of samples" in html

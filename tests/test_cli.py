@@ -306,3 +306,56 @@ def test_help_keeps_units_and_table_names():
         for text in [cmd.help or "", *(getattr(p, "help", None) or "" for p in cmd.params)]:
             for bracket in re.findall(r"\\?(\[[^\]]*\])", text):
                 assert " ".join(bracket.split()) in shown, (path, bracket)
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_cases_validate_without_a_path_descends_into_cases(monkeypatch):
+    """Issue 35 item 8: 'cases validate' with no path was an error, and a directory was not searched
+    below its top level (cases/motors was left out)."""
+    monkeypatch.chdir(ROOT)
+    res = runner.invoke(app, ["cases", "validate"])
+    assert res.exit_code == 0, res.output
+    checked = {line.split()[-1] for line in res.output.splitlines() if line.startswith("ok")}
+    expected = {str(p.relative_to(ROOT)) for p in (ROOT / "cases").rglob("*.toml")}
+    assert checked == expected and any("cases/motors/" in p for p in checked)
+
+
+@pytest.mark.parametrize("command", [[], ["batch"], ["run"], ["cases", "validate"], ["coverage"], ["report"]])
+def test_help_shows_flags_without_a_type(command):
+    """Issue 35 item 8: typer printed every flag as '--force <bool>'."""
+    res = runner.invoke(app, [*command, "--help"], terminal_width=120)
+    assert res.exit_code == 0, res.output
+    assert "<bool>" not in res.output
+    assert "--help" in res.output
+
+
+def test_progress_bars_are_named_after_their_command(monkeypatch):
+    """Issue 35 item 8: coverage and FDI progress bars said 'campaign'."""
+    import io
+
+    import rich.progress
+    from rich.console import Console
+
+    from ftcreport import campaign
+
+    shown = {}
+
+    class Captured(rich.progress.Progress):
+        def __init__(self, *columns, **kw):
+            self.buf = io.StringIO()
+            super().__init__(*columns, **kw | {"console": Console(file=self.buf, width=150, force_terminal=True)})
+
+        def stop(self):
+            super().stop()
+            shown[self.kind] = self.buf.getvalue()
+
+    monkeypatch.setattr(rich.progress, "Progress", Captured)
+    for kind, unit in (("coverage", "fault onsets/min"), ("fdi", "traces/min"), ("campaign", "samples/min")):
+        Captured.kind = kind
+        with campaign._progress(True, 4, kind) as bar:
+            bar(3, 1)
+        assert kind in shown[kind] and unit in shown[kind] and "4/4" in shown[kind], shown[kind]
+        if kind != "campaign":
+            assert "campaign" not in shown[kind]

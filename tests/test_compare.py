@@ -6,7 +6,16 @@ import math
 
 import pytest
 
-from ftcreport.compare import SPECS, compare_case, compare_metric, ratio, scoreboard, tidy, tied
+from ftcreport.compare import (
+    SPECS,
+    compare_case,
+    compare_metric,
+    fmt_relative,
+    ratio,
+    scoreboard,
+    tidy,
+    tied,
+)
 
 
 def _run(after=None, final=0.01, rec=1.0, peak=10.0, energy=100.0, status="ok", **extra) -> dict:
@@ -18,6 +27,7 @@ def _run(after=None, final=0.01, rec=1.0, peak=10.0, energy=100.0, status="ok", 
         "position_error_final": final,
         "recovery_time_max": rec,
         "torque_peak": peak,
+        "torque_peak_after_fault": peak,
         "energy": energy,
         "phases": [
             {"start": 0.0, "end": 20.0, "position_error_max": 0.5},
@@ -85,7 +95,9 @@ def test_never_settling_ranks_last_and_missing_is_listed():
     rec = v.metrics["recovery_time_max"]
     assert [r.scheme for r in rec.ranking][-2:] in (["nominal", "switching"], ["switching", "nominal"])
     assert math.isinf(rec.value("switching")) and rec.winners == ["adaptive"]
-    assert rec.regret == pytest.approx(4.1 / 2.0) and rec.benefit == math.inf
+    assert rec.regret == pytest.approx(4.1 / 2.0)
+    # nominal never settles: no ratio and no difference ("never" has neither), and the cell says so
+    assert rec.benefit is None and rec.benefit_diff == math.inf and "never" in fmt_relative(rec, "benefit")
     energy = v.metrics["energy"]
     assert energy.missing == [("nominal", "not computed")]
     assert "nominal" not in [r.scheme for r in energy.ranking]
@@ -137,11 +149,61 @@ def test_detection_metrics_only_for_active_schemes():
 def test_ratio_edge_cases():
     spec = SPECS["position_error_final"]
     assert ratio(None, 1.0, spec) == (None, False)
-    assert ratio(0.5, 0.0, spec) == (math.inf, False)
-    assert ratio(math.inf, 0.2, spec) == (math.inf, False)
-    assert ratio(0.2, math.inf, spec) == (0.0, False)
+    assert ratio(0.5, 0.0, spec) == (None, False)  # a zero denominator: no ratio (was inf)
+    assert ratio(math.inf, 0.2, spec) == (None, False)  # "never": no ratio
+    assert ratio(0.2, math.inf, spec) == (None, False)
     assert ratio(0.3, 0.1, spec) == (pytest.approx(3.0), False)
     assert ratio(5e-9, 1e-10, spec) == (1.0, True)  # below the floor: a tie, not a ratio of 50
+    # the floor is the metric's resolution: a denominator at or under it gives no ratio, just above it does
+    assert ratio(0.01, spec.floor, spec) == (None, False)
+    assert ratio(0.01, 2 * spec.floor, spec)[0] == pytest.approx(50.0)
+
+
+def test_regret_against_a_near_zero_oracle_is_a_difference():
+    """Issue 35 item 3: two_link_adaptive_eight showed 'final error regret vs oracle 5.83e+06' (the oracle's
+    final error 7.8e-11 m) and the index 'benefit inf'.  Below the 0.1 mm floor the verdict gives the
+    absolute difference, never a ratio, never inf."""
+    runs = {
+        "nominal": _run(final=0.0104, rec=None),
+        "adaptive": _run(final=4.55e-4, rec=0.0),
+        "oracle": _run(final=7.8e-11, rec=0.0),
+    }
+    v = compare_case("c", runs, fault_times=[20.0])
+    fin = v.metrics["position_error_final"]
+    assert fin.winners == ["adaptive"] and fin.regret is None
+    assert fin.regret_diff == pytest.approx(4.55e-4 - 7.8e-11)
+    cell = fmt_relative(fin, "regret")
+    assert cell.startswith("+0.000455 m") and "floor" in cell
+    assert fin.benefit == pytest.approx(0.0104 / 4.55e-4)  # 4.55e-4 m is above the floor: a ratio
+    rec = v.metrics["recovery_time_max"]  # 0 s against 0 s: a tie; nominal never settles: no ratio
+    assert rec.regret_tie and fmt_relative(rec, "benefit") == "n/a (nominal: never)"
+    every = [fmt_relative(mv, w) for mv in v.metrics.values() for w in ("regret", "benefit")]
+    assert not any("inf" in c or "e+0" in c for c in every), every
+    board = scoreboard([v], ["nominal", "adaptive", "oracle"])
+    assert board.median_regret["adaptive"]["position_error_final"] is None
+    assert board.regret_counts["adaptive"]["position_error_final"] == (0, 1)
+
+
+def test_peak_torque_is_ranked_after_the_first_fault():
+    """Issue 35 item 2: on two_link_switching the 4,320 N m start-up spike decided the peak-torque winner;
+    the verdict ranks the peak from the first fault on, and says so for a run without a fault."""
+    runs = {
+        "nominal": _run(peak=4320.0, torque_peak_after_fault=60.0),
+        "switching": _run(peak=4321.0, torque_peak_after_fault=90.0),
+        "oracle": _run(peak=4320.0, torque_peak_after_fault=55.0),
+    }
+    v = compare_case("c", runs, fault_times=[20.0])
+    tq = v.metrics["torque_peak_after_fault"]
+    assert tq.winners == ["nominal"] and tq.best == 60.0
+    assert "torque_peak" not in v.metrics
+    no_fault = _run(peak=30.0, torque_peak_after_fault=None)
+    no_fault["phases"] = no_fault["phases"][:1]
+    (row,) = [r for r in tidy("c", {"nominal": no_fault}) if r.metric == "torque_peak_after_fault"]
+    assert row.value == 30.0 and row.note == "no fault: whole run, start-up included"
+    old = _run()
+    del old["torque_peak_after_fault"]  # stored before the metric existed
+    (row,) = [r for r in tidy("c", {"nominal": old}) if r.metric == "torque_peak_after_fault"]
+    assert row.value is None and "re-run with --force" in row.note
 
 
 def test_nominal_beating_every_ftc_scheme_is_flagged():

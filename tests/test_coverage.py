@@ -99,7 +99,19 @@ def test_oracle_coverage_agrees_with_the_redundancy_rule(oracle_map):
     assert np.nansum(g["predicted_pairs"] == 0.0) == 2  # (1r, 1l) and its mirror
     assert np.all(g["single"]["oracle"][:, 0] == 1.0)
     html = render_coverage(out).read_text()
-    assert "predicted (2.103)" in html and "<svg" in html and "pair 1r+1l" in html
+    assert "predicted (2.103)" in html and 'class="map"' in html and "pair 1r+1l" in html
+    assert 'title="1r+1l: 0 of the onsets recovered (uncompensable by the rule)">X 0</td>' in html
+    # one definition of recovery (issue 35 item 4): a run recovers when it completes and meets the success
+    # bound, and its recovery time is the time into that bound, so "recovered" and "never" cannot coexist
+    rows = [r for i in sorted((out / "items").glob("*.json")) for r in json.loads(i.read_text())["rows"]]
+    assert all(r["recovery_bound"] == 0.05 for r in rows)
+    for r in rows:
+        assert r["recovered"] == (r["recovery_time"] is not None), r
+        if r["recovered"]:
+            assert 0.0 <= r["recovery_time"] <= 12.0 - r["onset"] and r["final_error"] <= 0.05
+    for e in faults.values():
+        assert (e["recovery_time_max"] is None) == (not any(e["recovered"]))
+    assert 'id="recovery-definition"' in html and "enters 0.05 m and stays" in html
     man = json.loads((out / "manifest.json").read_text())
     assert man["kind"] == "coverage" and man["settings"]["times"] == [2.4, 4.2, 6.0]
 

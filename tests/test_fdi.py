@@ -116,7 +116,30 @@ def test_fdi_on_noisy_campaign_samples(tmp_path):
         assert p["mean_delay"] is None or 0.0 <= p["mean_delay"] <= 7.0
     html = render_fdi(tmp_path).read_text()
     assert "CUSUM" in html and "<svg" in html
+    # one ROC per detector, each with its recommended point; the sweep tables folded
+    assert 'id="fig-active-roc-estimate"' in html and 'id="fig-active-roc-residual"' in html
+    assert 'id="recommended"' in html and "at most 1 false alarm per hour" in html
+    assert html.count("<details>") == 2 * len(res["schemes_results"]) and '<table id="active-estimate">' in html
     # resumable: a second run recomputes nothing and gives the same sweep
     again = run_fdi(base, 3, tmp_path, seed=2, in_process=True, show_progress=False, sweep=sweep)
     assert json.dumps(again["schemes_results"]) == json.dumps(res["schemes_results"])
     assert not math.isnan(json.loads((tmp_path / "fdi.json").read_text())["schemes_results"]["active"]["skip"])
+
+
+def test_recommended_operating_point_rule():
+    """Issue 35 item 7: the highest detection probability within 1 false alarm per hour (ties: the shorter
+    delay); when no setting is within the budget, the fewest false alarms."""
+    from ftcreport.report.fdi import FAR_BUDGET, operating_point
+
+    pts = [
+        {"pd": 0.99, "far_per_hour": 12.0, "mean_delay": 0.5},
+        {"pd": 0.80, "far_per_hour": 1.0, "mean_delay": 2.0},
+        {"pd": 0.80, "far_per_hour": 0.0, "mean_delay": 1.5},
+        {"pd": 0.60, "far_per_hour": 0.0, "mean_delay": 0.9},
+        {"pd": None, "far_per_hour": 0.0, "mean_delay": None},
+    ]
+    assert FAR_BUDGET == 1.0
+    assert operating_point(pts) == pts[2]  # 0.8 within the budget twice: the shorter delay
+    over = [{"pd": 1.0, "far_per_hour": 5.0, "mean_delay": 1.0}, {"pd": 0.5, "far_per_hour": 2.0, "mean_delay": 3.0}]
+    assert operating_point(over) == over[1]
+    assert operating_point([{"pd": None, "far_per_hour": None}]) is None

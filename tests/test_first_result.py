@@ -10,10 +10,8 @@ import copy
 import pickle
 
 import numpy as np
-import pytest
-from numba import njit, typeof
+from numba import typeof
 
-from ftcreport.fast import compiling
 from ftcreport.fast import kernels as F
 from ftcreport.fast.refs import RefProxy, RefType, _ref_type, to_ref
 from ftcreport.references import FlatReference, eight
@@ -56,24 +54,3 @@ def test_a_reference_pickles_without_its_ref():
         assert other._ref is None  # a pointer into this process: rebuilt on the first use
         b = other.at(1.25)
         assert np.array_equal(a.q_d, b.q_d) and np.array_equal(a.eta_d_dot, b.eta_d_dot)
-
-
-@njit(cache=False)
-def _assign4(a, b):
-    a[:] = b
-
-
-@njit(cache=False)
-def _assign5(a, b):
-    a[:] = b
-
-
-def test_the_plain_slice_message_only_in_ftcreport_compiles():
-    # 4-d and 5-d slices: no kernel of ftcreport has them, so these are the first compiles of their message
-    plain = r"^cannot assign slice from input of different size$"
-    with compiling.loop_compile(), pytest.raises(ValueError, match=plain):
-        _assign4(np.zeros((2, 1, 1, 1)), np.zeros((3, 1, 1, 1)))
-    with pytest.raises(ValueError, match=r"cannot assign slice of shape \(2, 1, 1, 1, 1\) from input of shape"):
-        _assign5(np.zeros((2, 1, 1, 1, 1)), np.zeros((3, 1, 1, 1, 1)))
-    # on the pinned numba the hook is installed (else every kernel compiles numba's message formatting)
-    assert compiling.short_shape_message()

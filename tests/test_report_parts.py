@@ -7,7 +7,9 @@ import json
 import numpy as np
 
 from ftcreport.model import Chain
-from ftcreport.report.interactive import decimate, errors_fig
+from ftcreport.model.faults import FaultEvent, FaultSchedule
+from ftcreport.report.interactive import decimate, errors_fig, torques_fig
+from ftcreport.report.plots import fault_phases
 from ftcreport.report.render import _group_tables, _script_json
 from ftcreport.report.replay import replay_data
 
@@ -51,13 +53,58 @@ def test_decimation_keeps_every_peak_and_bounds_the_size():
     assert decimate(short, short)[0].size == 10  # short series are kept whole
 
 
+WHEELS = ["1r", "1l", "2r", "2l"]
+
+
+def _schedule(*events) -> FaultSchedule:
+    return FaultSchedule(2, [FaultEvent(t, w, s, u) for t, w, s, u in events])
+
+
 def test_error_figure_is_small_and_json_safe():
     chain = Chain.uniform(2)
-    fig = errors_fig({"nominal": _series(chain, 40_001), "oracle": _series(chain, 40_001)}, [10.0, 20.0])
+    phases = fault_phases(_schedule((10.0, "1l", 0.0, 0.0), (20.0, "1l", 1.0, 0.0)), 30.0, WHEELS)
+    fig = errors_fig({"nominal": _series(chain, 40_001), "oracle": _series(chain, 40_001)}, phases)
     text = json.dumps(fig)
     assert len(text) < 400_000  # 4 traces of at most 1,500 points
     assert sum(s["type"] == "rect" for s in fig["layout"]["shapes"]) == 1  # phase 10-20 s shaded
     assert "</" not in _script_json({"a": "</script><script>alert(1)"})
+
+
+def test_every_fault_phase_is_shaded_in_its_patterns_color():
+    """Issue 35 item 6: shading alternated, so 50-80 s with two wheels failed was unshaded under a caption
+    'fault phases shaded'; partial gains showed as 1.  Now every phase with a fault is shaded, one color
+    per pattern of gains (a repeated pattern keeps its color), and the label gives the gains as they are."""
+    sched = _schedule(
+        (20.0, "1r", 0.0, 0.0), (50.0, "2l", 0.1, 0.0), (80.0, "1r", 1.0, 0.0), (110.0, "2l", 1.0, 0.0),
+        (120.0, "2l", 0.1, 0.0), (130.0, "2r", 1.0, 0.5),
+    )  # fmt: skip
+    ph = fault_phases(sched, 140.0, WHEELS)
+    assert [(p["start"], p["end"]) for p in ph] == [(0, 20), (20, 50), (50, 80), (80, 110), (110, 120),
+                                                    (120, 130), (130, 140)]  # fmt: skip
+    colors = [p["color"] for p in ph]
+    assert colors[0] is None and colors[4] is None  # healthy: before the first fault, and 110-120 s
+    assert all(c is not None for i, c in enumerate(colors) if i not in (0, 4))  # every fault phase shaded
+    assert len({colors[1], colors[2], colors[3]}) == 3 and colors[5] == colors[3]  # one color per pattern
+    assert ph[2]["label"] == "gains 0 1 1 0.1 (1r, 2l below 1)"
+    assert ph[6]["label"] == "gains 1 1 1 0.1; frictions 0 0 0.5 0 (2l below 1)"
+
+
+def test_the_start_up_transient_does_not_set_the_torque_axis():
+    """Issue 35 item 2: a 4,320 N m spike at t = 0 flattened the torques during the faults; the whole-run
+    panel takes its scale from the first fault on, the first-second panel keeps the spike."""
+    t = np.linspace(0.0, 40.0, 8001)
+    tau = np.zeros((t.size, 4))
+    tau[:5] = 4320.0  # start-up
+    tau[:, 1] += np.where(t >= 20.0, 3.0 * np.sin(50 * t), 0.0)  # chatter after the fault, +-3 N m
+    ts = {"t": t, "tau": tau}
+    phases = fault_phases(_schedule((20.0, "1l", 0.2, 0.0)), 40.0, WHEELS)
+    fig = torques_fig({"switching": ts}, WHEELS, phases, "switching")
+    lo, hi = fig["layout"]["yaxis2"]["range"]
+    assert -3.5 < lo < -2.9 and 2.9 < hi < 3.5
+    first = [v for tr in fig["data"] if tr.get("yaxis") == "y" for v in tr["y"] if v is not None]
+    assert max(first) == 4320.0  # drawn, in its own panel
+    zoom = [tr for tr in fig["data"] if tr.get("yaxis") == "y3"]
+    assert zoom and all(20.0 <= x <= 20.3 for tr in zoom for x in tr["x"])  # 60 samples from the fault
 
 
 def test_identical_tables_are_shown_once_with_every_scheme():
@@ -66,3 +113,17 @@ def test_identical_tables_are_shown_once_with_every_scheme():
     groups = _group_tables({"nominal": rows, "switching": list(rows), "oracle": rows, "active": other})
     assert [g["schemes"] for g in groups] == [["nominal", "switching", "oracle"], ["active"]]
     assert groups[0]["rows"] == rows
+
+
+def test_fault_timeline_shows_partial_gains():
+    """Issue 35 item 6: the timeline's pattern column showed '1 1 1 1 1 1' for gains down to 0.1."""
+    from pathlib import Path
+
+    from ftcreport.cases import load_case
+    from ftcreport.model import wheel_names
+    from ftcreport.report.render import _fault_rows
+
+    case = load_case(Path(__file__).resolve().parents[1] / "cases" / "three_link_active.toml")
+    rows = _fault_rows(case, case.fault_schedule(), wheel_names(3))
+    assert rows[-1]["pattern"].startswith("0.8 0.3 0.4 0.2 0.1 0.7")
+    assert "partial: 1r 0.8" in rows[-1]["pattern"] and "failed" not in rows[-1]["pattern"]

@@ -17,9 +17,10 @@ import tomli_w
 from typer.testing import CliRunner
 
 from ftcreport.cases import parse_case, with_duration
+from ftcreport.check import requirement_items
 from ftcreport.cli import app
 from ftcreport.errors import CaseError
-from ftcreport.requirements import evaluate_requirements, requirement_items, windows
+from ftcreport.requirements import evaluate_requirements, windows
 from ftcreport.runner import run_scheme
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
@@ -167,14 +168,14 @@ def test_no_fault_event_is_stated():
 def test_gate_items_fail_on_violated_and_not_evaluated(run):
     case, _, m = run
     items = requirement_items("req", case.requirements, {"switching": m})
-    assert [(i.name, i.passed) for i in items] == [
+    assert [(i.testname, i.ok) for i in items] == [
         ("settled [fault at 20 s: 25-30 s]", True),
         ("tight [21-23 s]", False),
         ("late [fault at 20 s: 35-30 s]", False),
     ]
     assert all(i.classname == "req.switching.requirements" for i in items)
     items = requirement_items("req", case.requirements, {"switching": None})
-    assert {i.message for i in items} == {
+    assert {i.detail for i in items} == {
         f"requirement {r.id}: not evaluated: the scheme was not run" for r in case.requirements
     }
 
@@ -207,12 +208,12 @@ def test_check_run_junit_and_page(tmp_path):
     assert any(s["type"] == "line" and s["y0"] == 1e-3 for s in spec["layout"]["shapes"])
     marks = [d for d in spec["data"] if d.get("mode") == "markers"]
     assert marks[0]["x"] == [first["time"]] and marks[0]["y"] == [first["value"]]
-    # run prints one line per requirement and scheme (its exit code says whether the runs completed)
+    # run judges the requirements as check does (a gate item per window; exit 1 when one fails) and
+    # names the failing one with its field on stderr
     res = runner.invoke(app, ["run", str(src), "--out", str(tmp_path / "r2"), "--no-report"])
-    assert res.exit_code == 0, res.output
-    assert (
-        "requirement tight / switching: position_error <= 0.001 m: 0/1 window(s) hold; [21-23 s] violated" in res.output
-    )
+    assert res.exit_code == 1, res.output
+    assert "FAIL  req / switching / requirement tight [21-23 s]: position_error <= 0.001 m: violated" in res.output
+    assert "requirements[1] (id 'tight')" in res.output
 
 
 def test_shipped_case_requirement_holds_on_its_documented_windows():

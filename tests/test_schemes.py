@@ -1,7 +1,7 @@
 """The scheme API's edges (issue 17 item 3): plug-in schemes in case files, run, batch, campaign, reports.
 
-Two plug-in laws are compiled here (each once; numba caches them beside their files and the loop in
-ftcreport/fast/_loops): tests/data/copy_nominal_scheme.py and the worked example
+Two plug-in laws are compiled here (each once; numba caches them and their loops in ftcreport's cache
+directory, ftcreport/paths.py): tests/data/copy_nominal_scheme.py and the worked example
 examples/schemes/sliding_mode.py.
 """
 

@@ -1,131 +1,280 @@
-r"""How a scheme's loop is compiled: each kernel's code optimized once, in the loop, not at every level.
+r"""How ftcreport's kernels are compiled: numba's pipeline through subclasses of ftcreport's own, numba left as found.
 
-numba compiles a kernel that another kernel calls as a function of its own: it links every kernel
-below it into one LLVM module, optimizes that module fully (O3) and emits its machine code.  The
-loop (fast/loop.py) calls its kernels nine levels deep (the loop, the stage, the law, the matched
-terms, the kinematic law, the reference, ...), so the code of a leaf was optimized and emitted
-nine times over: 57 s of CPU for the switching loop on the 2-core machine, 96 % of it in LLVM.
+Every kernel of ftcreport (``fast/*.py``, the generated loops, a plug-in's law through
+``schemes.jit``) is made by :func:`jit`: numba's CPU dispatcher, compiler and code library, each
+through a subclass of ftcreport's own (:class:`KernelDispatcher`, :class:`KernelCompiler`,
+:class:`KernelLibrary`, :class:`KernelCache`), the way numba's ``jit`` makes its own
+(``pipeline_class`` is numba's documented way to customize the compiler; the dispatcher is built as
+``numba.jit`` builds it).  Nothing of numba or llvmlite is replaced: another package's function,
+compiled in the same process before or after ftcreport's, goes through numba's own classes and
+methods (tests/test_compiling.py compares them with a snapshot taken before ``import ftcreport``).
 
-Only the loop's own module runs in a simulation: it contains every kernel below it, linked in,
-and its full optimization inlines and optimizes them there.  So while a loop compiles
-(:func:`loop_compile`), the kernels below it get numba's cheap module passes only (no full O3
-run of their closure); the loop's entry points (:data:`ROOTS`) get the full passes as always.
-The loop's machine code comes from the same IR through the same full pipeline, so it computes the
-same numbers (LLVM's optimizations keep IEEE semantics: no fast-math flags are set); the golden
-windows (tests/test_golden.py) hold at 1e-9.  Measured on the switching loop: 57 s -> 34 s of
-CPU, and the warm run no slower (benchmarks/run.py).
+What the subclasses change, and why (docs/ENGINE.md, "Compile time"; measured on the cold first
+result of two_link_switching, CPU seconds to simulating: 26 s with all of it, 55 s with numba's own
+pipeline):
 
-numba also emits the machine code of every such module at once (its ``finalize``), because it
-makes each kernel callable from Python as soon as it is compiled: the code of a leaf was emitted
-once per level above it.  While a loop compiles, the kernels below its entry points skip that
-(:class:`LazyEntry`, :data:`DEFERRED`): their module is optimized and kept, linked into the callers
-as before, and emitted only if something asks for it (a call from Python, a function pointer); the
-cache keeps such a kernel as its optimized bitcode (numba's ``serialize_using_bitcode``) instead
-of object code.  The loop's own module is emitted as always, so the code that runs is the same.
-Measured on the switching loop: machine-code emission 14 -> 6 s of CPU.
+1. **Each kernel's code optimized once, in its entry point.**  numba compiles a kernel that another
+   kernel calls as a library of its own, links every kernel below it into that library, runs LLVM's
+   full O3 pipeline over it and emits its machine code, so with the loop nine calls deep a leaf's code
+   was optimized and emitted nine times.  Only the entry point's module runs (the loop's
+   ``run_steps``, or a kernel Python calls: the outermost ftcreport compile of a thread), and it
+   contains every kernel below it, linked in; so a kernel compiled *below* an entry point gets
+   numba's cheap module passes only (:meth:`KernelLibrary._optimize_final_module`) and the entry
+   point gets numba's full pipeline over all of them.  No fast-math flags anywhere: LLVM keeps IEEE
+   semantics, the numbers are the same (the golden windows hold at 1e-9; ``.ci/run`` checks that a
+   run is bit-identical with ``FTCREPORT_FAST_COMPILE=0``).
+2. **Deferred emission.**  A kernel compiled below an entry point keeps its optimized module
+   unemitted; its Python entry point is a :class:`LazyEntry` that emits it (numba's full
+   optimization first) on a first call from Python, and a function pointer asked of it or a link
+   into a library compiled outside ftcreport's compiles emits it first too, so outside code only
+   ever sees numba's own state.  Its cache entry is numba's bitcode serialization.
+3. **Lazy linking IR on cache loads** (memory: about 32 MB for a run's loop): a kernel loaded from
+   the cache as machine code keeps the bitcode numba stores beside it for later links as bytes, takes
+   the names of the symbols it defines from the object's ELF symbol table (:mod:`.lazy_link`),
+   and parses the bitcode on the first link (``FTCREPORT_LAZY_LINK=0``: parsed on load, as numba does).
+4. **The cache outside the package** (issue 38 item 3): :class:`KernelCache` is numba's function
+   cache with ftcreport's locator (:class:`KernelLocator`): entries under
+   ``ftcreport.paths.cache_dir("numba")``, stamped with the source file's and every compiled
+   source's hash (:func:`engine_stamp`: a kernel links kernels of other files, and numba keys an
+   entry on its own file only).  numba documents no per-function registration of a cache locator
+   (``NUMBA_CACHE_LOCATOR_CLASSES`` is process-wide), so ftcreport's cache implementation is a
+   subclass with its own list of locators; numba's list is left alone.
+5. **No ``numba:llvm_lock`` event** while an ftcreport entry point compiles (:func:`_quiet_llvm_lock`:
+   numba broadcasts it to a timer of every compile in progress around each of the 10^5 calls a
+   loop's compile makes into LLVM); numba's callbacks are taken out of llvmlite's list under numba's
+   compiler lock and put back, the same list, before the lock is released.
 
-The same rule holds for every ftcreport kernel that Python calls (the references' checks, the
-metrics' kernels): its own top-level compile makes it an entry point, and the kernels compiled
-below it get the cheap passes and no machine code until asked.  A kernel asked for from Python
-after all (its module had the cheap passes only) gets numba's full optimization before its code is
-emitted, in this process or when loaded from the cache (a library loaded from bitcode: only the
-deferral stores one), so a kernel called from Python always runs fully optimized code.
-
-numba's cache of a kernel is keyed on its own file's content only, so a kernel cached from one
-file (fast/builtin.py's dispatchers, a plug-in's law, a loop module) kept the old code of a kernel
-it calls in another file (fast/kernels.py) after that file changed: a `git pull` that changed
-kernels.py alone ran stale code.  :func:`install_cache_stamp` adds numba's documented extension
-point, a cache locator, for every module of ftcreport (and its generated loops and plug-ins): the
-stamp of their cache entries is their own file's and :func:`engine_stamp`, a hash of every compiled
-source of the package, so any change renews every entry that could have linked it.
-
-The hook wraps one method of numba's code library (``CPUCodeLibrary._optimize_final_module``,
-numba 0.58-0.68).  If a numba release renames it, :data:`ACTIVE` is False and every kernel is
-optimized fully, as numba does by default: slower to compile, same results.  The deferred emission
-and the entry points of Python's calls wrap seven methods of numba 0.68 (the code library's
-finalization, serialization and function pointer, the codegen's ``set_env``, the context's
-``get_executable``, the dispatcher's ``add_overload`` and ``compile``); if one is missing,
-:data:`DEFERRED` is False and numba emits every module at once, as by default
-(tests/test_compiling.py fails on the pinned numba then).  While a kernel compiles, numba's
-``numba:llvm_lock`` event is off (:func:`_quiet_llvm_lock`: 3-4 s of CPU per cold loop).
+Items 1, 2, 3 and 5 rest on numba's internals (method names of its code library and context), read
+in the numba releases of :data:`TESTED`; on any other release, or with ``FTCREPORT_FAST_COMPILE=0``,
+ftcreport's kernels compile through numba's own compiler and library (item 4 stays: it only names a
+directory and a stamp).  A failure inside them turns them off for the process with one warning
+(:class:`AccelerationWarning`) and the step that failed is done by numba's own method: never an error.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import inspect
 import os
 import threading
-from collections.abc import Iterator
+import warnings
+import weakref
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numba
+from numba.core import caching, compiler, registry
+from numba.core.codegen import JITCodeLibrary
+from numba.core.compiler_lock import global_compiler_lock
+
+from . import lazy_link
+from .lazy_link import defined_symbols
 
 __all__ = [
-    "ACTIVE",
-    "DEFERRED",
-    "ROOTS",
+    "TESTED",
+    "AccelerationWarning",
+    "KernelCache",
+    "KernelDispatcher",
     "LazyEntry",
+    "accelerated",
     "engine_stamp",
-    "install_cache_stamp",
-    "loop_compile",
-    "short_shape_message",
+    "jit",
 ]
 
-ROOTS = frozenset({"run_steps", "first_law", "first_discrete"})  # fast/loop.py's entry points
+#: numba releases (major, minor) whose internals the acceleration was read in and CI has run it on
+TESTED = frozenset({(0, 61), (0, 68)})
 
-_STATE = threading.local()  # numba compiles in the calling thread, under its global compiler lock
-_NUMBA: dict = {}  # numba's own methods that the hooks wrap
-
-
-def _below(library) -> bool:
-    """Whether a library is compiled below an entry point: a loop's (:data:`ROOTS`, within
-    :func:`loop_compile`) or a kernel's that Python calls (its own top-level compile)."""
-    if not getattr(_STATE, "on", False):
-        return False
-    return library.name not in ROOTS and library.name not in getattr(_STATE, "roots", ())
+_STATE = threading.local()  # depth: ftcreport compiles in progress in this thread (numba compiles in the caller's)
+_FAILED: list[str] = []  # the first failure of the acceleration in this process (then it is off)
+_PENDING_ENVS: dict[str, object] = {}  # environments of deferred kernels, set once emitted code defines them
+_KERNEL_FUNCS: weakref.WeakSet = weakref.WeakSet()  # the Python functions of KernelDispatchers
 
 
-def _install() -> bool:
-    try:
-        from numba.core import codegen
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return False
-    lib = getattr(codegen, "CPUCodeLibrary", None)
-    full = getattr(lib, "_optimize_final_module", None)
-    if full is None or getattr(full, "_ftcreport", False):
-        return full is not None
-
-    _NUMBA["_optimize_final_module"] = full
-
-    def optimize_final_module(self) -> None:
-        if not _below(self):
-            return optimized_fully(self)
-        # numba's own first stage (inlining for reference-count pruning), without the full O3 run
-        mpm, pb = self._codegen._module_pass_manager(
-            loop_vectorize=False, slp_vectorize=False, opt=0, cost="cheap"
-        )  # fmt: skip
-        mpm.run(self._final_module, pb)
-        self._ftc_cheap = True  # emitting its own code (a call from Python) optimizes it fully first
-
-    def optimized_fully(self) -> None:
-        self._ftc_cheap = False
-        full(self)
-
-    optimize_final_module._ftcreport = True
-    lib._optimize_final_module = optimize_final_module
-    return True
+class AccelerationWarning(RuntimeWarning):
+    """ftcreport's compile-time acceleration failed and was turned off: numba's own pipeline compiles."""
 
 
-ACTIVE = _install()
+def _numba_release() -> tuple[int, int]:
+    major, minor = numba.__version__.split(".")[:2]
+    return int(major), int("".join(c for c in minor if c.isdigit()) or 0)
+
+
+def accelerated() -> bool:
+    """Whether ftcreport's kernels compile with the acceleration (items 1-3 and 5 above) in this process."""
+    return not _FAILED and os.environ.get("FTCREPORT_FAST_COMPILE", "1") != "0" and _numba_release() in TESTED
+
+
+def _fail(where: str, exc: BaseException) -> None:
+    """Turn the acceleration off for the process, with one warning (the first failure's)."""
+    if _FAILED:
+        return
+    _FAILED.append(f"{where}: {type(exc).__name__}: {exc}")
+    warnings.warn(
+        f"ftcreport: the compile-time acceleration failed on numba {numba.__version__} ({_FAILED[0]}); "
+        "compiling with numba's own pipeline from now on (same results, slower first compiles). "
+        "FTCREPORT_FAST_COMPILE=0 turns it off without this warning.",
+        AccelerationWarning,
+        stacklevel=3,
+    )
+
+
+def _depth() -> int:
+    return getattr(_STATE, "depth", 0)
+
+
+# --------------------------------------------------------------------------- the code library
+class KernelLibrary(JITCodeLibrary):
+    """numba's JIT code library; below an entry point: cheap passes and its machine code deferred."""
+
+    _ftc_below = False  # compiled (or loaded) below an entry point, with the acceleration on
+    _ftc_defer = True  # its machine code may wait (a kernel's: its dispatcher takes a LazyEntry)
+    _ftc_cheap = False  # has had the cheap passes only (numba's full optimization runs before emission)
+    _ftc_deferred = False  # finalized without its machine code
+    _ftc_bitcode: bytes | None = None  # linking IR kept unparsed (a cache load)
+
+    def _optimize_final_module(self) -> None:
+        if not (self._ftc_below and accelerated()):
+            return super()._optimize_final_module()
+        try:
+            _cheap_passes(self)
+        except Exception as exc:
+            _fail("cheap module passes", exc)
+            return super()._optimize_final_module()
+        self._ftc_cheap = True
+        return None
+
+    def _finalize_final_module(self) -> None:
+        deferrable = self._ftc_below and self._ftc_defer and getattr(self, "_compiled_object", None) is None
+        if not (deferrable and accelerated()):
+            self._emit()
+            return
+        try:  # what numba's finalization checks and records, without adding the module to the JIT engine
+            self._finalize_dynamic_globals()
+            self._verify_declare_only_symbols()
+        except Exception as exc:
+            _fail("deferred emission", exc)
+            self._dynamic_globals = []
+            self._emit()
+            return
+        self._ftc_deferred = True
+        self._finalized = True
+
+    def _emit(self) -> None:
+        """numba's finalization (the module added to the JIT engine, machine code emitted), fully optimized
+        (an overload's implementation below an entry point excepted: its code is only ever linked)."""
+        if self._ftc_cheap and self._ftc_defer:
+            self._ftc_cheap = False
+            super()._optimize_final_module()
+        super()._finalize_final_module()
+        _flush_envs(self._codegen)
+
+    def realize(self) -> None:
+        """Emit a deferred library's machine code (numba's full optimization first): numba's own state after."""
+        if self._ftc_deferred:
+            with global_compiler_lock:
+                if self._ftc_deferred:
+                    self._ftc_deferred = False
+                    self._dynamic_globals = []  # numba's finalization lists them again
+                    self._emit()
+
+    def get_pointer_to_function(self, name):
+        self._ensure_finalized()
+        self.realize()
+        return super().get_pointer_to_function(name)
+
+    def serialize_using_object_code(self):
+        self._ensure_finalized()
+        if self._ftc_deferred:  # no object code: the cache keeps the optimized bitcode
+            return self.serialize_using_bitcode()
+        return super().serialize_using_object_code()
+
+    def _get_module_for_linking(self):
+        if self._ftc_deferred and _depth() == 0:  # linked by a compile that is not ftcreport's: numba's own state
+            self.realize()
+        if self._ftc_bitcode is not None:
+            from llvmlite import binding as ll
+
+            self._shared_module = ll.parse_bitcode(self._ftc_bitcode)
+            self._ftc_bitcode = None
+        return super()._get_module_for_linking()
+
+    @classmethod
+    def load(cls, codegen, state, below: bool) -> KernelLibrary:
+        """A library from its cache entry (numba's ``serialize_using_*``): machine code, or deferred bitcode."""
+        from llvmlite import binding as ll
+
+        name, kind, data = state
+        self = cls(codegen, name)
+        if kind == "bitcode":  # a kernel that was deferred: the cheap passes, no machine code
+            self._ftc_below, self._ftc_cheap = below, True
+            self._final_module = ll.parse_bitcode(data)
+            self._finalize_final_module()  # deferred again below an entry point, else optimized fully and emitted
+            return self
+        if kind != "object":
+            raise ValueError(f"unsupported serialization kind {kind!r}")
+        object_code, shared_bitcode = data
+        self.enable_object_caching()
+        self._set_compiled_object(object_code)
+        symbols = defined_symbols(object_code) if lazy_link.enabled() and accelerated() else None
+        if symbols is None:
+            self._shared_module = ll.parse_bitcode(shared_bitcode)
+        else:
+            self._ftc_bitcode = shared_bitcode
+        self._finalize_final_module()
+        engine = codegen._engine
+        if symbols is None:
+            engine._load_defined_symbols(self._shared_module)
+        else:  # the names numba would read from the parsed module (tests/test_lazy_link.py)
+            engine._defined_symbols |= symbols
+        return self
+
+
+def _cheap_passes(library: KernelLibrary) -> None:
+    """numba's cheap module passes (its first stage, inlining for reference-count pruning) at O0, without
+    the full O3 run: what numba's ``_optimize_final_module`` runs first, read in numba 0.61 and 0.68."""
+    passes = library._codegen._module_pass_manager(loop_vectorize=False, slp_vectorize=False, opt=0, cost="cheap")
+    if isinstance(passes, tuple):  # numba >= 0.62: LLVM's new pass manager and its builder
+        passes[0].run(library._final_module, passes[1])
+    else:  # numba 0.61: the legacy pass manager
+        passes.run(library._final_module)
+
+
+def _set_env(codegen, name: str, env) -> None:
+    """numba's ``set_env``, or pending until emitted code defines the environment's global."""
+    if codegen._engine.is_symbol_defined(name):
+        codegen.set_env(name, env)
+    else:
+        _PENDING_ENVS[name] = env
+
+
+def _flush_envs(codegen) -> None:
+    """Point the environment globals of deferred kernels at their environments, once emitted code holds them."""
+    for name in [n for n in _PENDING_ENVS if codegen._engine.is_symbol_defined(n)]:
+        codegen.set_env(name, _PENDING_ENVS.pop(name))
+
+
+def _executable(context, library, fndesc, env):
+    """numba's ``get_executable``, or a :class:`LazyEntry` for a deferred library."""
+    from numba.core.cpu import CPUContext
+
+    library._ensure_finalized()  # numba finalizes in get_pointer_to_function: first, to know if it is deferred
+    if library._ftc_deferred:
+        _set_env(library.codegen, context.get_env_name(fndesc), env)
+        return LazyEntry(context, library, fndesc, env)
+    cfunc = CPUContext.get_executable(context, library, fndesc, env)
+    _flush_envs(library.codegen)
+    return cfunc
 
 
 class LazyEntry:
     """A kernel's Python entry point whose machine code is emitted on its first call.
 
     numba gives every compiled function a Python-callable wrapper at once, and so emits the machine
-    code of its whole module (the function and every kernel linked below it).  A kernel compiled
-    below a loop's entry point runs only inside the loop's own module, so its module is emitted
-    only if something asks for it: a call from Python (numba's dispatcher calls a non-builtin
-    entry point as a Python callable, and this one then puts the real wrapper in the dispatcher's
-    table), a pointer (``get_pointer_to_function``).  It is also numba's key for the function when
-    other kernels call it (``BaseContext._defns``), so it stays the entry point of record.
+    code of its whole library.  A kernel compiled below an entry point runs only inside the entry
+    point's own module, so its library is emitted only if asked for: a call from Python (numba's
+    dispatcher calls an entry point that is not a compiled function as a Python callable; this one
+    then gives the dispatcher the real wrapper), a function pointer, a link outside ftcreport's compiles.
     """
 
     __slots__ = ("_context", "_env", "_fndesc", "_library", "_targets", "cfunc")
@@ -133,20 +282,22 @@ class LazyEntry:
     def __init__(self, context, library, fndesc, env) -> None:
         self._context, self._library, self._fndesc, self._env = context, library, fndesc, env
         self.cfunc = None  # numba's wrapper, once emitted
-        self._targets: list = []  # (dispatcher, compile result) to insert the wrapper into
+        self._targets: list = []  # (dispatcher, compile result) to give the wrapper to
 
     def realize(self):
-        """numba's wrapper of the kernel (its module's machine code emitted on the first call)."""
+        """numba's wrapper of the kernel (its library's machine code emitted on the first call)."""
         if self.cfunc is None:
-            from numba.core.compiler_lock import global_compiler_lock
+            from numba.core.cpu import CPUContext
+            from numba.core.dispatcher import Dispatcher
 
             with global_compiler_lock:
                 if self.cfunc is None:
-                    _realize(self._library)
-                    self.cfunc = _NUMBA["get_executable"](self._context, self._library, self._fndesc, self._env)
+                    self._library.realize()
+                    self.cfunc = CPUContext.get_executable(self._context, self._library, self._fndesc, self._env)
+                    _flush_envs(self._library.codegen)
                     for disp, cres in self._targets:
-                        _NUMBA["add_overload"](disp, cres._replace(entry_point=self.cfunc))
-                        disp.overloads[tuple(cres.signature.args)] = cres  # the entry point of record
+                        disp.targetctx.insert_user_function(self.cfunc, cres.fndesc, [cres.library])
+                        Dispatcher.add_overload(disp, cres._replace(entry_point=self.cfunc))
                     self._targets.clear()
         return self.cfunc
 
@@ -158,60 +309,203 @@ class LazyEntry:
         return f"<LazyEntry {self._fndesc.qualname} ({state})>"
 
 
-def _deferring(library) -> bool:
-    """Whether a library just optimized (or loaded as bitcode) emits its machine code later."""
-    return (
-        _below(library)
-        and getattr(library, "_ftc_jit", False)
-        and getattr(library, "_compiled_object", None) is None  # not loaded as object code
-    )
+# --------------------------------------------------------------------------- the compiler and the dispatcher
+class KernelCompiler(compiler.Compiler):
+    """numba's default compiler (its pipelines unchanged) writing into a :class:`KernelLibrary`.
+
+    It compiles the kernels of :func:`jit` and ftcreport's own overloads (``jit_options={"pipeline_class":
+    KernelCompiler}``, fast/refs.py): an overload's implementation is held by numba's dispatcher, which
+    takes compiled functions only, so its machine code is never deferred (the cheap passes below an entry
+    point still apply)."""
+
+    def compile_extra(self, func):
+        if not accelerated() or self.state.library is not None:
+            return super().compile_extra(func)
+        context = self.state.targetctx  # this compile's own copy of numba's context (numba's subtarget)
+        kernel = func in _KERNEL_FUNCS  # compiled by a KernelDispatcher (its depth counts this compile)
+        try:
+            library = KernelLibrary(context.codegen(), func.__qualname__)
+            library.enable_object_caching()
+            library._ftc_below = _depth() > int(kernel)  # the outermost ftcreport compile of a thread: an entry point
+            library._ftc_defer = kernel
+        except Exception as exc:
+            _fail("code library", exc)
+            return super().compile_extra(func)
+        self.state.library = library
+        context.get_executable = lambda lib, fndesc, env: _executable(context, lib, fndesc, env)
+        try:
+            return super().compile_extra(func)
+        finally:
+            del context.get_executable  # the copy keeps numba's method (it is the compile result's context)
 
 
-def _emit(library) -> None:
-    """numba's finalization: the module added to the JIT engine and its machine code emitted.
+class KernelDispatcher(registry.CPUDispatcher):
+    """numba's CPU dispatcher: ftcreport's compiler and cache; a deferred kernel's overload kept aside."""
 
-    A module that had the cheap passes only (below an entry point, now called from Python or
-    loaded from the cache so) gets numba's full optimization first: its code is then what numba
-    would have emitted by default."""
-    loaded = not hasattr(library, "_ftc_cheap") and not library._object_caching_enabled  # from bitcode
-    if getattr(library, "_ftc_cheap", False) or loaded:
-        library._ftc_cheap = False
-        full = _NUMBA.get("_optimize_final_module")
-        if full is not None:
-            full(library)
-    _NUMBA["_finalize_final_module"](library)
-    _flush_envs(library._codegen)
+    def __init__(self, py_func, locals=None, targetoptions=None, pipeline_class=KernelCompiler):
+        super().__init__(py_func, locals=locals or {}, targetoptions=targetoptions or {}, pipeline_class=pipeline_class)
+        _KERNEL_FUNCS.add(py_func)
+
+    def compile(self, sig):
+        depth = _depth()
+        _STATE.depth = depth + 1
+        try:
+            if depth == 0 and accelerated():  # an entry point: no llvm_lock event while it compiles
+                with global_compiler_lock, _quiet_llvm_lock():
+                    return super().compile(sig)
+            return super().compile(sig)
+        finally:
+            _STATE.depth = depth
+
+    def add_overload(self, cres) -> None:
+        entry = cres.entry_point
+        if not isinstance(entry, LazyEntry):
+            return super().add_overload(cres)
+        if entry.cfunc is not None:
+            return super().add_overload(cres._replace(entry_point=entry.cfunc))
+        # numba's table of wrappers takes compiled functions only: the first call from Python goes through
+        # compile(), which returns the LazyEntry, which emits the code and gives the table the wrapper
+        entry._targets.append((self, cres))
+        self.overloads[tuple(cres.signature.args)] = cres
+        return None
+
+    def enable_caching(self) -> None:
+        try:
+            self._cache = KernelCache(self.py_func)
+        except Exception as exc:  # no writable cache directory: compiled in every process, nothing written
+            warnings.warn(
+                f"ftcreport: no numba cache for {self.py_func.__qualname__} ({exc}); it is compiled in every process",
+                RuntimeWarning,
+                stacklevel=2,
+            )
 
 
-def _realize(library) -> None:
-    """Emit a deferred library's machine code (numba's own finalization, which it skipped)."""
-    if getattr(library, "_ftc_deferred", False):
-        library._ftc_deferred = False
-        library._dynamic_globals = []  # numba's finalization lists them again
-        _emit(library)
+def jit(fn: Callable | None = None, *, cache: bool = True, **options):
+    """numba's ``njit`` for ftcreport's kernels: ``cache=True, nogil=True, error_model="numpy"`` by default.
+
+    ``@jit`` or ``@jit(cache=False, error_model="python", ...)``; the options are numba's ``jit`` options."""
+    targetoptions = {"nogil": True, "error_model": "numpy", **options, "nopython": True}
+    targetoptions.setdefault("boundscheck", None)
+
+    def wrap(py_func):
+        if numba.config.DISABLE_JIT:
+            return py_func
+        disp = KernelDispatcher(py_func, targetoptions=dict(targetoptions))
+        if cache:
+            disp.enable_caching()
+        return disp
+
+    return wrap if fn is None else wrap(fn)
 
 
-def _flush_envs(cg) -> None:
-    """Point the environment globals of deferred kernels at their environments, once emitted code has them."""
-    pending = getattr(cg, "_ftc_pending_envs", None)
-    if pending:
-        for name in [n for n in pending if cg._engine.is_symbol_defined(n)]:
-            _NUMBA["set_env"](cg, name, pending.pop(name))
+# --------------------------------------------------------------------------- the cache
+_ENGINE_FILES = ("fast",)  # the package's compiled sources: ftcreport/fast/*.py
 
 
+def engine_stamp() -> str:
+    """A hash of every compiled source of the package (read once per process)."""
+    stamp = getattr(engine_stamp, "_value", None)
+    if stamp is None:
+        root = Path(__file__).resolve().parents[1]
+        h = hashlib.sha256()
+        for sub in _ENGINE_FILES:
+            for path in sorted((root / sub).glob("*.py")):
+                h.update(path.name.encode() + b"\0" + path.read_bytes())
+        stamp = engine_stamp._value = h.hexdigest()
+    return stamp
+
+
+_Locator = getattr(caching, "_CacheLocator", None) or caching.CacheLocator  # numba 0.61 and 0.68 name it so
+
+
+class KernelLocator(_Locator):
+    """Where numba keeps an ftcreport kernel's cache entries: ``paths.cache_dir("numba")``, never the package.
+
+    One folder per source directory (its name and a hash of its path, as numba's own user-wide locator
+    names them), under ``fast`` or ``numba`` (entries compiled with or without the acceleration: a
+    deferred kernel is stored as bitcode, which numba's own load would emit unoptimized).  The stamp is
+    the source file's (modification time and size, as numba's) and :func:`engine_stamp`."""
+
+    def __init__(self, py_func, py_file: str) -> None:
+        from ..paths import cache_dir
+
+        self._py_file = py_file  # numba's warnings read it
+        self._lineno = py_func.__code__.co_firstlineno
+        mode = "fast" if accelerated() else "numba"
+        self._cache_path = str(cache_dir("numba") / mode / self.get_suitable_cache_subpath(py_file))
+
+    def get_cache_path(self) -> str:
+        return self._cache_path
+
+    def get_source_stamp(self):
+        st = os.stat(self._py_file)
+        return st.st_mtime, st.st_size, engine_stamp()
+
+    def get_disambiguator(self) -> str:
+        return str(self._lineno)
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        if not os.path.exists(py_file):
+            return None
+        self = cls(py_func, py_file)
+        try:
+            self.ensure_cache_path()
+        except OSError:
+            return None
+        return self
+
+
+class KernelCacheImpl(caching.CompileResultCacheImpl):
+    """numba's cache of compile results, ftcreport's locator first; loads into :class:`KernelLibrary`."""
+
+    _locator_classes = [KernelLocator]  # noqa: RUF012 - numba's class attribute, a list of ftcreport's own
+
+    def rebuild(self, target_context, payload):
+        if not accelerated():
+            return super().rebuild(target_context, payload)
+        try:
+            return _rebuild(target_context, *payload)
+        except Exception as exc:
+            _fail("cache load", exc)
+            return super().rebuild(target_context, payload)
+
+
+class KernelCache(caching.FunctionCache):
+    """numba's function cache with :class:`KernelCacheImpl`."""
+
+    _impl_class = KernelCacheImpl
+
+
+def _rebuild(ctx, libdata, fndesc, env, signature, objectmode, lifted, typeann, reload_init, referenced_envs):
+    """numba's compile result from its cache payload (``CompileResult._reduce``), its library a KernelLibrary."""
+    for fn in reload_init or ():
+        fn()
+    library = KernelLibrary.load(ctx.codegen(), libdata, below=_depth() > 1)
+    cres = compiler.CompileResult(
+        target_context=ctx, typing_context=ctx.typing_context, library=library, environment=env,
+        entry_point=_executable(ctx, library, fndesc, env), fndesc=fndesc, type_annotation=typeann,
+        signature=signature, objectmode=objectmode, lifted=lifted, typing_error=None, call_helper=None,
+        metadata=None, reload_init=reload_init, referenced_envs=referenced_envs,
+    )  # fmt: skip
+    for ref in referenced_envs:
+        _set_env(library.codegen, ref.env_name, ref)
+    return cres
+
+
+# --------------------------------------------------------------------------- helpers
 @contextlib.contextmanager
 def _quiet_llvm_lock() -> Iterator[None]:
-    """Without numba's ``numba:llvm_lock`` event around each call into LLVM, while a kernel compiles.
+    """Without numba's ``numba:llvm_lock`` event around each call into LLVM, while an entry point compiles.
 
     numba broadcasts the event to a timer of every compile in progress (one per level of nesting) at
-    each of the 100,000s of calls a loop's compile makes into LLVM: measured 1.3 s per 200,000
-    calls at five levels, 0.12 s without.  It only feeds the LLVM-time entry of numba's compile
-    metadata (``dispatcher.get_metadata(sig)["timers"]``), which is then 0 for ftcreport's kernels
-    (``FTCREPORT_LLVM_EVENTS=1`` keeps the event, for profiling with numba's event recorder).
+    each of the 100,000s of calls a loop's compile makes into LLVM.  It only feeds the LLVM-time entry
+    of numba's compile metadata, then 0 for ftcreport's kernels (``FTCREPORT_LLVM_EVENTS=1`` keeps it).
+    Called under numba's compiler lock; llvmlite's list of callbacks is put back (the same list) on exit.
     """
-    import os
+    from llvmlite.binding import ffi
 
-    lock = getattr(getattr(getattr(_llvm(), "ffi", None), "lib", None), "_lock", None)
+    lock = getattr(ffi.lib, "_lock", None)
     callbacks = getattr(lock, "_cblist", None)
     if os.environ.get("FTCREPORT_LLVM_EVENTS") == "1" or not isinstance(callbacks, list):
         yield
@@ -223,260 +517,6 @@ def _quiet_llvm_lock() -> Iterator[None]:
         lock._cblist = callbacks
 
 
-def _llvm():
-    import llvmlite.binding
-
-    return llvmlite.binding
-
-
-def _install_deferred() -> bool:
-    try:
-        from numba.core import codegen, cpu, dispatcher
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return False
-    lib = getattr(codegen, "CPUCodeLibrary", None)
-    jit_lib = getattr(codegen, "JITCodeLibrary", None)
-    jit_cg = getattr(codegen, "JITCPUCodegen", None)
-    ctx = getattr(cpu, "CPUContext", None)
-    disp = getattr(dispatcher, "Dispatcher", None)
-    needed = (
-        (lib, "_finalize_final_module"), (lib, "_finalize_dynamic_globals"), (lib, "_verify_declare_only_symbols"),
-        (lib, "serialize_using_object_code"), (lib, "serialize_using_bitcode"), (lib, "_ensure_finalized"),
-        (jit_lib, "get_pointer_to_function"), (jit_cg, "set_env"), (ctx, "get_executable"),
-        (ctx, "get_env_name"), (disp, "add_overload"), (disp, "_insert"), (disp, "compile"),
-    )  # fmt: skip
-    if any(getattr(owner, name, None) is None for owner, name in needed):
-        return False
-    if getattr(lib._finalize_final_module, "_ftcreport", False):
-        return True
-    if not all(hasattr(codegen.JitEngine, a) for a in ("is_symbol_defined",)):
-        return False
-    _NUMBA.update(
-        _finalize_final_module=lib._finalize_final_module, get_pointer_to_function=jit_lib.get_pointer_to_function,
-        serialize_using_object_code=lib.serialize_using_object_code, set_env=jit_cg.set_env,
-        get_executable=ctx.get_executable, add_overload=disp.add_overload, compile=disp.compile,
-    )  # fmt: skip
-
-    def compile(self, sig):
-        # a kernel of ftcreport compiled from Python is an entry point: the kernels below it are not
-        if getattr(_STATE, "entry", False) or not str(getattr(self.py_func, "__module__", "")).startswith("ftcreport"):
-            return _NUMBA["compile"](self, sig)
-        before = getattr(_STATE, "on", False), getattr(_STATE, "roots", ())
-        _STATE.entry, _STATE.on, _STATE.roots = True, True, (self.py_func.__qualname__,)
-        short_shape_message()
-        from numba.core.compiler_lock import global_compiler_lock
-
-        try:
-            with global_compiler_lock, _quiet_llvm_lock():  # the lock first: one thread swaps llvmlite's list
-                return _NUMBA["compile"](self, sig)
-        finally:
-            _STATE.entry = False
-            _STATE.on, _STATE.roots = before
-
-    def _finalize_final_module(self) -> None:
-        if not _deferring(self):
-            _emit(self)
-            return
-        # what numba's finalization checks and records, without adding the module to the JIT engine
-        self._finalize_dynamic_globals()
-        self._verify_declare_only_symbols()
-        self._ftc_deferred = True
-        self._finalized = True
-
-    def get_pointer_to_function(self, name):
-        self._ensure_finalized()
-        _realize(self)
-        return _NUMBA["get_pointer_to_function"](self, name)
-
-    def serialize_using_object_code(self):
-        self._ensure_finalized()
-        if getattr(self, "_ftc_deferred", False):  # no object code: the cache keeps the bitcode
-            return self.serialize_using_bitcode()
-        return _NUMBA["serialize_using_object_code"](self)
-
-    def set_env(self, env_name, env) -> None:
-        if not self._engine.is_symbol_defined(env_name):  # only deferred code holds it so far
-            if not hasattr(self, "_ftc_pending_envs"):
-                self._ftc_pending_envs = {}
-            self._ftc_pending_envs[env_name] = env
-            return
-        _NUMBA["set_env"](self, env_name, env)
-
-    def get_executable(self, library, fndesc, env):
-        library._ensure_finalized()
-        if getattr(library, "_ftc_deferred", False):
-            library.codegen.set_env(self.get_env_name(fndesc), env)  # pending until code holds it
-            return LazyEntry(self, library, fndesc, env)
-        cfunc = _NUMBA["get_executable"](self, library, fndesc, env)
-        _flush_envs(library.codegen)
-        return cfunc
-
-    def add_overload(self, cres) -> None:
-        entry = cres.entry_point
-        if not isinstance(entry, LazyEntry):
-            return _NUMBA["add_overload"](self, cres)
-        if entry.cfunc is not None:
-            _NUMBA["add_overload"](self, cres._replace(entry_point=entry.cfunc))
-        else:  # numba's table of wrappers takes compiled functions only: the first call goes through compile()
-            entry._targets.append((self, cres))
-        self.overloads[tuple(cres.signature.args)] = cres
-        return None
-
-    jit_lib._ftc_jit = True
-    for fn in (_finalize_final_module, get_pointer_to_function, serialize_using_object_code, set_env,
-               get_executable, add_overload, compile):  # fmt: skip
-        fn._ftcreport = True
-    lib._finalize_final_module = _finalize_final_module
-    jit_lib.get_pointer_to_function = get_pointer_to_function
-    lib.serialize_using_object_code = serialize_using_object_code
-    jit_cg.set_env = set_env
-    ctx.get_executable = get_executable
-    disp.add_overload = add_overload
-    disp.compile = compile
-    return True
-
-
-#: ``FTCREPORT_DEFER_EMISSION=0``: numba emits every kernel's code as it compiles (see docs/ENGINE.md)
-DEFERRED = os.environ.get("FTCREPORT_DEFER_EMISSION", "1") != "0" and _install_deferred()
-
-
-def _install_short_shape_message() -> bool:
-    """numba's plain message for a slice assigned from an array of another size, in ftcreport's kernels.
-
-    numba's CPU target builds the message of that error with the two shapes, formatted in compiled
-    code: every slice assignment of a new dimension compiles numba's ``str(int)``, string
-    concatenation and ``str.join`` for it, 2.3 s of CPU of a cold first result (measured: the switching
-    loop and the references' checks, two runs each).  While an ftcreport kernel compiles (this
-    thread's :func:`loop_compile` or an entry point's compile), numba's own generic overload is used
-    instead: the same ``ValueError`` ("cannot assign slice from input of different size"), without
-    the shapes.  It is raised only by a kernel's bug (no input reaches it); nothing else changes.
-    numba keeps one implementation per signature and process, so a kernel of another package that
-    compiles the same signature later in the same process gets the plain message too.
-    ``FTCREPORT_SHAPE_MESSAGES=1`` keeps numba's message (then :func:`short_shape_message` is False).
-    """
-    if os.environ.get("FTCREPORT_SHAPE_MESSAGES") == "1":
-        return False
-    try:
-        from numba.core.typing import templates
-        from numba.np import arrayobj
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return False
-    stub = getattr(arrayobj, "raise_with_shape_context", None)
-    cpu = getattr(arrayobj, "ol_raise_with_shape_context_cpu", None)
-    generic = getattr(arrayobj, "ol_raise_with_shape_context_generic", None)
-    registry = getattr(getattr(templates, "builtin_registry", None), "globals", None)
-    if stub is None or cpu is None or generic is None or registry is None:
-        return False
-
-    def overload_func(src_shapes, index_shape):
-        if getattr(_STATE, "on", False):
-            return generic(src_shapes, index_shape)
-        return cpu(src_shapes, index_shape)
-
-    overload_func._ftcreport = True
-    found = False
-    for func, fnty in list(registry):
-        for tpl in getattr(fnty, "templates", ()) if func is stub else ():
-            current = getattr(tpl.__dict__.get("_overload_func"), "__func__", None)
-            if current is cpu:
-                tpl._overload_func = staticmethod(overload_func)
-            found = found or current is cpu or getattr(current, "_ftcreport", False)
-    return found
-
-
-_SHORT: list = []  # [whether the plain message is installed], once tried
-
-
-def short_shape_message() -> bool:
-    """Whether ftcreport's kernels compile numba's plain slice-size message (``FTCREPORT_SHAPE_MESSAGES=1``:
-    numba's own); installed by the first compile of an ftcreport kernel (numba's array module, which it
-    changes, is imported by numba's first compile anyway, not by importing ftcreport)."""
-    if not _SHORT:
-        _SHORT.append(_install_short_shape_message())
-    return _SHORT[0]
-
-
-@contextlib.contextmanager
-def loop_compile() -> Iterator[None]:
-    """Within: the kernels compiled in this thread below a loop's entry points skip numba's full
-    optimization of their own closure (the loop's entry point optimizes all of them, linked)."""
-    before = getattr(_STATE, "on", False)
-    _STATE.on = True
-    short_shape_message()
-    try:
-        yield
-    finally:
-        _STATE.on = before
-
-
-_ENGINE_FILES = ("fast",)  # the package's compiled sources: ftcreport/fast/*.py
-
-
-def engine_stamp() -> str:
-    """A hash of every compiled source of the package (read once per process)."""
-    stamp = getattr(engine_stamp, "_value", None)
-    if stamp is None:
-        import hashlib
-        from pathlib import Path
-
-        root = Path(__file__).resolve().parents[1]
-        h = hashlib.sha256()
-        for sub in _ENGINE_FILES:
-            for path in sorted((root / sub).glob("*.py")):
-                h.update(path.name.encode() + b"\0" + path.read_bytes())
-        stamp = engine_stamp._value = h.hexdigest()
-    return stamp
-
-
-def install_cache_stamp() -> bool:
-    """Key the numba cache of every ftcreport kernel on :func:`engine_stamp` too (once per process)."""
-    try:
-        from numba.core import caching
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return False
-    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
-    base = getattr(caching, "_CacheLocator", None) or getattr(caching, "CacheLocator", None)
-    classes = getattr(impl, "_locator_classes", None)
-    if base is None or not isinstance(classes, list):
-        return False
-    if any(getattr(c, "_ftcreport", False) for c in classes):
-        return True
-    numba_classes = list(classes)
-
-    class EngineLocator(base):
-        """numba's own locator for the file, with the engine's stamp joined to the file's."""
-
-        _ftcreport = True
-
-        def __init__(self, inner):
-            self._inner = inner
-
-        def ensure_cache_path(self):
-            return self._inner.ensure_cache_path()
-
-        def get_cache_path(self):
-            return self._inner.get_cache_path()
-
-        def get_source_stamp(self):
-            return (self._inner.get_source_stamp(), engine_stamp())
-
-        def get_disambiguator(self):
-            return self._inner.get_disambiguator()
-
-        def __getattr__(self, name):  # what numba reads of its own locators (_py_file for its warnings)
-            if name == "_inner":
-                raise AttributeError(name)
-            return getattr(self._inner, name)
-
-        @classmethod
-        def from_function(cls, py_func, py_file):
-            if not str(getattr(py_func, "__module__", "")).startswith("ftcreport"):
-                return None  # another package's function: numba's locators, untouched
-            for other in numba_classes:
-                inner = other.from_function(py_func, py_file)
-                if inner is not None:
-                    return cls(inner)
-            return None
-
-    classes.insert(0, EngineLocator)
-    return True
+def source_file(fn) -> Path:
+    """The file a kernel (a dispatcher or a Python function) is defined in."""
+    return Path(inspect.getfile(getattr(fn, "py_func", fn)))

@@ -12,8 +12,8 @@ here, vectorized, from the log.
 
 The loop runs in chunks of about 1 % of the steps so that the progress
 callback is called every ~1 % of the run.  numba compiles the kernels
-on first use and caches the machine code beside the package (``__pycache__``):
-a fresh clone builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
+on first use and caches the machine code in the user's cache directory
+(:mod:`ftcreport.paths`): a fresh install builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
 explicitly and reports the time).
 """
 
@@ -60,7 +60,7 @@ from ..observers.ukf import UKFEstimator
 from ..references import FlatReference
 from ..schemes import SchemeController
 from . import kernels as F
-from .compiling import engine_stamp, loop_compile
+from .compiling import engine_stamp
 from .refs import to_ref
 
 __all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled"]
@@ -329,18 +329,11 @@ def _initial_currents(loop, spec: Spec, plant, mo, sigma, ubar, fm, t0: float, x
 
 
 def _cache_dir() -> Path:
-    """Where the generated loop modules live: $FTCREPORT_CACHE, else beside the package, else ~/.cache."""
-    env = os.environ.get("FTCREPORT_CACHE")
-    if env:
-        return Path(env) / "loops"
-    here = Path(__file__).resolve().parent / "_loops"
-    try:
-        here.mkdir(exist_ok=True)
-        if os.access(here, os.W_OK):
-            return here
-    except OSError:
-        pass
-    return Path.home() / ".cache" / "ftcreport" / "loops"
+    """Where the generated loop modules live: ``ftcreport.paths.cache_dir("loops")`` (the user's cache
+    directory or ``$FTCREPORT_CACHE``, keyed by versions and CPU), never inside the installed package."""
+    from ..paths import cache_dir
+
+    return cache_dir("loops")
 
 
 _LOOPS: dict[tuple, object] = {}
@@ -423,18 +416,22 @@ def _compiling(loop, entry) -> Iterator[None]:
     """Around a call of a loop's entry point: its first call in this process compiles it (or loads it
     from numba's cache) under a file lock beside its module, so that two processes that need the
     same loop (a batch's workers) compile it once: the second waits and then loads the first's."""
-    with loop_compile():
-        if entry in _READY or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
+    if entry in _READY or fcntl is None:  # already loaded here (or no POSIX locks: compile twice)
+        yield
+        return
+    t0 = _time.perf_counter()
+    with open(Path(loop.__file__).with_suffix(".lock"), "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
             yield
-            return
-        with open(Path(loop.__file__).with_suffix(".lock"), "a") as fh:
-            fcntl.flock(fh, fcntl.LOCK_EX)
-            try:
-                yield
-            finally:
-                fcntl.flock(fh, fcntl.LOCK_UN)
-        if entry.signatures:
-            _READY.add(entry)  # numba's signature list costs 0.3 ms to read: once per entry point
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+    if entry.signatures:
+        _READY.add(entry)  # numba's signature list costs 0.3 ms to read: once per entry point
+    _FIRST_CALLS[0] += _time.perf_counter() - t0
+
+
+_FIRST_CALLS = [0.0]  # seconds in the entry points' first calls in this process (compile or cache load)
 
 
 _READY: set = set()  # the loops' entry points compiled or loaded in this process
@@ -499,6 +496,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     # ETD2 is compiled in the motor variant only (it needs no motors: with none its block is eta's)
     motor_loop = nm > 0 or settings.method == "etd2"
     loop = loop_for(spec.law, spec.disc, motors=motor_loop, sampled=settings.sample_time is not None)
+    compile0, steps_new = _FIRST_CALLS[0], loop.run_steps not in _READY  # compile_time below
     xc0 = np.asarray(controller.initial_state(grid[0], q0, eta0), dtype=float).reshape(nc)
     x = np.concatenate((q0, eta0, np.zeros(nm), xc0))
     info = np.zeros(4)
@@ -560,6 +558,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     sig_h = np.zeros(spec.n_sig)
     v_h = np.zeros(0 if ts is None else nm)
     wall0 = _time.perf_counter()
+    first_s, chunks = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if info[0] != 0:  # the first command failed (at t0, before any step)
         status, reason, t_end = _stop(info, F.AT_STATE, t_end, t_end, settings, spec.ref)
     with np.errstate(all="ignore"):
@@ -577,6 +576,8 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 )  # fmt: skip
             if k == 0:
                 _timing_mark("first_chunk")
+                first_s = _time.perf_counter() - wall0
+            chunks += 1
             if li:
                 bufs = (lt, lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lia)
                 si = _collect(spec, plant, nq, k, li, is_logged, bufs, stream, si, n_steps + 1, log_parts)
@@ -594,6 +595,10 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 progress(float(grid[k + 1]))
             k += 1
     wall = _time.perf_counter() - wall0
+    # compiling or loading the loop: its first calls here, less the first chunk's own simulation
+    # (estimated by the mean of the other chunks, which are the same size)
+    sim_first = (wall - first_s) / (chunks - 1) if chunks > 1 else 0.0
+    compile_s = max(0.0, _FIRST_CALLS[0] - compile0 - (sim_first if steps_new else 0.0))
     if progress is not None:
         progress(t_end)
     stream = {name: v[:si] for name, v in stream.items()}
@@ -615,6 +620,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
             "sample_time": settings.sample_time,
             "measurement_delay": int(settings.measurement_delay),
             "engine": "compiled",
+            "compile_time": compile_s,
         },
         t_stream=t_stream,
         stream=stream,

@@ -41,9 +41,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
-jit = njit(cache=True, nogil=True, error_model="numpy")
+from .compiling import jit  # numba's njit through ftcreport's compiler: cache=True, nogil, error_model="numpy"
 
 TIE_RTOL = 1e-9  # control.switching.TIE_RTOL (tests/test_fast.py checks they agree)
 
@@ -1319,7 +1318,7 @@ def matched_terms(Kp, R, C, pc, t, q, eta, xc, k_v, info, sig):
     return w, MB, g, eta_e
 
 
-@njit(nogil=True, error_model="numpy")  # not cached: it takes any scheme's P (a plug-in's types too)
+@jit(cache=False)  # not cached: it takes any scheme's P (a plug-in's types too)
 def no_discrete(P, Kp, R, C, t, q, eta, xc, info):
     """The discrete update of a scheme that has none."""
     return

@@ -2,21 +2,20 @@
 
 numba caches a compiled function as its machine code (an ELF object) plus the LLVM bitcode of the
 whole library, "for further inlining with other libraries" (``CPUCodeLibrary.serialize_using_object_code``).
-On loading from the cache it parses that bitcode into an LLVM module at once
-(``CPUCodeLibrary._unserialize``), although only a later compile that calls the function links it,
-and keeps the module for the life of the process; it reads the module only for the names of the
-symbols it defines (``JitEngine._load_defined_symbols``).  The closed loop's library inlines every
-kernel it calls: 2.2 MB of bitcode, about 32 MB once parsed (measured: VmRSS around
-``llvmlite.binding.parse_bitcode``), for a run that never compiles.
+Its own load parses that bitcode into an LLVM module at once, although only a later compile that calls
+the function links it, and keeps the module for the life of the process; it reads the module only for
+the names of the symbols it defines.  The closed loop's library inlines every kernel it calls: 2.2 MB of
+bitcode, about 32 MB once parsed (measured: VmRSS around ``llvmlite.binding.parse_bitcode``), for a run
+that never compiles.
 
-:func:`install` makes the load keep the bitcode as bytes, take the symbol names from the object's
-ELF symbol table (its defined global and weak symbols: the names the execution engine can resolve),
-and parse the bitcode on the first ``_get_module_for_linking`` (a compile that calls the function).
-The machine code run is numba's own, loaded the same way: the numbers cannot change.
-
-It replaces two methods of numba's ``CPUCodeLibrary`` (read in numba 0.68), so it checks that the
-internals it uses exist and otherwise leaves numba alone; ``FTCREPORT_LAZY_LINK=0`` turns it off.  Objects that are
-not ELF64 little-endian (macOS, Windows) take numba's own path.
+ftcreport's kernels load from the cache into their own library class
+(:meth:`ftcreport.fast.compiling.KernelLibrary.load`), which keeps the bitcode as bytes, takes the
+symbol names from the object's ELF symbol table (:func:`defined_symbols`: its defined global and weak
+symbols, the names the execution engine can resolve) and parses the bitcode on the first link.  The
+machine code run is numba's own, loaded the same way: the numbers cannot change.  Only ftcreport's
+kernels load so; another package's functions load through numba's own classes.
+``FTCREPORT_LAZY_LINK=0`` parses on load, as numba does; objects that are not ELF64 little-endian
+(macOS, Windows) are parsed on load too.
 """
 
 from __future__ import annotations
@@ -24,9 +23,15 @@ from __future__ import annotations
 import os
 import struct
 
-__all__ = ["defined_symbols", "install", "installed"]
+__all__ = ["defined_symbols", "enabled"]
 
-_STATE = {"installed": False}
+
+def enabled() -> bool:
+    """Whether ftcreport's cache loads may keep the linking IR unparsed (``FTCREPORT_LAZY_LINK=0``: not).
+
+    The caller (``compiling``) also requires the acceleration to be on; this module imports nothing of
+    ftcreport, so the two never import each other."""
+    return os.environ.get("FTCREPORT_LAZY_LINK", "1") != "0"
 
 
 def defined_symbols(obj: bytes) -> set[str] | None:
@@ -55,55 +60,3 @@ def defined_symbols(obj: bytes) -> set[str] | None:
             start = strings + st_name
             out.add(obj[start : obj.index(b"\0", start)].decode())
     return out
-
-
-def installed() -> bool:
-    """Whether the lazy load is in place in this process."""
-    return _STATE["installed"]
-
-
-def install() -> bool:
-    """Patch numba's cache load (once per process); returns whether it is in place."""
-    if _STATE["installed"] or os.environ.get("FTCREPORT_LAZY_LINK", "1") == "0":
-        return _STATE["installed"]
-    try:
-        from numba.core import codegen
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return False
-    lib = getattr(codegen, "CPUCodeLibrary", None)
-    engine = getattr(codegen, "JitEngine", None)
-    needed = ("_unserialize", "_get_module_for_linking", "enable_object_caching", "_set_compiled_object")
-    needed += ("_finalize_final_module",)
-    if lib is None or engine is None or not all(hasattr(lib, a) for a in needed):
-        return False
-    ll = getattr(codegen, "ll", None)  # numba's own llvmlite.binding
-    if not hasattr(engine, "_load_defined_symbols") or not hasattr(ll, "parse_bitcode"):
-        return False
-    numba_unserialize = lib.__dict__["_unserialize"].__func__
-    numba_linking = lib._get_module_for_linking
-
-    def _unserialize(cls, cg, state):
-        name, kind, data = state
-        symbols = defined_symbols(data[0]) if kind == "object" else None
-        if symbols is None:
-            return numba_unserialize(cls, cg, state)
-        object_code, shared_bitcode = data
-        self = cg.create_library(name)
-        self.enable_object_caching()
-        self._set_compiled_object(object_code)
-        self._ftc_bitcode = shared_bitcode  # parsed by _get_module_for_linking, if ever
-        self._finalize_final_module()
-        cg._engine._defined_symbols |= symbols
-        return self
-
-    def _get_module_for_linking(self):
-        bitcode = getattr(self, "_ftc_bitcode", None)
-        if bitcode is not None:
-            self._shared_module = ll.parse_bitcode(bitcode)
-            self._ftc_bitcode = None
-        return numba_linking(self)
-
-    lib._unserialize = classmethod(_unserialize)
-    lib._get_module_for_linking = _get_module_for_linking
-    _STATE["installed"] = True
-    return True

@@ -173,7 +173,6 @@ def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:
         cases.append(entry)
     n_diff = sum(len(s.drawn) for c in comparisons for s in c.schemes)
     index = read_json(Path(dest) / "baseline.json") or {}
-    interactive.ensure_plotly(out)
     return write_page(
         out / "baseline.html",
         "baseline.html",
@@ -186,5 +185,5 @@ def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:
         n_total=len(rows),
         n_diff=n_diff,
         max_figures=MAX_BASELINE_FIGURES,
-        plotly_src=interactive.ASSET,
+        plotly_inline=interactive.inline_plotly() if figures else None,
     )

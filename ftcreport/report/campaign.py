@@ -1,8 +1,18 @@
-"""Campaign report: success rates with Wilson intervals, distributions, worst patterns (HTML at the edge)."""
+"""Campaign report: success rates with Wilson intervals, distributions, worst patterns, a page per
+failing sample (HTML at the edge).
+
+The page (``<campaign>/index.html``) shows the rates, the paired comparisons as one matrix per metric
+(a cell: who wins, with the p-value or the confidence interval on hover), the distributions as ECDFs
+(every scheme visible, none hidden behind another's bars), and the failing samples, each linked to
+its own page.  A sample's page is an ordinary case page (replay, figures, verdict) of the sample's
+variant, re-simulated from its seeds (:func:`render_sample`): the worst :data:`WORST_K` failing
+samples are rendered with the campaign, any other on demand (``ftcreport sample DIR INDEX``).
+"""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import matplotlib
@@ -11,12 +21,17 @@ matplotlib.use("svg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ..campaign import summarize
-from ..store import _jsonable, write_atomic
+from ..campaign import COMPARED_METRICS, summarize
+from ..errors import FtcError
+from ..store import _jsonable, read_json, write_atomic
 from . import plots
 from .render import figure, write_page
 
-__all__ = ["render_campaign"]
+__all__ = ["PAGES", "WORST_K", "comparison_matrices", "failing_samples", "render_campaign", "render_sample"]
+
+WORST_K = 3  # failing samples whose page the campaign renders (the others: ``ftcreport sample``)
+PAGES = "sample_pages"  # <campaign>/sample_pages/sample-00017/index.html
+LINESTYLES = ("-", "--", "-.", ":")
 
 
 def _rates_svg(summary: dict) -> str:
@@ -33,48 +48,202 @@ def _rates_svg(summary: dict) -> str:
     return plots._svg(fig)
 
 
-def _hist_svg(summary: dict, key: str, label: str, log: bool) -> str:
-    fig, ax = plt.subplots(figsize=(6.4, 2.4))
-    data = [np.asarray(e[key], dtype=float) for e in summary["schemes"].values()]
-    data = [d[np.isfinite(d)] for d in data]
-    allv = np.concatenate(data) if data else np.zeros(0)
-    if allv.size:
-        lo, hi = allv.min(), allv.max()
-        if log:
-            lo = max(lo, 1e-9)
-            bins = np.logspace(np.log10(lo), np.log10(max(hi, lo * 10)), 30)
-            ax.set_xscale("log")
-        else:
-            bins = np.linspace(lo, max(hi, lo + 1e-9), 30)
-        for s, d in zip(summary["schemes"], data, strict=True):
-            if d.size:
-                ax.hist(d, bins=bins, histtype="step", lw=1.2, color=plots.SCHEME_COLORS.get(s, "0.5"), label=s)
-        ax.legend(fontsize=6)
+def _ecdf_svg(summary: dict, key: str, label: str, log: bool, never: str | None = None) -> str:
+    """Empirical CDFs of a per-sample value, one step line per scheme (its own line style and width, so
+    coinciding schemes stay visible); the fraction of a scheme's samples without a value (e.g. never
+    recovered) is where its line ends below 1."""
+    fig, ax = plt.subplots(figsize=(6.4, 2.8))
+    for i, (s, e) in enumerate(summary["schemes"].items()):
+        d = np.sort(np.asarray(e[key], dtype=float))
+        d = d[np.isfinite(d) & ((d > 0) if log else True)]
+        n = max(int(e.get("n") or 0), d.size, 1)
+        if not d.size:
+            continue
+        y = np.arange(1, d.size + 1) / n
+        ax.step(
+            np.r_[d[0], d],
+            np.r_[0.0, y],
+            where="post",
+            lw=2.2 - 0.4 * (i % 4),
+            ls=LINESTYLES[i % len(LINESTYLES)],
+            color=plots.SCHEME_COLORS.get(s, f"C{i}"),
+            label=f"{s} ({d.size}/{n})",
+        )
+    if log and ax.lines:
+        ax.set_xscale("log")
+    ax.set_ylim(0, 1.02)
     ax.set_xlabel(label)
-    ax.set_ylabel("samples")
+    ax.set_ylabel("fraction of samples <= x")
+    if ax.lines:
+        ax.legend(fontsize=6, loc="lower right", title=never, title_fontsize=6)
+    else:
+        ax.text(0.5, 0.5, "no sample has a value", ha="center", va="center", transform=ax.transAxes)
     return plots._svg(fig)
 
 
-def render_campaign(out: Path, rows: list[dict]) -> Path:
-    """Write ``summary.json`` and ``index.html`` of a campaign directory from its table rows."""
+def comparison_matrices(summary: dict) -> list[dict]:
+    """The paired comparisons as one scheme x scheme matrix per metric.
+
+    A cell (row A, column B): ``A`` when A beats B significantly, ``B`` when B beats A, ``n.s.``
+    otherwise, with the numbers (McNemar's p, or the mean difference and its 95 % CI) in ``title`` for
+    hover and ``short`` in the cell; ``cls`` colors it (win, loss, ns).
+    """
+    comps = summary.get("comparisons") or []
+    schemes = list(summary["schemes"])
+    out = []
+    for metric in ("success", *COMPARED_METRICS):
+        mine = [c for c in comps if c["metric"] == metric]
+        if not mine:
+            continue
+        cells: dict[tuple[str, str], dict] = {}
+        for c in mine:
+            for a, b, flip in ((c["a"], c["b"], False), (c["b"], c["a"], True)):
+                cells[(a, b)] = _cell(c, flip)
+        rows = [{"scheme": a, "cells": [cells.get((a, b)) for b in schemes]} for a in schemes]
+        unit = COMPARED_METRICS.get(metric, "")
+        out.append({"metric": metric, "unit": unit, "schemes": schemes, "rows": rows})
+    return out
+
+
+def _cell(c: dict, flip: bool) -> dict:
+    """One matrix cell of comparison ``c`` seen from its row's scheme (``flip``: the row is c's b)."""
+    row, col = (c["b"], c["a"]) if flip else (c["a"], c["b"])
+    if c["metric"] == "success":
+        mine, theirs = (c["b_only"], c["a_only"]) if flip else (c["a_only"], c["b_only"])
+        short = f"{mine}:{theirs}, p {c['p']:.2g}"
+        row_wins = mine > theirs
+    else:
+        if c.get("low") is None:
+            return {"text": "-", "cls": "ns", "short": f"{c.get('n', 0)} pairs", "title": c["text"]}
+        sign = -1.0 if flip else 1.0
+        mean, lo, hi = sign * c["mean"], *sorted((sign * c["low"], sign * c["high"]))
+        short = f"{mean:+.2g} [{lo:+.2g}, {hi:+.2g}]"
+        row_wins = hi < 0  # lower is better: the row's value is smaller
+    if not c["significant"]:
+        return {"text": "n.s.", "cls": "ns", "short": short, "title": c["text"]}
+    win = row if row_wins else col
+    return {"text": f"{win} better", "cls": "win" if row_wins else "loss", "short": short, "title": c["text"]}
+
+
+def failing_samples(rows: list[dict]) -> list[dict]:
+    """Samples where some scheme other than the oracle did not succeed, worst first: most schemes
+    failing, then the largest final position error (the success criterion's metric; the whole run's
+    maximum is the initial offset's on most samples).  Each: ``sample``, ``faulted_wheels``, ``failed``
+    (the schemes), ``max_error`` (the largest final error over the schemes) and ``errors`` per scheme."""
+    by: dict[int, list[dict]] = {}
+    for r in rows:
+        by.setdefault(int(r["sample"]), []).append(r)
+    out = []
+    for i, rs in by.items():
+        failed = [r["scheme"] for r in rs if not r.get("success") and r["scheme"] != "oracle"]
+        if not failed:
+            continue
+        errs = {r["scheme"]: r.get("position_error_final") for r in rs}
+        finite = [v for v in errs.values() if isinstance(v, int | float) and math.isfinite(v)]
+        out.append(
+            {
+                "sample": i,
+                "faulted_wheels": rs[0].get("faulted_wheels", "?"),
+                "failed": failed,
+                "max_error": max(finite) if finite else math.inf,
+                "errors": errs,
+            }
+        )
+    out.sort(key=lambda e: (-len(e["failed"]), -e["max_error"]))
+    return out
+
+
+def sample_name(index: int) -> str:
+    return f"sample-{int(index):05d}"
+
+
+def render_sample(out: Path, index: int) -> Path:
+    """Re-simulate sample ``index`` of the campaign in ``out`` and write its page, a case page (verdict,
+    replay, figures) at ``<out>/sample_pages/sample-NNNNN/index.html``; returns its path.
+
+    The sample's variant is drawn again from the campaign's seed (``ftcreport.campaign.sample_seeds``),
+    so its runs are the campaign's; its results are stored beside the page like a batch's.
+    """
+    from ..batch import record_case, run_key
+    from ..campaign import draw_variant, sample_seeds
+    from ..cases import _toml_value, parse_case
+    from ..runner import run_scheme
+    from ..store import save_run
+    from .render import render_case
+
+    out = Path(out)
+    meta = read_json(out / "campaign.json")
+    if not isinstance(meta, dict) or "base" not in meta:
+        raise FtcError(f"{out}: not a campaign directory (no campaign.json); run 'ftcreport campaign' first")
+    base = parse_case(meta["base"], f"{out / 'campaign.json'}: base")
+    index = int(index)
+    if index < 0:
+        raise FtcError(f"sample {index}: must be >= 0")
+    variant = draw_variant(base, sample_seeds(int(meta["seed"]), index))
+    name = sample_name(index)
+    variant = variant.model_copy(
+        update={"name": name, "description": f"{base.name}, campaign sample {index}: {variant.description}"}
+    )
+    root = out / PAGES
+    data = _drop_none(json.loads(variant.model_dump_json()))
+    data.pop("campaign", None)
+    text = f"# {base.name}: sample {index} of the campaign in {out} (seed {meta['seed']}), as drawn\n" + "".join(
+        f"{k} = {_toml_value(v)}\n" for k, v in data.items()
+    )
+    src = root / f"{name}.toml"
+    write_atomic(src, text.encode())
+    variant = parse_case(data, str(src))
+    record_case(root, variant, src)
+    for s in meta.get("schemes") or []:
+        run, m = run_scheme(variant, s)
+        save_run(root, name, s, run, m, run_key(variant, s))
+    page = render_case(root, name, root="../../", nav=f"campaign {base.name}")
+    if page is None:  # pragma: no cover - record_case wrote the record above
+        raise FtcError(f"{root / name}: the sample's record is missing")
+    return page
+
+
+def _drop_none(v):
+    """A dict without its None values (TOML has no null), recursively."""
+    if isinstance(v, dict):
+        return {k: _drop_none(x) for k, x in v.items() if x is not None}
+    if isinstance(v, list):
+        return [_drop_none(x) for x in v]
+    return v
+
+
+def render_campaign(out: Path, rows: list[dict], worst: int = WORST_K) -> Path:
+    """Write ``summary.json`` and ``index.html`` of a campaign directory from its table rows, and the
+    pages of the ``worst`` failing samples not rendered yet (when the directory holds ``campaign.json``)."""
     out = Path(out)
     summary = summarize(rows)
     meta_path = out / "campaign.json"
     meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
     write_atomic(out / "summary.json", json.dumps(_jsonable(summary), indent=1).encode())
+    failing = failing_samples(rows)
+    if meta.get("base") and worst > 0:
+        for e in failing[:worst]:
+            if not (out / PAGES / sample_name(e["sample"]) / "index.html").exists():
+                render_sample(out, e["sample"])
+    for e in failing:
+        page = out / PAGES / sample_name(e["sample"]) / "index.html"
+        e["href"] = page.relative_to(out).as_posix() if page.exists() else None
     figures = []
     if rows:
         figures = [
             figure("rates", "Success rate per scheme with 95 % Wilson intervals.", svg=_rates_svg(summary)),
             figure(
                 "max-error",
-                "Distribution of the maximum position error per sample.",
-                svg=_hist_svg(summary, "max_errors", "max position error [m]", True),
+                "Empirical CDF of the maximum position error per sample over the whole run, the initial offset "
+                "included (log scale): the fraction of samples at or below each value, one line per scheme "
+                "(further left is better).",
+                svg=_ecdf_svg(summary, "max_errors", "max position error [m]", True),
             ),
             figure(
                 "recovery",
-                "Distribution of the recovery time (samples that never recover are counted in the table).",
-                svg=_hist_svg(summary, "recovery_times", "recovery time max [s]", False),
+                "Empirical CDF of the recovery time (defined under the rates table) over all samples: a "
+                "scheme's line ends at the fraction of samples that recovered (legend: recovered / samples).",
+                svg=_ecdf_svg(summary, "recovery_times", "recovery time max [s]", False, "recovered / samples"),
             ),
         ]
     return write_page(
@@ -86,4 +255,10 @@ def render_campaign(out: Path, rows: list[dict]) -> Path:
         success=(meta.get("base", {}).get("campaign") or {}).get("success", {}),
         summary=summary,
         figures=figures,
+        matrices=comparison_matrices(summary),
+        failing=failing,
+        schemes=list(summary["schemes"]),
+        out_dir=str(out),
+        worst=worst,
+        band=(meta.get("base") or {}).get("recovery_band"),
     )

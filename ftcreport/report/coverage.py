@@ -1,4 +1,5 @@
-"""Coverage page: per-scheme fault tables and heatmaps beside the redundancy rule's prediction (HTML edge)."""
+"""Coverage page: per-scheme fault tables and maps (HTML tables, colored) beside the redundancy rule's
+prediction (HTML edge)."""
 
 from __future__ import annotations
 
@@ -11,11 +12,11 @@ matplotlib.use("svg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ..coverage import DEFAULT_CRITERIA, recovery_bound
 from ..model import wheel_names
-from . import plots
-from .render import figure, write_page
+from .render import write_page
 
-__all__ = ["coverage_grids", "render_coverage"]
+__all__ = ["coverage_grids", "map_tables", "render_coverage"]
 
 
 def coverage_grids(summary: dict, n: int) -> dict:
@@ -52,44 +53,47 @@ def coverage_grids(summary: dict, n: int) -> dict:
     return out
 
 
-def _heat(ax, grid, pred, xlabels, ylabels, title) -> None:
-    cmap = plt.get_cmap("RdYlGn").with_extremes(bad="#eeeeee")
-    rows, cols = grid.shape
-    im = ax.imshow(
-        np.ma.masked_invalid(grid),
-        vmin=0.0,
-        vmax=1.0,
-        cmap=cmap,
-        aspect="auto",
-        origin="upper",
-        interpolation="nearest",
-        extent=(-0.5, cols - 0.5, rows - 0.5, -0.5),
-    )
-    ax.grid(False)
-    for i in range(grid.shape[0]):
-        for j in range(grid.shape[1]):
-            if np.isfinite(pred[i, j]) and pred[i, j] == 0.0:
-                ax.text(j, i, "X", ha="center", va="center", fontsize=11, fontweight="bold", color="k")
-            elif np.isfinite(grid[i, j]):
-                ax.text(j, i, f"{grid[i, j]:.2g}", ha="center", va="center", fontsize=6, color="k")
-    ax.set_xticks(range(len(xlabels)), xlabels, fontsize=6, rotation=30)
-    ax.set_yticks(range(len(ylabels)), ylabels, fontsize=7)
-    ax.set_title(title, fontsize=8)
-    return im
+def _cell_color(x: float) -> str:
+    """Background of a map cell: red (0) through yellow to green (1) (matplotlib's RdYlGn), grey if not run."""
+    if not np.isfinite(x):
+        return "#eeeeee"
+    r, g, b, _ = plt.get_cmap("RdYlGn")(0.15 + 0.7 * float(x))
+    return f"rgb({int(255 * r)},{int(255 * g)},{int(255 * b)})"
 
 
-def _map_svg(grids: dict, key: str, xlabels: list[str]) -> str:
-    schemes = list(grids[key])
+def map_tables(grids: dict, key: str, xlabels: list[str]) -> list[dict]:
+    """The maps as HTML tables (numbers at the text's size): the rule's prediction, then one per scheme.
+
+    Each table: ``title`` and ``rows`` of (wheel, cells); a cell has ``text`` (the fraction of onsets
+    recovered, or X where the rule says uncompensable, with the fraction beside it), ``color`` and
+    ``title`` (hover text).
+    """
     pred = grids[f"predicted_{key}"]
-    fig, axes = plt.subplots(1, len(schemes) + 1, figsize=(1.6 + 1.7 * (len(schemes) + 1), 2.4), squeeze=False)
-    _heat(axes[0, 0], pred, pred, xlabels, grids["wheels"], "predicted (2.103)")
-    im = None
-    for ax, s in zip(axes[0, 1:], schemes, strict=True):
-        im = _heat(ax, grids[key][s], pred, xlabels, grids["wheels"], f"simulated: {s}")
-        ax.set_yticklabels([])
-    if im is not None:
-        fig.colorbar(im, ax=axes[0, :].tolist(), shrink=0.8, label="onsets recovered")
-    return plots._svg(fig)
+    tables = []
+    for name, grid in [("predicted (2.103)", pred), *[(f"simulated: {s}", g) for s, g in grids[key].items()]]:
+        rows = []
+        for i, w in enumerate(grids["wheels"]):
+            cells = []
+            for j, c in enumerate(xlabels):
+                x, p = grid[i, j], pred[i, j]
+                fault = f"{w} {c}" if key == "single" else f"{w}+{c}"
+                if not np.isfinite(p):
+                    cells.append({"text": "", "color": "#f7f7f7", "title": ""})
+                    continue
+                if grid is pred:
+                    text, title = ("ok", f"{fault}: compensable") if p == 1.0 else ("X", f"{fault}: uncompensable")
+                    color = _cell_color(1.0 if p == 1.0 else 0.0)
+                else:
+                    frac = "-" if not np.isfinite(x) else f"{x:.2g}"
+                    text = frac if p == 1.0 else f"X {frac}"
+                    title = f"{fault}: {frac} of the onsets recovered" + (
+                        "" if p == 1.0 else " (uncompensable by the rule)"
+                    )
+                    color = _cell_color(x)
+                cells.append({"text": text, "color": color, "title": title})
+            rows.append({"wheel": w, "cells": cells})
+        tables.append({"title": name, "columns": xlabels, "rows": rows})
+    return tables
 
 
 def render_coverage(out: Path) -> Path:
@@ -98,29 +102,34 @@ def render_coverage(out: Path) -> Path:
     meta = json.loads((out / "coverage.json").read_text())
     summary = json.loads((out / "summary.json").read_text())
     grids = coverage_grids(summary, int(meta["n"]))
-    figures = []
+    maps = []
     if grids["columns"]:
-        figures.append(
-            figure(
-                "single",
-                "Single-wheel faults (wheels x fault kinds): the rule's prediction (green compensable, "
-                "X uncompensable) beside the fraction of onset times each scheme recovered from.",
-                svg=_map_svg(grids, "single", grids["columns"]),
-            )
+        maps.append(
+            {
+                "id": "single",
+                "caption": "Single-wheel faults (wheels x fault kinds): the rule's prediction (X uncompensable) beside "
+                "the fraction of onset times each scheme recovered from (green 1, red 0; hover a cell: its fault).",
+                "tables": map_tables(grids, "single", grids["columns"]),
+            }
         )
     if any(np.isfinite(g).any() for g in grids["pairs"].values()):
-        figures.append(
-            figure(
-                "pairs",
-                "Pairs of wheel losses (wheel x wheel): prediction and fraction of onsets recovered.",
-                svg=_map_svg(grids, "pairs", grids["wheels"]),
-            )
+        maps.append(
+            {
+                "id": "pairs",
+                "caption": "Pairs of wheel losses (wheel x wheel): prediction and fraction of onsets recovered.",
+                "tables": map_tables(grids, "pairs", grids["wheels"]),
+            }
         )
+    base = meta.get("base") or {}
+    criteria = ((base.get("campaign") or {}).get("success")) or DEFAULT_CRITERIA
+    bound = recovery_bound(criteria, base.get("recovery_band", 0.01))
     return write_page(
         out / "index.html",
         "coverage.html",
         "../../",
         meta=meta,
         summary=summary,
-        figures=figures,
+        maps=maps,
+        criteria=criteria,
+        bound=bound,
     )

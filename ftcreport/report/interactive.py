@@ -5,37 +5,54 @@ errors, torques (a menu picks the scheme), the switching index against the true 
 estimates of the adaptive and active schemes against the truth.  Fault phases are shaded and the
 events marked.  Series are decimated by keeping each bucket's minimum and maximum
 (:func:`decimate`), so peaks survive and a page stays small; the page states the point budget.
-plotly.js itself is one shared file (``reports/assets/plotly.min.js``, copied from the installed
-``plotly`` package by :func:`ensure_plotly`), loaded by every page: nothing is fetched online.
+plotly.js itself is inlined once per page, gzip-compressed and base64-encoded
+(:func:`inline_plotly`: about 2.0 MB per page against 4.8 MB as text), so a page copied alone
+works offline; nothing is fetched online.
 """
 
 from __future__ import annotations
 
+import base64
+import functools
+import gzip
 import itertools
 import math
 from importlib import resources
-from pathlib import Path
 
 import numpy as np
 
 from ..control.kinematic import wrap
-from ..store import write_atomic
+from . import plots
 from .plots import SCHEME_COLORS
 
-__all__ = ["MAX_POINTS", "decimate", "ensure_plotly", "errors_fig", "estimates_fig", "switching_fig", "torques_fig"]
+__all__ = [
+    "MAX_POINTS",
+    "band_fig",
+    "decimate",
+    "errors_fig",
+    "estimates_fig",
+    "inline_plotly",
+    "motors_fig",
+    "switching_fig",
+    "torques_fig",
+]
 
 MAX_POINTS = 1500  # per trace, after decimation
-ASSET = "assets/plotly.min.js"
 
 
-def ensure_plotly(out: Path) -> Path:
-    """Copy plotly.min.js from the installed package to ``out/assets`` (once; again if it changed)."""
-    src = resources.files("plotly") / "package_data" / "plotly.min.js"
-    data = src.read_bytes()
-    dst = Path(out) / ASSET
-    if not dst.exists() or dst.stat().st_size != len(data):
-        write_atomic(dst, data)
-    return dst
+@functools.cache  # one compression per process: every page inlines the same bytes
+def inline_plotly() -> dict:
+    """plotly.min.js for inlining in a page: gzip-compressed and base64-encoded (the page inflates it
+    with the browser's DecompressionStream), so a page copied alone still draws its figures.
+
+    Returns ``{"b64", "raw_bytes", "inline_bytes", "version"}``: 4.8 MB of plotly.js become about
+    2.0 MB in the page (against 4.8 MB inlined as text).
+    """
+    data = (resources.files("plotly") / "package_data" / "plotly.min.js").read_bytes()
+    b64 = base64.b64encode(gzip.compress(data, compresslevel=9, mtime=0)).decode("ascii")
+    head = data[:400].decode("utf-8", "replace")
+    version = head.split("plotly.js v", 1)[1].split()[0] if "plotly.js v" in head else "?"
+    return {"b64": b64, "raw_bytes": len(data), "inline_bytes": len(b64), "version": version}
 
 
 def decimate(t: np.ndarray, *ys: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np.ndarray, ...]:
@@ -71,31 +88,33 @@ def _r(x: np.ndarray, digits: int = 4) -> list:
     return out
 
 
-def _phases(events: list[float], t_end: float) -> list[dict]:
-    """Shaded fault phases (alternate phases after each event) and a dotted line per event."""
-    shapes = []
-    ev = sorted({float(e) for e in events if e > 0})
-    for i, te in enumerate(ev):
-        end = ev[i + 1] if i + 1 < len(ev) else t_end
-        span = {"xref": "x", "yref": "paper", "x0": te, "y0": 0, "y1": 1}  # full height from the event on
-        if i % 2 == 0:
-            shade = {"fillcolor": "rgba(180,0,30,0.07)", "line": {"width": 0}, "layer": "below"}
-            shapes.append({"type": "rect", **span, "x1": end, **shade})
-        shapes.append(
-            {"type": "line", **span, "x1": te, "line": {"color": "rgba(120,0,20,0.6)", "width": 1, "dash": "dot"}}
-        )
+def _phases(phases: list[dict], t_end: float) -> list[dict]:
+    """Every fault phase shaded in its pattern's color (the first of each pattern in the legend, with
+    its gains), a dotted line at each event; the same phases as the static figures (plots.fault_phases)."""
+    shapes, seen = [], set()
+    for p in phases:
+        span = {"xref": "x", "yref": "paper", "x0": p["start"], "y0": 0, "y1": 1}
+        if p["color"] is not None:
+            first = p["color"] not in seen
+            seen.add(p["color"])
+            shade = {"fillcolor": p["color"], "opacity": 0.3, "line": {"width": 0}, "layer": "below"}
+            legend = {"name": p["label"], "showlegend": first, "legendgroup": "phase " + p["color"]}
+            shapes.append({"type": "rect", **span, "x1": min(p["end"], t_end), **shade, **legend})
+        if p["start"] > 0:
+            dot = {"color": "rgba(120,0,20,0.6)", "width": 1, "dash": "dot"}
+            shapes.append({"type": "line", **span, "x1": p["start"], "line": dot})
     return shapes
 
 
-def _layout(title: str, events: list[float], t_end: float, height: int = 360, **extra) -> dict:
+def _layout(title: str, phases: list[dict], t_end: float, height: int = 360, **extra) -> dict:
     lay = {
         "title": {"text": title, "font": {"size": 13}},
-        "height": height,
-        "margin": {"l": 60, "r": 20, "t": 40, "b": 40},
+        "height": height + 50,
+        "margin": {"l": 60, "r": 20, "t": 40, "b": 100},
         "hovermode": "x unified",
         "xaxis": {"title": {"text": "t [s]"}, "range": [0, t_end]},
-        "shapes": _phases(events, t_end),
-        "legend": {"orientation": "h", "y": -0.18},
+        "shapes": _phases(phases, t_end),
+        "legend": {"orientation": "h", "y": 0, "yref": "container", "yanchor": "bottom"},
     }
     lay.update(extra)
     return lay
@@ -110,7 +129,7 @@ def _t_end(series: dict) -> float:
     return max(float(ts["t"][-1]) for ts in series.values())
 
 
-def errors_fig(series: dict[str, dict], events: list[float]) -> dict:
+def errors_fig(series: dict[str, dict], phases: list[dict]) -> dict:
     """Position error and largest heading error per scheme (log scale)."""
     data = []
     for scheme, ts in series.items():
@@ -124,7 +143,7 @@ def errors_fig(series: dict[str, dict], events: list[float]) -> dict:
         data.append(_trace(t, _r(h), scheme, "%{y:.3g} rad", **heading))
     lay = _layout(
         "tracking errors (shaded: fault phases; drag to zoom, double-click to reset)",
-        events,
+        phases,
         _t_end(series),
         height=460,
         yaxis={"type": "log", "title": {"text": "position error [m]"}, "domain": [0.53, 1]},
@@ -133,50 +152,240 @@ def errors_fig(series: dict[str, dict], events: list[float]) -> dict:
     return {"data": data, "layout": lay}
 
 
-def torques_fig(series: dict[str, dict], wheels: list[str], events: list[float], main: str) -> dict:
-    """Applied torques per wheel; a menu shows one scheme at a time (``main`` first)."""
+def _window(t: np.ndarray, phases: list[dict], samples: int = 60) -> tuple[int, int]:
+    """The zoom window of a band figure: ``samples`` logged samples from the first fault (or mid-run)."""
+    events = [p["start"] for p in phases if p["start"] > 0]
+    t0 = events[0] if events else float(t[t.size // 2])
+    a = int(np.searchsorted(t, t0))
+    a = max(0, min(a, t.size - samples))
+    return a, min(t.size, a + samples)
+
+
+def _scale_from(t: np.ndarray, phases: list[dict]) -> float:
+    """Where a band figure's whole-run axis takes its scale from: the first fault (what the verdict
+    ranks: the peak after it), or 1 s after the start without a fault (or a sample after it)."""
+    events = [p["start"] for p in phases if p["start"] > 0 and p["start"] < t[-1]]
+    return events[0] if events else float(t[0]) + 1.0
+
+
+def band_fig(
+    series: dict[str, dict],
+    signals: dict[str, np.ndarray],
+    rows: list[tuple[str, str, float | None]],
+    wheels: list[str],
+    phases: list[dict],
+    main: str,
+    title: str,
+) -> dict:
+    """Per-wheel signals of every scheme (a menu picks the scheme, ``main`` first), in three columns:
+    the first second (the start-up transient at its own scale), the whole run (each bucket's min-max
+    band and mean, so chatter reads as a band of its amplitude; the axis scaled on the samples from
+    the first fault on, or from t = 1 s without one: :func:`_scale_from`), and a zoom of 60 logged
+    samples from the first fault (every sample, the chatter's shape).
+
+    ``signals``: ``{f"{scheme}/{row}": (K, nw) array}`` on each scheme's log times; ``rows``: (key,
+    axis title, limit) per row of panels, the limit drawn at +-limit (None: none).
+    """
     data, owner = [], []
-    schemes = [s for s in series if "tau" in series[s]]
+    schemes = [s for s in series if all(f"{s}/{r[0]}" in signals for r in rows)]
+    nrow = len(rows)
+    gap = 0.1 / max(1, nrow - 1) if nrow > 1 else 0.0
+    height = (1.0 - gap * (nrow - 1)) / nrow
+    cols = ((0.0, 0.12), (0.22, 0.75), (0.82, 1.0))  # first second | whole run | zoom
+    axes: dict = {}
+    t_end = _t_end(series)
+    for r in range(nrow):
+        top = 1.0 - r * (height + gap)
+        for c in range(3):
+            k = 3 * r + c + 1
+            axes[k] = {
+                "x": f"x{'' if k == 1 else k}",
+                "y": f"y{'' if k == 1 else k}",
+                "dom": ((top - height, top), cols[c]),
+            }
+    lims: dict[int, list[float]] = {}
     for scheme in schemes:
-        ts = series[scheme]
-        tau = np.asarray(ts["tau"], float)
-        t, *cols = decimate(
-            ts["t"],
-            *[tau[:, j] for j in range(tau.shape[1])],
-            max_points=max(400, 4 * MAX_POINTS // max(1, len(wheels))),
-        )
-        for j, w in enumerate(wheels):
-            data.append(_trace(t, _r(cols[j]), w, "%{y:.3g} N m", line={"width": 1}, visible=scheme == main))
-            owner.append(scheme)
+        t = np.asarray(series[scheme]["t"], float)
+        a, b = _window(t, phases)
+        first = t <= t[0] + 1.0
+        for r, (key, _label, _lim) in enumerate(rows):
+            y = np.asarray(signals[f"{scheme}/{key}"], float)
+            rng = plots.robust_range(t, y, start=_scale_from(t, phases))
+            if rng is not None:
+                old = lims.setdefault(3 * r + 2, list(rng))
+                lims[3 * r + 2] = [min(old[0], rng[0]), max(old[1], rng[1])]
+            for j, w in enumerate(wheels):
+                color = f"hsl({int(360 * j / max(1, len(wheels)))},65%,42%)"
+                vis = scheme == main
+                show = r == 0
+                ax1, ax2, ax3 = axes[3 * r + 1], axes[3 * r + 2], axes[3 * r + 3]
+                common = {"legendgroup": w, "visible": vis}
+                # the first second, every sample
+                tf, yf = decimate(t[first], y[first, j], max_points=400)
+                data.append(
+                    _trace(
+                        tf,
+                        _r(yf),
+                        w,
+                        "%{y:.4g}",
+                        xaxis=ax1["x"],
+                        yaxis=ax1["y"],
+                        showlegend=False,
+                        line={"width": 1, "color": color},
+                        **common,
+                    )
+                )
+                # the whole run: min-max band and mean per bucket
+                tc, lo, hi, mean = plots.buckets_of(t, y[:, j], 700)
+                band = {"xaxis": ax2["x"], "yaxis": ax2["y"], "hoverinfo": "skip", "showlegend": False}
+                data.append(_trace(tc, _r(lo), w, "", line={"width": 0, "color": color}, **band, **common))
+                fill = {"fill": "tonexty", "fillcolor": color.replace("hsl", "hsla").replace(")", ",0.25)")}
+                data.append(_trace(tc, _r(hi), w, "", line={"width": 0, "color": color}, **fill, **band, **common))
+                data.append(
+                    _trace(
+                        tc,
+                        _r(mean),
+                        w,
+                        f"{w} mean %{{y:.4g}}",
+                        xaxis=ax2["x"],
+                        yaxis=ax2["y"],
+                        showlegend=show,
+                        line={"width": 1.2, "color": color},
+                        **common,
+                    )
+                )
+                # the zoom: every logged sample of the window
+                data.append(
+                    _trace(
+                        t[a:b],
+                        _r(y[a:b, j]),
+                        w,
+                        "%{y:.4g}",
+                        xaxis=ax3["x"],
+                        yaxis=ax3["y"],
+                        showlegend=False,
+                        line={"width": 1, "color": color, "shape": "hv"},
+                        mode="lines+markers",
+                        marker={"size": 3},
+                        **common,
+                    )
+                )
+                owner += [scheme] * 5
     buttons = [
         {
             "label": s,
             "method": "update",
-            "args": [{"visible": [o == s for o in owner]}, {"title.text": f"applied wheel torques, {s}"}],
+            "args": [{"visible": [o == s for o in owner]}, {"title.text": f"{title}, {s}"}],
         }
         for s in schemes
     ]
-    lay = _layout(
-        f"applied wheel torques, {main}",
-        events,
-        _t_end(series),
-        height=380,
-        yaxis={"title": {"text": "tau [N m]"}},
-        updatemenus=[
+    t_main = series[main]["t"] if main in series else next(iter(series.values()))["t"]
+    a, b = _window(np.asarray(t_main, float), phases)
+    lay = {
+        "title": {"text": f"{title}, {main}", "font": {"size": 13}},
+        "height": 260 * nrow + 120,
+        "margin": {"l": 60, "r": 20, "t": 50, "b": 90},
+        "hovermode": "closest",
+        "legend": {"orientation": "h", "y": 0, "yref": "container", "yanchor": "bottom"},
+        "shapes": [],
+        "annotations": [],
+        "updatemenus": [
             {
                 "buttons": buttons,
                 "direction": "down",
                 "x": 1.0,
                 "xanchor": "right",
-                "y": 1.18,
+                "y": 1.0 + 40 / (260 * nrow + 120),
+                "yanchor": "bottom",
                 "active": schemes.index(main) if main in schemes else 0,
             }
         ],
-    )
+    }
+    for k, ax in axes.items():
+        r, c = (k - 1) // 3, (k - 1) % 3
+        (y0, y1), (x0, x1) = ax["dom"]
+        xname = "xaxis" if k == 1 else f"xaxis{k}"
+        yname = "yaxis" if k == 1 else f"yaxis{k}"
+        xr = [0, 1.0] if c == 0 else ([0, t_end] if c == 1 else [float(t_main[a]), float(t_main[b - 1])])
+        lay[xname] = {
+            "domain": [x0, x1],
+            "anchor": ax["y"],
+            "range": xr,
+            "title": {
+                "text": ("t [s], first second" if c == 0 else "t [s]" if c == 1 else "t [s], zoom")
+                if r == nrow - 1
+                else ""
+            },
+        }
+        lay[yname] = {"domain": [y0, y1], "anchor": ax["x"]}
+        if c == 1:
+            lay[yname]["title"] = {"text": rows[r][1]}
+            if k in lims:
+                lay[yname]["range"] = lims[k]
+            shades = _phases(phases, t_end)
+            lay["shapes"] += [
+                {**s, "xref": ax["x"], "yref": f"{ax['y']} domain"} | ({"showlegend": False} if r else {})
+                for s in shades
+            ]
+        lim = rows[r][2]
+        if lim is not None:
+            for sign in (1, -1):
+                lay["shapes"].append(
+                    {
+                        "type": "line",
+                        "xref": f"{ax['x']} domain",
+                        "yref": ax["y"],
+                        "x0": 0,
+                        "x1": 1,
+                        "y0": sign * lim,
+                        "y1": sign * lim,
+                        "line": {"color": "#b00020", "width": 1, "dash": "dash"},
+                    }
+                )
+            if c == 1:
+                lay["annotations"].append(
+                    {
+                        "xref": f"{ax['x']} domain",
+                        "yref": ax["y"],
+                        "x": 1,
+                        "y": lim,
+                        "xanchor": "right",
+                        "yanchor": "bottom",
+                        "showarrow": False,
+                        "text": f"limit +-{lim:g}",
+                        "font": {"size": 10, "color": "#b00020"},
+                    }
+                )
     return {"data": data, "layout": lay}
 
 
-def switching_fig(ts: dict, patterns: list[list[int]], events: list[float]) -> dict:
+def torques_fig(series: dict[str, dict], wheels: list[str], phases: list[dict], main: str) -> dict:
+    """Applied torques per wheel (:func:`band_fig`); a menu shows one scheme at a time (``main`` first)."""
+    sig = {f"{s}/tau": np.asarray(ts["tau"], float) for s, ts in series.items() if "tau" in ts}
+    return band_fig(series, sig, [("tau", "tau [N m]", None)], wheels, phases, main, "applied wheel torques")
+
+
+def motors_fig(
+    series: dict[str, dict],
+    volts: dict[str, np.ndarray],
+    wheels: list[str],
+    phases: list[dict],
+    main: str,
+    v_max: float | None,
+    i_max: float | None,
+) -> dict:
+    """Armature voltage (top) and current (bottom) per wheel with the driver's limits +-V_max and
+    +-I_max dashed (:func:`band_fig`); ``volts``: the voltages per scheme on its log times."""
+    sig = {}
+    for s, ts in series.items():
+        if "i_a" in ts and s in volts:
+            sig[f"{s}/v"] = np.asarray(volts[s], float)
+            sig[f"{s}/i"] = np.asarray(ts["i_a"], float)
+    rows = [("v", "armature voltage [V]", v_max), ("i", "armature current [A]", i_max)]
+    return band_fig(series, sig, rows, wheels, phases, main, "armature voltage and current")
+
+
+def switching_fig(ts: dict, patterns: list[list[int]], phases: list[dict]) -> dict:
     """Applied model index against the index of the true pattern (-1 when it is not a model)."""
     pats = [tuple(p) for p in patterns]
     truth = np.array([pats.index(k) if (k := tuple((s >= 1.0).astype(int))) in pats else -1 for s in ts["sigma"]])
@@ -189,7 +398,7 @@ def switching_fig(ts: dict, patterns: list[list[int]], events: list[float]) -> d
     ]
     lay = _layout(
         "switching: applied model against the true pattern (-1: the true pattern is not a model)",
-        events,
+        phases,
         float(ts["t"][-1]),
         height=300,
         yaxis={"title": {"text": "model index"}},
@@ -197,7 +406,7 @@ def switching_fig(ts: dict, patterns: list[list[int]], events: list[float]) -> d
     return {"data": data, "layout": lay}
 
 
-def estimates_fig(ts: dict, scheme: str, wheels: list[str], events: list[float], patterns=None) -> dict | None:
+def estimates_fig(ts: dict, scheme: str, wheels: list[str], phases: list[dict], patterns=None) -> dict | None:
     """Estimates of one scheme against the truth (dashed).
 
     Active schemes: rho_hat and ubar_hat per wheel against sigma and ubar.  Adaptive schemes: the
@@ -246,7 +455,7 @@ def estimates_fig(ts: dict, scheme: str, wheels: list[str], events: list[float],
     )
     lay = _layout(
         f"{scheme}: {note}",
-        events,
+        phases,
         t_end,
         height=460,
         yaxis={"title": {"text": top_title}, "domain": [0.53, 1], "range": lo_hi},

@@ -19,15 +19,20 @@ from ..control.kinematic import wrap
 from ..model.kernels import axle_midpoints
 
 __all__ = [
+    "PHASE_COLORS",
     "SCHEME_COLORS",
     "articulation_svg",
+    "buckets_of",
     "control_torque_svg",
     "decay_svg",
     "estimated_path_svg",
+    "event_times",
+    "fault_phases",
     "fitted_decay_rate",
     "paths_svg",
     "pole_loci_svg",
     "robot_velocities",
+    "robust_range",
     "velocities_svg",
 ]
 
@@ -51,16 +56,81 @@ def _svg(fig) -> str:
     return text[text.index("<svg") :]
 
 
-def _shade_phases(ax, events: list[float]) -> None:
-    for i, t in enumerate(events):
-        ax.axvline(t, color="k", lw=0.6, ls=":")
-        if i % 2 == 0:
-            end = events[i + 1] if i + 1 < len(events) else ax.get_xlim()[1]
-            ax.axvspan(t, end, color="0.9", zorder=0)
+#: Fill colors of the fault phases, one per distinct pattern of gains and frictions (legend).
+PHASE_COLORS = ("#e8a0a0", "#9fbfe8", "#e8cf8f", "#a9d6a0", "#c9a9e3", "#e3a9cf", "#9fd8d8", "#d8d09f")
+
+
+def fault_phases(schedule, duration: float, wheels: list[str]) -> list[dict]:
+    """The run's phases for shading: ``start``, ``end``, ``label`` (the wheels' gains and frictions),
+    ``color`` (one per distinct pattern; ``None`` for a healthy phase, left unshaded) and ``event``
+    (the phase starts with a fault event).  Every phase with some gain below 1 or a friction is shaded."""
+    out, colors = [], {}
+    for start, end in schedule.phases(duration):
+        sigma, ubar = schedule.at(start)
+        healthy = bool(np.all(sigma == 1.0) and np.all(ubar == 0.0))
+        key = (tuple(np.round(sigma, 6)), tuple(np.round(ubar, 6)))
+        label = "gains " + " ".join(f"{x:.3g}" for x in sigma)
+        if np.any(ubar != 0.0):
+            label += "; frictions " + " ".join(f"{x:.3g}" for x in ubar)
+        lost = [w for w, x in zip(wheels, sigma, strict=True) if x < 1.0]
+        if lost:
+            label += f" ({', '.join(lost)} below 1)"
+        color = None if healthy else colors.setdefault(key, PHASE_COLORS[len(colors) % len(PHASE_COLORS)])
+        out.append(
+            {
+                "start": float(start),
+                "end": float(end),
+                "label": label,
+                "color": color,
+                "event": start > 0 or bool(schedule.times.size and schedule.times[0] == 0),
+            }
+        )
+    return out
+
+
+def event_times(phases: list[dict]) -> list[float]:
+    """The fault event times of :func:`fault_phases` (the phases' starts after 0)."""
+    return [p["start"] for p in phases if p["start"] > 0]
+
+
+def _shade_phases(ax, phases: list[dict]) -> None:
+    """Every fault phase shaded in its pattern's color (labelled once, for the legend), events dotted."""
+    seen = set()
+    for p in phases:
+        if p["start"] > 0:
+            ax.axvline(p["start"], color="k", lw=0.6, ls=":")
+        if p["color"] is None:
+            continue
+        label = None if p["color"] in seen else p["label"]
+        seen.add(p["color"])
+        ax.axvspan(p["start"], p["end"], color=p["color"], alpha=0.3, lw=0, zorder=0, label=label)
+
+
+def buckets_of(t: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(time, min, max, mean) of ``y`` per bucket of about ``t.size / n`` samples (every sample when fewer)."""
+    if t.size <= n:
+        return t, y, y, y
+    edges = np.linspace(0, t.size, n + 1).astype(int)
+    lo, hi = np.minimum.reduceat(y, edges[:-1]), np.maximum.reduceat(y, edges[:-1])
+    mean = np.add.reduceat(y, edges[:-1]) / np.diff(edges)
+    return t[(edges[:-1] + edges[1:]) // 2], lo, hi, mean
+
+
+def _band(ax, t: np.ndarray, y: np.ndarray, color=None, label: str | None = None, lw: float = 1.0, buckets: int = 600):
+    """A signal drawn so that chatter stays readable: above ``buckets`` samples, each bucket's min-max
+    range as a light band and its mean as a line (a fast oscillation is a band of its amplitude)."""
+    t, y = np.asarray(t, float), np.asarray(y, float)
+    if t.size <= 2 * buckets:
+        return ax.plot(t, y, lw=lw, color=color, label=label)[0]
+    tc, lo, hi, mean = buckets_of(t, y, buckets)
+    line = ax.plot(tc, mean, lw=lw, color=color, label=label)[0]
+    ax.fill_between(tc, lo, hi, color=line.get_color(), alpha=0.25, lw=0)
+    return line
 
 
 def paths_svg(series: dict[str, dict], d: list[float], events: list[float], b: float = 0.75) -> str:
-    """Paths of P_n for every scheme over the reference, the chain drawn at a few instants."""
+    """Paths of P_n for every scheme over the reference, the chain drawn at a few instants (``events``:
+    the fault times, marked x)."""
     fig, ax = plt.subplots(figsize=(5.6, 4.4))
     ref = next(iter(series.values()))
     ax.plot(ref["q_d"][:, 0], ref["q_d"][:, 1], "k--", lw=1, label="reference")
@@ -87,8 +157,8 @@ def paths_svg(series: dict[str, dict], d: list[float], events: list[float], b: f
     return _svg(fig)
 
 
-def articulation_svg(series: dict[str, dict], events: list[float]) -> str:
-    """Articulation angles theta_i - theta_(i+1) with the 90 deg singularity."""
+def articulation_svg(series: dict[str, dict], phases: list[dict]) -> str:
+    """Articulation angles theta_i - theta_(i+1) with the 90 deg singularity; fault phases shaded."""
     fig, ax = plt.subplots(figsize=(6.4, 2.6))
     for scheme, ts in series.items():
         th = ts["q"][:, :1:-1]
@@ -106,10 +176,26 @@ def articulation_svg(series: dict[str, dict], events: list[float]) -> str:
         ax.axhline(y, color="r", lw=1)
     ax.set_ylabel("theta_i - theta_(i+1) [deg]")
     ax.set_xlabel("t [s]")
-    _shade_phases(ax, events)
-    ax.legend(loc="upper right")
+    _shade_phases(ax, phases)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=6, frameon=False)
     ax.set_title("articulation angles (red: singular at +/-90 deg)")
     return _svg(fig)
+
+
+def robust_range(
+    t: np.ndarray, y: np.ndarray, skip: float = 1.0, pad: float = 0.08, start: float | None = None
+) -> tuple[float, float] | None:
+    """An axis range from the samples at t >= ``start`` (default t[0] + ``skip``), padded by ``pad`` of
+    the span: a start-up transient before then is drawn but does not set the scale.  None without
+    such samples."""
+    t = np.asarray(t, float)
+    y = np.asarray(y, float).reshape(t.size, -1)[t >= (t[0] + skip if start is None else start)]
+    y = y[np.isfinite(y)]
+    if y.size == 0:
+        return None
+    lo, hi = float(y.min()), float(y.max())
+    span = hi - lo if hi > lo else max(abs(hi), 1e-9)
+    return lo - pad * span, hi + pad * span
 
 
 def _error_norm(ts: dict) -> np.ndarray:
@@ -179,24 +265,31 @@ def robot_velocities(chain, q: np.ndarray, eta: np.ndarray) -> tuple[np.ndarray,
     return p.r * (wr + wl) / 2.0, p.r * (wr - wl) / (2.0 * p.b)
 
 
-def velocities_svg(ts: dict, chain, events: list[float], scheme: str) -> str:
-    """Linear (top) and angular (bottom) velocity of each robot (thesis Figs 4.7/4.8, 4.17/4.18)."""
+def velocities_svg(ts: dict, chain, phases: list[dict], scheme: str) -> str:
+    """Linear (top) and angular (bottom) velocity of each robot (thesis Figs 4.7/4.8, 4.17/4.18).
+
+    A chattering signal is drawn as its min-max band with the mean (:func:`_band`); the axes are
+    scaled on t >= 1 s, so a start-up transient is drawn but does not flatten the rest."""
     v, w = robot_velocities(chain, ts["q"], ts["eta"])
     fig, axes = plt.subplots(2, 1, figsize=(6.4, 4.2), sharex=True)
     for i in range(v.shape[1]):
-        axes[0].plot(ts["t"], v[:, i], lw=1, label=f"robot {i + 1}")
-        axes[1].plot(ts["t"], w[:, i], lw=1, label=f"robot {i + 1}")
+        _band(axes[0], ts["t"], v[:, i], label=f"robot {i + 1}")
+        _band(axes[1], ts["t"], w[:, i], label=f"robot {i + 1}")
     axes[0].set_ylabel("v_i [m/s]")
     axes[1].set_ylabel("omega_i [rad/s]")
     axes[1].set_xlabel("t [s]")
-    for ax in axes:
-        _shade_phases(ax, events)
-        ax.legend(loc="upper right", ncol=min(4, v.shape[1]), fontsize=6)
-    axes[0].set_title(f"linear and angular velocity of each robot, {scheme}")
+    for ax, y in zip(axes, (v, w), strict=True):
+        lim = robust_range(ts["t"], y)
+        if lim is not None:
+            ax.set_ylim(*lim)
+        _shade_phases(ax, phases)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=3, fontsize=6, frameon=False)
+    fig.suptitle(f"linear and angular velocity of each robot, {scheme}", fontsize=8)
     return _svg(fig)
 
 
-def control_torque_svg(ts: dict, wheels: list[str], events: list[float], scheme: str, u_limit=None) -> str:
+def control_torque_svg(ts: dict, wheels: list[str], phases: list[dict], scheme: str, u_limit=None) -> str:
     """Commanded control u (dashed) against the applied torque tau = sigma sat(u) + ubar (solid), per robot.
 
     Thesis Figs 4.5/4.6 and 4.14-4.16; the axis is clipped at the 99.5th percentile of both.
@@ -215,8 +308,8 @@ def control_torque_svg(ts: dict, wheels: list[str], events: list[float], scheme:
                 ax.axhline(y, color="0.5", lw=0.6, ls="-.")
         ax.set_ylim(-lim, lim)
         ax.set_ylabel(f"robot {i + 1} [N m]")
+        _shade_phases(ax, phases)
         ax.legend(loc="upper right", ncol=4, fontsize=6)
-        _shade_phases(ax, events)
     axes[-1, 0].set_xlabel("t [s]")
     sat = "" if u_limit is None else f"; dash-dot: the {u_limit:g} N m limit"
     axes[0, 0].set_title(f"{scheme}: control u (dashed) and applied torque tau (solid){sat}")

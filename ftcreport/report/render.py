@@ -27,7 +27,7 @@ import numpy as np
 from .. import __version__, compare
 from ..cases import ordered_schemes, parse_case, with_duration
 from ..check import evaluate
-from ..errors import FtcError
+from ..errors import FtcError, printable
 from ..model.faults import wheel_names
 from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
 from . import interactive, plots
@@ -38,9 +38,17 @@ __all__ = ["dependency_versions", "render_all", "render_case", "render_index"]
 
 def _env() -> jinja2.Environment:
     loader = jinja2.FileSystemLoader(str(resources.files("ftcreport.templates")))
-    env = jinja2.Environment(loader=loader, autoescape=jinja2.select_autoescape(["html"]))
+    env = jinja2.Environment(loader=loader, autoescape=jinja2.select_autoescape(["html"]), finalize=_no_controls)
     env.globals["fmt"] = _fmt
     return env
+
+
+def _no_controls(value):
+    """Every value a page prints with its control characters escaped (a file name or a stored reason may
+    hold them; HTML shows them as nothing or breaks on them: issue 34 item 7); markup stays markup."""
+    if hasattr(value, "__html__"):  # markupsafe.Markup (jinja2's): built again as markup
+        return type(value)(printable(value, keep="\t\n\r"))
+    return printable(value, keep="\t\n\r") if isinstance(value, str) else value
 
 
 def _fmt(x) -> str:
@@ -81,6 +89,109 @@ def figure(fig_id: str, caption: str, **drawing) -> dict:
     return {"id": fig_id, **drawing, "caption": caption}
 
 
+#: Captions' sentence on the shading (plots.fault_phases): every figure over time shades the same phases.
+SHADING = (
+    "Every phase with a fault is shaded, one color per pattern of wheel gains (the legend gives the gains), "
+    "events dotted; an unshaded phase after a fault has every wheel healthy again."
+)
+#: Captions' sentence on the three columns of the per-wheel figures (interactive.band_fig).
+BAND_COLUMNS = (
+    "Left: the first second (the start-up transient at its own scale); middle: the whole run, each "
+    "line the mean of a bucket of samples with its min-max range as a band (chatter reads as a band "
+    "of its amplitude), the axis scaled on the samples from the first fault on (from t = 1 s without a "
+    "fault), so what comes before may run off it; right: 60 logged samples from the first fault, every "
+    "sample (the chatter's shape)."
+)
+
+
+def _fault_rows(case, sched, names) -> list[dict]:
+    """The fault timeline: each event and the gain of every wheel from then on (partial gains as they are)."""
+    rows = []
+    for f in case.faults:
+        sigma, ubar = sched.at(f.time)
+        failed = [w for w, x in zip(names, sigma, strict=True) if x == 0.0]
+        partial = [f"{w} {x:.3g}" for w, x in zip(names, sigma, strict=True) if 0.0 < x < 1.0]
+        notes = [f"{what}: {', '.join(ws)}" for what, ws in (("failed", failed), ("partial", partial)) if ws]
+        rows.append(
+            {
+                "time": f.time,
+                "wheel": f.wheel,
+                "sigma": f.sigma,
+                "ubar": f.ubar,
+                "motor": f.motor,
+                "pattern": " ".join(f"{x:.3g}" for x in sigma) + (f"  ({'; '.join(notes)})" if notes else ""),
+                "frictions": " ".join(f"{x:.3g}" for x in ubar) if any(ubar != 0.0) else "",
+            }
+        )
+    return rows
+
+
+def armature_voltages(case, series: dict) -> dict:
+    """The driver's armature voltages per scheme on its log times, (K, 2n) [V], for a case with motors.
+
+    Not logged by the engine: rebuilt from the logged command u, the fault gains and frictions and the
+    wheel speeds Bbar(q)^T eta through the driver's static inversion (``fast.motor.driver_voltage``, the
+    function the loop calls).  Exact at a logged instant that is a sample instant (or every instant with
+    continuous control) of a noise-free run with no measurement delay; otherwise the driver saw the
+    state of its last sample, measured, so the figure's caption says it is approximate.
+    """
+    from ..fast.engine import wheel_speeds_rows
+    from ..fast.motor import driver_voltage
+    from ..model.actuators import pack
+    from ..runner import build
+
+    if case.actuators is None:
+        return {}
+    built = build(case)
+    mo = pack(case.motor_params(), case.robots.n)
+    sched = built.faults
+    sat = case.plant.saturation
+    out = {}
+    for s, ts in series.items():
+        if "i_a" not in ts or "u" not in ts:
+            continue
+        u = np.asarray(ts["u"], float)
+        us = u if sat is None else np.clip(u, -sat, sat)
+        tau_c = np.asarray(ts["sigma"], float) * us + np.asarray(ts["ubar"], float)
+        omega = wheel_speeds_rows(built.chain, ts["q"], ts["eta"])
+        out[s] = np.array(
+            [driver_voltage(mo, tau_c[k], omega[k], sched.motor(float(t))) for k, t in enumerate(ts["t"])]
+        )
+    return out
+
+
+def _motor_figure(case, series: dict, names: list[str], shading: list[dict], main: str) -> dict | None:
+    """Armature voltage and current per wheel with the driver's limits (a case with [actuators])."""
+    if case.actuators is None or not any("i_a" in ts for ts in series.values()):
+        return None
+    volts = armature_voltages(case, series)
+    motors = case.motor_params()
+    v_max = max(float(m.V_max) for m in motors)
+    i_lim = [float(m.I_max) for m in motors if m.I_max is not None and math.isfinite(m.I_max)]
+    i_max = max(i_lim) if i_lim else None
+    noise = case.plant.noise
+    exact = case.simulation.measurement_delay == 0 and not (noise.position or noise.heading or noise.velocity)
+    sampled = case.simulation.sample_time is not None
+    how = (
+        "rebuilt from the logged command and wheel speeds through the driver's static inversion (the "
+        "function the engine calls; not logged)"
+        + (
+            ", exact at the sample instants"
+            if exact and sampled
+            else ", exact at every logged instant"
+            if exact
+            else ", approximate: the driver saw noisy or delayed measurements"
+        )
+    )
+    limits = f"+-{v_max:g} V" + (f" and +-{i_max:g} A" if i_max is not None else " (no current limit set)")
+    return figure(
+        "motors",
+        f"Armature voltage (top; {how}) and current (bottom, logged) per wheel, with the driver's limits {limits} "
+        f"dashed in red; the menu picks the scheme. {BAND_COLUMNS} {SHADING}",
+        plotly=interactive.motors_fig(series, volts, names, shading, main, v_max, i_max),
+    )
+
+
 def _after_max(m: dict) -> float | None:
     vals = [p["position_error_max"] for p in (m.get("phases") or [])[1:] if p.get("position_error_max") is not None]
     return max(vals) if vals else None
@@ -90,8 +201,11 @@ def _record(out: Path, name: str) -> dict | None:
     return read_json(out / name / "case.json")
 
 
-def render_case(out: Path, name: str) -> Path | None:
-    """Render ``<out>/<name>/index.html``; returns its path (None if the case has no record)."""
+def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases") -> Path | None:
+    """Render ``<out>/<name>/index.html``; returns its path (None if the case has no record).
+
+    ``root``: the page's way to the top of the report (its navigation link, ``nav``, goes there).
+    """
     out = Path(out)
     rec = _record(out, name)
     if rec is None:
@@ -101,7 +215,8 @@ def render_case(out: Path, name: str) -> Path | None:
         return write_page(
             page,
             "case.html",
-            "../",
+            root,
+            nav_label=nav,
             name=name,
             description=rec.get("error", ""),
             n_phases=0,
@@ -135,20 +250,9 @@ def render_case(out: Path, name: str) -> Path | None:
     sched = case.fault_schedule()
     events = [float(t) for t in sched.times]
     names = wheel_names(case.robots.n)
-    faults = []
-    for f in case.faults:
-        pat = sched.pattern(f.time)
-        failed = [w for w, p in zip(names, pat, strict=True) if p == 0]
-        faults.append(
-            {
-                "time": f.time,
-                "wheel": f.wheel,
-                "sigma": f.sigma,
-                "ubar": f.ubar,
-                "pattern": " ".join(map(str, pat)) + (f"  (failed: {', '.join(failed)})" if failed else ""),
-            }
-        )
+    faults = _fault_rows(case, sched, names)
     phases = sched.phases(case.simulation.duration)
+    shading = plots.fault_phases(sched, case.simulation.duration, list(names))
     figures = []
     if series:
         d = case.robots.values("d")
@@ -160,23 +264,25 @@ def render_case(out: Path, name: str) -> Path | None:
                 svg=plots.paths_svg(series, d, events, b),
             )
         )
-        interactive.ensure_plotly(out)
         figures.append(
             figure(
                 "errors",
                 "Tracking errors per scheme (log scale; hover for values, drag to zoom, double-click to "
-                "reset); fault phases shaded, events dotted.",
-                plotly=interactive.errors_fig(series, events),
+                f"reset). {SHADING}",
+                plotly=interactive.errors_fig(series, shading),
             )
         )
         main = next((s for s in (*compare.CONTESTANTS, "oracle") if s in series), next(iter(series)))
         figures.append(
             figure(
                 "torques",
-                "Applied wheel torques; the menu at the top right picks the scheme.",
-                plotly=interactive.torques_fig(series, list(names), events, main),
+                f"Applied wheel torques; the menu at the top right picks the scheme. {BAND_COLUMNS} {SHADING}",
+                plotly=interactive.torques_fig(series, list(names), shading, main),
             )
         )
+        motors = _motor_figure(case, series, list(names), shading, main)
+        if motors is not None:
+            figures.append(motors)
         if "switching" in series and "selected" in series["switching"]:
             pats = next((m.get("patterns") for m in runs if m["scheme"] == "switching"), None)
             if pats:
@@ -184,14 +290,14 @@ def render_case(out: Path, name: str) -> Path | None:
                     figure(
                         "switching",
                         "Applied model index against the true failure pattern.",
-                        plotly=interactive.switching_fig(series["switching"], pats, events),
+                        plotly=interactive.switching_fig(series["switching"], pats, shading),
                     )
                 )
         for est in ("adaptive", "adaptive_frozen", "active", "active_ukf"):
             if est not in series:
                 continue
             pats = next((m.get("patterns") for m in runs if m["scheme"] == est), None)
-            spec = interactive.estimates_fig(series[est], est, list(names), events, pats)
+            spec = interactive.estimates_fig(series[est], est, list(names), shading, pats)
             if spec is None:
                 continue
             cap = (
@@ -203,12 +309,12 @@ def render_case(out: Path, name: str) -> Path | None:
                 "what the data determine (P3)."
             )
             figures.append(figure(est, cap, plotly=spec))
-        figures.extend(_thesis_figures(case, series, list(names), events))
+        figures.extend(_thesis_figures(case, series, list(names), shading))
         figures.append(
             figure(
                 "articulation",
-                "Articulation angles with the singular configuration at +/-90 deg.",
-                svg=plots.articulation_svg(series, events),
+                f"Articulation angles with the singular configuration at +/-90 deg. {SHADING}",
+                svg=plots.articulation_svg(series, shading),
             )
         )
     base_cmp = motor_comparison(out, rec.get("base"), runs) if rec.get("base") else None
@@ -225,7 +331,7 @@ def render_case(out: Path, name: str) -> Path | None:
                     "base",
                     f"Tracking errors of this case and of its base case {base_cmp['base']}, scheme by scheme "
                     "(the legend toggles a trace).",
-                    plotly=interactive.errors_fig(both, events),
+                    plotly=interactive.errors_fig(both, shading),
                 )
             )
     analysis = _analysis(case, names)
@@ -237,6 +343,16 @@ def render_case(out: Path, name: str) -> Path | None:
     requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)
     verdict = _verdict(case, name, runs)
+    base_verdict = None
+    if verdict and rec.get("base") and (out / rec["base"]).is_dir():
+        base_case = _stored_case(out, rec["base"], _record(out, rec["base"]) or {})
+        base_runs = [m | {"scheme": s} for s, m in stored_metrics(out, rec["base"]).items()]
+        if base_case is not None and base_runs:
+            base_verdict = _verdict(base_case, rec["base"], base_runs)
+    for m in runs:  # the schemes table: simulation without compiling, compiling apart (fast.engine)
+        c = m.get("compile_time")
+        m["compile_s"] = c
+        m["run_s"] = None if m.get("wall_time") is None or c is None else max(0.0, m["wall_time"] - c)
     replay = None
     if series:
         from ..cases import build_plant_chain
@@ -249,7 +365,8 @@ def render_case(out: Path, name: str) -> Path | None:
     return write_page(
         page,
         "case.html",
-        "../",
+        root,
+        nav_label=nav,
         verdict=verdict,
         verdict_rows=_verdict_rows(verdict) if verdict else [],
         not_run=rec.get("not_run", {}),
@@ -257,7 +374,12 @@ def render_case(out: Path, name: str) -> Path | None:
         replay_json=_script_json(replay) if replay else None,
         replay_schemes=list(replay["schemes"]) if replay else [],
         scheme_colors=plots.SCHEME_COLORS,
-        plotly_src="../" + interactive.ASSET,
+        plotly_inline=interactive.inline_plotly()
+        if any(f.get("plotly") for f in [*figures, *((requirements or {}).get("figures") or [])])
+        else None,
+        oracle_notes=oracle_notes(verdict, case, base_verdict) if verdict else [],
+        shading=shading,
+        plant=None,  # r3-drive's _plant.html (the plant and its idealizations) fills it
         name=name,
         analysis=analysis,
         diagnosis=diagnosis,
@@ -289,10 +411,10 @@ def render_case(out: Path, name: str) -> Path | None:
 
 #: Headline metrics of the motors-on / motors-off comparison: key, label, unit.
 BASE_METRICS = (
-    ("after_max", "max position error after the first fault", "m"),
-    ("position_error_final", "final position error", "m"),
-    ("torque_peak", "peak wheel torque", "N m"),
-    ("energy", "mechanical energy at the wheels, integral of sum |tau omega|", "J"),
+    ("after_max", "max position error after the first fault", "m", "after_fault_error_max"),
+    ("position_error_final", "final position error", "m", "position_error_final"),
+    ("torque_peak_after_fault", "peak wheel torque after the first fault", "N m", "torque_peak_after_fault"),
+    ("energy", "mechanical energy at the wheels, integral of sum |tau omega| (start-up included)", "J", "energy"),
 )
 
 
@@ -300,7 +422,8 @@ def motor_comparison(out: Path, base: str, runs: list[dict]) -> dict:
     """This case (an overlay, e.g. motors on) against its base case's stored runs, scheme by scheme.
 
     Rows: every scheme both ran; per headline metric the base's value, this case's and the ratio
-    this / base.  ``missing`` says why there is nothing to compare (the base not in this report).
+    this / base, or the difference this - base when the base's value is below the metric's resolution
+    floor (compare.MetricSpec.floor).  ``missing`` says why there is nothing to compare.
     """
     theirs = stored_metrics(Path(out), base) if (Path(out) / base).is_dir() else {}
     if not theirs:
@@ -312,15 +435,19 @@ def motor_comparison(out: Path, base: str, runs: list[dict]) -> dict:
             continue
         b = dict(b) | {"after_max": _after_max(b)}
         cells = []
-        for key, _label, _unit in BASE_METRICS:
+        for key, _label, unit, spec_key in BASE_METRICS:
             x, y = m.get(key), b.get(key)
-            ratio = x / y if isinstance(x, int | float) and isinstance(y, int | float) and y != 0 else None
-            cells.append({"base": y, "this": x, "ratio": ratio})
+            x, y = (v if isinstance(v, int | float) else None for v in (x, y))
+            spec = compare.SPECS[spec_key]
+            r, tie = compare.ratio(x, y, spec)  # None when the base is below the metric's resolution floor
+            d = compare.difference(x, y) if r is None and not tie else None
+            rel = compare.fmt_ratio(r, tie) if r is not None or tie else (f"{d:+.3g} {unit}" if d is not None else "-")
+            cells.append({"base": y, "this": x, "ratio": r, "relative": rel, "difference": d is not None})
         rows.append({"scheme": m["scheme"], "status": m["status"], "base_status": b.get("status"), "cells": cells})
     return {"base": base, "rows": rows, "metrics": BASE_METRICS, "missing": None if rows else "no scheme in common"}
 
 
-def _thesis_figures(case, series: dict, names: list[str], events: list[float]) -> list[dict]:
+def _thesis_figures(case, series: dict, names: list[str], shading: list[dict]) -> list[dict]:
     """Per-robot velocities (Figs 4.7/4.8, 4.17/4.18), u against tau and the estimated path for the
     active schemes (Figs 4.5/4.6, 4.14-4.16, 4.9a)."""
     from ..cases import build_plant_chain
@@ -332,8 +459,10 @@ def _thesis_figures(case, series: dict, names: list[str], events: list[float]) -
         figure(
             "velocities",
             f"Linear and angular velocity of each robot, {main} scheme, from the logged q and eta "
-            "through the chain kinematics (thesis Figs 4.7/4.8, 4.17/4.18).",
-            svg=plots.velocities_svg(series[main], build_plant_chain(case), events, main),
+            "through the chain kinematics (thesis Figs 4.7/4.8, 4.17/4.18). Above 1200 samples a line is "
+            "each bucket's mean with its min-max band (chatter reads as a band of its amplitude); the "
+            f"axes are scaled on t >= 1 s, so the start-up transient may run off them. {SHADING}",
+            svg=plots.velocities_svg(series[main], build_plant_chain(case), shading, main),
         )
     )
     for act in active:
@@ -342,7 +471,7 @@ def _thesis_figures(case, series: dict, names: list[str], events: list[float]) -
                 f"{act}-control",
                 f"{act}: commanded control u against the applied torque tau = sigma sat(u) + ubar, "
                 "per robot (thesis Figs 4.5/4.6, 4.14-4.16).",
-                svg=plots.control_torque_svg(series[act], names, events, act, case.plant.saturation),
+                svg=plots.control_torque_svg(series[act], names, shading, act, case.plant.saturation),
             )
         )
         figs.append(
@@ -479,14 +608,77 @@ def _verdict_rows(v) -> list[dict]:
                 "winners": ", ".join(mv.winners) or "none",
                 "tie": len(mv.winners) > 1,
                 "best": compare.fmt_value(mv.best),
-                "regret": compare.fmt_ratio(mv.regret, mv.regret_tie),
-                "benefit": compare.fmt_ratio(mv.benefit, mv.benefit_tie),
+                "regret": compare.fmt_relative(mv, "regret"),
+                "benefit": compare.fmt_relative(mv, "benefit"),
+                "note": spec.note,
                 "ranking": rank,
                 "unranked": "; ".join(extra),
                 "tolerance": f"{100 * spec.rel_tol:g} % or {spec.abs_tol:g}" if spec.rel_tol else "exact",
             }
         )
     return rows
+
+
+def oracle_notes(v, case, base_verdict=None) -> list[str]:
+    """Why the oracle is beaten (regret < 1 beyond the tolerance), from the data.
+
+    The oracle knows the true faults at once and applies the law matched to them (for the ideal plant:
+    torques applied as commanded, continuous control).  With a base case (the same case on the ideal
+    plant) the note says on which of these metrics the oracle led there: the evidence that this case's
+    plant (motors, sampling) is what makes it no bound.  Otherwise it says only what holds for every
+    case: the matched law is a reference, not the optimum of each metric.
+    """
+    plant = []
+    if case.actuators is not None:
+        plant.append("DC motors behind a voltage-limited driver")
+    if case.simulation.sample_time is not None:
+        plant.append(f"control sampled every {case.simulation.sample_time * 1e3:g} ms")
+    beaten = [
+        mv
+        for mv in v.metrics.values()
+        if mv.regret is not None and not mv.regret_tie and mv.regret < 1.0 and mv.winners
+    ]
+    if not beaten:
+        return []
+
+    def one(mv) -> str:
+        u = mv.spec.unit
+        return (
+            f"{mv.spec.label} ({_names(mv.winners)} {compare.fmt_value(mv.best, u)} against the oracle's "
+            f"{compare.fmt_value(mv.oracle, u)}, regret {compare.fmt_ratio(mv.regret)})"
+        )
+
+    def there(mv) -> str:
+        b, u = base[mv.spec.key], mv.spec.unit
+        return f"{mv.spec.label}: oracle {compare.fmt_value(b.oracle, u)}, best other {compare.fmt_value(b.best, u)}"
+
+    base = {mv.spec.key: base_verdict.metrics.get(mv.spec.key) for mv in beaten} if base_verdict and plant else {}
+    led = [
+        mv
+        for mv in beaten
+        if (b := base.get(mv.spec.key)) is not None
+        and b.oracle is not None
+        and (b.regret_tie or b.regret is None or b.regret >= 1.0)
+    ]
+    rest = [mv for mv in beaten if mv not in led]
+    out = []
+    if led:
+        out.append(
+            f"The oracle is beaten here on {'; '.join(one(mv) for mv in led)}. On the base case {base_verdict.case} "
+            f"(ideal torques, continuous control) it leads or ties on each ({'; '.join(there(mv) for mv in led)}): "
+            f"its law is matched to that plant, and with {' and '.join(plant)} it is no bound."
+        )
+    if rest:
+        why = f"; and it was derived for the ideal plant, not for {' and '.join(plant)}" if plant and not led else ""
+        out.append(
+            f"The oracle is beaten on {'; '.join(one(mv) for mv in rest)}: its law, matched to the true faults, is a "
+            f"reference for tracking, not the optimum of every metric{why}."
+        )
+    return out
+
+
+def _names(schemes) -> str:
+    return ", ".join(compare.LABEL.get(s, s) for s in schemes)
 
 
 def _group_tables(tables: dict) -> list[dict]:
@@ -509,12 +701,14 @@ def _script_json(obj) -> str:
 
 
 def render_index(out: Path) -> Path:
-    """Render ``<out>/index.html`` from every case record under ``out``."""
+    """Render ``<out>/index.html`` from every case record under ``out``, with links to every other
+    page there (campaign, coverage, FDI, baseline pages: :func:`other_pages`)."""
     out = Path(out)
     cases = []
     verdicts = []
+    claims: list = []
     plugins: dict[str, dict] = {}  # plug-in schemes' family, description, reference (batch.plugin_info)
-    n_runs = n_ok = n_pass = n_fail = 0
+    n_runs = n_ok = n_pass = n_fail = n_expected_stop = n_unexpected = 0
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
         rec = _record(out, name) or {}
@@ -537,24 +731,37 @@ def render_index(out: Path) -> Path:
             entry["runs"][s] = {**m, "after_max": _after_max(m), "checks_total": len(mine), "checks_failed": failed}
         entry["not_run"] = rec.get("not_run", {})
         plugins |= rec.get("plugin_schemes", {})
+        case = _stored_case(out, name, rec) if (out / name / "case.toml").exists() else None
         if metrics:
-            case = _stored_case(out, name, rec)
             if case is not None:
                 v = _verdict(case, name, [metrics[s] | {"scheme": s} for s in metrics])
             else:
                 v = compare.compare_case(name, metrics)
             verdicts.append(v)
             entry["verdict"] = v
+            outside = {s for s, _ in v.outside_expected}
+            for s, m in metrics.items():
+                if m.get("status") != "ok":
+                    entry["runs"][s]["expected_stop"] = s not in outside
+            n_unexpected += len(outside)
+            n_expected_stop += sum(m.get("status") != "ok" and s not in outside for s, m in metrics.items())
+        if case is not None and case.claims:
+            claims += _claims(name, case, [m | {"scheme": s} for s, m in metrics.items()])
         cases.append(entry)
     board = compare.scoreboard(verdicts, ordered_schemes(s for c in cases for s in c["runs"]))
-    batch = read_json(out / "manifest.json")  # the last batch's manifest: its workers' peak memory
+    batch = read_json(out / "manifest.json")  # the merged manifest of the batches into this directory
     memory = batch.get("memory") if isinstance(batch, dict) and batch.get("kind") == "batch" else None
+    outcomes = {
+        o: sum(c.outcome == o for c in claims)
+        for o in ("reproduced", "not reproduced", "not applicable", "not evaluated")
+    }
     return write_page(
         out / "index.html",
         "index.html",
         "",
         batch_memory=memory if isinstance(memory, dict) else None,
         batch_created=batch.get("created") if memory else None,
+        batches=batch.get("batches", []) if isinstance(batch, dict) else [],
         cases=cases,
         board=board,
         specs=compare.HEADLINE,
@@ -562,11 +769,45 @@ def render_index(out: Path) -> Path:
         schemes=ordered_schemes(s for c in cases for s in (*c["runs"], *c.get("not_run", {}))),
         n_runs=n_runs,
         n_ok=n_ok,
-        n_bad=n_runs - n_ok,
+        n_expected_stop=n_expected_stop,
+        n_unexpected=n_unexpected,
         n_pass=n_pass,
         n_fail=n_fail,
         plugins=plugins,
+        claims=claims,
+        claim_outcomes=outcomes,
+        claims_off=sum(not c.ok for c in claims),
+        other_pages=other_pages(out),
     )
+
+
+#: Kinds of page under an output directory besides the case pages, by the first folder of their path.
+PAGE_KINDS = {"campaigns": "campaign", "coverage": "coverage", "fdi": "FDI", "baselines": "baseline"}
+
+
+def other_pages(out: Path) -> list[dict]:
+    """Every HTML page under ``out`` that is not a case page or the index, found in the directory (a
+    campaign's, a coverage map's, an FDI evaluation's, a baseline comparison's...): ``href``, ``kind``,
+    ``title`` (from its ``<title>``), ``modified``.  A campaign's per-sample pages are linked from its page."""
+    out = Path(out)
+    cases = {p.parent for p in out.glob("*/case.json")}
+    pages = []
+    for page in sorted(out.rglob("*.html")):
+        rel = page.relative_to(out)
+        if page == out / "index.html" or page.parent in cases or "sample_pages" in rel.parts[:-1]:
+            continue
+        if any(part.startswith(".") for part in rel.parts):
+            continue
+        try:
+            head = page.read_text(encoding="utf-8", errors="replace")[:4000]
+        except OSError:
+            continue
+        title = head.split("<title>", 1)[1].split("</title>", 1)[0] if "<title>" in head else rel.as_posix()
+        title = title.removeprefix("ftcreport").lstrip(" :")
+        kind = PAGE_KINDS.get(rel.parts[0], rel.parts[0] if len(rel.parts) > 1 else "page")
+        stamp = _dt.datetime.fromtimestamp(page.stat().st_mtime, _dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+        pages.append({"href": rel.as_posix(), "kind": kind, "title": title, "modified": stamp})
+    return pages
 
 
 def _stored_case(out: Path, name: str, rec: dict):
@@ -636,11 +877,12 @@ def render_page(out: str | Path, name: str, stamp: str | None) -> str:
     return name
 
 
-def render_all(out: Path, force: bool = False, pool=None, notify=None) -> Path:
+def render_all(out: Path, force: bool = False, pool=None, notify=None, done=None) -> Path:
     """Every case page whose inputs changed (all with ``force``), then the index.
 
     ``pool``: an executor (a batch's worker processes) to render the pages in, side by side; the
-    index is rendered here, after them.  ``notify(k)``: told how many pages are about to render.
+    index is rendered here, after them.  ``notify(k)``: told how many pages are about to render;
+    ``done(name)``: told each page as it is done.
     """
     out = Path(out)
     todo = stale_pages(out, force)
@@ -649,7 +891,11 @@ def render_all(out: Path, force: bool = False, pool=None, notify=None) -> Path:
     if pool is None:
         for name, stamp in todo:
             render_page(out, name, stamp)
+            if done is not None:
+                done(name)
     else:
         for fut in [pool.submit(render_page, str(out), name, stamp) for name, stamp in todo]:
-            fut.result()  # a page's error is raised here, as without a pool
+            name = fut.result()  # a page's error is raised here, as without a pool
+            if done is not None:
+                done(name)
     return render_index(out)

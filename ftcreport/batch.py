@@ -174,6 +174,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
         "thresholds": thresholds,
         "duration_override": duration,
         "claims": [c.model_dump() for c in case.claims],  # thesis claims that `check` gates on
+        "requirements": [r.model_dump() for r in case.requirements],  # time-windowed requirements (check)
         "not_run": not_applicable(case),  # families the case does not run, each with its reason (issue 21)
         "plugin_schemes": plugin_info(case),  # the plug-in schemes' family, description, reference (report pages)
     }

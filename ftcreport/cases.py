@@ -41,6 +41,7 @@ from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, whe
 from .model.actuators import MAXON_RE65, MotorParams
 from .model.chain import THESIS_ROBOT
 from .model.faults import MOTOR_KINDS, motor_row
+from .requirements import SIGNALS as REQUIREMENT_SIGNALS
 from .schemes import BUILT_IN
 
 __all__ = [
@@ -732,6 +733,158 @@ class Claim(_Strict):
         return self
 
 
+class AfterFault(_Strict):
+    """A window edge N seconds after each fault event (one window per event)."""
+
+    after_fault: Time = _f(
+        ..., "seconds after each fault event ([[faults]] times, repairs included; one window per event)", "s"
+    )
+
+
+_SIGNAL_NAMES = tuple(REQUIREMENT_SIGNALS)
+
+
+class Requirement(_Strict):
+    """A bound on a signal over windows defined by events, checked at every step (ftcreport.requirements)."""
+
+    id: str = _f(..., "short name, unique in the case (the JUnit testcase's name)", "-", min_length=1, max_length=64)
+    description: str = _f("", "the requirement in words (shown on the page)", "-")
+    signal: Literal[_SIGNAL_NAMES] = _f(
+        ...,
+        "position_error [m], heading_error [rad], torque [N m] (signed, one wheel), torque_abs [N m], speed (v_n) "
+        "[m/s], turn_rate (omega_1) [rad/s]",
+        "-",
+    )
+    robot: Annotated[int, Field(ge=1, le=12), _NUMBER] | None = _f(
+        None, "heading_error: the robot (1 = leader); absent: the largest error over the robots", "1"
+    )
+    wheel: str | None = _f(
+        None, 'torque (required), torque_abs (absent: the largest over the wheels): "1r", "1l", ..., "nl"', "-"
+    )
+    scheme: str = _f("*", 'the scheme it applies to, or "*" for every scheme the case runs', "-")
+    start: Time | AfterFault = _f(
+        0.0, "where each window starts: a time, or { after_fault = N }: N s after each fault event", "s"
+    )
+    end: Time | Literal["next_fault", "end"] | AfterFault = _f(
+        "end",
+        'where each window ends: a time, "next_fault" (the next event, else the end), "end" (of the run), or '
+        "{ after_fault = M } (M s after the window's own event)",
+        "s",
+    )
+    min: Limit | None = _f(None, "lower bound on the signal in every window", "signal's")
+    max: Limit | None = _f(None, "upper bound on the signal in every window (min and max: within the band)", "signal's")
+
+    @model_validator(mode="after")
+    def _decidable(self) -> Requirement:
+        if self.min is None and self.max is None:
+            raise ValueError("give a bound: min, max, or both (within [min, max])")
+        return self
+
+    def problems(self, n: int) -> list[tuple[str, str]]:
+        """(field, reason) of every inconsistency with itself and with an n-robot chain."""
+        out = []
+        if self.min is not None and self.max is not None and self.min > self.max:
+            out.append(("max", f"{self.max:g} is below min = {self.min:g}: the band is empty"))
+        if self.robot is not None and self.signal != "heading_error":
+            out.append(("robot", f"a robot is chosen for heading_error only, not for {self.signal}"))
+        if self.robot is not None and self.robot > n:
+            out.append(("robot", f"robot {self.robot} is not in a {n}-robot chain"))
+        if self.wheel is not None and self.signal not in ("torque", "torque_abs"):
+            out.append(("wheel", f"a wheel is chosen for torque and torque_abs only, not for {self.signal}"))
+        if self.wheel is None and self.signal == "torque":
+            out.append(
+                ("wheel", 'required for the signed torque: name the wheel, e.g. wheel = "1r" (or use torque_abs)')
+            )
+        if self.wheel is not None:
+            try:
+                wheel_index(self.wheel, n)
+            except FtcError as exc:
+                out.append(("wheel", str(exc)))
+        s, e = self.start, self.end
+        if isinstance(e, AfterFault) and not isinstance(s, AfterFault):
+            out.append(
+                ("end", "{ after_fault = M } needs start = { after_fault = N }: M is counted from each window's fault")
+            )
+        elif isinstance(e, AfterFault) and e.after_fault <= s.after_fault:
+            out.append(
+                (
+                    "end.after_fault",
+                    f"{e.after_fault:g} s is not after start.after_fault = {s.after_fault:g} s: every window "
+                    "would be empty",
+                )
+            )
+        if isinstance(s, float) and isinstance(e, float) and e <= s:
+            out.append(("end", f"{e:g} s is not after start = {s:g} s: the window would be empty"))
+        return out
+
+
+#: [baseline] defaults: ftcreport.baseline's module docstring and cases/README.md ("Baselines") say why
+BASELINE_REL_TOL = 1e-3
+BASELINE_ABS_TOL = 1e-9
+#: the scalar metrics of metrics.json a [baseline.metrics.<name>] table may name (ftcreport.baseline
+#: compares COMPARED_METRICS, a part of them, by default)
+BASELINE_METRIC_NAMES: tuple[str, ...] = (
+    "position_error_max", "position_error_rms", "position_error_final", "position_error_iae", "heading_error_max",
+    "heading_error_final", "recovery_time_max", "torque_peak", "torque_rms", "energy", "saturation_fraction",
+    "singularity_margin_min", "t_end", "switch_count", "switching_match_fraction", "switching_exact_match_fraction",
+    "switching_missed_detections", "detection_delay_max", "chi_hat_min", "chi_hat_max", "P_max", "false_alarms",
+    "missed_detections", "fault_estimation_error_final", "combined_effect_error_rms", "combined_effect_rms",
+)  # fmt: skip
+#: the signal families of [baseline.signals.<name>] and their units
+BASELINE_SIGNAL_FAMILIES: dict[str, str] = {"position_error": "m", "heading_error": "rad", "torque": "N m"}
+
+
+class Tolerance(_Strict):
+    """Tolerances of one baseline metric or signal family ([baseline.metrics.<name>], [baseline.signals.<name>])."""
+
+    rel_tol: _num(0.0, 1e6) | None = _f(None, "relative tolerance (default: [baseline] rel_tol)", "1")
+    abs_tol: _num(0.0, 1e18) | None = _f(None, "absolute tolerance (default: [baseline] abs_tol)", "unit of the metric")
+    leading_tol: Time | None = _f(None, "signals: how far the new signal may lead the baseline in time", "s")
+    lagging_tol: Time | None = _f(None, "signals: how far the new signal may lag the baseline in time", "s")
+    ignore: StrictBool = _f(False, "leave this metric or signal out of the comparison", "-")
+
+
+class BaselineSpec(_Strict):
+    """Tolerances of ``ftcreport check --baseline`` for this case (ftcreport.baseline; as Simulink Test's criteria).
+
+    A value passes when |new - baseline| <= max(abs_tol, rel_tol |baseline|); a signal when it stays
+    in that band around the baseline's, widened in time by leading_tol and lagging_tol.
+    """
+
+    rel_tol: _num(0.0, 1e6) = _f(BASELINE_REL_TOL, "relative tolerance of every metric and signal", "1")
+    abs_tol: _num(0.0, 1e18) = _f(
+        BASELINE_ABS_TOL, "absolute tolerance of every metric and signal (in its own unit)", "unit of the metric"
+    )
+    leading_tol: Time = _f(0.0, "signals: how far the new signal may lead the baseline in time", "s")
+    lagging_tol: Time = _f(0.0, "signals: how far the new signal may lag the baseline in time", "s")
+    metrics: dict[str, Tolerance] = _f(
+        {}, "[baseline.metrics.<name>]: a metrics.json name's own tolerances (naming one compares it)", "-"
+    )
+    signals: dict[str, Tolerance] = _f(
+        {}, "[baseline.signals.<name>]: position_error, heading_error or torque: that family's own tolerances", "-"
+    )
+
+    @model_validator(mode="after")
+    def _known_names(self) -> BaselineSpec:
+        for name in self.metrics:
+            if name not in BASELINE_METRIC_NAMES:
+                raise _FieldError(
+                    f"baseline.metrics.{name}",
+                    "not a scalar metric of metrics.json"
+                    + did_you_mean(name, list(BASELINE_METRIC_NAMES))
+                    + f" (known: {', '.join(BASELINE_METRIC_NAMES)})",
+                )
+        for name in self.signals:
+            if name not in BASELINE_SIGNAL_FAMILIES:
+                raise _FieldError(
+                    f"baseline.signals.{name}",
+                    "not a baseline signal"
+                    + did_you_mean(name, list(BASELINE_SIGNAL_FAMILIES))
+                    + f" (known: {', '.join(BASELINE_SIGNAL_FAMILIES)})",
+                )
+        return self
+
+
 class CampaignSpec(_Strict):
     """Distributions a Monte Carlo campaign draws variants of the case from (ftcreport.campaign)."""
 
@@ -783,7 +936,8 @@ class Case(_Strict):
         None,
         "path of the case this file overlays, relative to this file: the base's tables, then this file's "
         "(tables merged key by key, arrays such as [[faults]] replaced whole); name, description, thresholds, "
-        "claims, campaign, expected_status and expected_status_of are this file's own, never the base's",
+        "claims, requirements, baseline, campaign, expected_status and expected_status_of are this file's own, never "
+        "the base's",
         "-",
         max_length=1000,
     )
@@ -814,6 +968,12 @@ class Case(_Strict):
     )
     campaign: CampaignSpec | None = _f(None, "distributions for ftcreport campaign (ignored by batch)", "-")
     claims: list[Claim] = _f([], "thesis claims checked against the runs ([[claims]], ftcreport.claims)", "-")
+    requirements: list[Requirement] = _f(
+        [], "bounds on a signal over event-defined windows ([[requirements]], ftcreport.requirements)", "-"
+    )
+    baseline: BaselineSpec | None = _f(
+        None, "tolerances of check --baseline ([baseline], ftcreport.baseline); absent: the documented defaults", "-"
+    )
 
     @field_validator("name")
     @classmethod
@@ -964,6 +1124,7 @@ class Case(_Strict):
                 for s in (c.scheme, c.relative_to):
                     if s is not None and (why := metric_problem(s, c.metric, kinds)) is not None:
                         raise _FieldError(f"claims[{i}].metric", why)
+        _check_requirements(self, run, known)
         for scheme, metrics in self.thresholds.items():
             if scheme not in known:
                 raise _FieldError(
@@ -1024,6 +1185,21 @@ class Case(_Strict):
         return out
 
 
+def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> None:
+    """[[requirements]]: ids unique, the scheme known and run, robots and wheels of this chain."""
+    ids = [r.id for r in case.requirements]
+    for i, r in enumerate(case.requirements):
+        if r.id in ids[:i]:
+            raise _FieldError(f"requirements[{i}].id", f"'{r.id}' is already the id of requirements[{ids.index(r.id)}]")
+        if r.scheme != "*" and r.scheme not in known:
+            raise _FieldError(
+                f"requirements[{i}].scheme",
+                f"unknown scheme '{r.scheme}'{did_you_mean(r.scheme, known)} (known: {', '.join(known)}, or \"*\")",
+            )
+        if r.scheme != "*" and run is not None and r.scheme not in run:
+            raise _FieldError(f"requirements[{i}].scheme", f"scheme '{r.scheme}' is not run by this case (schemes.run)")
+        for key, why in r.problems(case.robots.n):
+            raise _FieldError(f"requirements[{i}].{key}", why)
 def metric_problem(scheme: str, name: str, kinds: tuple[str, ...] = ("number",)) -> str | None:
     """Why the metric ``name`` cannot be compared on a run of ``scheme`` as one of ``kinds``, or None.
 
@@ -1547,6 +1723,8 @@ OWN_FIELDS = (
     "description",
     "thresholds",
     "claims",
+    "requirements",
+    "baseline",
     "campaign",
     "expected_status",
     "expected_status_of",
@@ -1702,7 +1880,11 @@ def case_hash(case: Case, version: str) -> str:
     The thesis claims are left out: they are judged on stored metrics and change no run.
     """
     # the motor fields (issue 19) are left out when unused, so older cases keep their hashes
-    exclude: dict[str, Any] = {"claims": True, "plugins": True}
+    # [baseline] only sets check's tolerances; [[requirements]] are evaluated during the run (from every
+    # step) and so belong to its content, left out when absent so that older cases keep their hashes
+    exclude: dict[str, Any] = {"claims": True, "plugins": True, "baseline": True}
+    if not case.requirements:
+        exclude["requirements"] = True
     if case.actuators is None:
         exclude["actuators"] = True
     if case.base_case is None:  # the overlay field (issue 19 item 4): older cases keep their hashes

@@ -223,6 +223,8 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     # every metric reads the metric stream (every accepted step), never the decimated log
     t, S = (run.t_stream, run.stream) if run.stream else (run.t, run.signals)
     out["metric_samples"] = int(t.size)
+    if case.requirements:  # every window of every [[requirements]] table, from the same stream
+        out["requirements"] = _requirements(case, scheme, run, built, t, S)
     if t.size < 2:
         return out
     phases = built.faults.phases(min(case.simulation.duration, run.t_end))
@@ -271,6 +273,24 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     return out
 
 
+def _requirements(case: Case, scheme: str, run: Run, built: Built, t: np.ndarray, S: dict) -> list[dict]:
+    """The case's requirements on this run (ftcreport.requirements), windows from the run's fault events."""
+    from .model import wheel_index
+    from .requirements import evaluate_requirements
+
+    return evaluate_requirements(
+        case.requirements,
+        scheme,
+        t,
+        S,
+        built.faults.times,
+        case.simulation.duration,
+        run.t_end,
+        run.status,
+        wheel_index=lambda w: wheel_index(w, case.robots.n),
+    )
+
+
 # Why a metric can be null, by its key (the last part of its path in metrics.json).
 _NULL_WHY = {
     "recovery_time": "the position error did not enter the recovery band and stay in it before the phase ended",
@@ -285,7 +305,7 @@ _NULL_WHY = {
     "position_error_final": "no logged sample in this phase (the run stopped before it)",
     "position_error_iae": "fewer than two logged samples in this phase",
 }
-_NOT_METRICS = {"reason", "traceback", "name", "description", "null_reasons"}
+_NOT_METRICS = {"reason", "traceback", "name", "description", "null_reasons", "requirements"}
 
 
 def explain_nulls(metrics: dict) -> dict:

@@ -26,7 +26,7 @@ __all__ = ["SECTIONS", "markdown_tables", "schema_json", "table", "update_readme
 #: marker key -> (TOML table shown in the heading, model, fields to leave out)
 SECTIONS: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {
     "top": ("top level", C.Case, ("robots", "reference", "initial", "faults", "kinematic", "schemes", "simulation",
-                                  "plant", "campaign", "thresholds", "actuators")),
+                                  "plant", "campaign", "thresholds", "actuators", "requirements", "baseline")),
     "robots": ("[robots]", C.Robots, ()),
     "reference": ("[reference]", C.Reference, ()),
     "initial": ("[initial]", C.Initial, ()),
@@ -46,6 +46,10 @@ SECTIONS: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {
     "noise": ("[plant.noise]", C.Noise, ()),
     "mismatch": ("[plant.mismatch]", C.Mismatch, ()),
     "bound": ("[thresholds.<scheme>] metric = { min, max }", C.Bound, ()),
+    "requirements": ("[[requirements]]", C.Requirement, ()),
+    "after_fault": ("start, end = { after_fault = N }", C.AfterFault, ()),
+    "baseline": ("[baseline]", C.BaselineSpec, ()),
+    "tolerance": ("[baseline.metrics.<name>], [baseline.signals.<name>]", C.Tolerance, ()),
     "campaign": ("[campaign]", C.CampaignSpec, ()),
 }  # fmt: skip
 

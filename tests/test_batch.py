@@ -78,7 +78,8 @@ def test_every_run_writes_exactly_the_metrics_validation_knows(batch_dir):
         for s in json.loads(rec.read_text())["schemes"]:
             m = json.loads((out / rec.parent.name / s / "metrics.json").read_text())
             written = set(m) - set(_identity(case, s)) - {"status", "reason", "engine", "null_reasons"}
-            assert written == set(metrics_of(s)) - {"verify_dt"}, (rec.parent.name, s, written ^ set(metrics_of(s)))
+            optional = {"verify_dt"} | ({"requirements"} - set(m))  # run --verify-dt; cases with [[requirements]]
+            assert written == set(metrics_of(s)) - optional, (rec.parent.name, s, written ^ set(metrics_of(s)))
             seen.add(s)
     assert {"nominal", "oracle", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf"} <= seen
 

@@ -338,6 +338,9 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
     if analysis is not None:
         figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
+    from .requirements_page import requirements_section
+
+    requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)
     verdict = _verdict(case, name, runs)
     base_verdict = None
@@ -371,10 +374,11 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         replay_json=_script_json(replay) if replay else None,
         replay_schemes=list(replay["schemes"]) if replay else [],
         scheme_colors=plots.SCHEME_COLORS,
-        plotly_inline=interactive.inline_plotly() if any(f.get("plotly") for f in figures) else None,
+        plotly_inline=interactive.inline_plotly()
+        if any(f.get("plotly") for f in [*figures, *((requirements or {}).get("figures") or [])])
+        else None,
         oracle_notes=oracle_notes(verdict, case, base_verdict) if verdict else [],
         shading=shading,
-        requirements=None,  # r3-baseline's _requirements.html (time-windowed requirements) fills it
         plant=None,  # r3-drive's _plant.html (the plant and its idealizations) fills it
         name=name,
         analysis=analysis,
@@ -395,6 +399,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         n_phases=len(phases),
         phase_labels=[f"{a:g}-{b:g}" for a, b in phases],
         checks=checks,
+        requirements=requirements,
         figures=figures,
         key=rec.get("key", "-"),
         simulated=rec.get("time", "-"),

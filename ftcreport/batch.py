@@ -4,13 +4,20 @@ Edge module (files, processes, progress).  For each case file:
 
 * it is validated; a broken file is recorded (``<out>/<stem>/case.json`` with the
   error) and the batch goes on;
-* each scheme's run is skipped when ``<out>/<case>/<scheme>/key`` equals :func:`run_key`, the
-  hash of (case content, package version, scheme, the engine that runs it, the versions that
-  can change numbers: numpy, scipy, numba, ...) (``force`` re-runs); otherwise it is simulated
-  in a worker process and stored atomically as soon as it finishes, so an
+* each scheme's run is cached (not simulated again) when its record ``<out>/<case>/<scheme>/record.json``
+  is sound, matches its files (size and SHA-256) and holds :func:`run_key`, the hash of (case
+  content, package version, scheme, the engine that runs it, the versions that can change
+  numbers: numpy, scipy, numba, ...) (:func:`ftcreport.store.check_run`; ``force`` re-runs).  A
+  stored run that is not sound is re-run with one line naming its file and why.  Otherwise the
+  run is simulated in a worker process and stored atomically as soon as it finishes, so an
   interrupted batch keeps every finished run;
-* a run that fails (singular, diverged, error, or an exception in the worker) is
-  stored with its status and reason.
+* a run that ends in a status its case counts as a failure (``expected_status``) is stored as
+  that failure: this batch and every later one (cached or not), ``report`` and ``check`` report
+  it failed and exit 1;
+* a run that fails because of its environment, not its case (a compiled-code cache that cannot
+  be loaded, an OS error, memory, a worker that died; or a bug) is never stored: the batch reports
+  it failed for this invocation (:attr:`BatchResult.not_stored`, the manifest), and the next
+  batch runs it again (see :data:`ftcreport.runner.CASE_ERRORS` for the rule).
 
 Progress (on a terminal's stderr only, not with ``--quiet``): one overall bar (runs done of the
 batch's total, elapsed time, an estimate of the time left) and one line per run a worker is on
@@ -40,17 +47,18 @@ import queue as _queue
 import signal
 import sys
 import threading
-import traceback
 from collections.abc import Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import __version__
-from .cases import Case, case_hash, configured_schemes, load_case, overlay_text, with_duration
+from .cases import Case, case_hash, configured_schemes, dropped_faults, load_case, overlay_text, with_duration
 from .display import BatchDisplay
-from .errors import CaseError, note_stored
-from .store import cached_key, output_lock, read_json, save_run, write_atomic, write_json
+from .errors import CaseError, FtcError, note_stored, printable
+from .inputs import read_input
+from .store import OutputError, check_inside, check_run, output_lock, read_json, save_run, write_atomic, write_json
 
 __all__ = [
     "BatchResult",
@@ -61,6 +69,7 @@ __all__ = [
     "record_case",
     "run_batch",
     "run_key",
+    "worker_count",
     "write_case_manifest",
     "write_manifests",
 ]
@@ -82,6 +91,9 @@ class BatchResult:
     worker_peaks_mb: dict[int, float] = field(default_factory=dict)
     #: runs this batch simulated and stored complete (with their cache key): a re-run skips them
     stored: int = 0
+    #: runs that failed because of their environment (or a bug), not their case: (case, scheme, why);
+    #: not stored, so the next batch runs them again (each is in failed_runs too)
+    not_stored: list[tuple[str, str, str]] = field(default_factory=list)
 
     @property
     def worker_peak_rss_mb(self) -> float | None:
@@ -138,14 +150,16 @@ def base_name(path: Path, base_case: str) -> str:
         return base.stem
 
 
-def record_case(out: Path, case: Case, path: Path, duration: float | None = None) -> str:
-    """Store the case record and a copy of the case file (provenance); returns the case content hash."""
+def record_case(out: Path, case: Case, path: Path, duration: float | None = None, notes: Iterable[str] = ()) -> str:
+    """Store the case record and a copy of the case file (provenance); returns the case content hash.
+
+    ``notes``: warnings beside the case's own (the faults a ``--duration`` drops)."""
     from .families import not_applicable
 
     key = case_hash(case, __version__)
     # an overlay (base_case) is stored resolved, so the copy parses on its own
     resolved = overlay_text(path) if case.base_case is not None else None
-    write_atomic(out / case.name / "case.toml", Path(path).read_bytes() if resolved is None else resolved.encode())
+    write_atomic(out / case.name / "case.toml", read_input(path) if resolved is None else resolved.encode())
     schemes = configured_schemes(case)
     thresholds = {s: {m: b.model_dump() for m, b in t.items()} for s, t in case.thresholds.items()}
     payload = {
@@ -155,10 +169,11 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
         "schemes": schemes,
         "n": case.robots.n,
         "reference": case.reference.kind,
-        "warnings": case.warnings(),
+        "warnings": [*notes, *case.warnings()],
         "thresholds": thresholds,
         "duration_override": duration,
         "claims": [c.model_dump() for c in case.claims],  # thesis claims that `check` gates on
+        "requirements": [r.model_dump() for r in case.requirements],  # time-windowed requirements (check)
         "not_run": not_applicable(case),  # families the case does not run, each with its reason (issue 21)
         "plugin_schemes": plugin_info(case),  # the plug-in schemes' family, description, reference (report pages)
     }
@@ -203,22 +218,28 @@ def run_key(case: Case, scheme: str) -> str:
     return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _run_record(out: Path, case: Case, scheme: str, cached: bool, peak_mb: float | None = None) -> dict:
-    from .store import load_metrics
-
-    m = load_metrics(out, case.name, scheme) or {}
-    key_path = out / case.name / scheme / "key"
-    key = key_path.read_text().strip() if key_path.exists() else None
+def _run_record(
+    out: Path, case: Case, scheme: str, cached: bool, peak_mb: float | None = None, res: BatchResult | None = None
+) -> dict:
+    stored = check_run(out, case.name, scheme)
+    m = stored.metrics or {}
+    not_stored = next(
+        (why for c, s, why in (res.not_stored if res is not None else ()) if (c, s) == (case.name, scheme)), None
+    )
     record = {
         "case": case.name,
         "scheme": scheme,
         "engine": m.get("engine"),
-        "status": m.get("status"),
+        "status": m.get("status") if not_stored is None else "error",
         "cached": cached,
-        "key": key,
+        "key": (stored.record or {}).get("key"),
         "seed": case.plant.noise.seed,
         "wall_time": m.get("wall_time"),
     }
+    if not stored.sound and not stored.absent:
+        record["damaged"] = stored.problem
+    if not_stored is not None:  # this invocation's failure of the environment: not the run's result
+        record["not_stored"] = not_stored
     if peak_mb is not None:  # simulated by a batch worker: its peak resident memory when the run finished
         record["worker_peak_rss_mb"] = peak_mb
     return record
@@ -231,7 +252,7 @@ def write_case_manifest(out: Path, case: Case, settings: dict, runs: list[dict] 
     out = Path(out)
     if runs is None:
         schemes = configured_schemes(case)
-        runs = [_run_record(out, case, s, False) for s in schemes if (out / case.name / s / "metrics.json").exists()]
+        runs = [_run_record(out, case, s, False) for s in schemes if not check_run(out, case.name, s).absent]
     one = build_manifest(
         "case",
         cases={case.name: case_hash(case, __version__)},
@@ -256,7 +277,7 @@ def write_manifests(
     all_runs = []
     for case in cases:
         schemes = configured_schemes(case)
-        runs = [_run_record(out, case, s, (case.name, s) in cached, peaks.get((case.name, s))) for s in schemes]
+        runs = [_run_record(out, case, s, (case.name, s) in cached, peaks.get((case.name, s)), res) for s in schemes]
         all_runs += runs
         write_case_manifest(out, case, settings, runs)
     m = build_manifest(
@@ -367,31 +388,78 @@ def _record_error(out: Path, path: Path, error: str, avoid: Iterable[str] = ()) 
     """Record a rejected case file (shown on the index) without letting its name escape ``out``
     or overwrite a valid case's record."""
     try:
-        raw = path.read_bytes()[:200_000]
-    except OSError:
+        raw = read_input(path)[:200_000]
+    except CaseError:  # not a regular file, too large, unreadable: the error says so
         raw = b""
     text = raw.decode("utf-8", errors="replace")
     record = {"source": str(path), "status": "error", "error": error, "source_text": text}
-    _record(out, error_record_name(path, avoid), record)
+    try:
+        _record(out, error_record_name(path, avoid), record)
+    except OutputError:  # its stem is a folder linked out of --out: the record goes under a hash of the path
+        _record(out, error_record_name(path, (*avoid, Path(path).stem.lower())), record)
 
 
 #: a batch worker's progress queue (set by :func:`_init_worker`; None outside a batch's workers)
 _PROGRESS_Q: list = [None]
+_TIE: list = [None]  # a batch worker's tie to its batch (its lock's descriptor held for the worker's life)
 
 
-def _init_worker(progress_q) -> None:
-    """Initializer of a batch worker process: the queue its runs report their simulated time on."""
+class _Tie:
+    """What ties a batch worker to its batch: the batch's pid, its output directory and its lock.
+
+    Pickled when a worker starts (its initializer's argument): the lock's file descriptor passes to
+    the worker (``multiprocessing.reduction.DupFd``, as multiprocessing passes its own pipes), so the
+    worker holds the batch's lock too and the kernel frees it only when the last of them is gone.
+    """
+
+    def __init__(self, parent: int, out: str, lock: int | None) -> None:
+        self.parent, self.out, self.lock = parent, out, lock
+
+    def __reduce__(self):
+        from multiprocessing.reduction import DupFd
+
+        return (_Tie._rebuild, (self.parent, self.out, None if self.lock is None else DupFd(self.lock)))
+
+    @staticmethod
+    def _rebuild(parent: int, out: str, dup) -> _Tie:
+        return _Tie(parent, out, None if dup is None else dup.detach())
+
+    def bind(self) -> None:
+        """In the worker: die with the batch, write only inside its ``out`` and only while it lives."""
+        from .lifetime import die_with_parent
+        from .store import confine, set_write_guard
+
+        die_with_parent(self.parent)
+        confine(Path(self.out))
+        parent = self.parent
+        set_write_guard(lambda: os.getppid() == parent)  # else the batch is gone (its lock may be another's)
+
+
+def _init_worker(progress_q, tie: _Tie | None = None) -> None:
+    """Initializer of a batch worker process: the queue its runs report their simulated time on, and
+    its tie to the batch (:class:`_Tie`)."""
     _PROGRESS_Q[0] = progress_q
+    if tie is not None:
+        _TIE[0] = tie  # holds the lock's descriptor for the worker's life
+        tie.bind()
 
 
 def _worker(case_data: dict, source: str, scheme: str, out: str, key: str) -> tuple[dict, dict]:
     """Run one scheme in a worker process and store it; returns its metrics and the worker's
-    ``{"pid", "peak_rss_mb"}`` (its peak resident memory after the run and its storage)."""
+    ``{"pid", "peak_rss_mb"}`` (its peak resident memory after the run and its storage).
+
+    A failure that is not the case's outcome (:func:`ftcreport.runner.run_scheme` raises it: the
+    environment, or a bug) is not stored: the metrics returned are then ``{"not_stored": why}``.
+    """
     from .cases import parse_case
     from .runner import run_scheme
 
     progress_q = _PROGRESS_Q[0]
-    case = parse_case(case_data, source)
+    worker = {"pid": os.getpid()}
+    try:
+        case = parse_case(case_data, source)
+    except Exception as exc:  # a scheme file gone or changed since the batch read the case: not the run's result
+        return {"not_stored": _not_the_case(exc)}, worker | {"peak_rss_mb": peak_rss_mb()}
     last = [0.0]
     if progress_q is not None:  # started: the display shows the run from now on (its compile included)
         with contextlib.suppress(Exception):
@@ -406,21 +474,43 @@ def _worker(case_data: dict, source: str, scheme: str, out: str, key: str) -> tu
     try:
         run, metrics = run_scheme(case, scheme, progress=progress)
     except Exception as exc:
-        import numpy as np
+        return {"not_stored": _not_the_case(exc)}, worker | {"peak_rss_mb": peak_rss_mb()}
+    status = metrics.get("status", "error")
+    why = case.unexpected(scheme, status, metrics.get("reason")) if status not in case.expected_for(scheme) else None
+    save_run(Path(out), case.name, scheme, run, metrics, key, case.expected_for(scheme), why)
+    return metrics, worker | {"peak_rss_mb": peak_rss_mb()}
 
-        from .sim import Run
 
-        run = Run(t=np.zeros(0), signals={}, status="error", reason=f"{type(exc).__name__}: {exc}")
-        metrics = {
-            "case": case.name,
-            "scheme": scheme,
-            "status": "error",
-            "reason": f"{type(exc).__name__}: {exc}",
-            "traceback": traceback.format_exc(),
-            "null_reasons": {},  # no metric was computed
-        }
-    save_run(Path(out), case.name, scheme, run, metrics, key)
-    return metrics, {"pid": os.getpid(), "peak_rss_mb": peak_rss_mb()}
+def _not_the_case(exc: BaseException) -> str:
+    """Why a run failed when the failure is not its case's outcome: the environment's words, or a bug's
+    one line with the log holding its traceback."""
+    from .crashlog import write_crash_log
+    from .errors import RunEnvironmentError, environment_cause
+
+    if isinstance(exc, RunEnvironmentError):
+        return str(exc)
+    cause = environment_cause(exc)
+    if cause is not None:
+        return cause
+    return f"unexpected {type(exc).__name__}: {str(exc)[:200]} (a bug: traceback in {write_crash_log(exc)})"
+
+
+def worker_count(jobs: int | None, runs: int) -> tuple[int, str | None]:
+    """Worker processes for ``runs`` runs: ``jobs`` (default: the cores), at most the number of runs and the
+    cores this process may use; and why it was capped below the ``jobs`` asked for (None when it was not,
+    or when ``jobs`` was not given)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    if jobs is not None and jobs < 1:
+        raise FtcError(f"--jobs: must be at least 1, got {jobs}")
+    want = cores if jobs is None else jobs
+    n = max(1, min(want, cores, runs))
+    if jobs is None or n == jobs:
+        return n, None
+    why = "the number of runs to simulate" if runs < cores else f"the cores this process may use ({cores})"
+    return n, why
 
 
 def run_batch(
@@ -439,6 +529,7 @@ def run_batch(
     """
     out = Path(out)
     res = BatchResult()
+    worker_count(jobs, 1)  # a --jobs below 1 is refused before the output directory is touched
     try:
         with output_lock(out, "batch"):
             return _run_batch(paths, out, jobs, force, duration, show_progress, render, res)
@@ -447,15 +538,23 @@ def run_batch(
         raise
 
 
+def _note(line: str) -> None:
+    """One line on stderr, at once (a stored run re-run and why; a --duration that drops a fault)."""
+    print(printable(line), file=sys.stderr, flush=True)
+
+
 def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, res: BatchResult) -> BatchResult:
     todo: list[tuple[Case, str, str, str]] = []  # case, source, scheme, key
     expected: dict[str, Case] = {}  # case name -> the case (its expected_for(scheme): statuses that are not failures)
     loaded: list[Case] = []
     taken: dict[str, str] = {}  # lower-case case name -> the file that has it
     for path in discover(paths):
+        notes = []
         try:
             case = load_case(path)
             if duration is not None:
+                if (drop := dropped_faults(case, duration)) is not None:
+                    notes.append(drop)
                 case = with_duration(case, duration)
             first = taken.setdefault(case.name.lower(), str(path))
             if first != str(path):
@@ -463,20 +562,30 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
                     f"{path}: name: '{case.name}' is already the name of {first} (names must differ in more than "
                     "letter case: each is a directory of the report)"
                 )
-        except CaseError as exc:
+            for s in configured_schemes(case):  # a case or scheme folder linked out of --out is refused
+                check_inside(out / case.name / s / "record.json")
+        except (CaseError, OutputError) as exc:
             res.case_errors[str(path)] = str(exc)
             continue
         res.cases.append(case.name)
         loaded.append(case)
-        record_case(out, case, Path(path), duration)
+        for line in notes if show_progress else ():  # --quiet: on the case's page only
+            _note(f"ftcreport: warning: {path}: {line}")
+        record_case(out, case, Path(path), duration, notes)
         expected[case.name] = case
         schemes = configured_schemes(case)
         for s in schemes:
             key = run_key(case, s)
-            if not force and cached_key(out, case.name, s) == key:
+            stored = check_run(out, case.name, s, key=key)
+            if not force and stored.sound:
                 res.cached.append((case.name, s))
-            else:
-                todo.append((case, str(path), s, key))
+                if stored.failed:  # cached as the failure it is
+                    rec = stored.record
+                    res.failed_runs.append((case.name, s, case.unexpected(s, rec["status"], rec.get("reason"))))
+                continue
+            if not force and not stored.absent:
+                _note(f"ftcreport: note: {stored.problem}; re-running {case.name} / {s}")
+            todo.append((case, str(path), s, key))
     for path, error in res.case_errors.items():  # after every valid name is known
         _record_error(out, Path(path), error, taken)
     todo = _compile_first(sorted(todo, key=lambda job: -_cost(job[0], job[2])))
@@ -495,7 +604,10 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
             render_all(out, pool=pool, notify=_render_notice if show_progress else None)
 
     if todo:
-        _execute(todo, out, jobs or os.cpu_count() or 1, show_progress, res, expected, finish)
+        workers, capped = worker_count(jobs, len(todo))
+        if capped is not None:
+            _note(f"ftcreport: note: --jobs {jobs}: capped at {workers} ({capped})")
+        _execute(todo, out, workers, show_progress, res, expected, finish)
     else:
         finish()
     return res
@@ -519,10 +631,14 @@ def _parquet_stale(out: Path) -> bool:
 
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict, finish) -> None:
     """Run ``todo`` in worker processes, then ``finish(pool)`` (the pages render in the same workers)."""
+    from .lifetime import shielded, stop_processes
+    from .store import lock_fd
+
     ctx = mp.get_context("spawn")
     q = ctx.Queue()  # the workers' progress reports, handed to each worker as it starts
     display = BatchDisplay.make(len(todo), show_progress)
-    pool = _Pool(max_workers=max(1, jobs), mp_context=ctx, initializer=_init_worker, initargs=(q,))
+    tie = _Tie(os.getpid(), str(out), lock_fd(out))
+    pool = _Pool(max_workers=max(1, jobs), mp_context=ctx, initializer=_init_worker, initargs=(q, tie))
     with display, pool:
         futures = {}
         for case, source, scheme, key in todo:
@@ -533,15 +649,21 @@ def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, 
         try:
             _collect(pending, futures, q, display, out, res, expected)
             display.stop()
-            finish(pool)
-        except BaseException:  # Ctrl-C, SIGTERM: stop the workers now; every stored run is complete
-            display.stop()
-            for proc in list((getattr(pool, "_processes", None) or {}).values()):
-                with contextlib.suppress(Exception):
-                    proc.terminate()
-            # the pool cancels the waiting runs itself: a future cancelled here, which the pool then
-            # finds broken (its workers terminated), raised InvalidStateError in its thread (Python 3.11)
-            pool.shutdown(wait=False, cancel_futures=True)
+            try:
+                finish(pool)
+            except BrokenProcessPool:  # a worker was killed: the pages render here instead
+                finish(None)
+        except BaseException:  # Ctrl-C, SIGTERM, SIGHUP: stop the workers now; every stored run is complete
+            with shielded():
+                display.stop()
+                # terminated and waited for: none writes after this, and their temporary files can go
+                stop_processes(list((getattr(pool, "_processes", None) or {}).values()))
+                # the pool cancels the waiting runs itself: a future cancelled here, which the pool then
+                # finds broken (its workers terminated), raised InvalidStateError in its thread (Python 3.11)
+                pool.shutdown(wait=False, cancel_futures=True)
+                # what is on disk now, complete with this batch's key (a worker may have stored a run
+                # whose result this process had not collected yet)
+                res.stored = sum(check_run(out, c.name, s, key=key).sound for c, _, s, key in todo)
             raise
         finally:
             q.close()
@@ -586,20 +708,22 @@ def _collect(pending, futures, q, display: BatchDisplay, out: Path, res: BatchRe
             name, scheme = futures[fut]
             try:
                 m, worker = fut.result()
-                status, reason = m.get("status", "error"), m.get("reason", "")
-                _note_peak(res, name, scheme, worker)
-                res.stored += 1  # the worker stored it (save_run) before it returned
-            except Exception as exc:
-                status, reason = "error", f"worker failed: {type(exc).__name__}: {exc}"
-                (out / name / scheme / "key").unlink(missing_ok=True)  # not a complete, cached run
-                write_json(
-                    out / name / scheme / "metrics.json",
-                    {"case": name, "scheme": scheme, "status": "error", "reason": reason, "null_reasons": {}},
-                )
+            except Exception as exc:  # the worker died (killed, out of memory) or its result did not come back
+                m, worker = {"not_stored": f"worker failed: {type(exc).__name__}: {exc}"}, {}
+            _note_peak(res, name, scheme, worker)
             res.simulated.append((name, scheme))
-            if name not in expected or status not in expected[name].expected_for(scheme):
-                why = expected[name].unexpected(scheme, status, reason) if name in expected else f"{status}: {reason}"
+            if "not_stored" in m:  # not the case's outcome: this invocation's failure, never its stored result
+                why = f"{m['not_stored']} (not the case's result: not stored, the next batch runs it again)"
+                res.not_stored.append((name, scheme, why))
                 res.failed_runs.append((name, scheme, why))
+            else:
+                res.stored += 1  # the worker stored it (save_run) before it returned
+                status, reason = m.get("status", "error"), m.get("reason", "")
+                if name not in expected or status not in expected[name].expected_for(scheme):
+                    why = (
+                        expected[name].unexpected(scheme, status, reason) if name in expected else f"{status}: {reason}"
+                    )
+                    res.failed_runs.append((name, scheme, why))
             display.finished(name, scheme)
 
 
@@ -625,4 +749,4 @@ def _drain(q, display: BatchDisplay) -> None:
 def failures_summary(res: BatchResult) -> str:  # pragma: no cover - CLI text helper
     lines = [f"ftcreport: error: {e if e.startswith(p) else f'{p}: {e}'}" for p, e in res.case_errors.items()]
     lines += [f"ftcreport: error: {c} / {s}: {r}" for c, s, r in res.failed_runs]
-    return "\n".join(lines)
+    return "\n".join(printable(line) for line in lines)

@@ -52,7 +52,7 @@ from .cases import Case, configured_schemes, ordered_schemes, parse_case, plugin
 from .errors import CaseError, FtcError
 from .model import pattern_is_compensable, wheel_names
 from .stats import compare_metric, compare_success, wilson_interval
-from .store import _jsonable, write_atomic
+from .store import _jsonable, locked, write_atomic
 
 __all__ = [
     "CampaignResult",
@@ -478,6 +478,7 @@ def load_records(folder: Path, expected: dict, force: bool, what: str = "sample"
     return got, stale
 
 
+@locked("campaign")
 def run_campaign(
     base: Case,
     samples: int,

@@ -16,6 +16,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import math
+import os
 import re
 import tomllib
 from pathlib import Path
@@ -33,7 +34,7 @@ from pydantic import (
     model_validator,
 )
 
-from .errors import CaseError, FtcError
+from .errors import CaseError, FtcError, printable
 from .fields import (  # the schema's building blocks (shared with the schemes' parameter tables)
     _NUMBER,
     Angle,
@@ -59,11 +60,13 @@ from .fields import (  # the schema's building blocks (shared with the schemes' 
     _Strict,
     did_you_mean,
 )
+from .inputs import input_problem, read_input
 from .limits import budget_problem, name_problem
 from .model import Chain, FaultEvent, FaultSchedule, wheel_index, wheel_names
 from .model.actuators import MAXON_RE65, MotorParams
 from .model.chain import THESIS_ROBOT
 from .model.faults import MOTOR_KINDS, motor_row
+from .requirements import SIGNALS as REQUIREMENT_SIGNALS
 from .schemes import built_in as _built_in_schemes
 
 __all__ = [
@@ -73,8 +76,10 @@ __all__ = [
     "case_schema",
     "configured_schemes",
     "did_you_mean",
+    "dropped_faults",
     "known_schemes",
     "load_case",
+    "metric_problem",
     "option_schemes",
     "ordered_schemes",
     "parse_case",
@@ -616,6 +621,158 @@ class Claim(_Strict):
         return self
 
 
+class AfterFault(_Strict):
+    """A window edge N seconds after each fault event (one window per event)."""
+
+    after_fault: Time = _f(
+        ..., "seconds after each fault event ([[faults]] times, repairs included; one window per event)", "s"
+    )
+
+
+_SIGNAL_NAMES = tuple(REQUIREMENT_SIGNALS)
+
+
+class Requirement(_Strict):
+    """A bound on a signal over windows defined by events, checked at every step (ftcreport.requirements)."""
+
+    id: str = _f(..., "short name, unique in the case (the JUnit testcase's name)", "-", min_length=1, max_length=64)
+    description: str = _f("", "the requirement in words (shown on the page)", "-")
+    signal: Literal[_SIGNAL_NAMES] = _f(
+        ...,
+        "position_error [m], heading_error [rad], torque [N m] (signed, one wheel), torque_abs [N m], speed (v_n) "
+        "[m/s], turn_rate (omega_1) [rad/s]",
+        "-",
+    )
+    robot: Annotated[int, Field(ge=1, le=12), _NUMBER] | None = _f(
+        None, "heading_error: the robot (1 = leader); absent: the largest error over the robots", "1"
+    )
+    wheel: str | None = _f(
+        None, 'torque (required), torque_abs (absent: the largest over the wheels): "1r", "1l", ..., "nl"', "-"
+    )
+    scheme: str = _f("*", 'the scheme it applies to, or "*" for every scheme the case runs', "-")
+    start: Time | AfterFault = _f(
+        0.0, "where each window starts: a time, or { after_fault = N }: N s after each fault event", "s"
+    )
+    end: Time | Literal["next_fault", "end"] | AfterFault = _f(
+        "end",
+        'where each window ends: a time, "next_fault" (the next event, else the end), "end" (of the run), or '
+        "{ after_fault = M } (M s after the window's own event)",
+        "s",
+    )
+    min: Limit | None = _f(None, "lower bound on the signal in every window", "signal's")
+    max: Limit | None = _f(None, "upper bound on the signal in every window (min and max: within the band)", "signal's")
+
+    @model_validator(mode="after")
+    def _decidable(self) -> Requirement:
+        if self.min is None and self.max is None:
+            raise ValueError("give a bound: min, max, or both (within [min, max])")
+        return self
+
+    def problems(self, n: int) -> list[tuple[str, str]]:
+        """(field, reason) of every inconsistency with itself and with an n-robot chain."""
+        out = []
+        if self.min is not None and self.max is not None and self.min > self.max:
+            out.append(("max", f"{self.max:g} is below min = {self.min:g}: the band is empty"))
+        if self.robot is not None and self.signal != "heading_error":
+            out.append(("robot", f"a robot is chosen for heading_error only, not for {self.signal}"))
+        if self.robot is not None and self.robot > n:
+            out.append(("robot", f"robot {self.robot} is not in a {n}-robot chain"))
+        if self.wheel is not None and self.signal not in ("torque", "torque_abs"):
+            out.append(("wheel", f"a wheel is chosen for torque and torque_abs only, not for {self.signal}"))
+        if self.wheel is None and self.signal == "torque":
+            out.append(
+                ("wheel", 'required for the signed torque: name the wheel, e.g. wheel = "1r" (or use torque_abs)')
+            )
+        if self.wheel is not None:
+            try:
+                wheel_index(self.wheel, n)
+            except FtcError as exc:
+                out.append(("wheel", str(exc)))
+        s, e = self.start, self.end
+        if isinstance(e, AfterFault) and not isinstance(s, AfterFault):
+            out.append(
+                ("end", "{ after_fault = M } needs start = { after_fault = N }: M is counted from each window's fault")
+            )
+        elif isinstance(e, AfterFault) and e.after_fault <= s.after_fault:
+            out.append(
+                (
+                    "end.after_fault",
+                    f"{e.after_fault:g} s is not after start.after_fault = {s.after_fault:g} s: every window "
+                    "would be empty",
+                )
+            )
+        if isinstance(s, float) and isinstance(e, float) and e <= s:
+            out.append(("end", f"{e:g} s is not after start = {s:g} s: the window would be empty"))
+        return out
+
+
+#: [baseline] defaults: ftcreport.baseline's module docstring and cases/README.md ("Baselines") say why
+BASELINE_REL_TOL = 1e-3
+BASELINE_ABS_TOL = 1e-9
+#: the scalar metrics of metrics.json a [baseline.metrics.<name>] table may name (ftcreport.baseline
+#: compares COMPARED_METRICS, a part of them, by default)
+BASELINE_METRIC_NAMES: tuple[str, ...] = (
+    "position_error_max", "position_error_rms", "position_error_final", "position_error_iae", "heading_error_max",
+    "heading_error_final", "recovery_time_max", "torque_peak", "torque_rms", "energy", "saturation_fraction",
+    "singularity_margin_min", "t_end", "switch_count", "switching_match_fraction", "switching_exact_match_fraction",
+    "switching_missed_detections", "detection_delay_max", "chi_hat_min", "chi_hat_max", "P_max", "false_alarms",
+    "missed_detections", "fault_estimation_error_final", "combined_effect_error_rms", "combined_effect_rms",
+)  # fmt: skip
+#: the signal families of [baseline.signals.<name>] and their units
+BASELINE_SIGNAL_FAMILIES: dict[str, str] = {"position_error": "m", "heading_error": "rad", "torque": "N m"}
+
+
+class Tolerance(_Strict):
+    """Tolerances of one baseline metric or signal family ([baseline.metrics.<name>], [baseline.signals.<name>])."""
+
+    rel_tol: _num(0.0, 1e6) | None = _f(None, "relative tolerance (default: [baseline] rel_tol)", "1")
+    abs_tol: _num(0.0, 1e18) | None = _f(None, "absolute tolerance (default: [baseline] abs_tol)", "unit of the metric")
+    leading_tol: Time | None = _f(None, "signals: how far the new signal may lead the baseline in time", "s")
+    lagging_tol: Time | None = _f(None, "signals: how far the new signal may lag the baseline in time", "s")
+    ignore: StrictBool = _f(False, "leave this metric or signal out of the comparison", "-")
+
+
+class BaselineSpec(_Strict):
+    """Tolerances of ``ftcreport check --baseline`` for this case (ftcreport.baseline; as Simulink Test's criteria).
+
+    A value passes when |new - baseline| <= max(abs_tol, rel_tol |baseline|); a signal when it stays
+    in that band around the baseline's, widened in time by leading_tol and lagging_tol.
+    """
+
+    rel_tol: _num(0.0, 1e6) = _f(BASELINE_REL_TOL, "relative tolerance of every metric and signal", "1")
+    abs_tol: _num(0.0, 1e18) = _f(
+        BASELINE_ABS_TOL, "absolute tolerance of every metric and signal (in its own unit)", "unit of the metric"
+    )
+    leading_tol: Time = _f(0.0, "signals: how far the new signal may lead the baseline in time", "s")
+    lagging_tol: Time = _f(0.0, "signals: how far the new signal may lag the baseline in time", "s")
+    metrics: dict[str, Tolerance] = _f(
+        {}, "[baseline.metrics.<name>]: a metrics.json name's own tolerances (naming one compares it)", "-"
+    )
+    signals: dict[str, Tolerance] = _f(
+        {}, "[baseline.signals.<name>]: position_error, heading_error or torque: that family's own tolerances", "-"
+    )
+
+    @model_validator(mode="after")
+    def _known_names(self) -> BaselineSpec:
+        for name in self.metrics:
+            if name not in BASELINE_METRIC_NAMES:
+                raise _FieldError(
+                    f"baseline.metrics.{name}",
+                    "not a scalar metric of metrics.json"
+                    + did_you_mean(name, list(BASELINE_METRIC_NAMES))
+                    + f" (known: {', '.join(BASELINE_METRIC_NAMES)})",
+                )
+        for name in self.signals:
+            if name not in BASELINE_SIGNAL_FAMILIES:
+                raise _FieldError(
+                    f"baseline.signals.{name}",
+                    "not a baseline signal"
+                    + did_you_mean(name, list(BASELINE_SIGNAL_FAMILIES))
+                    + f" (known: {', '.join(BASELINE_SIGNAL_FAMILIES)})",
+                )
+        return self
+
+
 class CampaignSpec(_Strict):
     """Distributions a Monte Carlo campaign draws variants of the case from (ftcreport.campaign)."""
 
@@ -652,7 +809,8 @@ class Case(_Strict):
     name: str | None = _f(
         None,
         "defaults to the file name without .toml; a safe name: [A-Za-z0-9][A-Za-z0-9_.-]{0,63}, not a name the "
-        "report uses itself (index, assets, ...), unique within a batch ignoring letter case (see Limits)",
+        "report uses itself (index, *.html, manifest.json, metrics.parquet, assets, campaigns, coverage, fdi, "
+        "junit.xml), unique within a batch ignoring letter case (see Limits)",
         "-",
     )
     description: str = _f("", "one line shown in reports", "-")
@@ -666,7 +824,8 @@ class Case(_Strict):
         None,
         "path of the case this file overlays, relative to this file: the base's tables, then this file's "
         "(tables merged key by key, arrays such as [[faults]] replaced whole); name, description, thresholds, "
-        "claims, campaign, expected_status and expected_status_of are this file's own, never the base's",
+        "claims, requirements, baseline, campaign, expected_status and expected_status_of are this file's own, never "
+        "the base's",
         "-",
         max_length=1000,
     )
@@ -697,6 +856,12 @@ class Case(_Strict):
     )
     campaign: CampaignSpec | None = _f(None, "distributions for ftcreport campaign (ignored by batch)", "-")
     claims: list[Claim] = _f([], "thesis claims checked against the runs ([[claims]], ftcreport.claims)", "-")
+    requirements: list[Requirement] = _f(
+        [], "bounds on a signal over event-defined windows ([[requirements]], ftcreport.requirements)", "-"
+    )
+    baseline: BaselineSpec | None = _f(
+        None, "tolerances of check --baseline ([baseline], ftcreport.baseline); absent: the documented defaults", "-"
+    )
 
     @field_validator("name")
     @classmethod
@@ -772,12 +937,7 @@ class Case(_Strict):
                     "campaign.fault_time",
                     f"upper bound must be before the end of the run ({self.simulation.duration} s)",
                 )
-            if self.campaign.wheels != "any":
-                for i, w in enumerate(self.campaign.wheels):
-                    try:
-                        wheel_index(w, n)
-                    except FtcError as exc:
-                        raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
+            _check_campaign_draws(self.campaign, n, keeps=bool(self.faults))
         run = self.schemes.run
         if run is not None and not run:
             raise _FieldError(
@@ -820,12 +980,20 @@ class Case(_Strict):
                 s = getattr(c, key)
                 if s is not None and run is not None and s not in run:
                     raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not run by this case (schemes.run)")
+            if c.not_applicable is None and c.metric is not None:
+                kinds = ("sequence",) if c.sequence is not None else ("number", "table", "list")
+                for s in (c.scheme, c.relative_to):
+                    if s is not None and (why := metric_problem(s, c.metric, kinds)) is not None:
+                        raise _FieldError(f"claims[{i}].metric", why)
+        _check_requirements(self, run, known)
         for scheme, metrics in self.thresholds.items():
             if scheme not in known:
                 raise _FieldError(
                     f"thresholds.{scheme}", f"unknown scheme{did_you_mean(scheme, known)} (known: {', '.join(known)})"
                 )
             for metric, bound in metrics.items():
+                if (why := metric_problem(scheme, metric)) is not None:
+                    raise _FieldError(f"thresholds.{scheme}.{metric}", why)
                 if bound.min is None and bound.max is None:
                     raise _FieldError(f"thresholds.{scheme}.{metric}", "give min, max or both")
         return self
@@ -876,6 +1044,89 @@ class Case(_Strict):
                 f"until {end:g} s ({why}); tracking is expected to be lost"
             )
         return out
+
+
+def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> None:
+    """[[requirements]]: ids unique, the scheme known and run, robots and wheels of this chain."""
+    ids = [r.id for r in case.requirements]
+    for i, r in enumerate(case.requirements):
+        if r.id in ids[:i]:
+            raise _FieldError(f"requirements[{i}].id", f"'{r.id}' is already the id of requirements[{ids.index(r.id)}]")
+        if r.scheme != "*" and r.scheme not in known:
+            raise _FieldError(
+                f"requirements[{i}].scheme",
+                f"unknown scheme '{r.scheme}'{did_you_mean(r.scheme, known)} (known: {', '.join(known)}, or \"*\")",
+            )
+        if r.scheme != "*" and run is not None and r.scheme not in run:
+            raise _FieldError(f"requirements[{i}].scheme", f"scheme '{r.scheme}' is not run by this case (schemes.run)")
+        for key, why in r.problems(case.robots.n):
+            raise _FieldError(f"requirements[{i}].{key}", why)
+def metric_problem(scheme: str, name: str, kinds: tuple[str, ...] = ("number",)) -> str | None:
+    """Why the metric ``name`` cannot be compared on a run of ``scheme`` as one of ``kinds``, or None.
+
+    The names are those a run writes (:data:`ftcreport.metrics.METRICS`, the one list); ``name`` may be
+    ``metric.key``, an entry of a table metric.  An unknown name gets the closest of the scheme's own.
+    """
+    from .metrics import METRICS, metrics_of
+
+    base, _, key = name.partition(".")
+    own = metrics_of(scheme)
+    if base not in METRICS:
+        hint = did_you_mean(base, own) or f" (a {scheme} run writes {', '.join(_numbers(own))})"
+        return f"unknown metric{hint}"
+    m = METRICS[base]
+    if base not in own:
+        return f"'{base}' is not a metric of the {scheme} scheme (only {', '.join(m.schemes or ())} runs write it)"
+    if key and m.kind != "table":
+        return f"'{base}' is a {m.kind}, not a table of numbers: '{name}' reads no entry of it"
+    kind = "number" if key else m.kind
+    if kind not in kinds:
+        return f"'{base}' is not a number (a {m.kind}); compare {' or '.join(kinds)} metrics here"
+    return None
+
+
+def _numbers(names: list[str]) -> list[str]:
+    from .metrics import METRICS
+
+    return [k for k in names if METRICS[k].kind == "number"]
+
+
+def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
+    """The faults a campaign draws exist: its wheels are wheels of the chain, each listed once, at least
+    as many as the faults it draws per sample (each on a distinct wheel), and it draws a fault at all
+    (unless the case keeps faults of its own)."""
+    lo, hi = spec.faults
+    if spec.wheels == "any":
+        wheels, which = wheel_names(n), f"the {2 * n} wheels of the {n}-robot chain"
+    else:
+        if not spec.wheels:
+            raise _FieldError(
+                "campaign.wheels", 'no wheel: a sample could draw no fault; list the wheels a fault may hit, or "any"'
+            )
+        seen: dict[str, int] = {}
+        for i, w in enumerate(spec.wheels):
+            try:
+                wheel_index(w, n)
+            except FtcError as exc:
+                raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
+            first = seen.setdefault(w.strip().lower(), i)
+            if first != i:
+                raise _FieldError(
+                    f"campaign.wheels[{i}]", f"{w!r} is listed twice (wheels[{first}]); faults hit distinct wheels"
+                )
+        wheels, which = list(seen), f"the {len(seen)} wheels of campaign.wheels"
+    if hi > len(wheels):
+        raise _FieldError(
+            "campaign.faults",
+            f"up to {hi} faults per sample, each on a distinct wheel, but only {len(wheels)} wheels can fail "
+            f"({which}); the draw would be cut silently",
+        )
+    if hi == 0 and not (spec.keep_base_faults and keeps):
+        raise _FieldError(
+            "campaign.faults",
+            f"[{lo}, {hi}] draws no fault and keeps none of the case's (keep_base_faults): every sample would be "
+            "fault-free and 'succeed'; give an upper bound of 1 or more",
+        )
 
 
 def _check_motor_fault(i: int, f: Fault, has_actuators: bool) -> None:
@@ -1168,13 +1419,19 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
     The scheme files of ``plugins`` are loaded first (their schemes register themselves), and the
     case keeps their absolute paths, so a worker that parses the case's JSON loads them too.
     """
-    data = _load_plugins(data, source)
+    controls = _control_errors(data)  # reported with the other fields in error, the field once
     try:
+        data = _load_plugins(data, source)
         case = Case.model_validate(data)
     except ValidationError as exc:
-        lines = [f"{source}: {loc}: {why}" for loc, why in _field_errors(exc.errors())]
-        more = f" (and {len(lines) - 1} more; 'ftcreport cases validate' lists every one)" if len(lines) > 1 else ""
-        raise CaseError(lines[0] + more, lines) from None
+        found = {loc for loc, _ in controls}
+        _refuse(source, controls + [(loc, why) for loc, why in _field_errors(exc.errors()) if loc not in found])
+    except CaseError:
+        if controls:  # a plugins path with a control character is not looked for
+            _refuse(source, controls)
+        raise
+    if controls:
+        _refuse(source, controls)
     if case.name is None:
         stem = Path(source).stem
         if (why := name_problem(stem)) is not None:
@@ -1183,6 +1440,55 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
     from .families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
 
     return fill_defaults(case)
+
+
+#: Fields of prose that may span lines (a TOML multi-line string): tabs and line ends are allowed there.
+_PROSE = ("words", "note")
+
+
+def _refuse(source: str, errors: list[tuple[str, str]]) -> None:
+    """Raise the CaseError of every (field, reason), the first in its message with the count of the others."""
+    lines = [f"{printable(source)}: {loc}: {why}" for loc, why in errors]
+    more = f" (and {len(lines) - 1} more; 'ftcreport cases validate' lists every one)" if len(lines) > 1 else ""
+    raise CaseError(lines[0] + more, lines) from None
+
+
+def _control_errors(data: Any) -> list[tuple[str, str]]:
+    """(field, reason) of every text of the case, keys included, that holds a control character (C0, DEL, C1).
+
+    Every text of a case reaches a terminal line, a page or a JUnit file; an escape sequence rewrites
+    the terminal, NUL and most others make XML ill-formed (issue 34 item 7).  Only the claims' prose
+    (:data:`_PROSE`) may hold tabs and line ends.
+    """
+    import unicodedata
+
+    out: list[tuple[str, str]] = []
+
+    def why(text: str, allowed: str = "") -> str | None:
+        bad = next(((i, c) for i, c in enumerate(text) if unicodedata.category(c) == "Cc" and c not in allowed), None)
+        if bad is None:
+            return None
+        shown = printable(text[:60]) + ("..." if len(text) > 60 else "")
+        return (
+            f"control character U+{ord(bad[1]):04X} at position {bad[0]} of '{shown}': a text of a case holds "
+            "printable characters only (a control character breaks the terminal, the pages and the JUnit file)"
+        )
+
+    def walk(v: Any, path: str, key: str) -> None:
+        if isinstance(v, dict):
+            for k, x in v.items():
+                sub = f"{path}.{printable(k)}" if path else printable(k)
+                if isinstance(k, str) and (w := why(k)) is not None:
+                    out.append((sub, w))
+                walk(x, sub, str(k))
+        elif isinstance(v, list):
+            for i, x in enumerate(v):
+                walk(x, f"{path}[{i}]", key)
+        elif isinstance(v, str) and (w := why(v, "\t\n\r" if key in _PROSE else "")) is not None:
+            out.append((path or "<root>", w))
+
+    walk(data, "", "")
+    return out
 
 
 def _load_plugins(data: dict, source: str) -> dict:
@@ -1199,7 +1505,7 @@ def _load_plugins(data: dict, source: str) -> dict:
     for i, p in enumerate(plugins):
         path = Path(p).expanduser()
         path = path if path.is_absolute() else base / path
-        if not path.is_file():
+        if not os.path.lexists(path):
             raise CaseError(f"{source}: plugins[{i}]: no such scheme file: {path}")
         try:
             load_plugin(path)
@@ -1216,8 +1522,8 @@ def plugin_digest(case: Case) -> str:
     h = hashlib.sha256()
     for p in case.plugins:
         try:
-            h.update(Path(p).name.encode() + b"\0" + Path(p).read_bytes())
-        except OSError:
+            h.update(Path(p).name.encode() + b"\0" + read_input(p, "scheme file"))
+        except CaseError:
             h.update(f"{p}: unreadable".encode())
     return h.hexdigest()[:16]
 
@@ -1257,6 +1563,8 @@ OWN_FIELDS = (
     "description",
     "thresholds",
     "claims",
+    "requirements",
+    "baseline",
     "campaign",
     "expected_status",
     "expected_status_of",
@@ -1283,6 +1591,8 @@ def resolve_overlay(path: Path, data: dict, _seen: tuple[Path, ...] = ()) -> dic
     ref = data.get("base_case")
     if not isinstance(ref, str) or not ref.strip():
         raise CaseError(f"{path}: base_case: must be the path of a case file (a string), got {ref!r}")
+    if (why := input_problem(path.parent / ref)) is not None:  # a FIFO, device, directory, link loop: never opened
+        raise CaseError(f"{path}: base_case: '{ref}': {why}")
     base_path = (path.parent / ref).resolve()
     seen = (*_seen, path.resolve())
     if base_path in seen:
@@ -1344,7 +1654,7 @@ def overlay_text(path: str | Path) -> str | None:
     if "base_case" not in data:
         return None
     merged = resolve_overlay(path, data)
-    own = "".join(f"# | {line}\n" for line in path.read_text(encoding="utf-8").splitlines())
+    own = "".join(f"# | {line}\n" for line in read_input(path).decode("utf-8").splitlines())
     body = "".join(f"{_toml_key(k)} = {_toml_value(v)}\n" for k, v in merged.items())
     return f"# {path} resolved over its base case {data['base_case']}; the file itself:\n{own}\n{body}"
 
@@ -1388,10 +1698,7 @@ def _toml_value(v: Any) -> str:
 
 def _read_toml(path: Path) -> dict:
     """A TOML file as a dict; CaseError naming the file when it cannot be read or parsed."""
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise CaseError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    raw = read_input(path)  # a regular file of a bounded size, or CaseError naming it (never blocks)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -1413,7 +1720,11 @@ def case_hash(case: Case, version: str) -> str:
     The thesis claims are left out: they are judged on stored metrics and change no run.
     """
     # the motor fields (issue 19) are left out when unused, so older cases keep their hashes
-    exclude: dict[str, Any] = {"claims": True, "plugins": True}
+    # [baseline] only sets check's tolerances; [[requirements]] are evaluated during the run (from every
+    # step) and so belong to its content, left out when absent so that older cases keep their hashes
+    exclude: dict[str, Any] = {"claims": True, "plugins": True, "baseline": True}
+    if not case.requirements:
+        exclude["requirements"] = True
     if case.actuators is None:
         exclude["actuators"] = True
     if case.base_case is None:  # the overlay field (issue 19 item 4): older cases keep their hashes
@@ -1464,8 +1775,27 @@ def initial_state(case: Case, ref) -> tuple[np.ndarray, np.ndarray]:
     return q0, eta0
 
 
+def dropped_faults(case: Case, duration: float) -> str | None:
+    """The warning for the events a ``--duration`` drops (those at or after it), each named, or None.
+
+    Not a refusal (issue 34 item 10 allows either): shortening every case is how a batch is smoke-tested
+    (``batch cases/ --duration 2``, the README's ``run ... --duration 30``), and the warning names
+    what the shortened run no longer covers.  The same event in a case file is an error
+    (``faults[i].time``): there nothing says the user chose to cut the run.
+    """
+    late = [(i, f) for i, f in enumerate(case.faults) if f.time >= duration]
+    if not late:
+        return None
+    named = ", ".join(f"faults[{i}] (t = {f.time:g} s, wheel {f.wheel})" for i, f in late)
+    return (
+        f"--duration {duration:g}: drops {named}, at or after the end of the shortened run; "
+        f"the run covers only the events before {duration:g} s"
+    )
+
+
 def with_duration(case: Case, duration: float) -> Case:
-    """The same case simulated for ``duration`` s (events at or after it dropped)."""
+    """The same case simulated for ``duration`` s (events at or after it dropped: :func:`dropped_faults`
+    words the warning)."""
     if not (math.isfinite(duration) and duration > 0):
         raise CaseError(f"{case.name}: --duration: must be a finite number of seconds > 0, got {duration}")
     s = case.simulation

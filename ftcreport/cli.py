@@ -10,9 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import signal
 import sys
-import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -20,7 +18,7 @@ import typer
 from typer.core import TyperGroup
 
 from . import __version__
-from .errors import FtcError
+from .errors import FtcError, printable
 
 
 class _ErrorBoundary(TyperGroup):
@@ -50,19 +48,16 @@ class _ErrorBoundary(TyperGroup):
             return self._invoke(ctx, argv)
         import warnings
 
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGINT, _on_interrupt)
-        with warnings.catch_warnings(record=True) as caught:  # library warnings: one summary line, not a dump
-            warnings.simplefilter("default")
+        from .lifetime import handle_stop_signals
+
+        # SIGINT, SIGTERM, SIGHUP: Interrupted inside the command, ignored once it is over (ftcreport.lifetime)
+        with warnings.catch_warnings(record=True) as caught, handle_stop_signals():
+            warnings.simplefilter("default")  # library warnings: one summary line, not a dump
             for quiet in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
                 warnings.simplefilter("ignore", quiet)  # Python's own default for these
             try:
                 return self._invoke(ctx, argv)
             finally:
-                # the command is over (done or already reported): an interrupt from here to the exit has
-                # nothing left to stop, and uncaught it would end the process by SIGINT (-2) with no message
-                if threading.current_thread() is threading.main_thread():
-                    signal.signal(signal.SIGINT, signal.SIG_IGN)
                 if caught:
                     w = caught[0]
                     more = f" (and {len(caught) - 1} more)" if len(caught) > 1 else ""
@@ -83,6 +78,9 @@ class _ErrorBoundary(TyperGroup):
                 raise typer.Exit(code=2) from None
             raise
         except BaseException as exc:
+            from .lifetime import interrupt_of
+
+            exc = interrupt_of(exc) or exc  # a stop signal that came back wrapped (compiled code) is one
             if ctx.params.get("debug") and not isinstance(exc, KeyboardInterrupt | FtcError):
                 raise
             line, code = _classify(exc)
@@ -92,7 +90,8 @@ class _ErrorBoundary(TyperGroup):
                     line = f"{files[0]}: " + line.removeprefix(unnamed)
             if code == 3:
                 line += f" (a bug: traceback in {_crash_log(exc)}; --debug shows it)"
-            typer.echo(f"ftcreport: error: {line}", err=True)
+            with contextlib.suppress(OSError):  # a hung-up terminal (SIGHUP): the exit code still tells
+                typer.echo(f"ftcreport: error: {printable(line)}", err=True)
             raise typer.Exit(code=code) from None
 
 
@@ -106,24 +105,6 @@ def _plain_flags(cmd, ctx) -> None:
             p.metavar = ""
     for sub in getattr(cmd, "commands", {}).values():
         _plain_flags(sub, ctx)
-
-
-def _on_interrupt(signum, frame) -> None:
-    """Ctrl-C: KeyboardInterrupt, except inside a finaliser or a weakref callback.
-
-    Python runs signal handlers between bytecodes, also inside garbage-collection callbacks, where
-    an exception is printed ("Exception ignored in ...", with a traceback) and dropped: the command
-    would go on as if nothing happened. There the interrupt is sent again 50 ms later instead.
-    """
-    f, depth = frame, 0
-    while f is not None and depth < 8:
-        if f.f_code.co_name == "__del__" or f.f_code.co_filename.endswith("weakref.py"):
-            import os
-
-            threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()
-            return
-        f, depth = f.f_back, depth + 1
-    raise KeyboardInterrupt
 
 
 def _cli_flow() -> tuple[type[BaseException], ...]:
@@ -148,10 +129,11 @@ def _classify(exc: BaseException) -> tuple[str, int]:
     """(message, exit code) of an exception reaching the boundary."""
     import errno
 
-    if isinstance(exc, KeyboardInterrupt):
+    if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, SIGTERM, SIGHUP: 128 + the signal's number
         from .errors import interrupted_message
+        from .lifetime import exit_code
 
-        return interrupted_message(exc), 130
+        return interrupted_message(exc), exit_code(exc)
     if isinstance(exc, FtcError):
         return str(exc), getattr(exc, "exit_code", 2)
     if isinstance(exc, UnicodeDecodeError):
@@ -182,24 +164,9 @@ def _classify(exc: BaseException) -> tuple[str, int]:
 
 def _crash_log(exc: BaseException) -> str:
     """Write the traceback to a log file (FTCREPORT_LOG_DIR or the temp directory); return its path."""
-    import datetime as _dt
-    import os
-    import tempfile
-    import traceback
+    from .crashlog import write_crash_log
 
-    text = "".join(traceback.format_exception(exc))
-    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    for d in (os.environ.get("FTCREPORT_LOG_DIR"), tempfile.gettempdir()):
-        if not d:
-            continue
-        try:
-            path = Path(d) / f"ftcreport-crash-{stamp}-{os.getpid()}.log"
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(f"ftcreport {__version__}\n{text}")
-            return str(path)
-        except OSError:
-            continue
-    return "<no writable log directory>"
+    return write_crash_log(exc)
 
 
 # Help text is rich markup: a unit such as [s] or a table such as [campaign] is written \\[s] in it,
@@ -220,6 +187,11 @@ app = typer.Typer(
 )
 cases_app = typer.Typer(help="Validate case files or start a new one.", no_args_is_help=True)
 app.add_typer(cases_app, name="cases")
+baseline_app = typer.Typer(
+    help="Baselines for 'check --baseline': headline metrics and key signals of every case x scheme.",
+    no_args_is_help=True,
+)
+app.add_typer(baseline_app, name="baseline")
 
 
 def _version(value: bool) -> None:
@@ -248,7 +220,10 @@ QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar."
 
 
 def _dask(scheduler: str | None, workers: int, in_process: bool, quiet: bool, force: bool) -> dict:
-    """The keywords a Dask command passes on to run_campaign, run_coverage or run_fdi."""
+    """The keywords a Dask command passes on to run_campaign, run_coverage or run_fdi (``--scheduler``
+    checked first: a malformed address is bad input, exit 2)."""
+    if scheduler is not None:
+        _check_scheduler(scheduler)
     return {
         "scheduler": scheduler,
         "workers": workers,
@@ -256,6 +231,25 @@ def _dask(scheduler: str | None, workers: int, in_process: bool, quiet: bool, fo
         "show_progress": not quiet,
         "force": force,
     }
+
+
+def _check_scheduler(address: str) -> None:
+    """A Dask scheduler address ``[protocol://]host:port`` (distributed's own parser); FtcError naming
+    ``--scheduler`` when it is malformed.  Whether a scheduler answers there is found when connecting."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        protocol, location = parse_address(address, strict=False)
+        if protocol in ("tcp", "tls", "ws", "wss"):
+            host, port = parse_host_port(location)
+            if not host or port is None or not 0 < int(port) < 65536:
+                raise ValueError(f"a host and a port in 1..65535 are expected, got '{location}'")
+        elif not location:
+            raise ValueError(f"no location after '{protocol}://'")
+    except (ValueError, TypeError) as exc:
+        raise FtcError(
+            f"--scheduler: '{address}' is not a scheduler address ({exc}); give tcp://HOST:PORT, e.g. tcp://127.0.0.1:8786"
+        ) from None
 
 
 @app.command()
@@ -341,8 +335,9 @@ def batch(
 ) -> None:
     """Run every case x scheme (cached by case content and version) and write OUT/index.html.
 
-    A broken case file or a failing run is recorded and the batch goes on.
-    Exit 0 when every run completed, 1 when some run or case failed.
+    A broken case file or a failing run is recorded and the batch goes on.  A run is cached only when
+    its stored record matches its files and key; a failed run is cached as the failure it is.
+    Exit 0 when every run ends as its case expects, 1 when some run (cached or not) or case failed.
 
     Example: ftcreport batch cases/ --jobs 2
     """
@@ -391,19 +386,24 @@ def run(
 ) -> None:
     """Run one case through its schemes; store metrics.json and time series under OUT/<case>/<scheme>/.
 
-    Prints a comparison table.  Exit 0 when every run completed, 1 when a run
-    stopped early (singular, diverged, error) or --verify-dt finds the step not
-    converged, 2 for a bad case file.
+    Prints a comparison table and the case's thresholds and thesis claims (as 'check' judges them).
+    Exit 0 when every run ends as the case expects and every threshold and claim holds, 1 when a run
+    stopped early (singular, diverged, error) unless the case expects it, a threshold or claim does not
+    hold, or --verify-dt finds the step not converged; 2 for a bad case file.
 
     Example: ftcreport run cases/two_link_switching.toml --scheme switching --duration 30
     """
-    from .cases import configured_schemes, load_case, option_schemes, with_duration
+    from .cases import configured_schemes, dropped_faults, load_case, option_schemes, with_duration
+    from .errors import RunEnvironmentError
     from .runner import build, dt_sensitivity, halve_dt, run_scheme
     from .store import save_run
 
+    notes = []
     try:
         c = load_case(case)
         if duration is not None:
+            if (drop := dropped_faults(c, duration)) is not None:
+                notes.append(drop)
             c = with_duration(c, duration)
         schemes = configured_schemes(c)
     except FtcError as exc:
@@ -417,46 +417,73 @@ def run(
     except FtcError as exc:
         raise (exc if str(exc).startswith(str(case)) else FtcError(f"{case}: {exc}")) from None
     if not quiet:
-        for w in c.warnings():
-            typer.echo(f"warning: {case}: {w}", err=True)
+        for w in [*notes, *c.warnings()]:
+            typer.echo(printable(f"warning: {case}: {w}"), err=True)
     from .batch import record_case, run_key, write_case_manifest
     from .store import output_lock
 
     rows = []
+    not_stored: dict[str, str] = {}  # scheme -> why: failures of the environment, never stored as the result
     try:
         with output_lock(out, "run"):
-            record_case(out, c, case, duration)
+            record_case(out, c, case, duration, notes)
             for s in schemes:
-                with _running(f"{c.name} / {s}", quiet):
-                    r, m = run_scheme(c, s, built)
-                    if half is not None:
-                        m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
-                save_run(out, c.name, s, r, m, run_key(c, s))
+                try:
+                    with _running(f"{c.name} / {s}", quiet):
+                        r, m = run_scheme(c, s, built)
+                        if half is not None:
+                            m["verify_dt"] = dt_sensitivity(m, run_scheme(half, s)[1])
+                except RunEnvironmentError as exc:
+                    not_stored[s] = f"{exc} (not the case's result: not stored; run it again)"
+                    continue
+                failure = (
+                    c.unexpected(s, m["status"], m.get("reason")) if m["status"] not in c.expected_for(s) else None
+                )
+                save_run(out, c.name, s, r, m, run_key(c, s), c.expected_for(s), failure)
                 rows.append(m)
                 del r  # stored: the next scheme and the report do not hold this run's arrays too
             write_case_manifest(out, c, {"command": "run", "schemes": schemes, "duration": duration})
+            ended = [m["scheme"] for m in rows if m["status"] in c.expected_for(m["scheme"])]
+            gate = _run_gate(out, c.name, ended) if duration is None else []
             page = None
             if not no_report:  # matplotlib and jinja2 only for the report (--no-report: about 45 MB less)
                 from .report.render import render_case, render_index
 
                 page = render_case(out, c.name)
                 render_index(out)
-    except KeyboardInterrupt as exc:  # the interrupt message says how many schemes' runs are stored
+    except BaseException as exc:  # the interrupt message says how many schemes' runs are stored
         from .errors import note_stored
+        from .lifetime import interrupt_of
 
-        note_stored(exc, len(rows))
+        if (stop := interrupt_of(exc)) is not None:
+            note_stored(stop, len(rows))
         raise
     if not quiet:
         typer.echo(_table(rows))
         if half is not None:
             typer.echo(_dt_table(rows))
+        for item in gate:
+            typer.echo(printable(item.line()))
+        if duration is not None and (c.thresholds or c.claims or c.requirements):
+            typer.echo(
+                f"note: {case}: --duration {duration:g}: the case's thresholds, claims and requirements are stated "
+                "for its own duration and are not judged (run without --duration, or 'ftcreport check', to judge them)",
+                err=True,
+            )
         typer.echo(f"results in {out / c.name}/" + (f", report {page}" if page else ""))
     failed = [m for m in rows if m["status"] not in c.expected_for(m["scheme"])]
     for m in failed:
         typer.echo(
-            f"ftcreport: error: {case}: {m['scheme']}: {c.unexpected(m['scheme'], m['status'], m.get('reason'))}",
+            printable(
+                f"ftcreport: error: {case}: {m['scheme']}: {c.unexpected(m['scheme'], m['status'], m.get('reason'))}"
+            ),
             err=True,
         )
+    for s, why in not_stored.items():
+        typer.echo(printable(f"ftcreport: error: {case}: {s}: {why}"), err=True)
+    unheld = [item for item in gate if not item.ok]
+    for item in unheld:
+        typer.echo(printable(f"ftcreport: error: {case}: {item.field}: {item.message}"), err=True)
     loose = [m for m in rows if not m.get("verify_dt", {}).get("converged", True)]
     for m in loose:
         v = m["verify_dt"]
@@ -465,8 +492,20 @@ def run(
             f"({v['worst']} changes by {v['worst_rel_change']:.3g} relative at dt/2)",
             err=True,
         )
-    if failed or loose:
+    if failed or loose or not_stored or unheld:
         raise typer.Exit(code=1)
+
+
+def _run_gate(out: Path, name: str, schemes: list[str]):
+    """The gate items of the runs ``run`` just stored (thresholds, claims and the other kinds of
+    ftcreport.check.CASE_ITEMS, not the runs' status: ``run`` reports those itself), restricted to
+    ``schemes``: an item that reads a scheme not run (``--scheme``) or a run that failed (already
+    reported as such) is not judged."""
+    from .check import CASE_ITEMS, run_items, stored_case
+
+    case = stored_case(out, name)
+    items = [item for source in CASE_ITEMS if source is not run_items for item in source(case)]
+    return [item for item in items if set(item.schemes) <= set(schemes)]
 
 
 @contextlib.contextmanager
@@ -528,17 +567,35 @@ def report(
 ) -> None:
     """Re-render every HTML page from stored results (no simulation).
 
+    A stored run that is damaged (its record does not match its files) is shown as such and named here;
+    a run that ended in a status its case counts as a failure is named too.  Exit 0 when every stored run
+    is sound and ends as its case expects, 1 otherwise.
+
     Example: ftcreport report --out reports
     """
+    from .check import stored_case
     from .report.render import render_all
 
     if not out.is_dir():
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
-    from .store import output_lock
+    from .store import output_lock, read_json
 
     with output_lock(out, "report"), _render_progress() as (notify, done):
         page = render_all(out, force=True, notify=notify, done=done)
+        bad = []
+        for rec in sorted(out.glob("*/case.json")):
+            if (read_json(rec) or {}).get("status") != "ok":
+                continue  # a rejected case file: its page says why
+            for s, run in stored_case(out, rec.parent.name).runs.items():
+                if not run.absent and not run.sound:
+                    bad.append(run.problem)
+                elif run.failed:
+                    bad.append(f"{run.case} / {s}: {run.record.get('failure')}")
     typer.echo(f"report: {page}")
+    for line in bad:
+        typer.echo(printable(f"ftcreport: error: {line}"), err=True)
+    if bad:
+        raise typer.Exit(code=1)
 
 
 @contextlib.contextmanager
@@ -571,68 +628,112 @@ def check(
     out: Annotated[Path, typer.Option(help="Output directory (results are reused when cached).")] = Path("reports"),
     jobs: Annotated[int | None, typer.Option(help="Parallel processes.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only failures.")] = False,
+    baseline: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also compare every case x scheme with this baseline ('ftcreport baseline save'): metrics and "
+            "signals within their tolerances; a change beyond them fails. Writes OUT/baseline.html."
+        ),
+    ] = None,
 ) -> None:
-    """Compare each case's metrics with its thresholds and thesis claims: exit 0 if all hold, 1 if not, 2 for bad files.
+    """The CI gate: every run, threshold, thesis claim and requirement of each case (and, with --baseline,
+    every run against a saved baseline): exit 0 if all hold, 1 if not, 2 for bad files.
 
-    A thesis claim holds when its outcome (reproduced, not reproduced, not applicable) is the expected one.
+    A run holds when it ends in a status its case expects (a failure cached by an earlier batch fails here
+    too); a thesis claim when its outcome (reproduced, not reproduced, not applicable) is the expected one;
+    a time-windowed requirement in a window when every step's value is within its bound (a window
+    violated or not evaluated, empty or cut by a stopped run, fails).
 
-    Runs what is not cached first (as 'batch' does).
+    Runs what is not cached first (as 'batch' does).  --junit: one testcase per run, threshold and claim.
 
-    Example: ftcreport check cases/ --junit reports/junit.xml
+    Example: ftcreport check cases/ --baseline baselines/main
     """
     import datetime as _dt
     import time as _time
 
     from .batch import run_batch
-    from .check import evaluate
-    from .claims import evaluate_claims
+    from .check import exit_code, gate, summary
     from .report.junit import write_junit
-    from .store import load_metrics, read_json
+    from .store import read_json
 
+    if baseline is not None:
+        from .baseline import check_dest
+
+        check_dest(baseline)  # a mistyped --baseline before anything runs
     started = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     wall0 = _time.perf_counter()
     res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
-    results = []
-    claims = []
-    run_times = {}
-    for name in res.cases:
-        rec = json.loads((out / name / "case.json").read_text())
-        metrics = {s: load_metrics(out, name, s) for s in rec.get("schemes", [])}
-        run_times |= {(name, s): (m or {}).get("wall_time") or 0.0 for s, m in metrics.items()}
-        results += evaluate(name, rec.get("thresholds", {}), metrics)
-        claims += evaluate_claims(name, rec.get("claims", []), metrics)
+    items = gate(out, res.cases, res.case_errors, res.not_stored)
+    baseline_page = None
+    if baseline is not None:
+        from .baseline import baseline_items
+        from .report.baseline_page import render_baseline
+        from .store import output_lock
+
+        found, comparisons = baseline_items(out, res.cases, baseline)
+        items += found
+        with output_lock(out, "check"):
+            baseline_page = render_baseline(out, baseline, comparisons)
     if junit is not None:
         write_junit(
             junit,
-            results,
-            res.case_errors,
-            claims=claims,
+            items,
             properties=read_json(out / "manifest.json"),
             time=_time.perf_counter() - wall0,
             timestamp=started,
-            run_times=run_times,
         )
-    for r in results:
-        if not r.ok or not quiet:
-            mark = "pass" if r.ok else "FAIL"
-            typer.echo(
-                f"{mark:4}  {r.case} / {r.scheme} / {r.metric}: actual {_fmt(r.actual, '.6g')} "
-                f"(min {_fmt(r.min, 'g')}, max {_fmt(r.max, 'g')}) {r.reason}".rstrip()
-            )
-    for c in claims:
-        if not c.ok or not quiet:
-            mark = "pass" if c.ok else "FAIL"
-            typer.echo(f"{mark:4}  {c.case} / claim {c.id} ({c.source}): {c.outcome} (expected {c.expect}); {c.reason}")
+    for item in items:
+        if not item.error and (not item.ok or not quiet):
+            for line in item.terminal_lines():
+                typer.echo(printable(line))
+    for msg in res.case_errors.values():
+        typer.echo(printable(f"ftcreport: error: {msg}"), err=True)
+    for line in summary(items):
+        typer.echo(line)
+    if baseline_page is not None:
+        typer.echo(f"baseline comparison: {baseline_page}")
+    if (code := exit_code(items)) != 0:
+        raise typer.Exit(code=code)
+
+
+@baseline_app.command("save")
+def baseline_save(
+    cases: Annotated[list[Path] | None, typer.Argument(help="Case files or directories (default: cases/).")] = None,
+    dest: Annotated[
+        Path, typer.Option(help="The baseline directory to write (created; a saved case is replaced).")
+    ] = ...,
+    out: Annotated[Path, typer.Option(help="Output directory of the results (runs what is not cached).")] = Path(
+        "reports"
+    ),
+    jobs: Annotated[int | None, typer.Option(help="Parallel processes.")] = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Save the baseline of every case x scheme: headline metrics, key signals and their provenance.
+
+    Per case DEST/<case>/baseline.json (git revision, versions, case hash, the case file and its fields,
+    per scheme status and metrics) and signals.npz (position error, heading error per robot, torque per
+    wheel: minimum and maximum over 500 intervals). 'ftcreport check CASES --baseline DEST' compares
+    with it. A case whose runs did not end as it expects is not saved (exit 1).
+
+    Example: ftcreport baseline save cases/ --dest baselines/main
+    """
+    from .baseline import save_baseline
+    from .batch import run_batch
+    from .store import output_lock
+
+    if dest.exists() and not dest.is_dir():
+        raise FtcError(f"{dest}: --dest: exists and is not a directory")
+    res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
+    with output_lock(dest, "baseline save"):
+        refused = save_baseline(out, res.cases, dest)
+    for name, why in refused:
+        typer.echo(f"ftcreport: error: {name}: not saved: {why}", err=True)
     for msg in res.case_errors.values():
         typer.echo(f"ftcreport: error: {msg}", err=True)
-    failed = sum(not r.ok for r in results)
-    failed_claims = sum(not c.ok for c in claims)
-    typer.echo(f"{len(results) - failed}/{len(results)} thresholds hold")
-    if claims:
-        typer.echo(f"{len(claims) - failed_claims}/{len(claims)} thesis claims have their expected outcome")
+    typer.echo(f"{len(res.cases) - len(refused)} case(s) saved to {dest}, {len(refused)} refused")
     if res.case_errors:
         raise typer.Exit(code=2)
-    if failed or failed_claims:
+    if refused:
         raise typer.Exit(code=1)
 
 
@@ -703,8 +804,8 @@ def campaign(
     out_dir = out or Path("reports") / "campaigns" / base.name
     chosen = _names(schemes)
     select_schemes(base, chosen)  # a wrong --schemes before the output directory is made
+    dask = _dask(scheduler, workers, in_process, quiet, force)  # and a malformed --scheduler
     with output_lock(out_dir, "campaign"):
-        dask = _dask(scheduler, workers, in_process, quiet, force)
         res = run_campaign(base, samples, out_dir, seed=seed, schemes=chosen, **dask)
         page = render_campaign(out_dir, read_table(res.table))
     _done(res, "samples run", page)
@@ -758,11 +859,23 @@ def export(
 
     Example: ftcreport export --out reports
     """
+    from .store import output_lock
     from .tidy import export as _export
 
-    paths = _export(out, dest)
+    if not out.is_dir():
+        raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
+    damaged: list[str] = []
+    with contextlib.ExitStack() as locks:  # the results read and the directory written: no batch meanwhile
+        locks.enter_context(output_lock(out, "export"))
+        if dest is not None:
+            locks.enter_context(output_lock(dest, "export"))
+        paths = _export(out, dest, damaged)
     n_nc = sum(p.suffix == ".nc" for p in paths)
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")
+    for problem in damaged:  # left out of the netCDF files, a row with status error in the table
+        typer.echo(printable(f"ftcreport: error: {problem}; not exported (re-run 'ftcreport batch')"), err=True)
+    if damaged:
+        raise typer.Exit(code=1)
 
 
 _MAX_ERRORS = 50  # errors shown per case file by 'cases validate'
@@ -883,20 +996,20 @@ def coverage(
     from .cases import load_case
     from .coverage import run_coverage
     from .report.coverage import render_coverage
+    from .store import output_lock
 
     base = load_case(case)
     out_dir = out or Path("reports") / "coverage" / base.name
-    res = run_coverage(
-        base,
-        out_dir,
-        times=_floats(times, "--times"),
-        schemes=_names(schemes),
-        sigmas=tuple(_floats(sigmas, "--sigmas") or ()),
-        friction=friction,
-        kinds=tuple(_names(kinds) or ()),
-        **_dask(scheduler, workers, in_process, quiet, force),
-    )
-    page = render_coverage(out_dir)
+    options = {
+        "times": _floats(times, "--times"),
+        "schemes": _names(schemes),
+        "sigmas": tuple(_floats(sigmas, "--sigmas") or ()),
+        "friction": friction,
+        "kinds": tuple(_names(kinds) or ()),
+    }
+    with output_lock(out_dir, "coverage"):  # a second coverage into out_dir is refused, naming this one
+        res = run_coverage(base, out_dir, **options, **_dask(scheduler, workers, in_process, quiet, force))
+        page = render_coverage(out_dir)
     _done(res, "fault runs", page, f" (onsets {', '.join(f'{t:g}' for t in res.times)} s)")
 
 
@@ -920,12 +1033,14 @@ def fdi(
     from .cases import load_case
     from .fdi import run_fdi
     from .report.fdi import render_fdi
+    from .store import output_lock
 
     base = load_case(case)
     out_dir = out or Path("reports") / "fdi" / base.name
     dask = _dask(scheduler, workers, in_process, quiet, force)
-    res = run_fdi(base, samples, out_dir, seed=seed, schemes=_names(schemes), **dask)
-    page = render_fdi(out_dir)
+    with output_lock(out_dir, "fdi"):
+        res = run_fdi(base, samples, out_dir, seed=seed, schemes=_names(schemes), **dask)
+        page = render_fdi(out_dir)
     typer.echo(f"{len(res['failed'])} failed; results {out_dir / 'fdi.json'}; report {page}")
     if res["failed"]:
         raise typer.Exit(1)

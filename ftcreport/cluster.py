@@ -24,28 +24,46 @@ and hands each result to ``store`` as it finishes.
 from __future__ import annotations
 
 import asyncio
+import logging
 from collections.abc import Callable, Mapping
 from typing import Any
 
 from distributed import WorkerPlugin
 
 from .errors import FtcError
+from .lifetime import interrupt_of, shielded
 from .manifest import NUMERIC_DEPENDENCIES
 
 __all__ = ["CHECKED_PACKAGES", "WarmUp", "check_versions", "execute"]
+
+#: seconds a LocalCluster is given to close its workers (then its processes end with this one:
+#: each worker process exits when the pipe to its parent closes, distributed.process)
+CLOSE_TIMEOUT_S = 20
 
 #: Packages whose version must be the same on the client and every worker (besides Python).
 CHECKED_PACKAGES: tuple[str, ...] = ("ftcreport", "dask", "distributed", "cloudpickle", *NUMERIC_DEPENDENCIES)
 
 
 class WarmUp(WorkerPlugin):
-    """Loads (or compiles once) the numba kernels on each worker when it joins; off the event loop."""
+    """Loads (or compiles once) the numba kernels on each worker when it joins; off the event loop.
+
+    ``quiet`` (the workers of this command's own LocalCluster): Dask's log on the worker is not
+    printed.  A stopped command's cancelled tasks each logged a warning, and a worker still busy
+    when the scheduler closed an error with a traceback; a task's own error comes back to the
+    command with its result (:func:`execute`'s ``fail``), and a lost worker is logged by its nanny,
+    which runs in the command's process.
+    """
 
     name = "ftcreport-warm-up"
+
+    def __init__(self, quiet: bool = False) -> None:
+        self.quiet = quiet
 
     async def setup(self, worker) -> None:
         from .sim import warm_up
 
+        if self.quiet:
+            logging.getLogger("distributed").setLevel(logging.CRITICAL)
         loop = asyncio.get_running_loop()
         self.seconds = await loop.run_in_executor(None, warm_up)
 
@@ -97,6 +115,8 @@ def execute(
             try:
                 store(func(*args))
             except Exception as exc:  # a task that cannot run is recorded, the run goes on
+                if (stop := interrupt_of(exc)) is not None:  # a stop signal, not the task's failure
+                    raise stop from None
                 fail(i, f"{type(exc).__name__}: {exc}")
             tick()
         return info
@@ -110,6 +130,9 @@ def execute(
             processes=True,
             host="127.0.0.1",
             dashboard_address=None,
+            # the scheduler's HTTP server (health, metrics) runs without a dashboard too: on a free port of
+            # the loopback, not 8787 (taken by another cluster: a warning line in the command's output)
+            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         )
         client = Client(cluster)
     else:
@@ -119,7 +142,7 @@ def execute(
             raise FtcError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
     try:
         info["workers"] = check_versions(client)
-        client.register_plugin(WarmUp(), name=WarmUp.name)
+        client.register_plugin(WarmUp(quiet=cluster is not None), name=WarmUp.name)
         futures = {client.submit(func, *args, key=keys[i], retries=retries, pure=False): i for i, args in tasks.items()}
         for fut in as_completed(futures):
             i = futures[fut]
@@ -130,8 +153,12 @@ def execute(
             except Exception as exc:
                 fail(i, f"{type(exc).__name__}: {exc}")
             tick()
+    except KeyboardInterrupt:  # a stop signal: the command's one message says it; Dask's shutdown is not news
+        logging.getLogger("distributed").setLevel(logging.CRITICAL)
+        raise
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        with shielded():  # the local workers are closed (and waited for) before the lock is released
+            client.close()
+            if cluster is not None:
+                cluster.close(timeout=CLOSE_TIMEOUT_S)
     return info

@@ -48,7 +48,7 @@ from .cases import Case, ordered_schemes, parse_case
 from .errors import FtcError
 from .metrics import recovery_time, tracking_errors
 from .model import pattern_is_compensable, wheel_names
-from .store import _jsonable, write_atomic
+from .store import _jsonable, locked, write_atomic
 
 __all__ = [
     "FAULT_KINDS",
@@ -307,6 +307,7 @@ class CoverageResult(CampaignResult):
     times: list[float] = field(default_factory=list)
 
 
+@locked("coverage")
 def run_coverage(
     base: Case,
     out: Path,

@@ -7,21 +7,26 @@ CLI turns these into a one-line message and an exit code, never a traceback.
 from __future__ import annotations
 
 import math
+import re
 
 __all__ = [
+    "CASE_ERRORS",
     "CaseError",
     "FaultError",
     "FtcError",
     "ModelError",
+    "RunEnvironmentError",
     "SingularityError",
     "UncompensableError",
     "articulation_reason",
     "bound_reason",
     "chained_reason",
+    "environment_cause",
     "interrupted_message",
     "kappa_reason",
     "nonfinite_reason",
     "note_stored",
+    "printable",
     "reference_articulation_reason",
     "reference_speed_reason",
     "step_growth_reason",
@@ -71,6 +76,64 @@ class ReferenceError(FtcError, ValueError):
     """An infeasible reference (speed near 0, articulation angle near 90 deg)."""
 
 
+# --------------------------------------------------------------------------- the case's own error, or not
+class RunEnvironmentError(FtcError):
+    """A run that failed because of where it ran, not because of its case: never stored as its result.
+
+    Raised by :func:`ftcreport.runner.run_scheme` for an exception of the environment (see
+    :func:`environment_cause`); code that meets such a condition itself (a compiled-code cache it
+    cannot use) may raise it directly.  A batch reports the run as failed for this invocation only,
+    so the next one retries it.
+    """
+
+    exit_code = 1
+
+
+#: What a run raises about its own case, stored as the run's result (status ``error``): the case asks
+#: for something impossible (FtcError) or its numbers fail (ArithmeticError; numpy's LinAlgError is
+#: added by ftcreport.runner, which imports numpy).  Anything else is not the case's outcome.
+CASE_ERRORS: tuple[type[BaseException], ...] = (FtcError, ArithmeticError)
+
+
+def environment_cause(exc: BaseException) -> str | None:
+    """What of the environment made a run fail (``"UnpicklingError: ..."``), or None when ``exc`` is not such.
+
+    The environment: an OS error (a file, a disk, a permission), memory, an interrupt, and the
+    compiled-code machinery: numba's or llvmlite's errors, and a cache file that cannot be loaded
+    (``EOFError``, ``pickle.UnpicklingError``, ``ImportError`` of a cached module).  These say
+    nothing about the case: the same run elsewhere or later may succeed.
+    """
+    env = (RunEnvironmentError, OSError, MemoryError, EOFError, ImportError, KeyboardInterrupt, SystemExit)
+    module = (type(exc).__module__ or "").split(".")[0]
+    unpickling = any(
+        c.__name__ == "UnpicklingError" and c.__module__ in ("pickle", "_pickle") for c in type(exc).__mro__
+    )
+    if isinstance(exc, env) or unpickling or module in ("numba", "llvmlite"):
+        return f"{type(exc).__name__}: {exc}".rstrip(": ")
+    return None
+
+
+# --------------------------------------------------------------------------- text that cannot break a file
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\ud800-\udfff\ufffe\uffff]")
+
+
+def printable(text: object, keep: str = "") -> str:
+    """``text`` with every control character (C0, DEL, C1), lone surrogate and non-character written as an
+    escape (``\\x1b``, ``\\ud800``), except those in ``keep``: safe on a terminal, in HTML and in XML 1.0."""
+    s = str(text)
+    if not _CONTROL.search(s):
+        return s
+
+    def esc(m: re.Match) -> str:
+        ch = m.group()
+        if ch in keep:
+            return ch
+        o = ord(ch)
+        return f"\\x{o:02x}" if o < 0x100 else f"\\u{o:04x}"
+
+    return _CONTROL.sub(esc, s)
+
+
 # --------------------------------------------------------------------------- interrupts
 def note_stored(exc: BaseException, count: int, noun: str = "run") -> None:
     """Tell the CLI's interrupt message how many finished ``noun``s the command stored before ``exc``.
@@ -86,14 +149,16 @@ def interrupted_message(exc: BaseException) -> str:
 
     A command that stores nothing (or was interrupted before it could) says only that it was interrupted.
     """
+    signum = getattr(exc, "signum", None)  # ftcreport.lifetime.Interrupted: SIGTERM and SIGHUP are named
+    how = "interrupted" if signum in (None, 2) else f"interrupted by {exc.args[0] if exc.args else signum}"
     stored = getattr(exc, "ftc_stored", None)
     if stored is None:
-        return "interrupted"
+        return how
     count, noun = stored
     if count == 0:
-        return f"interrupted before any {noun} finished; nothing was stored"
+        return f"{how} before any {noun} finished; nothing was stored"
     them = f"1 finished {noun} is" if count == 1 else f"{count} finished {noun}s are"
-    return f"interrupted; {them} stored, re-run the same command to resume"
+    return f"{how}; {them} stored, re-run the same command to resume"
 
 
 # --------------------------------------------------------------------------- reasons

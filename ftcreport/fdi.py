@@ -39,6 +39,7 @@ import numpy as np
 from . import __version__
 from .errors import FtcError
 from .schemes import built_in
+from .store import locked
 
 __all__ = [
     "cusum_state",
@@ -299,6 +300,7 @@ def _isolation(segs, detector, setting, skip, kind: str) -> float | None:
 ACTIVE = tuple(name for name, sc in built_in().items() if sc.family == "active")  # the registry's active schemes
 
 
+@locked("fdi")
 def run_fdi(
     base,
     samples: int,

@@ -24,6 +24,7 @@ import math
 import re
 
 __all__ = [
+    "GENERATED_NAMES",
     "MAX_STEPS",
     "MEMORY_BUDGET_BYTES",
     "NAME_PATTERN",
@@ -36,8 +37,23 @@ __all__ = [
 ]
 
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
-#: names the output directory uses itself (compared lower-case)
-RESERVED_NAMES = frozenset({"index", "index.html", "campaigns", "assets", "junit.xml", "manifest.json"})
+#: Every file and folder an ftcreport command writes at the top of an output directory (``reports/``),
+#: with who writes it: the one list of them.  A case is a folder there too, so none of these may be a
+#: case's name (tests/test_trust.py checks that a batch, check --junit and export write nothing else).
+GENERATED_NAMES: dict[str, str] = {
+    "index.html": "the index page (batch, run, report)",
+    "manifest.json": "the batch's provenance (batch)",
+    "metrics.parquet": "every run's metrics, one row per phase (batch, export)",
+    "junit.xml": "the usual place of check --junit",
+    "assets": "files the pages share",
+    "campaigns": "campaign's pages and tables (reports/campaigns/<case>)",
+    "coverage": "coverage's pages and tables (reports/coverage/<case>)",
+    "fdi": "fdi's pages and results (reports/fdi/<case>)",
+    ".ftcreport.lock": "the output directory's lock",
+    ".ftcreport.kind": "which command's results the output directory holds",
+}
+#: names the output directory uses itself (compared lower-case); ``index`` too, the pages' link name
+RESERVED_NAMES = frozenset({"index", *GENERATED_NAMES})
 
 #: largest number of integration steps of one run (time grid and per-step bookkeeping)
 MAX_STEPS = 10_000_000
@@ -56,7 +72,8 @@ def name_problem(name: object) -> str | None:
             return f"{shown} is longer than 64 characters"
         return f"{shown} must start with a letter or digit and hold only ASCII letters, digits, '_', '.', '-'"
     if name.lower() in RESERVED_NAMES or name.lower().endswith(".html"):
-        return f"{shown} is a name the report uses itself ({', '.join(sorted(RESERVED_NAMES))}, *.html)"
+        names = ", ".join(sorted(n for n in RESERVED_NAMES if not n.startswith(".")))
+        return f"{shown} is a name the report uses itself ({names}, *.html)"
     return None
 
 

@@ -46,12 +46,16 @@ are exact to the step, and integrals are trapezoids over the steps.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from .control.kinematic import wrap
 
 __all__ = [
+    "METRICS",
+    "Metric",
+    "metrics_of",
     "phase_metrics",
     "recovery_time",
     "singularity_margin",
@@ -229,3 +233,101 @@ def _sequence(t: np.ndarray, sel: np.ndarray) -> list[tuple[float, int]]:
         return []
     idx = np.concatenate(([0], np.flatnonzero(sel[1:] != sel[:-1]) + 1))
     return [(float(t[i]), int(sel[i])) for i in idx]
+
+
+# ---------------------------------------------------------------------- the names a run writes
+@dataclass(frozen=True)
+class Metric:
+    """One entry of a run's ``metrics.json`` that thresholds and claims may name.
+
+    ``kind``: ``number`` (a threshold or a claim bounds it), ``table`` (numbers by name: a claim reads
+    one entry, ``name.key``, or the largest), ``list`` (numbers: a claim compares the largest),
+    ``sequence`` (``(time, model)`` pairs: a claim's ``sequence``), ``record`` (shown, not compared).
+    ``schemes``: the schemes whose runs write it (None: every scheme, plug-ins included).
+    """
+
+    kind: str
+    unit: str
+    schemes: tuple[str, ...] | None = None
+
+
+_SWITCHING = ("switching",)
+_ADAPTIVE = ("adaptive", "adaptive_frozen")
+_ACTIVE = ("active", "active_ukf")
+
+#: Every entry a run writes beside its identity (case, scheme, settings, status, reason, engine): the
+#: functions of this module, :func:`ftcreport.diagnosis.diagnosis_metrics` and
+#: :func:`ftcreport.runner.run_metrics` (tests/test_batch.py checks that a run of every scheme writes
+#: exactly these).  Case validation checks the metric names of ``[thresholds.<scheme>]`` and
+#: ``[[claims]]`` against it (``ftcreport.cases``).
+METRICS: dict[str, Metric] = {
+    "t_end": Metric("number", "s"),
+    "metric_samples": Metric("number", "1"),
+    "wall_time": Metric("number", "s"),
+    "compile_time": Metric("number", "s"),
+    "position_error_max": Metric("number", "m"),
+    "position_error_rms": Metric("number", "m"),
+    "position_error_final": Metric("number", "m"),
+    "position_error_iae": Metric("number", "m s"),
+    "heading_error_max": Metric("number", "rad"),
+    "heading_error_final": Metric("number", "rad"),
+    "recovery_time_max": Metric("number", "s"),
+    "phases": Metric("record", "-"),
+    "torque_peak": Metric("number", "N m"),
+    "torque_peak_after_fault": Metric("number", "N m"),
+    "torque_rms": Metric("number", "N m"),
+    "saturation_fraction": Metric("number", "1"),
+    "energy": Metric("number", "J"),
+    "singularity_margin_min": Metric("number", "rad"),
+    "verify_dt": Metric("record", "-"),  # run --verify-dt only
+    "requirements": Metric("record", "-"),  # cases with [[requirements]] only: every window's outcome
+    # switching (switching_metrics)
+    "switching_missed_detections": Metric("number", "1", _SWITCHING),
+    "switch_count": Metric("number", "1", _SWITCHING),
+    "switching_match_fraction": Metric("number", "1", _SWITCHING),
+    "switching_exact_match_fraction": Metric("number", "1", _SWITCHING),
+    "detection_delays": Metric("record", "s", _SWITCHING),
+    "detection_delay_max": Metric("number", "s", _SWITCHING + _ACTIVE),
+    "switch_sequence": Metric("sequence", "s, 1", _SWITCHING),
+    "switch_sequence_truncated": Metric("record", "-", _SWITCHING),
+    "patterns": Metric("record", "-", _SWITCHING + _ADAPTIVE),
+    # adaptive (runner.run_metrics)
+    "chi_hat_min": Metric("number", "1", _ADAPTIVE),
+    "chi_hat_max": Metric("number", "1", _ADAPTIVE),
+    "chi_hat_final": Metric("list", "1", _ADAPTIVE),
+    "friction_estimate_final": Metric("list", "N m", _ADAPTIVE),
+    "friction_true_final": Metric("list", "N m", _ADAPTIVE),
+    "friction_estimate_note": Metric("record", "-", _ADAPTIVE),
+    # active (diagnosis.diagnosis_metrics and runner.run_metrics)
+    "estimated_parameters": Metric("record", "-", _ACTIVE),
+    "state_estimation_rms_q": Metric("number", "m, rad", _ACTIVE),
+    "state_estimation_rms_eta": Metric("number", "m/s, rad/s", _ACTIVE),
+    "state_estimation_rms": Metric("number", "m/s, rad/s", _ACTIVE),
+    "state_estimation_max_after_5s_q": Metric("number", "m, rad", _ACTIVE),
+    "state_estimation_max_after_5s_eta": Metric("number", "m/s, rad/s", _ACTIVE),
+    "combined_effect_error_rms": Metric("number", "m/s^2, rad/s^2", _ACTIVE),
+    "combined_effect_rms": Metric("number", "m/s^2, rad/s^2", _ACTIVE),
+    "fault_estimation_error_final": Metric("number", "1 or N m", _ACTIVE),
+    "fault_estimation_errors_final": Metric("table", "1 or N m", _ACTIVE),
+    "diagnosis_phases": Metric("record", "-", _ACTIVE),
+    "combined_effect_relative_error_final": Metric("number", "1", _ACTIVE),
+    "detection_events": Metric("record", "-", _ACTIVE),
+    "detections": Metric("record", "-", _ACTIVE),
+    "diagnosis_tolerances": Metric("table", "1, N m", _ACTIVE),
+    "correct_detections": Metric("number", "1", _ACTIVE),
+    "missed_detections": Metric("number", "1", _ACTIVE),
+    "wrong_estimates": Metric("number", "1", _ACTIVE),
+    "wrong_isolations": Metric("number", "1", _ACTIVE),
+    "false_alarms": Metric("number", "1", _ACTIVE),
+    "early_declarations": Metric("number", "1", _ACTIVE),
+    "corrections": Metric("number", "1", _ACTIVE),
+    "estimate_caveat": Metric("record", "-", _ACTIVE),
+    "P_max": Metric("number", "1", _ACTIVE),
+    "rho_hat_final": Metric("list", "1", _ACTIVE),
+    "ubar_hat_final": Metric("list", "N m", _ACTIVE),
+}
+
+
+def metrics_of(scheme: str) -> list[str]:
+    """The names of :data:`METRICS` a run of ``scheme`` writes."""
+    return [k for k, m in METRICS.items() if m.schemes is None or scheme in m.schemes]

@@ -44,12 +44,16 @@ def compiled_key() -> str:
     host's as LLVM reports it (what numba compiles for by default)."""
     key = getattr(compiled_key, "_value", None)
     if key is None:
+        from importlib.metadata import PackageNotFoundError, version
+
         import llvmlite
         import llvmlite.binding as ll
         import numba
 
-        from . import __version__
-
+        try:  # the distribution's version, read as the package's __init__ does (importing the package
+            __version__ = version("ftcreport")  # itself would tie this core-facing module to its edges)
+        except PackageNotFoundError:  # pragma: no cover - running from a source tree
+            __version__ = "0.0.0+unknown"
         cpu = numba.config.CPU_NAME or ll.get_host_cpu_name()
         features = numba.config.CPU_FEATURES or ll.get_host_cpu_features().flatten()
         digest = hashlib.sha256(f"{cpu}\0{features}".encode()).hexdigest()[:10]

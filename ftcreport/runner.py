@@ -14,12 +14,14 @@ import numpy as np
 from . import __version__
 from .cases import Case, build_chain, build_plant_chain, case_hash, initial_state
 from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
-from .errors import FtcError
+from .errors import CASE_ERRORS as _FTC_CASE_ERRORS
+from .errors import FtcError, RunEnvironmentError, environment_cause
 from .metrics import singularity_margin, torque_metrics, tracking_metrics
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
 __all__ = [
+    "CASE_ERRORS",
     "HEADLINE_METRICS",
     "Built",
     "build",
@@ -31,6 +33,11 @@ __all__ = [
     "run_metrics",
     "run_scheme",
 ]
+
+
+#: The exceptions of a run that are its case's own outcome, stored as the run's result (status ``error``):
+#: ftcreport.errors.CASE_ERRORS and numpy's LinAlgError (a linear solve on the case's numbers).
+CASE_ERRORS: tuple[type[BaseException], ...] = (*_FTC_CASE_ERRORS, np.linalg.LinAlgError)
 
 
 def expected_engine(scheme: str) -> str:
@@ -105,15 +112,32 @@ def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=Non
     """Simulate one scheme of a case; always returns (run, metrics), failures included.
 
     A run that stops early (singular, diverged) keeps its log and its metrics
-    over the simulated part; an error while building is reported with status
-    ``error`` and an empty run.
+    over the simulated part; the case's own error while building or simulating
+    (:data:`CASE_ERRORS`: an impossible setting, a numeric failure) is reported with
+    status ``error`` and an empty run.  Any other exception is not the case's outcome
+    and is never returned as a result: one of the environment (a compiled-code cache
+    that cannot be loaded, an OS error, memory; :func:`ftcreport.errors.environment_cause`)
+    is raised as :class:`~ftcreport.errors.RunEnvironmentError`, anything else (a bug) as it is.
     """
+    try:
+        return _run_scheme(case, scheme, built, progress)
+    except RunEnvironmentError:
+        raise
+    except Exception as exc:
+        if (cause := environment_cause(exc)) is not None:
+            raise RunEnvironmentError(cause) from exc
+        raise
+
+
+def _run_scheme(case: Case, scheme: str, built: Built | None, progress) -> tuple[Run, dict]:
     wall0 = time.perf_counter()
     try:
         built = built or build(case)
         ctrl = make_controller(built, scheme)
         run = simulate(built.plant, ctrl, built.q0, built.eta0, built.settings, progress=progress)
-    except (FtcError, ArithmeticError, np.linalg.LinAlgError) as exc:
+    except RunEnvironmentError:
+        raise
+    except CASE_ERRORS as exc:
         # a numeric failure inside the engine (e.g. a linear solve on non-finite values) is a failed run
         why = str(exc) if isinstance(exc, FtcError) else f"numeric error in the simulation: {type(exc).__name__}: {exc}"
         exc = FtcError(why)
@@ -157,6 +181,8 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     # every metric reads the metric stream (every accepted step), never the decimated log
     t, S = (run.t_stream, run.stream) if run.stream else (run.t, run.signals)
     out["metric_samples"] = int(t.size)
+    if case.requirements:  # every window of every [[requirements]] table, from the same stream
+        out["requirements"] = _requirements(case, scheme, run, built, t, S)
     if t.size < 2:
         return out
     phases = built.faults.phases(min(case.simulation.duration, run.t_end))
@@ -174,6 +200,24 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     return out
 
 
+def _requirements(case: Case, scheme: str, run: Run, built: Built, t: np.ndarray, S: dict) -> list[dict]:
+    """The case's requirements on this run (ftcreport.requirements), windows from the run's fault events."""
+    from .model import wheel_index
+    from .requirements import evaluate_requirements
+
+    return evaluate_requirements(
+        case.requirements,
+        scheme,
+        t,
+        S,
+        built.faults.times,
+        case.simulation.duration,
+        run.t_end,
+        run.status,
+        wheel_index=lambda w: wheel_index(w, case.robots.n),
+    )
+
+
 # Why a metric can be null, by its key (the last part of its path in metrics.json).
 _NULL_WHY = {
     "recovery_time": "the position error did not enter the recovery band and stay in it before the phase ended",
@@ -188,7 +232,7 @@ _NULL_WHY = {
     "position_error_final": "no logged sample in this phase (the run stopped before it)",
     "position_error_iae": "fewer than two logged samples in this phase",
 }
-_NOT_METRICS = {"reason", "traceback", "name", "description", "null_reasons"}
+_NOT_METRICS = {"reason", "traceback", "name", "description", "null_reasons", "requirements"}
 
 
 def explain_nulls(metrics: dict) -> dict:

@@ -26,7 +26,7 @@ __all__ = ["SECTIONS", "markdown_tables", "schema_json", "table", "update_readme
 #: marker key -> (TOML table shown in the heading, model, fields to leave out)
 SECTIONS: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {
     "top": ("top level", C.Case, ("robots", "reference", "initial", "faults", "kinematic", "schemes", "simulation",
-                                  "plant", "campaign", "thresholds", "actuators")),
+                                  "plant", "campaign", "thresholds", "actuators", "requirements", "baseline")),
     "robots": ("[robots]", C.Robots, ()),
     "reference": ("[reference]", C.Reference, ()),
     "initial": ("[initial]", C.Initial, ()),
@@ -39,6 +39,10 @@ SECTIONS: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {
     "noise": ("[plant.noise]", C.Noise, ()),
     "mismatch": ("[plant.mismatch]", C.Mismatch, ()),
     "bound": ("[thresholds.<scheme>] metric = { min, max }", C.Bound, ()),
+    "requirements": ("[[requirements]]", C.Requirement, ()),
+    "after_fault": ("start, end = { after_fault = N }", C.AfterFault, ()),
+    "baseline": ("[baseline]", C.BaselineSpec, ()),
+    "tolerance": ("[baseline.metrics.<name>], [baseline.signals.<name>]", C.Tolerance, ()),
     "campaign": ("[campaign]", C.CampaignSpec, ()),
 }  # fmt: skip
 
@@ -187,6 +191,24 @@ def table(model: type[BaseModel], skip: tuple[str, ...] = ()) -> str:
     return "\n".join(lines)
 
 
+def metrics_table() -> str:
+    """The metrics a threshold or a claim may name (:data:`ftcreport.metrics.METRICS`), one row each."""
+    from .metrics import METRICS
+
+    what = {
+        "number": "a number: thresholds and claims bound it",
+        "table": "numbers by name: a claim reads `name.entry` or the largest",
+        "list": "numbers: a claim compares the largest",
+        "sequence": "the applied models: a claim's `sequence`",
+        "record": "shown on the page, not compared",
+    }
+    lines = ["| metric | kind | unit | written by |", "|---|---|---|---|"]
+    for name, m in METRICS.items():
+        who = ", ".join(m.schemes) if m.schemes else "every scheme"
+        lines.append(f"| `{name}` | {what[m.kind]} | {m.unit} | {who} |")
+    return "\n".join(lines)
+
+
 def markdown_tables() -> str:
     """Every section's table with its heading (``ftcreport cases schema --markdown``)."""
     parts = []
@@ -203,6 +225,8 @@ def update_readme(text: str) -> str:
 
     def repl(m: re.Match) -> str:
         key = m.group(2)
+        if key == "metrics":
+            return m.group(1) + metrics_table() + "\n" + m.group(3)
         if key not in SECTIONS:
             raise KeyError(f"cases/README.md: unknown schema section '{key}'")
         _, model, skip = SECTIONS[key]

@@ -333,16 +333,15 @@ def metrics_table(out: Path) -> pd.DataFrame:
     """Every stored run's metrics under ``out``: one row per (case, scheme, phase), :data:`METRICS_DTYPES`."""
     import pandas as pd
 
-    from .store import stored_metrics
+    from .store import stored_runs
 
     out = Path(out)
     rows: list[dict] = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
-        for s, m in stored_metrics(out, name).items():
-            key_path = out / name / s / "key"
-            key = key_path.read_text().strip() if key_path.exists() else ""
-            rows += _phase_rows({"case": name, "scheme": s} | m, key)
+        for s, run in stored_runs(out, name).items():  # a damaged run is a row with status error, not left out
+            key = (run.record or {}).get("key") or ""
+            rows += _phase_rows({"case": name, "scheme": s} | run.shown(), key)
     df = pd.DataFrame(rows, columns=list(METRICS_DTYPES))
     for col, dtype in METRICS_DTYPES.items():
         if dtype == "float64":
@@ -366,13 +365,15 @@ def write_metrics_parquet(out: Path, path: Path | None = None) -> Path:
     return path
 
 
-def export(out: Path, dest: Path | None = None) -> list[Path]:
+def export(out: Path, dest: Path | None = None, damaged: list[str] | None = None) -> list[Path]:
     """netCDF of every stored run (``<dest>/<case>/<scheme>/timeseries.nc``) and ``<dest>/metrics.parquet``.
 
-    ``dest`` defaults to ``out`` (the files go beside the JSON and ``.npz``).
+    ``dest`` defaults to ``out`` (the files go beside the JSON and ``.npz``).  A damaged stored run
+    (:func:`ftcreport.store.check_run`) gets no netCDF and is a row with status ``error`` in the table;
+    its problem (``<file>: <why>``) is appended to ``damaged`` when given.
     """
     from .errors import FtcError
-    from .store import stored_schemes
+    from .store import stored_runs
 
     out = Path(out)
     dest = Path(dest) if dest is not None else out
@@ -381,9 +382,11 @@ def export(out: Path, dest: Path | None = None) -> list[Path]:
     written = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
-        for s in stored_schemes(out, name):
-            run = read_run(out, name, s)
+        for s, stored in stored_runs(out, name).items():
+            run = read_run(out, name, s) if stored.sound else None
             if run is None:
+                if not stored.sound and damaged is not None:
+                    damaged.append(stored.problem)
                 continue
             written.append(write_netcdf(dest / name / s / "timeseries.nc", run))
     written.append(write_metrics_parquet(out, dest / "metrics.parquet"))

@@ -64,6 +64,26 @@ def test_every_case_runs_through_every_scheme(batch_dir):
     assert all((out / n / "index.html").exists() for n in names)
 
 
+def test_every_run_writes_exactly_the_metrics_validation_knows(batch_dir):
+    """ftcreport.metrics.METRICS is the list case validation checks threshold and claim names against
+    (issue 34 item 12): a run of every scheme writes exactly its entries beside its identity."""
+    from ftcreport.cases import load_case
+    from ftcreport.metrics import metrics_of
+    from ftcreport.runner import _identity
+
+    out, _ = batch_dir
+    seen = set()
+    for rec in sorted(out.glob("*/case.json")):
+        case = load_case(CASES / f"{rec.parent.name}.toml")
+        for s in json.loads(rec.read_text())["schemes"]:
+            m = json.loads((out / rec.parent.name / s / "metrics.json").read_text())
+            written = set(m) - set(_identity(case, s)) - {"status", "reason", "engine", "null_reasons"}
+            optional = {"verify_dt"} | ({"requirements"} - set(m))  # run --verify-dt; cases with [[requirements]]
+            assert written == set(metrics_of(s)) - optional, (rec.parent.name, s, written ^ set(metrics_of(s)))
+            seen.add(s)
+    assert {"nominal", "oracle", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf"} <= seen
+
+
 def test_rerun_simulates_nothing(batch_dir):
     out, first = batch_dir
     page = out / "two_link_uncompensable" / "index.html"
@@ -124,7 +144,8 @@ def test_check_fails_on_an_impossible_threshold(tmp_path):
     assert res.exit_code == 1, res.output
     assert "FAIL" in res.output and "torque_peak" in res.output
     root = ET.parse(junit).getroot()
-    assert root.get("failures") == "1" and root.get("tests") == "2"
+    runs = [tc for tc in root.iter("testcase") if tc.get("name") == "status"]  # one per run (issue 34)
+    assert root.get("failures") == "1" and root.get("tests") == str(2 + len(runs)) and len(runs) >= 2
     failing = [tc for tc in root.iter("testcase") if tc.find("failure") is not None]
     assert [tc.get("name") for tc in failing] == ["torque_peak"]
     assert "expected <= 1e-09" in failing[0].find("failure").get("message")
@@ -447,7 +468,9 @@ def test_a_piped_batch_prints_no_bars(tmp_path):
     res = runner.invoke(app, ["batch", str(case), "--out", str(out), "--duration", "0.2", "--jobs", "1"])
     assert res.exit_code == 0, res.output
     assert "━" not in res.output and "two_link_switching / " not in res.output, res.output
-    lines = res.output.splitlines()  # stderr's one notice, then the summary: nothing of the display
+    # --duration's warning (it drops the case's faults), stderr's one notice, the summary: nothing of the display
+    lines = [ln for ln in res.output.splitlines() if not ln.startswith("ftcreport: warning: ")]
+    assert "--duration 0.2: drops faults[0]" in res.output
     assert len(lines) == 2 and lines[0].startswith("rendering 1 case page(s)"), res.output
     assert lines[1].startswith("1 case(s): 4 run(s) simulated, 0 cached, 0 failed"), res.output
 

@@ -12,6 +12,7 @@ import tomli_w
 from typer.testing import CliRunner
 
 from ftcreport.cases import load_case, parse_case
+from ftcreport.check import claim_item
 from ftcreport.claims import evaluate_claim, evaluate_claims, model_sequence
 from ftcreport.cli import app
 from ftcreport.errors import CaseError
@@ -128,11 +129,11 @@ def test_junit_has_one_testcase_per_claim_failing_on_a_changed_outcome():
         ],
         m,
     )
-    root = ET.fromstring(junit_xml([], {}, claims=res))
+    root = ET.fromstring(junit_xml([claim_item(c) for c in res]))
     assert root.get("tests") == "2" and root.get("failures") == "1"
     failing = [tc for tc in root.iter("testcase") if tc.find("failure") is not None]
     assert [(tc.get("classname"), tc.get("name")) for tc in failing] == [("x.claims", "changed")]
-    assert "not reproduced, expected reproduced" in failing[0].find("failure").get("message")
+    assert "not reproduced (expected reproduced)" in failing[0].find("failure").get("message")
 
 
 def test_check_gates_on_claims(tmp_path):

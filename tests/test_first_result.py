@@ -54,4 +54,3 @@ def test_a_reference_pickles_without_its_ref():
         assert other._ref is None  # a pointer into this process: rebuilt on the first use
         b = other.at(1.25)
         assert np.array_equal(a.q_d, b.q_d) and np.array_equal(a.eta_d_dot, b.eta_d_dot)
-

@@ -317,7 +317,7 @@ def _check_failure_message(res, path: Path, label: str) -> None:
 
 #: what may follow ``<file>: `` in a refusal: a field path (``faults[2].wheel``), or the file itself is unreadable
 _FIELD = re.compile(r"(<root>|[^\s:\[\]][^\s:]*): \S")
-_FILE_LEVEL = ("not valid TOML", "not UTF-8 text", "cannot read")
+_FILE_LEVEL = ("not valid TOML", "not UTF-8 text", "cannot read", "not a regular file", "too large")
 
 
 def _check_names_a_field(res, path: Path, label: str) -> None:
@@ -479,3 +479,269 @@ def test_mutated_cases_through_one_batch(batch, tmp_path_factory):
             assert f"ftcreport: error: {p}" in res.stderr, (p, res.stderr)
     _check_metrics(out, "; ".join(labels))
     assert (out / "index.html").exists()
+
+
+# ------------------------------------------------------------------ stored results (issue 34)
+# A stored batch (one case, two runs) is damaged the ways a disk, a copy or a hand can damage it, then
+# read back: ``report`` must name every damaged run and exit 1 (an undamaged store: 0), never exit 3
+# or drop a run silently; the batch's cache decision (ftcreport.store.check_run with the run's key) must
+# re-run exactly the damaged runs; for a few examples ``batch`` itself re-runs them and the store is
+# whole again.  FUZZ_STORED_EXAMPLES (default 16, about 3.5 s each: report renders the page, export
+# writes netCDF) sets the count; a tenth of them (at least 2) also go through ``batch`` (about 18 s each:
+# a worker starts and loads the compiled loop).  30 + 3 examples took 109 + 54 s on 2 shared cores.
+STORED_EXAMPLES = int(os.environ.get("FUZZ_STORED_EXAMPLES", "16"))
+STORED_BATCHES = max(2, STORED_EXAMPLES // 10)
+STORED_CASE = {
+    "name": "st",
+    "robots": {"n": 2, "d": 1.7},
+    "reference": {"kind": "unicycle", "v_d": 0.5, "omega_d": 0.1},
+    "initial": {"x": 0.1, "y": 0.05},
+    "kinematic": {"kind": "two_link", "k1": 10.0, "k2": 2.0, "k3": 0.5},
+    "schemes": {"run": ["nominal", "oracle"], "nominal": {"k_v": 5.0}, "oracle": {"k_v": 5.0}},
+    "simulation": {"dt": 0.01, "duration": 0.5},
+    "thresholds": {"oracle": {"position_error_final": {"max": 1.0}}},
+}
+STORED_RUNS = ("nominal", "oracle")
+STORED_FILES = ("metrics.json", "timeseries.npz", "record.json")
+WRONG_JSON = [None, [], {}, "", "x", 0, -1.5, True, [1, 2], {"scheme": "nominal"}, {"status": "ok", "scheme": "oracle"}]
+STORED_KINDS = ["truncate", "empty", "json", "drop key", "retype", "swap", "swap runs", "delete", "flip", "append"]
+
+
+@pytest.fixture(scope="module")
+def stored_store(tmp_path_factory):
+    d = tmp_path_factory.mktemp("stored")
+    case = d / "st.toml"
+    case.write_text(tomli_w.dumps(STORED_CASE))
+    out = d / "base"
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    return case, out
+
+
+@st.composite
+def stored_mutations(draw):
+    """(kind, run, file, argument) of one damage to a stored run."""
+    kind = draw(st.sampled_from(STORED_KINDS))
+    run = draw(st.sampled_from(STORED_RUNS))
+    json_only = kind in ("drop key", "retype")
+    fname = draw(st.sampled_from(["metrics.json", "record.json"] if json_only else STORED_FILES))
+    if kind in ("truncate", "flip"):
+        arg = (draw(st.floats(0.0, 1.0, exclude_max=True)), draw(st.integers(1, 255)))
+    elif kind in ("json", "retype"):
+        arg = (draw(st.integers(0, 99)), draw(st.sampled_from(WRONG_JSON)))
+    elif kind == "drop key":
+        arg = (draw(st.integers(0, 99)), None)
+    elif kind == "append":
+        arg = (0.0, draw(st.binary(min_size=1, max_size=8)))
+    else:
+        arg = None
+    return kind, run, fname, arg
+
+
+def _damage(out: Path, mutation) -> str:
+    """Apply a stored_mutations draw to the store under ``out``; its label."""
+    kind, run, fname, arg = mutation
+    d = out / "st" / run
+    other = out / "st" / next(s for s in STORED_RUNS if s != run)
+    p = d / fname
+    raw = p.read_bytes()
+    if kind == "truncate":
+        p.write_bytes(raw[: int(arg[0] * len(raw))])
+    elif kind == "empty":
+        p.write_bytes(b"")
+    elif kind == "json":
+        p.write_text(json.dumps(arg[1]))
+    elif kind in ("drop key", "retype"):
+        data = json.loads(raw)
+        key = sorted(data)[arg[0] % len(data)]
+        if kind == "drop key":
+            del data[key]
+        else:
+            data[key] = arg[1]
+        p.write_text(json.dumps(data, indent=2))
+    elif kind == "swap":
+        theirs = (other / fname).read_bytes()
+        (other / fname).write_bytes(raw)
+        p.write_bytes(theirs)
+    elif kind == "swap runs":
+        d.rename(out / "st" / "tmp")
+        other.rename(d)
+        (out / "st" / "tmp").rename(other)
+    elif kind == "delete":
+        p.unlink()
+    elif kind == "flip":
+        at = int(arg[0] * len(raw))
+        p.write_bytes(raw[:at] + bytes([raw[at] ^ arg[1]]) + raw[at + 1 :])
+    elif kind == "append":
+        p.write_bytes(raw + arg[1])
+    return f"{kind} {run}/{fname} {arg!r:.60}"
+
+
+def _stored_bytes(out: Path) -> dict[str, dict[str, bytes | None]]:
+    return {
+        s: {f: (out / "st" / s / f).read_bytes() if (out / "st" / s / f).exists() else None for f in STORED_FILES}
+        for s in STORED_RUNS
+    }
+
+
+def _damaged_store(stored_store, tmp_path, mutation):
+    """A copy of the stored batch with one damage: (case file, out, label, the runs whose bytes changed)."""
+    import shutil
+
+    case, base = stored_store
+    out = tmp_path / "out"
+    shutil.copytree(base, out)
+    before = _stored_bytes(out)
+    label = _damage(out, mutation)
+    after = _stored_bytes(out)
+    return case, out, label, {s for s in STORED_RUNS if before[s] != after[s]}
+
+
+@settings(
+    max_examples=STORED_EXAMPLES,
+    deadline=None,
+    derandomize=not LONG,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+    database=None,
+)
+@given(mutation=stored_mutations())
+def test_a_damaged_stored_result_is_named_never_served(stored_store, tmp_path_factory, mutation):
+    from ftcreport.batch import run_key
+    from ftcreport.cases import load_case
+    from ftcreport.store import check_run
+
+    case, out, label, changed = _damaged_store(stored_store, tmp_path_factory.mktemp("dmg"), mutation)
+    res = runner.invoke(app, ["report", "--out", str(out)])
+    assert res.exit_code == (1 if changed else 0), (label, res.exit_code, res.output, _trace(res))
+    assert "Traceback" not in res.output and "a bug" not in res.output, (label, res.output)
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
+    for s in changed:  # each damaged run named by its file (or its directory), once
+        assert sum(str(out / "st" / s) in ln for ln in errors) == 1, (label, s, errors)
+    assert len(errors) == len(changed), (label, errors)
+    page = (out / "st" / "index.html").read_text()
+    for s in STORED_RUNS:  # a damaged run is on the page as such, not gone from it
+        assert (f"damaged stored result: {out / 'st' / s}" in page) == (s in changed), (label, s)
+    c = load_case(case)
+    for s in STORED_RUNS:  # the batch's cache decision: exactly the damaged runs are re-run
+        assert check_run(out, "st", s, key=run_key(c, s)).sound == (s not in changed), (label, s)
+    exported = runner.invoke(app, ["export", "--out", str(out)])
+    assert exported.exit_code == (1 if changed else 0), (label, exported.output, _trace(exported))
+
+
+@settings(
+    max_examples=STORED_BATCHES,
+    deadline=None,
+    derandomize=not LONG,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+    database=None,
+)
+@given(mutation=stored_mutations())
+def test_batch_re_runs_a_damaged_stored_result(stored_store, tmp_path_factory, mutation):
+    from ftcreport.store import check_run
+
+    case, out, label, changed = _damaged_store(stored_store, tmp_path_factory.mktemp("dmgb"), mutation)
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
+    assert res.exit_code == 0, (label, res.output, _trace(res))
+    assert f"{len(changed)} run(s) simulated, {2 - len(changed)} cached, 0 failed" in res.stdout, (label, res.stdout)
+    notes = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: note:")]
+    assert sorted(ln.rsplit("re-running st / ", 1)[-1] for ln in notes) == sorted(changed), (label, notes)
+    assert all(check_run(out, "st", s).sound for s in STORED_RUNS), label
+    assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0, label
+
+
+# ------------------------------------------------------------------ the input's file type (issue 34)
+#: what a case file, its base case or its scheme file may be instead of a regular file of a sane size
+FILE_TYPES = (
+    "fifo",
+    "dev_zero",
+    "dev_null",
+    "dev_urandom",
+    "directory",
+    "socket",
+    "oversize",
+    "link_to_fifo",
+    "link_to_dev_zero",
+    "link_to_directory",
+    "dangling_link",
+    "link_loop",
+    "link_to_regular",  # the one mutation that must still be accepted
+)
+
+
+def _make(path: Path, kind: str, regular: Path) -> None:
+    """Make ``path`` a ``kind`` of file (``regular``: the real file a link to a regular file points at)."""
+    import socket
+
+    d = path.parent
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind.startswith("dev_"):
+        path.symlink_to(f"/dev/{kind[4:]}")
+    elif kind == "directory":
+        path.mkdir()
+    elif kind == "socket":
+        s = socket.socket(socket.AF_UNIX)
+        s.bind(str(path))
+        s.close()
+    elif kind == "oversize":  # valid TOML and Python: comments only, 1.5 MB
+        path.write_bytes(b"# padding\n" * 150_000)
+    elif kind == "link_to_fifo":
+        os.mkfifo(d / "target")
+        path.symlink_to(d / "target")
+    elif kind == "link_to_dev_zero":
+        (d / "target").symlink_to("/dev/zero")
+        path.symlink_to(d / "target")
+    elif kind == "link_to_directory":
+        (d / "target").mkdir()
+        path.symlink_to(d / "target")
+    elif kind == "dangling_link":
+        path.symlink_to(d / "nowhere")
+    elif kind == "link_loop":
+        (d / "loop").symlink_to(path)
+        path.symlink_to(d / "loop")
+    elif kind == "link_to_regular":
+        path.symlink_to(regular)
+
+
+@pytest.mark.parametrize("role", ["case", "base_case", "plugin"])
+@pytest.mark.parametrize("kind", FILE_TYPES)
+def test_input_file_types(tmp_path, role, kind):
+    """The case file, its ``base_case`` or its scheme file mutated into a FIFO, a device, a directory, a socket,
+    a file over the size bound or a symbolic link (to those, dangling, in a loop, or to a regular file).
+
+    ``cases validate`` and ``run``: refused at once (exit 2, no hang: SIGALRM, the file named with the
+    field that names it), never read without end; a link to a regular file is accepted.
+    """
+    d = tmp_path / "in"
+    d.mkdir()
+    if role == "case":
+        path = d / "m.toml"
+        _make(path, kind, CASES / "two_link_switching.toml")
+        needle = f"{path}: "
+    elif role == "base_case":
+        _make(d / "base.toml", kind, CASES / "two_link_switching.toml")
+        path = d / "m.toml"
+        path.write_text('base_case = "base.toml"\nname = "m"\n')
+        needle = f"{path}: base_case: 'base.toml': "
+    else:
+        _make(d / "law.py", kind, Path(CORPUS["two_link_sliding_mode"]["plugins"][0]))
+        path = d / "m.toml"
+        path.write_text(tomli_w.dumps({**CORPUS["two_link_sliding_mode"], "plugins": [str(d / "law.py")]}))
+        needle = f"{path}: plugins[0]: "
+    old = signal.signal(signal.SIGALRM, _alarm)
+    signal.alarm(60)
+    try:
+        res = runner.invoke(app, ["cases", "validate", str(path)])
+        if kind == "link_to_regular":
+            assert res.exit_code == 0, res.output
+            return
+        assert res.exit_code == 2, (res.exit_code, res.output, _trace(res))
+        _check_failure_message(res, path, kind)
+        _check_names_a_field(res, path, kind)
+        searched = role == "case" and kind in ("directory", "link_to_directory")  # validate searches a directory
+        assert needle in res.stderr or (searched and f"no case files (*.toml) in {path}" in res.stderr), res.stderr
+        run = runner.invoke(app, ["run", str(path), "--duration", "1", "--out", str(tmp_path / "o"), "-q"])
+        assert run.exit_code == 2 and needle in run.stderr, (run.exit_code, run.output, _trace(run))
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)

@@ -21,6 +21,7 @@ CORE += ("ftcreport.fast.kernels", "ftcreport.fast.loop", "ftcreport.fast.ukf", 
 EDGES = ("ftcreport.report", "ftcreport.cli", "ftcreport.tidy", "ftcreport.store", "ftcreport.manifest")
 EDGES += ("ftcreport.results", "ftcreport.batch", "ftcreport.campaign", "ftcreport.coverage", "ftcreport.fdi")
 EDGES += ("ftcreport.cluster", "ftcreport.cases", "ftcreport.schema_doc", "ftcreport.runner", "ftcreport.check")
+EDGES += ("ftcreport.lifetime",)
 #: standard modules that read or write files or the network, and plotting
 IO_MODULES = ("json", "pickle", "shutil", "tomllib", "csv", "sqlite3", "socket", "urllib", "matplotlib", "plotly")
 

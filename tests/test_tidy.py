@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 import ftcreport
 from ftcreport.batch import record_case, run_batch, run_key
 from ftcreport.cases import SCHEME_NAMES, case_hash, load_case, with_duration
-from ftcreport.check import ThresholdResult
+from ftcreport.check import ThresholdResult, threshold_item
 from ftcreport.cli import app
 from ftcreport.report.junit import junit_xml
 from ftcreport.runner import expected_engine, run_scheme
@@ -207,7 +207,8 @@ def test_batch_writes_manifest_parquet_and_page_provenance(tmp_path):
 
 
 def test_junit_has_properties_time_and_timestamp():
-    results = [ThresholdResult("c", "switching", "position_error_final", None, 1e-3, 2e-4, True, "")]
+    held = ThresholdResult("c", "switching", "position_error_final", None, 1e-3, 2e-4, True, "")
+    results = [threshold_item(held, time=3.25)]
     from ftcreport.manifest import build_manifest
 
     manifest = build_manifest("batch", cases={"c": "abc"}, runs=[{"case": "c", "scheme": "switching"}])
@@ -216,7 +217,6 @@ def test_junit_has_properties_time_and_timestamp():
         properties=manifest,
         time=12.5,
         timestamp="2026-11-23T10:00:00+00:00",
-        run_times={("c", "switching"): 3.25},
     )
     suite = ET.fromstring(xml)
     assert suite.get("time") == "12.500" and suite.get("timestamp") == "2026-11-23T10:00:00+00:00"

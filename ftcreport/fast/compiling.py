@@ -216,7 +216,7 @@ class KernelLibrary(JITCodeLibrary):
         object_code, shared_bitcode = data
         self.enable_object_caching()
         self._set_compiled_object(object_code)
-        symbols = defined_symbols(object_code) if lazy_link.enabled() else None
+        symbols = defined_symbols(object_code) if lazy_link.enabled() and accelerated() else None
         if symbols is None:
             self._shared_module = ll.parse_bitcode(shared_bitcode)
         else:

@@ -27,10 +27,11 @@ __all__ = ["defined_symbols", "enabled"]
 
 
 def enabled() -> bool:
-    """Whether ftcreport's cache loads keep the linking IR unparsed (``FTCREPORT_LAZY_LINK=0``: not)."""
-    from .compiling import accelerated
+    """Whether ftcreport's cache loads may keep the linking IR unparsed (``FTCREPORT_LAZY_LINK=0``: not).
 
-    return os.environ.get("FTCREPORT_LAZY_LINK", "1") != "0" and accelerated()
+    The caller (``compiling``) also requires the acceleration to be on; this module imports nothing of
+    ftcreport, so the two never import each other."""
+    return os.environ.get("FTCREPORT_LAZY_LINK", "1") != "0"
 
 
 def defined_symbols(obj: bytes) -> set[str] | None:

@@ -1,20 +1,26 @@
-"""JUnit XML of threshold checks (one testcase per case x scheme x threshold).
+"""JUnit XML of the gate: one testcase per gate item (:mod:`ftcreport.check`).
 
-The suite carries ``time`` (seconds the check took), ``timestamp`` (when it started, ISO 8601
-UTC) and the provenance manifest as ``<properties>`` (flattened: ``ftcreport.git.revision``,
-``dependencies.numba``, ``platform.cpu``, ...); a testcase's ``time`` is its run's wall time.
+A run is the testcase ``<case>.<scheme>`` / ``status``; a threshold ``<case>.<scheme>`` / ``<metric>``;
+a thesis claim ``<case>.claims`` / ``<id>``; a case file that could not be read ``<file>`` / ``load``
+(an errored testcase).  The suite carries ``time`` (seconds the check took), ``timestamp`` (when it
+started, ISO 8601 UTC) and the provenance manifest as ``<properties>`` (flattened:
+``ftcreport.git.revision``, ``dependencies.numba``, ``platform.cpu``, ...); a testcase's ``time`` is
+its run's wall time.
+
+Every text is written with its control characters escaped (:func:`ftcreport.errors.printable`): XML 1.0
+cannot hold most of them, and the file is always well-formed whatever a name or a reason holds.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 from xml.etree import ElementTree as ET
 
-from ..check import ThresholdResult
-from ..claims import bound_text
+from ..check import GateItem
+from ..errors import printable
 from ..store import write_atomic
 
 __all__ = ["flatten", "junit_xml", "write_junit"]
@@ -35,69 +41,49 @@ def flatten(obj: Any, prefix: str = "") -> dict[str, str]:
     return out
 
 
+def _x(text: object) -> str:
+    """Text XML 1.0 can hold: control characters, lone surrogates and non-characters escaped."""
+    return printable(text)
+
+
 def junit_xml(
-    results: list[ThresholdResult],
-    errors: dict[str, str] | None = None,
-    claims=None,
+    items: Iterable[GateItem],
     *,
     properties: Mapping[str, Any] | None = None,
     time: float | None = None,
     timestamp: str | None = None,
-    run_times: Mapping[tuple[str, str], float] | None = None,
 ) -> bytes:
-    """JUnit XML; case files that failed to load appear as errored testcases.
-
-    ``claims`` (ftcreport.claims.ClaimResult): one testcase per thesis claim, classname
-    ``<case>.claims``, failed when its outcome differs from the expected one.
+    """JUnit XML of the gate items: a failed item is a ``<failure>``, a case file in error an ``<error>``.
 
     ``properties``: the manifest (nested; flattened into ``<property name value>``); ``time`` [s] and
-    ``timestamp`` of the suite; ``run_times``: wall time per (case, scheme) for the testcases.
+    ``timestamp`` of the suite.
     """
-    errors = errors or {}
-    run_times = run_times or {}
+    items = list(items)
     suite = ET.Element("testsuite", name="ftcreport.check")
     if timestamp is not None:
-        suite.set("timestamp", timestamp)
+        suite.set("timestamp", _x(timestamp))
     if properties:
         props = ET.SubElement(suite, "properties")
         for name, value in flatten(properties).items():
-            ET.SubElement(props, "property", name=name, value=value)
-    n_fail = 0
-    for r in results:
+            ET.SubElement(props, "property", name=_x(name), value=_x(value))
+    for it in items:
         tc = ET.SubElement(
-            suite,
-            "testcase",
-            classname=f"{r.case}.{r.scheme}",
-            name=r.metric,
-            time=f"{float(run_times.get((r.case, r.scheme)) or 0.0):.3f}",
+            suite, "testcase", classname=_x(it.junit_class), name=_x(it.junit_name), time=f"{float(it.time):.3f}"
         )
-        expected = bound_text(r.min, r.max)
-        actual = "n/a" if r.actual is None else f"{r.actual:.6g}"
-        ET.SubElement(tc, "system-out").text = f"expected {expected}; actual {actual}"
-        if not r.ok:
-            n_fail += 1
-            f = ET.SubElement(tc, "failure", message=f"{r.metric}: {r.reason}; expected {expected}, actual {actual}")
-            f.text = f"{r.case} / {r.scheme} / {r.metric}: {r.reason}"
-    claims = list(claims or [])
-    for c in claims:
-        tc = ET.SubElement(suite, "testcase", classname=f"{c.case}.claims", name=c.id)
-        ET.SubElement(tc, "system-out").text = f"{c.source}: {c.outcome} (expected {c.expect}); {c.reason}"
-        if not c.ok:
-            n_fail += 1
-            msg = f"claim {c.id}: {c.outcome}, expected {c.expect}: {c.reason}"
-            ET.SubElement(tc, "failure", message=msg).text = f"{c.case} / claim {c.id}: {msg}"
-    for name, msg in errors.items():
-        tc = ET.SubElement(suite, "testcase", classname=name, name="load")
-        ET.SubElement(tc, "error", message=msg).text = msg
-    suite.set("tests", str(len(results) + len(claims) + len(errors)))
-    suite.set("failures", str(n_fail))
-    suite.set("errors", str(len(errors)))
+        if it.detail:
+            ET.SubElement(tc, "system-out").text = _x(it.detail)
+        if it.error:
+            ET.SubElement(tc, "error", message=_x(it.message)).text = _x(it.message)
+        elif not it.ok:
+            msg = f"{it.name}: {it.message}" + (f"; {it.detail}" if it.detail and it.detail not in it.message else "")
+            ET.SubElement(tc, "failure", message=_x(msg)).text = _x(f"{it.case} / {msg}")
+    suite.set("tests", str(len(items)))
+    suite.set("failures", str(sum(not i.ok and not i.error for i in items)))
+    suite.set("errors", str(sum(i.error for i in items)))
     suite.set("time", f"{0.0 if time is None else float(time):.3f}")
     return ET.tostring(suite, encoding="utf-8", xml_declaration=True)
 
 
-def write_junit(
-    path: Path, results: list[ThresholdResult], errors: dict[str, str] | None = None, claims=None, **suite: Any
-) -> None:
+def write_junit(path: Path, items: Iterable[GateItem], **suite: Any) -> None:
     """Write :func:`junit_xml` atomically (``suite``: its keyword arguments)."""
-    write_atomic(Path(path), junit_xml(results, errors, claims, **suite))
+    write_atomic(Path(path), junit_xml(items, **suite))

@@ -27,7 +27,7 @@ import numpy as np
 from .. import __version__, compare
 from ..cases import ordered_schemes, parse_case, with_duration
 from ..check import evaluate
-from ..errors import FtcError
+from ..errors import FtcError, printable
 from ..model.faults import wheel_names
 from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
 from . import interactive, plots
@@ -38,9 +38,17 @@ __all__ = ["dependency_versions", "render_all", "render_case", "render_index"]
 
 def _env() -> jinja2.Environment:
     loader = jinja2.FileSystemLoader(str(resources.files("ftcreport.templates")))
-    env = jinja2.Environment(loader=loader, autoescape=jinja2.select_autoescape(["html"]))
+    env = jinja2.Environment(loader=loader, autoescape=jinja2.select_autoescape(["html"]), finalize=_no_controls)
     env.globals["fmt"] = _fmt
     return env
+
+
+def _no_controls(value):
+    """Every value a page prints with its control characters escaped (a file name or a stored reason may
+    hold them; HTML shows them as nothing or breaks on them: issue 34 item 7); markup stays markup."""
+    if hasattr(value, "__html__"):  # markupsafe.Markup (jinja2's): built again as markup
+        return type(value)(printable(value, keep="\t\n\r"))
+    return printable(value, keep="\t\n\r") if isinstance(value, str) else value
 
 
 def _fmt(x) -> str:
@@ -328,6 +336,9 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
     if analysis is not None:
         figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
+    from .requirements_page import requirements_section
+
+    requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)
     verdict = _verdict(case, name, runs)
     base_verdict = None
@@ -361,10 +372,11 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         replay_json=_script_json(replay) if replay else None,
         replay_schemes=list(replay["schemes"]) if replay else [],
         scheme_colors=plots.SCHEME_COLORS,
-        plotly_inline=interactive.inline_plotly() if any(f.get("plotly") for f in figures) else None,
+        plotly_inline=interactive.inline_plotly()
+        if any(f.get("plotly") for f in [*figures, *((requirements or {}).get("figures") or [])])
+        else None,
         oracle_notes=oracle_notes(verdict, case, base_verdict) if verdict else [],
         shading=shading,
-        requirements=None,  # r3-baseline's _requirements.html (time-windowed requirements) fills it
         plant=None,  # r3-drive's _plant.html (the plant and its idealizations) fills it
         name=name,
         analysis=analysis,
@@ -385,6 +397,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         n_phases=len(phases),
         phase_labels=[f"{a:g}-{b:g}" for a, b in phases],
         checks=checks,
+        requirements=requirements,
         figures=figures,
         key=rec.get("key", "-"),
         simulated=rec.get("time", "-"),

@@ -13,6 +13,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import inspect
+import os
 import sys
 import threading
 import warnings
@@ -189,9 +190,13 @@ def resolve(fn):
 
 def load_plugin(path: str | Path) -> None:
     """Import a scheme file (it registers its schemes when imported); idempotent per file."""
-    p = Path(path).resolve()
-    if not p.is_file():
+    from ..inputs import input_problem
+
+    if not os.path.lexists(path):
         raise ModelError(f"{path}: no such scheme file")
+    if (why := input_problem(path, "scheme file")) is not None:  # a FIFO, a device, a directory, too large
+        raise ModelError(why)
+    p = Path(path).resolve()
     # the module's name is the same in every process and for every copy of the file (numba's cache
     # indexes of the scheme's law and loop name it): two scheme files may not share a stem
     name = "ftcreport_plugin_" + "".join(c if c.isalnum() else "_" for c in p.stem)
@@ -206,6 +211,7 @@ def load_plugin(path: str | Path) -> None:
         raise ModelError(f"{path}: not a Python file")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
+    before = dict(_REGISTRY)
     try:
         spec.loader.exec_module(module)
     except SystemExit as exc:  # not an Exception; the half-imported module must not stay loaded either
@@ -217,3 +223,8 @@ def load_plugin(path: str | Path) -> None:
     except Exception as exc:
         del sys.modules[name]
         raise ModelError(f"{path}: the scheme file failed to import: {type(exc).__name__}: {exc}") from exc
+    if all(before.get(k) is v for k, v in _REGISTRY.items()):  # nothing new: a wrong file, or a typo in it
+        del sys.modules[name]
+        raise ModelError(
+            f"{path}: registers no scheme (a scheme file calls ftcreport.schemes.register(Scheme(...)) when imported)"
+        )

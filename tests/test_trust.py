@@ -1,0 +1,503 @@
+"""Issue 34, "Results you can trust" (breaks 1, 2, 3, 7, 9, 10, 11, 12): one test per break, through the CLI.
+
+Each test reproduces what the review found (it failed against the code before the fix) and asserts the
+exit code, the message and the files left.  The cases are two-link unicycle runs of a second or less
+with the nominal scheme only, so each batch is a few seconds once the nominal loop is compiled.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tomllib
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+import pytest
+import tomli_w
+from typer.testing import CliRunner
+
+from ftcreport.cli import app
+
+ROOT = Path(__file__).resolve().parents[1]
+runner = CliRunner()
+
+BASE = {
+    "robots": {"n": 2, "d": 1.7},
+    "reference": {"kind": "unicycle", "v_d": 0.5, "omega_d": 0.1},
+    "initial": {"x": 0.1, "y": 0.05},
+    "kinematic": {"kind": "two_link", "k1": 10.0, "k2": 2.0, "k3": 0.5},
+    "schemes": {"run": ["nominal"], "nominal": {"k_v": 5.0}},
+    "simulation": {"dt": 0.01, "duration": 0.5},
+}
+
+
+def _write(tmp_path: Path, stem: str = "c", **top) -> Path:
+    """A case file ``<stem>.toml``: BASE with top-level tables replaced or added."""
+    data = json.loads(json.dumps(BASE)) | top
+    p = tmp_path / f"{stem}.toml"
+    p.write_text(tomli_w.dumps(data))
+    return p
+
+
+def _unstable(tmp_path: Path, name: str = "su") -> Path:
+    """RK4 at dt = 0.02 s on the loop's pole -k_v = -225 (lambda dt = -4.5): the run ends step_unstable
+    at t = 0.04 s (tests/test_step_unstable.py), where the case expects 'ok'."""
+    return _write(
+        tmp_path,
+        name,
+        schemes={"run": ["nominal"], "nominal": {"k_v": 225.0}},
+        simulation={"dt": 0.02, "duration": 0.5},
+    )
+
+
+def _errors(res) -> list[str]:
+    return [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
+
+
+def _no_crash(res) -> None:
+    assert res.exit_code != 3, res.output
+    assert "Traceback" not in res.output
+    assert "a bug" not in res.output, res.output
+
+
+def _record(out: Path, case: str, scheme: str) -> dict:
+    return json.loads((out / case / scheme / "record.json").read_text())
+
+
+# ------------------------------------------------------------------ 1. a failed run stays failed once cached
+def test_1_a_failed_run_is_cached_as_a_failure(tmp_path):
+    case = _unstable(tmp_path)
+    out = tmp_path / "o"
+    first = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
+    assert first.exit_code == 1, first.output
+    assert "1 run(s) simulated, 0 cached, 1 failed" in first.stdout
+
+    again = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
+    assert again.exit_code == 1, again.output
+    assert "0 run(s) simulated, 1 cached, 1 failed" in again.stdout
+    assert any("su / nominal: step_unstable" in ln for ln in _errors(again)), again.stderr
+    rec = _record(out, "su", "nominal")
+    assert rec["status"] == "step_unstable" and rec["failed"] is True
+
+    # check on the same directory (cached) and on a fresh one counts the run, not only thresholds and claims
+    for where in (out, tmp_path / "fresh"):
+        junit = tmp_path / f"{where.name}.xml"
+        res = runner.invoke(app, ["check", str(case), "--out", str(where), "--junit", str(junit), "-q"])
+        assert res.exit_code == 1, res.output
+        assert "FAIL  su / nominal / status: step_unstable" in res.stdout
+        assert "0/1 runs end as the case expects" in res.stdout
+        suite = ET.parse(junit).getroot()
+        status = [tc for tc in suite.iter("testcase") if tc.get("classname") == "su.nominal"]
+        assert [tc.get("name") for tc in status] == ["status"]
+        assert "step_unstable" in status[0].find("failure").get("message")
+
+    rep = runner.invoke(app, ["report", "--out", str(out)])
+    assert rep.exit_code == 1, rep.output
+    assert any("su / nominal: step_unstable" in ln for ln in _errors(rep)), rep.stderr
+
+
+# ------------------------------------------------------------------ 2. an error of the environment is not stored
+_BREAK_CACHE = """\
+import os
+if os.environ.get("FTC_TEST_BREAK_CACHE"):
+    import pickle
+
+    import ftcreport.runner
+
+    def _truncated_cache(*args, **kwargs):
+        raise pickle.UnpicklingError("pickle data was truncated")
+
+    ftcreport.runner.simulate = _truncated_cache
+"""
+
+
+def test_2_an_environment_error_is_never_stored_as_the_result(tmp_path):
+    """A worker whose compiled-code cache fails to load (UnpicklingError, as a truncated numba cache file
+    gives): the batch fails this time, stores nothing, and the next batch simulates the run."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(_BREAK_CACHE)
+    case = _write(tmp_path, "envc")
+    out = tmp_path / "o"
+    env = {"PYTHONPATH": os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")]), "FTC_TEST_BREAK_CACHE": "1"}
+    broken = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"], env=env)
+    assert broken.exit_code == 1, broken.output
+    line = next(ln for ln in _errors(broken) if "envc / nominal" in ln)
+    assert "UnpicklingError: pickle data was truncated" in line and "not stored" in line, line
+    assert not (out / "envc" / "nominal" / "record.json").exists()
+    assert not (out / "envc" / "nominal" / "metrics.json").exists()
+
+    repaired = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"], env={"FTC_TEST_BREAK_CACHE": ""})
+    assert repaired.exit_code == 0, repaired.output
+    assert "1 run(s) simulated, 0 cached, 0 failed" in repaired.stdout
+    assert _record(out, "envc", "nominal")["status"] == "ok"
+
+
+def test_2_run_does_not_store_an_environment_error(tmp_path, monkeypatch):
+    import pickle
+
+    def truncated(*args, **kwargs):
+        raise pickle.UnpicklingError("pickle data was truncated")
+
+    monkeypatch.setattr("ftcreport.runner.simulate", truncated)
+    case = _write(tmp_path, "envr")
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(case), "--out", str(out), "-q", "--no-report"])
+    _no_crash(res)
+    assert res.exit_code == 1, res.output
+    assert any("nominal" in ln and "UnpicklingError" in ln and "not stored" in ln for ln in _errors(res)), res.stderr
+    assert not (out / "envr" / "nominal" / "metrics.json").exists()
+
+
+# ------------------------------------------------------------------ 3. damaged stored results are re-run, never served
+@pytest.fixture(scope="module")
+def stored(tmp_path_factory):
+    """One stored, complete run (case 'st', nominal) to copy and damage."""
+    d = tmp_path_factory.mktemp("stored")
+    case = _write(d, "st")
+    out = d / "o"
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    return case, out
+
+
+def _truncate(p: Path) -> None:
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+
+
+DAMAGE = {
+    "metrics truncated": ("metrics.json", _truncate, "truncated"),
+    "metrics null": ("metrics.json", lambda p: p.write_text("null"), "truncated"),
+    "metrics a list": ("metrics.json", lambda p: p.write_text("[]"), "truncated"),
+    "metrics without scheme": (
+        "metrics.json",
+        lambda p: p.write_text(json.dumps({k: v for k, v in json.loads(p.read_text()).items() if k != "scheme"})),
+        "",
+    ),
+    "timeseries truncated": ("timeseries.npz", _truncate, "truncated"),
+    "record missing": ("record.json", lambda p: p.unlink(), "missing"),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(DAMAGE))
+def test_3_a_damaged_stored_run_is_named_and_re_run(stored, tmp_path, damage):
+    case, src = stored
+    out = tmp_path / "o"
+    shutil.copytree(src, out)
+    fname, hurt, why = DAMAGE[damage]
+    hurt(out / "st" / "nominal" / fname)
+    where = str(out / "st" / "nominal" / fname)
+
+    rep = runner.invoke(app, ["report", "--out", str(out)])  # no simulation: it names the run, exit 1
+    _no_crash(rep)
+    assert rep.exit_code == 1, rep.output
+    line = next(ln for ln in _errors(rep) if where in ln)
+    assert why in line, line
+    page = (out / "st" / "index.html").read_text()
+    assert "damaged stored result" in page  # the run is on its page as damaged, not gone from it
+
+    again = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
+    _no_crash(again)
+    assert again.exit_code == 0, again.output
+    assert "1 run(s) simulated, 0 cached" in again.stdout
+    notes = [ln for ln in again.stderr.splitlines() if where in ln]
+    assert len(notes) == 1 and "re-run" in notes[0] and why in notes[0], again.stderr
+    m = json.loads((out / "st" / "nominal" / "metrics.json").read_text())
+    assert m["scheme"] == "nominal" and m["status"] == "ok"
+    assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0
+
+
+def test_3_a_stored_run_of_another_case_content_is_not_shown_as_this_one(stored, tmp_path):
+    """The run's record names the case content it was made from; report refuses a run of another content."""
+    _, src = stored
+    out = tmp_path / "o"
+    shutil.copytree(src, out)
+    rec = json.loads((out / "st" / "case.json").read_text())
+    rec["key"] = "0" * 16  # the case was edited and re-recorded, its run not re-made (e.g. an interrupted batch)
+    (out / "st" / "case.json").write_text(json.dumps(rec))
+    rep = runner.invoke(app, ["report", "--out", str(out)])
+    assert rep.exit_code == 1, rep.output
+    assert any("another content of the case" in ln for ln in _errors(rep)), rep.stderr
+
+
+def test_3_check_on_a_damaged_store_re_runs_and_passes(stored, tmp_path):
+    case, src = stored
+    out = tmp_path / "o"
+    shutil.copytree(src, out)
+    (out / "st" / "nominal" / "metrics.json").write_text("null")
+    res = runner.invoke(app, ["check", str(case), "--out", str(out), "-q"])
+    _no_crash(res)
+    assert res.exit_code == 0, res.output
+    assert "1/1 runs end as the case expects" in res.stdout
+
+
+# ------------------------------------------------------------------ 7. control characters
+@pytest.mark.parametrize(
+    ("where", "value"),
+    [("id", "a\x01b"), ("source", "Fig. 3.4\x1b[31m"), ("words", "tracks\x00"), ("note", "x\x7f")],
+)
+def test_7_control_characters_are_refused_in_claims(tmp_path, where, value):
+    claim = {"id": "c1", "source": "Fig. 3.4", "words": "tracks", "expect": "reproduced"}
+    claim |= {"scheme": "nominal", "metric": "position_error_final", "max": 1.0, where: value}
+    case = _write(tmp_path, "cc", claims=[claim])
+    res = runner.invoke(app, ["cases", "validate", str(case)])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f"{case}: claims[0].{where}: " in line and "control character" in line, line
+    assert not any(ch in res.output for ch in "\x00\x01\x1b\x7f")
+
+
+def test_7_control_characters_in_a_description_and_a_scheme_name_are_refused(tmp_path):
+    res = runner.invoke(app, ["cases", "validate", str(_write(tmp_path, "cd", description="one\x1b[2Jline"))])
+    assert res.exit_code == 2 and "description: " in _errors(res)[0] and "U+001B" in _errors(res)[0], res.output
+    bad = _write(tmp_path, "cs", schemes={"run": ["nominal\x07"], "nominal": {"k_v": 5.0}})
+    res = runner.invoke(app, ["cases", "validate", str(bad)])
+    assert res.exit_code == 2 and "schemes.run[0]: " in _errors(res)[0], res.output
+    assert "\x07" not in res.output
+
+
+def test_7_junit_terminal_and_html_escape_a_control_character_in_a_file_name(tmp_path):
+    bad = tmp_path / "bad\x1b[31mname.toml"
+    bad.write_text("[robots]\nn = 2\n")
+    good = _write(tmp_path, "ok")
+    out = tmp_path / "o"
+    junit = tmp_path / "j.xml"
+    res = runner.invoke(app, ["check", str(bad), str(good), "--out", str(out), "--junit", str(junit)])
+    assert res.exit_code == 2, res.output
+    assert "\x1b" not in res.output and "\\x1b" in res.stderr
+    suite = ET.parse(junit).getroot()  # well-formed XML
+    assert any("\\x1b" in (e.get("message") or "") for e in suite.iter("error"))
+    html = (out / "index.html").read_text()
+    assert "\x1b" not in html
+
+
+def test_7_junit_is_well_formed_whatever_the_text():
+    from ftcreport.check import GateItem
+    from ftcreport.report.junit import junit_xml
+
+    evil = "".join(chr(i) for i in range(32)) + "\x7f\x85\ud800<&>\"'"
+    item = GateItem(kind="claim", case=evil, name=evil, ok=False, message=evil, detail=evil)
+    root = ET.fromstring(junit_xml([item], properties={"a": evil}))
+    (tc,) = root.iter("testcase")
+    assert tc.get("name").startswith("\\x00\\x01") and "<&>" in tc.get("name")
+
+
+# ------------------------------------------------------------------ 9. reserved names
+@pytest.mark.parametrize("name", ["metrics.parquet", "coverage", "fdi", "campaigns", "assets", "Manifest.json"])
+def test_9_a_generated_name_is_refused_as_a_case_name(tmp_path, name):
+    case = _write(tmp_path, "x", name=name)
+    res = runner.invoke(app, ["cases", "validate", str(case)])
+    assert res.exit_code == 2, res.output
+    assert f"{case}: name: " in _errors(res)[0] and "a name the report uses itself" in _errors(res)[0]
+    stem = tmp_path / f"{name}.toml"  # the file stem is the default name
+    stem.write_text(tomli_w.dumps(BASE))
+    res = runner.invoke(app, ["batch", str(stem), "--out", str(tmp_path / "o"), "-q"])
+    assert res.exit_code == 1 and "a name the report uses itself" in res.stderr
+    assert not (tmp_path / "o" / name / "nominal").exists()
+
+
+def test_9_every_name_a_batch_writes_at_the_top_of_out_is_reserved(stored, tmp_path):
+    from ftcreport.limits import RESERVED_NAMES
+
+    case, src = stored
+    out = tmp_path / "o"
+    shutil.copytree(src, out)
+    res = runner.invoke(app, ["check", str(case), "--out", str(out), "--junit", str(out / "junit.xml"), "-q"])
+    assert res.exit_code == 0, res.output
+    assert runner.invoke(app, ["export", "--out", str(out)]).exit_code == 0
+    generated = {p.name.lower() for p in out.iterdir()} - {"st"}
+    assert generated <= RESERVED_NAMES, generated - RESERVED_NAMES
+    for name in ("coverage", "fdi", "campaigns"):  # the Dask commands' default folders under reports/
+        assert name in RESERVED_NAMES
+
+
+# ------------------------------------------------------------------ 10. the smaller ones
+@pytest.mark.parametrize("address", ["foo::bar", "tcp://", "tcp://host:notaport", "nonsense", "tcp://h:99999"])
+def test_10_a_malformed_scheduler_is_bad_input(tmp_path, address):
+    case = ROOT / "cases" / "two_link_campaign.toml"
+    res = runner.invoke(app, ["campaign", str(case), "--scheduler", address, "--out", str(tmp_path)])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert "--scheduler" in line and address in line, line
+
+
+def test_10_a_duration_that_drops_a_fault_says_which(tmp_path):
+    case = _write(
+        tmp_path,
+        "df",
+        faults=[{"time": 0.2, "wheel": "1r"}, {"time": 0.8, "wheel": "2l", "sigma": 0.5}],
+        simulation={"dt": 0.01, "duration": 1.0},
+    )
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(case), "--duration", "0.5", "--out", str(out), "--no-report"])
+    assert res.exit_code == 0, res.output
+    warn = [ln for ln in res.stderr.splitlines() if "--duration" in ln]
+    assert len(warn) == 1 and "faults[1] (t = 0.8 s, wheel 2l)" in warn[0] and "faults[0]" not in warn[0], warn
+    rec = json.loads((out / "df" / "case.json").read_text())
+    assert any("faults[1]" in w for w in rec["warnings"])
+    res = runner.invoke(app, ["batch", str(case), "--duration", "0.5", "--out", str(out)])
+    assert "faults[1] (t = 0.8 s, wheel 2l)" in res.stderr
+
+
+def test_10_jobs_is_capped_by_the_runs_and_the_cores(tmp_path):
+    case = _write(tmp_path, "jb")
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "--jobs", "100000", "-q"])
+    assert res.exit_code == 0, res.output
+    assert "--jobs 100000: capped at 1 (the number of runs to simulate)" in res.stderr
+    assert "(1 worker(s))" in res.stdout
+    for bad in ("0", "-3"):
+        res = runner.invoke(app, ["batch", str(case), "--out", str(out), "--jobs", bad, "-q"])
+        assert res.exit_code == 2 and "--jobs" in _errors(res)[0], res.output
+
+
+def test_10_jobs_beyond_the_cores_is_capped_by_the_cores():
+    from ftcreport.batch import worker_count
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    n, why = worker_count(10**5, runs=10**6)
+    assert n == cores and why == f"the cores this process may use ({cores})"
+    assert worker_count(None, runs=10**6) == (cores, None)  # the default: not a cap to report
+    assert worker_count(1, runs=5) == (1, None)
+
+
+def _campaign(tmp_path: Path, **spec) -> Path:
+    camp = {"faults": [1, 1], "fault_time": [0.1, 0.3]} | spec
+    return _write(tmp_path, "cp", campaign=camp)
+
+
+@pytest.mark.parametrize(
+    ("spec", "field", "words"),
+    [
+        ({"wheels": []}, "campaign.wheels", "no wheel"),
+        ({"faults": [5, 5]}, "campaign.faults", "4 wheels"),
+        ({"faults": [1, 3], "wheels": ["1r", "2l"]}, "campaign.faults", "2 wheels"),
+        ({"faults": [0, 0]}, "campaign.faults", "no fault"),
+        ({"wheels": ["1r", "1R"]}, "campaign.wheels[1]", "twice"),
+    ],
+)
+def test_10_a_campaign_that_cannot_draw_its_faults_is_refused(tmp_path, spec, field, words):
+    res = runner.invoke(app, ["cases", "validate", str(_campaign(tmp_path, **spec))])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f": {field}: " in line and words in line, line
+
+
+def test_10_a_campaign_of_base_faults_only_is_accepted(tmp_path):
+    case = _write(
+        tmp_path,
+        "cb",
+        faults=[{"time": 0.2, "wheel": "1r"}],
+        campaign={"faults": [0, 0], "fault_time": [0.1, 0.3], "keep_base_faults": True},
+    )
+    assert runner.invoke(app, ["cases", "validate", str(case)]).exit_code == 0
+
+
+def test_10_a_plugin_that_registers_no_scheme_is_an_error(tmp_path):
+    (tmp_path / "nothing.py").write_text("X = 1  # registers no scheme\n")
+    case = _write(tmp_path, "pl", plugins=["nothing.py"])
+    res = runner.invoke(app, ["cases", "validate", str(case)])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f"{case}: plugins[0]: " in line and "registers no scheme" in line, line
+    res = runner.invoke(app, ["schemes", str(tmp_path / "nothing.py")])
+    assert res.exit_code == 2 and "registers no scheme" in _errors(res)[0], res.output
+
+
+def test_10_the_readme_says_validation_imports_plugins():
+    text = " ".join((ROOT / "README.md").read_text().split())
+    assert "`cases validate` imports the scheme files a case lists, and so runs their code" in text
+
+
+# ------------------------------------------------------------------ 11. run gates on the case's thresholds and claims
+def test_11_run_fails_on_a_threshold_or_claim_that_does_not_hold(tmp_path):
+    claim = {
+        "id": "tight",
+        "source": "Fig. 0",
+        "words": "it tracks to a nanometre",
+        "expect": "reproduced",
+        "scheme": "nominal",
+        "metric": "position_error_final",
+        "max": 1e-9,
+    }
+    case = _write(tmp_path, "th", thresholds={"nominal": {"position_error_final": {"max": 1e-9}}}, claims=[claim])
+    res = runner.invoke(app, ["run", str(case), "--out", str(tmp_path / "o"), "--no-report"])
+    assert res.exit_code == 1, res.output
+    assert "FAIL  th / nominal / position_error_final: actual" in res.stdout
+    assert "FAIL  th / claim tight (Fig. 0): not reproduced" in res.stdout
+    lines = _errors(res)
+    assert any("thresholds.nominal.position_error_final" in ln and "> max 1e-09" in ln for ln in lines), lines
+    assert any("claims[0]" in ln and "tight" in ln for ln in lines), lines
+    ok = _write(tmp_path, "th2", thresholds={"nominal": {"position_error_final": {"max": 1.0}}})
+    res = runner.invoke(app, ["run", str(ok), "--out", str(tmp_path / "o"), "--no-report", "-q"])
+    assert res.exit_code == 0, res.output
+
+
+# ------------------------------------------------------------------ 12. validation knows the metrics
+@pytest.mark.parametrize(
+    ("top", "field", "hint"),
+    [
+        (
+            {"thresholds": {"nominal": {"position_eror_final": {"max": 1.0}}}},
+            "thresholds.nominal.position_eror_final",
+            "did you mean 'position_error_final'?",
+        ),
+        (
+            {"thresholds": {"nominl": {"position_error_final": {"max": 1.0}}}},
+            "thresholds.nominl",
+            "did you mean 'nominal'?",
+        ),
+        (
+            {"thresholds": {"nominal": {"switch_count": {"max": 1.0}}}},
+            "thresholds.nominal.switch_count",
+            "not a metric of the nominal scheme",
+        ),
+        (
+            {"thresholds": {"nominal": {"phases": {"max": 1.0}}}},
+            "thresholds.nominal.phases",
+            "not a number",
+        ),
+        (
+            {
+                "claims": [
+                    {
+                        "id": "c",
+                        "source": "s",
+                        "words": "w",
+                        "expect": "reproduced",
+                        "scheme": "nominal",
+                        "metric": "torque_peek",
+                        "max": 1.0,
+                    }
+                ]
+            },
+            "claims[0].metric",
+            "did you mean 'torque_peak'?",
+        ),
+    ],
+)
+def test_12_a_misspelt_metric_or_scheme_is_refused_with_a_hint(tmp_path, top, field, hint):
+    res = runner.invoke(app, ["cases", "validate", str(_write(tmp_path, "mt", **top))])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f": {field}: " in line and hint in line, line
+
+
+def test_12_every_shipped_threshold_and_claim_names_a_metric_its_scheme_writes():
+    from ftcreport.metrics import METRICS
+
+    for p in sorted((ROOT / "cases").rglob("*.toml")):
+        data = tomllib.loads(p.read_text())
+        for scheme, bounds in data.get("thresholds", {}).items():
+            for metric in bounds:
+                assert metric in METRICS, (p, scheme, metric)
+
+
+# ------------------------------------------------------------------ the README's exit codes
+def test_readme_exit_code_table_names_run_and_check_gates():
+    text = (ROOT / "README.md").read_text()
+    table = text[text.index("| exit |") :].split("\n\n")[0]
+    for needle in ("| 0 |", "| 1 |", "| 2 |", "| 3 |", "threshold", "claim", "cached", "damaged"):
+        assert needle in table, needle

@@ -1079,14 +1079,13 @@ def schemes_cmd(
     size (the controller's states: kinematic and the scheme's own); given a scheme file (.py), it is
     loaded first.
 
-    ``ftcreport schemes check FILE`` runs the scheme file's laws through a battery of checks before
-    their first real run (shapes, finite outputs on healthy and faulty patterns, determinism, declared
-    signals written, writes within the declared widths under numba's bounds checks, parameter
-    defaults): one line per failure naming the file, the line, the function and what to fix; exit 2
-    when one fails.
+    'ftcreport schemes check FILE' (e.g. 'ftcreport schemes check examples/schemes/sliding_mode.py')
+    runs the scheme file's laws through a battery of checks before their first real run (shapes, finite
+    outputs on healthy and faulty patterns, determinism, declared signals written, writes within the
+    declared widths under numba's bounds checks, parameter defaults): one line per failure naming the
+    file, the line, the function and what to fix; exit 2 when one fails.
 
-    Examples: ftcreport schemes cases/two_link_sliding_mode.toml
-    ftcreport schemes check examples/schemes/sliding_mode.py
+    Example: ftcreport schemes cases/two_link_sliding_mode.toml
     """
     from .schemes import built_in, load_plugin, registered
 

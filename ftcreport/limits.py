@@ -21,7 +21,8 @@ Memory budget
 from __future__ import annotations
 
 import math
-import re
+
+from .names import NAME_PATTERN
 
 __all__ = [
     "GENERATED_NAMES",
@@ -36,7 +37,6 @@ __all__ = [
     "run_memory_bytes",
 ]
 
-NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 #: Every file and folder an ftcreport command writes at the top of an output directory (``reports/``),
 #: with who writes it: the one list of them.  A case is a folder there too, so none of these may be a
 #: case's name (tests/test_trust.py checks that a batch, check --junit and export write nothing else).

@@ -102,7 +102,11 @@ def make_controller(built: Built, scheme: str):
     k_v = getattr(cfg, "k_v", None)
     k_v = default_k_v(case) if k_v is None else k_v
     if sc.controller is None:  # a plug-in: the engine runs its compiled law
-        return SchemeController(sc, built.chain, kin, k_v, cfg, saturation=case.plant.saturation, case=case)
+        from .schemes.check import ensure_checked
+
+        ctrl = SchemeController(sc, built.chain, kin, k_v, cfg, saturation=case.plant.saturation, case=case)
+        ensure_checked(ctrl)  # its first run: its law under bounds checks first (once per version of its file)
+        return ctrl
     nz, nq = len(kin.z_names), built.chain.n_q
     ctx = SchemeContext(built.chain, kin, float(k_v), cfg, case.plant.saturation, kin.n_states, 6 + nz + nq, case)
     return sc.controller(sc, ctx)  # a built-in scheme's face (ftcreport.control)

@@ -443,9 +443,6 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     from ..runs import GROWTH_FACTOR, GROWTH_FLOOR, GROWTH_STEPS, GROWTH_TOTAL, JUMP_FRACTION, JUMP_MARGINS, Run
 
     controller = spec.controller
-    from ..schemes.check import ensure_checked
-
-    ensure_checked(controller)  # a plug-in's first run: its law under bounds checks first (once per file version)
     chain = plant.chain
     nq, nw, nc = chain.n_q, chain.n_wheels, int(controller.n_states)
     n_steps = grid.shape[0] - 1

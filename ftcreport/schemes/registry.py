@@ -31,24 +31,32 @@ _REGISTRY: dict[str, Scheme] = {}
 _BUILT_IN: list[str] = []
 _RANK: dict[str, float] = {}
 _LOADING = threading.RLock()
-_loaded = False
+_loaded = False  # every built-in file imported (set last: another thread waits on _LOADING until then)
+_loader: int | None = None  # the thread importing them (a built-in file that reads the registry meanwhile)
 
 
 def _load_built_ins() -> None:
-    """Import the built-in schemes' files once (each registers its schemes)."""
-    global _loaded
+    """Import the built-in schemes' files once (each registers its schemes).
+
+    Thread-safe: a Dask worker's threads may ask at once; all but the one that imports wait for it
+    to finish (a flag set first let them read an empty registry).  The importing thread itself,
+    re-entering through a built-in file that reads the registry, returns at once."""
+    global _loaded, _loader
     if _loaded:
         return
     with _LOADING:
-        if _loaded:
+        if _loaded or _loader == threading.get_ident():
             return
-        _loaded = True  # set first: a built-in file that reads the registry while importing sees it
-        import pkgutil
+        _loader = threading.get_ident()
+        try:
+            import pkgutil
 
-        from . import __path__ as here
-
-        for mod in sorted(m.name for m in pkgutil.iter_modules(here) if m.name not in INTERFACE):
-            importlib.import_module(f"{__package__}.{mod}")
+            here = [str(Path(__file__).parent)]  # this package's folder (not the package: no import cycle)
+            for mod in sorted(m.name for m in pkgutil.iter_modules(here) if m.name not in INTERFACE):
+                importlib.import_module(f"{__package__}.{mod}")
+            _loaded = True
+        finally:
+            _loader = None
 
 
 def register_built_in(scheme: Scheme, order: float) -> Scheme:
@@ -75,7 +83,7 @@ def _where(fn) -> str:
 
 def _check(scheme: Scheme) -> None:
     """The declarations a scheme can get wrong before anything is compiled."""
-    from ..limits import NAME_PATTERN
+    from ..names import NAME_PATTERN
 
     if not NAME_PATTERN.fullmatch(scheme.name):
         rule = "a letter or digit, then letters, digits, '_', '.', '-' (at most 64)"

@@ -25,24 +25,49 @@ from typing import Annotated, Any, Literal, get_args, get_origin
 import numpy as np
 from pydantic import (
     BaseModel,
-    BeforeValidator,
     ConfigDict,
     Field,
     StrictBool,
     ValidationError,
+    create_model,
     field_validator,
     model_validator,
 )
 
 from .errors import CaseError, FtcError, printable
+from .fields import (  # the schema's building blocks (shared with the schemes' parameter tables)
+    _NUMBER,
+    Angle,
+    Coord,
+    Factor,
+    Gain,
+    Gain0,
+    Inertia,
+    Int,
+    Length,
+    Limit,
+    Mass,
+    Rate,
+    Signed,
+    Speed,
+    Std,
+    Time,
+    Torque,
+    Unit,
+    _f,
+    _FieldError,
+    _num,
+    _Strict,
+    did_you_mean,
+)
 from .inputs import input_problem, read_input
 from .limits import budget_problem, name_problem
-from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
+from .model import Chain, FaultEvent, FaultSchedule, wheel_index, wheel_names
 from .model.actuators import MAXON_RE65, MotorParams
 from .model.chain import THESIS_ROBOT
 from .model.faults import MOTOR_KINDS, motor_row
 from .requirements import SIGNALS as REQUIREMENT_SIGNALS
-from .schemes import BUILT_IN
+from .schemes import built_in as _built_in_schemes
 
 __all__ = [
     "SCHEME_NAMES",
@@ -60,66 +85,10 @@ __all__ = [
     "parse_case",
 ]
 
-SCHEME_NAMES = tuple(BUILT_IN)  # the built-in schemes (ftcreport.schemes)
-
-
-def _f(default: Any, description: str, unit: str, **kw: Any) -> Any:
-    """A documented field: its description and unit appear in the JSON Schema and cases/README.md.
-
-    ``unit`` is an SI unit, ``"1"`` for a dimensionless number, ``"-"`` for a name, flag or table.
-    """
-    return Field(default, description=description, json_schema_extra={"unit": unit}, **kw)
-
-
-def _a_number(v: Any) -> Any:
-    """Refuse a boolean or a text where a number belongs (pydantic would read ``true`` as 1, ``"12"`` as 12)."""
-    if isinstance(v, bool):
-        raise ValueError(f"a number is expected, got the boolean {str(v).lower()}")
-    if isinstance(v, str):
-        try:
-            float(v)
-        except ValueError:
-            raise ValueError(f"a number is expected, got the text {v!r}") from None
-        raise ValueError(f"a number is expected, got the text {v!r} (write it without quotes)")
-    return v
-
-
-_NUMBER = BeforeValidator(_a_number)
-
-
-def _num(lo: float | None = None, hi: float | None = None, *, gt: float | None = None, lt: float | None = None):
-    """A finite float in a documented range (ge ``lo`` or gt ``gt``; le ``hi`` or lt ``lt``); no boolean or text."""
-    return Annotated[float, Field(ge=lo, gt=gt, le=hi, lt=lt, allow_inf_nan=False), _NUMBER]
-
-
-#: A whole number (its range in the field): no boolean or text either.
-Int = Annotated[int, _NUMBER]
-
-
-#: Documented ranges (issue 23 asks for one on every numeric field; the fuzzer relies on them).
-Coord = _num(-1e6, 1e6)  # a position [m]; the engine stops a run beyond 1e6 m
-Length = _num(None, 100.0, gt=0)  # a robot dimension [m]
-Signed = _num(-100.0, 100.0)  # a signed robot dimension [m]
-Mass = _num(None, 1e5, gt=0)
-Inertia = _num(0.0, 1e6)
-Angle = _num(-360.0, 360.0)  # [deg]
-Speed = _num(None, 100.0, gt=0)  # [m/s]
-Rate = _num(-100.0, 100.0)  # [rad/s]
-Gain = _num(None, 1e6, gt=0)
-Gain0 = _num(0.0, 1e6)
-Torque = _num(-1e4, 1e4)  # [N m]
-Time = _num(0.0, 1e6)  # [s]
-Unit = _num(0.0, 1.0)
-Std = _num(0.0, 1e3)
-Factor = _num(None, 1e3, gt=0)
-Limit = _num(-1e18, 1e18)  # a threshold on any metric
+SCHEME_NAMES = tuple(_built_in_schemes())  # the built-in schemes, in the registry's order (ftcreport.schemes)
 
 
 Status = Literal["ok", "singular", "diverged", "step_unstable"]  # run outcomes (ftcreport.sim)
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 class Robots(_Strict):
@@ -324,106 +293,7 @@ class Kinematic(_Strict):
     )
 
 
-_K_V = "velocity-error gain of the dynamic law (the thesis's k4 or c6)"
-_PATTERNS = (
-    '"all" (every compensable pattern) or a list of the wheels each model assumes failed, '
-    'e.g. [[], ["1r"], ["1r", "2l"]]'
-)
-
-
-class NominalScheme(_Strict):
-    """The law assuming healthy wheels (no FTC)."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-
-
-class OracleScheme(_Strict):
-    """The law told the true sigma and ubar at every instant."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-
-
-class SwitchingScheme(_Strict):
-    """Multiple models and switching (thesis 3.2, 3.3.1)."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-    gamma: Gain = _f(10.0, "pole of the reconstruction filters", "1/s")
-    T_min: _num(0.0, 1e3) = _f(0.01, "waiting time between switches", "s")
-    c_inst: Gain0 = _f(1.0, "weight of the instantaneous cost", "1")
-    c_int: Gain0 = _f(0.0, "weight of the integral cost", "1")
-    forgetting: Gain = _f(1.0, "forgetting rate of the integral cost", "1/s")
-    hysteresis: Gain0 = _f(
-        1e-10,
-        "cost margin a new model must win by (costs within 1e-9 relative of the smallest are ties, "
-        "resolved to the lowest pattern index)",
-        "(m/s)^2",
-    )
-    patterns: Literal["all"] | list[list[str]] = _f("all", _PATTERNS, "-")
-
-
-class AdaptiveScheme(_Strict):
-    """Adaptive weights and friction estimate (thesis 3.3.2); weights start at 1 for the first pattern."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-    gamma: Gain = _f(1.0, "adaptation gain of every weight", "1")
-    Gamma_f: Gain = _f(1.0, "friction estimate gain (times the identity)", "1")
-    patterns: Literal["all"] | list[list[str]] = _f("all", _PATTERNS, "-")
-
-
-class Diagnosis(_Strict):
-    """Fault detection on the estimated gains and frictions (ftcreport.diagnosis)."""
-
-    gain_band: Gain = _f(0.1, "a gain estimate beyond this from the last declared value is an excursion", "1")
-    friction_band: Gain = _f(0.2, "the same for a friction estimate", "N m")
-    dwell: Gain = _f(2.0, "an estimate steady this long at a new value is declared", "s")
-    settle_band: Gain | None = _f(
-        None, "steady: within this of its window mean (default: a quarter of the band)", "1 or N m"
-    )
-    gain_tolerance: Gain = _f(0.1, "a declared gain within this of the true new value is a correct detection", "1")
-    friction_tolerance: Gain = _f(
-        0.2, "a declared friction within this of the true new value is a correct detection", "N m"
-    )
-
-
-_ESTIMATE = 'what the estimator identifies: "rho" (gains) and/or "ubar" (frictions)'
-_TAU = "filter 1/(tau s + 1) on the estimates the law uses (none by default)"
-
-
-class ActiveScheme(_Strict):
-    """Active FTC with the Farza et al. (2009) adaptive observer (thesis chapter 4); only q is measured."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-    Theta: _num(None, 1e3, gt=0) = _f(1.6, "observer tuning parameter Theta", "1/s")
-    k0: Gain = _f(1.0, "observer gain k0", "1")
-    k1: Gain = _f(1.0, "observer gain k1", "1")
-    p0: _num(None, 1e12, gt=0) = _f(0.1, "P(0) = p0 I", "1")
-    p_max: _num(None, 1e15, gt=0) = _f(
-        1e3, "P guard: bound of P (ERRATA P3; the printed law has none, P grows like exp(Theta t))", "1"
-    )
-    estimate: list[Literal["rho", "ubar"]] = _f(["rho", "ubar"], _ESTIMATE, "-")
-    tau: Gain | None = _f(None, _TAU, "s")
-    diagnosis: Diagnosis = _f(Diagnosis(), "fault detection settings ([...diagnosis])", "-")
-    q_hat0: Literal["measured", "zero"] = _f(
-        "measured", "observer's initial q estimate: the first measurement, or 0 as in the thesis (4.2.4)", "-"
-    )
-
-
-class ActiveUKFScheme(_Strict):
-    """Active FTC with the augmented-state unscented Kalman filter (filterpy); runs at the samples."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-    meas_std: _num(None, 1e3, gt=0) = _f(1e-3, "measurement standard deviation (R of the filter)", "m, rad")
-    eta_noise: Gain0 = _f(1e-4, "process noise intensity of the velocities", "(m/s)^2/s")
-    rho_noise: Gain0 = _f(1e-2, "random-walk intensity of the gains", "1/s")
-    ubar_noise: Gain0 = _f(1e-2, "random-walk intensity of the frictions", "(N m)^2/s")
-    rho_std0: Gain = _f(0.3, "initial standard deviation of the gains", "1")
-    ubar_std0: Gain = _f(0.5, "initial standard deviation of the frictions", "N m")
-    estimate: list[Literal["rho", "ubar"]] = _f(["rho", "ubar"], _ESTIMATE, "-")
-    tau: Gain | None = _f(None, _TAU, "s")
-    diagnosis: Diagnosis = _f(Diagnosis(), "fault detection settings ([...diagnosis])", "-")
-
-
-class Schemes(_Strict):
+class _SchemesBase(_Strict):
     """The schemes to run; every scheme present is run with the shared kinematic controller.
 
     Issue 21: every family runs unless ``run`` narrows the list; a family without its table gets
@@ -452,13 +322,6 @@ class Schemes(_Strict):
         "-",
     )
     k_v: Gain | None = _f(None, "velocity-error gain of the default tables (default: the first table's)", "1/s")
-    nominal: NominalScheme | None = _f(None, "no FTC", "-")
-    switching: SwitchingScheme | None = _f(None, "multiple models + switching", "-")
-    adaptive: AdaptiveScheme | None = _f(None, "adaptive weights + friction estimate", "-")
-    adaptive_frozen: AdaptiveScheme | None = _f(None, "the adaptive law with weights and friction frozen", "-")
-    active: ActiveScheme | None = _f(None, "Farza observer + (4.14)", "-")
-    active_ukf: ActiveUKFScheme | None = _f(None, "UKF + (4.14)", "-")
-    oracle: OracleScheme | None = _f(None, "told the true faults", "-")
 
     @field_validator("run")
     @classmethod
@@ -495,10 +358,27 @@ class Schemes(_Strict):
         return out
 
 
+def _schemes_model() -> type[BaseModel]:
+    """The ``[schemes]`` table: ``run``, ``k_v`` and one optional field per built-in scheme, its parameter
+    model (the registry's order; the field's description is the scheme's summary)."""
+    fields: dict[str, Any] = {}
+    for name, sc in _built_in_schemes().items():
+        fields[name] = (sc.params | None, _f(None, sc.summary or sc.description, "-"))
+    return create_model("Schemes", __base__=_SchemesBase, __doc__=_SchemesBase.__doc__, **fields)
+
+
+Schemes = _schemes_model()
+
+
 class PluginTable(_Strict):
     """The table of a registered scheme that declares no parameter model."""
 
-    k_v: Gain | None = _f(None, _K_V + " (default: schemes.k_v, else the case's default)", "1/s")
+    k_v: Gain | None = _f(
+        None,
+        "velocity-error gain of the dynamic law (the thesis's k4 or c6) (default: schemes.k_v, else the case's "
+        "default)",
+        "1/s",
+    )
 
 
 def _unknown_hint(key: str, known: list[str]) -> str:
@@ -548,6 +428,14 @@ def _scheme_file(name: str) -> str | None:
     if code is None or not Path(code.co_filename).is_file():
         return None
     return str(Path(code.co_filename).resolve())
+
+
+def _scheme_hook(name: str, hook: str):
+    """A registered scheme's hook (``Scheme.validate``, ``Scheme.budget``), None for a scheme without it."""
+    from .schemes import every
+
+    sc = every().get(name)
+    return None if sc is None else getattr(sc, hook)
 
 
 def known_schemes() -> list[str]:
@@ -1031,37 +919,10 @@ class Case(_Strict):
             raise _FieldError("kinematic.c_chain", f"{len(self.kinematic.c_chain)} gains given, {n} needed")
         if self.simulation.dt > self.simulation.duration:
             raise _FieldError("simulation.dt", "longer than the duration")
-        for sname in ("switching", "adaptive", "adaptive_frozen"):
-            sw = getattr(self.schemes, sname)
-            if sw is None or sw.patterns == "all":
-                continue
-            if not sw.patterns:
-                raise _FieldError(
-                    f"schemes.{sname}.patterns",
-                    'no pattern: the scheme needs at least one model (e.g. [[]], the healthy one) or "all"',
-                )
-            seen_patterns: dict[tuple[int, ...], int] = {}
-            for i, failed in enumerate(sw.patterns):
-                pat = [1] * (2 * n)
-                for w in failed:
-                    try:
-                        k = wheel_index(w, n)
-                    except FtcError as exc:
-                        raise _FieldError(f"schemes.{sname}.patterns[{i}]", str(exc)) from None
-                    if pat[k] == 0:
-                        raise _FieldError(f"schemes.{sname}.patterns[{i}]", f"wheel {w!r} is listed twice")
-                    pat[k] = 0
-                first = seen_patterns.setdefault(tuple(pat), i)
-                if first != i:
-                    raise _FieldError(
-                        f"schemes.{sname}.patterns[{i}]",
-                        f"{failed} is the model of patterns[{first}] again (each model once)",
-                    )
-                if not pattern_is_compensable(pat):
-                    raise _FieldError(
-                        f"schemes.{sname}.patterns[{i}]",
-                        f"{failed} is uncompensable: rank(Bbar sigma) < 2 (a leader wheel and two wheels must work)",
-                    )
+        for sname in configured_schemes(self):  # each scheme's own checks of its table against the case
+            hook = _scheme_hook(sname, "validate")
+            if hook is not None:
+                hook(getattr(self.schemes, sname), self)
         for key in ("a", "b", "r", "m", "I", "d"):
             v = getattr(self.plant.mismatch, key)
             count = n - 1 if key == "d" else n
@@ -1357,15 +1218,6 @@ def _check_budget(case: Case) -> None:
             raise _FieldError(*problem)
 
 
-class _FieldError(ValueError):
-    """A validation error with an explicit field path (raised inside validators)."""
-
-    def __init__(self, loc: str, msg: str) -> None:
-        super().__init__(msg)
-        self.loc = loc
-        self.msg = msg
-
-
 def _is_tag(part: Any) -> bool:
     """A union member's tag in a pydantic error location (``constrained-float``, ``list[...]``, a model name)."""
     if not isinstance(part, str):
@@ -1433,14 +1285,6 @@ def _dict_depth(annotation: Any) -> int:
         depth += 1
         annotation = get_args(annotation)[1]
     return depth
-
-
-def did_you_mean(key: str, candidates: list[str]) -> str:
-    """`` (did you mean 'k_v'?)`` for the closest of ``candidates`` (difflib), or ''."""
-    close = difflib.get_close_matches(key, candidates, n=1, cutoff=0.6)
-    if not close:
-        close = [c for c in candidates if c.lower() == key.lower()]
-    return f" (did you mean '{close[0]}'?)" if close else ""
 
 
 _BOUND_OPS = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", ">="), "less_than": ("lt", "<")}
@@ -1595,11 +1439,7 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         case = case.model_copy(update={"name": stem})
     from .families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
 
-    models = {
-        "nominal": NominalScheme, "oracle": OracleScheme, "switching": SwitchingScheme, "adaptive": AdaptiveScheme,
-        "active": ActiveScheme, "active_ukf": ActiveUKFScheme,
-    }  # fmt: skip
-    return fill_defaults(case, models)
+    return fill_defaults(case)
 
 
 #: Fields of prose that may span lines (a TOML multi-line string): tabs and line ends are allowed there.
@@ -1933,20 +1773,6 @@ def initial_state(case: Case, ref) -> tuple[np.ndarray, np.ndarray]:
         q0[2:] += (off + math.radians(ini.heading_offset_deg))[::-1]
         eta0 = r0.eta_d.copy() if ini.eta is None else np.asarray(ini.eta, dtype=float)
     return q0, eta0
-
-
-def switching_patterns(case: Case, chain: Chain, scheme: str = "switching") -> list[tuple[int, ...]] | None:
-    """The 0/1 patterns a scheme's models use (None: every compensable pattern)."""
-    sw = getattr(case.schemes, scheme)
-    if sw is None or sw.patterns == "all":
-        return None
-    out = []
-    for failed in sw.patterns:
-        pat = [1] * chain.n_wheels
-        for w in failed:
-            pat[wheel_index(w, chain.n)] = 0
-        out.append(tuple(pat))
-    return out
 
 
 def dropped_faults(case: Case, duration: float) -> str | None:

@@ -1066,32 +1066,49 @@ def cases_schema(
 @app.command("schemes")
 def schemes_cmd(
     source: Annotated[
-        Path | None,
-        typer.Argument(help="A case file (its plug-in schemes are loaded and state sizes given) or a scheme file."),
+        str | None,
+        typer.Argument(
+            help="A case file (its plug-in schemes are loaded and state sizes given), a scheme file, or 'check'."
+        ),
     ] = None,
+    file: Annotated[Path | None, typer.Argument(help="With 'check': the scheme file to check.")] = None,
 ) -> None:
-    """List the built-in and registered (plug-in) schemes: name, family, description, reference.
+    """List the built-in and registered (plug-in) schemes: name, family, description, reference; or check one.
 
     Given a case file, its plugins are loaded and the schemes it runs are marked with their state
     size (the controller's states: kinematic and the scheme's own); given a scheme file (.py), it is
     loaded first.
 
+    'ftcreport schemes check FILE' (e.g. 'ftcreport schemes check examples/schemes/sliding_mode.py')
+    runs the scheme file's laws through a battery of checks before their first real run (shapes, finite
+    outputs on healthy and faulty patterns, determinism, declared signals written, writes within the
+    declared widths under numba's bounds checks, parameter defaults): one line per failure naming the
+    file, the line, the function and what to fix; exit 2 when one fails.
+
     Example: ftcreport schemes cases/two_link_sliding_mode.toml
     """
-    from .schemes import BUILT_IN, load_plugin, registered
+    from .schemes import built_in, load_plugin, registered
 
+    if source == "check":
+        if file is None:
+            raise FtcError("schemes check: give the scheme file to check (ftcreport schemes check FILE)")
+        _check_schemes(file)
+        return
+    if file is not None:
+        raise FtcError(f"schemes: one argument (a case or scheme file) expected, got {source} and {file}")
+    path = None if source is None else Path(source)
     sizes: dict[str, int] = {}
-    if source is not None and source.suffix == ".py":
-        load_plugin(source)
-    elif source is not None:
+    if path is not None and path.suffix == ".py":
+        load_plugin(path)
+    elif path is not None:
         from .cases import configured_schemes, load_case
         from .runner import build, make_controller
 
-        case = load_case(source)
+        case = load_case(path)
         built = build(case)
         for s in configured_schemes(case):
             sizes[s] = int(getattr(make_controller(built, s), "n_states", 0))
-    rows = [(name, *info, "built-in") for name, info in BUILT_IN.items()]
+    rows = [(name, sc.family, sc.description, sc.reference, "built-in") for name, sc in built_in().items()]
     for name, sc in sorted(registered().items()):
         law = getattr(sc.law, "py_func", sc.law)
         code = getattr(law, "__code__", None)
@@ -1100,6 +1117,21 @@ def schemes_cmd(
         state = f"  [runs in this case, {sizes[name]} states]" if name in sizes else ""
         typer.echo(f"{name:16s} {family:16s} {description}{state}")
         typer.echo(f"{'':16s} {'':16s} reference: {reference}; {where}")
+
+
+def _check_schemes(file: Path) -> None:
+    """``schemes check FILE``: the battery's lines (failures first, numba's message after a TypingError)."""
+    from .schemes.check import check_file
+
+    typer.echo(f"checking {file} (compiles the laws with and without bounds checks: a minute or two when cold)")
+    findings = check_file(file)
+    failed = [f for f in findings if not f.ok]
+    for f in failed + [f for f in findings if f.ok]:
+        typer.echo(("FAIL " if not f.ok else "ok   ") + f.message)
+        if f.detail:
+            typer.echo("\n".join("     | " + line for line in f.detail.strip().splitlines()))
+    if failed:
+        raise typer.Exit(code=2)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -272,7 +272,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
                 plotly=interactive.errors_fig(series, shading),
             )
         )
-        main = next((s for s in (*compare.CONTESTANTS, "oracle") if s in series), next(iter(series)))
+        main = next((s for s in (*compare.CONTESTANTS, compare.BOUND) if s in series), next(iter(series)))
         figures.append(
             figure(
                 "torques",
@@ -283,19 +283,17 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         motors = _motor_figure(case, series, list(names), shading, main)
         if motors is not None:
             figures.append(motors)
-        if "switching" in series and "selected" in series["switching"]:
-            pats = next((m.get("patterns") for m in runs if m["scheme"] == "switching"), None)
+        for sw in [s for s in series if "selected" in series[s]]:  # a scheme that switches between models
+            pats = next((m.get("patterns") for m in runs if m["scheme"] == sw), None)
             if pats:
                 figures.append(
                     figure(
-                        "switching",
+                        sw,
                         "Applied model index against the true failure pattern.",
-                        plotly=interactive.switching_fig(series["switching"], pats, shading),
+                        plotly=interactive.switching_fig(series[sw], pats, shading, sw),
                     )
                 )
-        for est in ("adaptive", "adaptive_frozen", "active", "active_ukf"):
-            if est not in series:
-                continue
+        for est in [s for s in series if "chi_hat" in series[s] or "rho_hat" in series[s]]:  # weights, estimates
             pats = next((m.get("patterns") for m in runs if m["scheme"] == est), None)
             spec = interactive.estimates_fig(series[est], est, list(names), shading, pats)
             if spec is None:
@@ -303,7 +301,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
             cap = (
                 f"{est}: weights and friction estimate against the true ubar (dashed); they are control variables "
                 "of the adaptive law, not a fault diagnosis (ERRATA P2)."
-                if est.startswith("adaptive")
+                if "chi_hat" in series[est]
                 else f"{est}: estimated gains and frictions against the truth (dashed). Individual parameters are "
                 "weakly identifiable in steady tracking; the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is "
                 "what the data determine (P3)."
@@ -453,8 +451,8 @@ def _thesis_figures(case, series: dict, names: list[str], shading: list[dict]) -
     from ..cases import build_plant_chain
 
     figs = []
-    active = [s for s in ("active", "active_ukf") if s in series and "q_hat" in series[s]]
-    main = active[0] if active else ("switching" if "switching" in series else next(iter(series)))
+    active = [s for s in series if "q_hat" in series[s]]  # the schemes with an estimator of q and eta
+    main = active[0] if active else next((s for s in compare.CONTESTANTS if s in series), next(iter(series)))
     figs.append(
         figure(
             "velocities",
@@ -552,7 +550,7 @@ def _analysis_figures(analysis: dict, series: dict, events: list[float], duratio
         )
     rate = analysis.get("predicted_decay_rate")
     if rate and series:
-        scheme = "nominal" if "nominal" in series else next(iter(series))
+        scheme = compare.BASELINE if compare.BASELINE in series else next(iter(series))
         t_end = min([duration, *[t for t in events if t > 0]])
         fit = plots.fitted_decay_rate(series[scheme], t_end)
         analysis["fitted_decay"] = None

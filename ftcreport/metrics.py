@@ -280,6 +280,7 @@ METRICS: dict[str, Metric] = {
     "energy": Metric("number", "J"),
     "singularity_margin_min": Metric("number", "rad"),
     "verify_dt": Metric("record", "-"),  # run --verify-dt only
+    "requirements": Metric("record", "-"),  # cases with [[requirements]] only: every window's outcome
     # switching (switching_metrics)
     "switching_missed_detections": Metric("number", "1", _SWITCHING),
     "switch_count": Metric("number", "1", _SWITCHING),

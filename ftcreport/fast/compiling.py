@@ -399,7 +399,7 @@ def jit(fn: Callable | None = None, *, cache: bool = True, **options):
 
 
 # --------------------------------------------------------------------------- the cache
-_ENGINE_FILES = ("fast",)  # the package's compiled sources: ftcreport/fast/*.py
+_ENGINE_FILES = ("fast", "schemes", "schemes/laws")  # the compiled sources: the engine, the scheme interface, laws
 
 
 def engine_stamp() -> str:

@@ -273,7 +273,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
                 plotly=interactive.errors_fig(series, shading),
             )
         )
-        main = next((s for s in (*compare.CONTESTANTS, "oracle") if s in series), next(iter(series)))
+        main = next((s for s in (*compare.CONTESTANTS, compare.BOUND) if s in series), next(iter(series)))
         figures.append(
             figure(
                 "torques",
@@ -284,19 +284,17 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         motors = _motor_figure(case, series, list(names), shading, main)
         if motors is not None:
             figures.append(motors)
-        if "switching" in series and "selected" in series["switching"]:
-            pats = next((m.get("patterns") for m in runs if m["scheme"] == "switching"), None)
+        for sw in [s for s in series if "selected" in series[s]]:  # a scheme that switches between models
+            pats = next((m.get("patterns") for m in runs if m["scheme"] == sw), None)
             if pats:
                 figures.append(
                     figure(
-                        "switching",
+                        sw,
                         "Applied model index against the true failure pattern.",
-                        plotly=interactive.switching_fig(series["switching"], pats, shading),
+                        plotly=interactive.switching_fig(series[sw], pats, shading, sw),
                     )
                 )
-        for est in ("adaptive", "adaptive_frozen", "active", "active_ukf"):
-            if est not in series:
-                continue
+        for est in [s for s in series if "chi_hat" in series[s] or "rho_hat" in series[s]]:  # weights, estimates
             pats = next((m.get("patterns") for m in runs if m["scheme"] == est), None)
             spec = interactive.estimates_fig(series[est], est, list(names), shading, pats)
             if spec is None:
@@ -304,7 +302,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
             cap = (
                 f"{est}: weights and friction estimate against the true ubar (dashed); they are control variables "
                 "of the adaptive law, not a fault diagnosis (ERRATA P2)."
-                if est.startswith("adaptive")
+                if "chi_hat" in series[est]
                 else f"{est}: estimated gains and frictions against the truth (dashed). Individual parameters are "
                 "weakly identifiable in steady tracking; the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is "
                 "what the data determine (P3)."
@@ -337,6 +335,9 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
             )
     analysis = analysis_section(case, names, series, events)  # templates/_analysis.html (issue 37)
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
+    from .requirements_page import requirements_section
+
+    requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)
     verdict = _verdict(case, name, runs, analysis)
     base_verdict = None
@@ -368,10 +369,11 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         replay_json=_script_json(replay) if replay else None,
         replay_schemes=list(replay["schemes"]) if replay else [],
         scheme_colors=plots.SCHEME_COLORS,
-        plotly_inline=interactive.inline_plotly() if any(f.get("plotly") for f in figures) else None,
+        plotly_inline=interactive.inline_plotly()
+        if any(f.get("plotly") for f in [*figures, *((requirements or {}).get("figures") or [])])
+        else None,
         oracle_notes=oracle_notes(verdict, case, base_verdict) if verdict else [],
         shading=shading,
-        requirements=None,  # r3-baseline's _requirements.html (time-windowed requirements) fills it
         plant=None,  # r3-drive's _plant.html (the plant and its idealizations) fills it
         name=name,
         analysis=analysis,
@@ -392,6 +394,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         n_phases=len(phases),
         phase_labels=[f"{a:g}-{b:g}" for a, b in phases],
         checks=checks,
+        requirements=requirements,
         figures=figures,
         key=rec.get("key", "-"),
         simulated=rec.get("time", "-"),
@@ -445,8 +448,8 @@ def _thesis_figures(case, series: dict, names: list[str], shading: list[dict]) -
     from ..cases import build_plant_chain
 
     figs = []
-    active = [s for s in ("active", "active_ukf") if s in series and "q_hat" in series[s]]
-    main = active[0] if active else ("switching" if "switching" in series else next(iter(series)))
+    active = [s for s in series if "q_hat" in series[s]]  # the schemes with an estimator of q and eta
+    main = active[0] if active else next((s for s in compare.CONTESTANTS if s in series), next(iter(series)))
     figs.append(
         figure(
             "velocities",

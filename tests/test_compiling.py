@@ -503,3 +503,35 @@ def test_the_slice_size_message_of_a_kernel_is_numbas_own(tmp_path):
     ours, theirs = _python(code, tmp_path).strip().splitlines()
     assert ours == theirs
     assert re.fullmatch(r"cannot assign slice of shape \([23],\) from input of shape \([23],\)", ours)
+
+
+def test_a_cache_index_written_by_other_code_is_a_miss_not_an_error(monkeypatch):
+    """A cache index naming a module that no longer exists (left by another version of ftcreport: seen
+    as ``ModuleNotFoundError: No module named 'ftcreport.fast.builtin'`` after the schemes moved), or
+    pickle data cut short, makes KernelCache.load_overload return None (compile again) and flush the
+    function's index; any other error still propagates."""
+    import pickle
+
+    from numba.core import caching
+
+    from ftcreport.fast import compiling
+
+    flushed = []
+    cache = object.__new__(compiling.KernelCache)
+    monkeypatch.setattr(compiling.KernelCache, "flush", lambda self: flushed.append(1))
+    for exc in (ModuleNotFoundError("No module named 'ftcreport.fast.builtin'"), pickle.UnpicklingError("x"),
+                EOFError(), AttributeError("gone")):  # fmt: skip
+
+        def raising(self, sig, ctx, exc=exc):
+            raise exc
+
+        monkeypatch.setattr(caching.FunctionCache, "load_overload", raising)
+        assert cache.load_overload(None, None) is None
+    assert len(flushed) == 4
+
+    def bug(self, sig, ctx):
+        raise ZeroDivisionError("a bug is not a stale entry")
+
+    monkeypatch.setattr(caching.FunctionCache, "load_overload", bug)
+    with pytest.raises(ZeroDivisionError):
+        cache.load_overload(None, None)

@@ -266,10 +266,9 @@ class SchemeLoop:
 
     def __init__(self, case, scheme: str, built=None, k_v: float | None = None, controller=None) -> None:
         from ..fast import kernels as F
-        from ..fast.engine import compiled_spec
+        from ..fast.engine import compiled_spec, law_buffers, loop_for
         from ..fast.refs import to_ref
         from ..runner import build, make_controller
-        from ..schemes import SchemeController
 
         built = built if built is not None else build(case)
         if k_v is not None:
@@ -284,9 +283,14 @@ class SchemeLoop:
         if spec is None:
             raise ModelError(f"scheme {scheme}: no compiled law to linearize")
         self.spec = spec
-        self.plugin = isinstance(self.ctrl, SchemeController)
-        # a plug-in's own types stay out of ftcreport's cached kernels (README, "the numba rule")
-        self._P = spec.P if self.plugin else to_ref(spec.P)
+        # the law through its loop's entry points, as the engine and 'schemes check' call it (the
+        # scheme interface: the loop builds the step, the terms and the law's buffers); the case's own
+        # variant of the loop, so that a batch's compiled cache serves it
+        self._loop = loop_for(
+            spec.law, spec.disc, motors=case.actuators is not None,
+            sampled=case.simulation.sample_time is not None, terms=spec.terms,
+        )  # fmt: skip
+        self._bufs = law_buffers(spec)
         self._kin, self._ref, self._pc = to_ref(spec.kin), to_ref(spec.ref), to_ref(spec.chain)
         self._cache = to_ref(F.new_cache(self.ctrl.chain.n))
         self.plant = Plant(built)
@@ -299,11 +303,14 @@ class SchemeLoop:
     def law(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, st, ut) -> tuple[np.ndarray, np.ndarray]:
         """(u, xc') of the scheme's compiled law at the measured (q, eta) (the scheme API's call)."""
         info = np.zeros(4)
-        u, dx = self.spec.law(
-            self._P, self._kin, self._ref, self._cache, self._pc, float(t), np.ascontiguousarray(q, dtype=float),
+        spec, bufs = self.spec, self._bufs
+        u = self._loop.first_law(
+            (spec.P, bufs), spec.kin, spec.ref, spec.chain, float(t), np.ascontiguousarray(q, dtype=float),
             np.ascontiguousarray(eta, dtype=float), np.ascontiguousarray(xc, dtype=float),
             np.ascontiguousarray(st, dtype=float), np.ascontiguousarray(ut, dtype=float), info, _EMPTY,
         )  # fmt: skip
+        # the scheme's own states' rates (the law's out.dx); the kinematic controller's states have none
+        dx = np.concatenate((np.zeros(self.nk), bufs[2][: int(self.ctrl.n_states) - self.nk]))
         if info[0] != 0:
             raise ModelError(f"scheme {self.scheme}: the law stops at t = {t:g} s (error code {int(info[0])})")
         return np.asarray(u, dtype=float), np.asarray(dx, dtype=float)
@@ -313,7 +320,8 @@ class SchemeLoop:
         out = np.array(xc, dtype=float)
         info = np.zeros(4)
         q, eta = np.asarray(q, dtype=float), np.asarray(eta, dtype=float)
-        self.spec.disc(self._P, self._kin, self._ref, self._cache, float(t), q, eta, out, info)
+        spec = self.spec
+        self._loop.first_discrete((spec.P, self._bufs), spec.kin, spec.ref, spec.chain, float(t), q, eta, out, info)
         if info[0] != 0:
             raise ModelError(f"scheme {self.scheme}: the discrete update stops at t = {t:g} s (code {int(info[0])})")
         return out

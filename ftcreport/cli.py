@@ -740,37 +740,76 @@ def baseline_save(
 @app.command()
 def analyze(
     case: Annotated[Path, typer.Argument(help="One case file.")],
-    as_json: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the results as one JSON object.")] = False,
+    confirm: Annotated[
+        bool,
+        typer.Option(
+            "--confirm/--no-confirm",
+            help="Confirm each stability limit by two short simulations at 0.9x and 1.1x (cases with sampled "
+            "control or motors; a few seconds, more if the engine's loop must first be compiled).",
+        ),
+    ] = True,
+    results: Annotated[
+        Path | None,
+        typer.Option(
+            "--results",
+            help="A results directory (as batch writes): the stored runs of this case, if current, give the "
+            "states each scheme held and the model switching selected, phase by phase.",
+        ),
+    ] = None,
+    quiet: QuietOpt = False,
 ) -> None:
-    """Linearized analyses (python-control): closed-loop poles, controllability per fault pattern.
+    """Linearized analyses: every scheme in every fault phase, sampled where the case is, with limits.
 
-    Closed-loop poles (key closed_loop_poles, \\[re, im] pairs per scheme) for two-link cases
-    on constant-velocity references; controllability rank and Gramian per 0/1 pattern for all.
+    Per scheme and fault phase: the true and applied failure pattern, the closed loop's poles (z-plane
+    where the controller is sampled), stability, loop-at-a-time and disk margins at the actuator inputs;
+    per scheme the largest stable sample time and velocity gain, confirmed by simulation; and the
+    case-wide analyses (error poles, controllability per pattern, observer).  README, "Linearized
+    analysis", documents every key of --json.
 
-    Example: ftcreport analyze cases/two_link_adaptive_circle.toml --json
+    Example: ftcreport analyze cases/motors/two_link_switching_motors.toml --json
     """
     from .analysis import analyze_case
     from .cases import load_case
 
-    res = analyze_case(load_case(case))
+    c = load_case(case)
+    runs = _current_runs(results, c) if results is not None else None
+    # progress on a terminal only (as batch): nothing when piped or -q
+    say = None if quiet or not sys.stderr.isatty() else (lambda line: typer.echo(f"  analysed {line}", err=True))
+    res = analyze_case(c, runs=runs, confirm=confirm, progress=say)
     if as_json:
         from .store import _jsonable
 
-        typer.echo(json.dumps(_jsonable(res), indent=2))
+        typer.echo(json.dumps(_jsonable(_public(res)), indent=2))
         return
-    typer.echo(f"{res['case']}: {res['n_robots']} robots, reference {res['reference_kind']}")
-    if res.get("closed_loop_poles"):
-        for s, table in res["pole_tables"].items():
-            poles = ", ".join(f"{r['re']:.4g}{r['im']:+.4g}j" for r in table)
-            typer.echo(f"  {s}: closed-loop poles {poles}")
-        kp = ", ".join(f"{r['re']:.4g}{r['im']:+.4g}j" for r in res["kinematic_poles"])
-        typer.echo(f"  kinematic part (perfect velocity loop): {kp}")
-    else:
-        typer.echo(f"  closed-loop poles: {res['note']}")
-    worst = [r for r in res["controllability"] if r["compensable_rule"]][-3:]
-    typer.echo("  least well conditioned compensable patterns (Gramian min eigenvalue):")
-    for r in worst:
-        typer.echo(f"    {r['pattern']}: {r['gramian_min_eig']:.3g}")
+    from .analysis.summary import text_summary
+
+    for line in text_summary(res):
+        typer.echo(line)
+
+
+def _public(obj):
+    """The analysis without its private keys (``_bode``: the figures' frequency responses)."""
+    if isinstance(obj, dict):
+        return {k: _public(v) for k, v in obj.items() if not str(k).startswith("_")}
+    if isinstance(obj, list):
+        return [_public(v) for v in obj]
+    return obj
+
+
+def _current_runs(results: Path, case) -> dict:
+    """The stored time series of the case's schemes under ``results`` whose cache key is current."""
+    from .batch import run_key
+    from .cases import configured_schemes
+    from .store import cached_key, load_timeseries
+
+    out = {}
+    for scheme in configured_schemes(case):
+        if cached_key(results, case.name, scheme) == run_key(case, scheme):
+            ts = load_timeseries(results, case.name, scheme)
+            if ts is not None:
+                out[scheme] = ts
+    return out
 
 
 @app.command()

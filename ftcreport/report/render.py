@@ -31,6 +31,7 @@ from ..errors import FtcError, printable
 from ..model.faults import wheel_names
 from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
 from . import interactive, plots
+from .analysis_figs import analysis_section
 from .replay import replay_data
 
 __all__ = ["dependency_versions", "render_all", "render_case", "render_index"]
@@ -332,15 +333,13 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
                     plotly=interactive.errors_fig(both, shading),
                 )
             )
-    analysis = _analysis(case, names)
-    if analysis is not None:
-        figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
+    analysis = analysis_section(case, names, series, events)  # templates/_analysis.html (issue 37)
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
     from .requirements_page import requirements_section
 
     requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)
-    verdict = _verdict(case, name, runs)
+    verdict = _verdict(case, name, runs, analysis)
     base_verdict = None
     if verdict and rec.get("base") and (out / rec["base"]).is_dir():
         base_case = _stored_case(out, rec["base"], _record(out, rec["base"]) or {})
@@ -358,8 +357,6 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         replay = replay_data(
             series, build_plant_chain(case), faults, list(names), {m["scheme"]: m["status"] for m in runs}
         )
-    if analysis is not None and analysis.get("pole_tables"):
-        analysis["pole_groups"] = _group_tables(analysis["pole_tables"])
     return write_page(
         page,
         "case.html",
@@ -505,69 +502,6 @@ def _manifest_stamp(out: Path, name: str) -> bytes:
     return json.dumps(keep, sort_keys=True).encode()
 
 
-def _analysis(case, names) -> dict | None:
-    """Linearized analyses for the case page (None if they cannot be computed)."""
-    from ..analysis import analyze_case
-
-    try:
-        res = analyze_case(case)
-    except (FtcError, ValueError, np.linalg.LinAlgError):
-        return None
-    rows = res["controllability"]
-    pick = rows[:4] + rows[-4:] if len(rows) > 8 else rows
-    res["ctrb_rows"] = [
-        {**r, "failed": ", ".join(w for w, p in zip(names, r["pattern"], strict=True) if p == 0) or "none"}
-        for r in pick
-    ]
-    return res
-
-
-def _analysis_figures(analysis: dict, series: dict, events: list[float], duration: float) -> list[dict]:
-    """Pole loci and the predicted envelope against the simulated decay (first fault-free phase)."""
-    figs = []
-    ft = analysis.get("frozen_time")
-    if ft:
-        step = max(1, len(ft["times"]) // 60)
-        loci = list(zip(ft["times"][::step], ft["poles"][::step], strict=True))
-        figs.append(
-            figure(
-                "pole-loci",
-                "Frozen-time poles of the closed-loop error dynamics along the reference (red line: imaginary axis).",
-                svg=plots.pole_loci_svg(loci, "t [s]"),
-            )
-        )
-    ch = analysis.get("chained")
-    if ch:
-        first = next(iter(ch.values()))
-        loci = [(f["phi_deg"], f["poles"]) for f in first["frozen"]]
-        figs.append(
-            figure(
-                "pole-loci",
-                "Frozen poles of the chained-form loop over one re-anchoring period; the Floquet "
-                f"rate of the period is {first['floquet_rate']:.4g} 1/s.",
-                svg=plots.pole_loci_svg(loci, "theta_nd - psi [deg]"),
-            )
-        )
-    rate = analysis.get("predicted_decay_rate")
-    if rate and series:
-        scheme = compare.BASELINE if compare.BASELINE in series else next(iter(series))
-        t_end = min([duration, *[t for t in events if t > 0]])
-        fit = plots.fitted_decay_rate(series[scheme], t_end)
-        analysis["fitted_decay"] = None
-        if fit is not None:
-            fitted, ta, tb = fit
-            analysis["fitted_decay"] = {"scheme": scheme, "rate": fitted, "from": ta, "to": tb}
-            figs.append(
-                figure(
-                    "decay",
-                    f"Predicted envelope (rate {rate:.4g} 1/s) against the simulated error of the "
-                    f"{scheme} run before the first fault (fitted rate {fitted:.4g} 1/s over {ta:.0f}-{tb:.0f} s).",
-                    svg=plots.decay_svg(series[scheme], rate, (ta, tb), scheme),
-                )
-            )
-    return figs
-
-
 def _facts(case) -> dict:
     """Facts of a case the verdict's sentences may explain with (compare.compare_case)."""
     return {
@@ -578,13 +512,14 @@ def _facts(case) -> dict:
     }
 
 
-def _verdict(case, name: str, runs: list[dict]):
+def _verdict(case, name: str, runs: list[dict], analysis: dict | None = None):
     if not runs:
         return None
     events = sorted({float(f.time) for f in case.faults})
     by_scheme = {m["scheme"]: m for m in runs}
     expected = {s: case.expected_for(s) for s in by_scheme}
-    return compare.compare_case(name, by_scheme, expected, events, _facts(case))
+    facts = _facts(case) | ({"analysis": analysis} if analysis and not analysis.get("error") else {})
+    return compare.compare_case(name, by_scheme, expected, events, facts)
 
 
 def _verdict_rows(v) -> list[dict]:
@@ -677,20 +612,6 @@ def oracle_notes(v, case, base_verdict=None) -> list[str]:
 
 def _names(schemes) -> str:
     return ", ".join(compare.LABEL.get(s, s) for s in schemes)
-
-
-def _group_tables(tables: dict) -> list[dict]:
-    """Identical tables (to 4 significant digits) once, labelled with every scheme they cover."""
-    groups: list[dict] = []
-    for scheme, rows in tables.items():
-        key = json.dumps([{k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in r.items()} for r in rows])
-        for g in groups:
-            if g["key"] == key:
-                g["schemes"].append(scheme)
-                break
-        else:
-            groups.append({"key": key, "schemes": [scheme], "rows": rows})
-    return groups
 
 
 def _script_json(obj) -> str:

@@ -12,8 +12,9 @@ import tomli_w
 from ftcreport.analysis import closed_loop_jacobian, two_link_error_jacobian
 from ftcreport.analysis.closed_loop import Faults, SchemeLoop, central_columns
 from ftcreport.analysis.phases import analyze_scheme
-from ftcreport.cases import load_case, switching_patterns, with_duration
+from ftcreport.cases import load_case, with_duration
 from ftcreport.runner import build, run_scheme
+from ftcreport.schemes.switching import patterns_of
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -165,7 +166,7 @@ def test_switching_applies_the_model_its_run_selected():
     run, _ = run_scheme(case, "switching", built)
     series = {"t": run.t, **run.signals}
     res = analyze_scheme(case, "switching", built, run=series, margins=False, limits=False)
-    pats = np.array(switching_patterns(case, built.chain), dtype=float)
+    pats = np.array(patterns_of(case.schemes.switching, built.chain), dtype=float)
     t, sel = np.asarray(run.t), np.round(np.asarray(run.signals["selected"])).astype(int).ravel()
     for p in res["phases"]:
         mask = (t >= p["t_start"]) & (t < p["t_end"])

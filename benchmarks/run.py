@@ -34,7 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftcreport.cases import ActiveScheme, AdaptiveScheme, load_case, with_duration  # noqa: E402
+from ftcreport.cases import load_case, with_duration  # noqa: E402
 from ftcreport.control.kinematic import TwoLinkKinematic  # noqa: E402
 from ftcreport.control.tracking import TrackingController  # noqa: E402
 from ftcreport.model import Chain  # noqa: E402
@@ -68,14 +68,11 @@ SCENARIOS = [
 def load(case_file: str, scheme: str, seconds: float):
     """The case, with the schemes the five-link case does not configure added (same k_v)."""
     case = with_duration(load_case(CASES / case_file), seconds)
-    if getattr(case.schemes, scheme) is None:
-        k_v = case.schemes.nominal.k_v
-        extra = {"adaptive": AdaptiveScheme(k_v=k_v), "active": ActiveScheme(k_v=k_v)}
-        if scheme == "active_ukf":
-            from ftcreport.cases import ActiveUKFScheme
+    if getattr(case.schemes, scheme) is None:  # the scheme's parameter model (the registry's) at its defaults
+        from ftcreport.schemes import get
 
-            extra["active_ukf"] = ActiveUKFScheme(k_v=k_v)
-        case = case.model_copy(update={"schemes": case.schemes.model_copy(update={scheme: extra[scheme]})})
+        table = get(scheme).params(k_v=case.schemes.nominal.k_v)
+        case = case.model_copy(update={"schemes": case.schemes.model_copy(update={scheme: table})})
     return case
 
 

@@ -58,7 +58,6 @@ from .cases import Case, case_hash, configured_schemes, dropped_faults, load_cas
 from .display import BatchDisplay
 from .errors import CaseError, FtcError, note_stored, printable
 from .inputs import read_input
-from .schemes import BUILT_IN
 from .store import OutputError, check_inside, check_run, output_lock, read_json, save_run, write_atomic, write_json
 
 __all__ = [
@@ -174,6 +173,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
         "thresholds": thresholds,
         "duration_override": duration,
         "claims": [c.model_dump() for c in case.claims],  # thesis claims that `check` gates on
+        "requirements": [r.model_dump() for r in case.requirements],  # time-windowed requirements (check)
         "not_run": not_applicable(case),  # families the case does not run, each with its reason (issue 21)
         "plugin_schemes": plugin_info(case),  # the plug-in schemes' family, description, reference (report pages)
     }
@@ -330,22 +330,32 @@ def memory_summary(res: BatchResult) -> dict:
 
 
 def _cost(case: Case, scheme: str) -> float:
-    """A rough relative cost of a run (steps x per-step weight): the longest start first, so the
-    last worker does not start a long run when the others are done."""
+    """A rough relative cost of a run (steps x the scheme's per-step weight, ``Scheme.cost``): the longest
+    start first, so the last worker does not start a long run when the others are done."""
+    from .schemes import get
+
     steps = case.simulation.duration / case.simulation.dt
-    n = case.robots.n
-    # every scheme is compiled; the UKF's step propagates 2 (n + 2 + 4n) + 1 sigma points (about 4x
-    # the other schemes' step for n = 2, measured: 0.017 against 0.004 s per simulated second)
-    return steps * ((2 * (n + 2 + 4 * n) + 1) / 6.0 if scheme == "active_ukf" else 1.0)
+    hook = get(scheme).cost
+    return steps * (1.0 if hook is None else hook(case))
 
 
 def _loop_of(case: Case, scheme: str) -> tuple:
-    """Which compiled loop a run needs (ftcreport.fast.engine.loop_for): the built-in schemes share
-    two (fast/builtin.py: the active ones, the others), a plug-in has its own; motors and sampled
-    control are variants of each."""
-    builtin_group = "active" if scheme.startswith("active") else "passive"
-    group = builtin_group if scheme in BUILT_IN else "plugin:" + scheme
+    """Which compiled loop a run needs (ftcreport.fast.engine.loop_for): one per (law, discrete update) of
+    the registry (the built-in schemes share two dispatchers: schemes/laws), motors and sampled control
+    are variants of each."""
+    from .schemes import get
+
+    sc = get(scheme)
+    group = (_name(sc.law), _name(sc.discrete), sc.terms)
     return group, case.actuators is not None, case.simulation.sample_time is not None
+
+
+def _name(fn) -> str:
+    """A compiled function's identity without importing it (a built-in's is its "module:function")."""
+    if fn is None or isinstance(fn, str):
+        return str(fn)
+    py = getattr(fn, "py_func", fn)
+    return f"{py.__module__}:{py.__qualname__}"
 
 
 def _compile_first(todo: list) -> list:

@@ -395,7 +395,7 @@ def summarize(rows: list[dict]) -> dict:
             "max_errors": [float(v) for v in err if isinstance(v, int | float)],
             "worst_patterns": [{"faulted_wheels": p, "failures": f, "samples": n} for p, (f, n) in worst if f > 0],
         }
-        for base in ("nominal", "oracle"):
+        for base in _reference_lines():  # the baseline and the bound (nominal, the oracle: the registry's)
             if base in success and base != s:
                 common = set(success[s]) & set(success[base])
                 entry[f"vs_{base}"] = {
@@ -433,6 +433,13 @@ def stale_reason(rec: dict, expected: dict) -> str | None:
     if rec.get("campaign") != expected["campaign"]:
         return f"belongs to another run (hash {rec.get('campaign')}, now {expected['campaign']})"
     return None
+
+
+def _reference_lines() -> tuple[str, ...]:
+    """The built-in schemes every other is compared with: the baseline (no FTC) and the bound (the oracle)."""
+    from .schemes import built_in
+
+    return tuple(name for name, sc in built_in().items() if sc.family in ("baseline", "bound"))
 
 
 def select_schemes(base: Case, schemes: list[str] | None) -> list[str]:

@@ -25,24 +25,50 @@ from typing import Annotated, Any, Literal, get_args, get_origin
 import numpy as np
 from pydantic import (
     BaseModel,
-    BeforeValidator,
     ConfigDict,
     Field,
     StrictBool,
     ValidationError,
+    create_model,
     field_validator,
     model_validator,
 )
 
 from .errors import CaseError, FtcError, printable
+from .fields import (  # the schema's building blocks (shared with the schemes' parameter tables)
+    _NUMBER,
+    Angle,
+    Coord,
+    Factor,
+    Gain,
+    Gain0,
+    Inertia,
+    Int,
+    Length,
+    Limit,
+    Mass,
+    Rate,
+    Signed,
+    Speed,
+    Std,
+    Time,
+    Torque,
+    Unit,
+    _f,
+    _FieldError,
+    _num,
+    _Strict,
+    did_you_mean,
+)
 from .inputs import input_problem, read_input
 from .limits import budget_problem, name_problem
-from .model import Chain, FaultEvent, FaultSchedule, pattern_is_compensable, wheel_index, wheel_names
+from .model import Chain, FaultEvent, FaultSchedule, wheel_index, wheel_names
 from .model.actuators import DRIVE_MODEL_FIELDS, MAXON_RE65, DriveParams, MotorParams
 from .model.chain import THESIS_ROBOT
 from .model.faults import MOTOR_KINDS, motor_row
+from .requirements import SIGNALS as REQUIREMENT_SIGNALS
 from .runs import AUTO_METHODS
-from .schemes import BUILT_IN
+from .schemes import built_in as _built_in_schemes
 
 __all__ = [
     "SCHEME_NAMES",
@@ -60,66 +86,10 @@ __all__ = [
     "parse_case",
 ]
 
-SCHEME_NAMES = tuple(BUILT_IN)  # the built-in schemes (ftcreport.schemes)
-
-
-def _f(default: Any, description: str, unit: str, **kw: Any) -> Any:
-    """A documented field: its description and unit appear in the JSON Schema and cases/README.md.
-
-    ``unit`` is an SI unit, ``"1"`` for a dimensionless number, ``"-"`` for a name, flag or table.
-    """
-    return Field(default, description=description, json_schema_extra={"unit": unit}, **kw)
-
-
-def _a_number(v: Any) -> Any:
-    """Refuse a boolean or a text where a number belongs (pydantic would read ``true`` as 1, ``"12"`` as 12)."""
-    if isinstance(v, bool):
-        raise ValueError(f"a number is expected, got the boolean {str(v).lower()}")
-    if isinstance(v, str):
-        try:
-            float(v)
-        except ValueError:
-            raise ValueError(f"a number is expected, got the text {v!r}") from None
-        raise ValueError(f"a number is expected, got the text {v!r} (write it without quotes)")
-    return v
-
-
-_NUMBER = BeforeValidator(_a_number)
-
-
-def _num(lo: float | None = None, hi: float | None = None, *, gt: float | None = None, lt: float | None = None):
-    """A finite float in a documented range (ge ``lo`` or gt ``gt``; le ``hi`` or lt ``lt``); no boolean or text."""
-    return Annotated[float, Field(ge=lo, gt=gt, le=hi, lt=lt, allow_inf_nan=False), _NUMBER]
-
-
-#: A whole number (its range in the field): no boolean or text either.
-Int = Annotated[int, _NUMBER]
-
-
-#: Documented ranges (issue 23 asks for one on every numeric field; the fuzzer relies on them).
-Coord = _num(-1e6, 1e6)  # a position [m]; the engine stops a run beyond 1e6 m
-Length = _num(None, 100.0, gt=0)  # a robot dimension [m]
-Signed = _num(-100.0, 100.0)  # a signed robot dimension [m]
-Mass = _num(None, 1e5, gt=0)
-Inertia = _num(0.0, 1e6)
-Angle = _num(-360.0, 360.0)  # [deg]
-Speed = _num(None, 100.0, gt=0)  # [m/s]
-Rate = _num(-100.0, 100.0)  # [rad/s]
-Gain = _num(None, 1e6, gt=0)
-Gain0 = _num(0.0, 1e6)
-Torque = _num(-1e4, 1e4)  # [N m]
-Time = _num(0.0, 1e6)  # [s]
-Unit = _num(0.0, 1.0)
-Std = _num(0.0, 1e3)
-Factor = _num(None, 1e3, gt=0)
-Limit = _num(-1e18, 1e18)  # a threshold on any metric
+SCHEME_NAMES = tuple(_built_in_schemes())  # the built-in schemes, in the registry's order (ftcreport.schemes)
 
 
 Status = Literal["ok", "singular", "diverged", "step_unstable"]  # run outcomes (ftcreport.sim)
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 class Robots(_Strict):
@@ -405,113 +375,7 @@ class Kinematic(_Strict):
     )
 
 
-_K_V = "velocity-error gain of the dynamic law (the thesis's k4 or c6)"
-_PATTERNS = (
-    '"all" (every compensable pattern) or a list of the wheels each model assumes failed, '
-    'e.g. [[], ["1r"], ["1r", "2l"]]'
-)
-
-
-class NominalScheme(_Strict):
-    """The law assuming healthy wheels (no FTC)."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-
-
-class OracleScheme(_Strict):
-    """The law told the true sigma and ubar at every instant."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-
-
-class SwitchingScheme(_Strict):
-    """Multiple models and switching (thesis 3.2, 3.3.1)."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-    gamma: Gain = _f(10.0, "pole of the reconstruction filters", "1/s")
-    T_min: _num(0.0, 1e3) = _f(0.01, "waiting time between switches", "s")
-    c_inst: Gain0 = _f(1.0, "weight of the instantaneous cost", "1")
-    c_int: Gain0 = _f(0.0, "weight of the integral cost", "1")
-    forgetting: Gain = _f(1.0, "forgetting rate of the integral cost", "1/s")
-    hysteresis: Gain0 = _f(
-        1e-10,
-        "cost margin a new model must win by (costs within 1e-9 relative of the smallest are ties, "
-        "resolved to the lowest pattern index)",
-        "(m/s)^2",
-    )
-    patterns: Literal["all"] | list[list[str]] = _f("all", _PATTERNS, "-")
-    rotor_inertia: StrictBool = _f(
-        True,
-        "with [actuators]: the bank's filters and the law model the chain with the motors' rotor inertia "
-        "eta_g N^2 J_m on each wheel axis (false: the chain alone, as the thesis; the bank then mistakes the "
-        "missing inertia for lost torque and identifies failed wheels that work)",
-        "-",
-    )
-
-
-class AdaptiveScheme(_Strict):
-    """Adaptive weights and friction estimate (thesis 3.3.2); weights start at 1 for the first pattern."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-    gamma: Gain = _f(1.0, "adaptation gain of every weight", "1")
-    Gamma_f: Gain = _f(1.0, "friction estimate gain (times the identity)", "1")
-    patterns: Literal["all"] | list[list[str]] = _f("all", _PATTERNS, "-")
-
-
-class Diagnosis(_Strict):
-    """Fault detection on the estimated gains and frictions (ftcreport.diagnosis)."""
-
-    gain_band: Gain = _f(0.1, "a gain estimate beyond this from the last declared value is an excursion", "1")
-    friction_band: Gain = _f(0.2, "the same for a friction estimate", "N m")
-    dwell: Gain = _f(2.0, "an estimate steady this long at a new value is declared", "s")
-    settle_band: Gain | None = _f(
-        None, "steady: within this of its window mean (default: a quarter of the band)", "1 or N m"
-    )
-    gain_tolerance: Gain = _f(0.1, "a declared gain within this of the true new value is a correct detection", "1")
-    friction_tolerance: Gain = _f(
-        0.2, "a declared friction within this of the true new value is a correct detection", "N m"
-    )
-
-
-_ESTIMATE = 'what the estimator identifies: "rho" (gains) and/or "ubar" (frictions)'
-_TAU = "filter 1/(tau s + 1) on the estimates the law uses (none by default)"
-
-
-class ActiveScheme(_Strict):
-    """Active FTC with the Farza et al. (2009) adaptive observer (thesis chapter 4); only q is measured."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-    Theta: _num(None, 1e3, gt=0) = _f(1.6, "observer tuning parameter Theta", "1/s")
-    k0: Gain = _f(1.0, "observer gain k0", "1")
-    k1: Gain = _f(1.0, "observer gain k1", "1")
-    p0: _num(None, 1e12, gt=0) = _f(0.1, "P(0) = p0 I", "1")
-    p_max: _num(None, 1e15, gt=0) = _f(
-        1e3, "P guard: bound of P (ERRATA P3; the printed law has none, P grows like exp(Theta t))", "1"
-    )
-    estimate: list[Literal["rho", "ubar"]] = _f(["rho", "ubar"], _ESTIMATE, "-")
-    tau: Gain | None = _f(None, _TAU, "s")
-    diagnosis: Diagnosis = _f(Diagnosis(), "fault detection settings ([...diagnosis])", "-")
-    q_hat0: Literal["measured", "zero"] = _f(
-        "measured", "observer's initial q estimate: the first measurement, or 0 as in the thesis (4.2.4)", "-"
-    )
-
-
-class ActiveUKFScheme(_Strict):
-    """Active FTC with the augmented-state unscented Kalman filter (filterpy); runs at the samples."""
-
-    k_v: Gain = _f(..., _K_V, "1/s")
-    meas_std: _num(None, 1e3, gt=0) = _f(1e-3, "measurement standard deviation (R of the filter)", "m, rad")
-    eta_noise: Gain0 = _f(1e-4, "process noise intensity of the velocities", "(m/s)^2/s")
-    rho_noise: Gain0 = _f(1e-2, "random-walk intensity of the gains", "1/s")
-    ubar_noise: Gain0 = _f(1e-2, "random-walk intensity of the frictions", "(N m)^2/s")
-    rho_std0: Gain = _f(0.3, "initial standard deviation of the gains", "1")
-    ubar_std0: Gain = _f(0.5, "initial standard deviation of the frictions", "N m")
-    estimate: list[Literal["rho", "ubar"]] = _f(["rho", "ubar"], _ESTIMATE, "-")
-    tau: Gain | None = _f(None, _TAU, "s")
-    diagnosis: Diagnosis = _f(Diagnosis(), "fault detection settings ([...diagnosis])", "-")
-
-
-class Schemes(_Strict):
+class _SchemesBase(_Strict):
     """The schemes to run; every scheme present is run with the shared kinematic controller.
 
     Issue 21: every family runs unless ``run`` narrows the list; a family without its table gets
@@ -540,13 +404,6 @@ class Schemes(_Strict):
         "-",
     )
     k_v: Gain | None = _f(None, "velocity-error gain of the default tables (default: the first table's)", "1/s")
-    nominal: NominalScheme | None = _f(None, "no FTC", "-")
-    switching: SwitchingScheme | None = _f(None, "multiple models + switching", "-")
-    adaptive: AdaptiveScheme | None = _f(None, "adaptive weights + friction estimate", "-")
-    adaptive_frozen: AdaptiveScheme | None = _f(None, "the adaptive law with weights and friction frozen", "-")
-    active: ActiveScheme | None = _f(None, "Farza observer + (4.14)", "-")
-    active_ukf: ActiveUKFScheme | None = _f(None, "UKF + (4.14)", "-")
-    oracle: OracleScheme | None = _f(None, "told the true faults", "-")
 
     @field_validator("run")
     @classmethod
@@ -583,10 +440,27 @@ class Schemes(_Strict):
         return out
 
 
+def _schemes_model() -> type[BaseModel]:
+    """The ``[schemes]`` table: ``run``, ``k_v`` and one optional field per built-in scheme, its parameter
+    model (the registry's order; the field's description is the scheme's summary)."""
+    fields: dict[str, Any] = {}
+    for name, sc in _built_in_schemes().items():
+        fields[name] = (sc.params | None, _f(None, sc.summary or sc.description, "-"))
+    return create_model("Schemes", __base__=_SchemesBase, __doc__=_SchemesBase.__doc__, **fields)
+
+
+Schemes = _schemes_model()
+
+
 class PluginTable(_Strict):
     """The table of a registered scheme that declares no parameter model."""
 
-    k_v: Gain | None = _f(None, _K_V + " (default: schemes.k_v, else the case's default)", "1/s")
+    k_v: Gain | None = _f(
+        None,
+        "velocity-error gain of the dynamic law (the thesis's k4 or c6) (default: schemes.k_v, else the case's "
+        "default)",
+        "1/s",
+    )
 
 
 def _unknown_hint(key: str, known: list[str]) -> str:
@@ -636,6 +510,14 @@ def _scheme_file(name: str) -> str | None:
     if code is None or not Path(code.co_filename).is_file():
         return None
     return str(Path(code.co_filename).resolve())
+
+
+def _scheme_hook(name: str, hook: str):
+    """A registered scheme's hook (``Scheme.validate``, ``Scheme.budget``), None for a scheme without it."""
+    from .schemes import every
+
+    sc = every().get(name)
+    return None if sc is None else getattr(sc, hook)
 
 
 def known_schemes() -> list[str]:
@@ -848,6 +730,158 @@ class Claim(_Strict):
         return self
 
 
+class AfterFault(_Strict):
+    """A window edge N seconds after each fault event (one window per event)."""
+
+    after_fault: Time = _f(
+        ..., "seconds after each fault event ([[faults]] times, repairs included; one window per event)", "s"
+    )
+
+
+_SIGNAL_NAMES = tuple(REQUIREMENT_SIGNALS)
+
+
+class Requirement(_Strict):
+    """A bound on a signal over windows defined by events, checked at every step (ftcreport.requirements)."""
+
+    id: str = _f(..., "short name, unique in the case (the JUnit testcase's name)", "-", min_length=1, max_length=64)
+    description: str = _f("", "the requirement in words (shown on the page)", "-")
+    signal: Literal[_SIGNAL_NAMES] = _f(
+        ...,
+        "position_error [m], heading_error [rad], torque [N m] (signed, one wheel), torque_abs [N m], speed (v_n) "
+        "[m/s], turn_rate (omega_1) [rad/s]",
+        "-",
+    )
+    robot: Annotated[int, Field(ge=1, le=12), _NUMBER] | None = _f(
+        None, "heading_error: the robot (1 = leader); absent: the largest error over the robots", "1"
+    )
+    wheel: str | None = _f(
+        None, 'torque (required), torque_abs (absent: the largest over the wheels): "1r", "1l", ..., "nl"', "-"
+    )
+    scheme: str = _f("*", 'the scheme it applies to, or "*" for every scheme the case runs', "-")
+    start: Time | AfterFault = _f(
+        0.0, "where each window starts: a time, or { after_fault = N }: N s after each fault event", "s"
+    )
+    end: Time | Literal["next_fault", "end"] | AfterFault = _f(
+        "end",
+        'where each window ends: a time, "next_fault" (the next event, else the end), "end" (of the run), or '
+        "{ after_fault = M } (M s after the window's own event)",
+        "s",
+    )
+    min: Limit | None = _f(None, "lower bound on the signal in every window", "signal's")
+    max: Limit | None = _f(None, "upper bound on the signal in every window (min and max: within the band)", "signal's")
+
+    @model_validator(mode="after")
+    def _decidable(self) -> Requirement:
+        if self.min is None and self.max is None:
+            raise ValueError("give a bound: min, max, or both (within [min, max])")
+        return self
+
+    def problems(self, n: int) -> list[tuple[str, str]]:
+        """(field, reason) of every inconsistency with itself and with an n-robot chain."""
+        out = []
+        if self.min is not None and self.max is not None and self.min > self.max:
+            out.append(("max", f"{self.max:g} is below min = {self.min:g}: the band is empty"))
+        if self.robot is not None and self.signal != "heading_error":
+            out.append(("robot", f"a robot is chosen for heading_error only, not for {self.signal}"))
+        if self.robot is not None and self.robot > n:
+            out.append(("robot", f"robot {self.robot} is not in a {n}-robot chain"))
+        if self.wheel is not None and self.signal not in ("torque", "torque_abs"):
+            out.append(("wheel", f"a wheel is chosen for torque and torque_abs only, not for {self.signal}"))
+        if self.wheel is None and self.signal == "torque":
+            out.append(
+                ("wheel", 'required for the signed torque: name the wheel, e.g. wheel = "1r" (or use torque_abs)')
+            )
+        if self.wheel is not None:
+            try:
+                wheel_index(self.wheel, n)
+            except FtcError as exc:
+                out.append(("wheel", str(exc)))
+        s, e = self.start, self.end
+        if isinstance(e, AfterFault) and not isinstance(s, AfterFault):
+            out.append(
+                ("end", "{ after_fault = M } needs start = { after_fault = N }: M is counted from each window's fault")
+            )
+        elif isinstance(e, AfterFault) and e.after_fault <= s.after_fault:
+            out.append(
+                (
+                    "end.after_fault",
+                    f"{e.after_fault:g} s is not after start.after_fault = {s.after_fault:g} s: every window "
+                    "would be empty",
+                )
+            )
+        if isinstance(s, float) and isinstance(e, float) and e <= s:
+            out.append(("end", f"{e:g} s is not after start = {s:g} s: the window would be empty"))
+        return out
+
+
+#: [baseline] defaults: ftcreport.baseline's module docstring and cases/README.md ("Baselines") say why
+BASELINE_REL_TOL = 1e-3
+BASELINE_ABS_TOL = 1e-9
+#: the scalar metrics of metrics.json a [baseline.metrics.<name>] table may name (ftcreport.baseline
+#: compares COMPARED_METRICS, a part of them, by default)
+BASELINE_METRIC_NAMES: tuple[str, ...] = (
+    "position_error_max", "position_error_rms", "position_error_final", "position_error_iae", "heading_error_max",
+    "heading_error_final", "recovery_time_max", "torque_peak", "torque_rms", "energy", "saturation_fraction",
+    "singularity_margin_min", "t_end", "switch_count", "switching_match_fraction", "switching_exact_match_fraction",
+    "switching_missed_detections", "detection_delay_max", "chi_hat_min", "chi_hat_max", "P_max", "false_alarms",
+    "missed_detections", "fault_estimation_error_final", "combined_effect_error_rms", "combined_effect_rms",
+)  # fmt: skip
+#: the signal families of [baseline.signals.<name>] and their units
+BASELINE_SIGNAL_FAMILIES: dict[str, str] = {"position_error": "m", "heading_error": "rad", "torque": "N m"}
+
+
+class Tolerance(_Strict):
+    """Tolerances of one baseline metric or signal family ([baseline.metrics.<name>], [baseline.signals.<name>])."""
+
+    rel_tol: _num(0.0, 1e6) | None = _f(None, "relative tolerance (default: [baseline] rel_tol)", "1")
+    abs_tol: _num(0.0, 1e18) | None = _f(None, "absolute tolerance (default: [baseline] abs_tol)", "unit of the metric")
+    leading_tol: Time | None = _f(None, "signals: how far the new signal may lead the baseline in time", "s")
+    lagging_tol: Time | None = _f(None, "signals: how far the new signal may lag the baseline in time", "s")
+    ignore: StrictBool = _f(False, "leave this metric or signal out of the comparison", "-")
+
+
+class BaselineSpec(_Strict):
+    """Tolerances of ``ftcreport check --baseline`` for this case (ftcreport.baseline; as Simulink Test's criteria).
+
+    A value passes when |new - baseline| <= max(abs_tol, rel_tol |baseline|); a signal when it stays
+    in that band around the baseline's, widened in time by leading_tol and lagging_tol.
+    """
+
+    rel_tol: _num(0.0, 1e6) = _f(BASELINE_REL_TOL, "relative tolerance of every metric and signal", "1")
+    abs_tol: _num(0.0, 1e18) = _f(
+        BASELINE_ABS_TOL, "absolute tolerance of every metric and signal (in its own unit)", "unit of the metric"
+    )
+    leading_tol: Time = _f(0.0, "signals: how far the new signal may lead the baseline in time", "s")
+    lagging_tol: Time = _f(0.0, "signals: how far the new signal may lag the baseline in time", "s")
+    metrics: dict[str, Tolerance] = _f(
+        {}, "[baseline.metrics.<name>]: a metrics.json name's own tolerances (naming one compares it)", "-"
+    )
+    signals: dict[str, Tolerance] = _f(
+        {}, "[baseline.signals.<name>]: position_error, heading_error or torque: that family's own tolerances", "-"
+    )
+
+    @model_validator(mode="after")
+    def _known_names(self) -> BaselineSpec:
+        for name in self.metrics:
+            if name not in BASELINE_METRIC_NAMES:
+                raise _FieldError(
+                    f"baseline.metrics.{name}",
+                    "not a scalar metric of metrics.json"
+                    + did_you_mean(name, list(BASELINE_METRIC_NAMES))
+                    + f" (known: {', '.join(BASELINE_METRIC_NAMES)})",
+                )
+        for name in self.signals:
+            if name not in BASELINE_SIGNAL_FAMILIES:
+                raise _FieldError(
+                    f"baseline.signals.{name}",
+                    "not a baseline signal"
+                    + did_you_mean(name, list(BASELINE_SIGNAL_FAMILIES))
+                    + f" (known: {', '.join(BASELINE_SIGNAL_FAMILIES)})",
+                )
+        return self
+
+
 class CampaignSpec(_Strict):
     """Distributions a Monte Carlo campaign draws variants of the case from (ftcreport.campaign)."""
 
@@ -899,7 +933,8 @@ class Case(_Strict):
         None,
         "path of the case this file overlays, relative to this file: the base's tables, then this file's "
         "(tables merged key by key, arrays such as [[faults]] replaced whole); name, description, thresholds, "
-        "claims, campaign, expected_status and expected_status_of are this file's own, never the base's",
+        "claims, requirements, baseline, campaign, expected_status and expected_status_of are this file's own, never "
+        "the base's",
         "-",
         max_length=1000,
     )
@@ -930,6 +965,12 @@ class Case(_Strict):
     )
     campaign: CampaignSpec | None = _f(None, "distributions for ftcreport campaign (ignored by batch)", "-")
     claims: list[Claim] = _f([], "thesis claims checked against the runs ([[claims]], ftcreport.claims)", "-")
+    requirements: list[Requirement] = _f(
+        [], "bounds on a signal over event-defined windows ([[requirements]], ftcreport.requirements)", "-"
+    )
+    baseline: BaselineSpec | None = _f(
+        None, "tolerances of check --baseline ([baseline], ftcreport.baseline); absent: the documented defaults", "-"
+    )
 
     @field_validator("name")
     @classmethod
@@ -989,37 +1030,10 @@ class Case(_Strict):
             raise _FieldError("kinematic.c_chain", f"{len(self.kinematic.c_chain)} gains given, {n} needed")
         if self.simulation.dt > self.simulation.duration:
             raise _FieldError("simulation.dt", "longer than the duration")
-        for sname in ("switching", "adaptive", "adaptive_frozen"):
-            sw = getattr(self.schemes, sname)
-            if sw is None or sw.patterns == "all":
-                continue
-            if not sw.patterns:
-                raise _FieldError(
-                    f"schemes.{sname}.patterns",
-                    'no pattern: the scheme needs at least one model (e.g. [[]], the healthy one) or "all"',
-                )
-            seen_patterns: dict[tuple[int, ...], int] = {}
-            for i, failed in enumerate(sw.patterns):
-                pat = [1] * (2 * n)
-                for w in failed:
-                    try:
-                        k = wheel_index(w, n)
-                    except FtcError as exc:
-                        raise _FieldError(f"schemes.{sname}.patterns[{i}]", str(exc)) from None
-                    if pat[k] == 0:
-                        raise _FieldError(f"schemes.{sname}.patterns[{i}]", f"wheel {w!r} is listed twice")
-                    pat[k] = 0
-                first = seen_patterns.setdefault(tuple(pat), i)
-                if first != i:
-                    raise _FieldError(
-                        f"schemes.{sname}.patterns[{i}]",
-                        f"{failed} is the model of patterns[{first}] again (each model once)",
-                    )
-                if not pattern_is_compensable(pat):
-                    raise _FieldError(
-                        f"schemes.{sname}.patterns[{i}]",
-                        f"{failed} is uncompensable: rank(Bbar sigma) < 2 (a leader wheel and two wheels must work)",
-                    )
+        for sname in configured_schemes(self):  # each scheme's own checks of its table against the case
+            hook = _scheme_hook(sname, "validate")
+            if hook is not None:
+                hook(getattr(self.schemes, sname), self)
         for key in ("a", "b", "r", "m", "I", "d"):
             v = getattr(self.plant.mismatch, key)
             count = n - 1 if key == "d" else n
@@ -1082,6 +1096,7 @@ class Case(_Strict):
                 for s in (c.scheme, c.relative_to):
                     if s is not None and (why := metric_problem(s, c.metric, kinds)) is not None:
                         raise _FieldError(f"claims[{i}].metric", why)
+        _check_requirements(self, run, known)
         for scheme, metrics in self.thresholds.items():
             if scheme not in known:
                 raise _FieldError(
@@ -1128,7 +1143,7 @@ class Case(_Strict):
         rk4 = None if motors is None else _rk4_on_currents(self.simulation, motors, self.drive_params())
         if rk4 is not None:
             out.append(rk4)
-        sw = self.schemes.switching
+        sw = getattr(self.schemes, "switching", None)
         if motors is not None and sw is not None and sw.c_int == 0.0 and "switching" in configured_schemes(self):
             out.append(
                 "schemes.switching: with [actuators] the thesis's instantaneous cost (c_int = 0) takes the drive's "
@@ -1169,6 +1184,21 @@ def _check_drive_rate(act: Actuators, sim: Simulation) -> None:
         )
 
 
+def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> None:
+    """[[requirements]]: ids unique, the scheme known and run, robots and wheels of this chain."""
+    ids = [r.id for r in case.requirements]
+    for i, r in enumerate(case.requirements):
+        if r.id in ids[:i]:
+            raise _FieldError(f"requirements[{i}].id", f"'{r.id}' is already the id of requirements[{ids.index(r.id)}]")
+        if r.scheme != "*" and r.scheme not in known:
+            raise _FieldError(
+                f"requirements[{i}].scheme",
+                f"unknown scheme '{r.scheme}'{did_you_mean(r.scheme, known)} (known: {', '.join(known)}, or \"*\")",
+            )
+        if r.scheme != "*" and run is not None and r.scheme not in run:
+            raise _FieldError(f"requirements[{i}].scheme", f"scheme '{r.scheme}' is not run by this case (schemes.run)")
+        for key, why in r.problems(case.robots.n):
+            raise _FieldError(f"requirements[{i}].{key}", why)
 def metric_problem(scheme: str, name: str, kinds: tuple[str, ...] = ("number",)) -> str | None:
     """Why the metric ``name`` cannot be compared on a run of ``scheme`` as one of ``kinds``, or None.
 
@@ -1331,15 +1361,6 @@ def _check_budget(case: Case) -> None:
             raise _FieldError(*problem)
 
 
-class _FieldError(ValueError):
-    """A validation error with an explicit field path (raised inside validators)."""
-
-    def __init__(self, loc: str, msg: str) -> None:
-        super().__init__(msg)
-        self.loc = loc
-        self.msg = msg
-
-
 def _is_tag(part: Any) -> bool:
     """A union member's tag in a pydantic error location (``constrained-float``, ``list[...]``, a model name)."""
     if not isinstance(part, str):
@@ -1407,14 +1428,6 @@ def _dict_depth(annotation: Any) -> int:
         depth += 1
         annotation = get_args(annotation)[1]
     return depth
-
-
-def did_you_mean(key: str, candidates: list[str]) -> str:
-    """`` (did you mean 'k_v'?)`` for the closest of ``candidates`` (difflib), or ''."""
-    close = difflib.get_close_matches(key, candidates, n=1, cutoff=0.6)
-    if not close:
-        close = [c for c in candidates if c.lower() == key.lower()]
-    return f" (did you mean '{close[0]}'?)" if close else ""
 
 
 _BOUND_OPS = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", ">="), "less_than": ("lt", "<")}
@@ -1569,11 +1582,7 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         case = case.model_copy(update={"name": stem})
     from .families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
 
-    models = {
-        "nominal": NominalScheme, "oracle": OracleScheme, "switching": SwitchingScheme, "adaptive": AdaptiveScheme,
-        "active": ActiveScheme, "active_ukf": ActiveUKFScheme,
-    }  # fmt: skip
-    return fill_defaults(case, models)
+    return fill_defaults(case)
 
 
 #: Fields of prose that may span lines (a TOML multi-line string): tabs and line ends are allowed there.
@@ -1697,6 +1706,8 @@ OWN_FIELDS = (
     "description",
     "thresholds",
     "claims",
+    "requirements",
+    "baseline",
     "campaign",
     "expected_status",
     "expected_status_of",
@@ -1852,7 +1863,11 @@ def case_hash(case: Case, version: str) -> str:
     The thesis claims are left out: they are judged on stored metrics and change no run.
     """
     # the motor fields (issue 19) are left out when unused, so older cases keep their hashes
-    exclude: dict[str, Any] = {"claims": True, "plugins": True}
+    # [baseline] only sets check's tolerances; [[requirements]] are evaluated during the run (from every
+    # step) and so belong to its content, left out when absent so that older cases keep their hashes
+    exclude: dict[str, Any] = {"claims": True, "plugins": True, "baseline": True}
+    if not case.requirements:
+        exclude["requirements"] = True
     if case.actuators is None:
         exclude["actuators"] = True
     if case.base_case is None:  # the overlay field (issue 19 item 4): older cases keep their hashes
@@ -1903,20 +1918,6 @@ def initial_state(case: Case, ref) -> tuple[np.ndarray, np.ndarray]:
         q0[2:] += (off + math.radians(ini.heading_offset_deg))[::-1]
         eta0 = r0.eta_d.copy() if ini.eta is None else np.asarray(ini.eta, dtype=float)
     return q0, eta0
-
-
-def switching_patterns(case: Case, chain: Chain, scheme: str = "switching") -> list[tuple[int, ...]] | None:
-    """The 0/1 patterns a scheme's models use (None: every compensable pattern)."""
-    sw = getattr(case.schemes, scheme)
-    if sw is None or sw.patterns == "all":
-        return None
-    out = []
-    for failed in sw.patterns:
-        pat = [1] * chain.n_wheels
-        for w in failed:
-            pat[wheel_index(w, chain.n)] = 0
-        out.append(tuple(pat))
-    return out
 
 
 def dropped_faults(case: Case, duration: float) -> str | None:

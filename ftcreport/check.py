@@ -17,11 +17,13 @@ comparable); a metric absent from the run fails with that reason.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from .claims import ClaimResult, bound_text, evaluate_claims
+from .requirements import applies_to
 from .store import StoredRun, read_json, stored_runs
 
 __all__ = [
@@ -36,6 +38,7 @@ __all__ = [
     "evaluate",
     "exit_code",
     "gate",
+    "requirement_items",
     "run_items",
     "stored_case",
     "summary",
@@ -68,11 +71,19 @@ class GateItem:
     detail: str = ""
     time: float = 0.0
     error: bool = False
+    lines: tuple[str, ...] = ()
 
     def line(self) -> str:
         """The terminal line: ``pass  <case> / <name>: <message>`` (``FAIL`` when it does not hold)."""
         mark = "pass" if self.ok else "FAIL"
         return f"{mark:4}  {self.case} / {self.name}: {self.message}".rstrip()
+
+    def terminal_lines(self) -> list[str]:
+        """:meth:`line`, or for a failed item that lists its findings (``lines``: a baseline's changes, one
+        per metric or signal) one ``FAIL  <finding>`` line each."""
+        if self.ok or not self.lines:
+            return [self.line()]
+        return [f"FAIL  {x}" for x in self.lines]
 
     @property
     def junit_class(self) -> str:
@@ -264,16 +275,85 @@ def _get(obj, key: str):
     return obj.get(key) if isinstance(obj, dict) else getattr(obj, key, None)
 
 
+# ------------------------------------------------------------------------------------------ requirements
+def requirement_items(
+    case: str, requirements: Sequence[Any], metrics_by_scheme: Mapping[str, dict | None]
+) -> list[GateItem]:
+    """One item per requirement x scheme x window (issue 35 item 11; :mod:`ftcreport.requirements`).
+
+    ``requirements``: the case's ``[[requirements]]`` (models or dicts); ``metrics_by_scheme``: the
+    stored metrics (None: the scheme was not run).  A window holds when every step's value is within
+    its bound; one violated or not evaluated (empty, or cut by a stopped run) fails.  A scheme whose
+    stored run has no record of a requirement (the run failed before its metrics) gives one failed
+    item saying so.
+    """
+    items: list[GateItem] = []
+    for scheme, m in metrics_by_scheme.items():
+        stored = (m or {}).get("requirements") or []
+        for index, req in enumerate(requirements):
+            if not applies_to(req, scheme):
+                continue
+            rid = _get(req, "id")
+            common = {
+                "schemes": (scheme,),
+                "field": f"requirements[{index}] (id '{rid}')",
+                "classname": f"{case}.{scheme}.requirements",
+            }
+            recs = [r for r in stored if isinstance(r, dict) and r.get("id") == rid]
+            if not recs:
+                why = (
+                    "the scheme was not run"
+                    if m is None
+                    else f"no result stored (run {m.get('status')}: {m.get('reason') or 'no reason given'})"
+                )
+                msg = f"not evaluated: {why}"
+                items.append(
+                    GateItem(
+                        "requirement",
+                        case,
+                        f"{scheme} / requirement {rid}",
+                        False,
+                        msg,
+                        testname=rid,
+                        detail=f"requirement {rid}: {msg}",
+                        **common,
+                    )
+                )
+                continue
+            for r in recs:
+                label = f"{rid} [{r.get('window_label')}]"
+                msg = f"{r.get('label')} {r.get('bound')}: {r.get('outcome')}: {r.get('reason')}"
+                items.append(
+                    GateItem(
+                        "requirement",
+                        case,
+                        f"{scheme} / requirement {label}",
+                        r.get("outcome") == "holds",
+                        msg,
+                        testname=label,
+                        detail=f"requirement {label}: {msg}",
+                        **common,
+                    )
+                )
+    return items
+
+
+def _requirement_items(case: StoredCase) -> list[GateItem]:
+    return requirement_items(case.name, case.record.get("requirements") or [], case.metrics())
+
+
 # ------------------------------------------------------------------------------------------ the gate
 #: The sources of a stored case's items, in the order they are shown.  Another kind of item is one
 #: function ``(StoredCase) -> list[GateItem]`` appended here (and its count's words in SUMMARY).
-CASE_ITEMS: list[Callable[[StoredCase], list[GateItem]]] = [run_items, threshold_items, claim_items]
+CASE_ITEMS: list[Callable[[StoredCase], list[GateItem]]] = [run_items, threshold_items, claim_items, _requirement_items]
 
 #: kind -> (words of its count line, shown even when there is none of the kind)
 SUMMARY: dict[str, tuple[str, bool]] = {
     "run": ("runs end as the case expects", True),
     "threshold": ("thresholds hold", True),
     "claim": ("thesis claims have their expected outcome", False),
+    "requirement": ("requirement windows hold", False),
+    "baseline": ("runs match the baseline", False),
 }
 
 

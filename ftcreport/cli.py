@@ -187,6 +187,11 @@ app = typer.Typer(
 )
 cases_app = typer.Typer(help="Validate case files or start a new one.", no_args_is_help=True)
 app.add_typer(cases_app, name="cases")
+baseline_app = typer.Typer(
+    help="Baselines for 'check --baseline': headline metrics and key signals of every case x scheme.",
+    no_args_is_help=True,
+)
+app.add_typer(baseline_app, name="baseline")
 
 
 def _version(value: bool) -> None:
@@ -460,10 +465,10 @@ def run(
             typer.echo(_dt_table(rows))
         for item in gate:
             typer.echo(printable(item.line()))
-        if duration is not None and (c.thresholds or c.claims):
+        if duration is not None and (c.thresholds or c.claims or c.requirements):
             typer.echo(
-                f"note: {case}: --duration {duration:g}: the case's thresholds and claims are stated for its own "
-                "duration and are not judged (run without --duration, or 'ftcreport check', to judge them)",
+                f"note: {case}: --duration {duration:g}: the case's thresholds, claims and requirements are stated "
+                "for its own duration and are not judged (run without --duration, or 'ftcreport check', to judge them)",
                 err=True,
             )
         typer.echo(f"results in {out / c.name}/" + (f", report {page}" if page else ""))
@@ -628,15 +633,25 @@ def check(
     out: Annotated[Path, typer.Option(help="Output directory (results are reused when cached).")] = Path("reports"),
     jobs: Annotated[int | None, typer.Option(help="Parallel processes.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print only failures.")] = False,
+    baseline: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also compare every case x scheme with this baseline ('ftcreport baseline save'): metrics and "
+            "signals within their tolerances; a change beyond them fails. Writes OUT/baseline.html."
+        ),
+    ] = None,
 ) -> None:
-    """The CI gate: every run, threshold and thesis claim of each case: exit 0 if all hold, 1 if not, 2 for bad files.
+    """The CI gate: every run, threshold, thesis claim and requirement of each case (and, with --baseline,
+    every run against a saved baseline): exit 0 if all hold, 1 if not, 2 for bad files.
 
     A run holds when it ends in a status its case expects (a failure cached by an earlier batch fails here
-    too); a thesis claim when its outcome (reproduced, not reproduced, not applicable) is the expected one.
+    too); a thesis claim when its outcome (reproduced, not reproduced, not applicable) is the expected one;
+    a time-windowed requirement in a window when every step's value is within its bound (a window
+    violated or not evaluated, empty or cut by a stopped run, fails).
 
     Runs what is not cached first (as 'batch' does).  --junit: one testcase per run, threshold and claim.
 
-    Example: ftcreport check cases/ --junit reports/junit.xml
+    Example: ftcreport check cases/ --baseline baselines/main
     """
     import datetime as _dt
     import time as _time
@@ -646,10 +661,24 @@ def check(
     from .report.junit import write_junit
     from .store import read_json
 
+    if baseline is not None:
+        from .baseline import check_dest
+
+        check_dest(baseline)  # a mistyped --baseline before anything runs
     started = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     wall0 = _time.perf_counter()
     res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
     items = gate(out, res.cases, res.case_errors, res.not_stored)
+    baseline_page = None
+    if baseline is not None:
+        from .baseline import baseline_items
+        from .report.baseline_page import render_baseline
+        from .store import output_lock
+
+        found, comparisons = baseline_items(out, res.cases, baseline)
+        items += found
+        with output_lock(out, "check"):
+            baseline_page = render_baseline(out, baseline, comparisons)
     if junit is not None:
         write_junit(
             junit,
@@ -660,49 +689,132 @@ def check(
         )
     for item in items:
         if not item.error and (not item.ok or not quiet):
-            typer.echo(printable(item.line()))
+            for line in item.terminal_lines():
+                typer.echo(printable(line))
     for msg in res.case_errors.values():
         typer.echo(printable(f"ftcreport: error: {msg}"), err=True)
     for line in summary(items):
         typer.echo(line)
+    if baseline_page is not None:
+        typer.echo(f"baseline comparison: {baseline_page}")
     if (code := exit_code(items)) != 0:
         raise typer.Exit(code=code)
+
+
+@baseline_app.command("save")
+def baseline_save(
+    cases: Annotated[list[Path] | None, typer.Argument(help="Case files or directories (default: cases/).")] = None,
+    dest: Annotated[
+        Path, typer.Option(help="The baseline directory to write (created; a saved case is replaced).")
+    ] = ...,
+    out: Annotated[Path, typer.Option(help="Output directory of the results (runs what is not cached).")] = Path(
+        "reports"
+    ),
+    jobs: Annotated[int | None, typer.Option(help="Parallel processes.")] = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Save the baseline of every case x scheme: headline metrics, key signals and their provenance.
+
+    Per case DEST/<case>/baseline.json (git revision, versions, case hash, the case file and its fields,
+    per scheme status and metrics) and signals.npz (position error, heading error per robot, torque per
+    wheel: minimum and maximum over 500 intervals). 'ftcreport check CASES --baseline DEST' compares
+    with it. A case whose runs did not end as it expects is not saved (exit 1).
+
+    Example: ftcreport baseline save cases/ --dest baselines/main
+    """
+    from .baseline import save_baseline
+    from .batch import run_batch
+    from .store import output_lock
+
+    if dest.exists() and not dest.is_dir():
+        raise FtcError(f"{dest}: --dest: exists and is not a directory")
+    res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
+    with output_lock(dest, "baseline save"):
+        refused = save_baseline(out, res.cases, dest)
+    for name, why in refused:
+        typer.echo(f"ftcreport: error: {name}: not saved: {why}", err=True)
+    for msg in res.case_errors.values():
+        typer.echo(f"ftcreport: error: {msg}", err=True)
+    typer.echo(f"{len(res.cases) - len(refused)} case(s) saved to {dest}, {len(refused)} refused")
+    if res.case_errors:
+        raise typer.Exit(code=2)
+    if refused:
+        raise typer.Exit(code=1)
 
 
 @app.command()
 def analyze(
     case: Annotated[Path, typer.Argument(help="One case file.")],
-    as_json: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the results as one JSON object.")] = False,
+    confirm: Annotated[
+        bool,
+        typer.Option(
+            "--confirm/--no-confirm",
+            help="Confirm each stability limit by two short simulations at 0.9x and 1.1x (cases with sampled "
+            "control or motors; a few seconds, more if the engine's loop must first be compiled).",
+        ),
+    ] = True,
+    results: Annotated[
+        Path | None,
+        typer.Option(
+            "--results",
+            help="A results directory (as batch writes): the stored runs of this case, if current, give the "
+            "states each scheme held and the model switching selected, phase by phase.",
+        ),
+    ] = None,
+    quiet: QuietOpt = False,
 ) -> None:
-    """Linearized analyses (python-control): closed-loop poles, controllability per fault pattern.
+    """Linearized analyses: every scheme in every fault phase, sampled where the case is, with limits.
 
-    Closed-loop poles (key closed_loop_poles, \\[re, im] pairs per scheme) for two-link cases
-    on constant-velocity references; controllability rank and Gramian per 0/1 pattern for all.
+    Per scheme and fault phase: the true and applied failure pattern, the closed loop's poles (z-plane
+    where the controller is sampled), stability, loop-at-a-time and disk margins at the actuator inputs;
+    per scheme the largest stable sample time and velocity gain, confirmed by simulation; and the
+    case-wide analyses (error poles, controllability per pattern, observer).  README, "Linearized
+    analysis", documents every key of --json.
 
-    Example: ftcreport analyze cases/two_link_adaptive_circle.toml --json
+    Example: ftcreport analyze cases/motors/two_link_switching_motors.toml --json
     """
     from .analysis import analyze_case
     from .cases import load_case
 
-    res = analyze_case(load_case(case))
+    c = load_case(case)
+    runs = _current_runs(results, c) if results is not None else None
+    # progress on a terminal only (as batch): nothing when piped or -q
+    say = None if quiet or not sys.stderr.isatty() else (lambda line: typer.echo(f"  analysed {line}", err=True))
+    res = analyze_case(c, runs=runs, confirm=confirm, progress=say)
     if as_json:
         from .store import _jsonable
 
-        typer.echo(json.dumps(_jsonable(res), indent=2))
+        typer.echo(json.dumps(_jsonable(_public(res)), indent=2))
         return
-    typer.echo(f"{res['case']}: {res['n_robots']} robots, reference {res['reference_kind']}")
-    if res.get("closed_loop_poles"):
-        for s, table in res["pole_tables"].items():
-            poles = ", ".join(f"{r['re']:.4g}{r['im']:+.4g}j" for r in table)
-            typer.echo(f"  {s}: closed-loop poles {poles}")
-        kp = ", ".join(f"{r['re']:.4g}{r['im']:+.4g}j" for r in res["kinematic_poles"])
-        typer.echo(f"  kinematic part (perfect velocity loop): {kp}")
-    else:
-        typer.echo(f"  closed-loop poles: {res['note']}")
-    worst = [r for r in res["controllability"] if r["compensable_rule"]][-3:]
-    typer.echo("  least well conditioned compensable patterns (Gramian min eigenvalue):")
-    for r in worst:
-        typer.echo(f"    {r['pattern']}: {r['gramian_min_eig']:.3g}")
+    from .analysis.summary import text_summary
+
+    for line in text_summary(res):
+        typer.echo(line)
+
+
+def _public(obj):
+    """The analysis without its private keys (``_bode``: the figures' frequency responses)."""
+    if isinstance(obj, dict):
+        return {k: _public(v) for k, v in obj.items() if not str(k).startswith("_")}
+    if isinstance(obj, list):
+        return [_public(v) for v in obj]
+    return obj
+
+
+def _current_runs(results: Path, case) -> dict:
+    """The stored time series of the case's schemes under ``results`` whose cache key is current."""
+    from .batch import run_key
+    from .cases import configured_schemes
+    from .store import cached_key, load_timeseries
+
+    out = {}
+    for scheme in configured_schemes(case):
+        if cached_key(results, case.name, scheme) == run_key(case, scheme):
+            ts = load_timeseries(results, case.name, scheme)
+            if ts is not None:
+                out[scheme] = ts
+    return out
 
 
 @app.command()
@@ -998,32 +1110,49 @@ def cases_schema(
 @app.command("schemes")
 def schemes_cmd(
     source: Annotated[
-        Path | None,
-        typer.Argument(help="A case file (its plug-in schemes are loaded and state sizes given) or a scheme file."),
+        str | None,
+        typer.Argument(
+            help="A case file (its plug-in schemes are loaded and state sizes given), a scheme file, or 'check'."
+        ),
     ] = None,
+    file: Annotated[Path | None, typer.Argument(help="With 'check': the scheme file to check.")] = None,
 ) -> None:
-    """List the built-in and registered (plug-in) schemes: name, family, description, reference.
+    """List the built-in and registered (plug-in) schemes: name, family, description, reference; or check one.
 
     Given a case file, its plugins are loaded and the schemes it runs are marked with their state
     size (the controller's states: kinematic and the scheme's own); given a scheme file (.py), it is
     loaded first.
 
+    'ftcreport schemes check FILE' (e.g. 'ftcreport schemes check examples/schemes/sliding_mode.py')
+    runs the scheme file's laws through a battery of checks before their first real run (shapes, finite
+    outputs on healthy and faulty patterns, determinism, declared signals written, writes within the
+    declared widths under numba's bounds checks, parameter defaults): one line per failure naming the
+    file, the line, the function and what to fix; exit 2 when one fails.
+
     Example: ftcreport schemes cases/two_link_sliding_mode.toml
     """
-    from .schemes import BUILT_IN, load_plugin, registered
+    from .schemes import built_in, load_plugin, registered
 
+    if source == "check":
+        if file is None:
+            raise FtcError("schemes check: give the scheme file to check (ftcreport schemes check FILE)")
+        _check_schemes(file)
+        return
+    if file is not None:
+        raise FtcError(f"schemes: one argument (a case or scheme file) expected, got {source} and {file}")
+    path = None if source is None else Path(source)
     sizes: dict[str, int] = {}
-    if source is not None and source.suffix == ".py":
-        load_plugin(source)
-    elif source is not None:
+    if path is not None and path.suffix == ".py":
+        load_plugin(path)
+    elif path is not None:
         from .cases import configured_schemes, load_case
         from .runner import build, make_controller
 
-        case = load_case(source)
+        case = load_case(path)
         built = build(case)
         for s in configured_schemes(case):
             sizes[s] = int(getattr(make_controller(built, s), "n_states", 0))
-    rows = [(name, *info, "built-in") for name, info in BUILT_IN.items()]
+    rows = [(name, sc.family, sc.description, sc.reference, "built-in") for name, sc in built_in().items()]
     for name, sc in sorted(registered().items()):
         law = getattr(sc.law, "py_func", sc.law)
         code = getattr(law, "__code__", None)
@@ -1032,6 +1161,21 @@ def schemes_cmd(
         state = f"  [runs in this case, {sizes[name]} states]" if name in sizes else ""
         typer.echo(f"{name:16s} {family:16s} {description}{state}")
         typer.echo(f"{'':16s} {'':16s} reference: {reference}; {where}")
+
+
+def _check_schemes(file: Path) -> None:
+    """``schemes check FILE``: the battery's lines (failures first, numba's message after a TypingError)."""
+    from .schemes.check import check_file
+
+    typer.echo(f"checking {file} (compiles the laws with and without bounds checks: a minute or two when cold)")
+    findings = check_file(file)
+    failed = [f for f in findings if not f.ok]
+    for f in failed + [f for f in findings if f.ok]:
+        typer.echo(("FAIL " if not f.ok else "ok   ") + f.message)
+        if f.detail:
+            typer.echo("\n".join("     | " + line for line in f.detail.strip().splitlines()))
+    if failed:
+        raise typer.Exit(code=2)
 
 
 if __name__ == "__main__":  # pragma: no cover

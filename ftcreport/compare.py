@@ -38,6 +38,8 @@ import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from .schemes import built_in
+
 __all__ = [
     "ACTIVE",
     "CONTESTANTS",
@@ -58,18 +60,13 @@ __all__ = [
     "tied",
 ]
 
-ACTIVE = ("active", "active_ukf")
+# from the registry of schemes (each built-in scheme's file gives its family and its name in sentences)
+ACTIVE = tuple(name for name, sc in built_in().items() if sc.family == "active")
 # display names of the schemes in sentences
-LABEL = {
-    "nominal": "nominal (no FTC)",
-    "switching": "switching",
-    "adaptive": "adaptive",
-    "adaptive_frozen": "adaptive with frozen weights",
-    "active": "active (Farza)",
-    "active_ukf": "active (UKF)",
-    "oracle": "the oracle",
-}
-CONTESTANTS = ("switching", "adaptive", "active", "active_ukf")  # the three FTC families
+LABEL = {name: sc.display for name, sc in built_in().items()}
+CONTESTANTS = tuple(name for name, sc in built_in().items() if sc.contestant)  # the three FTC families
+BOUND = next(name for name, sc in built_in().items() if sc.family == "bound")  # the oracle: told the true faults
+BASELINE = next(name for name, sc in built_in().items() if sc.family == "baseline")  # nominal: no FTC
 
 
 def contestant(scheme: str) -> bool:
@@ -263,12 +260,12 @@ def compare_metric(rows: Sequence[Row], spec: MetricSpec) -> MetricVerdict:
         Ranked(r.scheme, r.value, 1 + sum(o.value < r.value and not tied(o.value, r.value, spec) for o in done), r.note)
         for r in done
     ]
-    field_ = [r for r in ranking if r.scheme != "oracle"]
+    field_ = [r for r in ranking if r.scheme != BOUND]
     best = field_[0].value if field_ else None
     # nobody wins when the best is "never" (every contestant never settles / misses a change)
     winners = [r.scheme for r in field_ if tied(r.value, best, spec)] if field_ and math.isfinite(best) else []
-    oracle = next((r.value for r in ranking if r.scheme == "oracle"), None)
-    nominal = next((r.value for r in ranking if r.scheme == "nominal"), None)
+    oracle = next((r.value for r in ranking if r.scheme == BOUND), None)
+    nominal = next((r.value for r in ranking if r.scheme == BASELINE), None)
     regret, regret_tie = ratio(best, oracle, spec)
     benefit, benefit_tie = ratio(nominal, best, spec)
     return MetricVerdict(
@@ -323,7 +320,8 @@ def compare_case(
     facts : mapping, optional
         Facts of the case the sentences may explain with: ``friction`` (a fault adds a friction
         torque), ``fractional`` (a gain strictly between 0 and 1), ``uncompensable`` (a phase with
-        rank(Bbar sigma) < 2).
+        rank(Bbar sigma) < 2), ``analysis`` (the case's linearized analysis, ``ftcreport.analysis.analyze_case``:
+        the verdict then cites it where a scheme loses or chatters, or nominal wins).
     """
     facts = dict(facts or {})
     rows = tidy(case, metrics_by_scheme)
@@ -347,7 +345,19 @@ def compare_case(
         if m.get("status") != "ok"
     ]
     sentences = _sentences(verdicts, metrics_by_scheme, list(fault_times), facts, failed)
+    if facts.get("analysis"):
+        sentences += _analysis_sentences(facts["analysis"], verdicts, metrics_by_scheme)
     return CaseVerdict(case, list(metrics_by_scheme), verdicts, sentences, outside, failed)
+
+
+def _analysis_sentences(analysis: dict, verdicts, metrics) -> list[str]:
+    """The linearized analysis cited where a scheme loses or chatters, or nominal wins (issue 37 item 7)."""
+    from .analysis.summary import analysis_sentences
+
+    after = verdicts.get("after_fault_error_max")
+    ranking = [r.scheme for r in after.ranking] if after else []
+    stopped = [s for s, m in metrics.items() if m.get("status") != "ok"]
+    return analysis_sentences(analysis, ranking, list(after.winners) if after else [], stopped)
 
 
 def fmt_value(x: float | None, unit: str = "") -> str:
@@ -377,7 +387,7 @@ def fmt_relative(mv: MetricVerdict, which: str) -> str:
     if tie or r is not None:
         return fmt_ratio(r, tie)
     num, den = (mv.best, mv.oracle) if which == "regret" else (mv.nominal, mv.best)
-    who = ("best", "oracle") if which == "regret" else ("nominal", "best")
+    who = ("best", BOUND) if which == "regret" else (BASELINE, "best")
     for side, x in zip(who, (num, den), strict=True):
         if x is not None and math.isinf(x):
             return f"n/a ({side}: never)"
@@ -403,7 +413,7 @@ def _times(ts: Sequence[float]) -> str:
 def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
     out = []
     ok = [s for s, m in metrics.items() if m.get("status") == "ok"]
-    if failed and not any(s != "oracle" for s in ok):
+    if failed and not any(s != BOUND for s in ok):
         longest = max(failed, key=lambda f: f[2] or 0.0)
         stops = ", ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)
         why = " The fault pattern is uncompensable: no law can keep tracking." if facts.get("uncompensable") else ""
@@ -432,7 +442,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
                 parts.append(f"{fmt_ratio(after.regret)} times the oracle's {fmt_value(after.oracle, 'm')}")
             elif after.regret_diff is not None:
                 parts.append(f"{fmt_value(after.regret_diff, 'm')} above the oracle's {fmt_value(after.oracle, 'm')}")
-        if after.nominal is not None and "nominal" not in after.winners:
+        if after.nominal is not None and BASELINE not in after.winners:
             if after.benefit_tie:
                 parts.append("no better than nominal")
             elif after.benefit is not None:
@@ -440,7 +450,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
             elif after.benefit_diff is not None:
                 parts.append(f"{fmt_value(after.benefit_diff, 'm')} smaller than nominal's")
         out.append(", ".join(parts) + ".")
-        if "nominal" in after.winners and not whole and any(contestant(s) for s in ok):
+        if BASELINE in after.winners and not whole and any(contestant(s) for s in ok):
             out.append(_why_nominal(facts, after))
     if failed:
         stops = "; ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)
@@ -461,7 +471,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         for s in never:
             m = metrics.get(s, {})
             extra = ""
-            if s == "switching" and _num(m.get("switching_match_fraction")) is not None:
+            if _num(m.get("switching_match_fraction")) is not None:  # a switching scheme's detection metric
                 extra = f" (wrong model {100 * (1 - float(m['switching_match_fraction'])):.0f} % of the time)"
             bits.append(f"{LABEL.get(s, s)} never settles{extra}")
         if rec.oracle is not None and bits:
@@ -566,7 +576,7 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
                 if s in wins:
                     wins[s][key] += 1
             for r in mv.ranking:
-                if r.scheme in regrets and r.scheme != "oracle" and mv.oracle is not None:
+                if r.scheme in regrets and r.scheme != BOUND and mv.oracle is not None:
                     ranked[r.scheme][key] += 1
                     g = mv.regret_of(r.scheme)
                     if g is not None:

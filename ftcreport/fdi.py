@@ -38,6 +38,7 @@ import numpy as np
 
 from . import __version__
 from .errors import FtcError
+from .schemes import built_in
 from .store import locked
 
 __all__ = [
@@ -296,7 +297,7 @@ def _isolation(segs, detector, setting, skip, kind: str) -> float | None:
 
 
 # ---------------------------------------------------------------------- execution (edge)
-ACTIVE = ("active", "active_ukf")
+ACTIVE = tuple(name for name, sc in built_in().items() if sc.family == "active")  # the registry's active schemes
 
 
 @locked("fdi")

@@ -21,7 +21,8 @@ Memory budget
 from __future__ import annotations
 
 import math
-import re
+
+from .names import NAME_PATTERN
 
 __all__ = [
     "GENERATED_NAMES",
@@ -36,7 +37,6 @@ __all__ = [
     "run_memory_bytes",
 ]
 
-NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 #: Every file and folder an ftcreport command writes at the top of an output directory (``reports/``),
 #: with who writes it: the one list of them.  A case is a folder there too, so none of these may be a
 #: case's name (tests/test_trust.py checks that a batch, check --junit and export write nothing else).
@@ -60,7 +60,6 @@ MAX_STEPS = 10_000_000
 #: memory a run may preallocate for its grid, logs and model bank
 MEMORY_BUDGET_BYTES = 1 << 30  # 1 GiB
 _BYTES_PER_STEP = 40  # time grid, step flags and their temporaries
-MAX_LOGGED_COSTS = 4096  # control.switching.MAX_LOGGED_COSTS (tests/test_switching_bank.py checks they agree)
 
 
 def name_problem(name: object) -> str | None:
@@ -97,44 +96,39 @@ def n_models(n: int) -> int:
 
 
 def run_memory_bytes(
-    n: int, duration: float, dt: float, log_every: int, scheme: str = "nominal", models: int | None = None
+    n: int, duration: float, dt: float, log_every: int, scheme: str = "", models: int | None = None
 ) -> tuple[int, int, int]:
     """Estimated (bytes, steps, logged samples) of one run.
 
     Logged values per sample: q, q_d, q_meas (n + 2 each), eta, eta_c, eta_d, z
-    (2 each), u, tau, sigma, ubar and the estimates (2n each, 8 arrays), plus
-    the controller state and its per-model signals: switching keeps 2 + 4n superposed
-    filter states and (2n + 1)(2n + 2) / 2 integral states whatever the bank
-    (control/switching.py) and logs N costs per sample up to MAX_LOGGED_COSTS
-    models, 2 above; its bank is the (N, 2n) pattern array, the list of tuples it
-    is built from (about 64 + 8 * 2n bytes per model) and the walk's tables
-    (9 * 2^(2n) bytes); adaptive 2n N weights, logged twice (state and chi_hat),
-    and a bank of about 8 values per model and wheel.
+    (2 each), u, tau, sigma, ubar and the estimates (2n each, 8 arrays), plus what the
+    scheme keeps beyond them (its ``Scheme.budget``: a model bank's states, costs and
+    weights per sample, and the bank itself; the switching and adaptive schemes').
     """
     steps = math.ceil(duration / dt)
     samples = steps // max(int(log_every), 1) + 2
     wheels = 2 * n
     width = 3 * (n + 2) + 8 + 8 * wheels + 16
     N = n_models(n) if models is None else models
-    if scheme == "switching":
-        width += 2 + 2 * wheels + (wheels + 1) * (wheels + 2) // 2 + 2 + (N if N <= MAX_LOGGED_COSTS else 2)
-    elif scheme in ("adaptive", "adaptive_frozen"):
-        width += 2 * N * wheels
-    return steps * _BYTES_PER_STEP + samples * width * 8 + _bank_bytes(n, scheme, N), steps, samples
+    extra, bank = _bank(n, scheme, N)
+    return steps * _BYTES_PER_STEP + samples * (width + extra) * 8 + bank, steps, samples
 
 
-def _bank_bytes(n: int, scheme: str, N: int) -> int:
-    """The model bank's bytes (run_memory_bytes)."""
-    wheels = 2 * n
-    if scheme == "switching":
-        return N * wheels * 8 + N * (64 + 8 * wheels) + 9 * 2**wheels
-    if scheme in ("adaptive", "adaptive_frozen"):
-        return 8 * N * wheels * 8
-    return 0
+def _bank(n: int, scheme: str, N: int) -> tuple[int, int]:
+    """(values logged per sample, bytes) a scheme keeps beyond the common ones (``Scheme.budget``), or (0, 0)."""
+    hook = _budget_hook(scheme)
+    return (0, 0) if hook is None else hook(n, N)
+
+
+def _budget_hook(scheme: str):
+    from .schemes import every
+
+    sc = every().get(scheme)
+    return None if sc is None else sc.budget
 
 
 def budget_problem(
-    n: int, duration: float, dt: float, log_every: int, scheme: str = "nominal", models: int | None = None
+    n: int, duration: float, dt: float, log_every: int, scheme: str = "", models: int | None = None
 ) -> tuple[str, str] | None:
     """(fields, reason) when a run exceeds :data:`MAX_STEPS` or :data:`MEMORY_BUDGET_BYTES`, else None."""
     if not (math.isfinite(duration) and math.isfinite(dt) and dt > 0 and duration > 0):
@@ -149,12 +143,13 @@ def budget_problem(
     need, steps, samples = run_memory_bytes(n, duration, dt, log_every, scheme, models)
     if need > MEMORY_BUDGET_BYTES:
         N = n_models(n) if models is None else models
-        banked = scheme in ("switching", "adaptive", "adaptive_frozen")
+        banked = _budget_hook(scheme) is not None
         why = f" with {N} models (3 * 4^(n-1) - 2 = {n_models(n)} for n = {n})" if banked else ""
-        field = "robots.n" if banked and 4 * _bank_bytes(n, scheme, N) > MEMORY_BUDGET_BYTES else "simulation.log_every"
+        field = "robots.n" if banked and 4 * _bank(n, scheme, N)[1] > MEMORY_BUDGET_BYTES else "simulation.log_every"
         return (
             field,
-            f"the {scheme} run needs about {need / 2**20:.0f} MiB ({samples} logged samples of {steps} steps{why}), "
+            f"the {scheme + ' ' if scheme else ''}run needs about {need / 2**20:.0f} MiB ({samples} logged samples "
+            f"of {steps} steps{why}), "
             f"over the memory budget of {MEMORY_BUDGET_BYTES / 2**20:.0f} MiB; raise simulation.log_every, "
             "shorten simulation.duration or list fewer patterns",
         )

@@ -327,6 +327,7 @@ METRICS: dict[str, Metric] = {
     "singularity_margin_min": Metric("number", "rad"),
     "verify_dt": Metric("record", "-"),  # run --verify-dt only
     "integrator": Metric("record", "-"),  # the method that ran (auto's pick), its steps, its stop's re-check
+    "requirements": Metric("record", "-"),  # cases with [[requirements]] only: every window's outcome
     # switching (switching_metrics)
     "switching_missed_detections": Metric("number", "1", _SWITCHING),
     "switch_count": Metric("number", "1", _SWITCHING),

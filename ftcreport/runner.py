@@ -12,18 +12,11 @@ import time
 import numpy as np
 
 from . import __version__
-from .cases import SCHEME_NAMES, Case, build_chain, build_plant_chain, case_hash, initial_state, switching_patterns
-from .control.active import ActiveController
-from .control.adaptive import AdaptiveController
-from .control.baselines import OracleController, nominal
+from .cases import Case, build_chain, build_plant_chain, case_hash, initial_state
 from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
-from .control.switching import SwitchingController
-from .diagnosis import diagnosis_metrics
 from .errors import CASE_ERRORS as _FTC_CASE_ERRORS
 from .errors import FtcError, RunEnvironmentError, environment_cause
-from .metrics import singularity_margin, switching_metrics, torque_metrics, tracking_metrics
-from .model.actuators import rotor_inertia_wheels
-from .observers import FarzaObserver, UKFEstimator
+from .metrics import singularity_margin, torque_metrics, tracking_metrics
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
@@ -98,61 +91,27 @@ def build(case: Case) -> Built:
 
 
 def make_controller(built: Built, scheme: str):
-    """The controller of one scheme of the case."""
+    """The controller of one scheme of the case: the registered scheme bound to the case (ftcreport.schemes)."""
+    from .families import default_k_v
+    from .schemes import SchemeContext, SchemeController, get
+
     case = built.case
     cfg = getattr(case.schemes, scheme, None)
     if cfg is None:
         raise FtcError(f"scheme '{scheme}' is not configured in case '{case.name}'")
     kin = built.kinematic()
-    if scheme not in SCHEME_NAMES:  # a registered (plug-in) scheme: the engine runs its compiled law
-        from .families import default_k_v
-        from .schemes import SchemeController, get
+    sc = get(scheme)
+    k_v = getattr(cfg, "k_v", None)
+    k_v = default_k_v(case) if k_v is None else k_v
+    if sc.controller is None:  # a plug-in: the engine runs its compiled law
+        from .schemes.check import ensure_checked
 
-        k_v = getattr(cfg, "k_v", None)
-        k_v = default_k_v(case) if k_v is None else k_v
-        return SchemeController(get(scheme), built.chain, kin, k_v, cfg, saturation=case.plant.saturation)
-    if scheme == "nominal":
-        return nominal(built.chain, kin, cfg.k_v)
-    if scheme == "oracle":
-        return OracleController(built.chain, kin, cfg.k_v)
-    if scheme == "switching":
-        motors = case.motor_params() if cfg.rotor_inertia else None  # the bank's filters know the rotors (#36)
-        return SwitchingController(
-            built.chain,
-            kin,
-            cfg.k_v,
-            patterns=switching_patterns(case, built.chain),
-            u_limit=case.plant.saturation,
-            rotor_inertia=None if motors is None else rotor_inertia_wheels(motors),
-            **cfg.model_dump(include={"gamma", "T_min", "c_inst", "c_int", "forgetting", "hysteresis"}),
-        )
-    if scheme in ("adaptive", "adaptive_frozen"):
-        return AdaptiveController(
-            built.chain,
-            kin,
-            cfg.k_v,
-            patterns=switching_patterns(case, built.chain, scheme),
-            gamma=cfg.gamma,
-            Gamma_f=cfg.Gamma_f,
-            adapt=scheme == "adaptive",
-        )
-    if scheme == "active":
-        obs = FarzaObserver(
-            built.chain,
-            cfg.Theta,
-            cfg.k0,
-            cfg.k1,
-            cfg.p0,
-            cfg.p_max,
-            estimate=tuple(dict.fromkeys(cfg.estimate)),
-            q_hat0=cfg.q_hat0,
-        )
-        return ActiveController(built.chain, kin, cfg.k_v, obs, u_limit=case.plant.saturation, tau=cfg.tau)
-    if scheme == "active_ukf":
-        noise = cfg.model_dump(include={"meas_std", "eta_noise", "rho_noise", "ubar_noise", "rho_std0", "ubar_std0"})
-        ukf = UKFEstimator(built.chain, estimate=tuple(dict.fromkeys(cfg.estimate)), **noise)
-        return ActiveController(built.chain, kin, cfg.k_v, ukf, u_limit=case.plant.saturation, tau=cfg.tau)
-    raise FtcError(f"unknown scheme '{scheme}'")
+        ctrl = SchemeController(sc, built.chain, kin, k_v, cfg, saturation=case.plant.saturation, case=case)
+        ensure_checked(ctrl)  # its first run: its law under bounds checks first (once per version of its file)
+        return ctrl
+    nz, nq = len(kin.z_names), built.chain.n_q
+    ctx = SchemeContext(built.chain, kin, float(k_v), cfg, case.plant.saturation, kin.n_states, 6 + nz + nq, case)
+    return sc.controller(sc, ctx)  # a built-in scheme's face (ftcreport.control)
 
 
 def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=None) -> tuple[Run, dict]:
@@ -230,6 +189,8 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     # every metric reads the metric stream (every accepted step), never the decimated log
     t, S = (run.t_stream, run.stream) if run.stream else (run.t, run.signals)
     out["metric_samples"] = int(t.size)
+    if case.requirements:  # every window of every [[requirements]] table, from the same stream
+        out["requirements"] = _requirements(case, scheme, run, built, t, S)
     if t.size < 2:
         return out
     phases = built.faults.phases(min(case.simulation.duration, run.t_end))
@@ -241,41 +202,28 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     first_fault = min(built.faults.times, default=None)
     out |= torque_metrics(S["tau"], S["u"], case.plant.saturation, t, omega, first_fault)
     out["singularity_margin_min"] = singularity_margin(S["q"])
-    if scheme == "switching":
-        out |= switching_metrics(t, S["selected"], ctrl.patterns, S["sigma"], list(built.faults.times))
-        out["patterns"] = ctrl.patterns.astype(int).tolist()
-    if scheme in ("adaptive", "adaptive_frozen"):
-        out["patterns"] = ctrl.patterns.astype(int).tolist()
-        out["chi_hat_min"] = float(np.min(S["chi_hat_min"])) if "chi_hat_min" in S else float(run["chi_hat"].min())
-        out["chi_hat_max"] = float(np.max(S["chi_hat_max"])) if "chi_hat_max" in S else float(run["chi_hat"].max())
-        out["chi_hat_final"] = run["chi_hat"][-1].tolist()
-        # control variables, not a diagnosis (ERRATA P2)
-        out["friction_estimate_final"] = S["uf_hat"][-1].tolist()
-        out["friction_true_final"] = S["ubar"][-1].tolist()
-        out["friction_estimate_note"] = "control variable of the adaptive law, not a fault diagnosis (ERRATA P2)"
-    if scheme in ("active", "active_ukf"):
-        cfg = getattr(case.schemes, scheme)
-        names = ctrl.est.parameter_names()
-        out["estimated_parameters"] = names
-        out |= diagnosis_metrics(
-            built.chain,
-            built.faults,
-            names,
-            t,
-            S,
-            case.plant.saturation,
-            cfg.diagnosis.gain_band,
-            cfg.diagnosis.friction_band,
-            cfg.diagnosis.dwell,
-            run.t_end,
-            cfg.diagnosis.settle_band,
-            cfg.diagnosis.gain_tolerance,
-            cfg.diagnosis.friction_tolerance,
-        )
-        out["P_max"] = float(np.max(S["P_max"]))
-        out["rho_hat_final"] = S["rho_hat"][-1].tolist()
-        out["ubar_hat_final"] = S["ubar_hat"][-1].tolist()
+    hook = ctrl.scheme.metrics  # the scheme's own metrics (switching detection, adaptive weights, diagnosis)
+    if hook is not None:
+        out |= hook(case, scheme, t, S, built, ctrl, run)
     return out
+
+
+def _requirements(case: Case, scheme: str, run: Run, built: Built, t: np.ndarray, S: dict) -> list[dict]:
+    """The case's requirements on this run (ftcreport.requirements), windows from the run's fault events."""
+    from .model import wheel_index
+    from .requirements import evaluate_requirements
+
+    return evaluate_requirements(
+        case.requirements,
+        scheme,
+        t,
+        S,
+        built.faults.times,
+        case.simulation.duration,
+        run.t_end,
+        run.status,
+        wheel_index=lambda w: wheel_index(w, case.robots.n),
+    )
 
 
 # Why a metric can be null, by its key (the last part of its path in metrics.json).
@@ -292,7 +240,7 @@ _NULL_WHY = {
     "position_error_final": "no logged sample in this phase (the run stopped before it)",
     "position_error_iae": "fewer than two logged samples in this phase",
 }
-_NOT_METRICS = {"reason", "traceback", "name", "description", "null_reasons"}
+_NOT_METRICS = {"reason", "traceback", "name", "description", "null_reasons", "requirements"}
 
 
 def explain_nulls(metrics: dict) -> dict:

@@ -26,7 +26,7 @@ __all__ = ["SECTIONS", "markdown_tables", "schema_json", "table", "update_readme
 #: marker key -> (TOML table shown in the heading, model, fields to leave out)
 SECTIONS: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {
     "top": ("top level", C.Case, ("robots", "reference", "initial", "faults", "kinematic", "schemes", "simulation",
-                                  "plant", "campaign", "thresholds", "actuators")),
+                                  "plant", "campaign", "thresholds", "actuators", "requirements", "baseline")),
     "robots": ("[robots]", C.Robots, ()),
     "reference": ("[reference]", C.Reference, ()),
     "initial": ("[initial]", C.Initial, ()),
@@ -35,20 +35,49 @@ SECTIONS: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {
     "drive_model": ("[actuators.drive_model]", C.DriveModel, ()),
     "kinematic": ("[kinematic]", C.Kinematic, ()),
     "schemes": ("[schemes]", C.Schemes, ()),
-    "nominal": ("[schemes.nominal]", C.NominalScheme, ()),
-    "oracle": ("[schemes.oracle]", C.OracleScheme, ()),
-    "switching": ("[schemes.switching]", C.SwitchingScheme, ()),
-    "adaptive": ("[schemes.adaptive], [schemes.adaptive_frozen]", C.AdaptiveScheme, ()),
-    "active": ("[schemes.active]", C.ActiveScheme, ()),
-    "active_ukf": ("[schemes.active_ukf]", C.ActiveUKFScheme, ()),
-    "diagnosis": ("[schemes.active.diagnosis], [schemes.active_ukf.diagnosis]", C.Diagnosis, ()),
     "simulation": ("[simulation]", C.Simulation, ()),
     "plant": ("[plant]", C.Plant, ()),
     "noise": ("[plant.noise]", C.Noise, ()),
     "mismatch": ("[plant.mismatch]", C.Mismatch, ()),
     "bound": ("[thresholds.<scheme>] metric = { min, max }", C.Bound, ()),
+    "requirements": ("[[requirements]]", C.Requirement, ()),
+    "after_fault": ("start, end = { after_fault = N }", C.AfterFault, ()),
+    "baseline": ("[baseline]", C.BaselineSpec, ()),
+    "tolerance": ("[baseline.metrics.<name>], [baseline.signals.<name>]", C.Tolerance, ()),
     "campaign": ("[campaign]", C.CampaignSpec, ()),
 }  # fmt: skip
+
+
+def _scheme_sections() -> dict[str, tuple[str, type[BaseModel], tuple[str, ...]]]:
+    """One section per built-in scheme's parameter model (schemes sharing a model share its section, keyed
+    by the first), then one per table nested in them (``diagnosis``), keyed by the field's name."""
+    from .schemes import built_in
+
+    by_model: dict[type, list[str]] = {}
+    for name, sc in built_in().items():
+        if sc.params is not None:
+            by_model.setdefault(sc.params, []).append(name)
+    out: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {}
+    nested: dict[tuple[str, type], list[str]] = {}
+    for model, names in by_model.items():
+        out[names[0]] = (", ".join(f"[schemes.{n}]" for n in names), model, ())
+        for field, info in model.model_fields.items():
+            sub = info.annotation
+            if isinstance(sub, type) and issubclass(sub, BaseModel):
+                nested.setdefault((field, sub), []).extend(names)
+    for (field, sub), names in nested.items():
+        out[field] = (", ".join(f"[schemes.{n}.{field}]" for n in names), sub, ())
+    return out
+
+
+def _with_schemes(sections: dict) -> dict:
+    keys = list(sections)
+    at = keys.index("schemes") + 1
+    merged = {k: sections[k] for k in keys[:at]} | _scheme_sections()
+    return merged | {k: sections[k] for k in keys[at:]}
+
+
+SECTIONS = _with_schemes(SECTIONS)
 
 
 def schema_json() -> str:

@@ -413,6 +413,7 @@ KIND_NAME = ".ftcreport.kind"  # which command family's results a directory hold
 #: the family of each locking command: commands of one family share a directory's layout
 KINDS = {"batch": "results", "run": "results", "check": "results", "report": "results", "export": "results"}
 KINDS |= {"sample": "campaign"}  # ftcreport sample: a campaign's sample pages
+KINDS |= {"baseline save": "baseline"}  # ftcreport baseline save --dest: a baseline's directory
 _HOMES = {
     "results": "reports",
     "campaign": "reports/campaigns/<case>",

@@ -13,10 +13,11 @@ from ftcreport.control.adaptive import AdaptiveController
 from ftcreport.control.kinematic import TwoLinkKinematic
 from ftcreport.errors import ModelError
 from ftcreport.fast import kernels as F
-from ftcreport.fast.engine import compiled_spec
+from ftcreport.fast.engine import compiled_spec, law_buffers, loop_for
 from ftcreport.model import Chain
 from ftcreport.references import FlatReference, eight
 from ftcreport.runner import build, make_controller, run_scheme
+from ftcreport.schemes.kernels import engine_terms
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 
@@ -29,11 +30,13 @@ def eight_case():
 
 
 def test_pattern_laws_realise_the_bracket():
-    """The compiled adaptive law (fast.kernels.adaptive_law) with the weights of model k alone (chi_(k) = 1):
-    u = u_(k), Mbar1^-1 Bbar sigma_(k) u_(k) = w - Mbar1^-1 Bbar uhat_f (3.121), nothing to assumed-failed wheels."""
+    """The compiled adaptive law (schemes.laws.passive.adaptive_law, run by the loop's first_law) with the
+    weights of model k alone (chi_(k) = 1): u = u_(k), Mbar1^-1 Bbar sigma_(k) u_(k) = w - Mbar1^-1 Bbar uhat_f
+    (3.121), nothing to assumed-failed wheels."""
     built = build(load_case(CASES / "three_link_adaptive.toml"))
     ctrl = make_controller(built, "adaptive")
     spec = compiled_spec(ctrl)
+    loop = loop_for(spec.law, spec.disc, motors=False, sampled=False, terms=spec.terms)
     rng = np.random.default_rng(3)
     n, nw = built.chain.n, built.chain.n_wheels
     q = built.q0 + rng.normal(scale=0.02, size=built.q0.shape)
@@ -42,17 +45,16 @@ def test_pattern_laws_realise_the_bracket():
     uf = rng.normal(scale=0.2, size=nw)
     xc0[ctrl._uf] = uf
     none, info = np.zeros(0), np.zeros(4)
-    w, MB, _g, _e = F.matched_terms(
-        spec.kin, spec.ref, F.new_cache(n), spec.chain, 0.0, q, eta, xc0, ctrl.k_v, info, none
-    )
+    nk = ctrl.kin.n_states
+    w, MB, _g, _e = engine_terms(spec.kin, spec.ref, F.new_cache(n), spec.chain, 0.0, q, eta, xc0[:nk], ctrl.k_v, info)
     assert info[0] == 0
     for k, sigma in enumerate(ctrl.patterns):
         xc = xc0.copy()
         chi = np.zeros((ctrl.N, nw))
         chi[k] = 1.0
         xc[ctrl._chi] = chi.ravel()
-        u, _ = F.adaptive_law(spec.P, spec.kin, spec.ref, F.new_cache(n), spec.chain, 0.0, q, eta, xc,
-                              np.ones(nw), np.zeros(nw), info, none)  # fmt: skip
+        u = loop.first_law((spec.P, law_buffers(spec)), spec.kin, spec.ref, spec.chain, 0.0, q, eta, xc,
+                           np.ones(nw), np.zeros(nw), info, none)  # fmt: skip
         assert info[0] == 0
         # the bracket to round-off (values of O(1-10), 2 x 2 solves)
         np.testing.assert_allclose(MB @ (sigma * u), w - MB @ uf, rtol=0, atol=1e-10 * max(1.0, np.abs(w).max()))

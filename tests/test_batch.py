@@ -78,7 +78,8 @@ def test_every_run_writes_exactly_the_metrics_validation_knows(batch_dir):
         for s in json.loads(rec.read_text())["schemes"]:
             m = json.loads((out / rec.parent.name / s / "metrics.json").read_text())
             written = set(m) - set(_identity(case, s)) - {"status", "reason", "engine", "null_reasons"}
-            assert written == set(metrics_of(s)) - {"verify_dt"}, (rec.parent.name, s, written ^ set(metrics_of(s)))
+            optional = {"verify_dt"} | ({"requirements"} - set(m))  # run --verify-dt; cases with [[requirements]]
+            assert written == set(metrics_of(s)) - optional, (rec.parent.name, s, written ^ set(metrics_of(s)))
             seen.add(s)
     assert {"nominal", "oracle", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf"} <= seen
 
@@ -332,7 +333,7 @@ def test_every_thesis_case_page_has_its_claims_section(batch_dir):
 
 
 def test_a_cold_batch_starts_every_loop_in_the_first_wave():
-    # issue 20 item 3: the workers compile distinct loops side by side (fast.builtin's two groups,
+    # issue 20 item 3: the workers compile distinct loops side by side (schemes/laws' two dispatchers,
     # each plug-in's, each motor/sampled variant) before any loop's second run
     from ftcreport.batch import _compile_first, _loop_of
     from ftcreport.cases import configured_schemes, load_case
@@ -345,8 +346,12 @@ def test_a_cold_batch_starts_every_loop_in_the_first_wave():
     keys = [_loop_of(c, s) for c, _, s, _ in ordered]
     distinct = list(dict.fromkeys(keys))
     assert keys[: len(distinct)] == distinct  # every distinct loop once, before any repeat
-    groups = {k[0] for k in distinct}
-    assert {"passive", "active", "plugin:sliding_mode"} <= groups
+    laws = {k[0][0] for k in distinct}  # each loop by its law (the registry's "module:function")
+    assert {
+        "ftcreport.schemes.laws.passive:passive_law",
+        "ftcreport.schemes.laws.active:active_law",
+        "ftcreport_plugin_sliding_mode:law",
+    } == laws
     assert any(k[1] for k in distinct)  # the motor case's loops are a variant of their own
     rest = [(c.name, s) for c, _, s, _ in ordered[len(distinct) :]]
     assert rest == [(c.name, s) for c, _, s, _ in todo if (c.name, s) in set(rest)]  # the rest keeps its order

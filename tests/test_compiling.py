@@ -79,12 +79,16 @@ def test_ref_reads_the_same_fields_as_the_tuple():
 
 
 def test_variants_are_separate_modules_with_their_constants():
-    plain = loop_for(F.tracking_law, F.no_discrete, motors=False, sampled=False)
-    motors = loop_for(F.tracking_law, F.no_discrete, motors=True, sampled=False)
-    assert plain is not motors
-    assert (plain.MOTORS, plain.SAMPLED) == (False, False)
+    from ftcreport.schemes.laws.passive import passive_discrete, passive_law
+
+    plain = loop_for(passive_law, passive_discrete, motors=False, sampled=False)
+    motors = loop_for(passive_law, passive_discrete, motors=True, sampled=False)
+    own = loop_for(passive_law, passive_discrete, motors=False, sampled=False, terms=1)
+    assert plain is not motors and own is not plain
+    assert (plain.MOTORS, plain.SAMPLED, plain.TERMS_MODE) == (False, False, 0)
     assert (motors.MOTORS, motors.SAMPLED) == (True, False)
-    assert loop_for(F.tracking_law, F.no_discrete, motors=False, sampled=False) is plain  # one per process
+    assert own.TERMS_MODE == 1
+    assert loop_for(passive_law, passive_discrete, motors=False, sampled=False) is plain  # one per process
 
 
 # --------------------------------------------------------------------------- numba as it was found (38.1)
@@ -412,19 +416,20 @@ def test_numba_llvm_lock_event_is_off_while_an_entry_point_compiles_and_back_aft
 
 # --------------------------------------------------------------------------- the cache (38.3)
 def test_every_kernel_cache_is_outside_the_package_and_keyed_on_all_compiled_sources():
-    # a kernel cached from one file (fast/builtin.py) links kernels of another (fast/kernels.py): its cache
-    # entry must go stale when any compiled source changes, not only its own file
+    # a kernel cached from one file (schemes/laws/passive.py) links kernels of another (fast/kernels.py): its
+    # cache entry must go stale when any compiled source changes, not only its own file
     import hashlib
 
     from ftcreport import paths
-    from ftcreport.fast import builtin
+    from ftcreport.schemes.laws import passive
 
     root = Path(F.__file__).parent
     h = hashlib.sha256()
-    for path in sorted(root.glob("*.py")):
-        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    for sub in ("fast", "schemes", "schemes/laws"):  # the engine, the scheme interface, the built-in laws
+        for path in sorted((root.parent / sub).glob("*.py")):
+            h.update(path.name.encode() + b"\0" + path.read_bytes())
     assert compiling.engine_stamp() == h.hexdigest()
-    for kernel in (F._solve2, builtin.passive_law):
+    for kernel in (F._solve2, passive.passive_law):
         locator = kernel._cache._impl._locator
         assert isinstance(locator, compiling.KernelLocator)
         stamp = locator.get_source_stamp()
@@ -468,8 +473,9 @@ def test_cache_dir_is_keyed_by_versions_and_cpu_and_overridable(tmp_path, monkey
 def test_generated_loops_live_in_the_cache_dir(tmp_path, monkeypatch):
     from ftcreport import paths
     from ftcreport.fast import engine
+    from ftcreport.schemes.laws.passive import passive_discrete, passive_law
 
-    loop = loop_for(F.tracking_law, F.no_discrete, motors=False, sampled=False)
+    loop = loop_for(passive_law, passive_discrete, motors=False, sampled=False)
     assert Path(loop.__file__).parent == paths.cache_dir("loops")
     assert not Path(loop.__file__).is_relative_to(Path(F.__file__).parents[1])
     monkeypatch.setenv("FTCREPORT_CACHE", str(tmp_path))
@@ -497,3 +503,35 @@ def test_the_slice_size_message_of_a_kernel_is_numbas_own(tmp_path):
     ours, theirs = _python(code, tmp_path).strip().splitlines()
     assert ours == theirs
     assert re.fullmatch(r"cannot assign slice of shape \([23],\) from input of shape \([23],\)", ours)
+
+
+def test_a_cache_index_written_by_other_code_is_a_miss_not_an_error(monkeypatch):
+    """A cache index naming a module that no longer exists (left by another version of ftcreport: seen
+    as ``ModuleNotFoundError: No module named 'ftcreport.fast.builtin'`` after the schemes moved), or
+    pickle data cut short, makes KernelCache.load_overload return None (compile again) and flush the
+    function's index; any other error still propagates."""
+    import pickle
+
+    from numba.core import caching
+
+    from ftcreport.fast import compiling
+
+    flushed = []
+    cache = object.__new__(compiling.KernelCache)
+    monkeypatch.setattr(compiling.KernelCache, "flush", lambda self: flushed.append(1))
+    for exc in (ModuleNotFoundError("No module named 'ftcreport.fast.builtin'"), pickle.UnpicklingError("x"),
+                EOFError(), AttributeError("gone")):  # fmt: skip
+
+        def raising(self, sig, ctx, exc=exc):
+            raise exc
+
+        monkeypatch.setattr(caching.FunctionCache, "load_overload", raising)
+        assert cache.load_overload(None, None) is None
+    assert len(flushed) == 4
+
+    def bug(self, sig, ctx):
+        raise ZeroDivisionError("a bug is not a stale entry")
+
+    monkeypatch.setattr(caching.FunctionCache, "load_overload", bug)
+    with pytest.raises(ZeroDivisionError):
+        cache.load_overload(None, None)

@@ -152,7 +152,7 @@ def test_switching_ties_go_to_the_lowest_index():
         z[j1], z[j3] = e1 - (eta - h), e3 - (eta - h)
         xc[ctrl._filt] = np.concatenate((h, z.ravel()))
         fast = xc.copy()
-        F.switching_discrete(spec.P, spec.kin, spec.ref, F.new_cache(3), 1.0, q, eta, fast, np.zeros(4))
+        F.switching_select(spec.P, 1.0, eta, fast[ctrl.kin.n_states :])  # the rule on the scheme's own states
         return ctrl.costs(eta, xc), round(fast[ctrl._sel])
 
     # 3 smaller by 1e-11 relative: argmin would pick it

@@ -162,3 +162,37 @@ def test_the_graph_sees_lazy_imports_and_skips_type_checking():
     assert "ftcreport.report.render" in deps
     assert "ftcreport.cli" not in deps
     assert "ftcreport.fast.engine" in _graph()["ftcreport.sim"]  # simulate's function-level import
+
+
+#: the linearized analysis's numeric part: the loop's matrices, their sampling, limits and margins (pure)
+ANALYSIS_CORE = ("ftcreport.analysis.blocks", "ftcreport.analysis.sampled", "ftcreport.analysis.limits")
+ANALYSIS_CORE += ("ftcreport.analysis.margins",)
+#: the whole analysis package builds a case's loops (it may read the case and build it: cases, runner), but
+#: reaches no report, CLI or storage: the page and the command call it, never the reverse
+ANALYSIS_EDGES = tuple(e for e in EDGES if e not in ("ftcreport.cases", "ftcreport.runner"))
+
+
+def _reach(graph: dict[str, set[str]], m: str) -> set[str]:
+    seen, todo = set(), [m]
+    while todo:
+        for w in graph.get(todo.pop(), ()):
+            if w not in seen:
+                seen.add(w)
+                todo.append(w)
+    return seen
+
+
+def test_the_analysis_reaches_no_report_cli_or_store():
+    graph = _graph()
+    # runner reads the package root's __version__; the root wires the edges' conversions of a Run
+    # (as in test_the_import_graph_has_no_cycle), so its own imports are not the analysis's
+    graph.pop("ftcreport", None)
+    modules = [m for m in graph if _under(m, ("ftcreport.analysis",))]
+    assert len(modules) > 5
+    for m in modules:
+        assert not [w for w in _reach(graph, m) if _under(w, ANALYSIS_EDGES)], m
+    for m in ANALYSIS_CORE:
+        assert m in graph
+        assert not [w for w in _reach(graph, m) if _under(w, EDGES)], m
+        stdlib = {d.split(".")[0] for d in _imports(ROOT.parent / (m.replace(".", "/") + ".py"))}
+        assert not stdlib & set(IO_MODULES), (m, stdlib & set(IO_MODULES))

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ftcreport.cases import load_case
@@ -64,3 +65,27 @@ def test_the_audit_numbers_at_the_shipped_log_every():
     _, _, a = _run("two_link_adaptive_eight", "adaptive", 1.0, None)
     # the first-instant transient of the adaptive law: 657 N m at the first steps, missed by decimation
     assert a["torque_peak"] == pytest.approx(656.8, rel=1e-3)
+
+
+def test_requirements_do_not_depend_on_log_every():
+    """Requirement windows read every step too (issue 35): the shipped one on two_link_switching (log_every = 2)
+    and a violated one whose first violation falls between logged samples, identical at log_every = 1."""
+    from ftcreport.cases import Requirement
+
+    window = {"start": {"after_fault": 0.001}, "end": {"after_fault": 1.0}}
+    extra = Requirement.model_validate({"id": "tight", "signal": "torque_abs", "max": 0.05} | window)
+
+    def records(log_every):
+        case = load_case(CASES / "two_link_switching.toml")
+        sim = case.simulation.model_copy(update={"duration": 60.0, "log_every": log_every or case.simulation.log_every})
+        case = case.model_copy(update={"simulation": sim, "requirements": [*case.requirements, extra]})
+        run, m = run_scheme(case, "switching")
+        return run, m["requirements"]
+
+    run_s, shipped = records(None)
+    _, every = records(1)
+    assert json.dumps(shipped) == json.dumps(every)
+    firsts = [r["first_violation"]["time"] for r in shipped if r["outcome"] == "violated"]
+    assert firsts == pytest.approx([20.005, 50.005], abs=1e-9)  # 0.0516 and 0.0899 N m: the first step of each window
+    # ... at steps the shipped log (every second step) does not hold: the log alone would have missed them
+    assert not any(np.isclose(run_s.t, f, rtol=0, atol=1e-12).any() for f in firsts)

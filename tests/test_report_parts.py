@@ -8,9 +8,10 @@ import numpy as np
 
 from ftcreport.model import Chain
 from ftcreport.model.faults import FaultEvent, FaultSchedule
+from ftcreport.report.analysis_figs import group_tables as _group_tables
 from ftcreport.report.interactive import decimate, errors_fig, torques_fig
 from ftcreport.report.plots import fault_phases
-from ftcreport.report.render import _group_tables, _script_json
+from ftcreport.report.render import _script_json
 from ftcreport.report.replay import replay_data
 
 

@@ -102,7 +102,7 @@ def test_etd2_without_motors_is_second_order():
 def test_measurement_delay_feeds_the_law_the_state_of_d_samples_before(delay):
     """At each sample the held command is the law at (t_k, x(t_{k-d}), xc(t_k)): recomputed here by the
     loop's own entry point (first_law) from the logged states, so only the delay line is under test."""
-    from ftcreport.fast.engine import compiled_spec, loop_for
+    from ftcreport.fast.engine import compiled_spec, law_buffers, loop_for
 
     m = 4  # steps per sample
     built = build(load_case(CASE))
@@ -113,23 +113,24 @@ def test_measurement_delay_feeds_the_law_the_state_of_d_samples_before(delay):
     run = simulate(built.plant, ctrl, built.q0, built.eta0, s)
     assert run.status == "ok", run.reason
     spec = compiled_spec(ctrl)
-    loop = loop_for(spec.law, spec.disc, motors=False, sampled=True)
+    loop = loop_for(spec.law, spec.disc, motors=False, sampled=True, terms=spec.terms)
+    P = (spec.P, law_buffers(spec))
     q, eta, xc, u = run["q"], run["eta"], run["xc"], run["u"]
     info = np.zeros(4)
     checked = 0
     for k in range(0, len(run.t) - 1, m):
         src = max(k - delay * m, 0)  # the first sample's measurement until one d samples old exists
         want = loop.first_law(
-            spec.P, spec.kin, spec.ref, spec.chain, run.t[k], q[src], eta[src], xc[k], run["sigma"][k],
-            run["ubar"][k], info,
+            P, spec.kin, spec.ref, spec.chain, run.t[k], q[src], eta[src], xc[k], run["sigma"][k],
+            run["ubar"][k], info, np.zeros(0),
         )  # fmt: skip
         # the same kernel on the same numbers: equal up to the loop's cached matrices (1e-12 of |u|)
         np.testing.assert_allclose(u[k], want, rtol=1e-12, atol=1e-12 * np.abs(u).max())
         checked += 1
     assert checked == 50
     if delay:  # and the state it sees is not today's: the command differs from the undelayed law's
-        now = loop.first_law(spec.P, spec.kin, spec.ref, spec.chain, run.t[40], q[40], eta[40], xc[40],
-                             run["sigma"][40], run["ubar"][40], info)  # fmt: skip
+        now = loop.first_law(P, spec.kin, spec.ref, spec.chain, run.t[40], q[40], eta[40], xc[40],
+                             run["sigma"][40], run["ubar"][40], info, np.zeros(0))  # fmt: skip
         assert np.abs(now - u[40]).max() > 1e-3 * np.abs(u).max()
 
 

@@ -284,3 +284,22 @@ def test_a_scheme_file_that_exits_on_import_is_named_every_time(tmp_path):
         with pytest.raises(ModelError, match=r"exits_on_import\.py: the scheme file called sys\.exit\(3\) on import"):
             load_plugin(bad)
     assert "ftcreport_plugin_exits_on_import" not in sys.modules
+
+
+def test_the_built_ins_load_once_for_threads_asking_at_once():
+    """A Dask worker's threads ask the registry at once (tests/test_campaign.py's two campaigns on one
+    scheduler read 'no scheme nominal is registered (registered: none)'): in a fresh process, 8 threads
+    started together each find every built-in scheme."""
+    import subprocess
+    import sys
+
+    code = (
+        "import threading\nfrom ftcreport.schemes import registry\n"
+        "names, go = [], threading.Barrier(8)\n"
+        "def ask():\n    go.wait()\n    names.append(sorted(registry.built_in()))\n"
+        "ts = [threading.Thread(target=ask) for _ in range(8)]\n"
+        "[t.start() for t in ts]\n[t.join() for t in ts]\n"
+        "print(len({tuple(n) for n in names}), len(names[0]))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["1", "7"], out

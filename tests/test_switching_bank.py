@@ -24,7 +24,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ftcreport import limits
 from ftcreport.control import switching as S
 from ftcreport.control.switching import TIE_RTOL, SwitchingController
 from ftcreport.fast import kernels as F
@@ -82,7 +81,8 @@ def test_superposed_filters_equal_the_per_model_filters():
     def superposed(t, x):
         MB, u, g, eta = inputs(t)
         dx = np.zeros_like(x)
-        F.switching_rates(Lw, np.ascontiguousarray(MB), u, g, eta, x, dx)
+        nk = kin.n_states  # the kernels' offsets are in the scheme's own states, after the kinematic ones
+        F.switching_rates(Lw, np.ascontiguousarray(MB), u, g, eta, x[nk:], dx[nk:])
         return dx
 
     def rk4(f, x, t, dt):
@@ -149,7 +149,7 @@ def test_walk_selects_what_the_exhaustive_rule_selects(n, c_int, reverse):
             J = J + c_int * np.einsum("ka,ab,kb->k", v, M, v)
         np.testing.assert_allclose(ctrl.costs(eta, xc), J, rtol=1e-12, atol=1e-15)
         want = _exhaustive(ctrl, ctrl.costs(eta, xc), cur, 1e9, 0.0)
-        F.switching_select(Lw, 1.0, eta, xc)
+        F.switching_select(Lw, 1.0, eta, xc[ctrl.kin.n_states :])
         assert round(xc[ctrl._sel]) == want, trial
         switched += want != cur
     assert switched > 40  # the rule really moved
@@ -170,11 +170,11 @@ def test_ties_go_to_the_lowest_index_also_in_the_walk():
     xc = _state(ctrl, h, Z)
     J = ctrl.costs(eta, xc)
     assert J[i3] < J[i5] < J[i3] * (1.0 + TIE_RTOL) and J.min() == J[i3]
-    F.switching_select(ctrl.packed(), 1.0, eta, xc)
+    F.switching_select(ctrl.packed(), 1.0, eta, xc[ctrl.kin.n_states :])
     assert round(xc[ctrl._sel]) == i5
     Z[3] = -np.array([3e-5, 3.9e-5]) - (eta - h)  # a real difference: the smaller cost wins
     xc = _state(ctrl, h, Z)
-    F.switching_select(ctrl.packed(), 1.0, eta, xc)
+    F.switching_select(ctrl.packed(), 1.0, eta, xc[ctrl.kin.n_states :])
     assert round(xc[ctrl._sel]) == i3
 
 
@@ -191,7 +191,7 @@ def test_banks_that_are_not_every_pattern_are_evaluated_pattern_by_pattern():
             A = rng.normal(scale=1e-2, size=(3, 2, 7))
             xc = _state(ctrl, eta + rng.normal(scale=1e-2, size=2), Z, np.einsum("tia,tib->ab", A, A))
             want = _exhaustive(ctrl, ctrl.costs(eta, xc), 0, 1e9, ctrl.T_min)
-            F.switching_select(ctrl.packed(), 1.0, eta, xc)
+            F.switching_select(ctrl.packed(), 1.0, eta, xc[ctrl.kin.n_states :])
             assert round(xc[ctrl._sel]) == want
     # fractional sigma: the kernel's cost is the quadratic form of the per-model filter
     ctrl = SwitchingController(chain, kin, 2.0, c_int=0.5)
@@ -247,7 +247,6 @@ def test_engine_selects_the_per_model_banks_sequence(n, c_int, events):
 def test_large_banks_log_the_selected_and_least_cost_only():
     chain, kin, q0 = demo_chain(7)  # 12286 models > MAX_LOGGED_COSTS
     ctrl = SwitchingController(chain, kin, 2.0)
-    assert S.MAX_LOGGED_COSTS == limits.MAX_LOGGED_COSTS
     assert ctrl.N > S.MAX_LOGGED_COSTS and "cost" not in ctrl.signal_names
     run = simulate(Plant(chain), ctrl, q0, np.array([0.5, 0.0]), SimSettings(0.01, 0.3))
     assert run.ok

@@ -19,7 +19,8 @@ and the reduced model (2.70),
 
 and the faults enter as ``tau = Sigma u + ubar`` (2.101)-(2.102), ``Sigma = diag(sigma)``.  The
 nominal law (3.35) with every wheel healthy is ``u = MB^+ w``, ``w = -k_v eta_e - T^T f_eta - g +
-eta_c'`` (``matched_terms`` returns w, MB, g and eta_e).  Here the sliding variable is the velocity
+eta_c'`` (the engine hands the law these terms: ``terms.w``, ``terms.MB``, ``terms.g``,
+``terms.eta_e``).  Here the sliding variable is the velocity
 error itself, ``s = eta_e`` (relative degree one in u; Slotine and Li, *Applied Nonlinear Control*,
 Prentice Hall 1991, ch. 7; Utkin, *Sliding Modes in Control and Optimization*, Springer 1992), and
 
@@ -50,7 +51,7 @@ necessary, not sufficient: ``lambda > 0`` holds for every sigma with ``(1 - min 
 1``, i.e. for partial losses of effectiveness, but a wheel lost completely (sigma = 0) can make
 ``A``'s symmetric part indefinite; then this passive law has no guarantee and the active or
 switching schemes, which identify sigma, are the right tools.  The law does not read the true
-faults (``sig_true``, ``ubar_true``): it is passive, one fixed law for every fault.
+faults (``step.sigma_true``, ``step.ubar_true``): it is passive, one fixed law for every fault.
 """
 
 from __future__ import annotations
@@ -65,7 +66,6 @@ from ftcreport import schemes
 from ftcreport.schemes import Scheme, SchemeContext, register
 
 jit = schemes.jit  # numba's njit with ftcreport's options (cache=True, nogil, error_model="numpy")
-matched_terms = schemes.matched_terms
 law_for_pattern = schemes.law_for_pattern
 
 
@@ -104,26 +104,22 @@ class SlidingModeParams(BaseModel):
 # 2. Pack: what the compiled law reads (numbers and arrays in a NamedTuple; never pass this
 #    tuple to an ftcreport kernel compiled with cache=True, see README "the numba rule").
 class P(NamedTuple):
-    k_v: float
     k0: float
     k_w: float
     phi: float
     healthy: np.ndarray  # sigma = 1 for every wheel: the law inverts the healthy MB
-    ksig: int  # index of this scheme's first signal in ``sig``
 
 
 def pack(ctx: SchemeContext) -> P:
     p = ctx.params if ctx.params is not None else SlidingModeParams()
-    return P(ctx.k_v, p.k0, p.k_w, p.phi, np.ones(ctx.chain.n_wheels), ctx.n_kin_signals)
+    return P(p.k0, p.k_w, p.phi, np.ones(ctx.chain.n_wheels))
 
 
-# 3. The law (no state of its own: n_states is 0, dx stays zero).
+# 3. The law: the engine hands it the matched terms at the measured state (its k_v: the table's);
+#    it writes the torques, its states' rates (none here: n_states is 0) and its signals.
 @jit
-def law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    dx = np.zeros(xc.shape[0])
-    w, MB, _g, s = matched_terms(Kp, R, C, pc, t, q, eta, xc, P.k_v, info, sig)
-    if info[0] != 0:  # the kinematic controller stopped the run (singular configuration)
-        return np.zeros(2 * pc.n), dx
+def law(P, step, terms, x, out):
+    w, s = terms.w, terms.eta_e  # the sliding variable s is the velocity error
     # K = k0 + k_w |w|: bounds |d| = |(A - I) w + MB ubar| (see the module docstring)
     K = P.k0 + P.k_w * math.sqrt(w[0] * w[0] + w[1] * w[1])
     # K sat(s / phi) = K s / max(|s|, phi): linear inside the boundary layer, K s/|s| outside
@@ -132,13 +128,11 @@ def law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
     v[0] = w[0] - gain * s[0]
     v[1] = w[1] - gain * s[1]
     # u = MB^+ (w - K sat(s / phi))
-    u = law_for_pattern(MB, v, P.healthy)
-    # 4. Signals: the sliding variable s = eta_e and the switching gain K
-    if sig.shape[0] > 0:
-        sig[P.ksig] = s[0]
-        sig[P.ksig + 1] = s[1]
-        sig[P.ksig + 2] = K
-    return u, dx
+    out.u[:] = law_for_pattern(terms.MB, v, P.healthy)
+    # 4. Signals: the sliding variable s = eta_e and the switching gain K, in the order declared below
+    out.sig[0] = s[0]
+    out.sig[1] = s[1]
+    out.sig[2] = K
 
 
 # 5. Register: from now on a case may name it in [schemes.sliding_mode] and schemes.run.

@@ -36,14 +36,15 @@ import numpy as np
 
 from ..errors import ModelError
 from ..model.chain import Chain
+from ..schemes.controller import SchemeController
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
-from .tracking import TrackingController
 
 __all__ = ["ActiveController"]
 
 
-class ActiveController:
-    """Estimator-based active FTC for any n with either kinematic controller.
+class ActiveController(SchemeController):
+    """Estimator-based active FTC for any n with either kinematic controller: the face of the ``active``
+    (Farza observer) and ``active_ukf`` (UKF) schemes.
 
     Parameters
     ----------
@@ -72,12 +73,10 @@ class ActiveController:
             raise ModelError(f"tau: filter time constant must be > 0 s, got {tau}")
         if u_limit is not None and not u_limit > 0:
             raise ModelError(f"u_limit: must be > 0 N m, got {u_limit}")
-        self.chain = chain
-        self.kin = kinematic
-        self.tracking = TrackingController(chain, kinematic, k_v)
-        self.k_v = float(k_v)
+        from ..schemes import get
+
+        self._bind(get(estimator.scheme), chain, kinematic, k_v, saturation=u_limit)
         self.est = estimator
-        self.u_limit = u_limit
         self.tau = tau
         self.discrete_time = bool(estimator.discrete_time)
         nw = chain.n_wheels
@@ -87,21 +86,40 @@ class ActiveController:
         self._filt = slice(self._est.stop, self._est.stop + (2 * nw if tau is not None else 0))
         self._u = slice(self._filt.stop, self._filt.stop + (nw if self.discrete_time else 0))
         self._t = slice(self._u.stop, self._u.stop + (1 if self.discrete_time else 0))
-        self.n_states = self._t.stop
-        self.signal_names = (
-            "eta_c",
-            "z",
-            "q_d",
-            "eta_d",
-            "q_hat",
-            "eta_hat",
-            "rho_hat",
-            "ubar_hat",
-            "sigma_used",
-            "ubar_used",
-            "P_max",
-            "param_std",
-        )
+        self.n_own = self._t.stop - nk
+        nq = chain.n_q
+        self.widths = {"q_hat": nq, "eta_hat": 2, "rho_hat": nw, "ubar_hat": nw, "sigma_used": nw, "ubar_used": nw}
+        self._P = None
+        self._finish()
+
+    @property
+    def P(self):
+        """The compiled law's parameters (schemes.laws.active.Active; offsets in the scheme's own states)."""
+        if self._P is None:
+            from ..fast import kernels as F
+            from ..model.kernels import packed
+            from ..schemes.laws.active import active
+
+            nk = self.kin.n_states
+            nan = float("nan")
+            law = F.law_params(
+                F.LAW_ACTIVE, self.k_v, self.chain.n_wheels, self.n_states,
+                u_limit=nan if self.u_limit is None else float(self.u_limit),
+            )  # fmt: skip
+            pc = packed(self.chain.params)
+            if self.discrete_time:
+                from ..fast.ukf import UkfLaw, ukf_params
+
+                o = self.est
+                ukf = UkfLaw(
+                    law, ukf_params(o), packed(o.chain.params), self._est.start - nk, self._filt.start - nk,
+                    nan if self.tau is None else float(self.tau), self._u.start - nk, self._t.start - nk,
+                )  # fmt: skip
+                self._P = active(law, pc, ukf=ukf)
+            else:
+                obs = self.est.packed(tau=self.tau, est0=self._est.start - nk, filt0=self._filt.start - nk)
+                self._P = active(law, pc, obs=obs)
+        return self._P
 
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
         xc = np.zeros(self.n_states)

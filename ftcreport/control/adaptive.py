@@ -37,14 +37,15 @@ import numpy as np
 from ..errors import ModelError
 from ..model.chain import Chain
 from ..model.faults import model_patterns
+from ..schemes.controller import SchemeController
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
-from .tracking import TrackingController
 
 __all__ = ["AdaptiveController"]
 
 
-class AdaptiveController:
-    """Multi-design integration adaptive FTC for any n with either kinematic controller.
+class AdaptiveController(SchemeController):
+    """Multi-design integration adaptive FTC for any n with either kinematic controller: the adaptive scheme's face
+    (``adaptive_frozen`` with ``adapt=False``).
 
     Parameters
     ----------
@@ -86,10 +87,9 @@ class AdaptiveController:
         G = G * np.eye(nw) if G.ndim == 0 else G
         if G.shape != (nw, nw) or np.any(np.linalg.eigvalsh(0.5 * (G + G.T)) <= 0):
             raise ModelError(f"Gamma_f: must be a positive scalar or a ({nw}, {nw}) positive definite matrix")
-        self.chain = chain
-        self.kin = kinematic
-        self.tracking = TrackingController(chain, kinematic, k_v)
-        self.k_v = float(k_v)
+        from ..schemes import get
+
+        self._bind(get("adaptive" if adapt else "adaptive_frozen"), chain, kinematic, k_v)
         self.patterns = np.array(pats, dtype=float)
         self.N = self.patterns.shape[0]
         self.gamma = float(gamma)
@@ -107,8 +107,25 @@ class AdaptiveController:
         self._kin = slice(0, nk)
         self._chi = slice(nk, nk + self.N * nw)
         self._uf = slice(self._chi.stop, self._chi.stop + nw)
-        self.n_states = self._uf.stop
-        self.signal_names = ("eta_c", "z", "q_d", "eta_d", "chi_hat", "uf_hat")
+        self.n_own = self._uf.stop - nk
+        self.widths = {}
+        self._P = None
+        self._finish()
+
+    @property
+    def P(self):
+        """The compiled law's parameters (fast.kernels.Law; offsets in the scheme's own states)."""
+        if self._P is None:
+            from ..fast import kernels as F
+
+            nk = self.kin.n_states
+            self._P = F.law_params(
+                F.LAW_ADAPTIVE, self.k_v, self.chain.n_wheels, self.n_states,
+                patterns=np.ascontiguousarray(self.patterns, dtype=float), gamma=self.gamma,
+                chi0=self._chi.start - nk, uf0=self._uf.start - nk,
+                Gamma_f=np.ascontiguousarray(self.Gamma_f, dtype=float), adapt=int(self.adapt),
+            )  # fmt: skip
+        return self._P
 
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
         xc = np.zeros(self.n_states)

@@ -57,8 +57,8 @@ import numpy as np
 from ..errors import ModelError
 from ..model.chain import Chain
 from ..model.faults import model_patterns
+from ..schemes.controller import SchemeController
 from .kinematic import ChainedBackstepping, TwoLinkKinematic
-from .tracking import TrackingController
 
 __all__ = ["MAX_LOGGED_COSTS", "TIE_RTOL", "SwitchingController"]
 
@@ -67,8 +67,8 @@ MAX_LOGGED_COSTS = 4096  # banks up to this size log every model's cost (n <= 6 
 WALK_MIN_MODELS = 32  # 0/1 banks from this size on are searched by the walk (fast.kernels._walk)
 
 
-class SwitchingController:
-    """Multiple-model switching FTC for any n with either kinematic controller.
+class SwitchingController(SchemeController):
+    """Multiple-model switching FTC for any n with either kinematic controller: the switching scheme's face.
 
     Parameters
     ----------
@@ -121,16 +121,14 @@ class SwitchingController:
                 raise ModelError(f"{name}: must be > 0, got {val}")
         if T_min < 0 or c_inst < 0 or c_int < 0 or hysteresis < 0:
             raise ModelError("T_min, c_inst, c_int and hysteresis must be >= 0")
-        self.chain = chain
-        self.kin = kinematic
-        self.tracking = TrackingController(chain, kinematic, k_v)
-        self.k_v = float(k_v)
+        from ..schemes import get
+
+        self._bind(get("switching"), chain, kinematic, k_v, saturation=u_limit)
         self.patterns = np.array(pats, dtype=float)  # (N, 2n)
         self.N = self.patterns.shape[0]
         self.gamma, self.T_min = float(gamma), float(T_min)
         self.c_inst, self.c_int, self.forgetting = float(c_inst), float(c_int), float(forgetting)
         self.hysteresis = float(hysteresis)
-        self.u_limit = u_limit
         self.rotor_inertia = None if rotor_inertia is None else np.asarray(rotor_inertia, dtype=float).reshape(-1)
         if self.rotor_inertia is not None and self.rotor_inertia.shape != (chain.n_wheels,):
             raise ModelError(f"rotor_inertia: {chain.n_wheels} values (one per wheel) expected")
@@ -145,15 +143,15 @@ class SwitchingController:
         self._int = slice(self._filt.stop, self._filt.stop + (n_tri if self.c_int > 0 else 0))
         self._sel = self._int.stop
         self._tsw = self._sel + 1
-        self.n_states = self._tsw + 1
-        # exact diagonal Jacobian of the linear filter / integral states (used by ROS2)
-        self.stiff_diagonal = np.zeros(self.n_states)
-        self.stiff_diagonal[self._filt] = -self.gamma
-        self.stiff_diagonal[self._int] = -self.forgetting
+        self.n_own = self._tsw + 1 - nk
+        self.widths = {}
         self.log_costs = self.N <= MAX_LOGGED_COSTS
-        costs = ("cost",) if self.log_costs else ("cost_selected", "cost_best")
-        self.signal_names = ("eta_c", "z", "q_d", "eta_d", "selected", *costs)
         self._packed = None
+        # exact diagonal Jacobian of the linear filter / integral states (used by ROS2)
+        stiff = np.zeros(self._tsw + 1)
+        stiff[self._filt] = -self.gamma
+        stiff[self._int] = -self.forgetting
+        self._finish(stiff[nk:])
 
     # ------------------------------------------------------------------ helpers
     def walk_tables(self) -> tuple[np.ndarray, np.ndarray]:
@@ -181,27 +179,35 @@ class SwitchingController:
         return codes, trie
 
     def packed(self):
-        """The kernels' parameters (fast.kernels.Law): the bank, the superposed filters' layout and the
-        walk's tables (fast.kernels.switching_rates, switching_select), built once."""
+        """The kernels' parameters (fast.kernels.Law): the bank, the superposed filters' layout (offsets in
+        the scheme's own states, after the kinematic controller's) and the walk's tables
+        (fast.kernels.switching_rates, switching_select), built once."""
         if self._packed is None:
             from ..fast import kernels as F
 
             codes, trie = self.walk_tables()
+            nk = self.kin.n_states
             self._packed = F.law_params(
                 F.LAW_SWITCHING, self.k_v, self.chain.n_wheels, self.n_states,
                 patterns=np.ascontiguousarray(self.patterns, dtype=float), gamma=self.gamma, T_min=self.T_min,
                 c_inst=self.c_inst, c_int=self.c_int, forgetting=self.forgetting, hysteresis=self.hysteresis,
-                u_limit=float("nan") if self.u_limit is None else float(self.u_limit), hat0=self._filt.start,
-                int0=self._int.start, n_int=self._int.stop - self._int.start, sel=self._sel, tsw=self._tsw,
-                codes=codes, trie=trie, Jw=np.zeros(0) if self.rotor_inertia is None else self.rotor_inertia,
+                u_limit=float("nan") if self.u_limit is None else float(self.u_limit), hat0=self._filt.start - nk,
+                int0=self._int.start - nk, n_int=self._int.stop - self._int.start, sel=self._sel - nk,
+                tsw=self._tsw - nk, codes=codes, trie=trie,
+                Jw=np.zeros(0) if self.rotor_inertia is None else self.rotor_inertia,
             )  # fmt: skip
         return self._packed
 
+    @property
+    def P(self):
+        return self.packed()
+
     def costs(self, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        """J_(k) for every model, (N,) (fast.kernels.switching_costs)."""
+        """J_(k) for every model, (N,), at the controller state ``xc`` (fast.kernels.switching_costs)."""
         from ..fast import kernels as F
 
-        return F.switching_costs(self.packed(), np.ascontiguousarray(eta, dtype=float), np.asarray(xc, dtype=float))
+        own = np.asarray(xc, dtype=float)[self.kin.n_states :]
+        return F.switching_costs(self.packed(), np.ascontiguousarray(eta, dtype=float), own)
 
     def filters(self, xc: np.ndarray) -> np.ndarray:
         """etahat_(k) of every model, (N, 2): h - sum_j (1 - sigma_kj) z_j."""

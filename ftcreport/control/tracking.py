@@ -31,6 +31,7 @@ import numpy as np
 from ..errors import ModelError
 from ..model import kernels as K
 from ..model.chain import Chain
+from ..schemes.controller import KINEMATIC_SIGNALS, SchemeController
 from .kinematic import ChainedBackstepping, KinematicOutput, TwoLinkKinematic
 
 __all__ = [
@@ -94,8 +95,8 @@ def law_for_pattern(terms: LawTerms, sigma_k: np.ndarray, w_extra: np.ndarray | 
     return _F().law_for_pattern(_vec(terms.MB), _vec(w), _vec(sigma_k))
 
 
-class TrackingController:
-    """Kinematic controller + dynamic law for one assumed pattern (nominal: healthy).
+class TrackingController(SchemeController):
+    """Kinematic controller + dynamic law for one assumed pattern (nominal: healthy): the nominal scheme's face.
 
     Parameters
     ----------
@@ -120,23 +121,36 @@ class TrackingController:
     ) -> None:
         if not k_v > 0:
             raise ModelError(f"k_v: velocity gain must be > 0, got {k_v}")
-        self.chain = chain
-        self.kin = kinematic
-        self.k_v = float(k_v)
+        from ..schemes import get
+
+        self._bind(get(self.scheme_name), chain, kinematic, k_v)
         self.sigma = np.ones(chain.n_wheels) if sigma is None else np.asarray(sigma, dtype=float)
         self.h = float(h)
-        self.n_states = kinematic.n_states
-        self.signal_names = ("eta_c", "eta_c_dot", "z", "q_d", "eta_d")
+        self.n_own = 0
+        self.widths = {}
+        self._P = None
+        self._finish()
+
+    scheme_name = "nominal"
+    kinematic_signals = KINEMATIC_SIGNALS
+
+    @property
+    def P(self):
+        """The compiled law's parameters (fast.kernels.Law: the pattern the law assumes)."""
+        if self._P is None:
+            from ..fast import kernels as F
+
+            kind = F.LAW_ORACLE if self.scheme_name == "oracle" else F.LAW_TRACKING
+            sigma = np.ascontiguousarray(self.sigma, dtype=float)
+            self._P = F.law_params(kind, self.k_v, self.chain.n_wheels, self.n_states, sigma=sigma)
+        return self._P
 
     # --------------------------------------------------------------- pieces
     def eta_c_and_dot(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
         """(KinematicOutput at t, etadot_c along qdot = S(q) eta): the compiled ``eta_c_and_dot``, the loop's."""
         return self.kin.law_and_rate(t, q, eta, xc, K.S_matrix(self.chain.params, q), self.h)
 
-    # --------------------------------------------------------------- the engine's start; the analyses' law
-    def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
-        return self.kin.initial_state(t, q)
-
+    # --------------------------------------------------------------- the analyses' law
     def evaluate(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray):
         kin, eta_c_dot = self.eta_c_and_dot(t, q, eta, xc)
         Mbar1, Mbar2, Cbar, Bbar = K.reduced(self.chain.params, q, eta)

@@ -72,6 +72,7 @@ from . import lazy_link
 from .lazy_link import defined_symbols
 
 __all__ = [
+    "STALE_ENTRY",
     "TESTED",
     "AccelerationWarning",
     "KernelCache",
@@ -399,7 +400,7 @@ def jit(fn: Callable | None = None, *, cache: bool = True, **options):
 
 
 # --------------------------------------------------------------------------- the cache
-_ENGINE_FILES = ("fast",)  # the package's compiled sources: ftcreport/fast/*.py
+_ENGINE_FILES = ("fast", "schemes", "schemes/laws")  # the compiled sources: the engine, the scheme interface, laws
 
 
 def engine_stamp() -> str:
@@ -472,9 +473,36 @@ class KernelCacheImpl(caching.CompileResultCacheImpl):
 
 
 class KernelCache(caching.FunctionCache):
-    """numba's function cache with :class:`KernelCacheImpl`."""
+    """numba's function cache with :class:`KernelCacheImpl`.
+
+    An index that cannot be read back (:data:`STALE_ENTRY`: written by another version of ftcreport
+    whose modules or classes it names are gone, or truncated) is a cache miss, not an error: the
+    function's entries are flushed (numba's ``Cache.flush``) and it compiles again, so a cache that
+    outlived an upgrade never stops a run.
+    """
 
     _impl_class = KernelCacheImpl
+
+    def load_overload(self, sig, target_context):
+        try:
+            return super().load_overload(sig, target_context)
+        except Exception as exc:
+            if not _stale(exc):
+                raise
+            with contextlib.suppress(OSError):
+                self.flush()  # numba's save reads the index first: an unreadable one would fail it too
+            return None
+
+
+#: what reading back a cache entry raises when it was written by other code (a module or class it
+#: names that no longer exists) or cut short; pickle's own error is told by its name (see _stale)
+STALE_ENTRY = (ImportError, AttributeError, EOFError, ValueError, TypeError, IndexError, KeyError, OSError)
+
+
+def _stale(exc: BaseException) -> bool:
+    """Whether ``exc`` says a cache entry cannot be read back (:data:`STALE_ENTRY`, pickle's
+    UnpicklingError: matched by name, so the engine imports no pickle)."""
+    return isinstance(exc, STALE_ENTRY) or any(c.__name__ == "UnpicklingError" for c in type(exc).__mro__)
 
 
 def _rebuild(ctx, libdata, fndesc, env, signature, objectmode, lifted, typeann, reload_init, referenced_envs):

@@ -35,12 +35,6 @@ try:
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None
 
-from ..control.active import ActiveController
-from ..control.adaptive import AdaptiveController
-from ..control.baselines import OracleController
-from ..control.kinematic import ChainedBackstepping, TwoLinkKinematic
-from ..control.switching import SwitchingController
-from ..control.tracking import TrackingController
 from ..errors import (
     articulation_reason,
     bound_reason,
@@ -56,15 +50,12 @@ from ..errors import (
     with_step,
 )
 from ..model.kernels import kernel_ref, packed
-from ..observers.farza import FarzaObserver
-from ..observers.ukf import UKFEstimator
-from ..references import FlatReference
-from ..schemes import SchemeController
+from ..schemes.api import GUARD, N_GUARD, TERMS_MODES
+from ..schemes.controller import SchemeController
 from . import kernels as F
 from .compiling import engine_stamp
 from .drive import motor_state_count
 from .integrators import AUTO_METHODS, METHOD_CODES
-from .refs import to_ref
 
 __all__ = ["Spec", "compiled_spec", "loop_for", "simulate_compiled"]
 
@@ -72,114 +63,86 @@ NAN = float("nan")
 
 
 class Spec(NamedTuple):
-    """Everything the kernels need of a controller (see ftcreport.fast.kernels)."""
+    """Everything the kernels need of a controller (a scheme bound to a case: ftcreport.schemes)."""
 
     kin: F.Kin
     ref: F.Ref
-    law: object  # the scheme's compiled law (see ftcreport.fast.kernels, "the schemes' laws")
+    law: object  # the scheme's compiled law (ftcreport.schemes.api)
     disc: object  # its discrete update
     P: tuple  # its packed parameters
     chain: F.Chain
-    n_sig: int
-    controller: object
+    n_sig: int  # the logged signals: the kinematic ones, then the law's
+    controller: SchemeController
     start: bool = False  # the discrete update also runs at t0, before the first step
+    terms: int = 0  # how the matched terms reach the law (ftcreport.schemes.api.TERMS_MODES)
+    n_kin_sig: int = 0  # the kinematic signals' count (they come first in the signal row)
 
 
 def _chain(params) -> F.Chain:
     return packed(params)  # Chain.params is already the kernels' tuple (model.kernels.make_params)
 
 
-def _ref(ref: FlatReference) -> F.Ref | None:
-    return ref.packed()  # the face builds (and keeps) the kernels' tuple
-
-
-def _kin(kin, h: float) -> F.Kin | None:
-    if type(kin) in (TwoLinkKinematic, ChainedBackstepping):
-        return kin.packed(float(h))  # the face builds (and keeps) the kernels' tuple
-    return None
-
-
-def _law(kind, ctrl, nw: int, **kw) -> F.Law:
-    return F.law_params(kind, float(ctrl.k_v), nw, int(ctrl.n_states), **kw)
-
-
-def _kin_ref(controller) -> tuple[F.Kin, F.Ref] | None:
-    """The kinematic controller and its reference on the kernels, or None if either has no counterpart."""
-    kin_obj = getattr(controller, "kin", None)
-    if kin_obj is None or getattr(controller, "chain", None) is None:
-        return None
-    if not isinstance(getattr(kin_obj, "reference", None), FlatReference):
-        return None
-    tracking = controller if isinstance(controller, TrackingController) else getattr(controller, "tracking", None)
-    if tracking is None:
-        return None
-    ref = _ref(kin_obj.reference)
-    kin = _kin(kin_obj, tracking.h)
-    return None if ref is None or kin is None else (kin, ref)
-
-
 def compiled_spec(controller) -> Spec | None:
-    """The kernels' description of a controller, or None if it has no compiled counterpart."""
-    parts = _kin_ref(controller)
-    if parts is None:
-        return None
-    kin, ref = parts
-    kin_obj, chain = controller.kin, controller.chain
-    nw = chain.n_wheels
-    N = chain.n_q
-    n_kin = 4 + len(kin_obj.z_names) + N + 2  # eta_c, eta_c_dot, z, q_d, eta_d
-    n_sig = n_kin
-    start = False  # run the discrete update once at t0 (a sampled scheme computing its first command)
-    ulim = lambda v: NAN if v is None else float(v)  # noqa: E731
-    cls = type(controller)
-    pc = _chain(chain.params)
-    obs = ukf = None
-    if cls is OracleController:
-        P = _law(F.LAW_ORACLE, controller, nw)
-    elif cls is TrackingController:
-        P = _law(F.LAW_TRACKING, controller, nw, sigma=np.ascontiguousarray(controller.sigma, dtype=float))
-    elif cls is SwitchingController:
-        P = controller.packed()
-    elif cls is AdaptiveController:
-        c = controller
-        P = _law(
-            F.LAW_ADAPTIVE, c, nw, patterns=np.ascontiguousarray(c.patterns, dtype=float), gamma=c.gamma,
-            chi0=c._chi.start, uf0=c._uf.start, Gamma_f=np.ascontiguousarray(c.Gamma_f, dtype=float),
-            adapt=int(c.adapt),
-        )  # fmt: skip
-    elif cls is ActiveController and type(controller.est) is FarzaObserver:
-        c, o = controller, controller.est
-        obs = F.Obs(
-            float(o.Theta), float(o.k0), float(o.k1), NAN if o.p_max is None else float(o.p_max), int(o.est_rho),
-            int(o.est_ubar), int(o.p), float(o.sign), NAN if c.tau is None else float(c.tau),
-            np.ascontiguousarray(o.AY, dtype=float), np.ascontiguousarray(o.Soinv, dtype=float), int(c._est.start),
-            int(c._est.stop - c._est.start), int(c._filt.start),
-        )  # fmt: skip
-        P = _law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit))
-        n_sig = n_kin + N + 2 + 4 * nw
-    elif cls is ActiveController and type(controller.est) is UKFEstimator:
-        from .ukf import UkfLaw, ukf_params
+    """The kernels' description of a controller, or None if it has no compiled counterpart.
 
-        c, o = controller, controller.est
-        P = _law(F.LAW_ACTIVE, c, nw, u_limit=ulim(c.u_limit))
-        ukf = UkfLaw(
-            P, ukf_params(o), _chain(o.chain.params), c._est.start, c._filt.start,
-            NAN if c.tau is None else float(c.tau), c._u.start, c._t.start,
-        )  # fmt: skip
-        start = True
-        n_sig = n_kin + N + 2 + 4 * nw
-    elif isinstance(controller, SchemeController):  # a registered scheme (ftcreport.schemes): its own loop
-        law, disc = controller.scheme.law, controller.scheme.discrete or F.no_discrete
-        n_sig = n_kin + sum(controller.widths.values())
-        return Spec(kin, ref, law, disc, controller.P, pc, n_sig, controller, start)
-    else:
-        return None
-    from . import builtin as B
+    A controller is a scheme bound to a case (:class:`ftcreport.schemes.SchemeController`: a plug-in's, or
+    a built-in scheme's face): its scheme gives the law, the discrete update and how the terms reach the
+    law; the kinematic controller and its reference give their packed kernels (``kin.packed(h)``,
+    ``reference.packed()``), or None when either has none.
+    """
+    from ..schemes.registry import resolve
 
-    if obs is None and ukf is None:
-        return Spec(kin, ref, B.passive_law, B.passive_discrete, P, pc, n_sig, controller, start)
-    P = B.active(P, pc, obs, ukf)
-    return Spec(kin, ref, B.active_any_law, B.active_any_discrete, P, pc, n_sig, controller, start)
+    if not isinstance(controller, SchemeController):
+        return None
+    kin_obj = controller.kin
+    ref_obj = getattr(kin_obj, "reference", None)
+    if not hasattr(kin_obj, "packed") or not hasattr(ref_obj, "packed"):
+        return None
+    ref = ref_obj.packed()  # the faces build (and keep) the kernels' tuples
+    kin = kin_obj.packed(float(controller.h))
+    if ref is None or kin is None:
+        return None
+    scheme = controller.scheme
+    law = resolve(scheme.law)
+    disc = resolve(scheme.discrete) if scheme.discrete is not None else _no_discrete(law)
+    n_kin = 4 + len(kin_obj.z_names) + controller.chain.n_q + 2  # eta_c, eta_c_dot, z, q_d, eta_d
+    n_sig = n_kin + sum(controller.widths.values())
+    pc = _chain(controller.chain.params)
+    return Spec(
+        kin, ref, law, disc, controller.P, pc, n_sig, controller, bool(scheme.start), TERMS_MODES[scheme.terms], n_kin
+    )
+
+
+def _no_discrete(law):
+    """The discrete update of a scheme without one (the round-2 form's for a round-2 law)."""
+    from ..schemes.kernels import legacy_no_discrete, no_discrete
+    from ..schemes.registry import legacy
+
+    return legacy_no_discrete if legacy(law) else no_discrete
+
+
+def law_buffers(spec: Spec) -> tuple:
+    """The buffers a law writes (the loop's ``P[1]``): ``(k_v, u, dx, sig, x, fresh)``.
+
+    u (2n), dx and x (the scheme's own states), sig (its declared signals), each followed by
+    ``N_GUARD`` cells holding ``GUARD``, which the loop checks after every call of the law (and of
+    the discrete update, for x); ``fresh`` flags a kinematic evaluation by the law itself.
+    """
+    c = spec.controller
+
+    def guarded(n: int) -> np.ndarray:
+        buf = np.full(n + N_GUARD, GUARD)
+        buf[:n] = 0.0
+        return buf
+
+    n_own_sig = spec.n_sig - spec.n_kin_sig
+    nw, n = c.chain.n_wheels, c.n_own
+    return (float(c.k_v), guarded(nw), guarded(n), guarded(n_own_sig), guarded(n), np.zeros(1))
+
+
+def _law_input(spec: Spec, bufs: tuple) -> tuple:
+    """The loop's ``P``: the scheme's parameters and its law buffers."""
+    return (spec.P, bufs)
 
 
 def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
@@ -201,49 +164,22 @@ def _split_signals(
 ) -> dict[str, np.ndarray]:
     """The controller's named signals (its ``signal_names``) from the compiled log.
 
-    ``costs=False`` leaves out the switching costs (one per model and row): no metric reads them,
-    so the metric stream does not compute them at every step, only the saved log does.
+    The kinematic signals and the law's (by their declared widths) are columns of the signal rows;
+    the scheme's derived signals (``Scheme.derived``: the switching costs, the adaptive weights, the
+    estimators' covariance) are computed from the logged own states.  ``costs=False`` leaves out
+    what no metric reads, so the metric stream does not compute it at every step.
     """
     c = spec.controller
     nz = len(c.kin.z_names)
     cols = {"eta_c": (0, 2), "eta_c_dot": (2, 4), "z": (4, 4 + nz), "q_d": (4 + nz, 4 + nz + nq)}
     cols["eta_d"] = (4 + nz + nq, 6 + nz + nq)
-    out: dict[str, np.ndarray] = {}
     k = 6 + nz + nq
-    nw = c.chain.n_wheels
-    if isinstance(c, ActiveController):
-        for name, width in (("q_hat", nq), ("eta_hat", 2), ("rho_hat", nw), ("ubar_hat", nw)):
-            cols[name] = (k, k + width)
-            k += width
-        cols["sigma_used"] = (k, k + nw)
-        cols["ubar_used"] = (k + nw, k + 2 * nw)
-        o = c.est
-        if isinstance(o, UKFEstimator):  # the filter's whole covariance; the parameters' deviations
-            P = xc[:, c._est][:, o.nx :].reshape(-1, o.nx, o.nx)
-            first = nq + 2
-        else:  # the Farza observer's parameter covariance
-            P = xc[:, c._est][:, o._P].reshape(-1, o.p, o.p)
-            first = 0
-        out["P_max"] = np.linalg.eigvalsh(P).max(axis=1) if len(P) else np.zeros(0)
-        out["param_std"] = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2)[:, first:], 0.0))
-    if isinstance(c, SchemeController):
-        for name, width in c.widths.items():
-            cols[name] = (k, k + width)
-            k += width
-    for name, (a, b) in cols.items():
-        out[name] = sg[:, a:b].copy()
-    if isinstance(c, SwitchingController):
-        out["selected"] = np.round(xc[:, c._sel]).astype(float)
-    if isinstance(c, SwitchingController) and costs:  # (3.46) at the logged states (fast.kernels.switching_costs)
-        eta = np.ascontiguousarray(meas[:, nq : nq + 2], dtype=float)
-        J = F.switching_costs_rows(to_ref(c.packed()), eta, np.ascontiguousarray(xc, dtype=float), c.log_costs)
-        if c.log_costs:
-            out["cost"] = J
-        else:
-            out["cost_selected"], out["cost_best"] = J[:, 0].copy(), J[:, 1].copy()
-    if isinstance(c, AdaptiveController):
-        out["chi_hat"] = xc[:, c._chi].reshape(len(xc), c.N, nw)  # a view of the logged state where numpy can
-        out["uf_hat"] = xc[:, c._uf].copy()
+    for name, width in c.widths.items():
+        cols[name] = (k, k + width)
+        k += width
+    wanted = set(c.signal_names)
+    out: dict[str, np.ndarray] = {name: sg[:, a:b].copy() for name, (a, b) in cols.items() if name in wanted}
+    out |= c.derived_signals(xc[:, c.kin.n_states :], meas, costs)
     return {name: out[name] for name in c.signal_names if name in out}
 
 
@@ -295,9 +231,16 @@ def _message(info: np.ndarray, t: float, settings, ref: F.Ref, how: str = "") ->
     return "error", f"compiled engine: unknown error code {code} at t = {t:.6g} s"
 
 
-def _stop(info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: F.Ref) -> tuple[str, str, float]:
+def _stop(
+    info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: F.Ref, spec: Spec | None = None
+) -> tuple[str, str, float]:
     """(status, reason, t_end) of a fixed-step stop: a failed trial stage is a step problem, not a singularity
-    (until the re-check says otherwise, :func:`_relabel`)."""
+    (until the re-check says otherwise, :func:`_relabel`); a scheme that wrote past its buffers is an error
+    naming the scheme and the buffer (ftcreport.schemes.api)."""
+    if int(info[0]) == F.E_LAW_WRITE and spec is not None:
+        from ..schemes.controller import write_reason
+
+        return "error", write_reason(spec.controller, int(info[1]), float(info[2])), float(info[2])
     how = _how(settings)
     if int(info[0]) == F.E_STEP_JUMP:
         from ..runs import step_jump_words
@@ -337,7 +280,8 @@ def _initial_currents(loop, spec: Spec, plant, mo, dr, sigma, ubar, fm, t0: floa
     info = np.zeros(4)
     q, eta = x[:nq], x[nq : nq + 2]
     with _compiling(loop, loop.first_law):
-        u = loop.first_law(spec.P, spec.kin, spec.ref, pc, t0, q, eta, x[npl:], sigma, ubar, info)
+        u = loop.first_law(_law_input(spec, law_buffers(spec)), spec.kin, spec.ref, pc, t0, q, eta, x[npl:], sigma,
+                           ubar, info, np.zeros(0))  # fmt: skip
     if info[0] != 0 or not np.all(np.isfinite(u)):
         return np.zeros(npl - nq - 2)  # the loop reports the law's failure at its first step
     sat = plant.saturation
@@ -358,12 +302,15 @@ _LOOPS: dict[tuple, object] = {}
 _LOOPS_LOCK = threading.Lock()
 
 
-def loop_for(law, disc, motors: bool = True, sampled: bool = True):
+def loop_for(law, disc, motors: bool = True, sampled: bool = True, terms: int = 0, checked: bool = False):
     """The compiled loop (``run_steps`` of ftcreport.fast.loop) bound to a scheme's law and discrete update.
 
     ``motors``, ``sampled``: the loop's variant.  A variant without one of them does not compile its
     code at all (numba prunes the branches on these constants before typing).  Both integrators are
     always in (RK4 and ROS2 share the stages; a batch of RK4 and ROS2 cases needs one loop).
+    ``terms``: how the matched terms reach the law (ftcreport.schemes.api.TERMS_MODES), a constant of
+    the law's loop.  ``checked``: the bounds-checked loop of ``ftcreport schemes check`` (``law`` and
+    ``disc`` are then bounds-checked copies, ftcreport.schemes.check.boundschecked; nothing is cached).
 
     The loop's module is written once per (law, discrete update) from ftcreport/fast/loop.py, with
     its LOOP-BINDING line importing them, and imported under a name that is the same in every
@@ -371,7 +318,7 @@ def loop_for(law, disc, motors: bool = True, sampled: bool = True):
     the template or the law's source file changes (its text carries a hash of both), which also
     renews numba's cache: numba alone does not see a change in a function another file calls.
     """
-    key = (law, disc, bool(motors), bool(sampled))
+    key = (law, disc, bool(motors), bool(sampled), int(terms), bool(checked))
     loop = _LOOPS.get(key)
     if loop is not None:
         return loop
@@ -382,7 +329,14 @@ def loop_for(law, disc, motors: bool = True, sampled: bool = True):
     return loop
 
 
-def _load_loop(law, disc, motors: bool, sampled: bool):
+#: the template's lines that fast.engine.loop_for rewrites in each generated loop module
+BINDING = "LAW, DISC = no_law, no_discrete  # LOOP-BINDING"
+TERMS_LINE = "TERMS_MODE = 0  # LOOP-TERMS"
+LEGACY_LINE = "LEGACY = False  # LOOP-LEGACY"
+VARIANT = "MOTORS, SAMPLED = True, True  # LOOP-VARIANT"
+
+
+def _load_loop(law, disc, motors: bool, sampled: bool, terms: int = 0, checked: bool = False):
     """Write (if needed) and import the loop module bound to (law, disc) and the variant."""
     import hashlib
     import importlib.util
@@ -392,9 +346,9 @@ def _load_loop(law, disc, motors: bool, sampled: bool):
     from . import loop as template
 
     text = Path(template.__file__).read_text()
-    binding = "LAW, DISC = tracking_law, no_discrete  # LOOP-BINDING"
-    if binding not in text:
-        raise RuntimeError("ftcreport/fast/loop.py: the LOOP-BINDING line is missing")
+    for line in (BINDING, TERMS_LINE, LEGACY_LINE, VARIANT):
+        if line not in text:
+            raise RuntimeError(f"ftcreport/fast/loop.py: the line {line!r} is missing")
     # the text carries a hash of the law's and discrete update's files and of every compiled source of
     # the package (compiling.engine_stamp, which also stamps every kernel's numba cache entry)
     shared = engine_stamp()[:12]
@@ -403,15 +357,25 @@ def _load_loop(law, disc, motors: bool, sampled: bool):
         py = fn.py_func
         source = Path(inspect.getfile(py)).read_bytes()
         parts.append((py.__module__, py.__qualname__, alias, hashlib.sha1(source).hexdigest()[:12]))
-    lines = [f"from {m} import {q} as {a}  # source {h}" for m, q, a, h in parts]
-    lines.append(f"# ftcreport/fast sources {shared}")
-    text = text.replace(binding, "\n".join(lines))
-    variant_line = "MOTORS, SAMPLED = True, True  # LOOP-VARIANT"
-    if variant_line not in text:
-        raise RuntimeError("ftcreport/fast/loop.py: the LOOP-VARIANT line is missing")
-    text = text.replace(variant_line, f"MOTORS, SAMPLED = {motors}, {sampled}")
+    if checked:  # the bounds-checked copies (memoized: the same objects as the caller's)
+        lines = ["from ftcreport.schemes.check import boundschecked"]
+        lines += [f"from {m} import {q} as _{a}0  # source {h}" for m, q, a, h in parts]
+        lines += [f"{a} = boundschecked(_{a}0)" for _m, _q, a, _h in parts]
+    else:
+        lines = [f"from {m} import {q} as {a}  # source {h}" for m, q, a, h in parts]
+    lines.append(f"# ftcreport sources {shared}")
+    text = text.replace(BINDING, "\n".join(lines))
+    from ..schemes.registry import legacy
+
+    text = text.replace(TERMS_LINE, f"TERMS_MODE = {int(terms)}")
+    text = text.replace(LEGACY_LINE, f"LEGACY = {legacy(law)}")
+    variant = f"MOTORS, SAMPLED = {motors}, {sampled}"
+    if checked:  # every function of the module compiled with bounds checks, not cached
+        variant += "\nfrom ftcreport.schemes.check import checked_jit as jit  # noqa: E402"
+    text = text.replace(VARIANT, variant)
     tag = "__".join(f"{m}.{q}" for m, q, _, _ in parts)
-    tag += "__" + "".join(c for c, on in zip("ms", (motors, sampled), strict=True) if on)
+    tag += "__" + "".join(c for c, on in zip("ms", (motors, sampled), strict=True) if on) + ("", "o", "n")[terms]
+    tag += "_bc" if checked else ""
     name = "ftcreport_loop_" + "".join(c if c.isalnum() else "_" for c in tag)
     folder = _cache_dir()
     folder.mkdir(parents=True, exist_ok=True)
@@ -453,6 +417,26 @@ _FIRST_CALLS = [0.0]  # seconds in the entry points' first calls in this process
 
 
 _READY: set = set()  # the loops' entry points compiled or loaded in this process
+
+
+@contextlib.contextmanager
+def _law_errors(spec: Spec) -> Iterator[None]:
+    """A plug-in law that raises inside the compiled loop (numba's shape checks on a slice assignment, a
+    bounds-checked compile) is the scheme's error, naming it (:class:`~ftcreport.errors.ModelError`)."""
+    try:
+        yield
+    except (ValueError, IndexError, ZeroDivisionError, AssertionError, TypeError) as exc:
+        from ..schemes.registry import built_in
+
+        name = spec.controller.scheme.name
+        if name in built_in():
+            raise
+        from ..errors import ModelError
+
+        raise ModelError(
+            f"scheme {name}: its compiled law or discrete update raised {type(exc).__name__}: {exc} "
+            "(ftcreport schemes check FILE runs it with bounds checks and names the line)"
+        ) from exc
 
 
 def _timing_mark(event: str) -> None:
@@ -512,13 +496,16 @@ class _Loop:
         self.npl = npl = nq + 2 + nm
         # ETD2 is compiled in the motor variant only (it needs no motors: with none its block is eta's)
         motor_loop = nm > 0 or settings.method in ("etd2", "etd2ec")
-        self.loop = loop = loop_for(spec.law, spec.disc, motors=motor_loop, sampled=settings.sample_time is not None)
+        self.loop = loop = loop_for(
+            spec.law, spec.disc, motors=motor_loop, sampled=settings.sample_time is not None, terms=spec.terms
+        )
+        self.P = _law_input(spec, law_buffers(spec))  # the scheme's parameters and the buffers its law writes
         xc0 = np.asarray(controller.initial_state(t0, q0, eta0), dtype=float).reshape(nc)
         self.x = np.concatenate((q0, eta0, np.zeros(nm), xc0))
         self.info = np.zeros(4)
         if spec.start:  # the first command of a sampled scheme, at t0 (h = 0: no filter step)
-            with _compiling(loop, loop.first_discrete):
-                loop.first_discrete(spec.P, spec.kin, spec.ref, spec.chain, t0, q0, eta0, self.x[npl:], self.info)
+            with _compiling(loop, loop.first_discrete), _law_errors(spec):
+                loop.first_discrete(self.P, spec.kin, spec.ref, spec.chain, t0, q0, eta0, self.x[npl:], self.info)
         if nm and self.info[0] == 0:
             self.x[nq + 2 : npl] = _initial_currents(
                 loop, spec, plant, self.mo, self.dr, self.fsig[0], self.fubar[0], self.fmot[0], t0, self.x, npl
@@ -584,9 +571,10 @@ class _Loop:
     def steps(self, grid, fidx, noise, method: int, k0: int, k1: int, logged) -> tuple[int, int, int]:
         """run_steps over steps k0..k1 of ``grid``: (last step, rows logged, where); updates x."""
         spec, st = self.spec, self.settings
-        with _compiling(self.loop, self.loop.run_steps):  # compiles the loop on its first use (fast.compiling)
+        # compiles the loop on its first use (fast.compiling); the law's errors name the scheme (_law_errors)
+        with _compiling(self.loop, self.loop.run_steps), _law_errors(spec):
             self.x, k_last, li, where = self.loop.run_steps(
-                spec.P, spec.kin, spec.ref, spec.chain, self.pp,
+                self.P, spec.kin, spec.ref, spec.chain, self.pp,
                 grid, fidx, self.fsig, self.fubar, noise, self.sat, self.diag, method, self.lim, st.max_speed,
                 st.max_position, self.x, k0, k1, logged, 0,
                 self.lq, self.leta, self.lu, self.ltau, self.lsig, self.lubar, self.lxc, self.lmeas, self.lsg, self.lt,
@@ -599,9 +587,9 @@ class _Loop:
     def auto_steps(self, events, fsig, fubar, fmot, noise, opt, ctl, rows: int) -> tuple[int, int]:
         """run_auto from t = ctl[0] (fast.loop: error-controlled steps): (rows logged, where); updates x."""
         spec, st = self.spec, self.settings
-        with _compiling(self.loop, self.loop.run_auto):
+        with _compiling(self.loop, self.loop.run_auto), _law_errors(spec):
             self.x, li, where = self.loop.run_auto(
-                spec.P, spec.kin, spec.ref, spec.chain, self.pp,
+                self.P, spec.kin, spec.ref, spec.chain, self.pp,
                 events, fsig, fubar, noise, self.sat, self.diag, self.lim, st.max_speed, st.max_position,
                 self.x, opt, ctl, rows,
                 self.lq, self.leta, self.lu, self.ltau, self.lsig, self.lubar, self.lxc, self.lmeas, self.lsg, self.lt,
@@ -651,7 +639,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     wall0 = _time.perf_counter()
     first_s, chunks = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if L.info[0] != 0:  # the first command failed (at t0, before any step)
-        status, reason, t_end = _stop(L.info, F.AT_STATE, t_end, t_end, settings, spec.ref)
+        status, reason, t_end = _stop(L.info, F.AT_STATE, t_end, t_end, settings, spec.ref, spec)
     with np.errstate(all="ignore"):
         while status == "ok":
             k1 = min(k + chunk - 1, n_steps)
@@ -668,7 +656,8 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                 si = _collect(spec, plant, nq, li, keep, L.bufs, stream, si, n_steps + 1, log_parts)
             if L.info[0] != 0:
                 status, reason, t_end = _stop(
-                    L.info, where, float(grid[k_last]), float(grid[min(k_last + 1, n_steps)]), settings, spec.ref
+                    L.info, where, float(grid[k_last]), float(grid[min(k_last + 1, n_steps)]), settings, spec.ref,
+                    spec,
                 )
                 if status in ("step_unstable", "diverged"):  # does a smaller step remove the stop? (36 item 4)
                     code = int(L.info[0])
@@ -782,7 +771,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     wall0 = _time.perf_counter()
     first_s, calls = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if L.info[0] != 0:
-        status, reason, _ = _stop(L.info, F.AT_STATE, t0, t0, settings, spec.ref)
+        status, reason, _ = _stop(L.info, F.AT_STATE, t0, t0, settings, spec.ref, spec)
     chunk = 0
     with np.errstate(all="ignore"):
         while status == "ok":
@@ -892,6 +881,10 @@ def _auto_cause(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> 
     used = _CODE_NAMES.get(int(ctl[8]), settings.method)
     how = _how(settings, used)
     t = float(ctl[0])
+    if int(info[0]) == F.E_LAW_WRITE:  # the scheme wrote past its buffers (the loop's guard cells)
+        from ..schemes.controller import write_reason
+
+        return "error", write_reason(spec.controller, int(info[1]), float(info[2]))
     if int(info[0]) != F.E_MIN_STEP:
         status, reason = _message(info, t, settings, spec.ref, how)
         if status == "step_unstable":  # a stop of the fixed-step detectors' kind: the error control followed it
@@ -1001,7 +994,7 @@ def _recheck(L: _Loop, grid, fidx, checkpoints, k_stop: int) -> dict:
         out["growth"] = float(tau[b] / tau[a])
     if L.info[0] != 0:
         t_state, t_next = float(fine[k_last]), float(fine[min(k_last + 1, n_fine - 1)])
-        st, why, t_end = _stop(L.info, where, t_state, t_next, fine_settings, L.spec.ref)
+        st, why, t_end = _stop(L.info, where, t_state, t_next, fine_settings, L.spec.ref, L.spec)
         if _in_singular_set(L.info, where, L.x, t_state, fine_settings, L.spec):  # the state at the set's edge
             st, why = "singular", _message(L.info, t_state, fine_settings, L.spec.ref)[1]
         out |= {"status": st, "reason": why, "t_end": t_end, "where": int(where)}

@@ -62,7 +62,8 @@ E_REF_ART = 12  # info: t, link index, angle [deg]
 E_STEP_GROWTH = 13  # info: t, max |tau| at the streak start, max |tau| now [N m]
 E_UKF = 15  # info: the UKF step's status (fast.ukf.UKF_*), t
 E_STEP_JUMP = 14  # info: kind, before, after (_step_jump: non-finite new state or a check failed in one step)
-E_MIN_STEP = 16  # info: t, the step that fell below the minimum (error-controlled methods, fast.loop.run_auto)
+E_LAW_WRITE = 16  # info: the buffer a scheme wrote past (0 u, 1 dx, 2 sig, 3 its state in the discrete update), t
+E_MIN_STEP = 17  # info: t, the step that fell below the minimum (error-controlled methods, fast.loop.run_auto)
 
 # where run_steps stopped (its 4th return value)
 AT_STATE = 0  # at the accepted state of step k (checks, the law at the step start, growth)
@@ -1340,12 +1341,10 @@ def kin_discrete(Kp, R, C, t, xc, info):
             xc[0] = thd
 
 
-# =========================================================================== the schemes' laws
-# Every law has the signature of the scheme API (ftcreport.schemes):
-#   law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig) -> (u, xcdot)
-#   disc(P, Kp, R, C, t, q, eta, xc, info) -> None   (updates xc in place; the loop hands it a copy)
-# P is the scheme's own packed parameters (a NamedTuple of arrays and numbers), passed through the
-# loop untouched; numba compiles the loop once per law it is given, on the law's first use.
+# =========================================================================== the schemes' building blocks
+# The schemes' laws are ftcreport/schemes/laws (the scheme API's contract, ftcreport.schemes.api); here
+# the kernels they share: the matched terms (matched_terms, the round-2 plug-in API's), the switching
+# bank's filters and rule, the active laws' estimate filters and signals.
 
 
 @jit
@@ -1373,32 +1372,6 @@ def matched_terms(Kp, R, C, pc, t, q, eta, xc, k_v, info, sig):
     eta_e = eta - kin[0]
     w, MB, g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta, eta_e, kin[1], kin[2], ecd, k_v)
     return w, MB, g, eta_e
-
-
-@jit(cache=False)  # not cached: it takes any scheme's P (a plug-in's types too)
-def no_discrete(P, Kp, R, C, t, q, eta, xc, info):
-    """The discrete update of a scheme that has none."""
-    return
-
-
-@jit
-def tracking_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    """(3.37) for the fixed pattern ``P.sigma`` (the nominal scheme: every wheel healthy)."""
-    dx = np.zeros(xc.shape[0])
-    w, MB, _g, _e = matched_terms(Kp, R, C, pc, t, q, eta, xc, P.k_v, info, sig)
-    if info[0] != 0:
-        return np.zeros(2 * pc.n), dx
-    return law_for_pattern(MB, w, P.sigma), dx
-
-
-@jit
-def oracle_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    """(3.37) told the true faults: u = (MB diag(sigma))^+ (w - MB ubar)."""
-    dx = np.zeros(xc.shape[0])
-    w, MB, _g, _e = matched_terms(Kp, R, C, pc, t, q, eta, xc, P.k_v, info, sig)
-    if info[0] != 0:
-        return np.zeros(2 * pc.n), dx
-    return law_for_pattern(MB, w - _mv(MB, ubar_true), sig_true), dx
 
 
 @jit
@@ -1817,107 +1790,6 @@ def rotor_filter_terms(pc, q, eta, Jw):
 
 
 @jit
-def switching_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    """(3.37) for the selected model's pattern, and the model bank's rates (switching_rates).
-
-    With ``P.Jw`` (the motors' rotor inertias) the bank's filters predict with the rotors
-    (:func:`rotor_filter_terms`); the law itself uses the chain's model, as every scheme.
-    """
-    dx = np.zeros(xc.shape[0])
-    w, MB, g, _e = matched_terms(Kp, R, C, pc, t, q, eta, xc, P.k_v, info, sig)
-    if info[0] != 0:
-        return np.zeros(2 * pc.n), dx
-    u = law_for_pattern(MB, w, P.patterns[round(xc[P.sel])])
-    if P.Jw.shape[0] > 0:
-        MB, g = rotor_filter_terms(pc, q, eta, P.Jw)
-    switching_rates(P, MB, u, g, eta, xc, dx)
-    return u, dx
-
-
-@jit
-def switching_discrete(P, Kp, R, C, t, q, eta, xc, info):
-    """After each step: the switching rule (switching_select)."""
-    switching_select(P, t, eta, xc)
-
-
-@jit
-def adaptive_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    """Multi-design integration (3.113)-(3.120): u = sum_k chi_k o u_(k), projected weight and friction laws."""
-    Lw = P
-    nw = 2 * pc.n
-    dx = np.zeros(xc.shape[0])
-    u = np.zeros(nw)
-    w, MB, _g, eta_e = matched_terms(Kp, R, C, pc, t, q, eta, xc, Lw.k_v, info, sig)
-    if info[0] != 0:
-        return u, dx
-    Nm = Lw.patterns.shape[0]
-    uf = xc[Lw.uf0 : Lw.uf0 + nw]
-    w2 = w - _mv(MB, uf)
-    c = _mv(MB.T, eta_e)
-    for k in range(Nm):
-        # u_(k) = A^T (A A^T)^-1 w2, A = MB diag(sigma_(k)), in scalars (no temporaries)
-        g00 = 0.0
-        g01 = 0.0
-        g11 = 0.0
-        for j in range(nw):
-            s2 = Lw.patterns[k, j] * Lw.patterns[k, j]
-            g00 += MB[0, j] * MB[0, j] * s2
-            g01 += MB[0, j] * MB[1, j] * s2
-            g11 += MB[1, j] * MB[1, j] * s2
-        det = g00 * g11 - g01 * g01
-        y0 = (g11 * w2[0] - g01 * w2[1]) / det
-        y1 = (g00 * w2[1] - g01 * w2[0]) / det
-        for j in range(nw):
-            Ukj = Lw.patterns[k, j] * (MB[0, j] * y0 + MB[1, j] * y1)
-            chi = xc[Lw.chi0 + k * nw + j]
-            u[j] += chi * Ukj
-            if Lw.adapt:
-                # chidot = Proj(-gamma U_kj (MB^T eta_e)_j): frozen at the bounds 0 and 1 when pushing out
-                pk = -Lw.gamma * Ukj * c[j]
-                frozen = (chi <= 0.0 and pk < 0.0) or (chi >= 1.0 and pk > 0.0)
-                dx[Lw.chi0 + k * nw + j] = 0.0 if frozen else pk
-    if Lw.adapt:
-        # friction estimate: ufdot = Gamma_f MB^T eta_e
-        dx[Lw.uf0 : Lw.uf0 + nw] = _mv(Lw.Gamma_f, _mv(MB.T, eta_e))
-    return u, dx
-
-
-@jit
-def adaptive_discrete(P, Kp, R, C, t, q, eta, xc, info):
-    """After each step: the weights clipped to [0, 1] (the projection's bounds)."""
-    nw = P.patterns.shape[1]
-    for i in range(P.chi0, P.chi0 + P.patterns.shape[0] * nw):
-        xc[i] = min(max(xc[i], 0.0), 1.0)
-
-
-@jit
-def active_law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    """Active FTC (4.14) on the Farza observer's estimates (4.3)-(4.9); eta is not used (only q is)."""
-    Lw, O = P
-    nw = 2 * pc.n
-    xk = xc[: Kp.nk]
-    dx = np.zeros(xc.shape[0])
-    est_n = O.est_n
-    s = xc[O.est0 : O.est0 + est_n]
-    qh, eh, rho_e, ubar_e = farza_estimates(O, pc, s, q, nw)
-    rho, ubar = rho_e, ubar_e
-    if not math.isnan(O.tau):
-        rho = xc[O.filt0 : O.filt0 + nw].copy()
-        ubar = xc[O.filt0 + nw : O.filt0 + 2 * nw].copy()
-    if not math.isnan(Lw.u_limit):
-        ubar = _clip(ubar, -Lw.u_limit, Lw.u_limit)
-    sigma_hat = _clip(rho, 0.0, 1.0)
-    u, kin, ecd = _active_u(Kp, R, C, Lw, pc, t, q, eh, xk, sigma_hat, ubar, info)
-    if info[0] != 0:
-        return u, dx
-    dx[O.est0 : O.est0 + est_n] = farza_derivative(O, pc, u, q, s)
-    estimate_filters(dx, xc, O.filt0, O.tau, rho_e, ubar_e)
-    if sig.shape[0] > 0:
-        active_signals(sig, _kin_signals(sig, kin, ecd, C), qh, eh, rho_e, ubar_e, sigma_hat, ubar)
-    return u, dx
-
-
-@jit
 def estimate_filters(dx, xc, filt0, tau, rho_e, ubar_e):
     """The estimates' first-order filters of the active laws (thesis 4.2.4: tau xdot = x_est - x), into dx.
 
@@ -2032,17 +1904,3 @@ def midpoint_sigmas(pc, sigmas, u, dt, est_rho, est_ubar):
         out[i, :N] = q + dt * qd2
         out[i, N : N + 2] = eta + dt * ed2
     return out
-
-
-@jit
-def _active_u(Kp, R, C, Lw, pc, t, q, eta_hat, xk, sigma_hat, ubar_hat, info):
-    """(u, kinematic outputs, etadot_c): ActiveController._control's law (4.14), clipped to the limit."""
-    Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(pc, q, eta_hat)
-    kin, ecd = eta_c_and_dot(Kp, R, C, S, t, q, eta_hat, xk, info)
-    if info[0] != 0:
-        return np.zeros(2 * pc.n), kin, ecd
-    w, MB, _g = law_terms(Mbar1, Mbar2, Cbar, Bbar, eta_hat, eta_hat - kin[0], kin[1], kin[2], ecd, Lw.k_v)
-    u = law_for_pattern(MB, w - _mv(MB, ubar_hat), sigma_hat)
-    if not math.isnan(Lw.u_limit):
-        u = _clip(u, -Lw.u_limit, Lw.u_limit)
-    return u, kin, ecd

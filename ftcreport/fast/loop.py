@@ -3,16 +3,24 @@ r"""The closed loop, compiled once per scheme: the template of every scheme's lo
 ``run_steps`` integrates the plant and the scheme's controller state over a range of steps, in
 this order: checks, the law, the stream row, the step, the discrete updates (the stops and their
 thresholds are in ftcreport.sim's docstring).  It calls the scheme's law and discrete update
-through the globals ``LAW`` and ``DISC``.  :func:`ftcreport.fast.engine.loop_for` writes, for
-each scheme, a module that is this file with the line marked ``LOOP-BINDING`` importing that
-scheme's law: numba compiles each such module on the scheme's first use and caches it beside
-the module, under a key that is the same in every process.  So a case compiles only the loops
-of the schemes it runs, and a plug-in scheme (ftcreport.schemes) gets a loop as fast as a
-built-in one.  (Passing the law as an argument instead would key numba's cache on the law's
-dispatcher object, which differs in every process: the loop would be compiled again on every
-run.)
+through the globals ``LAW`` and ``DISC``, and the kinematic controller's part of every law (the
+matched terms, the kinematic signals, its discrete update) through ``TERMS``, ``KEVAL``,
+``KSIG``, ``KDISC`` and ``KCACHE``.  :func:`ftcreport.fast.engine.loop_for` writes, for each
+scheme, a module that is this file with the line marked ``LOOP-BINDING`` importing that scheme's
+law and the scheme interface's kernels (ftcreport.schemes.kernels): numba compiles each such
+module on the scheme's first use and caches it beside the module, under a key that is the same in
+every process.  So a case compiles only the loops of the schemes it runs, and a plug-in scheme
+(ftcreport.schemes) gets a loop as fast as a built-in one.  (Passing the law as an argument
+instead would key numba's cache on the law's dispatcher object, which differs in every process:
+the loop would be compiled again on every run.)  This module knows a scheme only through the
+interface of ftcreport.schemes.api: how a law is called (:func:`_law`), what it is handed
+(``Step``, ``Terms``, ``Out``) and the guards after its buffers.
 
-This file itself binds the nominal law; it is never run as it is.
+The loop's ``P`` is the pair (the scheme's packed parameters, its law buffers): the buffers are
+``(k_v, u, dx, sig, x, fresh)``, each of u, dx, sig, x with ``N_GUARD`` guard cells after the
+declared size (fast.engine.law_buffers), checked after every call of the law or discrete update.
+
+This file itself binds a law that does nothing; it is never run as it is.
 """
 
 from __future__ import annotations
@@ -54,6 +62,7 @@ from ftcreport.fast.kernels import (
     AT_DISCRETE,
     AT_STATE,
     AT_TRIAL,
+    E_LAW_WRITE,
     E_MIN_STEP,
     E_NONFINITE_DERIV,
     E_NONFINITE_STATE,
@@ -67,18 +76,27 @@ from ftcreport.fast.kernels import (
     _step_jump,
     _wrap,
     jit,
-    kin_discrete,
-    new_cache,
-    no_discrete,
     plant_rhs,
     reduced,
     ref_side,
-    tracking_law,
 )
 from ftcreport.fast.motor import motor_plant_rhs, reset_current
 from ftcreport.fast.refs import as_ref
+from ftcreport.schemes.api import N_GUARD, Out, Step, Terms
+from ftcreport.schemes.kernels import engine_terms as TERMS
+from ftcreport.schemes.kernels import guards_intact, no_discrete, no_law, readonly
+from ftcreport.schemes.kernels import kinematic_discrete as KDISC
+from ftcreport.schemes.kernels import kinematic_eval as KEVAL
+from ftcreport.schemes.kernels import kinematic_signals as KSIG
+from ftcreport.schemes.kernels import new_kinematic_cache as KCACHE
 
-LAW, DISC = tracking_law, no_discrete  # LOOP-BINDING
+LAW, DISC = no_law, no_discrete  # LOOP-BINDING
+
+#: a round-2 law (13 positionals, returning (u, xcdot); ftcreport.schemes.registry.legacy), run through the
+#: adapter in _law and _disc for one deprecation cycle, without the guards
+LEGACY = False  # LOOP-LEGACY
+#: how the matched terms reach the law (schemes.api.TERMS_MODES; fast.engine.loop_for writes the scheme's)
+TERMS_MODE = 0  # LOOP-TERMS
 # the loop's variant (fast.engine.loop_for writes the case's): numba prunes the branches these close
 # before typing, so a loop without motors or sampled control never compiles their kernels
 MOTORS, SAMPLED = True, True  # LOOP-VARIANT
@@ -202,6 +220,119 @@ def true_faults(ctx, x, sigma, ubar, fm):
 
 
 @jit
+def _law(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
+    """(u, dx): the scheme's command at (t, q, eta) (a copy) and its own states' rates (a view).
+
+    The law is handed its parameters, the step (:class:`~ftcreport.schemes.api.Step`), the matched
+    terms at the measured state (``TERMS_MODE`` 0), its own states read-only and views of the law
+    buffers (``P[1]``) of exactly the declared sizes; the guard cells after them are checked after
+    the call (E_LAW_WRITE: info[1] = 0 u, 1 dx, 2 sig; info[2] = t).  When ``sig`` is not empty the
+    step is logged: the kinematic signals (of the law's own evaluation, else the engine's at the
+    measured state) and then the law's.
+    """
+    Pp, io = P
+    if LEGACY:
+        return _legacy_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
+    else:
+        return _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
+
+
+@jit
+def _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
+    """:func:`_law` for a law of the scheme API's contract."""
+    k_v, ub, db, sb, _xb, fresh = io
+    nw = ub.shape[0] - N_GUARD
+    no = db.shape[0] - N_GUARD
+    ns = sb.shape[0] - N_GUARD
+    nk = xc.shape[0] - no
+    xk = xc[:nk]
+    u = ub[:nw]
+    dx = db[:no]
+    s = sb[:ns]
+    u[:] = 0.0
+    dx[:] = 0.0
+    step = Step(t, q, eta, st, ut, pc, info, (Kp, R, C, xk, fresh))
+    fresh[0] = 0.0
+    if TERMS_MODE == 0:
+        terms = TERMS(Kp, R, C, pc, t, q, eta, xk, k_v, info)
+        if info[0] != 0:
+            return u.copy(), dx
+    else:
+        z = np.zeros(2)
+        terms = Terms(z, np.zeros((2, nw)), z, z)
+    LAW(Pp, step, terms, readonly(xc[nk:]), Out(u, dx, s))
+    if info[0] != 0:
+        return u.copy(), dx
+    for which, buf, n in ((0, ub, nw), (1, db, no), (2, sb, ns)):
+        if not guards_intact(buf, n):
+            info[0] = E_LAW_WRITE
+            info[1] = which
+            info[2] = t
+            return u.copy(), dx
+    if sig.shape[0] > 0:
+        k = sig.shape[0] - ns
+        if TERMS_MODE == 2:
+            sig[:k] = np.nan
+        else:
+            if TERMS_MODE == 1 and fresh[0] == 0.0:
+                KEVAL(Kp, R, C, pc, t, q, eta, xk, info)
+                if info[0] != 0:
+                    return u.copy(), dx
+            KSIG(sig, Kp, C)
+        sig[k:] = s
+    return u.copy(), dx
+
+
+@jit
+def _legacy_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
+    """:func:`_law` for a round-2 law (13 positionals, (u, xcdot) returned): it writes the whole logged row
+    itself (the kinematic signals through matched_terms); no guards (the deprecated form is unchecked)."""
+    ub, db = io[1], io[2]
+    nw = ub.shape[0] - N_GUARD
+    no = db.shape[0] - N_GUARD
+    nk = xc.shape[0] - no
+    u = ub[:nw]
+    dx = db[:no]
+    ul, dxl = LAW(Pp, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
+    if info[0] != 0:
+        return u.copy(), dx
+    if ul.shape[0] != nw or dxl.shape[0] != xc.shape[0]:
+        info[0] = E_LAW_WRITE
+        info[1] = 0 if ul.shape[0] != nw else 1
+        info[2] = t
+        return u.copy(), dx
+    u[:] = ul
+    dx[:] = dxl[nk:]
+    return u.copy(), dx
+
+
+@jit
+def _disc(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info):
+    """The scheme's discrete update on its own states (in place), through the guarded state buffer.
+
+    The own states are copied into ``P[1]``'s x buffer, updated there and copied back; the guard
+    cells after them are checked (E_LAW_WRITE with info[1] = 3).  A round-2 update gets the whole
+    controller state, unguarded.
+    """
+    Pp, io = P
+    if LEGACY:
+        DISC(Pp, Kp, R, C, t, q, eta, xc, info)
+    else:
+        xb, fresh = io[4], io[5]
+        no = xb.shape[0] - N_GUARD
+        nk = xc.shape[0] - no
+        x = xb[:no]
+        x[:] = xc[nk:]
+        DISC(Pp, Step(t, q, eta, st, ut, pc, info, (Kp, R, C, xc[:nk], fresh)), x)
+        if not guards_intact(xb, no):
+            info[0] = E_LAW_WRITE
+            info[1] = 3
+            info[2] = t
+            return
+        xc[nk:] = x
+
+
+@jit
 def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
     """(f, u, tau) of the closed loop: the plant's and the controller's rates at (t, x).
 
@@ -221,7 +352,7 @@ def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
     st, ut = sigma, ubar
     if MOTORS and nm > 0:  # the oracle is told the faults the chain sees, motor faults included
         st, ut = true_faults(ctx, x, sigma, ubar, fm)
-    u, xcdot = LAW(P, Kp, R, C, pc, t, qm, etam, xc, st, ut, info, sig)
+    u, xcdot = _law(P, Kp, R, C, pc, t, qm, etam, xc, st, ut, info, sig)
     f = np.zeros(x.shape[0])
     if info[0] != 0:
         return f, u, u
@@ -237,7 +368,7 @@ def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
         qdot, etadot = plant_rhs(pp, q, eta, tau)
     f[:nq] = qdot
     f[nq : nq + 2] = etadot
-    f[nq + 2 + nm :] = xcdot
+    f[x.shape[0] - xcdot.shape[0] :] = xcdot  # the kinematic controller's states have no rate
     return f, u, tau
 
 
@@ -397,19 +528,20 @@ def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_
         for i in range(xc.shape[0]):
             # xc(t_j+1) = xc(t_j) + T_s xcdot(t_j)
             xc[i] += h * dx_h[i]
-        kin_discrete(Kp, R, C, t, xc, info)
+        KDISC(Kp, R, C, t, xc, info)
         if info[0] != 0:
             return
-        DISC(P, Kp, R, C, t, q, eta, xc, info)
+        _disc(P, Kp, R, C, pc, t, q, eta, xc, sigma, ubar, info)
         if info[0] != 0:
             return
     C.f[3] = 0.0
     st, ut = sigma, ubar
     if MOTORS:
         st, ut = true_faults(ctx, x, sigma, ubar, fm)
-    u, dx = LAW(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig_h)
+    u, dx = _law(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig_h)
     u_h[:] = u
-    dx_h[:] = dx
+    dx_h[: dx_h.shape[0] - dx.shape[0]] = 0.0
+    dx_h[dx_h.shape[0] - dx.shape[0] :] = dx
     if MOTORS and nm > 0:  # the drive's input of this sample: the static voltage or the PI's i*
         us = u if math.isnan(sat) else _clip(u, -sat, sat)
         v_h[:] = _drive_input(ctx, sigma * us + ubar, fm, _drive_speeds(ctx, q, eta))
@@ -418,17 +550,21 @@ def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_
 
 
 @jit
-def first_law(P, Kp, R, pc, t, q, eta, xc, sigma, ubar, info):
-    """The scheme's command at t (the motors' initial currents need it before the first step)."""
-    C = as_ref(new_cache(pc.n))
-    return LAW(as_ref(P), as_ref(Kp), as_ref(R), C, as_ref(pc), t, q, eta, xc, sigma, ubar, info, np.zeros(0))[0]
+def first_law(P, Kp, R, pc, t, q, eta, xc, sigma, ubar, info, sig):
+    """The scheme's command at t (the motors' initial currents need it before the first step; the
+    scheme checks call it too): u; the rates and signals are left in the law buffers ``P[1]``, and
+    ``sig`` (when not empty) gets the logged row."""
+    C = as_ref(KCACHE(pc.n))
+    return _law(as_ref(P), as_ref(Kp), as_ref(R), C, as_ref(pc), t, q, eta, xc, sigma, ubar, info, sig)[0]
 
 
 @jit
 def first_discrete(P, Kp, R, pc, t, q, eta, xc, info):
     """The scheme's discrete update at t0 (a sampled scheme's first command)."""
-    C = as_ref(new_cache(pc.n))
-    DISC(as_ref(P), as_ref(Kp), as_ref(R), C, t, q, eta, xc, info)
+    C = as_ref(KCACHE(pc.n))
+    nw = 2 * pc.n
+    z = np.zeros(nw)
+    _disc(as_ref(P), as_ref(Kp), as_ref(R), C, as_ref(pc), t, q, eta, xc, z + 1.0, z, info)
 
 
 @jit
@@ -461,7 +597,7 @@ def run_steps(
     nq = pp.n + 2
     nx = x.shape[0]
     sig_buf = np.zeros(n_sig)
-    C = as_ref(new_cache(pp.n))
+    C = as_ref(KCACHE(pp.n))
     nm = motor_state_count(mo.R_a.shape[0], dr.kind)  # the one place: the plant states the motors add
     ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm, dr)
     npl = nq + 2 + nm  # the plant's states: q, eta, the motors' currents and drive states
@@ -590,10 +726,10 @@ def run_steps(
             continue
         # discrete updates on the new state (xn is a new array: updated in place, it becomes the state)
         xcn = xn[npl:]
-        kin_discrete(Kp, R, C, grid[k + 1], xcn, info)
+        KDISC(Kp, R, C, grid[k + 1], xcn, info)
         if info[0] != 0:
             return x, k, li, AT_DISCRETE
-        DISC(P, Kp, R, C, grid[k + 1], xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xcn, info)
+        _disc(P, Kp, R, C, pc, grid[k + 1], xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xcn, sigma, ubar, info)
         if info[0] != 0:
             return x, k, li, AT_DISCRETE
         x = xn
@@ -798,7 +934,7 @@ def run_auto(
     nq = pp.n + 2
     nx = x.shape[0]
     sig_buf = np.zeros(n_sig)
-    C = as_ref(new_cache(pp.n))
+    C = as_ref(KCACHE(pp.n))
     nm = motor_state_count(mo.R_a.shape[0], dr.kind)  # the plant states the motors add (run_steps')
     ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm, dr)
     pi_sampled = MOTORS and nm > 0 and dr.kind == DRIVER_PI_SAMPLED
@@ -979,11 +1115,12 @@ def run_auto(
                 on_clock = abs(tick - round(tick)) <= 1e-9 * max(1.0, tick) or t_new >= opt[O_TEND]
             if on_clock:
                 xcn = xn[npl:]
-                kin_discrete(Kp, R, C, t_new, xcn, info)
+                KDISC(Kp, R, C, t_new, xcn, info)
                 if info[0] != 0:
                     ctl[C_T] = t
                     return x, li, AT_DISCRETE
-                DISC(P, Kp, R, C, t_new, xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xcn, info)
+                # the scheme's update through its guarded buffer (run_steps' _disc)
+                _disc(P, Kp, R, C, pc, t_new, xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xcn, sigma, ubar, info)
                 if info[0] != 0:
                     ctl[C_T] = t
                     return x, li, AT_DISCRETE

@@ -194,6 +194,7 @@ class FarzaObserver:
 
     # ------------------------------------------------------------------ estimator interface
     discrete_time = False  # integrated with the plant (continuous observer)
+    scheme = "active"  # the registered scheme an active controller on it is (ftcreport.schemes)
 
     def parameter_names(self) -> list[str]:
         """Names of the estimated parameters, e.g. ``rho_1r``, ``ubar_2l``."""

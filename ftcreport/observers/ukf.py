@@ -70,6 +70,7 @@ class UKFEstimator:
     """
 
     discrete_time = True
+    scheme = "active_ukf"  # the registered scheme an active controller on it is (ftcreport.schemes)
 
     def __init__(
         self,

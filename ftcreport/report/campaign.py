@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from ..campaign import COMPARED_METRICS, summarize
+from ..compare import BOUND
 from ..errors import FtcError
 from ..store import _jsonable, read_json, write_atomic
 from . import plots
@@ -135,7 +136,7 @@ def failing_samples(rows: list[dict]) -> list[dict]:
         by.setdefault(int(r["sample"]), []).append(r)
     out = []
     for i, rs in by.items():
-        failed = [r["scheme"] for r in rs if not r.get("success") and r["scheme"] != "oracle"]
+        failed = [r["scheme"] for r in rs if not r.get("success") and r["scheme"] != BOUND]
         if not failed:
             continue
         errs = {r["scheme"]: r.get("position_error_final") for r in rs}

@@ -385,13 +385,13 @@ def motors_fig(
     return band_fig(series, sig, rows, wheels, phases, main, "armature voltage and current")
 
 
-def switching_fig(ts: dict, patterns: list[list[int]], phases: list[dict]) -> dict:
+def switching_fig(ts: dict, patterns: list[list[int]], phases: list[dict], scheme: str = "") -> dict:
     """Applied model index against the index of the true pattern (-1 when it is not a model)."""
     pats = [tuple(p) for p in patterns]
     truth = np.array([pats.index(k) if (k := tuple((s >= 1.0).astype(int))) in pats else -1 for s in ts["sigma"]])
     t, sel, tr = decimate(ts["t"], np.asarray(ts["selected"], float), truth.astype(float))
     truth_line = {"shape": "hv", "color": "rgba(0,0,0,0.35)", "width": 4}  # wide and grey, under the model's
-    model_line = {"shape": "hv", "color": SCHEME_COLORS["switching"], "width": 1.2}
+    model_line = {"shape": "hv", "color": SCHEME_COLORS.get(scheme, "#1f77b4"), "width": 1.2}
     data = [
         _trace(t, tr.astype(int).tolist(), "true pattern", "true %{y}", line=truth_line),
         _trace(t, sel.astype(int).tolist(), "applied model", "model %{y}", line=model_line),

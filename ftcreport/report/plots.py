@@ -17,6 +17,7 @@ import numpy as np
 
 from ..control.kinematic import wrap
 from ..model.kernels import axle_midpoints
+from ..schemes import built_in
 
 __all__ = [
     "PHASE_COLORS",
@@ -36,15 +37,7 @@ __all__ = [
     "velocities_svg",
 ]
 
-SCHEME_COLORS = {
-    "nominal": "#d62728",
-    "switching": "#1f77b4",
-    "adaptive": "#9467bd",
-    "adaptive_frozen": "#8c564b",
-    "active": "#ff7f0e",
-    "active_ukf": "#17becf",
-    "oracle": "#2ca02c",
-}
+SCHEME_COLORS = {name: sc.color for name, sc in built_in().items() if sc.color}  # each scheme's file gives its own
 plt.rcParams.update({"font.size": 8, "svg.fonttype": "none", "axes.grid": True, "grid.alpha": 0.3})
 
 
@@ -140,7 +133,7 @@ def paths_svg(series: dict[str, dict], d: list[float], events: list[float], b: f
             k = int(np.searchsorted(ts["t"], te))
             if k < ts["t"].size:
                 ax.plot(ts["q"][k, 0], ts["q"][k, 1], "x", color=SCHEME_COLORS.get(scheme), ms=6)
-    show = "switching" if "switching" in series else next(iter(series))
+    show = next((s for s in series if "selected" in series[s]), next(iter(series)))  # a switching scheme first
     ts = series[show]
     for k in np.linspace(0, ts["t"].size - 1, 5).astype(int):
         P = axle_midpoints(ts["q"][k], d)

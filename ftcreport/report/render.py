@@ -32,6 +32,7 @@ from ..model.faults import wheel_names
 from ..runner import integrator_words
 from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
 from . import interactive, plots
+from .analysis_figs import analysis_section
 from .plant import plant_block
 from .replay import replay_data
 
@@ -274,7 +275,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
                 plotly=interactive.errors_fig(series, shading),
             )
         )
-        main = next((s for s in (*compare.CONTESTANTS, "oracle") if s in series), next(iter(series)))
+        main = next((s for s in (*compare.CONTESTANTS, compare.BOUND) if s in series), next(iter(series)))
         figures.append(
             figure(
                 "torques",
@@ -285,19 +286,17 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         motors = _motor_figure(case, series, list(names), shading, main)
         if motors is not None:
             figures.append(motors)
-        if "switching" in series and "selected" in series["switching"]:
-            pats = next((m.get("patterns") for m in runs if m["scheme"] == "switching"), None)
+        for sw in [s for s in series if "selected" in series[s]]:  # a scheme that switches between models
+            pats = next((m.get("patterns") for m in runs if m["scheme"] == sw), None)
             if pats:
                 figures.append(
                     figure(
-                        "switching",
+                        sw,
                         "Applied model index against the true failure pattern.",
-                        plotly=interactive.switching_fig(series["switching"], pats, shading),
+                        plotly=interactive.switching_fig(series[sw], pats, shading, sw),
                     )
                 )
-        for est in ("adaptive", "adaptive_frozen", "active", "active_ukf"):
-            if est not in series:
-                continue
+        for est in [s for s in series if "chi_hat" in series[s] or "rho_hat" in series[s]]:  # weights, estimates
             pats = next((m.get("patterns") for m in runs if m["scheme"] == est), None)
             spec = interactive.estimates_fig(series[est], est, list(names), shading, pats)
             if spec is None:
@@ -305,7 +304,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
             cap = (
                 f"{est}: weights and friction estimate against the true ubar (dashed); they are control variables "
                 "of the adaptive law, not a fault diagnosis (ERRATA P2)."
-                if est.startswith("adaptive")
+                if "chi_hat" in series[est]
                 else f"{est}: estimated gains and frictions against the truth (dashed). Individual parameters are "
                 "weakly identifiable in steady tracking; the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is "
                 "what the data determine (P3)."
@@ -336,12 +335,13 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
                     plotly=interactive.errors_fig(both, shading),
                 )
             )
-    analysis = _analysis(case, names)
-    if analysis is not None:
-        figures.extend(_analysis_figures(analysis, series, events, case.simulation.duration))
+    analysis = analysis_section(case, names, series, events)  # templates/_analysis.html (issue 37)
     diagnosis = [m for m in runs if m.get("detection_events") is not None]
+    from .requirements_page import requirements_section
+
+    requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)
-    verdict = _verdict(case, name, runs)
+    verdict = _verdict(case, name, runs, analysis)
     base_verdict = None
     if verdict and rec.get("base") and (out / rec["base"]).is_dir():
         base_case = _stored_case(out, rec["base"], _record(out, rec["base"]) or {})
@@ -359,8 +359,6 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         replay = replay_data(
             series, build_plant_chain(case), faults, list(names), {m["scheme"]: m["status"] for m in runs}
         )
-    if analysis is not None and analysis.get("pole_tables"):
-        analysis["pole_groups"] = _group_tables(analysis["pole_tables"])
     plant = plant_block(case, runs, series, out, rec.get("base"))  # templates/_plant.html (issue 36)
     return write_page(
         page,
@@ -375,11 +373,11 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         replay_schemes=list(replay["schemes"]) if replay else [],
         scheme_colors=plots.SCHEME_COLORS,
         plotly_inline=interactive.inline_plotly()
-        if any(f.get("plotly") for f in figures) or ((plant or {}).get("identification") or {}).get("figure")
+        if any(f.get("plotly") for f in [*figures, *((requirements or {}).get("figures") or [])])
+        or ((plant or {}).get("identification") or {}).get("figure")
         else None,
         oracle_notes=oracle_notes(verdict, case, base_verdict) if verdict else [],
         shading=shading,
-        requirements=None,  # r3-baseline's _requirements.html (time-windowed requirements) fills it
         name=name,
         analysis=analysis,
         diagnosis=diagnosis,
@@ -400,6 +398,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         n_phases=len(phases),
         phase_labels=[f"{a:g}-{b:g}" for a, b in phases],
         checks=checks,
+        requirements=requirements,
         figures=figures,
         key=rec.get("key", "-"),
         simulated=rec.get("time", "-"),
@@ -454,8 +453,8 @@ def _thesis_figures(case, series: dict, names: list[str], shading: list[dict]) -
     from ..cases import build_plant_chain
 
     figs = []
-    active = [s for s in ("active", "active_ukf") if s in series and "q_hat" in series[s]]
-    main = active[0] if active else ("switching" if "switching" in series else next(iter(series)))
+    active = [s for s in series if "q_hat" in series[s]]  # the schemes with an estimator of q and eta
+    main = active[0] if active else next((s for s in compare.CONTESTANTS if s in series), next(iter(series)))
     figs.append(
         figure(
             "velocities",
@@ -508,69 +507,6 @@ def _manifest_stamp(out: Path, name: str) -> bytes:
     return json.dumps(keep, sort_keys=True).encode()
 
 
-def _analysis(case, names) -> dict | None:
-    """Linearized analyses for the case page (None if they cannot be computed)."""
-    from ..analysis import analyze_case
-
-    try:
-        res = analyze_case(case)
-    except (FtcError, ValueError, np.linalg.LinAlgError):
-        return None
-    rows = res["controllability"]
-    pick = rows[:4] + rows[-4:] if len(rows) > 8 else rows
-    res["ctrb_rows"] = [
-        {**r, "failed": ", ".join(w for w, p in zip(names, r["pattern"], strict=True) if p == 0) or "none"}
-        for r in pick
-    ]
-    return res
-
-
-def _analysis_figures(analysis: dict, series: dict, events: list[float], duration: float) -> list[dict]:
-    """Pole loci and the predicted envelope against the simulated decay (first fault-free phase)."""
-    figs = []
-    ft = analysis.get("frozen_time")
-    if ft:
-        step = max(1, len(ft["times"]) // 60)
-        loci = list(zip(ft["times"][::step], ft["poles"][::step], strict=True))
-        figs.append(
-            figure(
-                "pole-loci",
-                "Frozen-time poles of the closed-loop error dynamics along the reference (red line: imaginary axis).",
-                svg=plots.pole_loci_svg(loci, "t [s]"),
-            )
-        )
-    ch = analysis.get("chained")
-    if ch:
-        first = next(iter(ch.values()))
-        loci = [(f["phi_deg"], f["poles"]) for f in first["frozen"]]
-        figs.append(
-            figure(
-                "pole-loci",
-                "Frozen poles of the chained-form loop over one re-anchoring period; the Floquet "
-                f"rate of the period is {first['floquet_rate']:.4g} 1/s.",
-                svg=plots.pole_loci_svg(loci, "theta_nd - psi [deg]"),
-            )
-        )
-    rate = analysis.get("predicted_decay_rate")
-    if rate and series:
-        scheme = "nominal" if "nominal" in series else next(iter(series))
-        t_end = min([duration, *[t for t in events if t > 0]])
-        fit = plots.fitted_decay_rate(series[scheme], t_end)
-        analysis["fitted_decay"] = None
-        if fit is not None:
-            fitted, ta, tb = fit
-            analysis["fitted_decay"] = {"scheme": scheme, "rate": fitted, "from": ta, "to": tb}
-            figs.append(
-                figure(
-                    "decay",
-                    f"Predicted envelope (rate {rate:.4g} 1/s) against the simulated error of the "
-                    f"{scheme} run before the first fault (fitted rate {fitted:.4g} 1/s over {ta:.0f}-{tb:.0f} s).",
-                    svg=plots.decay_svg(series[scheme], rate, (ta, tb), scheme),
-                )
-            )
-    return figs
-
-
 def _facts(case) -> dict:
     """Facts of a case the verdict's sentences may explain with (compare.compare_case)."""
     return {
@@ -581,13 +517,14 @@ def _facts(case) -> dict:
     }
 
 
-def _verdict(case, name: str, runs: list[dict]):
+def _verdict(case, name: str, runs: list[dict], analysis: dict | None = None):
     if not runs:
         return None
     events = sorted({float(f.time) for f in case.faults})
     by_scheme = {m["scheme"]: m for m in runs}
     expected = {s: case.expected_for(s) for s in by_scheme}
-    return compare.compare_case(name, by_scheme, expected, events, _facts(case))
+    facts = _facts(case) | ({"analysis": analysis} if analysis and not analysis.get("error") else {})
+    return compare.compare_case(name, by_scheme, expected, events, facts)
 
 
 def _verdict_rows(v) -> list[dict]:
@@ -680,20 +617,6 @@ def oracle_notes(v, case, base_verdict=None) -> list[str]:
 
 def _names(schemes) -> str:
     return ", ".join(compare.LABEL.get(s, s) for s in schemes)
-
-
-def _group_tables(tables: dict) -> list[dict]:
-    """Identical tables (to 4 significant digits) once, labelled with every scheme they cover."""
-    groups: list[dict] = []
-    for scheme, rows in tables.items():
-        key = json.dumps([{k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in r.items()} for r in rows])
-        for g in groups:
-            if g["key"] == key:
-                g["schemes"].append(scheme)
-                break
-        else:
-            groups.append({"key": key, "schemes": [scheme], "rows": rows})
-    return groups
 
 
 def _script_json(obj) -> str:

@@ -19,12 +19,10 @@ from ftcreport.control.switching import TIE_RTOL
 from ftcreport.model import compensable_patterns
 from ftcreport.schemes import Scheme, SchemeController, register
 
-matched_terms = schemes.matched_terms
 law_for_pattern = schemes.law_for_pattern
 
 
 class P(NamedTuple):
-    k_v: float
     patterns: np.ndarray  # (N, 2n)
     gamma: float
     T_min: float
@@ -36,61 +34,59 @@ class P(NamedTuple):
 
 
 @schemes.jit
-def law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    dx = np.zeros(xc.shape[0])
-    w, MB, g, _e = matched_terms(Kp, R, C, pc, t, q, eta, xc, P.k_v, info, sig)
-    if info[0] != 0:
-        return np.zeros(2 * pc.n), dx
+def law(P, step, terms, x, out):
+    MB, g, eta = terms.MB, terms.g, step.eta
     N, nw = P.patterns.shape
-    hat, integ, sel = Kp.nk, Kp.nk + 2 * N, Kp.nk + 3 * N
-    u = law_for_pattern(MB, w, P.patterns[round(xc[sel])])
+    hat, integ, sel = 0, 2 * N, 3 * N
+    u = law_for_pattern(MB, terms.w, P.patterns[round(x[sel])])
+    out.u[:] = u
     for k in range(N):
         e2 = 0.0
         for i in range(2):
             # etahat_k' = -gamma etahat_k + gamma eta + g + MB diag(sigma_k) u
-            rate = -P.gamma * xc[hat + 2 * k + i] + P.gamma * eta[i] + g[i]
+            rate = -P.gamma * x[hat + 2 * k + i] + P.gamma * eta[i] + g[i]
             for j in range(nw):
                 rate += MB[i, j] * P.patterns[k, j] * u[j]
-            dx[hat + 2 * k + i] = rate
-            e2 += (eta[i] - xc[hat + 2 * k + i]) ** 2
+            out.dx[hat + 2 * k + i] = rate
+            e2 += (eta[i] - x[hat + 2 * k + i]) ** 2
         # I_k' = -lambda I_k + |eta - etahat_k|^2
-        dx[integ + k] = -P.forgetting * xc[integ + k] + e2
-    return u, dx
+        out.dx[integ + k] = -P.forgetting * x[integ + k] + e2
 
 
 @schemes.jit
-def costs(P, nk, eta, xc):
+def costs(P, eta, x):
     """J_k = c_inst |eta - etahat_k|^2 + c_int I_k, (3.46)."""
     N = P.patterns.shape[0]
     J = np.empty(N)
     for k in range(N):
-        e0 = eta[0] - xc[nk + 2 * k]
-        e1 = eta[1] - xc[nk + 2 * k + 1]
-        J[k] = P.c_inst * (e0 * e0 + e1 * e1) + P.c_int * xc[nk + 2 * N + k]
+        e0 = eta[0] - x[2 * k]
+        e1 = eta[1] - x[2 * k + 1]
+        J[k] = P.c_inst * (e0 * e0 + e1 * e1) + P.c_int * x[2 * N + k]
     return J
 
 
 @schemes.jit
-def discrete(P, Kp, R, C, t, q, eta, xc, info):
+def discrete(P, step, x):
     N = P.patterns.shape[0]
-    sel, tsw = Kp.nk + 3 * N, Kp.nk + 3 * N + 1
-    J = costs(P, Kp.nk, eta, xc)
-    cur = round(xc[sel])
+    t = step.t
+    sel, tsw = 3 * N, 3 * N + 1
+    J = costs(P, step.eta, x)
+    cur = round(x[sel])
     least = J.min()
     cand = int(np.argmin(J))
     for k in range(N):  # the lowest index within TIE_RTOL of the least cost
         if J[k] <= least * (1.0 + P.tie):
             cand = k
             break
-    if cand != cur and t - xc[tsw] >= P.T_min - 1e-12 and J[cand] < J[cur] - P.hysteresis:
-        xc[sel] = cand
-        xc[tsw] = t
+    if cand != cur and t - x[tsw] >= P.T_min - 1e-12 and J[cand] < J[cur] - P.hysteresis:
+        x[sel] = cand
+        x[tsw] = t
 
 
 def _pack(ctx) -> P:
     c = ctx.params
     pats = np.array(compensable_patterns(ctx.chain.n), dtype=float)
-    return P(ctx.k_v, pats, 10.0, 0.01, 1.0, float(c), 1.0, 1e-10, TIE_RTOL)
+    return P(pats, 10.0, 0.01, 1.0, float(c), 1.0, 1e-10, TIE_RTOL)
 
 
 def _n_states(ctx) -> int:

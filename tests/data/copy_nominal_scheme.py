@@ -10,33 +10,24 @@ import numpy as np
 from ftcreport import schemes
 from ftcreport.schemes import Scheme, register
 
-matched_terms = schemes.matched_terms
 law_for_pattern = schemes.law_for_pattern
 
 
 class P(NamedTuple):
-    k_v: float
     sigma: np.ndarray
-    ksig: int
 
 
 @schemes.jit
-def law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    dx = np.zeros(xc.shape[0])
-    w, MB, _g, _e = matched_terms(Kp, R, C, pc, t, q, eta, xc, P.k_v, info, sig)
-    if info[0] != 0:
-        return np.zeros(2 * pc.n), dx
-    u = law_for_pattern(MB, w, P.sigma)
-    if sig.shape[0] > 0:
-        sig[P.ksig] = u[0]
-    return u, dx
+def law(P, step, terms, x, out):
+    out.u[:] = law_for_pattern(terms.MB, terms.w, P.sigma)
+    out.sig[0] = out.u[0]
 
 
 register(
     Scheme(
         "copy_nominal",
         law,
-        lambda ctx: P(ctx.k_v, np.ones(ctx.chain.n_wheels), ctx.n_kin_signals),
+        lambda ctx: P(np.ones(ctx.chain.n_wheels)),
         signals={"u0": 1},
         family="baseline",
         description="a copy of the nominal law (test)",

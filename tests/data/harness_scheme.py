@@ -13,7 +13,7 @@ whose ``P.mode`` chooses the law (one law: numba compiles one loop for all of th
 
   (= Bbar^+ (Mbar1 etadot_des + Mbar2 eta + Cbar): both matrices have the same row space), so with
   a matched model and healthy wheels the velocity error obeys e' = -k e exactly.  eta_c is logged
-  as the signal ``eta_c``.
+  as the signal ``eta_cmd``.
 - ``EXPLODING``: one state x, x' = rate x, every wheel commanded u_j = x (a blow-up like e^(rate t)).
 - ``GEOMETRIC``: u = g (1, -1, 1, -1, ...) with g = start factor^k at step k = round(t / dt), or
   with ``k_jump`` >= 0 a single jump g = start (1e6 from step k_jump on).
@@ -22,8 +22,9 @@ whose ``P.mode`` chooses the law (one law: numba compiles one loop for all of th
 - ``UKF``: the velocity law sampled at every step (held over the step) with the compiled UKF
   (fast.ukf.ukf_step) run at the samples on the held u; state ``[UKF state, held u, last sample]``.
 
-:func:`controller` builds the ``SchemeController`` (the kinematic controller it needs is never
-evaluated by these laws: a circle reference keeps its re-anchoring harmless).
+:func:`controller` builds the ``SchemeController``.  The scheme declares ``terms="none"``: the engine
+never evaluates the kinematic controller for these laws (a circle reference keeps its re-anchoring
+harmless), and the kinematic signals are not logged.
 """
 
 from __future__ import annotations
@@ -37,10 +38,10 @@ import numpy as np
 from ftcreport import schemes
 from ftcreport.control import ChainedBackstepping, TwoLinkKinematic
 from ftcreport.fast import kernels as F
-from ftcreport.fast.builtin import _no_obs
 from ftcreport.fast.ukf import UKF_OK, Ukf, ukf_params, ukf_step
 from ftcreport.references import FlatReference, circle
 from ftcreport.schemes import Scheme, SchemeController, register
+from ftcreport.schemes.laws.active import _no_obs
 
 VELOCITY, EXPLODING, GEOMETRIC, FARZA, UKF = range(5)
 
@@ -83,50 +84,48 @@ def velocity_u(P, pc, t, q, eta):
 
 
 @schemes.jit
-def law(P, Kp, R, C, pc, t, q, eta, xc, sig_true, ubar_true, info, sig):
-    dx = np.zeros(xc.shape[0])
-    nw = 2 * pc.n
-    own = Kp.nk
+def law(P, step, terms, x, out):
+    nw = out.u.shape[0]
     if P.mode == EXPLODING:
-        dx[own] = P.rate * xc[own]
-        return np.full(nw, xc[own]), dx
+        out.dx[0] = P.rate * x[0]
+        out.u[:] = x[0]
+        return
     if P.mode == GEOMETRIC:
-        k = math.floor(t / P.dt + 0.5)
+        k = math.floor(step.t / P.dt + 0.5)
         g = P.start * P.factor**k
         if P.k_jump >= 0:  # one jump instead
             g = P.start * (1e6 if k >= P.k_jump else 1.0)
-        u = np.empty(nw)
         for j in range(nw):
-            u[j] = g if j % 2 == 0 else -g
-        return u, dx
+            out.u[j] = g if j % 2 == 0 else -g
+        return
     if P.mode == UKF:
-        return xc[own + P.ns : own + P.ns + nw].copy(), dx
-    u, eta_c = velocity_u(P, pc, t, q, eta)
-    if sig.shape[0] > 0:
-        sig[0] = eta_c[0]
-        sig[1] = eta_c[1]
+        out.u[:] = x[P.ns : P.ns + nw]
+        return
+    u, eta_c = velocity_u(P, step.model, step.t, step.q, step.eta)
+    out.u[:] = u
+    out.sig[0] = eta_c[0]
+    out.sig[1] = eta_c[1]
     if P.mode == FARZA:
-        dx[own : own + P.ns] = F.farza_derivative(P.obs, pc, u, q, xc[own : own + P.ns])
-    return u, dx
+        out.dx[0 : P.ns] = F.farza_derivative(P.obs, step.model, u, step.q, x[0 : P.ns])
 
 
 @schemes.jit
-def discrete(P, Kp, R, C, t, q, eta, xc, info):
+def discrete(P, step, x):
     if P.mode != UKF:
         return
-    own = Kp.nk
     nw = 2 * P.ch.n
-    h = t - xc[own + P.ns + nw]
+    t = step.t
+    h = t - x[P.ns + nw]
     if h > 0.0:
-        s_new, status = ukf_step(P.ch, P.ukf, xc[own : own + P.ns], xc[own + P.ns : own + P.ns + nw], q, h)
+        s_new, status = ukf_step(P.ch, P.ukf, x[0 : P.ns], x[P.ns : P.ns + nw], step.q, h)
         if status != UKF_OK:
-            info[0] = F.E_UKF
-            info[1] = status
-            info[2] = t
+            step.info[0] = F.E_UKF
+            step.info[1] = status
+            step.info[2] = t
             return
-        xc[own : own + P.ns] = s_new
-    xc[own + P.ns : own + P.ns + nw] = velocity_u(P, P.ch, t, q, eta)[0]
-    xc[own + P.ns + nw] = t
+        x[0 : P.ns] = s_new
+    x[P.ns : P.ns + nw] = velocity_u(P, P.ch, t, step.q, step.eta)[0]
+    x[P.ns + nw] = t
 
 
 @dataclass(frozen=True)
@@ -195,6 +194,8 @@ SCHEME = register(
         n_states=_n_states,
         initial_state=_initial_state,
         discrete=discrete,
+        signals={"eta_cmd": 2},
+        terms="none",
         family="test",
         description="the engine's and the observers' test harnesses (tests/data/harness_scheme.py)",
     )

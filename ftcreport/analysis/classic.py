@@ -33,12 +33,12 @@ import math
 import control
 import numpy as np
 
-from .control.kinematic import TwoLinkKinematic
-from .errors import FtcError, ModelError
-from .model import kernels as K
-from .model.chain import Chain
-from .model.faults import pattern_is_compensable
-from .references import FlatReference, unicycle
+from ..control.kinematic import TwoLinkKinematic
+from ..errors import FtcError, ModelError
+from ..model import kernels as K
+from ..model.chain import Chain
+from ..model.faults import pattern_is_compensable
+from ..references import FlatReference, unicycle
 
 __all__ = [
     "kinematic_error_matrix",
@@ -340,7 +340,7 @@ def chained_circle_analysis(chain: Chain, kinematic, k_v: float, omega_d: float,
       period T = band / |omega_d| (RK4 on the matrix ODE) and composed with the rotation R by the
       band (A(t + T) = R A(t) R^-1), giving the predicted convergence rate -ln rho(R^-1 Phi(T)) / T.
     """
-    from .control.tracking import TrackingController
+    from ..control.tracking import TrackingController
 
     ref = kinematic.reference
     ctrl = TrackingController(chain, kinematic, k_v)
@@ -391,7 +391,7 @@ def chained_frozen_time_poles(chain: Chain, kinematic, k_v: float, duration: flo
     frame psi the controller would hold then (re-anchored along the reference by the controller's
     own rule).  Indicative only, as for the two-link loop: frozen-time stability is not a proof.
     """
-    from .control.tracking import TrackingController
+    from ..control.tracking import TrackingController
 
     ctrl = TrackingController(chain, kinematic, k_v)
     ref = kinematic.reference
@@ -406,6 +406,14 @@ def chained_frozen_time_poles(chain: Chain, kinematic, k_v: float, duration: flo
     return _frozen_summary(times, np.array(poles))
 
 
+def scheme_gain(case, scheme: str) -> float:
+    """The velocity gain k_v a scheme of the case runs with (a plug-in without one: the case's default)."""
+    from ..families import default_k_v
+
+    k_v = getattr(getattr(case.schemes, scheme, None), "k_v", None)
+    return float(default_k_v(case) if k_v is None else k_v)
+
+
 def _omega(case) -> float:
     r = case.reference
     if r.kind == "unicycle":
@@ -416,7 +424,7 @@ def _omega(case) -> float:
 
 
 def _chained(case, chain: Chain, ref: FlatReference):
-    from .control.kinematic import ChainedBackstepping
+    from ..control.kinematic import ChainedBackstepping
 
     k = case.kinematic
     c = k.c_chain if isinstance(k.c_chain, list) else [k.c_chain] * chain.n
@@ -507,7 +515,7 @@ def healthy_torque(p, q: np.ndarray, eta: np.ndarray, etadot_des: np.ndarray) ->
     (= Bbar^+ (Mbar1 etadot_des + Mbar2 eta + Cbar): both matrices have the same row space), the
     pseudo-inverse the compiled law's (``control.tracking.law_for_pattern``).
     """
-    from .control.tracking import LawTerms, law_for_pattern
+    from ..control.tracking import LawTerms, law_for_pattern
 
     Mbar1, Mbar2, Cbar, Bbar = K.reduced(p, q, eta)
     MB = np.linalg.solve(Mbar1, Bbar)
@@ -517,7 +525,7 @@ def healthy_torque(p, q: np.ndarray, eta: np.ndarray, etadot_des: np.ndarray) ->
 
 def observer_analysis(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarray, thetas=(0.5, 0.9, 1.6, 3.0, 6.0)):
     """Observability ranks and Farza error poles against Theta at one operating point, as data."""
-    from .observers import FarzaObserver
+    from ..observers import FarzaObserver
 
     qdot = chain.S(q) @ eta
     rows = []
@@ -537,22 +545,25 @@ def observer_analysis(chain: Chain, q: np.ndarray, eta: np.ndarray, u: np.ndarra
     return {"observability": observability(chain, q, eta, u), "farza_poles": rows}
 
 
-def analyze_case(case) -> dict:
-    """Analyses of one validated case (see ftcreport.cases.Case), as plain data.
+def classic_analyses(case) -> dict:
+    """The analyses of one validated case that need no scheme's own law, as plain data.
 
-    ``closed_loop_poles`` (per scheme, [re, im] pairs) is given for two-link cases on a
-    constant-velocity unicycle reference: at zero error with healthy wheels every scheme
-    applies the same matched law, so their poles coincide.  Chained-form cases and
-    time-varying references are not linearized yet (frozen-time analysis is open work).
+    ``closed_loop_poles`` (per built-in scheme, [re, im] pairs) is given for two-link cases on a
+    constant-velocity unicycle reference: at zero error with healthy wheels every built-in scheme
+    applies the same matched law, so their poles coincide; chained-form cases on a circle get the
+    frozen poles over the re-anchoring period and the Floquet rate, time-varying references the
+    frozen-time poles.  Controllability per pattern, the healthy law's velocity loop and the observer
+    use the gain of the first scheme the case runs (a plug-in's own ``k_v`` when that is all it runs).
+    Every scheme in every fault phase, in discrete time where sampled: :func:`ftcreport.analysis.analyze_case`.
     """
-    from .cases import SCHEME_NAMES, build_chain
+    from ..cases import SCHEME_NAMES, build_chain, configured_schemes
 
     out: dict = {"case": case.name, "n_robots": case.robots.n, "reference_kind": case.reference.kind}
     chain = build_chain(case)
     ref = FlatReference(case.reference.path(), chain.d)
     kin = case.kinematic
     schemes = [s for s in SCHEME_NAMES if getattr(case.schemes, s) is not None]
-    k_v0 = getattr(case.schemes, schemes[0]).k_v  # the first scheme's gain (frozen-time poles, patterns)
+    k_v0 = scheme_gain(case, configured_schemes(case)[0])  # the first scheme's gain (frozen-time poles, patterns)
     if kin.kind == "two_link" and case.reference.kind == "unicycle":
         v_d, w_d = case.reference.v_d, case.reference.omega_d
         out["kinematic_poles"] = pole_table(kinematic_error_matrix(v_d, w_d, kin.k1, kin.k2, kin.k3))

@@ -1,0 +1,94 @@
+r"""The analysis of a case, as the ``analyze`` command and the case page show it (pure: no I/O).
+
+:func:`analyze_case` gathers the case-wide analyses of :mod:`.classic` (the two-link error poles,
+frozen-time and Floquet poles of the chained form, controllability per pattern, the healthy law's
+velocity loop, the observer) and, for every scheme the case runs, :func:`.phases.analyze_scheme`:
+per fault phase the true and applied pattern, the poles, stability and margins of the loop as it
+runs (continuous or sampled), the scheme's stability limits and, for a case with sampled control or
+motors, their confirmation by simulation (:mod:`.confirm`).  The keys are documented in README,
+"Linearized analysis (`ftcreport analyze`)".
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import FtcError
+from .classic import classic_analyses
+from .confirm import confirm_limit, needs_confirmation
+from .phases import analyze_scheme, case_frames
+
+__all__ = ["analyze_case"]
+
+
+def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: bool = True,
+                 confirm: bool = False, progress=None) -> dict:  # fmt: skip
+    """Every analysis of one validated case, as plain data (README, "Linearized analysis").
+
+    Parameters
+    ----------
+    case : ftcreport.cases.Case
+    runs : dict, optional
+        ``{scheme: stored time series}`` (``store.load_timeseries``): the states each scheme held and
+        the model switching selected, phase by phase.  Without them the schemes' converged states.
+    margins, limits : bool
+        Compute the loop-at-a-time margins, and the stability limits.
+    confirm : bool
+        Confirm each limit by two short simulations (only for a case with sampled control or motors).
+    progress : callable, optional
+        Called with a line of text as each scheme is done.
+    """
+    from ..cases import configured_schemes
+    from ..runner import build
+
+    t0 = time.perf_counter()
+    out = classic_analyses(case)
+    built = build(case)
+    out["sampled"] = case.simulation.sample_time is not None
+    out["sample_time"] = case.simulation.sample_time
+    out["measurement_delay"] = int(case.simulation.measurement_delay)
+    out["actuator_input"] = "voltage" if built.plant.motors is not None else "torque"
+    out["time_varying"] = None
+    out["phases"], out["limits"], out["velocity_loop"], out["limit_notes"] = {}, {}, {}, {}
+    out["confirmation"] = {}
+    out["not_analyzed"] = {}
+    out["k_v"] = {}
+    psis = case_frames(case, built)
+    for scheme in configured_schemes(case):
+        t1 = time.perf_counter()
+        try:
+            res = analyze_scheme(case, scheme, built, (runs or {}).get(scheme), margins, limits, psis)
+        except (FtcError, ValueError, np.linalg.LinAlgError) as exc:
+            out["not_analyzed"][scheme] = str(exc)
+            continue
+        out["phases"][scheme] = res["phases"]
+        out["k_v"][scheme] = res["k_v"]
+        if limits:
+            out["limits"][scheme] = res["limits"]
+            out["velocity_loop"][scheme] = res["velocity_loop"]
+            out["limit_notes"][scheme] = {k: v for k, v in res["limit_notes"].items() if v}
+            out.setdefault("_curves", {})[scheme] = res.get("_curves")
+            if confirm and needs_confirmation(case):
+                out["confirmation"][scheme] = _confirm(case, scheme, res)
+        if progress is not None:
+            progress(f"{scheme}: {time.perf_counter() - t1:.1f} s")
+    from .phases import time_varying
+
+    out["time_varying"] = time_varying(case)
+    out["analysis_time"] = time.perf_counter() - t0
+    return out
+
+
+def _confirm(case, scheme: str, res: dict) -> dict:
+    """Both limits of one scheme confirmed by simulation (:mod:`.confirm`); a null limit is skipped."""
+    out = {}
+    units = {"sample_time_max": "s", "k_v_max": "1/s"}
+    for which, unit in units.items():
+        limit = res["limits"].get(which)
+        if limit is None:
+            continue
+        z = res.get("crossing", {}).get(which)
+        out[which] = confirm_limit(case, scheme, which, limit, None if z is None else complex(*z), unit)
+    return out

@@ -1,0 +1,706 @@
+r"""One scheme's closed loop, linearized through the scheme interface (pure: no I/O).
+
+The loop a case runs is the plant (the chain, its actuators and the drive), the kinematic law, and the
+scheme's compiled law with its own states.  This module evaluates each part as the engine does, at an
+operating point on the reference, and differentiates it by central differences:
+
+* the plant, ``x_p' = f_p(x_p, a)`` with ``x_p = [q, eta, i_a]`` (thesis (2.70); with ``[actuators]``
+  the motors (2.26)-(2.29) with ERRATA E19, ``fast.motor.motor_plant_rhs``) and ``a`` the signal the
+  controller holds at the actuator inputs: the torque command ``u`` on the ideal plant, the driver's
+  armature voltage with motors (:class:`Plant`);
+* the controller, ``(a, c') = g(x_p, y, c)``: the scheme's law (``law(P, Kp, R, C, pc, t, q, eta, xc,
+  sig_true, ubar_true, info, sig)``, the scheme API of ``ftcreport.schemes``) at the measurement
+  ``y = [q, eta]``, then the command faults (2.101)-(2.102), the torque limit and the driver; ``c``
+  the scheme's states that are linearized (:class:`SchemeLoop`);
+* where the scheme has a smooth discrete update (the UKF's step and the law it holds), that map too.
+
+The laws are nonlinear in q (the kinematic laws (3.27)-(3.29), (3.67)-(3.106)) and reach the
+numbers only through the compiled kernels, so the Jacobians are central differences of the compiled
+functions (error O(h^2) for a relative step h = 1e-6: about 1e-12 of each entry, far below what a
+pole or a limit needs; ``tests/test_linear_loop.py`` checks them against the model's analytic
+Jacobians and the sympy Lagrangian).  The same code linearizes a plug-in scheme, which is known only
+through that interface.
+
+Operating point (a frozen instant t of a fault phase): the plant on the reference,
+``q = q_d(t), eta = eta_d(t)``, the motors' currents quasi-static for the command held there; the
+kinematic frame as the controller holds it at t (:func:`frames`); the scheme's own states at what
+they hold in that phase: the states of its run at t when a run exists, else the converged values of
+the built-in schemes (:func:`operating_state`: switching's applied model, the adaptive weights on
+the design of the applied pattern, the observers' estimates at the truth) and a plug-in's initial
+state.
+
+States that cannot matter to the tracking are left out, exactly: the kinematic frame and switching's
+selected index and dwell timer are held (they change by jumps, not by rates), the UKF's covariance is
+held at its value (the filter linearized with its gain frozen, the usual linearization of a Kalman
+filter), and every state that the plant can neither excite nor see is dropped by
+:func:`relevant_states` (the Farza observer's sensitivity matrix Y and gain P at zero estimation
+error, the adaptive law's weight combinations that leave the torque unchanged): its modes are
+decoupled, so the poles that remain are exactly those of the loop that reaches the plant.  The
+adaptive weights (N designs x 2n wheels, 7,670 states for five robots) enter only through the
+torque and have no dynamics of their own at zero error; :func:`_parameter_block` replaces them by
+their image in the torque space (at most 2n states), exactly.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ModelError
+from .blocks import Blocks
+
+__all__ = [
+    "Blocks",
+    "Faults",
+    "Plant",
+    "Point",
+    "SchemeLoop",
+    "central_columns",
+    "frames",
+    "operating_state",
+    "relevant_states",
+]
+
+_EMPTY = np.zeros(0)
+#: relative step of the central differences: truncation ~h^2 = 1e-12, round-off ~eps/h = 2e-10 of |f|
+STEP = 1e-6
+#: the adaptive weights are put at least this far inside [0, 1] (:func:`_inside`), far beyond STEP
+WEIGHT_INSIDE = 1e-3
+
+
+@dataclass(frozen=True)
+class Faults:
+    """The faults of one phase: command faults (2.101)-(2.102) and the motors' fault table.
+
+    sigma, ubar : (2n,) ndarrays, wheel order 1r, 1l, 2r, ...; motor : (2n, 4) ndarray (rows
+    ``[k_m scale, R_a scale, mode, v_stuck]``, ``fast.motor``) or an empty (0, 4) array without motors.
+    """
+
+    sigma: np.ndarray
+    ubar: np.ndarray
+    motor: np.ndarray
+
+    @classmethod
+    def healthy(cls, nw: int, motors: bool) -> Faults:
+        from ..fast.motor import healthy_faults
+
+        return cls(np.ones(nw), np.zeros(nw), healthy_faults(nw) if motors else np.zeros((0, 4)))
+
+
+def central_columns(f, x0: np.ndarray, columns=None, step: float = STEP) -> np.ndarray:
+    """Columns of the Jacobian of f at x0 by central differences, (len(f(x0)), len(columns)).
+
+    Column j: ``(f(x0 + h e_j) - f(x0 - h e_j)) / (2 h)`` with ``h = step max(1, |x0_j|)``.  A function
+    that does not read x_j gives exactly 0 (the same evaluation twice): :func:`relevant_states` relies on it.
+    """
+    x0 = np.asarray(x0, dtype=float)
+    cols = range(x0.size) if columns is None else columns
+    out = []
+    for j in cols:
+        h = step * max(1.0, abs(x0[j]))
+        xp = x0.copy()
+        xm = x0.copy()
+        xp[j] += h
+        xm[j] -= h
+        out.append((np.asarray(f(xp)) - np.asarray(f(xm))) / (2.0 * h))
+    if not out:
+        return np.zeros((np.asarray(f(x0)).size, 0))
+    return np.column_stack(out)
+
+
+def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP) -> np.ndarray:
+    """``J(x0) v`` by a central difference along v (h scaled to v and x0).
+
+    The norms are sums of squares, not ``np.linalg.norm``: on a vector of 36,840 adaptive weights that
+    calls the threaded BLAS, 27 ms a call on the loaded 2-core machine against 0.1 ms.
+    """
+    nv = math.sqrt(float(np.sum(v * v)))
+    if nv == 0.0:
+        return np.zeros(np.asarray(f(x0)).size)
+    h = step * max(1.0, math.sqrt(float(np.sum(x0 * x0)))) / nv
+    return (np.asarray(f(x0 + h * v)) - np.asarray(f(x0 - h * v))) / (2.0 * h)
+
+
+# ----------------------------------------------------------------------------------------------- plant
+class Plant:
+    r"""The plant as the controller's samples see it: x_p' = f_p(x_p, a) (pure).
+
+    ``x_p = [q (n + 2), eta (2), i_a (2n with motors)]``.  ``a`` is what the controller holds at the
+    actuator inputs: on the ideal plant the torque command u (the plant applies
+    ``tau = sigma sat(u) + ubar``, (2.101)-(2.102)); with ``[actuators]`` the armature voltage, the
+    driver being the controller's last stage (:meth:`command`).  This is the one place that says how
+    the drive enters the loop: a drive with states of its own (the PI current loop of issue 36) adds
+    them to ``x_p`` after the currents and changes :meth:`command` to what it takes as reference.
+    """
+
+    def __init__(self, built) -> None:
+        from ..fast import kernels as F
+        from ..model.kernels import kernel_ref
+
+        self.chain = built.plant.chain  # the plant's chain (a mismatch case differs from the model's)
+        self.n_q = self.chain.n_q
+        self.nw = self.chain.n_wheels
+        self.saturation = built.plant.saturation
+        self._F = F
+        self._pref = kernel_ref(self.chain.params)
+        self.motors = None
+        self.nm = 0
+        if built.plant.motors is not None:
+            from ..model.actuators import pack
+
+            self.motors = pack(built.plant.motors, self.chain.n)
+            self.nm = self.nw
+        self.n_states = self.n_q + 2 + self.nm
+        self.input_name = "voltage" if self.motors is not None else "torque"
+        self.input_unit = "V" if self.motors is not None else "N m"
+
+    def clip(self, u: np.ndarray) -> np.ndarray:
+        return u if self.saturation is None else np.clip(u, -self.saturation, self.saturation)
+
+    def wheel_speeds(self, pref, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        """Bbar(q)^T eta (virtual work) with the chain ``pref`` (a kernel ref)."""
+        return self._F.reduced(pref, q, eta)[3].T @ eta
+
+    def true_faults(self, xp: np.ndarray, fz: Faults) -> tuple[np.ndarray, np.ndarray]:
+        """(sigma, ubar) the chain sees: the command faults with the motors' equivalents at xp's wheel speeds."""
+        if self.motors is None:
+            return fz.sigma, fz.ubar
+        from ..fast.motor import fault_equivalent
+
+        nq = self.n_q
+        sm, um = fault_equivalent(self.motors, fz.motor, self.wheel_speeds(self._pref, xp[:nq], xp[nq : nq + 2]))
+        return sm * fz.sigma, sm * fz.ubar + um
+
+    def command(self, u: np.ndarray, omega_meas: np.ndarray, fz: Faults) -> np.ndarray:
+        """The held actuator signal for the law's command u: u itself, or the driver's voltages.
+
+        The driver is the static inversion with nominal parameters at the measured wheel speeds
+        (``fast.motor.driver_voltage``), fed the command after the command faults and the limit.
+        """
+        if self.motors is None:
+            return u
+        from ..fast.motor import driver_voltage
+
+        return driver_voltage(self.motors, fz.sigma * self.clip(u) + fz.ubar, omega_meas, fz.motor)
+
+    def rates(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
+        """f_p(x_p, a): [S(q) eta, etadot (2.70), i_a' (2.28)] with a held."""
+        nq = self.n_q
+        q, eta = xp[:nq], xp[nq : nq + 2]
+        if self.motors is None:
+            qdot, etadot = self._F.plant_rhs(self._pref, q, eta, fz.sigma * self.clip(a) + fz.ubar)
+            return np.concatenate((qdot, etadot))
+        from ..fast.motor import motor_plant_rhs
+
+        qdot, etadot, idot, _tau = motor_plant_rhs(self._pref, self.motors, q, eta, xp[nq + 2 :], a, fz.motor)
+        return np.concatenate((qdot, etadot, idot))
+
+    def operating_currents(self, q: np.ndarray, eta: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
+        """The currents at the operating point: quasi-static for the held voltages a (L_a di/dt = 0)."""
+        if self.motors is None:
+            return _EMPTY
+        from ..fast.motor import quasi_static_current
+
+        return quasi_static_current(self.motors, a, self.wheel_speeds(self._pref, q, eta), fz.motor)
+
+    def input_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
+        """d f_p / d a, (n_states, 2n): the currents' rows are exact (1/L_a on working windings)."""
+        if self.motors is None:
+            return central_columns(lambda v: self.rates(xp, v, fz), a)
+        from ..fast.motor import winding_voltage
+
+        B = np.zeros((self.n_states, self.nw))
+        # the winding sees the driver's voltage except when open, shorted or stuck (fast.motor)
+        passes = winding_voltage(self.motors, np.ones(self.nw), fz.motor) == 1.0
+        B[self.n_q + 2 :, :] = np.diag(np.where(passes, 1.0 / self.motors.L_a, 0.0))
+        return B
+
+    def state_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
+        """d f_p / d x_p: central differences in q and eta, the currents' columns exact (affine in i_a)."""
+        nq = self.n_q
+        f = lambda x: self.rates(x, a, fz)  # noqa: E731
+        if self.motors is None:
+            return central_columns(f, xp)
+        from ..fast.motor import current_jacobian
+
+        J = np.zeros((self.n_states, self.n_states))
+        J[:, : nq + 2] = central_columns(f, xp, range(nq + 2))
+        J[nq:, nq + 2 :] = current_jacobian(self._pref, self.motors, xp[:nq], xp[nq : nq + 2], fz.motor)
+        return J
+
+
+# ----------------------------------------------------------------------------------------------- points
+@dataclass
+class Point:
+    """An operating point: time, the phase's faults, the plant state, the controller state, the held signal."""
+
+    t: float
+    faults: Faults
+    xp: np.ndarray
+    xc: np.ndarray
+    a: np.ndarray
+    applied: list | None = None  # the pattern the law assumes here (None: not a pattern-based law)
+    omega: float = 0.0  # the reference's turning rate at t (theta_n's), for the co-moving frame
+
+
+# ----------------------------------------------------------------------------------------------- scheme
+class SchemeLoop:
+    """One scheme of a case as the engine runs it, evaluated from Python through the scheme interface.
+
+    Parameters
+    ----------
+    case : ftcreport.cases.Case
+    scheme : str
+        A built-in or registered scheme the case runs.
+    built : ftcreport.runner.Built, optional
+        The case's built objects (shared between the schemes of a case).
+    k_v : float, optional
+        Another velocity gain than the case's (the stability limits vary it).
+    controller : optional
+        A controller built elsewhere (a registered scheme's ``SchemeController`` outside any case table)
+        to run on the case's plant instead of the case's ``scheme``.
+    """
+
+    def __init__(self, case, scheme: str, built=None, k_v: float | None = None, controller=None) -> None:
+        from ..fast import kernels as F
+        from ..fast.engine import compiled_spec, law_buffers, loop_for
+        from ..fast.refs import to_ref
+        from ..runner import build, make_controller
+
+        built = built if built is not None else build(case)
+        if k_v is not None:
+            built = copy.copy(built)
+            built.case = with_k_v(case, scheme, k_v)
+        self.case = case
+        self.scheme = scheme
+        self.built = built
+        self.ctrl = make_controller(built, scheme) if controller is None else controller
+        self.k_v = float(self.ctrl.k_v)
+        spec = compiled_spec(self.ctrl)
+        if spec is None:
+            raise ModelError(f"scheme {scheme}: no compiled law to linearize")
+        self.spec = spec
+        # the law through its loop's entry points, as the engine and 'schemes check' call it (the
+        # scheme interface: the loop builds the step, the terms and the law's buffers); the case's own
+        # variant of the loop, so that a batch's compiled cache serves it
+        self._loop = loop_for(
+            spec.law, spec.disc, motors=case.actuators is not None,
+            sampled=case.simulation.sample_time is not None, terms=spec.terms,
+        )  # fmt: skip
+        self._bufs = law_buffers(spec)
+        self._kin, self._ref, self._pc = to_ref(spec.kin), to_ref(spec.ref), to_ref(spec.chain)
+        self._cache = to_ref(F.new_cache(self.ctrl.chain.n))
+        self.plant = Plant(built)
+        self.n_q = self.plant.n_q
+        self.nk = int(self.ctrl.kin.n_states)
+        self.held, self.has_disc = _layout(self.ctrl, self.nk)
+        self.linearized = [i for i in range(int(self.ctrl.n_states)) if i not in self.held]
+
+    # ------------------------------------------------------------------------------------------ calls
+    def law(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, st, ut) -> tuple[np.ndarray, np.ndarray]:
+        """(u, xc') of the scheme's compiled law at the measured (q, eta) (the scheme API's call)."""
+        info = np.zeros(4)
+        spec, bufs = self.spec, self._bufs
+        u = self._loop.first_law(
+            (spec.P, bufs), spec.kin, spec.ref, spec.chain, float(t), np.ascontiguousarray(q, dtype=float),
+            np.ascontiguousarray(eta, dtype=float), np.ascontiguousarray(xc, dtype=float),
+            np.ascontiguousarray(st, dtype=float), np.ascontiguousarray(ut, dtype=float), info, _EMPTY,
+        )  # fmt: skip
+        # the scheme's own states' rates (the law's out.dx); the kinematic controller's states have none
+        dx = np.concatenate((np.zeros(self.nk), bufs[2][: int(self.ctrl.n_states) - self.nk]))
+        if info[0] != 0:
+            raise ModelError(f"scheme {self.scheme}: the law stops at t = {t:g} s (error code {int(info[0])})")
+        return np.asarray(u, dtype=float), np.asarray(dx, dtype=float)
+
+    def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        """The scheme's discrete update at t (a copy of xc updated)."""
+        out = np.array(xc, dtype=float)
+        info = np.zeros(4)
+        q, eta = np.asarray(q, dtype=float), np.asarray(eta, dtype=float)
+        spec = self.spec
+        self._loop.first_discrete((spec.P, self._bufs), spec.kin, spec.ref, spec.chain, float(t), q, eta, out, info)
+        if info[0] != 0:
+            raise ModelError(f"scheme {self.scheme}: the discrete update stops at t = {t:g} s (code {int(info[0])})")
+        return out
+
+    def controller(self, t: float, xp: np.ndarray, y: np.ndarray, xc: np.ndarray, fz: Faults):
+        """(a, xc') at the true plant state xp, the measurement y = [q, eta] and the controller state xc."""
+        nq = self.n_q
+        st, ut = self.plant.true_faults(xp, fz)  # only an oracle reads them
+        u, dx = self.law(t, y[:nq], y[nq : nq + 2], xc, st, ut)
+        omega = None
+        if self.plant.motors is not None:
+            omega = self.plant.wheel_speeds(self._pc, y[:nq], y[nq : nq + 2])  # the driver's: the model's Bbar
+        return self.plant.command(u, omega, fz), dx
+
+    # ------------------------------------------------------------------------------------------ points
+    def point(self, t: float, faults: Faults, psi: float | None = None, applied=None, run_xc=None,
+              period: float | None = None, q=None, eta=None) -> Point:  # fmt: skip
+        """The operating point at t on the reference (module docstring); ``period``: a sampled scheme's T.
+
+        ``q``, ``eta``: another plant state than the reference's (a loop at rest, in the tests).
+        """
+        r = self.ctrl.kin.reference.at(float(t))
+        q = np.asarray(r.q_d if q is None else q, dtype=float)
+        eta = np.asarray(r.eta_d if eta is None else eta, dtype=float)
+        xc, applied = operating_state(self, t, q, eta, faults, psi, applied, run_xc, period)
+        xp = np.concatenate((q, eta, np.zeros(self.plant.nm)))
+        a, _ = self.controller(t, xp, xp[: self.n_q + 2], xc, faults)
+        xp[self.n_q + 2 :] = self.plant.operating_currents(q, eta, a, faults)
+        omega = float((self.ctrl.chain.S(q) @ eta)[2])  # theta_n's rate: P_n's direction of motion turns at it
+        return Point(float(t), faults, xp, xc, a, applied, omega)
+
+    # ------------------------------------------------------------------------------------------ Jacobians
+    def blocks(self, pt: Point, period: float | None = None, basis: np.ndarray | None = None) -> Blocks:
+        """The loop's Jacobians at ``pt`` (``period``: the sample time a discrete update is linearized for;
+        ``basis``: a parameter block's basis to use, from :attr:`Blocks.basis` of the same point)."""
+        ny = self.n_q + 2
+        fz, t = pt.faults, pt.t
+        Fx = self.plant.state_columns(pt.xp, pt.a, fz)
+        Fa = self.plant.input_columns(pt.xp, pt.a, fz)
+        na = pt.a.size
+        y0 = pt.xp[:ny].copy()
+        lin = np.array(self.linearized, dtype=int)
+
+        def g(xp, y, xc):
+            a, dx = self.controller(t, xp, y, xc, fz)
+            return np.concatenate((a, dx[lin]))
+
+        def with_c(c):
+            xc = pt.xc.copy()
+            xc[lin] = c
+            return xc
+
+        Gy = central_columns(lambda y: g(pt.xp, y, pt.xc), y0)
+        motor_faults = self.plant.motors is not None and fz.motor.size and np.any(fz.motor != _healthy_row())
+        Gx = np.zeros((na + lin.size, self.plant.n_states))
+        if motor_faults:  # the oracle is told the faults the chain sees, which depend on the wheel speeds
+            Gx = central_columns(lambda x: g(x, y0, pt.xc), pt.xp)
+        c0 = pt.xc[lin]
+        disc = None
+        if self.has_disc:
+            if period is None:
+                raise ModelError(f"scheme {self.scheme}: its discrete update needs a sample time to be linearized")
+            disc = self._discrete_map(pt, period, lin)
+        elif lin.size and not np.any(Gx):
+            block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis)
+            if block is not None:
+                Gy_r, Gc_r, U = block
+                rank = Gc_r.shape[1]
+                return Blocks(
+                    Fx, Fa, np.zeros((na + rank, Fx.shape[0])), Gy_r, Gc_r, np.eye(rank), np.zeros((rank, ny)), na,
+                    dropped=int(lin.size - rank), parameter_block=int(lin.size), omega=pt.omega, frame=[(0, 1)],
+                    basis=U,
+                )  # fmt: skip
+        Gc = central_columns(lambda c: g(pt.xp, y0, with_c(c)), c0)
+        if disc is None:
+            Dc, Dy = np.eye(lin.size), np.zeros((lin.size, ny))
+        else:
+            Dc, Dy = disc
+        keep = relevant_states(Gx, Gy, Gc, Dc, Dy, na)
+        sel = np.concatenate((np.arange(na), na + keep))
+        kept = [int(lin[k]) for k in keep]
+        where = {i: Fx.shape[0] + k for k, i in enumerate(kept)}
+        frame = [(0, 1)] + [(where[i], where[j]) for i, j in _world_pairs(self.ctrl) if i in where and j in where]
+        return Blocks(
+            Fx, Fa, Gx[sel], Gy[sel], Gc[np.ix_(sel, keep)], Dc[np.ix_(keep, keep)], Dy[keep], na,
+            kept=kept, dropped=int(lin.size - keep.size), omega=pt.omega, frame=frame,
+        )  # fmt: skip
+
+    def _discrete_map(self, pt: Point, period: float, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(Dc, Dy): the Jacobian of the discrete update c <- d(c, y) at pt for samples ``period`` apart."""
+        nq, ny = self.n_q, self.n_q + 2
+        xc0 = pt.xc.copy()
+        y0 = pt.xp[:ny].copy()
+
+        def d(y, c):
+            xc = xc0.copy()
+            xc[lin] = c
+            return self.discrete(pt.t, y[:nq], y[nq:ny], xc)[lin]
+
+        Dc = central_columns(lambda c: d(y0, c), xc0[lin])
+        Dy = central_columns(lambda y: d(y, xc0[lin]), y0)
+        return Dc, Dy
+
+
+def _healthy_row() -> np.ndarray:
+    return np.array([1.0, 1.0, 0.0, 0.0])
+
+
+def with_k_v(case, scheme: str, k_v: float):
+    """The case with ``scheme``'s velocity gain set to k_v (a built-in table's or a plug-in's ``k_v``)."""
+    cfg = getattr(case.schemes, scheme, None)
+    if cfg is None:
+        raise ModelError(f"scheme {scheme} is not configured in case {case.name}")
+    if "k_v" not in type(cfg).model_fields:
+        raise ModelError(f"scheme {scheme}: its parameters have no k_v to vary")
+    new = cfg.model_copy(update={"k_v": float(k_v)})
+    return case.model_copy(update={"schemes": case.schemes.model_copy(update={scheme: new})})
+
+
+# ----------------------------------------------------------------------------------------------- layouts
+def _layout(ctrl, nk: int) -> tuple[set[int], bool]:
+    """(held, has_disc): the controller states held at the operating point, and whether the scheme's
+    discrete update is a smooth map to linearize (the UKF's step and law) rather than a decision.
+
+    Held: the kinematic frame (re-anchored by jumps), switching's selected model and dwell timer, the
+    UKF's covariance and its last sample time, the Farza observer's sensitivity Y and gain P (4.4)-(4.11):
+    at zero estimation error they multiply the innovation, zero, so they are decoupled exactly (their
+    values still set the observer's gains).  A plug-in's discrete update (switches, projections, README
+    "Write your own scheme") is held too: only its law's rates are linearized.
+    """
+    from ..control.active import ActiveController
+    from ..control.switching import SwitchingController
+    from ..observers.ukf import UKFEstimator
+
+    held = set(range(nk))
+    disc = False
+    if isinstance(ctrl, SwitchingController):
+        held |= {ctrl._sel, ctrl._tsw}
+    elif isinstance(ctrl, ActiveController) and isinstance(ctrl.est, UKFEstimator):
+        o = ctrl.est
+        start = ctrl._est.start
+        held |= set(range(start + o.nx, start + o.n_states))  # the covariance
+        held |= set(range(ctrl._t.start, ctrl._t.stop))
+        disc = True
+    elif isinstance(ctrl, ActiveController):  # the Farza observer
+        o, start = ctrl.est, ctrl._est.start
+        held |= set(range(start + o._Y.start, start + o._P.stop))
+    return held, disc
+
+
+def _world_pairs(ctrl) -> list[tuple[int, int]]:
+    """Index pairs of xc holding world-frame vectors: an observer's estimate of P_n and of its velocity.
+
+    A plug-in scheme's layout is unknown: none (its estimates, if any, are linearized in the world frame).
+    """
+    from ..control.active import ActiveController
+    from ..observers.ukf import UKFEstimator
+
+    if not isinstance(ctrl, ActiveController):
+        return []
+    e = ctrl._est.start
+    if isinstance(ctrl.est, UKFEstimator):
+        return [(e, e + 1)]
+    N = ctrl.est.N
+    return [(e, e + 1), (e + N, e + N + 1)]
+
+
+def frames(kin, times, step: float = 0.01) -> dict[float, float]:
+    """The chained law's frame psi at each of ``times`` as the controller holds it along the reference.
+
+    psi starts at theta_nd(0) and re-anchors to theta_nd when |theta_nd - psi| exceeds the band
+    (``kin_discrete``): stepped along the reference at ``step`` (the case's dt, at least 0.01 s: the
+    engine re-anchors after every step; the band is 45 deg and the references turn a few degrees per
+    0.01 s at most).  Empty for the two-link law (no frame).
+    """
+    if kin.n_states == 0:
+        return {}
+    ts = sorted(float(t) for t in times)
+    out: dict[float, float] = {}
+    xc = np.asarray(kin.initial_state(0.0, kin.reference.at(0.0).q_d), dtype=float)
+    t = 0.0
+    for target in ts:
+        grid = np.arange(t, target, step)[1:] if target > t else []
+        for s in [*grid, target]:
+            xc = kin.discrete(float(s), None, xc)
+        t = target
+        out[target] = float(xc[0])
+    return out
+
+
+def operating_state(loop: SchemeLoop, t: float, q, eta, fz: Faults, psi=None, applied=None, run_xc=None,
+                    period=None) -> tuple[np.ndarray, list | None]:  # fmt: skip
+    """The controller state at the operating point, and the pattern the law applies there.
+
+    With ``run_xc`` (the run's logged controller state at t) the scheme's own states are the run's,
+    except the estimates of the plant's state, which are put on the plant's (zero estimation error:
+    the linearization is about the reference).  Without a run: switching applies ``applied`` (the
+    model its run selected, else the model of the true pattern, else the nearest bank model), the
+    adaptive weights sit on that design with the friction estimate at the true friction, the
+    observers' estimates at the truth (q, eta, gains, frictions), their gains at their initial value.
+    Returns the state and the applied pattern (None for a law that does not apply one).
+    """
+    from ..control.active import ActiveController
+    from ..control.adaptive import AdaptiveController
+    from ..control.baselines import OracleController
+    from ..control.switching import SwitchingController
+    from ..control.tracking import TrackingController
+    ctrl = loop.ctrl
+    nk = loop.nk
+    sigma_t, ubar_t = loop.plant.true_faults(np.concatenate((q, eta, np.zeros(loop.plant.nm))), fz)
+    xc = np.asarray(ctrl.initial_state(t, q, eta), dtype=float).copy()
+    if run_xc is not None and len(run_xc) == xc.size and np.all(np.isfinite(run_xc)):
+        xc[nk:] = run_xc[nk:]
+    if nk:
+        xc[:nk] = psi if psi is not None else np.asarray(ctrl.kin.initial_state(t, q), dtype=float)
+    own = run_xc is not None
+    pattern = None
+    if isinstance(ctrl, SwitchingController):
+        if applied is None:
+            applied = nearest_model(ctrl.patterns, sigma_t)
+        xc[ctrl._sel] = float(applied)
+        xc[ctrl._tsw] = t - 1e9
+        pattern = [float(v) for v in ctrl.patterns[int(applied)]]
+    elif isinstance(ctrl, AdaptiveController):
+        if not own:
+            k = nearest_model(ctrl.patterns, sigma_t)
+            chi = np.zeros((ctrl.N, ctrl.chain.n_wheels))
+            chi[k] = 1.0
+            xc[ctrl._chi] = chi.ravel()
+            xc[ctrl._uf] = ubar_t
+        pattern = [float(v) for v in ctrl.patterns[int(np.argmax(xc[ctrl._chi].reshape(ctrl.N, -1).sum(axis=1)))]]
+        xc[ctrl._chi] = _inside(xc[ctrl._chi].reshape(ctrl.N, -1)).ravel()
+    elif isinstance(ctrl, ActiveController):
+        xc, pattern = _observer_point(loop, ctrl, t, q, eta, sigma_t, ubar_t, xc, own, period)
+    elif isinstance(ctrl, OracleController):
+        pattern = [float(v) for v in sigma_t]
+    elif isinstance(ctrl, TrackingController):
+        pattern = [float(v) for v in ctrl.sigma]
+    return xc, pattern
+
+
+def _observer_point(loop, ctrl, t, q, eta, sigma_t, ubar_t, xc, own: bool, period) -> tuple[np.ndarray, list]:
+    """An active scheme's state: its estimates of q and eta on the plant's, its parameter estimates at
+    the truth (or the run's), its estimate filters converged.
+
+    The UKF scheme runs at the samples: its state before the update at t is the previous sample's,
+    so its estimates sit on the reference at ``t - T`` and its held command is the law's there (its
+    update run with no time elapsed computes just the law); the update at t then predicts over T
+    and meets the measurement at t with (almost) no innovation.
+    """
+    from ..observers.ukf import UKFEstimator
+
+    o = ctrl.est
+    nw = ctrl.chain.n_wheels
+    est = xc[ctrl._est].copy()
+    params = np.concatenate(([sigma_t] if o.est_rho else []) + ([ubar_t] if o.est_ubar else [])) if o.p else _EMPTY
+    if isinstance(o, UKFEstimator):
+        T = loop.case.simulation.dt if period is None else period
+        r = ctrl.kin.reference.at(float(t) - T)
+        q_prev, eta_prev = np.asarray(r.q_d, dtype=float), np.asarray(r.eta_d, dtype=float)
+        x = est[: o.nx]
+        x[: o.N] = q_prev
+        x[o.N : o.N + 2] = eta_prev
+        if not own:
+            x[o.N + 2 :] = params
+        est[: o.nx] = x
+        xc[ctrl._est] = est
+        xc[ctrl._t] = t - T  # no time elapsed: the update computes the law on these estimates only
+        xc[ctrl._u] = loop.discrete(t - T, q_prev, eta_prev, xc)[ctrl._u]
+    else:
+        N = o.N
+        est[:N] = q
+        est[N : 2 * N] = ctrl.chain.S(q) @ eta
+        if not own:
+            est[o._rho] = params
+        xc[ctrl._est] = est
+    if ctrl.tau is not None and not own:
+        xc[ctrl._filt] = np.concatenate((sigma_t, ubar_t))
+    rho = xc[ctrl._filt][:nw] if ctrl.tau is not None else (sigma_t if not o.est_rho else _rho_of(o, xc[ctrl._est]))
+    return xc, [float(v) for v in np.clip(rho, 0.0, 1.0)]
+
+
+def _rho_of(o, est: np.ndarray) -> np.ndarray:
+    from ..observers.ukf import UKFEstimator
+
+    if isinstance(o, UKFEstimator):
+        return est[o.N + 2 : o.N + 2 + o.nw]
+    return est[o._rho][: o.nw]
+
+
+def _inside(chi: np.ndarray) -> np.ndarray:
+    """Adaptive weights (designs x wheels) moved inside [0, 1], each wheel's sum kept.
+
+    The projection of (3.117) freezes a weight at 0 or 1 that is pushed outwards: at a bound the law
+    is one-sided, and a central difference would average its two sides.  The interior side is the
+    linearization, so every weight is put ``delta = min(1e-3, 0.1 / N)`` inside (N designs; far beyond
+    the differences' step) and the largest weight of each wheel gives up what the others gained: a
+    wheel's weights keep their sum, so the torque of a matched mixture is unchanged.
+    """
+    N = chi.shape[0]
+    delta = min(WEIGHT_INSIDE, 0.1 / max(N, 1))
+    out = np.clip(chi, delta, 1.0 - delta)
+    top = np.argmax(chi, axis=0)
+    cols = np.arange(chi.shape[1])
+    out[top, cols] -= out.sum(axis=0) - chi.sum(axis=0)
+    return np.clip(out, delta, 1.0 - delta)
+
+
+def nearest_model(patterns: np.ndarray, sigma: np.ndarray) -> int:
+    """The bank model closest to the effectiveness sigma (least squares; the lowest index on a tie)."""
+    d = np.sum((np.asarray(patterns, dtype=float) - np.asarray(sigma, dtype=float)[None, :]) ** 2, axis=1)
+    return int(np.flatnonzero(d <= d.min() * (1 + 1e-12) + 1e-15)[0])
+
+
+# ----------------------------------------------------------------------------------------------- reduction
+def relevant_states(Gx, Gy, Gc, Dc, Dy, na: int) -> np.ndarray:
+    """The scheme states (indices into c) that both reach the plant and are reached by it.
+
+    Directed graph on the states: an edge j -> i where a Jacobian entry says i's rate (or update)
+    reads j.  A state the plant cannot reach (no path from q, eta, i_a) stays at its operating value
+    whatever the plant does; one that cannot reach the plant (no path to a) changes nothing the plant
+    sees.  Either way A is block-triangular with that state in a diagonal block of its own, so the
+    loop's poles are exactly those of the remaining states; the rest (the Farza observer's Y and P
+    at zero estimation error, a frozen weight) are modes the tracking error cannot see.
+    """
+    nc = Gc.shape[1]
+    if nc == 0:
+        return np.zeros(0, dtype=int)
+    dep = (Gc[na:] != 0) | (Dc != np.eye(nc))  # dep[i, j]: state i reads state j
+    from_plant = np.any(Gy[na:] != 0, axis=1) | np.any(Gx[na:] != 0, axis=1) | np.any(Dy != 0, axis=1)
+    to_plant = np.any(Gc[:na] != 0, axis=0)
+    reached = _closure(dep, from_plant)  # i reached if it reads a reached state
+    reaches = _closure(dep.T, to_plant)  # j reaches if a state that reaches reads it
+    return np.flatnonzero(reached & reaches)
+
+
+def _closure(dep: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """States reachable from ``seed`` along ``dep[i, j]`` (i reads j): i joins when it reads a member."""
+    member = seed.copy()
+    while True:
+        new = member | np.any(dep[:, member], axis=1)
+        if np.array_equal(new, member):
+            return member
+        member = new
+
+
+def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarray | None = None):
+    r"""Scheme states without dynamics of their own, replaced by the part of their image the loop reaches.
+
+    When the states c have ``dc'/dc = 0`` at the point and reach the plant only through a (the
+    adaptive weights and friction estimate of (3.113)-(3.120) at zero error: their rates are
+    proportional to eta_e), the loop sees them only through ``z = K_c c`` (``K_c = da/dc``), and
+    ``z' = K_c c' = W y`` with ``W = K_c G_cy``.  z moves only within range(W): with U an orthonormal
+    basis of it, ``xi = U^T z`` carries every pole the plant can excite and see, exactly::
+
+        xi' = U^T W y,        a = G_ay y + U xi
+
+    The other modes are constant: weight combinations that leave the torque unchanged, and torque
+    offsets the adaptation never moves (both block-triangular, eigenvalue 0, outside the loop).  The
+    check that the rates do not read the states probes two random directions.  Costs O(ny) law
+    evaluations instead of O(len(c)) (7,670 weights for five robots).  ``g(c)`` returns
+    [a, c'] at the point's measurement, ``Gy`` its Jacobian in y (a rows first).  Returns (Gy, Gc) of
+    [a, xi] and the basis U (``basis``: use this one, e.g. the same loop's at another gain), or None
+    when the states have dynamics of their own (then each is differentiated).
+    """
+    rng = np.random.default_rng(0)
+    probes = 2  # random directions: a rate that reads the states shows in either, unless orthogonal to both
+    V = rng.standard_normal((c0.size, probes))
+    V /= np.sqrt(np.sum(V * V, axis=0))
+    outs = np.column_stack([directional(g, c0, V[:, k]) for k in range(probes)])
+    scale = max(1.0, float(np.abs(outs[:na]).max()))
+    if np.abs(outs[na:]).max() > 1e-7 * scale:
+        return None  # the states' rates read the states: differentiate them all
+    # W = K_c G_cy: the torque's rate along each measurement direction
+    W = np.column_stack([directional(lambda c: g(c)[:na], c0, Gy[na:, k]) for k in range(Gy.shape[1])])
+    if basis is None:
+        U, s, _ = np.linalg.svd(W, full_matrices=False)
+        # directions below 1e-6 of the largest are the differences' error (~1e-9 here), not dynamics
+        rank = int(np.sum(s > 1e-6 * max(float(s.max()) if s.size else 0.0, 1e-300)))
+        basis = U[:, :rank]
+    rank = basis.shape[1]
+    return np.vstack((Gy[:na], basis.T @ W)), np.vstack((basis, np.zeros((rank, rank)))), basis

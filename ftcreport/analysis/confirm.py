@@ -1,0 +1,220 @@
+r"""Each predicted stability limit confirmed by short simulations, at 0.9x and 1.1x of it.
+
+Issue 37 item 6.  For a scheme's ``sample_time_max`` and ``k_v_max`` (:mod:`.limits`, healthy
+pattern), the case is run by the engine (``runner.run_scheme``) with the healthy plant (no fault
+events), starting 1 um off the reference (:data:`START`), with that setting at 0.9 and 1.1 times
+the limit and everything else as the case has it (plant, motors, drive, saturation, delay, noise,
+integrator).  A sample-time variant keeps the case's number of steps per sample (one ETD2 step per
+sample for the motor cases).
+
+What is measured: the limit is a linearization's, a statement about small deviations from the
+loop's own trajectory.  So each setting is run twice, the second run started :data:`NUDGE` (1e-8 m)
+further off, and the verdict reads how the difference of the two runs' states at the samples
+evolves: the variational response of the loop as the engine runs it, whichever mode crosses (the
+velocity loop at the Nyquist frequency, or a slow kinematic mode at large sample times), and
+unaffected by the error a moving reference leaves under a hold:
+
+* ``diverged``: a run stopped (diverged, step_unstable, singular);
+* ``limit cycle``: both completed, but the difference does not decay: it grew 10^4-fold, or it did
+  not fall a hundredfold and its growth per sample fitted over the run's second half (``rho``, the
+  simulation's own spectral radius of the crossing mode) is at least 1; or, for a mode crossing at
+  more than a sixth of the sampling frequency, the command keeps chattering from sample to sample
+  (:func:`_chatter`: two runs locked on the same saturated cycle differ little);
+* ``bounded``: both completed and the difference decays.
+
+How long: the analysis predicts the spectral radius rho at 1.1x the limit, so the mode that crosses
+grows by 10^4 in ``ln(1e4) / ln(rho)`` samples; the runs last that many samples (at least
+:data:`MIN_SAMPLES`, at most :data:`MAX_SAMPLES`).  The prediction sets only the duration.
+Prediction and simulation agree when 0.9x is bounded and 1.1x is not; anything else is reported as
+a contradiction, with both numbers (never hidden).  When run: ``ftcreport analyze`` runs them for
+a case with sampled control or motors unless ``--no-confirm``; a case page runs them when it is
+rendered (batch renders a page only when its inputs changed).  They are not cached with the runs:
+they cost a fraction of a second each warm, and a page is not re-rendered without a reason.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+
+import numpy as np
+
+from ..errors import FtcError
+
+__all__ = ["MAX_SAMPLES", "MIN_SAMPLES", "NUDGE", "START", "classify", "confirm_limit", "needs_confirmation"]
+
+MIN_SAMPLES = 200
+MAX_SAMPLES = 5_000
+GROWTH = 1e4
+#: the runs start this close to the reference: a linearization's limit is local, so its confirmation
+#: starts where the linearization holds (with the case's own start, a large first error saturates the
+#: drive and tests the region of attraction instead); the offset excites every mode
+START = {"x": 1e-6, "y": 1e-6, "heading_offset_deg": 1e-4}
+#: the second run's extra offset in x [m]: far below anything nonlinear, far above round-off (1e-15 m)
+NUDGE = 1e-8
+LINEAR = 1e4
+#: a deviation down to this fraction of its start has decayed, whatever slope its remainder has
+DECAYED = 1e-2
+#: a fast crossing also counts as a limit cycle when the command chatters (:func:`_chatter`) above this
+CHATTER = 0.5
+FACTORS = (0.9, 1.1)
+
+
+def needs_confirmation(case) -> bool:
+    """A case with sampled control or motors: its limits are confirmed by simulation (issue 37 item 6)."""
+    return case.simulation.sample_time is not None or case.actuators is not None
+
+
+def variant(case, scheme: str, which: str, value: float, samples: int, nudge: float = 0.0):
+    """The case with ``which`` (sample_time_max or k_v_max) set to ``value``, no faults, a short run."""
+    from ..cases import Simulation
+    from .closed_loop import with_k_v
+
+    s = case.simulation
+    data = s.model_dump()
+    T = s.sample_time
+    if which == "sample_time_max":
+        steps = 1 if T is None else round(T / s.dt)
+        T = float(value)
+        data |= {"sample_time": T, "dt": T / steps}
+    else:
+        case = with_k_v(case, scheme, value)
+    period = T if T is not None else s.dt
+    duration = samples * period
+    data |= {"duration": duration, "log_every": max(1, round(duration / period / 2000))}
+    if data["sample_time"] is not None and data["measurement_delay"] * data["sample_time"] >= duration:
+        data["duration"] = duration = (data["measurement_delay"] + samples) * data["sample_time"]
+    sim = Simulation.model_validate(data)
+    start = case.initial.model_copy(
+        update={"mode": "offset", "headings_deg": None, "eta": None, **START, "x": START["x"] + nudge}
+    )
+    return case.model_copy(update={"simulation": sim, "faults": [], "campaign": None, "initial": start})
+
+
+def _states_at_samples(run, period: float) -> np.ndarray:
+    """[q, eta] at each sample instant (the first stream row of each sample)."""
+    t = np.asarray(run.t_stream if run.stream else run.t)
+    sig = run.stream or run.signals
+    first = np.unique(np.round(t / period), return_index=True)[1]
+    return np.concatenate((np.asarray(sig["q"])[first], np.asarray(sig["eta"])[first]), axis=1)
+
+
+def classify(run, other, period: float, fast: bool = False) -> dict:
+    """The verdict on a pair of runs started NUDGE apart (module docstring): ``{"outcome", "rho", ...}``.
+
+    ``rho``: the deviation's growth per sample, exp of the slope of its logarithm fitted over the
+    second half of the run (while it stays below LINEAR, a 10^4-fold growth: beyond, it has left the
+    linear range and the loop is called unstable at once).  ``fast``: the crossing mode oscillates at
+    more than a sixth of the sampling frequency; then the deviation's second difference is read,
+    which keeps that mode (a factor 1 to 4) and cuts the slow kinematic ones by (omega T)^2.
+    """
+    for r in (run, other):
+        if r.status != "ok":
+            return {"outcome": "diverged", "status": r.status, "t_end": r.t_end, "reason": r.reason}
+    a, b = _states_at_samples(run, period), _states_at_samples(other, period)
+    k = min(len(a), len(b))
+    d = a[:k] - b[:k]
+    d[:, 2 : d.shape[1] - 2] = (d[:, 2 : d.shape[1] - 2] + np.pi) % (2.0 * np.pi) - np.pi  # headings
+    if fast:
+        d = d[2:] - 2.0 * d[1:-1] + d[:-2]
+    dist = np.sqrt(np.sum(d * d, axis=1))
+    if len(dist) < 12 or not np.all(np.isfinite(dist)) or dist[0] <= 0.0:
+        return {"outcome": "bounded", "status": "ok", "rho": None, "note": "too few samples to judge"}
+    chatter = _chatter(run, period)
+    if dist.max() > LINEAR * max(dist[: max(2, len(dist) // 20)].max(), 1e-300):
+        return {"outcome": "limit cycle", "status": "ok", "rho": None, "chatter": chatter,
+                "note": "the deviation grew 10^4-fold"}  # fmt: skip
+    start = dist[: max(2, len(dist) // 20)].max()
+    if dist[-len(dist) // 10 :].max() < DECAYED * start and not (fast and chatter > CHATTER):
+        # a hundredfold down: what is left is round-off or the slow modes' trace in the differences
+        return {"outcome": "bounded", "status": "ok", "rho": None, "chatter": chatter,
+                "note": "the deviation decayed a hundredfold"}  # fmt: skip
+    half = np.arange(len(dist) // 2, len(dist))
+    keep = half[dist[half] > 0.0]
+    slope = float(np.polyfit(keep, np.log(dist[keep]), 1)[0]) if keep.size > 4 else 0.0
+    rho = math.exp(slope)
+    bounded = rho < 1.0 and not (fast and chatter > CHATTER)
+    return {"outcome": "bounded" if bounded else "limit cycle", "status": "ok", "rho": rho, "chatter": chatter}
+
+
+def _chatter(run, period: float) -> float:
+    """How much the command chatters and keeps chattering: over the last third of the run, the RMS of its
+    second difference at the samples over its RMS, when that part has not decayed from the middle third
+    (by 10 % at most); 0 when it dies out.
+
+    A sample-rate oscillation (the drive's limit cycle when the velocity loop is unstable) gives 1 to 4
+    and stays; a smooth command gives (omega T)^2, 1e-4 for 2 rad/s at 5 ms; a stable loop near its
+    limit rings at the sample rate but the ringing decays.  Two runs locked on the same saturated cycle
+    differ little, so their difference alone would call it bounded.
+    """
+    t = np.asarray(run.t_stream if run.stream else run.t)
+    u = np.asarray((run.stream or run.signals)["u"])
+    us = u[np.unique(np.round(t / period), return_index=True)[1]]
+    n = len(us) // 3
+    if n < 4:
+        return 0.0
+
+    def part(x):
+        d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
+        return float(np.sqrt(np.mean(d2**2))), float(np.sqrt(np.mean(x**2)))
+
+    mid, _ = part(us[n : 2 * n])
+    late, scale = part(us[2 * n :])
+    if scale == 0.0 or late < 0.9 * mid:
+        return 0.0
+    return late / scale
+
+
+def confirm_limit(case, scheme: str, which: str, limit: float, crossing: complex | None, unit: str) -> dict:
+    """Simulations at 0.9x and 1.1x of one limit: the runs' outcomes and whether they agree with it.
+
+    ``crossing``: the predicted dominant pole z at 1.1x (its modulus sets the duration, its angle the
+    measure: :func:`classify`; None: MIN_SAMPLES, the raw difference).
+    """
+    from ..runner import run_scheme
+
+    rho = abs(crossing) if crossing is not None else 0.0
+    need = math.ceil(math.log(GROWTH) / math.log(rho)) if rho > 1.0 else MIN_SAMPLES
+    samples = int(min(MAX_SAMPLES, max(MIN_SAMPLES, need)))
+    fast = crossing is not None and abs(cmath.phase(crossing)) > math.pi / 3
+    measure = "second difference" if fast else "difference"
+    out = {"limit": limit, "unit": unit, "samples": samples, "measure": measure, "runs": []}
+    if need > MAX_SAMPLES:
+        out["note"] = (
+            f"the crossing mode is slow (|z| = {rho:.6g} at 1.1x: {need} samples to grow 10^4-fold); "
+            f"run for {MAX_SAMPLES} samples"
+        )
+    for f in FACTORS:
+        value = f * limit
+        try:
+            v = variant(case, scheme, which, value, samples)
+            run, _m = run_scheme(v, scheme)
+            other, _m = run_scheme(variant(case, scheme, which, value, samples, NUDGE), scheme)
+            period = v.simulation.sample_time or v.simulation.dt
+            if "error" in (run.status, other.status):
+                res = {"outcome": "error", "reason": run.reason or other.reason}
+            else:
+                res = classify(run, other, period, fast)
+            res["duration"] = v.simulation.duration
+        except FtcError as exc:
+            res = {"outcome": "error", "reason": str(exc)}
+        out["runs"].append({"factor": f, "value": value, **res})
+    below, above = (r["outcome"] for r in out["runs"])
+    if "error" in (below, above):
+        out["agrees"] = None
+    else:
+        out["agrees"] = below == "bounded" and above != "bounded"
+    out["sentence"] = sentence(which, out)
+    return out
+
+
+def sentence(which: str, res: dict) -> str:
+    """'predicted 1.37 ms; at 1.23 ms bounded, at 1.51 ms limit cycle' (and a contradiction said so)."""
+    def show(v: float) -> str:
+        return f"{v * 1e3:.3g} ms" if res["unit"] == "s" else f"{v:.4g} {res['unit']}"
+
+    parts = [f"at {show(r['value'])} {r['outcome']}" for r in res["runs"]]
+    text = f"predicted {show(res['limit'])}; " + ", ".join(parts)
+    if res["agrees"] is False:
+        text += ": the simulation contradicts the prediction"
+    return text

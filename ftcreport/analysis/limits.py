@@ -1,0 +1,188 @@
+r"""Stability limits of a scheme's loop: the largest sample time and the largest velocity gain (pure).
+
+Per scheme, with the healthy pattern and the case's gains (issue 37 item 3):
+
+* ``sample_time_max``: the largest zero-order-hold sample time T at which the sampled loop
+  (:mod:`.sampled`: the plant's ZOH, the case's measurement delay in samples, the command held) is
+  stable, i.e. every T below it is stable: the first T at which the spectral radius reaches 1;
+* ``k_v_max``: the largest velocity gain at the case's sample time (the continuous loop when the case
+  is not sampled) such that every gain between the case's and it is stable; when the case's own gain is
+  unstable, the largest stable gain below it.
+
+Both by a walk (factors of 2) that brackets the change of stability, then Brent's method on the
+spectral radius minus 1 (or the largest real part) to a relative 1e-9; null when the walk ends
+stable (no finite limit up to :data:`T_MAX` or :data:`K_MAX`).  A stable set that is not an interval
+(stable again beyond an unstable window) is not searched further.
+
+Closed form, for checking: the ideal plant's velocity loop at rest under the matched law (3.35),
+sampled with a held torque, is ``eta_e(j+1) = (1 - k_v T) eta_e(j)``: stable iff ``k_v T < 2``, so
+``T_max = 2 / k_v`` and ``k_v_max = 2 / T`` (tests/test_limits.py finds them by the bisection, to
+1e-6).  On a moving reference the plant's own velocity terms (Coriolis, Mbar2) shift the limit by
+about ``a T / 2`` relative (a their rate, ~0.1 1/s): 3e-5 for k_v = 3000.  With motors the held
+voltage drives the current through L_a / R_a and the back-EMF within the sample, which moves the
+limit (two_link_switching_motors: 1.3 ms at k_v = 3000, twice the ideal plant's 0.67 ms).
+
+The scheme's Jacobians are affine in k_v (k_v multiplies eta_e in (3.37), and nothing else reads it):
+they are computed at two gains and checked at a third (:func:`gain_family`); a scheme whose
+Jacobians are not affine in its k_v is linearized again at every gain tried.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from .blocks import Blocks
+from .sampled import closed_loop_matrix, spectral_radius, zoh
+
+__all__ = ["K_MAX", "T_MAX", "T_MIN", "boundary", "continuous_margin", "fastest_pole", "gain_family", "largest_gain"]
+__all__ += ["MARGINAL_S", "MARGINAL_Z", "largest_sample_time", "sampled_radius", "stability"]
+
+T_MIN = 1e-6  # s: the smallest sample time searched
+T_MAX = 10.0  # s: beyond it a "sample time" is no longer a control loop's
+K_MIN_FACTOR = 1e-4  # the search for k_v goes down to this fraction of the case's gain
+K_MAX = 1e7  # 1/s
+STEP = 2.0  # the bracketing walk's ratio
+#: |z| within this of 1 is marginal, not a loss of stability: a time constant beyond T / 1e-6 (83 min at
+#: 5 ms).  Poles that sit on the boundary by structure (an estimate of a parameter the measurements do
+#: not see, ERRATA P3: the UKF's at 1 + 2e-8) come out of the central differences that far off it, and a
+#: double one as far as the square root of the differences' error
+MARGINAL_Z = 1e-6
+#: a continuous pole within this fraction of the fastest pole's magnitude of the imaginary axis is marginal
+#: (the Farza observer's unseen parameter directions come out at +2e-7 1/s with poles of 20 1/s)
+MARGINAL_S = 1e-6
+RTOL = 1e-9
+
+
+def boundary(margin: Callable[[float], float], lo: float, hi: float, rtol: float = RTOL) -> float:
+    """The root of ``margin`` (< 0 stable, > 0 not) between ``lo`` (stable) and ``hi`` (not), to ``rtol``.
+
+    Brent's method (``scipy.optimize.brentq``: bisection steps whenever interpolation does not
+    help), so 10-15 evaluations where bisection needs 35; the returned value is on the stable side.
+    """
+    from scipy.optimize import brentq
+
+    root = float(brentq(margin, lo, hi, xtol=1e-300, rtol=max(rtol, 4.0 * np.finfo(float).eps)))
+    while margin(root) >= 0.0 and root > lo:  # brentq stops within rtol of the sign change, on either side
+        root -= rtol * root
+    return root
+
+
+def _bracket(margin: Callable[[float], float], start: float, limit: float) -> tuple[float, float] | None:
+    """Walk from ``start`` (whose side is kept) toward ``limit`` by factors of STEP; the first pair of
+    points on opposite sides, ordered (stable, not); None when the walk ends on the start's side."""
+    up = limit > start
+    stable0 = margin(start) < 0.0
+    prev = x = start
+    while (x < limit) if up else (x > limit):
+        x = min(x * STEP, limit) if up else max(x / STEP, limit)
+        if (margin(x) < 0.0) != stable0:
+            return (prev, x) if stable0 else (x, prev)
+        prev = x
+    return None
+
+
+def largest_sample_time(rho: Callable[[float], float], guess: float, t_min: float = T_MIN,
+                        t_max: float = T_MAX) -> dict:  # fmt: skip
+    """The sample-time limit of a loop whose spectral radius at T is ``rho(T)``: ``{"value", "note"}``.
+
+    The walk starts at ``guess`` (2 / the fastest continuous pole's magnitude: the ideal velocity
+    loop's limit) and goes up while stable, or down until stable; the limit is then the first loss of
+    stability above the stable point found (a window of instability below it, not seen by the walk,
+    is not searched for).
+    """
+    margin = lambda T: rho(T) - (1.0 + MARGINAL_Z)  # noqa: E731
+    if margin(t_min) >= 0.0:
+        return {"value": None, "note": f"unstable already at T = {t_min:g} s: the loop is unstable in continuous time"}
+    guess = min(max(guess, t_min), t_max)
+    if margin(guess) < 0.0:
+        pair = _bracket(margin, guess, t_max)
+        if pair is None:
+            return {"value": None, "note": f"stable at every sample time up to {t_max:g} s"}
+    else:
+        pair = _bracket(margin, guess, t_min)
+        if pair is None:
+            pair = (t_min, guess)
+    return {"value": boundary(margin, *pair), "note": ""}
+
+
+def largest_gain(margin_at: Callable[[float], float], k_v: float) -> dict:
+    """The largest stable k_v from the case's gain (module docstring): ``{"value", "note"}``.
+
+    ``margin_at(k)``: < 0 where the loop with gain k is stable (the spectral radius minus 1, or the
+    largest real part).
+    """
+    if margin_at(k_v) < 0.0:
+        pair = _bracket(margin_at, k_v, K_MAX)
+        if pair is None:
+            return {"value": None, "note": f"stable at every gain up to {K_MAX:g} 1/s"}
+        return {"value": boundary(margin_at, *pair), "note": ""}
+    k_lo = k_v * K_MIN_FACTOR
+    pair = _bracket(margin_at, k_v, k_lo)
+    if pair is None:
+        return {"value": None, "note": f"unstable at every gain down to {k_lo:g} 1/s"}
+    return {"value": boundary(margin_at, *pair), "note": "the case's own gain is unstable"}
+
+
+def gain_family(blocks_at: Callable[[float], Blocks], k_v: float) -> Callable[[float], Blocks]:
+    """Blocks as a function of k_v: linear interpolation when the Jacobians are affine in k_v.
+
+    ``blocks_at(k)`` linearizes the loop with gain k.  The blocks at k_v and 2 k_v give the line; the
+    blocks at k_v / 2 check it (every controller block within 1e-6 of its largest entry).  When the
+    check fails, ``blocks_at`` itself is returned (linearized again at every gain).
+    """
+    b0, b1 = blocks_at(k_v), blocks_at(2.0 * k_v)
+    bh = blocks_at(0.5 * k_v)
+    names = ("Gx", "Gy", "Gc", "Dc", "Dy")
+    same = all(getattr(b0, n).shape == getattr(b1, n).shape == getattr(bh, n).shape for n in names)
+
+    def at(k: float) -> Blocks:
+        s = (k - k_v) / k_v
+        out = {n: getattr(b0, n) + s * (getattr(b1, n) - getattr(b0, n)) for n in names}
+        return Blocks(b0.Fx, b0.Fa, out["Gx"], out["Gy"], out["Gc"], out["Dc"], out["Dy"], b0.na, b0.kept,
+                      b0.dropped, b0.parameter_block, b0.omega, b0.frame)  # fmt: skip
+
+    if same:
+        guess = at(0.5 * k_v)
+        scale = {n: 1e-6 * max(1.0, float(np.abs(getattr(bh, n)).max(initial=0.0))) for n in names}
+        ok = all(np.allclose(getattr(guess, n), getattr(bh, n), rtol=0.0, atol=scale[n]) for n in names)
+        if ok:
+            return at
+    return blocks_at
+
+
+def stability(measure: float, poles: np.ndarray, discrete: bool) -> str:
+    """'stable', 'marginal' or 'unstable' from the spectral radius (discrete) or the largest real part."""
+    band = MARGINAL_Z if discrete else MARGINAL_S * max(1.0, float(np.abs(poles).max(initial=0.0)))
+    edge = 1.0 if discrete else 0.0
+    if measure < edge - band:
+        return "stable"
+    return "marginal" if measure <= edge + band else "unstable"
+
+
+def sampled_radius(blk: Blocks, T: float, delay: int) -> float:
+    """Spectral radius of the sampled loop at T (in the frame turning with the reference)."""
+    return spectral_radius(closed_loop_matrix(blk, T, delay, zoh(blk.Fx, blk.Fa, T)))
+
+
+def dominant_pole(blk: Blocks, T: float, delay: int) -> complex:
+    """The sampled loop's eigenvalue of largest modulus at T (the mode that crosses at the limit)."""
+    ev = np.linalg.eigvals(closed_loop_matrix(blk, T, delay, zoh(blk.Fx, blk.Fa, T)))
+    return complex(ev[np.argmax(np.abs(ev))])
+
+
+def continuous_margin(blk: Blocks) -> float:
+    """The largest real part of the continuous loop's poles beyond the marginal band (< 0: not unstable)."""
+    A = blk.continuous()
+    if not A.size:
+        return -math.inf
+    ev = np.linalg.eigvals(A)
+    return float(ev.real.max()) - MARGINAL_S * max(1.0, float(np.abs(ev).max()))
+
+
+def fastest_pole(blk: Blocks) -> float:
+    """|lambda| of the continuous loop's fastest pole (1 when it has none)."""
+    A = blk.continuous()
+    return float(np.abs(np.linalg.eigvals(A)).max(initial=1.0)) if A.size else 1.0

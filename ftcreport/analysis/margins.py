@@ -1,0 +1,316 @@
+r"""Loop-at-a-time and disk margins at the actuator inputs, with their Bode data (python-control; pure).
+
+The loop is broken at one actuator input j (the torque command on the ideal plant, the armature
+voltage with motors), every other input closed, and the controller's own use of its command left as
+it is (switching's filters read u).  With the loop ``x' = A_j x + B_j a_j``, ``a_j = K_j x`` (continuous)
+or its sampled form (:func:`~ftcreport.analysis.sampled.open_loop_at_input`), the loop transfer
+function in python-control's negative-feedback convention is ``L_j = -K_j (sI - A_j)^-1 B_j``; then
+
+* ``control.stability_margins(L_j)``: gain margin (a factor; in dB too), phase margin, the crossover
+  frequencies and the stability margin (the least distance of L_j(jw) to -1);
+* the disk margin and the gain and phase variations it guarantees together, for each loop
+  (:func:`disk_margin_siso`, equal to ``control.disk_margins``) and for all the inputs at once
+  (``control.disk_margins`` of the MIMO loop: slycot's ab13md; python-control 0.10.2 and later,
+  skipped and said so where the installed version has none);
+* the Bode data of the loop with the smallest stability margin, for the page's figure.
+
+Margins are reported only for a stable closed loop.  With the other inputs closed, L_j may itself
+have unstable poles (``open_loop_unstable``); its crossover margins are then not a Nyquist certificate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import control
+import numpy as np
+
+from .blocks import Blocks
+from .sampled import open_loop_at_input, parts
+
+__all__ = ["HAS_DISK_MARGINS", "Loops", "frequency_grid", "loop_margins", "loop_systems"]
+
+HAS_DISK_MARGINS = hasattr(control, "disk_margins")
+POINTS = 200
+#: the MIMO disk margin's grid: slycot's ab13md costs about 3 ms per frequency
+MIMO_POINTS = 24
+#: the MIMO disk margin for at most this many actuator inputs (three robots)
+MIMO_MAX_INPUTS = 6
+
+
+class Loops:
+    r"""Every actuator loop of one closed loop, from one eigendecomposition (Sherman-Morrison).
+
+    With every input closed the loop is ``x' = A x`` (``A = A_0 + B K``); broken at input j,
+    ``A_j = A - b_j k_j``, and with ``t_j(s) = k_j (sI - A)^-1 b_j``,
+    ``k_j (sI - A_j)^-1 b_j = t_j / (1 + t_j)``, so ``L_j = -t_j / (1 + t_j)``: every loop's response
+    at every frequency from ``A = V diag(lambda) V^-1`` alone, instead of a Hessenberg solve per loop
+    and frequency.  The response's error grows with the eigenvectors' condition number (3e-12 of |L| at
+    330 on two_link_active, 2e-7 at 1e5 on the motor loop): above 1e4 each loop is evaluated by
+    python-control instead (:meth:`system`); tests/test_margins.py compares the two.
+    """
+
+    def __init__(self, blk: Blocks, T: float | None, delay: int = 0) -> None:
+        if T is None:
+            A = blk.continuous()
+            B, K = blk.feedback()
+        else:
+            M0, B, K = parts(blk, T, delay)
+            A = M0 + B @ K
+        self.A, self.B, self.K, self.T = A, B, K, T
+        lam, V = np.linalg.eig(A)
+        cond = np.linalg.cond(V)
+        self.exact = not np.isfinite(cond) or cond > 1e4
+        if not self.exact:
+            self.lam, self.W, self.KV = lam, np.linalg.solve(V, B), K @ V
+
+    def system(self, j: int) -> control.StateSpace:
+        """L_j as a python-control system (``-K_j (sI - A_j)^-1 B_j``, sampled when T is given)."""
+        bj, kj = self.B[:, [j]], self.K[[j]]
+        kw = {"dt": self.T} if self.T else {}
+        return control.ss(self.A - bj @ kj, bj, -kj, np.zeros((1, 1)), **kw)
+
+    def poles(self, j: int) -> np.ndarray:
+        """The poles of the loop broken at input j (the other inputs closed)."""
+        return np.linalg.eigvals(self.A - self.B[:, [j]] @ self.K[[j]])
+
+    def response(self, j: int, omega) -> np.ndarray:
+        """L_j at the frequencies omega [rad/s] (z = e^(j w T) when sampled)."""
+        w = np.atleast_1d(np.asarray(omega, dtype=float))
+        if self.exact:
+            return control.frequency_response(self.system(j), w).complex.ravel()
+        x = np.exp(1j * w * self.T) if self.T else 1j * w
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (self.KV[j][None, :] / (x[:, None] - self.lam[None, :])) @ self.W[:, j]
+            return -t / (1.0 + t)
+
+    def at(self, j: int):
+        """``w -> L_j(w)`` for the crossover search (scalar)."""
+        if self.exact:
+
+            def f(w: float) -> complex:
+                return complex(self.response(j, w)[0])
+
+        else:
+            kw, lam, T = self.KV[j] * self.W[:, j], self.lam, self.T
+
+            def f(w: float) -> complex:
+                x = complex(math.cos(w * T), math.sin(w * T)) if T else 1j * w
+                t = complex(np.sum(kw / (x - lam)))
+                return -t / (1.0 + t)
+
+        f.dt = self.T  # type: ignore[attr-defined]
+        return f
+
+
+def loop_systems(blk: Blocks, T: float | None, delay: int = 0) -> list[control.StateSpace]:
+    """``L_j`` for every actuator input j, as python-control systems (sampled when T is given)."""
+    out = []
+    if T is None:
+        A = blk.continuous()
+        B, K = blk.feedback()
+        for j in range(blk.na):
+            Aj = A - B[:, [j]] @ K[[j]]
+            out.append(control.ss(Aj, B[:, [j]], -K[[j]], np.zeros((1, 1))))
+    else:
+        for j in range(blk.na):
+            Aj, Bj, Kj = open_loop_at_input(blk, T, delay, j)
+            out.append(control.ss(Aj, Bj, -Kj, np.zeros((1, 1)), dt=T))
+    return out
+
+
+def mimo_loop(blk: Blocks, T: float | None, delay: int = 0) -> control.StateSpace:
+    """L = -K (sI - A_0)^-1 B with every actuator input broken at once (na x na)."""
+    if T is None:
+        A = blk.continuous()
+        B, K = blk.feedback()
+        return control.ss(A - B @ K, B, -K, np.zeros((blk.na, blk.na)))
+    M0, Bz, Ka = parts(blk, T, delay)
+    return control.ss(M0, Bz, -Ka, np.zeros((blk.na, blk.na)), dt=T)
+
+
+def frequency_grid(poles: np.ndarray, T: float | None, points: int = POINTS) -> np.ndarray:
+    """rad/s, log-spaced: a decade below the slowest nonzero pole's magnitude to a decade above the
+    fastest (continuous), or to the Nyquist frequency pi / T itself (sampled: a loop that loses stability as
+    the sample time grows crosses -180 deg there, at z = -1, where L is real)."""
+    mags = np.abs(np.log(poles[poles != 0]) / T) if T else np.abs(poles)
+    mags = mags[np.isfinite(mags) & (mags > 0)]
+    lo = 0.1 * float(mags.min()) if mags.size else 1e-2
+    hi = math.pi / T if T else 10.0 * float(mags.max()) if mags.size else 1e4
+    lo = min(lo, hi / 1e3)
+    grid = np.logspace(math.log10(lo), math.log10(hi), points)
+    if T:
+        grid[-1] = math.pi / T  # exactly: the log of it, raised again, may land above the Nyquist frequency
+    return grid
+
+
+def crossover_margins(L, omega: np.ndarray, Ljw: np.ndarray):
+    r"""(gm, pm, sm, w_pc, w_gc, w_sm) of one loop, as ``control.stability_margins`` defines them.
+
+    Phase crossovers (L on the negative real axis) and gain crossovers (|L| = 1) are bracketed on the
+    grid and found by Brent's method on L itself; two phase crossovers closer than the grid's spacing
+    (the curve touching the axis) show as a local minimum of |angle(-L)|, refined by a bounded
+    minimization and kept when it reaches the axis.  The gain margin is the crossover's 1 / |L| closest
+    to 1 (in dB), the phase margin ``angle(L) mod 360 - 180`` closest to 0, the stability margin the
+    least |1 + L| (the grid's least, refined by a bounded minimization around it).  python-control's own
+    ``stability_margins`` is not used on these loops: on the 10th-order sampled motor loop its polynomial
+    method reports a gain margin of 1.10 from a crossing where angle(-L) is 0.08 rad (scaling the loop's
+    gain shows 1.20, as found here), and its interpolated fallback minimizes in every interval of the
+    grid (0.3 s a loop, 36 s for a three-link motor case).  tests/test_margins.py checks these against
+    its exact results on low-order loops and the gain margins against the gain that loses stability.
+    """
+    from scipy.optimize import minimize_scalar
+
+    if callable(L) and not isinstance(L, control.StateSpace):
+        at, dt = L, getattr(L, "dt", None)
+    else:
+        dt = L.dt if L.isdtime(strict=True) else None
+
+        def at(w: float) -> complex:
+            x = np.exp(1j * w * dt) if dt else 1j * w
+            return complex(np.asarray(L(x)).ravel()[0])
+
+    with np.errstate(all="ignore"):
+        im, mag = Ljw.imag, np.abs(Ljw) - 1.0
+        w_pc = [
+            _root(lambda w: at(w).imag, omega[i], omega[i + 1])
+            for i in np.flatnonzero(np.diff(np.sign(im)) != 0)
+            if Ljw[i].real < 0.0 or Ljw[i + 1].real < 0.0
+        ]
+        w_pc = [w for w in w_pc if w is not None]
+        dist = np.abs(np.angle(-Ljw))
+        for i in np.flatnonzero((dist[1:-1] <= dist[:-2]) & (dist[1:-1] <= dist[2:]) & (dist[1:-1] < 0.2)) + 1:
+            r = minimize_scalar(lambda w: abs(np.angle(-at(w))), bounds=(omega[i - 1], omega[i + 1]), method="bounded",
+                                options={"xatol": 1e-12 * omega[i]})  # fmt: skip
+            if r.fun < 1e-6 and all(abs(r.x - w) > 1e-6 * r.x for w in w_pc):
+                w_pc.append(float(r.x))
+        if dt and abs(omega[-1] * dt - math.pi) < 1e-9 and Ljw[-1].real < 0.0:
+            w_pc.append(float(omega[-1]))  # at the Nyquist frequency L is real: a crossing if negative
+        w_pc = [w for w in w_pc if at(w).real <= 0.0]
+        gain_cross = np.flatnonzero(np.diff(np.sign(mag)) != 0)
+        w_gc = [w for w in (_root(lambda w: abs(at(w)) - 1.0, omega[i], omega[i + 1]) for i in gain_cross) if w]
+        gms = [1.0 / abs(at(w)) for w in w_pc]
+        pms = [float(np.remainder(np.degrees(np.angle(at(w))), 360.0) - 180.0) for w in w_gc]
+        k = int(np.argmin(np.abs(1.0 + Ljw)))
+        lo, hi = omega[max(k - 1, 0)], omega[min(k + 1, omega.size - 1)]
+        res = minimize_scalar(lambda w: abs(1.0 + at(w)), bounds=(lo, hi), method="bounded") if hi > lo else None
+        w_sm = float(res.x) if res is not None and res.fun <= abs(1.0 + Ljw[k]) else float(omega[k])
+        sm = abs(1.0 + at(w_sm))
+    gm, w1 = (math.inf, math.nan)
+    if gms:
+        i = int(np.argmin(np.abs(np.log(gms))))
+        gm, w1 = gms[i], w_pc[i]
+    pm, w2 = (math.inf, math.nan)
+    if pms:
+        i = int(np.argmin(np.abs(pms)))
+        pm, w2 = pms[i], w_gc[i]
+    return gm, pm, sm, w1, w2, w_sm
+
+
+def _root(f, a: float, b: float) -> float | None:
+    """Brent's root of f in [a, b], or None when f has one sign at the ends (the grid's sign change was
+    the round-off of a value at zero: the response on the grid and at one point are computed apart)."""
+    from scipy.optimize import brentq
+
+    fa, fb = f(a), f(b)
+    if fa == 0.0:
+        return float(a)
+    if fb == 0.0:
+        return float(b)
+    return float(brentq(f, a, b)) if (fa < 0.0) != (fb < 0.0) else None
+
+
+def disk_margin_siso(Ljw: np.ndarray) -> dict:
+    r"""The balanced disk margin of one loop from its frequency response (skew 0, Blight et al. 1994).
+
+    ``alpha = 1 / max_w |(1 - L) / (2 (1 + L))|`` (the least distance, in that metric, of L(jw) to
+    -1); the loop tolerates gain changes in ``[(2 - alpha) / (2 + alpha), (2 + alpha) / (2 - alpha)]``
+    and phase changes up to ``2 atan(alpha / 2)``, simultaneously.  This is what
+    ``control.disk_margins(L, omega)`` returns for one loop (tests/test_margins.py checks it); the
+    closed form avoids its per-frequency call of slycot's ab13md, which one loop does not need.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        peak = float(np.max(np.abs((1.0 - Ljw) / (2.0 * (1.0 + Ljw))), initial=0.0))
+    if not peak > 0.0 or not math.isfinite(peak):
+        return {"disk_margin": None, "disk_gain_margin_db": None, "disk_phase_margin_deg": None}
+    a = 1.0 / peak
+    gmax = (2.0 + a) / (2.0 - a) if a < 2.0 else math.inf
+    gmin = (2.0 - a) / (2.0 + a)
+    dgm = 20.0 * math.log10(min(1.0 / gmin, gmax)) if math.isfinite(gmax) else None
+    dpm = math.degrees(math.acos((1.0 + gmin * gmax) / (gmin + gmax))) if math.isfinite(gmax) else 90.0
+    return {"disk_margin": a, "disk_gain_margin_db": dgm, "disk_phase_margin_deg": dpm}
+
+
+def _f(x) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def loop_margins(blk: Blocks, T: float | None, delay: int, names, unit: str, all_inputs: bool = True) -> dict:
+    """Margins of every actuator loop of a stable closed loop (module docstring), as data.
+
+    ``names``: the inputs' names (wheel order); ``unit``: the actuator signal's; ``all_inputs``: also the
+    MIMO disk margin (slycot's ab13md at :data:`MIMO_POINTS` frequencies, about 0.1 s).  Infinite
+    margins (no crossover) are reported as null.
+    """
+    lp = Loops(blk, T, delay)
+    loops = []
+    best = None
+    for j in range(blk.na):
+        row = {"input": names[j]}
+        if not np.any(lp.B[:, j]) or not np.any(lp.K[j]):
+            row["note"] = "no loop through this input (a failed actuator or an unused input)"
+            loops.append(row)
+            continue
+        poles = lp.poles(j)
+        unstable = int(np.sum(np.abs(poles) > 1.0 + 1e-9)) if T else int(np.sum(poles.real > 1e-9))
+        omega = frequency_grid(poles, T)
+        Ljw = lp.response(j, omega)
+        gm, pm, sm, wpc, wgc, _wms = crossover_margins(lp.at(j), omega, Ljw)
+        row |= {
+            "gain_margin": _f(gm),
+            "gain_margin_db": _f(20.0 * math.log10(gm)) if gm and math.isfinite(gm) and gm > 0 else None,
+            "phase_margin_deg": _f(pm),
+            "stability_margin": _f(sm),
+            "phase_crossover": _f(wpc),
+            "gain_crossover": _f(wgc),
+            "open_loop_unstable": unstable,
+        }
+        row |= disk_margin_siso(Ljw)
+        loops.append(row)
+        s = row["stability_margin"]
+        if s is not None and (best is None or s < best[0]):
+            best = (s, j, Ljw, omega)
+    out = {"input": "voltage" if unit == "V" else "torque", "unit": unit, "loops": loops,
+           "disk_margins": HAS_DISK_MARGINS}  # fmt: skip
+    if best is not None:
+        _s, j, Ljw, omega = best
+        out["worst"] = loops[j]["input"]
+        with np.errstate(divide="ignore"):
+            out["_bode"] = {
+                "input": loops[j]["input"],
+                "omega": omega.tolist(),
+                "mag_db": (20.0 * np.log10(np.maximum(np.abs(Ljw), 1e-300))).tolist(),
+                "phase_deg": np.degrees(np.unwrap(np.angle(Ljw))).tolist(),
+                "gain_crossover": loops[j].get("gain_crossover"),
+                "phase_crossover": loops[j].get("phase_crossover"),
+                "gain_margin_db": loops[j].get("gain_margin_db"),
+                "phase_margin_deg": loops[j].get("phase_margin_deg"),
+            }
+    if all_inputs and blk.na > MIMO_MAX_INPUTS:
+        out["all_inputs"] = {"note": f"not computed for more than {MIMO_MAX_INPUTS} inputs (slycot's ab13md: "
+                             "about 20 ms per frequency at 12)"}  # fmt: skip
+    elif all_inputs and HAS_DISK_MARGINS and blk.na > 1 and any("gain_margin" in r for r in loops):
+        Lm = mimo_loop(blk, T, delay)
+        omega = frequency_grid(Lm.poles(), T, MIMO_POINTS)
+        try:
+            with np.errstate(all="ignore"):
+                dm, dgm, dpm = control.disk_margins(Lm, omega)
+            out["all_inputs"] = {
+                "disk_margin": _f(dm),
+                "disk_gain_margin_db": _f(dgm),
+                "disk_phase_margin_deg": _f(dpm),
+            }
+        except (ValueError, np.linalg.LinAlgError, ImportError) as exc:  # slycot's ab13md missing or failing
+            out["all_inputs"] = {"note": f"not computed: {exc}"}
+    return out

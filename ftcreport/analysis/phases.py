@@ -1,0 +1,387 @@
+r"""Every scheme in every fault phase: poles, stability, margins and limits of the loop as it runs (pure).
+
+For each scheme of a case and each phase of its fault schedule (between two events), the closed
+loop is linearized (:mod:`.closed_loop`) at frozen instants of the phase, with the phase's true
+faults and the pattern the scheme applies there:
+
+* nominal applies the healthy law to the faulty plant; the oracle the truth;
+* switching the model its run selected longest in the phase, or without a run the model of the true
+  pattern (the one its cost selects once the filters have converged; the nearest bank model when the
+  true pattern is not in the bank);
+* adaptive its weights (the run's, else on the design of the true pattern), the active schemes their
+  estimates (the run's parameter estimates, else the truth); a plug-in its run's states, else its
+  initial state.
+
+On a constant-curvature reference with the two-link law, or a straight line, the loop in the frame
+turning with the reference is autonomous: one instant per phase gives its exact poles.  Elsewhere the
+loop is time-varying and three instants per phase are taken; frozen-time eigenvalues are evidence,
+not proof (a time-varying loop can be unstable with every frozen pole stable, and the converse).
+
+Where the controller is sampled (``simulation.sample_time``, and the UKF scheme, whose filter and
+law run at the samples or at every step), the loop is analysed in discrete time (:mod:`.sampled`):
+z-plane poles and the spectral radius; elsewhere s-plane poles and the largest real part.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FtcError, ModelError
+from .closed_loop import Blocks, Faults, SchemeLoop, frames
+from .limits import (
+    MARGINAL_Z,
+    continuous_margin,
+    dominant_pole,
+    fastest_pole,
+    gain_family,
+    largest_gain,
+    largest_sample_time,
+    sampled_radius,
+)
+from .limits import stability as limits_stability
+from .margins import loop_margins
+from .sampled import closed_loop_matrix
+
+__all__ = ["RunStates", "analyze_scheme", "fault_phases", "instants", "pole_rows", "time_varying"]
+
+def fault_phases(case) -> list[tuple[float, float]]:
+    """The phases of the fault schedule: [0, first event), ..., [last event, duration]."""
+    end = float(case.simulation.duration)
+    events = sorted({float(f.time) for f in case.faults if 0.0 < f.time < end})
+    edges = [0.0, *events, end]
+    return [(a, b) for a, b in itertools.pairwise(edges) if b > a]
+
+
+def time_varying(case) -> bool:
+    """Whether the loop is time-varying in the frame turning with the reference (several instants needed).
+
+    The two-link law on a unicycle or circle reference (constant v_d, omega_d), and any law on a
+    straight line, give an autonomous loop; the chained law's frame re-anchoring (every 45 deg) makes
+    it periodic on a circle, and the eight and the sinusoid change speed and curvature.
+    """
+    kind = case.reference.kind
+    if kind == "line":
+        return False
+    if kind == "unicycle" and float(case.reference.omega_d) == 0.0:
+        return False
+    return not (case.kinematic.kind == "two_link" and kind in ("unicycle", "circle"))
+
+
+def instants(case, t0: float, t1: float) -> list[float]:
+    """The frozen instants of a phase: its middle, or three spread over it on a time-varying loop."""
+    if not time_varying(case):
+        return [0.5 * (t0 + t1)]
+    return [t0 + (k + 0.5) / 3.0 * (t1 - t0) for k in range(3)]
+
+
+#: where the applied pattern comes from without a run (with one: the run's states)
+_ORIGIN = {
+    "nominal": "the healthy law (no FTC)",
+    "oracle": "the true faults",
+    "adaptive": "weights on the design of the true pattern",
+    "adaptive_frozen": "weights on the design of the true pattern",
+    "active": "estimates at the truth",
+    "active_ukf": "estimates at the truth",
+}
+
+
+def case_frames(case, built) -> dict[float, float]:
+    """The chained law's frame at every frozen instant of the case (empty for the two-link law)."""
+    times = [t for p in fault_phases(case) for t in instants(case, *p)]
+    return frames(built.kinematic(), times, step=max(float(case.simulation.dt), 0.01))
+
+
+def phase_faults(built, t: float) -> Faults:
+    """The true faults at t: command faults (sigma, ubar) and the motor-fault table."""
+    sigma, ubar = built.faults.at(float(t))
+    motors = built.plant.motors is not None
+    motor = np.asarray(built.faults.motor(float(t)), dtype=float) if motors else np.zeros((0, 4))
+    return Faults(np.asarray(sigma, dtype=float).copy(), np.asarray(ubar, dtype=float).copy(), motor)
+
+
+@dataclass
+class RunStates:
+    """A stored run's controller state and switching index, read at the analysis's instants.
+
+    ``series``: the run's logged arrays (``t``, ``xc``, ``selected`` for switching), as
+    ``store.load_timeseries`` gives them.  Only the part the run simulated is used.
+    """
+
+    series: dict
+
+    def _t(self) -> np.ndarray:
+        return np.asarray(self.series.get("t", np.zeros(0)), dtype=float)
+
+    def xc_at(self, t: float) -> np.ndarray | None:
+        """The logged controller state nearest t, None when the run did not reach t."""
+        ts, xc = self._t(), self.series.get("xc")
+        if xc is None or ts.size == 0 or t > ts[-1] + 1e-9 or t < ts[0] - 1e-9:
+            return None
+        return np.asarray(xc[int(np.argmin(np.abs(ts - t)))], dtype=float)
+
+    def selected(self, t0: float, t1: float) -> tuple[int, float] | None:
+        """The switching model applied longest in [t0, t1) and the fraction of the phase's samples it held."""
+        ts, sel = self._t(), self.series.get("selected")
+        if sel is None or ts.size == 0:
+            return None
+        mask = (ts >= t0) & (ts < t1)
+        if not np.any(mask):
+            return None
+        vals, counts = np.unique(np.round(np.asarray(sel, dtype=float)[mask]).astype(int), return_counts=True)
+        k = int(np.argmax(counts))
+        return int(vals[k]), float(counts[k] / counts.sum())
+
+
+def pole_rows(poles: np.ndarray, T: float | None) -> list[dict]:
+    """Poles with natural frequency, damping and time constant, slowest first (as ``control.damp``).
+
+    A continuous pole s: ``wn = |s|``, ``damping = -Re(s) / |s|``, time constant ``-1 / Re(s)``; a
+    discrete pole z (T given) through its continuous equivalent ``s = ln(z) / T``.
+    """
+    rows = []
+    for p in np.asarray(poles, dtype=complex):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sp = complex(np.log(p) / T) if T else complex(p)
+        wn = abs(sp)
+        rows.append(
+            {
+                "re": float(p.real),
+                "im": float(p.imag),
+                "wn": float(wn) if math.isfinite(wn) else None,
+                "damping": float(-sp.real / wn) if wn > 0 and math.isfinite(wn) else None,
+                "time_constant": float(-1.0 / sp.real) if sp.real < 0 else None,
+            }
+        )
+    key = (lambda r: -math.hypot(r["re"], r["im"])) if T else (lambda r: -r["re"])
+    return sorted(rows, key=key)
+
+
+def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: bool = True,
+                   limits: bool = True, psis: dict | None = None) -> dict:  # fmt: skip
+    """One scheme of a case: per phase the true and applied pattern, poles, stability, margins; its limits.
+
+    ``run``: the scheme's stored run (``store.load_timeseries``), for the states it held and the model
+    switching selected; ``psis``: the chained law's frame at the instants (:func:`case_frames`, shared
+    by the schemes of a case).  Returns ``{"phases": [...], "limits": {...}, "velocity_loop": {...}, ...}``
+    (the keys are documented in README, "Linearized analysis").
+    """
+    loop = SchemeLoop(case, scheme, built)
+    sim = case.simulation
+    T = sim.sample_time
+    discrete = T is not None or loop.has_disc
+    period = T if T is not None else (sim.dt if loop.has_disc else None)
+    delay = int(sim.measurement_delay)
+    states = RunStates(run) if run else None
+    phases = fault_phases(case)
+    times = {p: instants(case, *p) for p in phases}
+    if psis is None:
+        psis = case_frames(case, built)
+    out_phases = []
+    for t0, t1 in phases:
+        fz = phase_faults(built, t0)
+        applied, applied_from = None, _ORIGIN.get(scheme, "its initial state (no run)")
+        if scheme == "switching":
+            sel = states.selected(t0, t1) if states else None
+            if sel is not None:
+                applied, applied_from = sel[0], f"run ({100 * sel[1]:.0f} % of the phase)"
+            else:
+                applied_from = "true pattern (nearest bank model)"
+        entry = {
+            "t_start": t0,
+            "t_end": t1,
+            "pattern_true": [float(v) for v in fz.sigma],
+            "friction_true": [float(v) for v in fz.ubar],
+            "discrete": bool(discrete),
+            "sample_time": period if discrete else None,
+        }
+        if fz.motor.size:
+            entry["motor_faults"] = _motor_words(fz.motor, loop.ctrl.chain.wheels)
+        rows = []
+        for t in times[(t0, t1)]:
+            run_xc = states.xc_at(t) if states else None
+            try:
+                pt = loop.point(t, fz, psis.get(t), applied, run_xc, period)
+                blk = loop.blocks(pt, period)
+            except (FtcError, ValueError, np.linalg.LinAlgError) as exc:
+                rows.append({"t": t, "error": str(exc)})
+                continue
+            if discrete:
+                M = closed_loop_matrix(blk, period, delay)
+                ev = np.linalg.eigvals(M) if M.size else np.zeros(0, dtype=complex)
+                measure = float(np.abs(ev).max(initial=0.0))
+            else:
+                A = blk.continuous()
+                ev = np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex)
+                measure = float(ev.real.max(initial=-math.inf))
+            rows.append({"t": t, "measure": measure, "poles": ev, "blk": blk, "pt": pt, "run": run_xc is not None})
+        good = [r for r in rows if "error" not in r]
+        key = "spectral_radius" if discrete else "max_real_part"
+        entry["instants"] = [
+            {"t": r["t"], key: r.get("measure"), **({"error": r["error"]} if "error" in r else {})} for r in rows
+        ]
+        entry["frozen"] = len(rows) > 1
+        if not good:
+            entry |= {"pattern_applied": None, "applied_from": applied_from, "poles": [], key: None,
+                      "stable": None, "stability": "not computed", "margins": None,
+                      "note": rows[0]["error"] if rows else "no instant"}  # fmt: skip
+            out_phases.append(entry)
+            continue
+        worst = max(good, key=lambda r: r["measure"])
+        pt, blk = worst["pt"], worst["blk"]
+        if worst["run"] and scheme not in ("nominal", "oracle", "switching"):
+            applied_from = "its run's states"
+        stability = limits_stability(worst["measure"], worst["poles"], discrete)
+        entry |= {
+            "pattern_applied": pt.applied,
+            "applied_from": applied_from if pt.applied is not None else "the law applies no pattern",
+            "t_worst": worst["t"],
+            "poles": [[float(p.real), float(p.imag)] for p in worst["poles"]],
+            "pole_table": pole_rows(worst["poles"], period if discrete else None),
+            key: worst["measure"],
+            "stable": stability == "stable",
+            "stability": stability,
+            "states": {
+                "plant": int(blk.Fx.shape[0]),
+                "scheme": int(blk.nc),
+                "left_out": int(blk.dropped),
+                "parameter_block": int(blk.parameter_block),
+                "delay_line": delay * (loop.n_q + 2) if discrete else 0,
+            },
+        }
+        entry["margins"] = (
+            loop_margins(
+                blk, period if discrete else None, delay, loop.ctrl.chain.wheels, loop.plant.input_unit, not out_phases
+            )
+            if margins and stability == "stable"
+            else {"note": f"the closed loop is {stability}: margins are defined for a stable loop only"}
+            if margins
+            else None
+        )
+        out_phases.append(entry)
+    result = {"phases": out_phases, "discrete": bool(discrete), "sample_time": period, "k_v": loop.k_v}
+    if limits:
+        # at the first phase's worst frozen instant (the limits' searches cost tens of linearizations each)
+        t_lim = out_phases[0].get("t_worst", times[phases[0]][0])
+        result |= scheme_limits(case, scheme, built, loop, [t_lim], psis, period, delay)
+    return result
+
+
+def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay) -> dict:
+    """``limits`` and ``velocity_loop`` of one scheme: healthy pattern, the case's gains (module limits).
+
+    The velocity loop alone (q held, :meth:`Blocks.velocity_loop`) is given for a law that measures
+    eta; an active scheme sees the velocity only through its observer of q, so holding q opens its
+    loop: its ``velocity_loop`` limits are null, and say so.
+    """
+    fz = Faults.healthy(built.chain.n_wheels, built.plant.motors is not None)
+    out = {"limits": {}, "velocity_loop": {}, "limit_notes": {}}
+    try:
+        blocks = [loop.blocks(loop.point(t, fz, psis.get(t), None, None, period), period) for t in ts]
+    except (FtcError, ValueError, np.linalg.LinAlgError) as exc:
+        for name in ("limits", "velocity_loop"):
+            out[name] = {"sample_time_max": None, "k_v_max": None}
+            out["limit_notes"] |= {f"{name}.{k}": f"not computed: {exc}" for k in out[name]}
+        return out
+    picks = {"limits": lambda b: b}
+    if _law_reads_eta(loop, ts[0], fz, psis, period):
+        picks["velocity_loop"] = Blocks.velocity_loop
+    else:
+        out["velocity_loop"] = {"sample_time_max": None, "k_v_max": None}
+        why = "the law does not read eta (it estimates the velocity from q): without q there is no velocity loop"
+        out["limit_notes"] |= {"velocity_loop.sample_time_max": why, "velocity_loop.k_v_max": why}
+    for name, pick in picks.items():
+        if loop.has_disc:
+            out[name]["sample_time_max"] = None
+            out["limit_notes"][f"{name}.sample_time_max"] = (
+                "not searched: the UKF's gain comes from its covariance, the run's (or the initial one) at its own "
+                "period; at another sample time the filter would settle to another gain"
+            )
+            continue
+        guess = 2.0 / max(fastest_pole(pick(b)) for b in blocks)
+        rho = lambda T, p=pick: max(sampled_radius(p(b), T, delay) for b in blocks)  # noqa: E731
+        res = largest_sample_time(rho, guess)
+        out[name]["sample_time_max"] = res["value"]
+        out["limit_notes"][f"{name}.sample_time_max"] = res["note"]
+        if name == "limits" and res["value"] is not None:
+            z = dominant_pole(blocks[0], 1.1 * res["value"], delay)
+            out["crossing"] = {"sample_time_max": [z.real, z.imag]}
+        if name == "limits":
+            grid = _grid(res["value"] or guess, period)
+            out["_curves"] = {"T": grid.tolist(), "rho_T": [rho(T) for T in grid]}
+    k_v = loop.k_v
+    try:
+        fam = [
+            gain_family(lambda k, t=t, b=b: _blocks_at_gain(case, scheme, built, fz, psis.get(t), t, k, period, b), k_v)
+            for t, b in zip(ts, blocks, strict=True)
+        ]
+    except ModelError as exc:  # a plug-in without a k_v field
+        for name in picks:
+            out[name]["k_v_max"] = None
+            out["limit_notes"][f"{name}.k_v_max"] = str(exc)
+        return out
+    for name, pick in picks.items():
+        if period is not None:
+            radius = lambda k, p=pick: max(sampled_radius(p(f(k)), period, delay) for f in fam)  # noqa: E731
+            margin = lambda k, r=radius: r(k) - 1.0 - MARGINAL_Z  # noqa: E731
+        else:
+            margin = lambda k, p=pick: max(continuous_margin(p(f(k))) for f in fam)  # noqa: E731
+        res = largest_gain(margin, loop.k_v)
+        out[name]["k_v_max"] = res["value"]
+        out["limit_notes"][f"{name}.k_v_max"] = res["note"]
+        if name == "limits":
+            grid = _grid(res["value"] or k_v, k_v)
+            key = "rho_k" if period is not None else "max_re_k"
+            curve = radius if period is not None else margin
+            out.setdefault("_curves", {}).update({"k": grid.tolist(), key: [curve(k) for k in grid]})
+        if name == "limits" and res["value"] is not None and period is not None:
+            z = dominant_pole(fam[0](1.1 * res["value"]), period, delay)
+            out.setdefault("crossing", {})["k_v_max"] = [z.real, z.imag]
+    return out
+
+
+def _law_reads_eta(loop: SchemeLoop, t: float, fz: Faults, psis: dict, period) -> bool:
+    """Whether the scheme's law (not the driver, which reads the measured wheel speeds) reads eta."""
+    pt = loop.point(t, fz, psis.get(t), None, None, period)
+    nq = loop.n_q
+    st, ut = loop.plant.true_faults(pt.xp, fz)
+    q, eta = pt.xp[:nq], pt.xp[nq : nq + 2]
+    u0 = loop.law(t, q, eta, pt.xc, st, ut)[0]
+    return any(np.any(loop.law(t, q, eta + 1e-4 * e, pt.xc, st, ut)[0] != u0) for e in np.eye(2))
+
+
+def _grid(limit: float, case_value: float | None, points: int = 48) -> np.ndarray:
+    """A log grid for the figures: from a tenth of the smaller of the limit and the case's value to three
+    times the larger."""
+    lo = min(limit, case_value or limit)
+    hi = max(limit, case_value or limit)
+    return np.geomspace(lo / 10.0, hi * 3.0, points)
+
+
+def _blocks_at_gain(case, scheme, built, fz, psi, t, k, period, base: Blocks) -> Blocks:
+    """The loop linearized with velocity gain k, in the coordinates of ``base`` (the same point's blocks)."""
+    lp = SchemeLoop(case, scheme, built, k_v=k)
+    return lp.blocks(lp.point(t, fz, psi, None, None, period), period, basis=base.basis)
+
+
+_MODES = {1: "open", 2: "short", 3: "stuck"}
+
+
+def _motor_words(table: np.ndarray, names) -> list[str]:
+    """The motor faults of a table in words, wheel by wheel (healthy wheels left out)."""
+    out = []
+    for j, (km, ra, mode, vs) in enumerate(np.asarray(table, dtype=float)):
+        bits = []
+        if int(mode) in _MODES:
+            bits.append(_MODES[int(mode)] + (f" at {vs:g} V" if int(mode) == 3 else ""))
+        if km != 1.0:
+            bits.append(f"k_m x{km:g}")
+        if ra != 1.0:
+            bits.append(f"R_a x{ra:g}")
+        if bits:
+            out.append(f"{names[j]}: " + ", ".join(bits))
+    return out
+

@@ -1,0 +1,135 @@
+r"""A scheme bound to a case's chain and kinematic controller: what the engine runs.
+
+:class:`SchemeController` evaluates a :class:`~ftcreport.schemes.api.Scheme`'s declarations for one
+chain, kinematic controller and table (its state size, signals, packed parameters).  The built-in
+schemes' Python faces (``ftcreport.control``: ``TrackingController``, ``SwitchingController``, ...)
+are subclasses that lay out their state themselves; the engine reads only what is defined here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ModelError
+from .api import Scheme, SchemeContext
+
+__all__ = ["KINEMATIC_SIGNALS", "SchemeController"]
+
+#: The kinematic controller's logged signals, before every scheme's own (fast.engine splits them).
+KINEMATIC_SIGNALS = ("eta_c", "eta_c_dot", "z", "q_d", "eta_d")
+
+
+class SchemeController:
+    """A registered scheme bound to a case's chain and kinematic controller (what the engine runs).
+
+    It has no law of its own in Python: the engine runs ``scheme.law`` on the compiled loop.
+
+    Attributes the engine reads: ``scheme``, ``chain``, ``kin``, ``k_v``, ``h`` (the step of the
+    kinematic law's central difference), ``P`` (the packed parameters), ``n_own`` (the scheme's own
+    states), ``n_states`` (the whole controller state: the kinematic controller's first),
+    ``widths`` (``{name: width}`` of the law's signals), ``signal_names``, ``stiff_diagonal``,
+    :meth:`initial_state` and :meth:`derived_signals`.
+    """
+
+    h = 1e-5  # [s] step of the directional central difference of eta_c (ERRATA P5)
+    #: the kinematic signals this scheme's runs show (all are logged; eta_c_dot is the nominal law's)
+    kinematic_signals: tuple[str, ...] = ("eta_c", "z", "q_d", "eta_d")
+
+    def __init__(self, scheme: Scheme, chain, kinematic, k_v: float, params=None, saturation=None, case=None) -> None:
+        self._bind(scheme, chain, kinematic, k_v, params, saturation, case)
+        ctx = self.ctx
+        n_own = scheme.n_states(ctx)
+        if isinstance(n_own, bool) or not isinstance(n_own, int | np.integer) or n_own < 0:
+            raise ModelError(f"scheme {scheme.name}: n_states must be an int >= 0, got {n_own!r}")
+        self.n_own = int(n_own)
+        self.widths = _widths(scheme, ctx)
+        self.P = scheme.pack(ctx)
+        stiff = None if scheme.stiff is None else np.asarray(scheme.stiff(ctx), dtype=float).reshape(self.n_own)
+        self._finish(stiff)
+
+    # ------------------------------------------------------------------ the parts a face sets itself
+    def _bind(self, scheme: Scheme, chain, kinematic, k_v: float, params=None, saturation=None, case=None) -> None:
+        """The common attributes (a face calls this first, then lays out its state, then :meth:`_finish`)."""
+        self.scheme = scheme
+        self.name = scheme.name
+        self.chain = chain
+        self.kin = kinematic
+        self.k_v = float(k_v)
+        self.u_limit = saturation
+        nz, nq = len(kinematic.z_names), chain.n_q
+        self.ctx = SchemeContext(chain, kinematic, self.k_v, params, saturation, kinematic.n_states, 6 + nz + nq, case)
+
+    def _finish(self, stiff_own: np.ndarray | None = None) -> None:
+        """The whole state's size, the signal names and the stiff diagonal from ``n_own`` and ``widths``."""
+        nk = self.kin.n_states
+        self.n_states = nk + self.n_own
+        names = self.scheme.derived_names
+        derived = tuple(names(self) if callable(names) else names)
+        self.signal_names = (*self.kinematic_signals, *self.widths, *derived)
+        self.stiff_diagonal = np.zeros(self.n_states)
+        if stiff_own is not None:
+            self.stiff_diagonal[nk:] = stiff_own
+
+    def own_initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        """The scheme's own states at t0 (``Scheme.initial_state``, default zeros)."""
+        if self.scheme.initial_state is None:
+            return np.zeros(self.n_own)
+        x0 = np.asarray(self.scheme.initial_state(self.ctx, q, eta), dtype=float)
+        if x0.size != self.n_own:
+            raise ModelError(f"scheme {self.name}: initial_state returned {x0.size} values, n_states is {self.n_own}")
+        return x0.reshape(self.n_own)
+
+    # ------------------------------------------------------------------ what the engine reads
+    def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        """The whole controller state at t0: the kinematic controller's, then the scheme's own."""
+        kin = np.asarray(self.kin.initial_state(t, q), dtype=float).reshape(-1)
+        return np.concatenate((kin, self.own_initial_state(t, q, eta)))
+
+    def derived_signals(self, xc: np.ndarray, meas: np.ndarray, costs: bool = True) -> dict[str, np.ndarray]:
+        """Signals computed from the logged rows (``Scheme.derived``): ``xc`` the scheme's own states,
+        ``meas`` the measured [q, eta], ``costs`` also those only the saved log holds."""
+        if self.scheme.derived is None:
+            return {}
+        return self.scheme.derived(self, xc, meas, costs)
+
+
+def _widths(scheme: Scheme, ctx: SchemeContext) -> dict[str, int]:
+    """The declared signals, checked: names of the safe set, whole widths >= 1, no kinematic name."""
+    widths = scheme.signal_widths(ctx)
+    for name, width in widths.items():
+        if not isinstance(name, str) or not name.isidentifier():
+            raise ModelError(f"scheme {scheme.name}: signal name {name!r} is not an identifier")
+        if name in KINEMATIC_SIGNALS:
+            raise ModelError(f"scheme {scheme.name}: signal {name!r} is a kinematic signal the engine logs")
+        if isinstance(width, bool) or not isinstance(width, int | np.integer) or width < 1:
+            raise ModelError(f"scheme {scheme.name}: signal {name!r}: width must be an int >= 1, got {width!r}")
+    return {k: int(v) for k, v in widths.items()}
+
+
+def write_reason(ctrl: SchemeController, which: int, t: float) -> str:
+    """Why a run stopped when the scheme wrote past a buffer (the loop's guard cells, E_LAW_WRITE)."""
+    name = ctrl.scheme.name
+    at = f"at t = {t:.6g} s"
+    if which == 0:
+        nw = ctrl.chain.n_wheels
+        return f"scheme '{name}': the law wrote past out.u ({nw} wheel torques) {at}; it writes out.u[0:{nw}] only"
+    if which == 1:
+        return (
+            f"scheme '{name}': the law wrote past out.dx ({ctrl.n_own} state rates: n_states) {at}; declare "
+            "every state it has in n_states"
+        )
+    if which == 3:
+        return (
+            f"scheme '{name}': the discrete update wrote past its {ctrl.n_own} states (n_states) {at}; declare every "
+            "state it has in n_states"
+        )
+    widths = ctrl.widths
+    total = sum(widths.values())
+    if not widths:
+        return f"scheme '{name}': the law wrote into out.sig {at}, but the scheme declares no signal (Scheme.signals)"
+    last = list(widths)[-1]
+    listed = ", ".join(f"{k} ({v})" for k, v in widths.items())
+    return (
+        f"scheme '{name}': the law wrote past its declared signals {at}: past '{last}', the last of {listed}, "
+        f"out.sig[0:{total}]; declare every signal it writes, with its width, in Scheme.signals"
+    )

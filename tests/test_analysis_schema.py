@@ -1,0 +1,202 @@
+"""``ftcreport analyze CASE --json`` (issue 37 item 8): the documented keys on every shipped case."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jsonschema
+import pytest
+from typer.testing import CliRunner
+
+from ftcreport.analysis import analyze_case
+from ftcreport.cases import configured_schemes, load_case
+from ftcreport.cli import _public, app
+from ftcreport.store import _jsonable
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = sorted((ROOT / "cases").glob("*.toml")) + sorted((ROOT / "cases" / "motors").glob("*.toml"))
+
+NUM = {"type": "number"}
+NUM_OR_NULL = {"type": ["number", "null"]}
+PAIR = {"type": "array", "items": NUM, "minItems": 2, "maxItems": 2}
+LOOP = {
+    "type": "object",
+    "required": ["input"],
+    "properties": {
+        "input": {"type": "string"},
+        "gain_margin": NUM_OR_NULL,
+        "gain_margin_db": NUM_OR_NULL,
+        "phase_margin_deg": NUM_OR_NULL,
+        "stability_margin": NUM_OR_NULL,
+        "disk_margin": NUM_OR_NULL,
+        "open_loop_unstable": {"type": "integer"},
+    },
+}
+MARGINS = {
+    "anyOf": [
+        {"type": "object", "required": ["note"], "properties": {"note": {"type": "string"}}},
+        {
+            "type": "object",
+            "required": ["input", "unit", "loops"],
+            "properties": {"input": {"enum": ["torque", "voltage"]}, "loops": {"type": "array", "items": LOOP}},
+        },
+    ]
+}
+PHASE = {
+    "type": "object",
+    "required": ["t_start", "t_end", "pattern_true", "pattern_applied", "discrete", "poles", "stable", "margins"],
+    "properties": {
+        "t_start": NUM,
+        "t_end": NUM,
+        "pattern_true": {"type": "array", "items": NUM},
+        "pattern_applied": {"type": ["array", "null"], "items": NUM},
+        "discrete": {"type": "boolean"},
+        "poles": {"type": "array", "items": PAIR},
+        "spectral_radius": NUM_OR_NULL,
+        "max_real_part": NUM_OR_NULL,
+        "stable": {"type": ["boolean", "null"]},
+        "stability": {"enum": ["stable", "marginal", "unstable", "not computed"]},
+        "margins": MARGINS,
+    },
+    "oneOf": [{"required": ["spectral_radius"]}, {"required": ["max_real_part"]}],
+}
+LIMITS = {
+    "type": "object",
+    "required": ["sample_time_max", "k_v_max"],
+    "properties": {"sample_time_max": NUM_OR_NULL, "k_v_max": NUM_OR_NULL},
+    "additionalProperties": False,
+}
+SCHEMA = {
+    "type": "object",
+    "required": ["case", "limits", "phases", "closed_loop_poles", "controllability", "velocity_loop"],
+    "properties": {
+        "limits": {"type": "object", "additionalProperties": LIMITS},
+        "velocity_loop": {"type": "object", "additionalProperties": LIMITS},
+        "phases": {"type": "object", "additionalProperties": {"type": "array", "items": PHASE, "minItems": 1}},
+        "closed_loop_poles": {"type": ["object", "null"], "additionalProperties": {"type": "array", "items": PAIR}},
+        "controllability": {"type": "array", "items": {"type": "object", "required": ["pattern", "rank"]}},
+        "observer": {"type": "object", "required": ["observability"]},
+        "confirmation": {"type": "object"},
+    },
+}
+
+
+@pytest.mark.parametrize("path", CASES, ids=lambda p: p.stem)
+def test_analysis_keys_on_every_shipped_case(path):
+    """Every scheme of every shipped case analysed, every phase with the keys of item 8 (README documents them)."""
+    case = load_case(path)
+    res = json.loads(json.dumps(_jsonable(_public(analyze_case(case)))))
+    jsonschema.validate(res, SCHEMA)
+    assert not res["not_analyzed"], res["not_analyzed"]
+    assert set(res["phases"]) == set(res["limits"]) == set(configured_schemes(case))
+    n_phases = len({0.0, *[float(f.time) for f in case.faults if 0 < f.time < case.simulation.duration]})
+    assert all(len(p) == n_phases for p in res["phases"].values())
+    if case.schemes.active is not None or case.schemes.active_ukf is not None:
+        assert "observability" in res["observer"]
+    assert "_curves" not in res
+    assert all("_bode" not in (p["margins"] or {}) for ph in res["phases"].values() for p in ph)
+
+
+def test_cli_json_with_confirmation_on_a_motor_case():
+    """The command prints one object; on a motor case each limit carries its two simulations."""
+    path = ROOT / "cases" / "motors" / "two_link_switching_motors.toml"
+    res = CliRunner().invoke(app, ["analyze", str(path), "--json"])
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.output)
+    jsonschema.validate(data, SCHEMA)
+    conf = data["confirmation"]["switching"]["sample_time_max"]
+    assert [r["factor"] for r in conf["runs"]] == [0.9, 1.1]
+    assert [r["outcome"] for r in conf["runs"]] == ["bounded", "limit cycle"] and conf["agrees"] is True
+    assert conf["sentence"].startswith("predicted 1.37 ms; at 1.23 ms bounded, at 1.51 ms limit cycle")
+    assert data["limits"]["switching"]["sample_time_max"] == pytest.approx(1.371e-3, rel=2e-3)
+
+
+def _phase(t0, t1, stability, measure, discrete=True):
+    key = "spectral_radius" if discrete else "max_real_part"
+    return {"t_start": t0, "t_end": t1, "stability": stability, key: measure, "discrete": discrete}
+
+
+def test_the_verdict_cites_the_analysis():
+    """A scheme predicted unstable that completes 'chatters' (phase, spectral radius, the limit beyond the case's
+    sample time); nominal among the winners with a stable loop in every phase is explained by it; the last FTC
+    scheme with a stable loop 'loses on what it applies'.  Through compare.compare_case's hook."""
+    from ftcreport import compare
+
+    analysis = {
+        "sample_time": 0.005,
+        "k_v": {"switching": 3000.0, "nominal": 3000.0, "adaptive": 3000.0},
+        "limits": {"switching": {"sample_time_max": 1.37e-3, "k_v_max": 559.0}},
+        "phases": {
+            "switching": [_phase(0, 20, "stable", 0.99), _phase(20, 50, "unstable", 10.7)],
+            "nominal": [_phase(0, 20, "stable", 0.99), _phase(20, 50, "stable", 0.995)],
+            "adaptive": [_phase(0, 20, "stable", 0.99), _phase(20, 50, "stable", 0.98)],
+        },
+    }
+    runs = {
+        s: {"status": "ok", "position_error_final": e, "phases": [{"position_error_max": e}, {"position_error_max": e}]}
+        for s, e in (("nominal", 0.01), ("switching", 0.05), ("adaptive", 0.08))
+    }
+    v = compare.compare_case("c", runs, {"ok"}, [20.0], {"analysis": analysis})
+    text = " ".join(v.sentences)
+    assert "predicts switching's loop unstable in the phase 20-50 s (spectral radius 10.7" in text
+    assert "its sample time 5 ms is beyond its limit 1.37 ms" in text and "chatter" in text
+    assert "The analysis agrees: the healthy law's loop stays stable in every fault phase" in text
+    assert "adaptive loses on what it applies, not on stability" in text
+    # without the analysis, none of it
+    assert "analysis" not in " ".join(compare.compare_case("c", runs, {"ok"}, [20.0], {}).sentences)
+
+
+def test_schemes_the_analysis_says_the_same_of_share_one_sentence():
+    """two_link_switching_motors: all three loops unstable in every phase with the same radius and limits read
+    as one sentence ("in every fault phase", the worst one named), not three near-copies; a scheme with another
+    radius keeps its own."""
+    from ftcreport.analysis.summary import analysis_sentences
+
+    names = ("switching", "oracle", "nominal", "other")
+    analysis = {
+        "sample_time": 0.005,
+        "k_v": dict.fromkeys(names, 3000.0),
+        "limits": {s: {"sample_time_max": 1.37e-3, "k_v_max": 559.0} for s in names},
+        "phases": {s: [_phase(0, 20, "unstable", 10.66), _phase(20, 50, "unstable", 10.6)] for s in names[:3]},
+    }
+    analysis["phases"]["other"] = [_phase(0, 20, "stable", 0.9), _phase(20, 50, "unstable", 2.5)]
+    out = analysis_sentences(analysis, list(names), ["switching"], [])
+    assert out[0].startswith("The analysis predicts the loops of switching, oracle and nominal unstable in every "
+                             "fault phase (worst 0-20 s, spectral radius 10.66; the case's sample time 5 ms is "
+                             "beyond their limit 1.37 ms")  # fmt: skip
+    assert out[1].startswith("The analysis predicts other's loop unstable in the phase 20-50 s (spectral radius 2.5;")
+    assert len(out) == 2
+
+
+def test_the_page_section_from_a_case_without_runs():
+    """report.analysis_figs builds the section's rows and its four interactive figures, each with its SVG."""
+    from ftcreport.report.analysis_figs import analysis_section
+
+    case = load_case(ROOT / "cases" / "motors" / "two_link_switching_motors.toml")
+    sec = analysis_section(case, ["1r", "1l", "2r", "2l"], {}, [20.0, 50.0, 80.0, 110.0])
+    ids = [f["id"] for f in sec["figures"]]
+    assert ids[:3] == ["analysis-poles", "analysis-sweep-T", "analysis-sweep-k"]
+    assert all(f["svg"].startswith("<svg") and f["plotly"]["data"] for f in sec["figures"][:3])
+    row = sec["limit_rows"][0]
+    assert row["T_factor"] == pytest.approx(1.371e-3 / 5e-3, rel=2e-3) and row["k_factor"] < 0.2
+    assert [c["agrees"] for c in row["confirm"]] == [True, True]
+    assert all(c["stability"] == "unstable" for r in sec["phase_rows"] for c in r["cells"])
+
+
+def test_each_limit_note_names_its_limit():
+    """A note is shown beside the scheme's limits: it says which limit it is about (three_link_switching_motors
+    showed the velocity loop's 'stable at every sample time up to 10 s' under a 107 ms limit), one line for
+    the limits a note is the same for, and empty notes left out."""
+    from ftcreport.report.analysis_figs import _limit_notes
+
+    notes = {
+        "limits.sample_time_max": "",
+        "limits.k_v_max": "the case's own gain is unstable",
+        "velocity_loop.sample_time_max": "stable at every sample time up to 10 s",
+        "velocity_loop.k_v_max": "the case's own gain is unstable",
+    }
+    assert _limit_notes(notes) == [
+        "k_v max and velocity loop alone, k_v max: the case's own gain is unstable",
+        "velocity loop alone, T_s max: stable at every sample time up to 10 s",
+    ]

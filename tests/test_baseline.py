@@ -1,0 +1,192 @@
+"""Baselines (issue 35 item 10): tolerances as Simulink Test's, the compact signals, save then check.
+
+The end-to-end runs are two_link_switching cut to 25 s (its first fault at 20 s), switching alone.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+import numpy as np
+import pytest
+import tomli_w
+from typer.testing import CliRunner
+
+from ftcreport.baseline import band, compare_metric, compare_signal, edges_for, envelope, field_diff
+from ftcreport.cases import parse_case
+from ftcreport.cli import app
+from ftcreport.errors import CaseError
+
+CASES = Path(__file__).resolve().parents[1] / "cases"
+runner = CliRunner()
+
+
+# ---------------------------------------------------------------------------------------- pure
+def test_metric_tolerance_is_the_larger_of_absolute_and_relative():
+    assert compare_metric("m", 100.0, 100.09, rel_tol=1e-3, abs_tol=1e-9).ok  # 0.09 <= 0.1
+    d = compare_metric("m", 100.0, 100.11, rel_tol=1e-3, abs_tol=1e-9)
+    assert not d.ok and d.tol == pytest.approx(0.1) and d.delta == pytest.approx(0.11)
+    assert compare_metric("m", 1e-7, 5e-7, rel_tol=1e-3, abs_tol=1e-6).ok  # near zero the absolute floor decides
+    assert not compare_metric("m", 1e-7, 5e-7, rel_tol=1e-3, abs_tol=1e-9).ok
+    assert compare_metric("m", None, None, 1e-3, 1e-9).ok
+    null = compare_metric("recovery_time_max", 3.2, None, 1e-3, 1e-9)
+    assert not null.ok and null.line() == "recovery_time_max: baseline 3.2, new null (no numeric delta)"
+    line = compare_metric("position_error_final", 3.0e-7, 4.2e-7, 1e-3, 1e-9).line()
+    assert line == "position_error_final: baseline 3e-07 m, new 4.2e-07 m, delta +1.2e-07 m (+40 %); tolerance 1e-09 m"
+
+
+def test_the_envelope_keeps_a_one_sample_spike():
+    t = np.linspace(0.0, 100.0, 100_001)
+    y = np.sin(t)
+    y[31_415] = 50.0  # one sample of 100,001
+    e = edges_for(t)
+    lo, hi = envelope(t, y, e)
+    assert e.size == 501 and np.nanmax(hi) == 50.0 and np.nanmin(lo) == pytest.approx(-1.0, abs=1e-6)
+    assert np.nanmax(np.interp(np.linspace(0, 100, 500), t, y)) < 2  # a 500-point grid misses it
+
+
+def test_a_signal_shifted_in_time_passes_only_with_a_time_tolerance():
+    """A step at 10 s in the baseline, at 10.5 s in the new run: outside the band unless lagging_tol >= 0.5 s;
+    the same step earlier (9.5 s) needs leading_tol, as Simulink's leading and lagging tolerances."""
+    t = np.linspace(0.0, 20.0, 20_001)
+    base = (t >= 10.0).astype(float)
+    e = edges_for(t, 400)  # 0.05 s intervals
+    lo, hi = envelope(t, base, e)
+    late, early = (t >= 10.5).astype(float), (t >= 9.5).astype(float)
+    delta, _ = compare_signal("s", "1", e, lo, hi, t, late, 1e-3, 1e-9)
+    assert (
+        delta is not None
+        and delta.first_time == pytest.approx(10.0)
+        and delta.excess == pytest.approx(0.999)  # 1 less the 0.1 % tolerance
+    )
+    assert compare_signal("s", "1", e, lo, hi, t, late, 1e-3, 1e-9, lag=0.5)[0] is None
+    assert compare_signal("s", "1", e, lo, hi, t, late, 1e-3, 1e-9, lead=0.5)[0] is not None  # the wrong side
+    assert compare_signal("s", "1", e, lo, hi, t, early, 1e-3, 1e-9, lead=0.5)[0] is None
+    assert compare_signal("s", "1", e, lo, hi, t, early, 1e-3, 1e-9, lag=0.5)[0] is not None
+    assert compare_signal("s", "1", e, lo, hi, t, base * 1.0009, 1e-3, 1e-9)[0] is None  # within 0.1 %
+    assert compare_signal("s", "1", e, lo, hi, t, base * 1.0011, 1e-3, 1e-9)[0] is not None
+    L, U = band(lo, hi, e, 0.0, 0.1)
+    assert np.all(U - hi == pytest.approx(0.1)) and np.all(lo - L == pytest.approx(0.1))
+
+
+def test_field_diff_names_each_changed_field():
+    old = {"schemes": {"switching": {"k_v": 3000.0, "gamma": 10.0}}, "faults": [{"time": 20.0}], "plugins": {}}
+    new = {
+        "schemes": {"switching": {"k_v": 2000.0, "gamma": 10.0}},
+        "faults": [{"time": 25.0}],
+        "plugins": {"x.py": "ab"},
+    }
+    assert field_diff(old, new) == [
+        "schemes.switching.k_v: 3000.0 -> 2000.0",
+        "faults[0].time: 20.0 -> 25.0",
+        'plugins.x.py: added ("ab")',
+    ]
+
+
+def test_baseline_tables_are_validated():
+    data = tomllib.loads((CASES / "two_link_switching.toml").read_text())
+    for table, words in (
+        ({"metrics": {"torque_pek": {"rel_tol": 0.1}}}, "baseline.metrics.torque_pek: not a scalar metric of "
+         "metrics.json (did you mean 'torque_peak'?)"),
+        ({"signals": {"torques": {"abs_tol": 1.0}}}, "baseline.signals.torques: not a baseline signal (did you mean "
+         "'torque'?)"),
+        ({"rel_tol": -1.0}, "baseline.rel_tol: must be >= 0, got -1.0"),
+        ({"lead_tol": 0.1}, "baseline.lead_tol: unknown field (did you mean 'leading_tol'?)"),
+    ):  # fmt: skip
+        with pytest.raises(CaseError) as exc:
+            parse_case(data | {"baseline": table}, "x.toml")
+        assert words in str(exc.value), str(exc.value)
+
+
+# ---------------------------------------------------------------------------------- save, check
+def _write(path: Path, k_v: float = 3000.0, baseline: dict | None = None) -> None:
+    data = tomllib.loads((CASES / "two_link_switching.toml").read_text())
+    data["name"] = "bl"
+    data["faults"] = data["faults"][:1]
+    data["simulation"]["duration"] = 25.0
+    data["schemes"] = {"run": ["switching"], "switching": data["schemes"]["switching"] | {"k_v": k_v}}
+    data["claims"], data["thresholds"], data["requirements"] = [], {}, []
+    if baseline is not None:
+        data["baseline"] = baseline
+    path.write_text(tomli_w.dumps(data))
+
+
+def test_save_then_check_passes_and_a_changed_gain_fails_naming_metric_delta_and_field(tmp_path):
+    src, out, dest, junit = tmp_path / "bl.toml", tmp_path / "r", tmp_path / "base", tmp_path / "junit.xml"
+    _write(src)
+    res = runner.invoke(app, ["baseline", "save", str(src), "--out", str(out), "--dest", str(dest), "-q"])
+    assert res.exit_code == 0, res.output
+    saved = json.loads((dest / "bl" / "baseline.json").read_text())
+    assert saved["case_fields"]["schemes"]["switching"]["k_v"] == 3000.0 and saved["case_text"] == src.read_text()
+    assert saved["ftcreport"]["git"] is None or len(saved["ftcreport"]["git"]["revision"]) == 40
+    assert saved["case_hash"] and saved["schemes"]["switching"]["key"] and saved["versions"]["numpy"]
+    assert saved["schemes"]["switching"]["signals"] == [
+        "position_error", "heading_error[1]", "heading_error[2]", "torque[1r]", "torque[1l]", "torque[2r]", "torque[2l]"
+    ]  # fmt: skip
+
+    # the unchanged tree passes
+    res = runner.invoke(app, ["check", str(src), "--out", str(out), "--baseline", str(dest), "--junit", str(junit)])
+    assert res.exit_code == 0, res.output
+    assert "1/1 runs match the baseline" in res.output
+    tc = next(t for t in ET.fromstring(junit.read_bytes()).iter("testcase") if t.get("name") == "baseline")
+    assert tc.get("classname") == "bl.switching" and tc.find("failure") is None
+    assert "within tolerance of the baseline" in tc.find("system-out").text
+
+    # one gain changed: fails, one line per change with baseline, new and delta, and the field that changed
+    old_peak = saved["schemes"]["switching"]["metrics"]["torque_peak"]
+    _write(src, k_v=2000.0)
+    res = runner.invoke(
+        app, ["check", str(src), "--out", str(out), "--baseline", str(dest), "--junit", str(junit), "-q"]
+    )
+    assert res.exit_code == 1, res.output
+    new_peak = json.loads((out / "bl" / "switching" / "metrics.json").read_text())["torque_peak"]
+    assert new_peak < 0.9 * old_peak  # the start-up spike scales with k_v
+    d = new_peak - old_peak
+    line = (
+        f"FAIL  bl / switching / torque_peak: baseline {old_peak:.6g} N m, new {new_peak:.6g} N m, delta {d:+.4g} N m "
+        f"({100 * d / old_peak:+.3g} %); tolerance {1e-3 * old_peak:.3g} N m"
+    )
+    assert line in res.output.splitlines(), res.output
+    assert (
+        "FAIL  bl / switching: inputs changed since the baseline (1 field(s)): schemes.switching.k_v: 3000.0 -> 2000.0"
+        in res.output.splitlines()
+    )
+    assert "0/1 runs match the baseline" in res.output
+    failure = next(t for t in ET.fromstring(junit.read_bytes()).iter("testcase") if t.get("name") == "baseline")
+    msg = failure.find("failure").get("message")
+    assert f"torque_peak: baseline {old_peak:.6g} N m, new {new_peak:.6g} N m, delta {d:+.4g} N m" in msg
+    assert "schemes.switching.k_v: 3000.0 -> 2000.0" in msg
+    page = (out / "baseline.html").read_text()
+    assert "<code>schemes.switching.k_v: 3000.0 -&gt; 2000.0</code>" in page
+    assert 'data-metric="torque_peak"' in page and 'id="plot-bl-0-spec"' in page  # a signal's overlay
+
+    # tolerances of the case as it is now: wide enough, the same change passes (and still says what changed)
+    wide = {"rel_tol": 1.0, "abs_tol": 1e3}
+    _write(src, k_v=2000.0, baseline=wide)
+    res = runner.invoke(app, ["check", str(src), "--out", str(out), "--baseline", str(dest)])
+    assert res.exit_code == 0, res.output
+    assert "inputs changed since the baseline (2 field(s))" in res.output  # k_v and the [baseline] table
+
+
+def test_a_missing_baseline_fails_and_a_missing_directory_is_bad_input(tmp_path):
+    src, out = tmp_path / "bl.toml", tmp_path / "r"
+    _write(src)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "baseline.json").write_text(json.dumps({"format": 1, "cases": {"x": {}}}))
+    res = runner.invoke(app, ["check", str(src), "--out", str(out), "--baseline", str(other), "-q"])
+    assert res.exit_code == 1, res.output
+    assert f"FAIL  bl / switching / baseline missing: no baseline of case 'bl' in {other} (it holds: x)" in res.output
+    res = runner.invoke(app, ["check", str(src), "--out", str(out), "--baseline", str(tmp_path / "nowhere"), "-q"])
+    assert res.exit_code == 2
+    assert "--baseline: no baseline here" in res.output
+
+
+def test_the_compared_metrics_are_names_a_case_may_tune():
+    from ftcreport.baseline import COMPARED_METRICS
+    from ftcreport.cases import BASELINE_METRIC_NAMES
+
+    assert set(COMPARED_METRICS) <= set(BASELINE_METRIC_NAMES)

@@ -1,0 +1,117 @@
+"""Stability limits of the sampled loop (issue 37 item 3): closed forms, and the motor case by simulation."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import harness
+
+from ftcreport.analysis.closed_loop import Faults, SchemeLoop
+from ftcreport.analysis.limits import MARGINAL_Z, gain_family, largest_gain, largest_sample_time, sampled_radius
+from ftcreport.cases import load_case
+from ftcreport.runner import build
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _harness_loop(case, built, k: float) -> SchemeLoop:
+    """The harness's VELOCITY law (computed torque on a constant velocity command, tests/data) on the
+    case's ideal plant, commanding rest: u = (Mbar1^-1 Bbar)^+ [-k eta + Mbar1^-1 (Mbar2 eta + Cbar)]."""
+    h = harness()
+    ctrl = h.controller(built.chain, h.VELOCITY, k=k, c0=(0.0, 0.0))
+    return SchemeLoop(case, "harness", built, controller=ctrl)
+
+
+def _at_rest(loop: SchemeLoop):
+    """The velocity loop's blocks at rest (eta = 0: the plant's Coriolis and Mbar2 terms vanish)."""
+    fz = Faults.healthy(loop.plant.nw, False)
+    q0 = loop.ctrl.kin.reference.at(0.0).q_d
+    return loop.blocks(loop.point(0.0, fz, q=q0, eta=np.zeros(2))).velocity_loop()
+
+
+@pytest.fixture(scope="module")
+def ideal():
+    case = load_case(ROOT / "cases" / "two_link_switching.toml")
+    return case, build(case)
+
+
+@pytest.mark.parametrize("k", [5.0, 20.0, 300.0, 3000.0])
+def test_ideal_velocity_loop_sample_time_limit_is_two_over_k(ideal, k):
+    """Held torque on the ideal plant at rest: eta_e(j+1) = (1 - k T) eta_e(j), so T_max = 2 / k exactly."""
+    case, built = ideal
+    blk = _at_rest(_harness_loop(case, built, k))
+    res = largest_sample_time(lambda T: sampled_radius(blk, T, 0), guess=1.0 / k)
+    assert res["value"] == pytest.approx(2.0 / k, rel=1e-6)
+    # one sample of measurement delay: z^2 - z + k T = 0, stable iff k T < 1.  At the boundary the pair
+    # has |z| = sqrt(k T), so the search's marginal band (|z| up to 1 + MARGINAL_Z counts as marginal,
+    # not lost) moves the limit by 2 MARGINAL_Z relative, against MARGINAL_Z with |z| = k T - 1 above
+    res = largest_sample_time(lambda T: sampled_radius(blk, T, 1), guess=1.0 / k)
+    assert res["value"] == pytest.approx((1.0 + MARGINAL_Z) ** 2 / k, rel=1e-8)
+    assert res["value"] == pytest.approx(1.0 / k, rel=2.5 * MARGINAL_Z)
+
+
+@pytest.mark.parametrize("T", [0.001, 0.005, 0.02])
+def test_ideal_velocity_loop_gain_limit_is_two_over_T(ideal, T):
+    """At sample time T the largest stable velocity gain is 2 / T, found from the case's gain upwards or downwards."""
+    case, built = ideal
+    fam = gain_family(lambda k: _at_rest(_harness_loop(case, built, k)), 5.0)
+    for start in (5.0, 20.0 / T):  # stable start (search up) and unstable start (search down)
+        res = largest_gain(lambda k: sampled_radius(fam(k), T, 0) - 1.0, start)
+        assert res["value"] == pytest.approx(2.0 / T, rel=1e-6)
+
+
+def test_full_loop_limit_is_the_velocity_loops_on_the_moving_reference(ideal):
+    """The thesis 3.2.3 case (k4 = 3000): the whole loop, kinematic law and the moving reference included,
+    loses stability at 0.664 ms, within 0.4 % of 2 / k_v = 0.667 ms (the study's "about 0.67 ms")."""
+    case, built = ideal
+    loop = SchemeLoop(case, "nominal", built)
+    blk = loop.blocks(loop.point(0.0, Faults.healthy(4, False)))
+    res = largest_sample_time(lambda T: sampled_radius(blk, T, 0), guess=2.0 / 3000.0)
+    assert res["value"] == pytest.approx(2.0 / 3000.0, rel=4e-3)
+    assert res["value"] == pytest.approx(6.6436e-4, rel=1e-3)
+
+
+def _motor_case():
+    return load_case(ROOT / "cases" / "motors" / "two_link_switching_motors.toml")
+
+
+def test_motor_case_limits_reproduce_the_independent_study():
+    """k4 = 3000 with the cases/motors motors and the static-inversion driver: T_max about 1.3 ms (1.371 here),
+    and at T_s = 5 ms the largest stable k4 about 500-550 (559 here, 2 % above the study's range)."""
+    from ftcreport.analysis.phases import analyze_scheme
+
+    case = _motor_case()
+    res = analyze_scheme(case, "nominal", build(case), margins=False)
+    assert res["limits"]["sample_time_max"] == pytest.approx(1.371e-3, rel=2e-3)
+    assert res["limits"]["k_v_max"] == pytest.approx(559.3, rel=2e-3)
+    # the case's own gain is beyond it: every phase's sampled loop is unstable (it chatters at 48 V)
+    assert all(p["stability"] == "unstable" and p["spectral_radius"] > 9 for p in res["phases"])
+
+
+def _grows(case, scheme: str, which: str, value: float) -> bool:
+    """Whether the engine's loop at ``value`` is not bounded: two runs 1e-8 m apart, their difference's
+    sample-rate part and the command's chatter read as ftcreport.analysis.confirm reads them."""
+    from ftcreport.analysis.confirm import NUDGE, classify, variant
+    from ftcreport.runner import run_scheme
+
+    v = variant(case, scheme, which, value, 600)
+    run, _ = run_scheme(v, scheme)
+    other, _ = run_scheme(variant(case, scheme, which, value, 600, NUDGE), scheme)
+    return classify(run, other, v.simulation.sample_time, fast=True)["outcome"] != "bounded"
+
+
+@pytest.mark.parametrize(("which", "predicted", "lo", "hi"), [("sample_time_max", 1.371e-3, 1e-3, 2e-3),
+                                                               ("k_v_max", 559.3, 400.0, 800.0)])  # fmt: skip
+def test_motor_case_limits_match_a_bisection_by_simulation(which, predicted, lo, hi):
+    """Bisection on the engine's runs (healthy plant, 600 samples near the reference) to 2 %: the simulated
+    limit is within 5 % of the predicted one."""
+    case = _motor_case()
+    assert not _grows(case, "nominal", which, lo) and _grows(case, "nominal", which, hi)
+    while hi / lo > 1.02:
+        mid = math.sqrt(lo * hi)
+        lo, hi = (lo, mid) if _grows(case, "nominal", which, mid) else (mid, hi)
+    simulated = math.sqrt(lo * hi)
+    assert simulated == pytest.approx(predicted, rel=0.05)

@@ -505,7 +505,7 @@ def test_the_slice_size_message_of_a_kernel_is_numbas_own(tmp_path):
     assert re.fullmatch(r"cannot assign slice of shape \([23],\) from input of shape \([23],\)", ours)
 
 
-def test_a_cache_index_written_by_other_code_is_a_miss_not_an_error(monkeypatch):
+def test_a_cache_index_written_by_other_code_is_a_miss_not_an_error(monkeypatch, tmp_path):
     """A cache index naming a module that no longer exists (left by another version of ftcreport: seen
     as ``ModuleNotFoundError: No module named 'ftcreport.fast.builtin'`` after the schemes moved), or
     pickle data cut short, makes KernelCache.load_overload return None (compile again) and flush the
@@ -516,8 +516,9 @@ def test_a_cache_index_written_by_other_code_is_a_miss_not_an_error(monkeypatch)
 
     from ftcreport.fast import compiling
 
+    monkeypatch.setenv("FTCREPORT_CACHE", str(tmp_path))
     flushed = []
-    cache = object.__new__(compiling.KernelCache)
+    cache = compiling.KernelCache(_read.py_func)
     monkeypatch.setattr(compiling.KernelCache, "flush", lambda self: flushed.append(1))
     for exc in (ModuleNotFoundError("No module named 'ftcreport.fast.builtin'"), pickle.UnpicklingError("x"),
                 EOFError(), AttributeError("gone")):  # fmt: skip
@@ -535,3 +536,108 @@ def test_a_cache_index_written_by_other_code_is_a_miss_not_an_error(monkeypatch)
     monkeypatch.setattr(caching.FunctionCache, "load_overload", bug)
     with pytest.raises(ZeroDivisionError):
         cache.load_overload(None, None)
+
+
+def test_a_cache_entry_of_another_signature_is_a_miss(monkeypatch, tmp_path):
+    """An entry whose compiled signature is not the one asked for (what the unlocked race of numba's
+    save left behind, test above) is never handed to the dispatcher: None (compile again), index flushed."""
+    from types import SimpleNamespace
+
+    from numba import types
+    from numba.core import caching
+
+    from ftcreport.fast import compiling
+
+    monkeypatch.setenv("FTCREPORT_CACHE", str(tmp_path))
+    flushed = []
+    cache = compiling.KernelCache(_read.py_func)
+    monkeypatch.setattr(compiling.KernelCache, "flush", lambda self: flushed.append(1))
+    entry = SimpleNamespace(signature=SimpleNamespace(args=(types.float64[:],)))
+    monkeypatch.setattr(caching.FunctionCache, "load_overload", lambda self, sig, ctx: entry)
+    assert cache.load_overload((types.int64[:],), None) is None and flushed == [1]
+    assert cache.load_overload((types.float64[:],), None) is entry and flushed == [1]
+
+
+# --------------------------------------------------------------------------- concurrent cache writers
+_TWICE = """
+from ftcreport.fast.compiling import jit
+
+
+@jit
+def twice(x):
+    return x * 2  # an array out: boxing it reads the dtype from the kernel's environment
+"""
+
+_WRITER = """
+import json, os, sys, time
+import numpy as np
+from numba.core import caching
+import kmod
+
+dtype, index_delay, data_delay = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
+save_index, save_data = caching.IndexDataCacheFile._save_index, caching.IndexDataCacheFile._save_data
+
+
+def slow_save_index(self, overloads):  # numba's save: index read, a number picked, [here] index, data written
+    time.sleep(index_delay)
+    return save_index(self, overloads)
+
+
+def slow_save_data(self, name, data):
+    time.sleep(data_delay)
+    return save_data(self, name, data)
+
+
+caching.IndexDataCacheFile._save_index = slow_save_index
+caching.IndexDataCacheFile._save_data = slow_save_data
+x = np.arange(1, 4).astype(dtype)
+while time.time() < float(os.environ["START"]):
+    time.sleep(0.001)
+t_call = time.time()
+y = kmod.twice(x)
+print(json.dumps({"t_call": t_call, "y": y.tolist()}))
+"""
+
+_READER = """
+import json
+import numpy as np
+import kmod
+
+print(json.dumps({d: [kmod.twice(np.arange(1, 4).astype(d)).tolist(), kmod.twice._cache_hits.total()]
+                  for d in ("float64", "int64", "float32")}))
+"""
+
+
+def test_concurrent_writers_of_one_kernel_keep_each_signature_its_own_entry(tmp_path):
+    """Three processes compile three signatures of one kernel into an empty cache at once (a batch's
+    workers, the suite's).  numba's save reads the index, picks a data file the index does not use, then
+    writes the index and the data: without a lock all three pick the same file, the last index names one
+    signature and the last data is another's, and a later load of the first gets the second's code (on
+    CI: ``In 'NRT_adapt_ndarray_to_python', 'descr' is NULL`` from a kernel returning an array; here
+    int64 elements read as float64 ones).  The writes are slowed (seconds, per process: float64 writes
+    its index first and its data last) to make that interleaving certain; the processes call within a
+    third of a delay of each other (asserted, else the test proves nothing)."""
+    import time
+
+    (tmp_path / "kmod.py").write_text(_TWICE)
+    w = 2.0
+    delays = {"float64": (w, 2 * w), "int64": (2 * w, 0.0), "float32": (1.5 * w, 0.0)}  # index, data
+    env = dict(os.environ, FTCREPORT_CACHE=str(tmp_path / "cache"), PYTHONPATH=f"{tmp_path}{os.pathsep}{ROOT}")
+    env["START"] = str(time.time() + 8.0)  # after the imports
+    procs = [
+        subprocess.Popen([sys.executable, "-c", _WRITER, d, str(a), str(b)], env=env, cwd=tmp_path,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for d, (a, b) in delays.items()
+    ]  # fmt: skip
+    outs = []
+    for p in procs:
+        stdout, stderr = p.communicate(timeout=300)
+        assert p.returncode == 0, stderr
+        outs.append(_last_json(stdout))
+    calls = [o["t_call"] for o in outs]
+    assert max(calls) - min(calls) < w / 3, calls  # they overlapped inside the slowed saves
+    assert [o["y"] for o in outs] == [[2.0, 4.0, 6.0], [2, 4, 6], [2.0, 4.0, 6.0]]
+    loaded = _last_json(_python(_READER, tmp_path))
+    assert loaded == {"float64": [[2.0, 4.0, 6.0], 1], "int64": [[2, 4, 6], 2], "float32": [[2.0, 4.0, 6.0], 3]}
+    entries = sorted(p.name for p in (tmp_path / "cache").rglob("kmod.twice-*.nbc"))
+    assert len(entries) == 3, entries  # one data file per signature

@@ -68,6 +68,11 @@ from numba.core import caching, compiler, registry
 from numba.core.codegen import JITCodeLibrary
 from numba.core.compiler_lock import global_compiler_lock
 
+try:  # POSIX file locks: a kernel's cache entries written by one process at a time
+    import fcntl
+except ImportError:  # pragma: no cover - Windows: numba's own unlocked behaviour
+    fcntl = None
+
 from . import lazy_link
 from .lazy_link import defined_symbols
 
@@ -473,25 +478,73 @@ class KernelCacheImpl(caching.CompileResultCacheImpl):
 
 
 class KernelCache(caching.FunctionCache):
-    """numba's function cache with :class:`KernelCacheImpl`.
+    """numba's function cache with :class:`KernelCacheImpl`, its entries read and written under a file lock.
 
-    An index that cannot be read back (:data:`STALE_ENTRY`: written by another version of ftcreport
-    whose modules or classes it names are gone, or truncated) is a cache miss, not an error: the
-    function's entries are flushed (numba's ``Cache.flush``) and it compiles again, so a cache that
+    **One writer at a time.**  numba's save reads the function's index, picks the first data-file
+    number the index does not use, writes the index and then the data.  Two processes that compile
+    two signatures of one kernel at once (a batch's or the test suite's workers on an empty cache)
+    both read the same index and pick the same number: the second's data overwrites the first's
+    under the first's key, and the next process that loads the first signature gets the second's
+    code, its wrapper reading constants of another environment (``'descr' is NULL`` when it boxes
+    an array).  Here a save holds an exclusive ``fcntl`` lock on ``<function>.lock`` beside the
+    index, a load a shared one, so a load never sees an index entry whose data is being written.
+
+    **A loaded entry is checked.**  An entry whose compiled signature is not the one asked for (a
+    cache written before the lock, by another tool, or damaged) is a miss: the function's entries
+    are flushed and it compiles again.
+
+    **A stale index is a miss.**  An index that cannot be read back (:data:`STALE_ENTRY`: written by
+    another version of ftcreport whose modules or classes it names are gone, or truncated) is a
+    miss, not an error: flushed (numba's ``Cache.flush``) and compiled again, so a cache that
     outlived an upgrade never stops a run.
     """
 
     _impl_class = KernelCacheImpl
 
-    def load_overload(self, sig, target_context):
+    @contextlib.contextmanager
+    def _locked(self, mode: int) -> Iterator[None]:
+        """``fcntl.flock`` of ``mode`` on the function's lock file (no lock where it cannot be opened)."""
+        if fcntl is None:
+            yield
+            return
         try:
-            return super().load_overload(sig, target_context)
-        except Exception as exc:
-            if not _stale(exc):
-                raise
-            with contextlib.suppress(OSError):
+            fh = open(Path(self.cache_path) / f"{self._impl.filename_base}.lock", "a")  # noqa: SIM115
+        except OSError:  # a read-only cache directory: nothing is written there either
+            yield
+            return
+        with fh:
+            fcntl.flock(fh, mode)
+            try:
+                yield
+            finally:
+                fcntl.flock(fh, fcntl.LOCK_UN)
+
+    def load_overload(self, sig, target_context):
+        with self._locked(fcntl.LOCK_SH if fcntl else 0):
+            try:
+                cres = super().load_overload(sig, target_context)
+            except Exception as exc:
+                if not _stale(exc):
+                    raise
+                cres, wrong = None, True
+            else:
+                wrong = cres is not None and tuple(cres.signature.args) != _arg_types(sig)
+        if wrong:
+            with self._locked(fcntl.LOCK_EX if fcntl else 0), contextlib.suppress(OSError):
                 self.flush()  # numba's save reads the index first: an unreadable one would fail it too
             return None
+        return cres
+
+    def save_overload(self, sig, data) -> None:
+        with self._locked(fcntl.LOCK_EX if fcntl else 0):
+            super().save_overload(sig, data)
+
+
+def _arg_types(sig) -> tuple:
+    """The argument types of a dispatcher's signature (a tuple of types, or a numba Signature)."""
+    from numba.core import sigutils
+
+    return tuple(sigutils.normalize_signature(sig)[0])
 
 
 #: what reading back a cache entry raises when it was written by other code (a module or class it

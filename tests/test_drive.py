@@ -458,6 +458,11 @@ def test_electrical_power_balance_in_the_loop_with_the_pi_drive():
             for k in range(t.size)
         ]
     )
+    # the motor page's voltages (report.render.armature_voltages, through the drive's own functions) are these
+    from ftcreport.report.render import armature_voltages
+
+    page = armature_voltages(case, {"adaptive": dict(S, t=t)})["adaptive"]
+    np.testing.assert_allclose(page, v, rtol=1e-12, atol=1e-12)
     h = np.diff(t)[:, None]
     mid = lambda x: (x[1:] + x[:-1]) / 2  # noqa: E731 - trapezoid on each step
     e_in = np.sum(mid(v * i) * h, axis=0)

@@ -506,3 +506,37 @@ def test_case_fields_of_the_drive_and_their_messages():
     assert (d1.R_a, d2.R_a, d1.b_m_compensated) == (0.4, 0.5, 0.5 * MAXON_RE65.b_m)
     assert d1.kp == pytest.approx(MAXON_RE65.L_a * 2 * math.pi * 1000.0)  # L_a of the plant: not given
     assert d1.ki == pytest.approx(0.4 * 2 * math.pi * 1000.0)  # R_a of the drive's model
+
+
+# ------------------------------------------------------------------ the drive in the linearized analysis
+def test_the_analysis_linearizes_the_pi_drive_with_its_poles_at_the_bandwidth_and_the_cancelled_winding():
+    """The analysis's plant (analysis.closed_loop.Plant) carries the PI's integral parts as states and the
+    current target as its input.  Per wheel, with q and eta held: i' = (K_p (i* - i) + z - R_a i - k_b N w) / L_a,
+    z' = K_i (i* - i), so the characteristic polynomial is s^2 + s (K_p + R_a) / L_a + K_i / L_a, which
+    with K_p = 2 pi f L_a, K_i = 2 pi f R_a is (s + 2 pi f)(s + R_a / L_a): the bandwidth asked for and
+    the winding's pole the PI's zero cancels.  The input columns are K_p / L_a and K_i."""
+    from ftcreport.analysis.closed_loop import Faults, Plant
+    from ftcreport.runner import build
+
+    case = _case(PI, 5e-3, "etd2")
+    plant = Plant(build(case))
+    nq, nw = plant.n_q, plant.nw
+    assert (plant.nm, plant.input_name, plant.input_unit) == (2 * nw, "current target", "A")
+    fz = Faults.healthy(nw, True)
+    q, eta = np.zeros(nq), np.array([0.3, 0.05])
+    a = np.full(nw, 2.0)  # amperes
+    xp = np.concatenate((q, eta, plant.operating_currents(q, eta, a, fz)))
+    np.testing.assert_allclose(xp[nq + 2 : nq + 2 + nw], a, rtol=1e-12)  # in steady state i = i*
+    A = plant.state_columns(xp, a, fz)[nq + 2 :, nq + 2 :]
+    mo = plant.motors
+    f = 1000.0
+    expected = np.sort(np.concatenate((np.full(nw, -2 * math.pi * f), -mo.R_a / mo.L_a)))
+    # central differences of an affine map: exact to round-off of the states' scale (1e-7 relative)
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(A).real), expected, rtol=1e-6)
+    assert np.abs(np.linalg.eigvals(A).imag).max() < 1e-6 * 2 * math.pi * f
+    B = plant.input_columns(xp, a, fz)[nq + 2 :]
+    np.testing.assert_allclose(np.diag(B[:nw]), plant.drive.K_p / mo.L_a, rtol=1e-7)
+    np.testing.assert_allclose(np.diag(B[nw:]), plant.drive.K_i, rtol=1e-7)
+    # the static driver of the same case: the currents only, the voltage as input
+    static = Plant(build(_case({}, 5e-3, "etd2")))
+    assert (static.nm, static.input_name) == (nw, "voltage")

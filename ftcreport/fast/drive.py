@@ -308,14 +308,24 @@ def initial_motor_states(mo, dr, tau_c, omega_w, fault):
     """The motor states at t0 for the first command: quasi-static, so the first torque is the command.
 
     Static: the currents of the first voltage (fast.motor.quasi_static_current).  PI: the loop's
-    steady state, i = i* where the supply allows (v0 = rho R_a i* + s k_b N omega within +-V_max,
-    else i the current of the saturated v0) and z0 = v0 - c_ff k_b N omega (its output is v0 when
-    e = 0; beyond a limit the error keeps it there); the sampled PI holds v0.
+    steady state for the first current target (:func:`pi_steady_states`).
     """
-    nw = tau_c.shape[0]
     i_star = current_target(dr, tau_c, omega_w)
     if dr.kind == DRIVER_STATIC:
         return quasi_static_current(mo, static_voltage(dr, i_star, omega_w, fault), omega_w, fault)
+    return pi_steady_states(mo, dr, i_star, omega_w, fault)
+
+
+@jit
+def pi_steady_states(mo, dr, i_star, omega_w, fault):
+    """A PI drive's motor states in steady state for the current target ``i_star`` at wheel speeds ``omega_w``.
+
+    i = i* where the supply allows (v0 = rho R_a i* + s k_b N omega within +-V_max, else i the
+    current of the saturated v0) and z = v0 - c_ff k_b N omega (its output is v0 when e = 0;
+    beyond a limit the error keeps it there); the sampled PI holds v0.  The start of a run
+    (:func:`initial_motor_states`) and the operating points of the linearized analysis.
+    """
+    nw = i_star.shape[0]
     v0 = np.empty(nw)
     for j in range(nw):
         if int(fault[j, F_MODE]) == MODE_STUCK:

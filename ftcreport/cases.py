@@ -63,10 +63,11 @@ from .fields import (  # the schema's building blocks (shared with the schemes' 
 from .inputs import input_problem, read_input
 from .limits import budget_problem, name_problem
 from .model import Chain, FaultEvent, FaultSchedule, wheel_index, wheel_names
-from .model.actuators import MAXON_RE65, MotorParams
+from .model.actuators import DRIVE_MODEL_FIELDS, MAXON_RE65, DriveParams, MotorParams
 from .model.chain import THESIS_ROBOT
 from .model.faults import MOTOR_KINDS, motor_row
 from .requirements import SIGNALS as REQUIREMENT_SIGNALS
+from .runs import AUTO_METHODS
 from .schemes import built_in as _built_in_schemes
 
 __all__ = [
@@ -230,12 +231,34 @@ def _each(t: Any) -> Any:
     return t | list[t]
 
 
-class Actuators(_Strict):
-    """DC motors of the wheels (thesis 2.3.3, issue 19): both wheels of a robot get the robot's values.
+_MODEL = "the drive's model of the motor; default: the plant's ([actuators])"
 
-    Defaults: maxon RE 65 48 V with a 20:1 gear of efficiency 0.75 and a 48 V supply
-    (ftcreport.model.actuators gives the datasheet source).  With this table the plant integrates
-    the armature currents; without it the wheel torque is the command (today's ideal plant).
+
+class DriveModel(_Strict):
+    """What the drive knows of its motor (issue 36): each field defaults to the plant's value in [actuators]."""
+
+    R_a: _each(_num(None, 1e3, gt=0)) | None = _f(None, f"armature resistance; {_MODEL}; {_ACT}", "ohm")
+    L_a: _each(_num(None, 10.0, gt=0)) | None = _f(None, f"armature inductance; {_MODEL}; {_ACT}", "H")
+    k_m: _each(_num(None, 100.0, gt=0)) | None = _f(None, f"torque constant; {_MODEL}; {_ACT}", "N m/A")
+    k_b: _each(_num(None, 100.0, gt=0)) | None = _f(None, f"back-EMF constant; {_MODEL}; {_ACT}", "V s/rad")
+    N: _each(_num(None, 1e4, gt=0)) | None = _f(None, f"gear ratio; {_MODEL}; {_ACT}", "1")
+    eta_g: _each(_num(None, 1.0, gt=0)) | None = _f(None, f"gear efficiency; {_MODEL}; {_ACT}", "1")
+    b_m: _each(_num(0.0, 100.0)) | None = _f(None, f"rotor viscous damping; {_MODEL}; {_ACT}", "N m s/rad")
+    b_m_compensation: _each(_num(0.0, 1.0)) = _f(
+        1.0,
+        "fraction of its b_m the drive compensates from the measured wheel speed (1: all, 0: no drag "
+        f"compensation; the rest acts on the chain as a speed-proportional friction); {_ACT}",
+        "1",
+    )
+
+
+class Actuators(_Strict):
+    """DC motors of the wheels (thesis 2.3.3, issue 19) and their drives (issue 36).
+
+    Both wheels of a robot get the robot's values.  Defaults: maxon RE 65 48 V with a 20:1 gear of
+    efficiency 0.75 and a 48 V supply (ftcreport.model.actuators gives the datasheet source), driven
+    by the static inversion.  With this table the plant integrates the armature currents (and the PI
+    drive's integral part); without it the wheel torque is the command (today's ideal plant).
     """
 
     R_a: _each(_num(None, 1e3, gt=0)) = _f(MAXON_RE65.R_a, f"armature resistance; {_ACT}", "ohm")
@@ -258,6 +281,42 @@ class Actuators(_Strict):
     I_max: _each(_num(None, 1e6, gt=0)) | None = _f(
         None, f"limit on the driver's target current (none by default); {_ACT}", "A"
     )
+    driver: Literal["static", "pi"] = _f(
+        "static",
+        'the drive: "static" (the motor\'s steady state inverted: v = R_a i* + k_b N omega, no current '
+        'feedback) or "pi" (a PI current loop with anti-windup, the class of maxon\'s ESCON servo drives)',
+        "-",
+    )
+    current_bandwidth: _each(_num(None, 1e6, gt=0)) = _f(
+        1000.0,
+        "pi: the closed current loop's bandwidth f (time constant 1 / (2 pi f)); the gains follow by "
+        f"pole-zero cancellation, K_p = L_a 2 pi f, K_i = R_a 2 pi f (the drive's model); {_ACT}",
+        "Hz",
+    )
+    current_kp: _each(_num(None, 1e6, gt=0)) | None = _f(
+        None, f"pi: proportional gain instead of L_a 2 pi f; {_ACT}", "V/A"
+    )
+    current_ki: _each(_num(None, 1e9, gt=0)) | None = _f(
+        None, f"pi: integral gain instead of R_a 2 pi f; {_ACT}", "V/(A s)"
+    )
+    back_emf_feedforward: StrictBool = _f(
+        False, "pi: add k_b N omega (the drive's model, the measured wheel speed) to the PI's output", "-"
+    )
+    drive_rate: _num(None, 1e7, gt=0) | None = _f(
+        None,
+        "pi: the drive's sampling rate: a discrete PI whose voltage is held between its samples (its period a "
+        "whole number of steps dt); absent: a continuous PI (a drive sampled far faster than the loop)",
+        "Hz",
+    )
+    drive_model: DriveModel = _f(DriveModel(), "what the drive knows of the motor ([actuators.drive_model])", "-")
+
+    @model_validator(mode="after")
+    def _pi_fields(self) -> Actuators:
+        if self.driver == "static":  # (current_bandwidth has a default: a stored case writes it back)
+            for key in ("current_kp", "current_ki", "back_emf_feedforward", "drive_rate"):
+                if getattr(self, key) not in (None, False):
+                    raise _FieldError(f"actuators.{key}", 'belongs to the PI drive: set driver = "pi" (or remove it)')
+        return self
 
     def params(self, n: int) -> list[MotorParams]:
         """One MotorParams per robot, leader first (a scalar applies to every robot)."""
@@ -269,6 +328,29 @@ class Actuators(_Strict):
                 v = v[i] if isinstance(v, list) else v
                 kw[key] = math.inf if v is None else float(v)
             out.append(MotorParams(**kw))
+        return out
+
+    def drive_params(self, n: int) -> list[DriveParams]:
+        """One DriveParams per robot, leader first: the drive's settings and its model of the motor."""
+
+        def at(v: Any, i: int) -> Any:
+            return v[i] if isinstance(v, list) else v
+
+        out = []
+        for i, motor in enumerate(self.params(n)):
+            model = {key: at(getattr(self.drive_model, key), i) for key in DRIVE_MODEL_FIELDS}
+            kw = {key: float(v) for key, v in model.items() if v is not None}
+            kw["b_m_compensation"] = float(at(self.drive_model.b_m_compensation, i))
+            for key in ("current_bandwidth", "current_kp", "current_ki"):
+                v = at(getattr(self, key), i)
+                if v is not None:
+                    kw[key] = float(v)
+            out.append(
+                DriveParams.of_motor(
+                    motor, driver=self.driver, back_emf_feedforward=self.back_emf_feedforward,
+                    drive_rate=self.drive_rate, **kw,
+                )
+            )  # fmt: skip
         return out
 
 
@@ -485,13 +567,33 @@ def ordered_schemes(names) -> list[str]:
 class Simulation(_Strict):
     """Integration settings."""
 
-    dt: _num(None, 10.0, gt=0) = _f(..., "step", "s")
+    dt: _num(None, 10.0, gt=0) = _f(
+        ...,
+        "step of the fixed-step methods; the longest step of the error-controlled ones (and the period at which "
+        "they draw sensor noise and run the UKF)",
+        "s",
+    )
     duration: _num(None, 1e6, gt=0) = _f(..., "simulated time", "s")
-    method: Literal["rk4", "ros2", "etd2"] = _f(
+    method: Literal["rk4", "ros2", "etd2", "auto", "dopri5", "ros2ec", "etd2ec"] = _f(
         "rk4",
-        "RK4; the stiff-capable Rosenbrock W-method (for k_v in the thousands); or the exponential"
-        " ETD2RK, exact on the motors' currents (DC-motor cases: one step per control sample)",
+        "fixed step: RK4; the stiff-capable Rosenbrock W-method ROS2 (for k_v in the thousands); the exponential"
+        " ETD2RK, exact on the motors' currents (DC-motor cases: one step per control sample). Error-controlled"
+        " (rtol, atol): dopri5 (Dormand-Prince 5(4), non-stiff), ros2ec (ROS2, stiff loops), etd2ec (ETD2, motors"
+        " under sampled control), both with step doubling's estimate, or auto: one of them picked from the loop's"
+        " linearization at t0",
         "-",
+    )
+    # Defaults: six digits on every state (positions of metres: a micrometre, the resolution of the
+    # tracking metrics the cases quote), and atol for the states that pass through zero (velocities,
+    # filter states, weights): 1e-8 in their units; benchmarks/accuracy.py measures what they give.
+    rtol: _num(1e-12, 0.1) = _f(
+        1e-6, "error-controlled methods: relative tolerance of every state's local error per step", "1"
+    )
+    atol: _num(1e-15, 1.0) = _f(
+        1e-8, "error-controlled methods: absolute tolerance of every state's local error per step", "state's unit"
+    )
+    min_step: _num(None, 1.0, gt=0) = _f(
+        1e-8, "error-controlled methods: the run stops (status and reason) when the step falls below this", "s"
     )
     log_every: Int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
     singularity_margin_deg: _num(0.0, lt=90) = _f(
@@ -499,7 +601,8 @@ class Simulation(_Strict):
     )
     sample_time: _num(None, 10.0, gt=0) | None = _f(
         None,
-        "sampled (digital) control: the controller's period, a whole number of steps dt and at most the duration; "
+        "sampled (digital) control: the controller's period, a whole number of steps dt (fixed-step methods; the "
+        "error-controlled ones land on every sample) and at most the duration; "
         "its command is held between samples (zero-order hold). Absent: continuous-time control",
         "s",
     )
@@ -519,9 +622,15 @@ class Simulation(_Strict):
                 "simulation.measurement_delay",
                 f"{self.measurement_delay} samples needs sampled control: set simulation.sample_time",
             )
+        auto = self.method in AUTO_METHODS
+        if auto and self.min_step >= self.dt:
+            raise _FieldError(
+                "simulation.min_step", f"{self.min_step} s is not below the longest step dt = {self.dt} s"
+            )
         if self.sample_time is not None:
             ratio = self.sample_time / self.dt
-            if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+            # error-controlled steps land on the samples whatever dt is
+            if not auto and (ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio):
                 raise _FieldError(
                     "simulation.sample_time", f"{self.sample_time} s is not a whole number of steps dt = {self.dt} s"
                 )
@@ -899,10 +1008,12 @@ class Case(_Strict):
         for i, f in enumerate(self.faults):
             _check_motor_fault(i, f, self.actuators is not None)
         if self.actuators is not None:
-            for key in Actuators.model_fields:
-                v = getattr(self.actuators, key)
-                if isinstance(v, list) and len(v) != n:
-                    raise _FieldError(f"actuators.{key}", f"{len(v)} values given, a {n}-robot chain needs {n}")
+            for table, prefix in ((self.actuators, "actuators"), (self.actuators.drive_model, "actuators.drive_model")):
+                for key in type(table).model_fields:
+                    v = getattr(table, key)
+                    if isinstance(v, list) and len(v) != n:
+                        raise _FieldError(f"{prefix}.{key}", f"{len(v)} values given, a {n}-robot chain needs {n}")
+            _check_drive_rate(self.actuators, self.simulation)
         seen: set[tuple[float, int]] = set()
         for i, f in enumerate(self.faults):
             key = (f.time, wheel_index(f.wheel, n))
@@ -1021,13 +1132,26 @@ class Case(_Strict):
         """The wheels' motors per robot, leader first ([actuators]), or None without the table."""
         return None if self.actuators is None else self.actuators.params(self.robots.n)
 
+    def drive_params(self) -> list[DriveParams] | None:
+        """The wheels' drives per robot, leader first ([actuators]), or None without the table."""
+        return None if self.actuators is None else self.actuators.drive_params(self.robots.n)
+
     def warnings(self) -> list[str]:
         """Uncompensable phases, naming the event that makes them so; an RK4 step the motors' currents defeat."""
         out = []
         motors = self.motor_params()
-        rk4 = None if motors is None else _rk4_on_currents(self.simulation, motors)
+        rk4 = None if motors is None else _rk4_on_currents(self.simulation, motors, self.drive_params())
         if rk4 is not None:
             out.append(rk4)
+        sw = getattr(self.schemes, "switching", None)
+        if motors is not None and sw is not None and sw.c_int == 0.0 and "switching" in configured_schemes(self):
+            out.append(
+                "schemes.switching: with [actuators] the thesis's instantaneous cost (c_int = 0) takes the drive's "
+                "torque errors for lost wheels, and a model chosen on one such moment stays (the wheels it leaves "
+                "undriven cannot be tested): measured 62 % exact identification on three_link_switching_motors "
+                "against 99.6 % without motors; c_int = 10, forgetting = 1 (Narendra & Balakrishnan's cost) gives "
+                "97.8 % (cases/README.md, the switching bank with motors)"
+            )
         sched = self.fault_schedule()
         names = wheel_names(self.robots.n)
         for start, end, pat in sched.uncompensable_intervals(self.simulation.duration):
@@ -1044,6 +1168,20 @@ class Case(_Strict):
                 f"until {end:g} s ({why}); tracking is expected to be lost"
             )
         return out
+
+
+def _check_drive_rate(act: Actuators, sim: Simulation) -> None:
+    """A sampled PI drive's period must be a whole number of steps (its samples land on steps)."""
+    if act.drive_rate is None:
+        return
+    period = 1.0 / act.drive_rate
+    ratio = period / sim.dt
+    if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+        raise _FieldError(
+            "actuators.drive_rate",
+            f"{act.drive_rate:g} Hz (period {period:g} s) is not a whole number of steps dt = {sim.dt:g} s: "
+            "the drive's samples must land on steps (choose dt = period / k)",
+        )
 
 
 def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> None:
@@ -1177,23 +1315,28 @@ def _check_initial_articulation(ini: Initial, margin_deg: float) -> None:
 RK4_REAL_LIMIT = 2.785
 
 
-def _rk4_on_currents(sim: Simulation, motors: list[MotorParams]) -> str | None:
+def _rk4_on_currents(sim: Simulation, motors: list[MotorParams], drives: list[DriveParams]) -> str | None:
     """RK4 with a step no armature current survives (the run stops step_unstable): a warning, else None.
 
     A motor's current and speed obey L_a J s^2 + (R_a J + L_a b) s + (R_a b + k_m k_b) = 0 (thesis
     (2.26)-(2.29)); the roots sum to -(R_a / L_a + b / J), so the fast one (or a complex pair's real part)
     lies at or left of -R_a / (2 L_a), and RK4 is unstable for certain once dt R_a / (2 L_a) > 2.785.
-    Steps between 2.785 L_a / R_a and twice that may fail too (the run says so); ETD2 is exact on the
-    currents at any step (fast.loop._etd2).
+    A continuous PI drive adds K_p to R_a (L_a s^2 + (R_a + K_p) s + K_i = 0 with the rotor held; with
+    the gains of pole-zero cancellation the roots are -R_a / L_a and -2 pi f): the bound is then
+    dt (R_a + K_p) / (2 L_a).  Steps between the likely and the certain bound may fail too (the run
+    says so); ETD2 is exact on the currents and the drive at any step (fast.loop._etd2).
     """
     if sim.method != "rk4":
         return None
-    tau = min(m.L_a / m.R_a for m in motors)  # [s] the fastest electrical time constant
+    pi = drives[0].driver == "pi" and drives[0].drive_rate is None
+    # [s] the fastest time constant: L_a / (R_a + K_p), K_p = 0 without the PI
+    tau = min(m.L_a / (m.R_a + (d.kp if pi else 0.0)) for m, d in zip(motors, drives, strict=True))
     if sim.dt / (2.0 * tau) <= RK4_REAL_LIMIT:
         return None
+    what = "L_a / (R_a + K_p)" if pi else "L_a / R_a"
     return (
         f"simulation.dt: {sim.dt:g} s with method = 'rk4' cannot integrate the armature currents of [actuators] "
-        f"(L_a / R_a = {tau * 1e3:.3g} ms: RK4 is unstable beyond dt = {2 * RK4_REAL_LIMIT * tau * 1e3:.3g} ms "
+        f"({what} = {tau * 1e3:.3g} ms: RK4 is unstable beyond dt = {2 * RK4_REAL_LIMIT * tau * 1e3:.3g} ms "
         f"for certain, likely beyond {RK4_REAL_LIMIT * tau * 1e3:.3g} ms): the runs will stop step_unstable; use "
         'method = "etd2" (exact on the currents at any step) or a smaller dt'
     )
@@ -1729,6 +1872,8 @@ def case_hash(case: Case, version: str) -> str:
         exclude["actuators"] = True
     if case.base_case is None:  # the overlay field (issue 19 item 4): older cases keep their hashes
         exclude["base_case"] = True
+    if case.simulation.method not in AUTO_METHODS:  # the tolerances (issue 36) change only error-controlled runs
+        exclude["simulation"] = {"rtol", "atol", "min_step"}
     plain = {i: {"motor", "value"} for i, f in enumerate(case.faults) if f.motor is None and f.value is None}
     if plain:
         exclude["faults"] = plain
@@ -1862,9 +2007,11 @@ T_min = 0.01
 k_v = 5.0
 
 [simulation]
-dt = 0.02           # [s]
+method = "auto"     # error-controlled: DOPRI5, or ROS2/ETD2 for a stiff loop (the page says which); "rk4": fixed
+dt = 0.02           # [s] the longest step (metrics and figures read the steps); auto takes shorter ones where needed
+rtol = 1e-6         # each step's local error at most atol + rtol |x| for every state
+atol = 1e-8
 duration = 60.0     # [s]
-method = "rk4"      # or "ros2" for stiff velocity loops, "etd2" with DC motors
 log_every = 5
 
 [thresholds.switching]

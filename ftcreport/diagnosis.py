@@ -57,6 +57,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .metrics import time_mean
 from .model.chain import Chain
 from .model.faults import FaultSchedule, wheel_names
 
@@ -127,7 +128,7 @@ def detect(
             if onset is None or t[k] - t[0] < dwell or t[start] < onset:
                 continue
             w = x[start : k + 1]
-            mean = float(w.mean())
+            mean = float(time_mean(t[start : k + 1], w))
             if float(np.max(np.abs(w - mean))) <= steady and abs(mean - ref) > band:
                 out.append(Declaration(name, wheel, kind, float(onset), float(t[k]), mean, ref))
                 ref = mean
@@ -325,8 +326,8 @@ def phase_combined_effect(
         err = np.linalg.norm(ce_hat[tail] - ce_true[tail], axis=1)
         size = np.linalg.norm(ce_true[tail], axis=1)
         k = int(np.flatnonzero(inside)[-1])
-        e_rms = float(np.sqrt(np.mean(err**2)))
-        s_rms = float(np.sqrt(np.mean(size**2)))
+        e_rms = float(np.sqrt(time_mean(t[tail], err**2)))
+        s_rms = float(np.sqrt(time_mean(t[tail], size**2)))
         out.append(
             {
                 "start": float(start),
@@ -369,8 +370,11 @@ def diagnosis_metrics(
     q, eta = signals["q"], signals["eta"]
     out: dict = {}
     after = t >= min(5.0, t[-1])
-    out["state_estimation_rms_q"] = float(np.sqrt(np.mean((signals["q_hat"][after] - q[after]) ** 2)))
-    out["state_estimation_rms_eta"] = float(np.sqrt(np.mean((signals["eta_hat"][after] - eta[after]) ** 2)))
+    ta = t[after]  # means over time (metrics.time_mean): each sample weighs the step it starts
+    out["state_estimation_rms_q"] = float(np.sqrt(np.mean(time_mean(ta, (signals["q_hat"][after] - q[after]) ** 2))))
+    out["state_estimation_rms_eta"] = float(
+        np.sqrt(np.mean(time_mean(ta, (signals["eta_hat"][after] - eta[after]) ** 2)))
+    )
     out["state_estimation_rms"] = out["state_estimation_rms_eta"]
     out["state_estimation_max_after_5s_q"] = float(np.max(np.abs(signals["q_hat"][after] - q[after])))
     out["state_estimation_max_after_5s_eta"] = float(np.max(np.abs(signals["eta_hat"][after] - eta[after])))
@@ -381,8 +385,8 @@ def diagnosis_metrics(
     ce_hat = combined_effect(MB, u_applied, signals["rho_hat"], signals["ubar_hat"])
     ce_true = combined_effect(MB, u_applied, signals["sigma"], signals["ubar"])
     del MB, u_applied
-    out["combined_effect_error_rms"] = float(np.sqrt(np.mean((ce_hat[after] - ce_true[after]) ** 2)))
-    out["combined_effect_rms"] = float(np.sqrt(np.mean(ce_true[after] ** 2)))
+    out["combined_effect_error_rms"] = float(np.sqrt(np.mean(time_mean(ta, (ce_hat[after] - ce_true[after]) ** 2))))
+    out["combined_effect_rms"] = float(np.sqrt(np.mean(time_mean(ta, ce_true[after] ** 2))))
     all_names = [f"rho_{w}" for w in wheel_names(chain.n)] + [f"ubar_{w}" for w in wheel_names(chain.n)]
     cols = [all_names.index(n) for n in names]
     # the estimated parameters' columns only, each gathered once (K, len(names))

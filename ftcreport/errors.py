@@ -21,17 +21,22 @@ __all__ = [
     "articulation_reason",
     "bound_reason",
     "chained_reason",
+    "controlled_reason",
     "environment_cause",
     "interrupted_message",
     "kappa_reason",
+    "min_step_reason",
     "nonfinite_reason",
     "note_stored",
+    "persists_reason",
     "printable",
     "reference_articulation_reason",
     "reference_speed_reason",
     "step_growth_reason",
+    "step_words",
     "trial_stage_reason",
     "two_link_reason",
+    "vanishes_reason",
     "with_step",
 ]
 
@@ -183,15 +188,17 @@ def articulation_reason(i: int, angle_deg: float, margin_rad: float) -> str:
 
 
 def two_link_reason(label: str, angle_deg: float) -> str:
-    return f"two-link controller singular: {label} = {angle_deg:.1f} deg"
+    """The two-link law (3.8)-(3.29) is singular where cos e_theta or cos phi vanishes (ERRATA P4)."""
+    return f"{label} = {angle_deg:.1f} deg: the two-link law's singular set (90 deg, ERRATA P4)"
 
 
 def chained_reason(label: str, angle_deg: float, where: str = "") -> str:
-    return f"chained form singular: {label} = {angle_deg:.2f} deg{where}"
+    """The chained form (3.67)-(3.106) is singular where a heading in its frame or an articulation angle is 90 deg."""
+    return f"{label} = {angle_deg:.2f} deg{where}: the chained form's singular set (90 deg, ERRATA P4)"
 
 
 def kappa_reason(kd: float) -> str:
-    return f"backstepping singular: kappa - Delta_1 = {kd:.3g} (ERRATA E12d)"
+    return f"kappa - Delta_1 = {kd:.3g}: the backstepping law's singular set (kappa = Delta_1, ERRATA E12d)"
 
 
 def reference_speed_reason(t: float, robot: int, speed: float, min_speed: float) -> str:
@@ -210,26 +217,68 @@ def reference_articulation_reason(t: float, i: int, angle_deg: float, max_rad: f
     )
 
 
-def step_growth_reason(t: float, g0: float, g1: float, steps: int, factor: float, dt: float, method: str) -> str:
-    """A geometric growth of the applied torque from step to step: the step does not resolve the loop."""
+def step_growth_reason(t: float, g0: float, g1: float, steps: int, factor: float, how: str) -> str:
+    """A geometric growth of the applied torque from step to step (``how``: the step, :func:`step_words`)."""
     return (
-        f"step unstable at t = {t:.6g} s: max |tau| grew more than {factor:.3g}x per step for {steps} steps "
-        f"({g0:.3g} -> {g1:.3g} N m); dt = {dt:g} s ({method}) does not resolve the loop here: halve dt "
-        "(a stop that persists is the loop's own instability)"
+        f"at t = {t:.6g} s max |tau| grew more than {factor:.3g}x per step for {steps} steps "
+        f"({g0:.3g} -> {g1:.3g} N m; {how})"
     )
 
 
-def trial_stage_reason(t: float, detail: str, dt: float, method: str, stage: bool = True) -> str:
+def trial_stage_reason(t: float, detail: str, how: str, method: str, stage: bool = True) -> str:
     """A trial stage of the integrator (or the new state of the step) left the domain from a regular state."""
     where = f"a {method} trial stage left the domain" if stage else f"the {method} step blew up"
-    start = "; at t = 0, the start pose (initial.headings_deg) may be too close to the singularity" if t == 0.0 else ""
+    start = " (at t = 0 the start pose, initial.headings_deg, may be too close to the singularity)" if t == 0.0 else ""
+    return f"at t = {t:.6g} s {where} ({detail}) while the accepted state is regular ({how}){start}"
+
+
+def step_words(dt: float, method: str, rtol: float | None = None, atol: float | None = None) -> str:
+    """The step a reason names: ``dt = 0.01 s, rk4`` (fixed) or ``dopri5 at rtol = 1e-06, atol = 1e-08``."""
+    if rtol is None:
+        return f"dt = {dt:g} s, {method}"
+    return f"{method} at rtol = {rtol:g}, atol = {atol:g}, longest step dt = {dt:g} s"
+
+
+def with_step(reason: str, how: str) -> str:
+    """A stop's reason with the step named (``how``: :func:`step_words`)."""
+    return f"{reason} ({how})"
+
+
+# The re-check of a fixed-step stop (issue 36 item 4): the interval again at dt/4 by the same method
+# (``finer``: "at dt/4 = 0.005 s").
+def vanishes_reason(reason: str, finer: str, t_to: float) -> str:
+    """``step_unstable``: the run at dt/4 passes the instant where the step dt stopped."""
     return (
-        f"step unstable at t = {t:.6g} s: {where} ({detail}) while the accepted state is regular; "
-        f"dt = {dt:g} s does not resolve the loop here: halve dt (a stop that persists is the loop's own instability"
-        f"{start})"
+        f"step unstable: {reason}; {finer} the same run passes this instant (checked to t = {t_to:.6g} s): "
+        'the step, not the loop, stopped it (a smaller dt, or method = "auto")'
     )
 
 
-def with_step(reason: str, dt: float, method: str) -> str:
-    """A divergence's reason with the step named: the user can tell a step problem from the loop's own."""
-    return f"{reason} (dt = {dt:g} s, {method}; halve dt to tell a step-size blow-up from the loop's own divergence)"
+def controlled_reason(reason: str, finer: str, t_fine: float, how: str, t_to: float, h_min: float | None) -> str:
+    """``step_unstable``: the run at dt/4 stops too, but an error-controlled step passes the instant."""
+    small = f"; its steps fell to {h_min:.2g} s there" if h_min is not None else ""
+    return (
+        f"step unstable: {reason}; {finer} the same run stops too (t = {t_fine:.6g} s), but an error-controlled step "
+        f"({how}) passes this instant (checked to t = {t_to:.6g} s{small}): the step, not the loop, stopped it "
+        '(a much smaller dt, or method = "auto")'
+    )
+
+
+def persists_reason(
+    reason: str, dt: float, finer: str, t: float, t_fine: float, singular: bool, trial: bool = False
+) -> str:
+    """``singular`` or ``diverged``: the run at dt/4 stops too, in the stop's window (``trial``: the step dt's stop was
+    a trial stage reaching the set)."""
+    by = " by a trial stage" if trial else ""
+    again = f"at dt = {dt:g} s (t = {t:.6g} s) and again {finer} (t = {t_fine:.6g} s)"
+    if singular:
+        return f"{reason}; reached{by} {again}: the law's own singular set, not the step"
+    return f"{reason}; the blow-up persists {again}: the loop's own divergence, not the step's"
+
+
+def min_step_reason(t: float, h: float, how: str, min_step: float, cause: str) -> str:
+    """An error-controlled run whose step fell below its minimum (``cause``: the last rejection's)."""
+    return (
+        f"at t = {t:.6g} s the error-controlled step ({how}) fell below min_step = {min_step:g} s "
+        f"(to {h:.3g} s): {cause}"
+    )

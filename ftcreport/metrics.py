@@ -19,7 +19,7 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
   fault: the start-up transient, e.g. k_v times the initial velocity error, does not decide it),
   ``torque_rms``
   = RMS over time of the per-wheel torques (largest wheel), ``saturation_fraction``
-  = fraction of steps with some |u_j| at the limit, ``energy`` = the motors'
+  = fraction of time with some |u_j| at the limit, ``energy`` = the motors'
   absolute mechanical work int sum_j |tau_j omega_j| dt [J] (trapezoid over every
   step);
 * ``singularity_margin_min``: the smallest distance of an articulation angle
@@ -40,7 +40,10 @@ Every metric reads the run's metric stream (:attr:`ftcreport.sim.Run.stream`):
 the state, torques and estimates at every accepted integration step, taken at
 the start of the step (where the law is evaluated and the torque applied). So
 ``log_every`` changes what is saved, never a metric: extrema, counts and delays
-are exact to the step, and integrals are trapezoids over the steps.
+are exact to the step, and integrals are trapezoids over the steps.  Means over
+time are too (:func:`time_mean`; the error-controlled methods' steps are not
+equal): RMS values by the trapezoid, and fractions of time of what is held over
+each step (the applied model, saturation) by the steps they start.
 """
 
 from __future__ import annotations
@@ -60,6 +63,8 @@ __all__ = [
     "recovery_time",
     "singularity_margin",
     "switching_metrics",
+    "time_mean",
+    "time_weights",
     "torque_metrics",
     "tracking_errors",
     "tracking_metrics",
@@ -92,8 +97,44 @@ def _iae(t: np.ndarray, e: np.ndarray) -> float:
     return float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t))) if e.size > 1 else 0.0
 
 
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+def time_weights(t: np.ndarray, rule: str = "trapezoid") -> np.ndarray:
+    """Each sample's share of the time t[-1] - t[0] (K,).
+
+    ``"trapezoid"``: half of each step on either side (second order for a signal that varies within
+    the steps: positions, torques, estimates); ``"step"``: the whole step it starts, the last sample
+    the step before it (exact for a signal held over each step: the applied model, a saturation flag).
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return np.ones(t.size)
+    h = np.diff(t)
+    w = np.empty(t.size)
+    if rule == "step":
+        w[:-1] = h
+        w[-1] = h[-1]
+        return w
+    w[:-1] = 0.5 * h
+    w[-1] = 0.0
+    w[1:] += 0.5 * h
+    return w
+
+
+def time_mean(t: np.ndarray, x: np.ndarray, rule: str = "trapezoid") -> np.ndarray | float:
+    """Mean over time of x (K, ...) sampled at t (K,), each sample weighted by :func:`time_weights`.
+
+    The error-controlled methods' steps are not equal: a stretch of short steps (a transient) counts by
+    its time, not by its samples.  A single sample is its own mean.
+    """
+    x = np.asarray(x, dtype=float)
+    w = time_weights(t, rule)
+    total = w.sum()
+    if not total > 0:
+        return np.mean(x, axis=0)
+    return np.tensordot(w, x, axes=(0, 0)) / total
+
+
+def _rms(t: np.ndarray, x: np.ndarray) -> float:
+    return float(np.sqrt(time_mean(t, np.square(x)))) if x.size else float("nan")
 
 
 _PHASE_METRICS = (*(f"position_error_{k}" for k in ("max", "rms", "final", "iae")), "recovery_time")
@@ -113,7 +154,7 @@ def phase_metrics(t: np.ndarray, pos_err: np.ndarray, phases: Sequence[tuple[flo
                 "start": float(start),
                 "end": float(end),
                 "position_error_max": float(e.max()),
-                "position_error_rms": _rms(e),
+                "position_error_rms": _rms(t[m], e),
                 "position_error_final": float(e[-1]),
                 "position_error_iae": _iae(t[m], e),
                 "recovery_time": recovery_time(t, pos_err, start, end, band),
@@ -132,7 +173,7 @@ def tracking_metrics(
     rec = [p["recovery_time"] for p in ph[1:]]  # phases that start with a fault event
     return {
         "position_error_max": float(pos.max()),
-        "position_error_rms": _rms(pos),
+        "position_error_rms": _rms(t, pos),
         "position_error_final": float(pos[-1]),
         "position_error_iae": _iae(t, pos),
         "heading_error_max": float(hmax.max()),
@@ -150,12 +191,17 @@ def torque_metrics(
     omega: np.ndarray | None = None,
     first_fault: float | None = None,
 ) -> dict:
-    """Peak and RMS torque, fraction of instants at saturation, (given wheel speeds) energy, and
-    (given the times and ``first_fault``) the peak from the first fault on."""
-    rms_per_wheel = np.sqrt(np.mean(np.square(tau), axis=0))
+    """Peak and RMS torque, fraction of time at saturation, (given wheel speeds) energy, and (given the
+    times and ``first_fault``) the peak from the first fault on.
+
+    ``t`` (K,): the samples' instants, for the means over time (:func:`time_mean`); without it the
+    samples weigh equally.
+    """
+    tt = np.arange(tau.shape[0], dtype=float) if t is None else t
+    rms_per_wheel = np.sqrt(time_mean(tt, np.square(tau)))
     sat = 0.0
     if u_limit is not None:
-        sat = float(np.mean(np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1)))
+        sat = float(time_mean(tt, np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1), "step"))
     out = {
         "torque_peak": float(np.abs(tau).max()),
         "torque_rms": float(rms_per_wheel.max()),
@@ -218,8 +264,8 @@ def switching_metrics(
     return {
         "switching_missed_detections": len(delays) - len(known),
         "switch_count": int(np.sum(sel[1:] != sel[:-1])),
-        "switching_match_fraction": float(np.mean(effective)),
-        "switching_exact_match_fraction": float(np.mean(exact)),
+        "switching_match_fraction": float(time_mean(t, effective, "step")),  # the model is held over a step
+        "switching_exact_match_fraction": float(time_mean(t, exact, "step")),
         "detection_delays": delays,
         "detection_delay_max": (None if len(known) < len(delays) else (max(known) if known else 0.0)),
         "switch_sequence": _sequence(t, sel)[:100],
@@ -280,6 +326,7 @@ METRICS: dict[str, Metric] = {
     "energy": Metric("number", "J"),
     "singularity_margin_min": Metric("number", "rad"),
     "verify_dt": Metric("record", "-"),  # run --verify-dt only
+    "integrator": Metric("record", "-"),  # the method that ran (auto's pick), its steps, its stop's re-check
     "requirements": Metric("record", "-"),  # cases with [[requirements]] only: every window's outcome
     # switching (switching_metrics)
     "switching_missed_detections": Metric("number", "1", _SWITCHING),

@@ -29,6 +29,7 @@ __all__ = [
     "expected_engine",
     "explain_nulls",
     "halve_dt",
+    "integrator_words",
     "make_controller",
     "run_metrics",
     "run_scheme",
@@ -67,6 +68,7 @@ class Built:
             noise_eta=[nz.velocity, nz.velocity],
             seed=nz.seed,
             motors=case.motor_params(),
+            drive=case.drive_params(),
         )
         self.q0, self.eta0 = initial_state(case, self.reference)
         s = case.simulation  # the same fields by name; the margin in radians
@@ -182,6 +184,8 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     """The metrics.json content of one run (see ftcreport.metrics for definitions)."""
     out = _identity(case, scheme) | {"status": run.status, "reason": run.reason, "t_end": run.t_end}
     out["engine"] = run.meta["engine"]  # "compiled" (ftcreport.fast): the only engine
+    if "integrator" in run.meta:  # the method that ran (auto's pick), its steps and its stop's re-check
+        out["integrator"] = run.meta["integrator"]
     # every metric reads the metric stream (every accepted step), never the decimated log
     t, S = (run.t_stream, run.stream) if run.stream else (run.t, run.signals)
     out["metric_samples"] = int(t.size)
@@ -280,14 +284,19 @@ HEADLINE_METRICS = (
 
 
 def halve_dt(case: Case, source: str = "") -> Case:
-    """The same case at half the step (logged every 2 * log_every steps: the same instants).
+    """The case ``run --verify-dt`` compares with: at half the step (logged every 2 * log_every steps: the
+    same instants), or for an error-controlled method at a tenth of rtol and atol (the same dt).
 
     Raises CaseError when the halved run is over the limits of ftcreport.limits.
     """
     from .cases import _check_budget, _FieldError
     from .errors import CaseError
+    from .runs import AUTO_METHODS
 
     sim = case.simulation
+    if sim.method in AUTO_METHODS:
+        tighter = sim.model_copy(update={"rtol": sim.rtol / 10, "atol": sim.atol / 10})
+        return case.model_copy(update={"simulation": tighter})
     half = case.model_copy(
         update={"simulation": sim.model_copy(update={"dt": sim.dt / 2, "log_every": sim.log_every * 2})}
     )
@@ -298,8 +307,38 @@ def halve_dt(case: Case, source: str = "") -> Case:
     return half
 
 
+def _refinement(full: dict, half: dict) -> str:
+    """What ``--verify-dt`` refined: "dt = 0.01 s vs 0.005 s", or "rtol = 1e-06 vs 1e-07" (error-controlled)."""
+    a, b = full.get("integrator") or {}, half.get("integrator") or {}
+    if "rtol" in a and "rtol" in b:
+        return f"rtol = {a['rtol']:g} vs {b['rtol']:g}, atol = {a['atol']:g} vs {b['atol']:g}"
+    return f"dt = {full.get('dt'):g} s vs {half.get('dt'):g} s"
+
+
+def integrator_words(metrics: dict) -> str:
+    """The integrator of a run in words (the case page's provenance): the method, auto's pick, the steps."""
+    g = metrics.get("integrator") or {}
+    if not g:
+        return ""
+    if "rtol" not in g:  # a fixed step
+        words = f"{g.get('method')} at dt = {g.get('dt'):g} s, {g.get('steps')} steps"
+        check = g.get("recheck")
+        if check:
+            words += f" (its stop re-checked at dt = {check['dt']:g} s: {check['status']})"
+        return words
+    rho = g.get("spectral_radius")
+    pick = ""
+    if g.get("requested") == "auto" and rho is not None:
+        stiff = g.get("method") != "dopri5"
+        pick = f"auto: rho dt = {rho * g['max_step']:.3g}, {'stiff' if stiff else 'non-stiff'}; "
+    return (
+        f"{g.get('method')} ({pick}rtol = {g['rtol']:g}, atol = {g['atol']:g}, longest step {g['max_step']:g} s), "
+        f"{g.get('accepted')} steps ({g.get('rejected')} rejected), {g.get('evaluations')} rate evaluations"
+    )
+
+
 def dt_sensitivity(full: dict, half: dict, rtol: float = 0.01, atol: float = 1e-6) -> dict:
-    """Change of the headline metrics from dt to dt/2.
+    """Change of the headline metrics from dt to dt/2 (an error-controlled run: from rtol to rtol/10).
 
     Converged when both runs end with the same status and every headline metric
     changes by at most ``atol + rtol * max(|a|, |b|)`` (a metric null in exactly one
@@ -307,6 +346,7 @@ def dt_sensitivity(full: dict, half: dict, rtol: float = 0.01, atol: float = 1e-
     from dt to dt/2 times 2^p / (2^p - 1) (p = 4 for RK4), so the change bounds it.
     """
     rows, ok, worst, worst_rel = {}, full.get("status") == half.get("status"), "status", 0.0
+    refined = _refinement(full, half)
     for k in HEADLINE_METRICS:
         a, b = full.get(k), half.get(k)
         if a is None and b is None:
@@ -326,6 +366,7 @@ def dt_sensitivity(full: dict, half: dict, rtol: float = 0.01, atol: float = 1e-
     return {
         "dt": full.get("dt"),
         "dt_half": half.get("dt"),
+        "refined": refined,
         "status": f"{full.get('status')} / {half.get('status')}",
         "metrics": rows,
         "rtol": rtol,

@@ -19,6 +19,11 @@ STATUS_DIVERGED = "diverged"
 STATUS_ERROR = "error"
 STATUS_STEP_UNSTABLE = "step_unstable"
 
+#: the integrators: fixed step, and error-controlled (ftcreport.fast.integrators; "auto" picks one at t0)
+FIXED_METHODS = ("rk4", "ros2", "etd2")
+AUTO_METHODS = ("auto", "dopri5", "ros2ec", "etd2ec")
+METHODS = FIXED_METHODS + AUTO_METHODS
+
 #: step-growth detector (see the module docstring); the compiled engine takes the same values
 GROWTH_FACTOR = math.e
 GROWTH_STEPS = 3

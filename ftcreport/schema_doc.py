@@ -32,6 +32,7 @@ SECTIONS: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {
     "initial": ("[initial]", C.Initial, ()),
     "faults": ("[[faults]]", C.Fault, ()),
     "actuators": ("[actuators]", C.Actuators, ()),
+    "drive_model": ("[actuators.drive_model]", C.DriveModel, ()),
     "kinematic": ("[kinematic]", C.Kinematic, ()),
     "schemes": ("[schemes]", C.Schemes, ()),
     "simulation": ("[simulation]", C.Simulation, ()),

@@ -13,7 +13,9 @@ for a controller built by the package (:func:`ftcreport.runner.make_controller`,
 loop in Python (issue 17: each equation exists once): a new law is written as a scheme (README,
 "Write your own scheme").  The controller's continuous state ``xc`` is stepped with the plant's.
 
-Integrators (:attr:`SimSettings.method`): fixed-step classical RK4 (``"rk4"``, the default), or
+Integrators (:attr:`SimSettings.method`; the error-controlled ones, ``"auto"``, ``"dopri5"``,
+``"ros2ec"``, ``"etd2ec"``, are in :mod:`ftcreport.fast.integrators`): fixed-step classical RK4
+(``"rk4"``, the default), or
 the two-stage Rosenbrock W-method ROS2 (``"ros2"``, Verwer, Spee, Blom, Hundsdorfer 1999) for
 stiff velocity loops, with gamma = 1 + 1/sqrt(2)::
 
@@ -34,34 +36,38 @@ first-instant torque peaks do not (they last ~1/k4 s).  With DC motors, ``method
 the linear [eta, i_a] block, so a current's transient after a held-voltage step is integrated
 whole over a step of one control sample, where ROS2 only damps it.
 
-Fault events land exactly on step boundaries: the time grid is ``t0 + k dt``
-with every event time inserted (:func:`time_grid`; the step before an event is shortened), and
-sigma, ubar are held over each step at their value at its start, so the fault
-model is exact.  After each step the controller's
-discrete update runs (switching logic and the like).
+Fault events land exactly on step boundaries: the fixed-step grid is ``t0 + k dt``
+with every event time inserted (:func:`time_grid`; the step before an event is shortened),
+and an error-controlled step is clipped to land on every fault time, control sample,
+tick of the noise/UKF clock and switching dwell end (fast.loop.run_auto); sigma, ubar
+are held over each step at their value at its start, so the fault model is exact.
+After each step the controller's discrete update runs (switching logic and the like).
 
 A run that approaches a singular configuration (an articulation angle
 within ``singularity_margin`` of 90 deg, ERRATA P4, or a controller singular at
 the accepted state) stops with status ``"singular"``; a non-finite or
-out-of-bounds state stops with ``"diverged"``.  A step that blows up stops with
-``"step_unstable"`` and a reason naming ``dt``, never as a singularity: either a
-trial stage of the integrator left the domain (a controller singularity, a
-non-finite value) while the accepted state at the step's start is regular, or
-the new state fails a check that the accepted state was far from (a speed or
-position bound crossed from within ``JUMP_FRACTION`` of it, the singular set
-reached from ``JUMP_MARGINS`` margins away: a change no resolved step makes), or
-the applied torque grew geometrically from accepted step to accepted step
-(max_j |tau_j| more than ``GROWTH_FACTOR`` = e times larger than at the step
-before, ``GROWTH_STEPS`` = 3 steps in a row, ``GROWTH_TOTAL`` = 20 times larger
-overall, ending above ``GROWTH_FLOOR`` = 1 N m; the constants are in :mod:`ftcreport.runs`).
-Growth by e per step is a rate
-of 1 / dt: a mode with lambda dt > 1 is not resolved by the step (RK4's local
-error on it is about (lambda dt)^5 / 120 per step, 1 % at lambda dt = 1 and
-growing fast), so either the integrator is unstable there or the run is not
-converged in dt.  A fault that makes the torque jump is one step of growth, not
-three.  A slower blow-up ends as ``"diverged"`` at the speed or position bound,
-with ``dt`` named in the reason: a resolved exponential growth, such as
-e^(50 t) at dt = 0.01 s (1.65x per step), is divergence, not a step problem.
+out-of-bounds state stops with ``"diverged"``.  Three detectors stop a
+fixed-step run whose step blows up: a trial stage of the integrator left the
+domain (a controller singularity, a non-finite value) while the accepted state
+at the step's start is regular; the new state fails a check that the accepted
+state was far from (a speed or position bound crossed from within
+``JUMP_FRACTION`` of it, the singular set reached from ``JUMP_MARGINS`` margins
+away: a change no resolved step makes); or the applied torque grew
+geometrically from accepted step to accepted step (max_j |tau_j| more than
+``GROWTH_FACTOR`` = e times larger than at the step before, ``GROWTH_STEPS`` = 3
+steps in a row, ``GROWTH_TOTAL`` = 20 times larger overall, ending above
+``GROWTH_FLOOR`` = 1 N m; the constants are in :mod:`ftcreport.runs`): growth by
+e per step is a rate of 1 / dt, a mode with lambda dt > 1 that the step does not
+resolve.  Such a stop, and a divergence at a bound, is labelled by what a
+smaller step does to it (issue 36 item 4, :func:`ftcreport.fast.engine._relabel`):
+the interval is run again from a checkpoint before it with the method's
+error-controlled twin, and the stop is ``"step_unstable"`` only if that run
+passes it or stops later; ``"singular"`` if it also stops, no later, with the
+state in a law's singular set (named in the reason); ``"diverged"`` if the
+blow-up persists (a resolved exponential growth, such as e^(50 t) at dt = 0.01 s,
+1.65x per step, is divergence, not a step problem).  An error-controlled run is
+never ``"step_unstable"``: a trial stage that leaves the domain is a rejected
+step, and a step below ``min_step`` stops the run with the tolerances named.
 The log up to that point is kept and the reason is
 recorded; a NaN is never returned silently.
 """
@@ -78,7 +84,7 @@ import numpy as np
 from .errors import ModelError
 from .model.chain import Chain
 from .model.faults import FaultSchedule
-from .runs import REDUCED_SIGNALS, STREAM_SIGNALS, Run, stream_of
+from .runs import AUTO_METHODS, METHODS, REDUCED_SIGNALS, STREAM_SIGNALS, Run, stream_of
 
 __all__ = [
     "REDUCED_SIGNALS",
@@ -90,6 +96,10 @@ __all__ = [
     "stream_of",
     "time_grid",
 ]
+
+
+#: defaults of the error-controlled methods (cases.Simulation's say why)
+RTOL, ATOL, MIN_STEP = 1e-6, 1e-8, 1e-8
 
 
 @dataclass(frozen=True)
@@ -113,9 +123,19 @@ class SimSettings:
     max_position : float
         Stop (diverged) when |x| or |y| exceeds this [m].
     method : str
-        ``"rk4"`` (classical, fixed step), ``"ros2"`` (Rosenbrock W-method, stiff-capable) or
+        Fixed step: ``"rk4"`` (classical), ``"ros2"`` (Rosenbrock W-method, stiff-capable) or
         ``"etd2"`` (exponential ETD2RK, exact on the linear [eta, i_a] block: the motor cases at
-        one step per control sample, fast.loop._etd2).
+        one step per control sample, fast.loop._etd2).  Error-controlled (fast.integrators):
+        ``"dopri5"`` (Dormand-Prince 5(4), non-stiff), ``"ros2ec"`` (ROS2, stiff loops), ``"etd2ec"``
+        (ETD2, motors under sampled control), both with step doubling's estimate, or ``"auto"``: one of
+        them picked at t0 from the loop's spectral radius (fast.loop.run_auto).  With these ``dt``
+        is the longest step, and the clock of the sensor noise and of a discrete-time filter (the
+        UKF): steps land on its multiples when the plant is noisy or the scheme has one.
+    rtol, atol : float
+        Error-controlled methods: a step is accepted when every state's local error estimate is at
+        most atol + rtol |x_i| (fast.integrators.error_ratio).
+    min_step : float
+        Error-controlled methods: the run stops (with the reason) when the step falls below it [s].
     sample_time : float or None
         Sampled (digital) control: the controller runs every ``sample_time`` [s], a whole number
         of steps, its command held in between (zero-order hold) and its own state advanced by a
@@ -136,10 +156,19 @@ class SimSettings:
     method: str = "rk4"
     sample_time: float | None = None
     measurement_delay: int = 0
+    rtol: float = RTOL
+    atol: float = ATOL
+    min_step: float = MIN_STEP
 
     def __post_init__(self) -> None:
-        if self.method not in ("rk4", "ros2", "etd2"):
-            raise ModelError(f"method: must be 'rk4', 'ros2' or 'etd2', got {self.method!r}")
+        if self.method not in METHODS:
+            raise ModelError(f"method: must be one of {', '.join(map(repr, METHODS))}, got {self.method!r}")
+        for name in ("rtol", "atol", "min_step"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ModelError(f"{name}: must be a positive number, got {v}")
+        if self.min_step >= self.dt and self.method in AUTO_METHODS:
+            raise ModelError(f"min_step: {self.min_step} s is not below the longest step dt = {self.dt} s")
         if not (math.isfinite(self.dt) and self.dt > 0):
             raise ModelError(f"dt: must be a positive number of seconds, got {self.dt}")
         if not (math.isfinite(self.duration) and self.duration > 0):
@@ -154,7 +183,7 @@ class SimSettings:
             raise ModelError(f"measurement_delay: must be a whole number of samples >= 0, got {self.measurement_delay}")
         if self.measurement_delay and self.sample_time is None:
             raise ModelError(f"measurement_delay: {self.measurement_delay} samples needs sampled control (sample_time)")
-        if self.sample_time is not None:
+        if self.sample_time is not None and self.method not in AUTO_METHODS:  # error-controlled: steps land on samples
             ratio = self.sample_time / self.dt
             if not (math.isfinite(ratio) and ratio >= 1 - 1e-9 and abs(ratio - round(ratio)) <= 1e-9 * ratio):
                 raise ModelError(
@@ -187,6 +216,10 @@ class Plant:
         A DC motor per wheel (one set per robot, leader first), thesis (2.26)-(2.29): the command
         becomes armature voltages (the driver's static inversion, ftcreport.fast.motor) and the
         wheel torque follows the currents.  None: the ideal torque plant (tau = command).
+    drive : DriveParams or sequence of DriveParams, optional
+        The motors' drives (ftcreport.model.actuators.DriveParams: the static inversion or a PI
+        current loop, and the drive's model of the motor); None: the static driver with the plant's
+        own model of every motor.
     """
 
     def __init__(
@@ -198,9 +231,11 @@ class Plant:
         noise_eta=None,
         seed: int = 0,
         motors=None,
+        drive=None,
     ):
         self.chain = chain
         self.motors = motors
+        self.drive = drive
         self.faults = faults if faults is not None else FaultSchedule(chain.n)
         if self.faults.n != chain.n:
             raise ModelError(f"faults: schedule is for {self.faults.n} robots, chain has {chain.n}")
@@ -294,10 +329,13 @@ def simulate(
             f"controller: {type(controller).__name__} has no compiled counterpart; a new law runs as a scheme "
             "(ftcreport.schemes, README 'Write your own scheme')"
         )
-    grid = time_grid(settings.t0, settings.duration, settings.dt, plant.faults.times)
-    n_steps = grid.shape[0] - 1
-    log_idx = np.unique(np.append(np.arange(0, n_steps + 1, int(settings.log_every)), n_steps))
-    run = simulate_compiled(spec, plant, q0, eta0, settings, grid, log_idx, progress)
+    if settings.method in AUTO_METHODS:  # error-controlled: the steps are the controller's (no grid)
+        run = simulate_compiled(spec, plant, q0, eta0, settings, None, None, progress)
+    else:
+        grid = time_grid(settings.t0, settings.duration, settings.dt, plant.faults.times)
+        n_steps = grid.shape[0] - 1
+        log_idx = np.unique(np.append(np.arange(0, n_steps + 1, int(settings.log_every)), n_steps))
+        run = simulate_compiled(spec, plant, q0, eta0, settings, grid, log_idx, progress)
     run.meta["fault_schedule"] = _fault_records(plant)
     return run
 

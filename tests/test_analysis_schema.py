@@ -39,7 +39,10 @@ MARGINS = {
         {
             "type": "object",
             "required": ["input", "unit", "loops"],
-            "properties": {"input": {"enum": ["torque", "voltage"]}, "loops": {"type": "array", "items": LOOP}},
+            "properties": {
+                "input": {"enum": ["torque", "voltage", "current target"]},
+                "loops": {"type": "array", "items": LOOP},
+            },
         },
     ]
 }

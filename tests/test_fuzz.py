@@ -66,10 +66,15 @@ def _absolute(data: dict, where: Path) -> dict:
     return out
 
 
+def _written(table: dict) -> dict:
+    """A table's fields as TOML writes them: those set (None is no TOML value), sub-tables likewise."""
+    return {k: _written(v) if isinstance(v, dict) else v for k, v in table.items() if v is not None}
+
+
 def _motor_overlay(path: Path) -> dict:
     """A shipped motor overlay with every [actuators] field and measurement_delay written out."""
     data = _absolute(tomllib.loads(path.read_text()), path.parent)
-    fields = {k: v for k, v in Actuators().model_dump().items() if v is not None}
+    fields = _written(Actuators().model_dump())
     data["actuators"] = {**fields, "I_max": 400.0, **data.get("actuators", {})}
     data["simulation"] = {**data["simulation"], "measurement_delay": 0}
     return data

@@ -18,9 +18,9 @@ from ftcreport.runner import run_scheme
 CASES = Path(__file__).resolve().parents[1] / "cases"
 
 
-def _run(name: str, scheme: str, duration: float, log_every: int | None):
+def _run(name: str, scheme: str, duration: float, log_every: int | None, method: str | None = None):
     case = load_case(CASES / f"{name}.toml")
-    upd: dict = {"duration": duration}
+    upd: dict = {"duration": duration} | ({"method": method} if method else {})
     if log_every is not None:
         upd["log_every"] = log_every
     case = case.model_copy(update={"simulation": case.simulation.model_copy(update=upd)})
@@ -28,19 +28,23 @@ def _run(name: str, scheme: str, duration: float, log_every: int | None):
 
 
 # three cases, the three engines' paths: the compiled chained/two-link laws, switching's counts and
-# delays, and the noisy 400 s active case whose diagnosis reads estimates; one in the Python loop (UKF)
+# delays, and the noisy 400 s active case whose diagnosis reads estimates; one in the Python loop (UKF);
+# and error-controlled runs (issue 36: the stream is the accepted steps, unequal; the log every k-th of them)
 @pytest.mark.parametrize(
-    ("name", "scheme", "duration"),
+    ("name", "scheme", "duration", "method"),
     [
-        ("two_link_adaptive_eight", "switching", 60.0),
-        ("two_link_adaptive_eight", "adaptive", 20.0),
-        ("three_link_active", "active", 40.0),
-        ("two_link_active", "active_ukf", 3.0),
+        ("two_link_adaptive_eight", "switching", 60.0, None),
+        ("two_link_adaptive_eight", "adaptive", 20.0, None),
+        ("three_link_active", "active", 40.0, None),
+        ("two_link_active", "active_ukf", 3.0, None),
+        ("two_link_adaptive_eight", "switching", 20.0, "auto"),
+        ("three_link_active", "active", 10.0, "auto"),
+        ("motors/two_link_switching_motors", "switching", 3.0, "auto"),
     ],
 )
-def test_metrics_do_not_depend_on_log_every(name, scheme, duration):
-    case, run_s, shipped = _run(name, scheme, duration, None)
-    _, run_1, every = _run(name, scheme, duration, 1)
+def test_metrics_do_not_depend_on_log_every(name, scheme, duration, method):
+    case, run_s, shipped = _run(name, scheme, duration, None, method)
+    _, run_1, every = _run(name, scheme, duration, 1, method)
     assert case.simulation.log_every > 1  # the shipped value decimates
     assert run_s.t.size < run_1.t.size  # ... so less is saved
     assert run_s.t_stream.size == run_1.t_stream.size == run_1.t.size  # the stream is every step

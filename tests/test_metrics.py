@@ -73,3 +73,26 @@ def test_energy_bounds_the_kinetic_energy_gained():
     signed = np.sum(0.5 * (np.sum(run["tau"] * omega, 1)[1:] + np.sum(run["tau"] * omega, 1)[:-1]) * np.diff(run.t))
     assert signed == pytest.approx(T_end, rel=1e-4)
     assert m["energy"] >= T_end * (1 - 1e-4)
+
+
+def test_means_over_time_weigh_samples_by_their_time():
+    """Error-controlled runs have unequal steps (issue 36): a mean over time must not count a stretch of
+    short steps (a transient) more than its time.  RMS values are trapezoids; fractions of what is held
+    over each step weigh each sample by the step it starts."""
+    from ftcreport.metrics import time_mean
+
+    rng = np.random.default_rng(7)
+    t = np.concatenate(([0.0], np.cumsum(rng.uniform(1e-4, 0.2, 400))))  # unequal steps, up to 2000x apart
+    x = np.sin(t) ** 2
+    exact = (t[-1] / 2 - np.sin(2 * t[-1]) / 4) / t[-1]  # the mean of sin^2 over [0, T]
+    assert abs(time_mean(t, x) - exact) < 1e-3  # trapezoid: O(h^2)
+    assert abs(np.mean(x) - exact) > 1e-2  # the mean of the samples is not the mean over time
+    # a flag held over each step (set on the steps from t = 20 s on): exact by the steps it starts
+    held = (t >= 20.0).astype(float)
+    start = t[np.searchsorted(t, 20.0)]
+    assert time_mean(t, held, "step") == pytest.approx(
+        (t[-1] - start + (t[-1] - t[-2])) / (t[-1] - t[0] + t[-1] - t[-2])
+    )
+    # on equal steps the step rule is the mean of the samples
+    u = np.arange(11) * 0.1
+    np.testing.assert_allclose(time_mean(u, np.arange(11.0) ** 2, "step"), np.mean(np.arange(11.0) ** 2), rtol=1e-14)

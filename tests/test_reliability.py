@@ -411,6 +411,22 @@ def test_verify_dt_flags_a_step_that_is_not_converged(tmp_path):
     assert v["metrics"]["position_error_max"]["dt_half"] == half["position_error_max"]
 
 
+def test_verify_dt_of_an_auto_run_is_a_tolerance_check(tmp_path):
+    """An error-controlled run (method = "auto") is checked at a tenth of its tolerances, at the same dt."""
+    src = (CASES / "two_link_uncompensable.toml").read_text().replace("\ndt = 0.01\n", '\ndt = 0.01\nmethod = "auto"\n')
+    case = tmp_path / "c.toml"
+    case.write_text(src)
+    out = tmp_path / "o"
+    args = ["run", str(case), "--scheme", "oracle", "--duration", "3", "--out", str(out), "--verify-dt", "--no-report"]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert "rtol = 1e-06 vs 1e-07, atol = 1e-08 vs 1e-09: converged" in res.stdout
+    m = json.loads((out / "c" / "oracle" / "metrics.json").read_text())
+    v = m["verify_dt"]
+    assert v["dt"] == v["dt_half"] == 0.01 and v["converged"]
+    assert m["integrator"]["rtol"] == 1e-6 and m["integrator"]["requested"] == "auto"
+
+
 def test_dt_sensitivity_rules():
     from ftcreport.runner import dt_sensitivity
 

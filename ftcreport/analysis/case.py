@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import FtcError
 from .classic import classic_analyses
+from .closed_loop import Plant
 from .confirm import confirm_limit, needs_confirmation
 from .phases import analyze_scheme, case_frames
 
@@ -49,7 +50,9 @@ def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: b
     out["sampled"] = case.simulation.sample_time is not None
     out["sample_time"] = case.simulation.sample_time
     out["measurement_delay"] = int(case.simulation.measurement_delay)
-    out["actuator_input"] = "voltage" if built.plant.motors is not None else "torque"
+    plant = Plant(built)
+    out["actuator_input"] = plant.input_name  # torque, voltage (static driver) or current target (PI drive)
+    out["drive"] = _drive_words(built.plant)
     out["time_varying"] = None
     out["phases"], out["limits"], out["velocity_loop"], out["limit_notes"] = {}, {}, {}, {}
     out["confirmation"] = {}
@@ -92,3 +95,17 @@ def _confirm(case, scheme: str, res: dict) -> dict:
         z = res.get("crossing", {}).get(which)
         out[which] = confirm_limit(case, scheme, which, limit, None if z is None else complex(*z), unit)
     return out
+
+
+def _drive_words(plant) -> str | None:
+    """How the analysed loop's drive is modelled, in words for the page (None without motors)."""
+    if plant.motors is None:
+        return None
+    drives = plant.drive or []
+    first = drives[0] if isinstance(drives, list | tuple) and drives else drives
+    if not drives or getattr(first, "driver", "static") == "static":
+        return "the static driver (voltage from the drive's model of the motor)"
+    words = f"a PI current loop at {first.current_bandwidth:g} Hz (its integral parts are states of the loop)"
+    if first.drive_rate:
+        words += f", sampled at {first.drive_rate:g} Hz in the run and analysed as continuous"
+    return words

@@ -128,12 +128,16 @@ def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP) -> np.ndar
 class Plant:
     r"""The plant as the controller's samples see it: x_p' = f_p(x_p, a) (pure).
 
-    ``x_p = [q (n + 2), eta (2), i_a (2n with motors)]``.  ``a`` is what the controller holds at the
-    actuator inputs: on the ideal plant the torque command u (the plant applies
-    ``tau = sigma sat(u) + ubar``, (2.101)-(2.102)); with ``[actuators]`` the armature voltage, the
-    driver being the controller's last stage (:meth:`command`).  This is the one place that says how
-    the drive enters the loop: a drive with states of its own (the PI current loop of issue 36) adds
-    them to ``x_p`` after the currents and changes :meth:`command` to what it takes as reference.
+    ``x_p = [q (n + 2), eta (2), motor states]``: with ``[actuators]`` the currents i_a (2n) and, for a
+    PI drive, its integral parts z (2n) after them (fast.drive).  ``a`` is what the controller holds at
+    the actuator inputs: on the ideal plant the torque command u (the plant applies
+    ``tau = sigma sat(u) + ubar``, (2.101)-(2.102)); with the static driver its armature voltage; with
+    a PI drive its current target i*, the drive being a continuous part of the plant
+    (``fast.drive.pi_voltage``: v_a = sat(K_p (i* - i_a) + z + c_ff k_b N omega), z' = K_i (i* - i_a)).
+    The drive's own model of the motor (``[actuators.drive_model]``) turns the command into ``a``
+    (:meth:`command`).  A PI drive at its own rate (``drive_rate``) is analysed as the continuous PI:
+    its period is a fraction of the controller's (the case rejects a rate that is not a whole number
+    of steps), and the page says so.  This is the one place that says how the drive enters the loop.
     """
 
     def __init__(self, built) -> None:
@@ -146,16 +150,20 @@ class Plant:
         self.saturation = built.plant.saturation
         self._F = F
         self._pref = kernel_ref(self.chain.params)
-        self.motors = None
+        self.motors = self.drive = None
+        self.pi = False  # a PI current loop (its integral parts are plant states)
         self.nm = 0
+        self.input_name, self.input_unit = "torque", "N m"
         if built.plant.motors is not None:
-            from ..model.actuators import pack
+            from ..fast.drive import DRIVER_STATIC
+            from ..model.actuators import pack, pack_drive
 
             self.motors = pack(built.plant.motors, self.chain.n)
-            self.nm = self.nw
+            self.drive = pack_drive(getattr(built.plant, "drive", None), built.plant.motors, self.chain.n)
+            self.pi = self.drive.kind != DRIVER_STATIC
+            self.nm = self.nw * (2 if self.pi else 1)
+            self.input_name, self.input_unit = ("current target", "A") if self.pi else ("voltage", "V")
         self.n_states = self.n_q + 2 + self.nm
-        self.input_name = "voltage" if self.motors is not None else "torque"
-        self.input_unit = "V" if self.motors is not None else "N m"
 
     def clip(self, u: np.ndarray) -> np.ndarray:
         return u if self.saturation is None else np.clip(u, -self.saturation, self.saturation)
@@ -175,40 +183,56 @@ class Plant:
         return sm * fz.sigma, sm * fz.ubar + um
 
     def command(self, u: np.ndarray, omega_meas: np.ndarray, fz: Faults) -> np.ndarray:
-        """The held actuator signal for the law's command u: u itself, or the driver's voltages.
+        """The held actuator signal for the law's command u: u itself, or what the drive makes of it.
 
-        The driver is the static inversion with nominal parameters at the measured wheel speeds
-        (``fast.motor.driver_voltage``), fed the command after the command faults and the limit.
+        The drive's current target at the measured wheel speeds (``fast.drive.current_target``, with
+        the drive's model), fed the command after the command faults and the limit; the static
+        driver's voltage of it (``fast.drive.static_voltage``), or the target itself for a PI drive.
         """
         if self.motors is None:
             return u
-        from ..fast.motor import driver_voltage
+        from ..fast.drive import current_target, static_voltage
 
-        return driver_voltage(self.motors, fz.sigma * self.clip(u) + fz.ubar, omega_meas, fz.motor)
+        i_star = current_target(self.drive, fz.sigma * self.clip(u) + fz.ubar, omega_meas)
+        return i_star if self.pi else static_voltage(self.drive, i_star, omega_meas, fz.motor)
 
     def rates(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
-        """f_p(x_p, a): [S(q) eta, etadot (2.70), i_a' (2.28)] with a held."""
-        nq = self.n_q
+        """f_p(x_p, a): [S(q) eta, etadot (2.70), i_a' (2.28), z' of a PI drive] with a held."""
+        nq, nw = self.n_q, self.nw
         q, eta = xp[:nq], xp[nq : nq + 2]
         if self.motors is None:
             qdot, etadot = self._F.plant_rhs(self._pref, q, eta, fz.sigma * self.clip(a) + fz.ubar)
             return np.concatenate((qdot, etadot))
         from ..fast.motor import motor_plant_rhs
 
-        qdot, etadot, idot, _tau = motor_plant_rhs(self._pref, self.motors, q, eta, xp[nq + 2 :], a, fz.motor)
-        return np.concatenate((qdot, etadot, idot))
+        xm = xp[nq + 2 :]
+        if not self.pi:
+            qdot, etadot, idot, _tau = motor_plant_rhs(self._pref, self.motors, q, eta, xm, a, fz.motor)
+            return np.concatenate((qdot, etadot, idot))
+        from ..fast.drive import pi_voltage
+
+        omega = self.wheel_speeds(self._pref, q, eta)  # read by the PI only with back-EMF feedforward
+        v, zdot = pi_voltage(self.drive, a, xm[:nw], xm[nw:], omega, fz.motor)
+        qdot, etadot, idot, _tau = motor_plant_rhs(self._pref, self.motors, q, eta, xm[:nw], v, fz.motor)
+        return np.concatenate((qdot, etadot, idot, zdot))
 
     def operating_currents(self, q: np.ndarray, eta: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
-        """The currents at the operating point: quasi-static for the held voltages a (L_a di/dt = 0)."""
+        """The motor states at the operating point: the currents quasi-static for the held voltages a
+        (L_a di/dt = 0), or a PI drive's steady state for the held target a (``fast.drive.pi_steady_states``)."""
         if self.motors is None:
             return _EMPTY
+        omega = self.wheel_speeds(self._pref, q, eta)
+        if self.pi:
+            from ..fast.drive import pi_steady_states
+
+            return pi_steady_states(self.motors, self.drive, a, omega, fz.motor)[: self.nm]
         from ..fast.motor import quasi_static_current
 
-        return quasi_static_current(self.motors, a, self.wheel_speeds(self._pref, q, eta), fz.motor)
+        return quasi_static_current(self.motors, a, omega, fz.motor)
 
     def input_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         """d f_p / d a, (n_states, 2n): the currents' rows are exact (1/L_a on working windings)."""
-        if self.motors is None:
+        if self.motors is None or self.pi:  # a PI: K_p / L_a and K_i off its limits, central differences
             return central_columns(lambda v: self.rates(xp, v, fz), a)
         from ..fast.motor import winding_voltage
 
@@ -222,7 +246,7 @@ class Plant:
         """d f_p / d x_p: central differences in q and eta, the currents' columns exact (affine in i_a)."""
         nq = self.n_q
         f = lambda x: self.rates(x, a, fz)  # noqa: E731
-        if self.motors is None:
+        if self.motors is None or self.pi:  # a PI: affine in i_a and z off its limits
             return central_columns(f, xp)
         from ..fast.motor import current_jacobian
 
@@ -529,6 +553,7 @@ def operating_state(loop: SchemeLoop, t: float, q, eta, fz: Faults, psi=None, ap
     from ..control.baselines import OracleController
     from ..control.switching import SwitchingController
     from ..control.tracking import TrackingController
+
     ctrl = loop.ctrl
     nk = loop.nk
     sigma_t, ubar_t = loop.plant.true_faults(np.concatenate((q, eta, np.zeros(loop.plant.nm))), fz)

@@ -281,7 +281,7 @@ def loop_margins(blk: Blocks, T: float | None, delay: int, names, unit: str, all
         s = row["stability_margin"]
         if s is not None and (best is None or s < best[0]):
             best = (s, j, Ljw, omega)
-    out = {"input": "voltage" if unit == "V" else "torque", "unit": unit, "loops": loops,
+    out = {"input": {"V": "voltage", "A": "current target"}.get(unit, "torque"), "unit": unit, "loops": loops,
            "disk_margins": HAS_DISK_MARGINS}  # fmt: skip
     if best is not None:
         _s, j, Ljw, omega = best

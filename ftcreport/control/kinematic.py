@@ -157,9 +157,9 @@ class _Face:
         if code in (F.E_REF_SPEED, F.E_REF_ART):
             self.reference._raise(info)
         if code == F.E_TWO_LINK_ETH:
-            raise SingularityError(two_link_reason("heading error e_theta", a))
+            raise SingularityError(two_link_reason("heading error e_theta of robot 2", a))
         if code == F.E_TWO_LINK_PHI:
-            raise SingularityError(two_link_reason("theta_1 - theta_2", a))
+            raise SingularityError(two_link_reason("articulation angle theta_1 - theta_2", a))
         if code == F.E_CHAINED_THN:
             raise SingularityError(chained_reason(f"theta_{self.n}", a, " in its frame"))
         if code == F.E_CHAINED_ART:

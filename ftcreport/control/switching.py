@@ -93,6 +93,10 @@ class SwitchingController(SchemeController):
         saturated signal.
     initial_model : int
         Index of the model applied at the start (0: the first pattern).
+    rotor_inertia : (2n,) array_like, optional
+        The DC motors' rotor inertia on each wheel axis, eta_g N^2 J_m [kg m^2] (ERRATA E19): the
+        filters (3.42) predict eta with it (fast.kernels.rotor_filter_terms); the law keeps the
+        chain's model.  None: the chain alone (no motors, or a bank that ignores them).
     """
 
     def __init__(
@@ -109,6 +113,7 @@ class SwitchingController(SchemeController):
         hysteresis: float = 1e-10,
         u_limit: float | None = None,
         initial_model: int = 0,
+        rotor_inertia: Sequence[float] | None = None,
     ) -> None:
         pats = model_patterns(chain.n, patterns)
         for name, val in (("gamma", gamma), ("forgetting", forgetting)):
@@ -124,6 +129,9 @@ class SwitchingController(SchemeController):
         self.gamma, self.T_min = float(gamma), float(T_min)
         self.c_inst, self.c_int, self.forgetting = float(c_inst), float(c_int), float(forgetting)
         self.hysteresis = float(hysteresis)
+        self.rotor_inertia = None if rotor_inertia is None else np.asarray(rotor_inertia, dtype=float).reshape(-1)
+        if self.rotor_inertia is not None and self.rotor_inertia.shape != (chain.n_wheels,):
+            raise ModelError(f"rotor_inertia: {chain.n_wheels} values (one per wheel) expected")
         if not 0 <= int(initial_model) < self.N:
             raise ModelError(f"initial_model: {initial_model} is not a model index (0..{self.N - 1})")
         self.initial_model = int(initial_model)
@@ -186,6 +194,7 @@ class SwitchingController(SchemeController):
                 u_limit=float("nan") if self.u_limit is None else float(self.u_limit), hat0=self._filt.start - nk,
                 int0=self._int.start - nk, n_int=self._int.stop - self._int.start, sel=self._sel - nk,
                 tsw=self._tsw - nk, codes=codes, trie=trie,
+                Jw=np.zeros(0) if self.rotor_inertia is None else self.rotor_inertia,
             )  # fmt: skip
         return self._packed
 

@@ -63,6 +63,7 @@ E_STEP_GROWTH = 13  # info: t, max |tau| at the streak start, max |tau| now [N m
 E_UKF = 15  # info: the UKF step's status (fast.ukf.UKF_*), t
 E_STEP_JUMP = 14  # info: kind, before, after (_step_jump: non-finite new state or a check failed in one step)
 E_LAW_WRITE = 16  # info: the buffer a scheme wrote past (0 u, 1 dx, 2 sig, 3 its state in the discrete update), t
+E_MIN_STEP = 17  # info: t, the step that fell below the minimum (error-controlled methods, fast.loop.run_auto)
 
 # where run_steps stopped (its 4th return value)
 AT_STATE = 0  # at the accepted state of step k (checks, the law at the step start, growth)
@@ -167,6 +168,7 @@ class Law(NamedTuple):
     codes: np.ndarray  # (2^nw,) int64: bank index of the 0/1 pattern sum_j sigma_j 2^j, -1 if absent; (0,): no walk
     trie: np.ndarray  # (2^(nw+1),) uint8: 1 where a bank pattern has the prefix (wheels 0..d-1) of node 2^d + code;
     # trie[0] = 1: the bank is monotone (switching._walk)
+    Jw: np.ndarray  # (nw,) switching: the rotors' inertia on the wheel axes the bank's filters model; (0,): none
 
 
 def law_params(kind: int, k_v: float, nw: int, n_states: int, **kw) -> Law:
@@ -175,7 +177,7 @@ def law_params(kind: int, k_v: float, nw: int, n_states: int, **kw) -> Law:
         kind=kind, k_v=k_v, sigma=np.ones(nw), patterns=np.zeros((0, nw)), gamma=0.0, T_min=0.0,
         c_inst=0.0, c_int=0.0, forgetting=0.0, hysteresis=0.0, u_limit=math.nan, hat0=0, int0=0, n_int=0, sel=0,
         tsw=0, chi0=0, uf0=0, Gamma_f=np.zeros((nw, nw)), adapt=0, n_states=n_states,
-        codes=np.zeros(0, dtype=np.int64), trie=np.zeros(0, dtype=np.uint8),
+        codes=np.zeros(0, dtype=np.int64), trie=np.zeros(0, dtype=np.uint8), Jw=np.zeros(0),
     )  # fmt: skip
     base.update(kw)
     return Law(**base)
@@ -380,6 +382,61 @@ def input_matrix(p, th, sth, cth):
         B[N - 1 - i, 2 * i] += p.b[i] / ri
         B[N - 1 - i, 2 * i + 1] -= p.b[i] / ri
     return B
+
+
+@jit
+def input_matrix_and_rate(p, q, thdot):
+    """B(q) of (C.8) and its time derivative along headings moving at thdot (robot order)."""
+    n = p.n
+    N = n + 2
+    nw = 2 * n
+    th = np.empty(n)
+    sth = np.empty(n)
+    cth = np.empty(n)
+    for k in range(n):
+        th[k] = q[N - 1 - k]
+        sth[k] = math.sin(th[k])
+        cth[k] = math.cos(th[k])
+    Bd = np.zeros((N, nw))
+    for i in range(n):
+        ri = p.r[i]
+        for j in (2 * i, 2 * i + 1):
+            # d/dt of B's columns (C.8): U_i' = thetadot_i U_i^perp, d/dt sin(theta_i - theta_k)
+            Bd[0, j] = -sth[i] * thdot[i] / ri
+            Bd[1, j] = cth[i] * thdot[i] / ri
+            for k in range(n):
+                Bd[N - 1 - k, j] = p.D[i, k] * math.cos(th[i] - th[k]) * (thdot[i] - thdot[k]) / ri
+    return input_matrix(p, th, sth, cth), Bd
+
+
+@jit
+def bbar_rate(p, q, eta, S, Sd):
+    """Bbardot = Sdot^T B + S^T Bdot along qdot = S eta, given S and Sdot of ``kernels.reduced``."""
+    n = p.n
+    _th, col, _t, _s, _w = s_column(p, q)
+    thdot = col * eta[0]
+    thdot[0] = eta[1]
+    B, Bd = input_matrix_and_rate(p, q, thdot)
+    nw = 2 * n
+    Bbd = np.zeros((2, nw))
+    for a in range(2):
+        for j in range(nw):
+            acc = 0.0
+            for i in range(n + 2):
+                acc += Sd[i, a] * B[i, j] + S[i, a] * Bd[i, j]
+            Bbd[a, j] = acc
+    return Bbd
+
+
+@jit
+def rotor_mass(Mbar1, Bbar, Jw):
+    """Mbar1 + Bbar diag(Jw) Bbar^T: the reduced inertia with the rotors on the wheel axes, (2, 2)."""
+    A = Mbar1.copy()
+    for j in range(Bbar.shape[1]):
+        for a in range(2):
+            for b in range(2):
+                A[a, b] += Jw[j] * Bbar[a, j] * Bbar[b, j]
+    return A
 
 
 @jit
@@ -1701,6 +1758,35 @@ def switching_select(Lw, t, eta, xc):
     if cand >= 0 and cand != cur and Jn < Jc - Lw.hysteresis:
         xc[Lw.sel] = cand
         xc[Lw.tsw] = t
+
+
+@jit
+def rotor_filter_terms(pc, q, eta, Jw):
+    r"""(MB, g) of the bank's filters (3.42) for a chain whose wheels carry rotors of inertia Jw (issue 36 item 3).
+
+    With a DC motor on each wheel the rotor's inertia eta_g N^2 J_m turns with the wheel (ERRATA E19,
+    fast.motor.motor_plant_rhs): (Mbar1 + Bbar Jw Bbar^T) etadot = Bbar (tau - Jw Bbardot^T eta) -
+    Mbar2 eta - Cbar, so etadot = g + MB tau with MB = A^-1 Bbar, g = -A^-1 (Mbar2 eta + Cbar +
+    Bbar Jw Bbardot^T eta), A = Mbar1 + Bbar Jw Bbar^T.  The law's own (3.37) keeps the chain's model.
+    """
+    Mbar1, Mbar2, Cbar, Bbar, S, Sd = reduced(pc, q, eta)
+    Bbd = bbar_rate(pc, q, eta, S, Sd)
+    A = rotor_mass(Mbar1, Bbar, Jw)
+    nw = Bbar.shape[1]
+    r = _mv(Mbar2, eta) + Cbar
+    for j in range(nw):
+        # + Bbar_j Jw_j (Bbardot^T eta)_j
+        wd = Jw[j] * (Bbd[0, j] * eta[0] + Bbd[1, j] * eta[1])
+        r[0] += Bbar[0, j] * wd
+        r[1] += Bbar[1, j] * wd
+    g = -_solve2(A, r)
+    MB = np.empty((2, nw))
+    col = np.empty(2)
+    for j in range(nw):
+        col[0] = Bbar[0, j]
+        col[1] = Bbar[1, j]
+        MB[:, j] = _solve2(A, col)
+    return MB, g
 
 
 @jit

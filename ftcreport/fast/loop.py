@@ -29,26 +29,58 @@ import math
 
 import numpy as np
 
-from ftcreport.fast.expo import phi12, phi12_scalar
+from ftcreport.fast.drive import (
+    DRIVER_PI,
+    DRIVER_PI_SAMPLED,
+    DRIVER_STATIC,
+    current_target,
+    drive_fault_equivalent,
+    drive_jacobian,
+    drive_output,
+    motor_state_count,
+    pi_sample,
+    static_voltage,
+)
+from ftcreport.fast.integrators import (
+    DP_A,
+    DP_B,
+    DP_C,
+    DP_E,
+    erk_solution,
+    erk_stage_point,
+    error_ratio,
+    etd2_first,
+    etd2_second,
+    first_guess,
+    power_step,
+    ros2_first,
+    ros2_second,
+    starting_step,
+    step_factor,
+)
 from ftcreport.fast.kernels import (
     AT_DISCRETE,
     AT_STATE,
     AT_TRIAL,
     E_LAW_WRITE,
+    E_MIN_STEP,
     E_NONFINITE_DERIV,
     E_NONFINITE_STATE,
     E_STEP_GROWTH,
     E_STEP_JUMP,
+    KIN_CHAINED,
     _check_state,
     _clip,
     _mv,
     _solve2,
     _step_jump,
+    _wrap,
     jit,
     plant_rhs,
     reduced,
+    ref_side,
 )
-from ftcreport.fast.motor import current_jacobian, driver_voltage, fault_equivalent, motor_plant_rhs, reset_current
+from ftcreport.fast.motor import motor_plant_rhs, reset_current
 from ftcreport.fast.refs import as_ref
 from ftcreport.schemes.api import N_GUARD, Out, Step, Terms
 from ftcreport.schemes.kernels import engine_terms as TERMS
@@ -71,21 +103,104 @@ MOTORS, SAMPLED = True, True  # LOOP-VARIANT
 
 
 @jit
-def _motors(ctx, x, tau_c, fm, v_h, qm, etam):
-    """(qdot, etadot, i_dot, tau_w, v_a) of the chain driven by its DC motors, (2.26)-(2.29) with E19.
+def _drive_speeds(ctx, qm, etam):
+    """The drive's wheel speeds: Bbar(q)^T eta at the measured state (the controller's chain model)."""
+    Bm = reduced(ctx[3], qm, etam)[3]
+    return _mv(Bm.T, etam)
 
-    The driver turns the commanded torques tau_c into armature voltages by its static inversion at
-    the measured wheel speeds (fast.motor.driver_voltage), or holds ``v_h`` (sampled control).
+
+@jit
+def _drive_input(ctx, tau_c, fm, om):
+    """What a drive makes of the commanded torques at its measured wheel speeds ``om`` (held under
+    sampled control): the static driver's voltage (fast.drive.static_voltage of the current
+    target), or the PI's current target i* (fast.drive.current_target)."""
+    dr = ctx[10]
+    i_star = current_target(dr, tau_c, om)
+    if dr.kind == DRIVER_STATIC:
+        return static_voltage(dr, i_star, om, fm)
+    return i_star
+
+
+@jit
+def _reads_speed(dr):
+    """A PI drive with back-EMF feedforward reads the wheel speeds between control samples too."""
+    return dr.kind != DRIVER_STATIC and dr.ff.shape[0] > 0 and dr.ff.max() != 0.0
+
+
+@jit
+def _motors(ctx, x, tau_c, fm, v_h, qm, etam):
+    """(qdot, etadot, motor-state rates, tau_w, v_a) of the chain driven by its DC motors and drives.
+
+    The plant is (2.26)-(2.29) with E19 (fast.motor.motor_plant_rhs); the motor states after eta are
+    the currents and the drives' states (fast.drive).  The drive turns the commanded torques tau_c
+    at the measured wheel speeds into its input (:func:`_drive_input`), or holds ``v_h`` (sampled
+    control: the static driver's voltage, the PI's current target), and its output into v_a.
     """
-    pc, pp, nq, mo, nm = ctx[3], ctx[4], ctx[5], ctx[8], ctx[9]
-    if v_h.shape[0] > 0:
-        v = v_h
+    pp, nq, mo, nm, dr = ctx[4], ctx[5], ctx[8], ctx[9], ctx[10]
+    nw = mo.R_a.shape[0]
+    xm = x[nq + 2 : nq + 2 + nm]
+    held = dr.kind == DRIVER_PI_SAMPLED or v_h.shape[0] > 0
+    om = _drive_speeds(ctx, qm, etam) if not held or _reads_speed(dr) else np.zeros(nw)
+    if dr.kind == DRIVER_PI_SAMPLED:  # its own samples hold its voltage (_drive_tick)
+        din = np.zeros(0)
+    elif v_h.shape[0] > 0:
+        din = v_h
     else:
-        Bm = reduced(pc, qm, etam)[3]
-        # the driver's wheel speeds: Bbar(q)^T eta at the measured state
-        v = driver_voltage(mo, tau_c, _mv(Bm.T, etam), fm)
-    qdot, etadot, idot, tau_w = motor_plant_rhs(pp, mo, x[:nq], x[nq : nq + 2], x[nq + 2 : nq + 2 + nm], v, fm)
-    return qdot, etadot, idot, tau_w, v
+        din = _drive_input(ctx, tau_c, fm, om)
+    v, ddot = drive_output(dr, xm, din, om, fm)
+    qdot, etadot, idot, tau_w = motor_plant_rhs(pp, mo, x[:nq], x[nq : nq + 2], xm[:nw], v, fm)
+    if nm == nw:
+        return qdot, etadot, idot, tau_w, v
+    xmdot = np.empty(nm)
+    xmdot[:nw] = idot
+    xmdot[nw:] = ddot
+    return qdot, etadot, xmdot, tau_w, v
+
+
+@jit
+def _drive_tick(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
+    """A sampled PI drive's sample at t (fast.drive.pi_sample), in place on x's drive states.
+
+    The current target: the one held at the last control sample (sampled control), or the law's
+    command at t (continuous control); the drive measures its current and the wheel speeds now.
+    """
+    nq, sat, nm, dr = ctx[5], ctx[6], ctx[9], ctx[10]
+    qm = x[:nq] + nz[:nq]
+    etam = x[nq : nq + 2] + nz[nq:]
+    om = _drive_speeds(ctx, qm, etam)
+    if v_h.shape[0] > 0:
+        i_star = v_h
+    else:
+        u = _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, np.zeros(0))[1]
+        if info[0] != 0:
+            return
+        us = u if math.isnan(sat) else _clip(u, -sat, sat)
+        i_star = current_target(dr, sigma * us + ubar, om)
+    pi_sample(dr, x[nq + 2 : nq + 2 + nm], i_star, om, fm)
+
+
+@jit
+def _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
+    """d(etadot, motor-state rates) / d(motor states) at x, exact (fast.drive.drive_jacobian).
+
+    The continuous PI's columns depend on whether its output saturates, so on its current target:
+    held (sampled control), or from the law's command at x (one more evaluation of the law).
+    """
+    pp, nq, mo, nm, dr = ctx[4], ctx[5], ctx[8], ctx[9], ctx[10]
+    nw = mo.R_a.shape[0]
+    din = np.zeros(0)
+    om = np.zeros(nw)
+    if dr.kind == DRIVER_PI:  # the others' columns do not depend on their input
+        if v_h.shape[0] > 0:  # sampled control holds i*; the drive reads the true speeds (_plant_deriv)
+            om = _drive_speeds(ctx, x[:nq], x[nq : nq + 2])
+            din = v_h
+        else:  # continuous control: the measured state, as _deriv
+            om = _drive_speeds(ctx, x[:nq] + nz[:nq], x[nq : nq + 2] + nz[nq:])
+            u = _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, np.zeros(0))[1]
+            sat = ctx[6]
+            us = u if math.isnan(sat) else _clip(u, -sat, sat)
+            din = current_target(dr, sigma * us + ubar, om)
+    return drive_jacobian(pp, mo, dr, x[:nq], x[nq : nq + 2], x[nq + 2 : nq + 2 + nm], din, om, fm)
 
 
 @jit
@@ -93,13 +208,14 @@ def true_faults(ctx, x, sigma, ubar, fm):
     """The (sigma, ubar) the chain sees: the command faults composed with the motors' equivalents.
 
     tau_w ~ s_m (sigma u + ubar) + u_m, so sigma_true = s_m sigma, ubar_true = s_m ubar + u_m
-    (fast.motor.fault_equivalent at the wheel speeds of x); without motors, (sigma, ubar).
+    (fast.drive.drive_fault_equivalent at the wheel speeds of x: the motors' faults, and what the
+    drive's model of a healthy motor gets wrong); without motors, (sigma, ubar).
     """
     if ctx[9] == 0:
         return sigma, ubar
     pp, nq = ctx[4], ctx[5]
     Bb = reduced(pp, x[:nq], x[nq : nq + 2])[3]
-    sm, um = fault_equivalent(ctx[8], fm, _mv(Bb.T, x[nq : nq + 2]))
+    sm, um = drive_fault_equivalent(ctx[8], ctx[10], fm, _mv(Bb.T, x[nq : nq + 2]))
     return sm * sigma, sm * ubar + um
 
 
@@ -220,12 +336,13 @@ def _disc(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info):
 def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
     """(f, u, tau) of the closed loop: the plant's and the controller's rates at (t, x).
 
-    ``ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)``; ``share``: the controller's
+    ``ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm, dr)``; ``share``: the controller's
     model is the plant's and there is no noise, so the reduced matrices the
-    controller computed at (q, eta) are the plant's; ``nm``: the motors' currents in x
-    (0: the ideal torque plant).
+    controller computed at (q, eta) are the plant's; ``nm``: the plant states the motors add
+    after eta, their currents and their drives' states (fast.drive.motor_state_count; 0: the
+    ideal torque plant); ``dr`` the drives (fast.drive.Drive).
     """
-    Kp, R, C, pc, pp, nq, sat, share, _mo, nm = ctx
+    Kp, R, C, pc, pp, nq, sat, share, _mo, nm, _dr = ctx
     q = x[:nq]
     eta = x[nq : nq + 2]
     xc = x[nq + 2 + nm :]
@@ -253,40 +370,6 @@ def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
     f[nq : nq + 2] = etadot
     f[x.shape[0] - xcdot.shape[0] :] = xcdot  # the kinematic controller's states have no rate
     return f, u, tau
-
-
-@jit
-def _solve_small(A, b):
-    """A x = b for the W-method's small system: closed form for 2 x 2, else Gaussian elimination (partial pivoting)."""
-    m = b.shape[0]
-    if m == 2:
-        return _solve2(A, b)
-    M = A.copy()
-    y = b.copy()
-    for c in range(m):
-        p = c
-        for r in range(c + 1, m):
-            if abs(M[r, c]) > abs(M[p, c]):
-                p = r
-        if p != c:
-            for j in range(m):
-                M[c, j], M[p, j] = M[p, j], M[c, j]
-            y[c], y[p] = y[p], y[c]
-        for r in range(c + 1, m):
-            f = M[r, c] / M[c, c]
-            for j in range(c, m):
-                M[r, j] -= f * M[c, j]
-            y[r] -= f * y[c]
-    out = np.empty(m)
-    for c in range(m - 1, -1, -1):
-        acc = y[c]
-        for j in range(c + 1, m):
-            acc -= M[c, j] * out[j]
-        out[c] = acc / M[c, c]
-    return out
-
-
-ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 
 @jit
@@ -320,10 +403,10 @@ def _stage(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
 
 @jit
 def _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
-    """d f / d [eta, i_a] at x, (nx, 2 + nm): eta's columns by forward differences (2 evaluations of
-    the stage's rates), the currents' exact (fast.motor.current_jacobian: rows eta and i_a; no other
-    rate reads a current)."""
-    pp, nq, mo, nm = ctx[4], ctx[5], ctx[8], ctx[9]
+    """d f / d [eta, motor states] at x, (nx, 2 + nm): eta's columns by forward differences (2
+    evaluations of the stage's rates), the motor states' (currents, drive states) exact
+    (:func:`_motor_columns`: rows eta and the motor states; no other rate reads them)."""
+    nq, nm = ctx[5], ctx[9]
     F = np.zeros((x.shape[0], 2 + nm))
     for j in range(2):
         c = nq + j
@@ -335,7 +418,28 @@ def _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
             return F
         F[:, j] = (fp - f0) / delta
     if MOTORS and nm > 0:
-        F[nq : nq + 2 + nm, 2:] = current_jacobian(pp, mo, x[:nq], x[nq : nq + 2], fm)
+        F[nq : nq + 2 + nm, 2:] = _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)
+    return F
+
+
+@jit
+def _plant_jacobian(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
+    """d f / d [q, eta, i_a] at x, (nx, nq + 2 + nm): q's columns by forward differences (nq evaluations),
+    then :func:`_jacobian_columns`' (ros2ec's W: fast.integrators' module docstring)."""
+    nq = ctx[5]
+    G = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+    F = np.zeros((x.shape[0], nq + G.shape[1]))
+    if info[0] != 0:
+        return F
+    for j in range(nq):
+        delta = 1e-7 * max(1.0, abs(x[j]))
+        xp = x.copy()
+        xp[j] += delta
+        fp = _stage(P, ctx, t, xp, sigma, ubar, fm, nz, info, u_h, v_h)
+        if info[0] != 0:
+            return F
+        F[:, j] = (fp - f0) / delta
+    F[:, nq:] = G
     return F
 
 
@@ -357,27 +461,35 @@ def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
     integrated exactly however long the step: its torque impulse reaches eta in full.
     """
     nq, nm = ctx[5], ctx[9]
-    nx = x.shape[0]
     m = 2 + nm
     F = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
     if info[0] != 0:
         return x
     J = np.ascontiguousarray(F[nq : nq + m, :])
-    P1, P2 = phi12(h * J)
-    p1 = np.empty(nx)
-    p2 = np.empty(nx)
-    for i in range(nx):
-        p1[i], p2[i] = phi12_scalar(h * diag[i])
-    a = x + h * p1 * f0
-    a[nq : nq + m] = x[nq : nq + m] + h * (P1 @ f0[nq : nq + m])
+    return _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J)
+
+
+@jit
+def _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J):
+    """One ETD2RK step (:func:`_etd2`) with its linear block J given (the algebra in fast.integrators)."""
+    nq = ctx[5]
+    a, P2, p2 = etd2_first(J, diag, x, f0, h, nq)
     f1 = _stage(P, ctx, t + h, a, sigma, ubar, fm, nz, info, u_h, v_h)
     if info[0] != 0:
         return x
-    g = f1 - f0 - diag * (a - x)
-    g[nq : nq + m] = f1[nq : nq + m] - f0[nq : nq + m] - J @ (a[nq : nq + m] - x[nq : nq + m])
-    xn = a + h * p2 * g
-    xn[nq : nq + m] = a[nq : nq + m] + h * (P2 @ g[nq : nq + m])
-    return xn
+    return etd2_second(J, diag, x, a, f0, f1, P2, p2, h, nq)
+
+
+@jit
+def _ros2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, F, ft):
+    """One ROS2 step whose W holds the whole plant's columns F and the time derivative ft (``ros2ec``)."""
+    kk1, DF, small, dinv = ros2_first(F, diag, f0, ft, h, 0)
+    f2 = _stage(P, ctx, t + h, x + h * kk1, sigma, ubar, fm, nz, info, u_h, v_h)
+    if info[0] != 0:
+        return x
+    kk2 = ros2_second(DF, small, dinv, kk1, f2, ft, h, 0)
+    # x+ = x + 3/2 h k1 + 1/2 h k2
+    return x + 1.5 * h * kk1 + 0.5 * h * kk2
 
 
 @jit
@@ -402,8 +514,8 @@ def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_
     The controller's state is advanced over the last sample by a forward-Euler step of its rates
     (held since that sample), then its discrete updates run, then the law: its u is held (zero-order
     hold) until the next sample, its rates and logged signals too, and with motors the driver's
-    voltages.  Measurements: q + noise, eta + noise, taken ``len(mbuf) - 1`` samples before
-    (:func:`_delayed`; the law and the driver both see them).
+    voltages (the PI drive's current targets).  Measurements: q + noise, eta + noise, taken
+    ``len(mbuf) - 1`` samples before (:func:`_delayed`; the law and the driver both see them).
     """
     Kp, R, C, pc, nq, sat, nm = ctx[0], ctx[1], ctx[2], ctx[3], ctx[5], ctx[6], ctx[9]
     xc = x[nq + 2 + nm :]
@@ -430,9 +542,9 @@ def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_
     u_h[:] = u
     dx_h[: dx_h.shape[0] - dx.shape[0]] = 0.0
     dx_h[dx_h.shape[0] - dx.shape[0] :] = dx
-    if MOTORS and nm > 0:
+    if MOTORS and nm > 0:  # the drive's input of this sample: the static voltage or the PI's i*
         us = u if math.isnan(sat) else _clip(u, -sat, sat)
-        v_h[:] = _motors(ctx, x, sigma * us + ubar, fm, np.zeros(0), q, eta)[4]
+        v_h[:] = _drive_input(ctx, sigma * us + ubar, fm, _drive_speeds(ctx, q, eta))
     hold_t[0] = t + hold_t[2]
     hold_t[1] = t
 
@@ -461,7 +573,7 @@ def run_steps(
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
     x, k0, k1, is_logged, li,
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
-    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf,
+    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf, dr0,
 ):  # fmt: skip
     """Steps k0..k1 of a run (sim.simulate through fast.engine.simulate_compiled); returns (x, k, li, where).
 
@@ -475,22 +587,25 @@ def run_steps(
     integrates with its u held; ``u_h, dx_h, sig_h`` carry the held control, rates and signals
     across calls, ``mbuf`` the last d + 1 samples' measurements (a delay of d samples).
 
-    DC motors when ``mo`` has wheels: the state is [q, eta, i_a, xc]; ``fmot`` holds the motor-fault
-    table of each fault segment (fast.motor), ``v_h`` the held armature voltages.
+    DC motors when ``mo`` has wheels: the state is [q, eta, i_a, drive states, xc]; ``fmot`` holds the
+    motor-fault table of each fault segment (fast.motor), ``dr0`` the drives (fast.drive), ``v_h``
+    the drive inputs held by sampled control; a sampled PI drive runs at ``hold_t[4]`` (its next
+    sample time), period ``hold_t[5]``.
     """
     # the parameter tuples behind one pointer each, for every kernel below (fast.refs)
-    P, Kp, R, pc, pp, mo = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0)
+    P, Kp, R, pc, pp, mo, dr = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0), as_ref(dr0)
     nq = pp.n + 2
     nx = x.shape[0]
     sig_buf = np.zeros(n_sig)
     C = as_ref(KCACHE(pp.n))
-    nm = mo.R_a.shape[0]
-    ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm)
-    npl = nq + 2 + nm  # the plant's states: q, eta, the motors' currents
+    nm = motor_state_count(mo.R_a.shape[0], dr.kind)  # the one place: the plant states the motors add
+    ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm, dr)
+    npl = nq + 2 + nm  # the plant's states: q, eta, the motors' currents and drive states
     empty = np.zeros(0)
     noisy = noise.shape[0] > 1
     nz = noise[0]
     sampled = u_h.shape[0] > 0
+    empty_ft = np.zeros(nx)
     for k in range(k0, k1 + 1):
         t = grid[k]
         sigma = fsig[fidx[k]]
@@ -509,11 +624,16 @@ def run_steps(
         if info[0] != 0:
             return x, k, li, AT_STATE
         want = is_logged[k]
+        if SAMPLED and sampled and t >= hold_t[0] - 1e-9 * hold_t[2]:
+            sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf)
+            if info[0] != 0:
+                return x, k, li, AT_STATE
+        if MOTORS and nm > 0 and dr.kind == DRIVER_PI_SAMPLED and t >= hold_t[4] - 1e-9 * hold_t[5]:
+            _drive_tick(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)  # after the control's sample
+            if info[0] != 0:
+                return x, k, li, AT_STATE
+            hold_t[4] = t + hold_t[5]
         if SAMPLED and sampled:
-            if t >= hold_t[0] - 1e-9 * hold_t[2]:
-                sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf)
-                if info[0] != 0:
-                    return x, k, li, AT_STATE
             f0, u, tau = _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)
             sig_buf[:] = sig_h
         else:
@@ -581,28 +701,16 @@ def run_steps(
             xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
         elif method == 1:
             # W-method Jacobian: the columns of eta and the motors' currents (_jacobian_columns), the
-            # stiff diagonal for the controller's linear filters (Sherman-Morrison-Woodbury solve)
-            m = 2 + nm
+            # stiff diagonal for the controller's linear filters (fast.integrators.ros2_first)
             F = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
-            gh = ROS2_GAMMA * h
-            dinv = 1.0 / (1.0 - gh * diag)
-            DF = np.empty((nx, m))
-            for i in range(nx):
-                for j in range(m):
-                    DF[i, j] = dinv[i] * F[i, j]
-            small = np.empty((m, m))
-            for i in range(m):
-                for j in range(m):
-                    small[i, j] = (1.0 if i == j else 0.0) - gh * DF[nq + i, j]
-            rd = dinv * f0
-            kk1 = rd + gh * (DF @ _solve_small(small, rd[nq : nq + m]))
+            # the shipped ROS2 leaves out the rates' time derivative (ros2ec has it, _attempt)
+            kk1, DF, small, dinv = ros2_first(F, diag, f0, empty_ft, h, nq)
             f2 = _stage(P, ctx, t + h, x + h * kk1, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
-            rd = dinv * (f2 - 2.0 * kk1)
-            kk2 = rd + gh * (DF @ _solve_small(small, rd[nq : nq + m]))
+            kk2 = ros2_second(DF, small, dinv, kk1, f2, empty_ft, h, nq)
             xn = x + 1.5 * h * kk1 + 0.5 * h * kk2
         if MOTORS and method == 2:  # the motor variant only (fast.engine.loop_for): others never compile ETD2
             xn = _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag)
@@ -626,3 +734,395 @@ def run_steps(
             return x, k, li, AT_DISCRETE
         x = xn
     return x, k1, li, AT_STATE
+
+
+# =========================================================================== error-controlled steps
+# ``opt`` (run_auto's settings, written by fast.engine.simulate_compiled):
+O_RTOL, O_ATOL, O_HMAX, O_HMIN, O_TEND, O_TCHUNK, O_CLOCK, O_T0, O_DWELL, O_TMIN, O_METHOD, O_CLOCK_DISC = range(12)
+# ``ctl`` (its state, carried across calls; fast.engine reads the counts and the method):
+C_T, C_H, C_RPREV, C_ACCEPTED, C_REJECTED, C_EVALS, C_SEG, C_REANCHOR, C_METHOD, C_RHO, C_CAUSE = range(11)
+C_FORCED, C_FORCED_T, C_STREAK = 15, 16, 17  # steps taken at min_step over the tolerance, the first's t, in a row
+#: this many steps in a row at min_step with the error over the tolerance stop the run (E_MIN_STEP)
+FORCED_STREAK = 100
+#: stiffness: the real stability boundary of DOPRI5 (R(z) = 1 at z = -3.31 on the negative axis)
+DOPRI5_REAL_BOUND = 3.3
+#: auto picks the stiff method when rho h_max exceeds this: stability alone would hold DOPRI5 below a third
+#: of the longest step.  Measured over 5 s of a two-link computed-torque loop (tests/test_step_unstable.py's):
+#: k_v = 3000 at h_max = 5 ms (rho h_max = 18), DOPRI5 32,831 rate evaluations, ros2ec 19,008; k_v = 225 at
+#: 20 ms (5.4), DOPRI5 4,145, ros2ec 12,302 (ros2ec costs 12 evaluations per step, DOPRI5 7)
+STIFF_BOUND = 3.0 * DOPRI5_REAL_BOUND
+#: a step whose trial stage leaves the domain (or jumps past a check) is retried this much shorter
+REJECT_SHRINK = 0.25
+
+
+@jit
+def _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, K):
+    """One trial step of an error-controlled method: (x+, err, rate evaluations); info set if a stage failed.
+
+    3 = dopri5: the stages by fast.integrators.erk_stage_point, the solution and its embedded error by
+    erk_solution.  4 = ros2ec, 5 = etd2ec: the step once and as two halves with the same linear part
+    (W or L at x), err = (two halves - once) / 3, Richardson's estimate of the two halves' error (both
+    second order: err = O(h^3)); the two halves are the solution.  An embedded first-order estimate
+    (x + h k1, ETD1) is O(h^2): at rtol = 1e-6 it held the step of a k_v = 3000 loop to 0.35 ms, where
+    the second-order solution is accurate at 5 ms.
+    """
+    nq, nm = ctx[5], ctx[9]
+    if method == 3:
+        K[0] = f0
+        for s in range(1, 7):
+            y = erk_stage_point(x, K, s, h, DP_A)
+            K[s] = _stage(P, ctx, t + DP_C[s] * h, y, sigma, ubar, fm, nz, info, u_h, v_h)
+            if info[0] != 0:
+                return x, x, s
+        xn, err = erk_solution(x, K, h, DP_B, DP_E)
+        return xn, err, 6
+    # the linear part at x: ETD2's block J of [eta, i_a]; ROS2's W of the whole plant and f_t
+    sampled = SAMPLED and u_h.shape[0] > 0
+    J = np.zeros((0, 0))
+    F = np.zeros((0, 0))
+    ft = np.zeros(x.shape[0])
+    if MOTORS and method == 5:
+        G = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+        J = np.ascontiguousarray(G[nq : nq + 2 + nm, :])
+        ev = 2
+    else:
+        F = _plant_jacobian(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+        ev = nq + 2
+        if info[0] == 0 and not sampled:  # the law reads t (the reference): f_t by a forward difference
+            dt = 1e-7 * max(1.0, abs(t))
+            ft = (_stage(P, ctx, t + dt, x, sigma, ubar, fm, nz, info, u_h, v_h) - f0) / dt
+            ev += 1
+    if info[0] != 0:
+        return x, x, ev
+    one = _linear_step(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
+    ev += 1
+    if info[0] != 0:
+        return x, x, ev
+    half = 0.5 * h
+    mid = _linear_step(P, ctx, t, half, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
+    ev += 1
+    if info[0] != 0:
+        return x, x, ev
+    fmid = _stage(P, ctx, t + half, mid, sigma, ubar, fm, nz, info, u_h, v_h)
+    ev += 1
+    if info[0] != 0:
+        return x, x, ev
+    two = _linear_step(P, ctx, t + half, half, mid, fmid, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
+    ev += 1
+    return two, (two - one) / 3.0, ev
+
+
+@jit
+def _linear_step(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft):
+    """One ETD2 (method 5) or ROS2 (4) step with the linear part given."""
+    if MOTORS and method == 5:
+        return _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J)
+    return _ros2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, F, ft)
+
+
+@jit
+def _spectral_radius(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
+    """(rho, evaluations): an estimate of the largest |eigenvalue| of the loop's Jacobian at (t, x).
+
+    The nonlinear power method of fast.integrators.power_step from the direction of f0 (plus a
+    small constant so that no mode starts at zero), 20 iterations, the largest of the last five
+    ratios times 1.2 (RKC's safety factor); a stage outside the domain ends it early.
+    """
+    nx = x.shape[0]
+    v = f0.copy()
+    for i in range(nx):
+        v[i] += 1e-3 * (1.0 + abs(f0[i]))
+    v /= math.sqrt(np.sum(v * v))
+    eps = 1e-7 * (1.0 + math.sqrt(np.sum(x * x)))
+    rho = 0.0
+    last = 0.0
+    evals = 0
+    for it in range(20):
+        fv = _stage(P, ctx, t, x + eps * v, sigma, ubar, fm, nz, info, u_h, v_h)
+        evals += 1
+        if info[0] != 0:
+            info[:] = 0.0
+            break
+        last, v = power_step(v, fv, f0, eps)
+        if it >= 15:
+            rho = max(rho, last)
+    return 1.2 * max(rho, last), evals
+
+
+@jit
+def _reanchor_time(Kp, R, C, t_a, t_b, psi, info):
+    """When in (t_a, t_b] the chained law's frame psi must re-anchor (fast.kernels.kin_discrete: once the
+    reference heading theta_d(t) leaves psi +/- band): t_b if it need not, else the first instant found
+    by bisection on theta_d (a function of t alone: an event known from the reference), to 1e-12 s
+    relative, on the side where it must (so that the discrete update there re-anchors)."""
+    if Kp.kind != KIN_CHAINED:
+        return t_b
+    ref_side(Kp, R, C, t_b, psi, info)
+    if info[0] != 0 or abs(_wrap(C.QD[0, 2] - psi)) <= Kp.band:
+        info[:] = 0.0
+        return t_b
+    a, b = t_a, t_b
+    for _ in range(80):
+        if b - a <= 1e-12 * max(1.0, abs(b)):
+            break
+        m = 0.5 * (a + b)
+        ref_side(Kp, R, C, m, psi, info)
+        if info[0] != 0:
+            info[:] = 0.0
+            return t_b
+        if abs(_wrap(C.QD[0, 2] - psi)) > Kp.band:
+            b = m
+        else:
+            a = m
+    return b
+
+
+@jit
+def _next_event(events, seg, t, opt, hold_t, sampled, x, npl, ctl):
+    """The first instant after t that a step must land on: a fault time, a sample, a tick of the clock
+    (sensor noise, a discrete-time filter), the end of a switching dwell, the chained frame's
+    re-anchoring (located by :func:`_reanchor_time`), the run's end."""
+    t_ev = opt[O_TEND]
+    if ctl[C_REANCHOR] > t:
+        t_ev = min(t_ev, ctl[C_REANCHOR])
+    if seg < events.shape[0]:
+        t_ev = min(t_ev, events[seg])
+    if SAMPLED and sampled and hold_t[0] > t:
+        t_ev = min(t_ev, hold_t[0])
+    clock = opt[O_CLOCK]
+    if not math.isnan(clock):
+        j = math.floor((t - opt[O_T0]) / clock + 1e-9) + 1.0
+        t_ev = min(t_ev, opt[O_T0] + j * clock)
+    if opt[O_DWELL] >= 0.0:
+        end = x[npl + int(opt[O_DWELL])] + opt[O_TMIN]
+        if end > t + 1e-12 * max(1.0, abs(t)):
+            t_ev = min(t_ev, end)
+    return t_ev
+
+
+@jit
+def run_auto(
+    P0, Kp0, R0, pc0, pp0,
+    events, fsig, fubar, noise, sat, diag, lim, max_speed, max_position,
+    x, opt, ctl, rows,
+    lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share,
+    lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf, growth, dr0,
+):  # fmt: skip
+    r"""Accepted steps of an error-controlled run, from t = ctl[C_T] to the chunk's end; returns (x, li, where).
+
+    The order of each accepted step is run_steps': checks, the law, the stream row, the step, the
+    discrete updates.  The step: h from the controller (fast.integrators.step_factor), clipped to
+    the longest step and to the next instant it must land on (:func:`_next_event`: faults, samples,
+    the clock of noise and discrete-time filters, dwell ends, the end); a trial step whose error
+    ratio exceeds 1 is rejected and retried shorter, and one whose stage leaves the domain (or whose
+    new state jumps past a check, fast.kernels._step_jump) is retried at a quarter of its length.
+    At the minimum step a step whose error estimate is still over the tolerance (a discontinuity of
+    the rates inside it: the adaptive law's projection at its bounds) is taken and counted
+    (ctl[C_FORCED]); FORCED_STREAK of them in a row, or a trial stage that leaves the domain at the
+    minimum step, stop the run (E_MIN_STEP, the last rejection's cause in ctl[C_CAUSE:]).
+
+    At the first step of ``method`` auto (opt[O_METHOD] < 0) the loop's spectral radius rho at
+    (t0, x0) decides: stiff when rho h_max > STIFF_BOUND = 3 x 3.3, three times DOPRI5's stability
+    boundary on the real axis (stability, not accuracy, would hold the explicit method below a third
+    of its longest step): then ETD2 (etd2ec) for sampled motors, ROS2 (ros2ec) otherwise; else DOPRI5.
+
+    Logs every accepted step into the chunk buffers (``rows`` of them; the engine keeps the stream
+    and the decimated log); returns when the buffers are full, past opt[O_TCHUNK], at the end
+    (t = opt[O_TEND], its row logged) or at a stop (``where`` as in run_steps).
+    """
+    P, Kp, R, pc, pp, mo, dr = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0), as_ref(dr0)
+    nq = pp.n + 2
+    nx = x.shape[0]
+    sig_buf = np.zeros(n_sig)
+    C = as_ref(KCACHE(pp.n))
+    nm = motor_state_count(mo.R_a.shape[0], dr.kind)  # the plant states the motors add (run_steps')
+    ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm, dr)
+    pi_sampled = MOTORS and nm > 0 and dr.kind == DRIVER_PI_SAMPLED
+    npl = nq + 2 + nm
+    noisy = noise.shape[0] > 1
+    nz = noise[0]
+    sampled = u_h.shape[0] > 0
+    K = np.zeros((7, nx))
+    rtol, atol, h_max, h_min = opt[O_RTOL], opt[O_ATOL], opt[O_HMAX], opt[O_HMIN]
+    t = ctl[C_T]
+    seg = int(ctl[C_SEG])
+    li = 0
+    while True:
+        if li >= rows or (li > 0 and t >= opt[O_TCHUNK]):
+            ctl[C_T] = t
+            return x, li, AT_STATE
+        new_seg = seg
+        while new_seg < events.shape[0] and t >= events[new_seg]:
+            new_seg += 1
+        if MOTORS and nm > 0 and new_seg != seg:  # a winding opened: its current drops to 0
+            x[nq + 2 : npl] = reset_current(fmot[new_seg], x[nq + 2 : npl])
+        seg = new_seg
+        ctl[C_SEG] = seg
+        sigma, ubar, fm = fsig[seg], fubar[seg], fmot[seg]
+        if noisy:  # the sensor's draw of the clock tick at or before t
+            nz = noise[min(math.floor((t - opt[O_T0]) / opt[O_CLOCK] + 1e-9), noise.shape[0] - 1)]
+        for i in range(nx):
+            if not math.isfinite(x[i]):
+                info[0] = E_NONFINITE_STATE
+                info[1] = t
+                return x, li, AT_STATE
+        _check_state(pp, x, nq, lim, max_speed, max_position, info)
+        if info[0] != 0:
+            return x, li, AT_STATE
+        if SAMPLED and sampled and t >= hold_t[0] - 1e-9 * hold_t[2]:
+            sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf)
+            if info[0] != 0:
+                return x, li, AT_STATE
+        if pi_sampled and t >= hold_t[4] - 1e-9 * hold_t[5]:
+            _drive_tick(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)  # after the control's sample
+            if info[0] != 0:
+                return x, li, AT_STATE
+            hold_t[4] = t + hold_t[5]
+        if SAMPLED and sampled:
+            f0, u, tau = _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)
+            sig_buf[:] = sig_h
+        else:
+            f0, u, tau = _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig_buf)
+        ctl[C_EVALS] += 1.0
+        if info[0] != 0:
+            return x, li, AT_STATE
+        ok = True
+        for i in range(nx):
+            if not math.isfinite(f0[i]):
+                ok = False
+        for i in range(u.shape[0]):
+            if not math.isfinite(u[i]):
+                ok = False
+        if not ok:
+            info[0] = E_NONFINITE_DERIV
+            info[1] = t
+            return x, li, AT_STATE
+        lt[li] = t
+        lq[li] = x[:nq]
+        leta[li] = x[nq : nq + 2]
+        lu[li] = u
+        ltau[li] = tau
+        if MOTORS and nm > 0:
+            lsig[li], lubar[li] = true_faults(ctx, x, sigma, ubar, fm)
+            lia[li] = x[nq + 2 : npl]
+        else:
+            lsig[li] = sigma
+            lubar[li] = ubar
+        lxc[li] = x[npl:]
+        if lmeas.shape[0] > 0:
+            lmeas[li] = x[: nq + 2] + nz
+        lsg[li] = sig_buf
+        li += 1
+        if t >= opt[O_TEND]:
+            ctl[C_T] = t
+            return x, li, AT_STATE
+        if ctl[C_METHOD] < 0.0:  # the first step: the method (auto) and the starting step
+            method = opt[O_METHOD]
+            if method < 0.0:
+                rho, ev = _spectral_radius(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+                ctl[C_EVALS] += ev
+                ctl[C_RHO] = rho
+                method = 3.0
+                if rho * h_max > STIFF_BOUND:
+                    # ETD2 when the plant between samples is autonomous and linear in its currents (its
+                    # ETD1 estimate then holds); ROS2 with the time derivative otherwise
+                    method = 5.0 if MOTORS and nm > 0 and sampled else 4.0
+            ctl[C_METHOD] = method
+            h0 = min(first_guess(x, f0, rtol, atol), h_max)
+            f1 = _stage(P, ctx, t + h0, x + h0 * f0, sigma, ubar, fm, nz, info, u_h, v_h)
+            ctl[C_EVALS] += 1.0
+            if info[0] != 0:
+                info[:] = 0.0
+                ctl[C_H] = h0
+            else:
+                ctl[C_H] = starting_step(x, f0, f1, h0, 5.0 if method == 3.0 else 2.0, rtol, atol)
+        method = int(ctl[C_METHOD])
+        # the chained frame re-anchors after the steps (continuous control, discrete updates every step)
+        reanchors = Kp.kind == KIN_CHAINED and not (SAMPLED and sampled) and opt[O_CLOCK_DISC] == 0.0
+        k_err = 5.0 if method == 3 else 3.0  # err = O(h^k)
+        beta = 0.04 if method == 3 else 0.0  # PI control for DOPRI5 (Hairer's code), elementary otherwise
+        rejected = False
+        while True:
+            t_ev = _next_event(events, seg, t, opt, hold_t, sampled, x, npl, ctl)
+            if pi_sampled and hold_t[4] > t:  # the sampled drive's next sample
+                t_ev = min(t_ev, hold_t[4])
+            h = min(max(ctl[C_H], h_min), h_max)
+            land = t + h >= t_ev - 1e-12 * max(1.0, abs(t_ev))
+            if land:
+                h = t_ev - t
+            elif t + 2.0 * h > t_ev:  # two equal steps to the event, not one long and one short
+                h = 0.5 * (t_ev - t)
+            xn, err, ev = _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, K)
+            ctl[C_EVALS] += ev
+            r = math.inf
+            cause = 0
+            if info[0] != 0:
+                cause = 1
+            else:
+                r = error_ratio(err, x, xn, rtol, atol)
+                kind = _step_jump(pp, x, xn, nq, lim, max_speed, max_position, growth[3], growth[4], info)
+                if kind != 0:
+                    info[0] = E_STEP_JUMP
+                    info[1] = kind
+                    cause = 1
+                elif r <= 1.0:
+                    t_try = t_ev if land else t + h
+                    if reanchors:  # a re-anchoring inside the step: land on it instead (not a rejection)
+                        t_star = _reanchor_time(Kp, R, C, t, t_try, xn[npl], info)
+                        if t_star < t_try:
+                            ctl[C_REANCHOR] = t_star
+                            continue
+                    ctl[C_STREAK] = 0.0
+                    break
+            at_min = h <= h_min * (1.0 + 1e-9)
+            if not cause and at_min and math.isfinite(r) and ctl[C_STREAK] < FORCED_STREAK:
+                # the error estimate is over the tolerance at the minimum step: a discontinuity of the
+                # rates inside the step (the adaptive law's projection, a bound), whose error is O(h jump):
+                # the step is taken, counted and reported; FORCED_STREAK of them in a row stop the run
+                ctl[C_FORCED] += 1.0
+                if ctl[C_FORCED] == 1.0:
+                    ctl[C_FORCED_T] = t
+                ctl[C_STREAK] += 1.0
+                break
+            if cause:
+                ctl[C_CAUSE : C_CAUSE + 4] = info
+                info[:] = 0.0
+                h_new = REJECT_SHRINK * h
+            else:
+                ctl[C_CAUSE] = 0.0
+                ctl[C_CAUSE + 1] = r
+                h_new = h * step_factor(r, ctl[C_RPREV], k_err, beta, True)
+            ctl[C_REJECTED] += 1.0
+            rejected = True
+            if h_new < h_min and at_min:
+                info[0] = E_MIN_STEP
+                info[1] = t
+                info[2] = h_new
+                ctl[C_T] = t
+                return x, li, AT_TRIAL
+            ctl[C_H] = max(h_new, h_min)  # the last try is at the minimum step itself
+        t_new = t_ev if land else t + h
+        h_next = h * step_factor(r, ctl[C_RPREV], k_err, beta, rejected)
+        if land and h < ctl[C_H]:  # a step cut short by an event does not shorten the next
+            h_next = max(h_next, ctl[C_H])
+        ctl[C_H] = h_next
+        ctl[C_RPREV] = max(r, 1e-4)
+        ctl[C_ACCEPTED] += 1.0
+        if not (SAMPLED and sampled):
+            on_clock = True
+            if opt[O_CLOCK_DISC] > 0.0:  # a discrete-time filter (the UKF) runs on its clock only
+                tick = (t_new - opt[O_T0]) / opt[O_CLOCK]
+                on_clock = abs(tick - round(tick)) <= 1e-9 * max(1.0, tick) or t_new >= opt[O_TEND]
+            if on_clock:
+                xcn = xn[npl:]
+                KDISC(Kp, R, C, t_new, xcn, info)
+                if info[0] != 0:
+                    ctl[C_T] = t
+                    return x, li, AT_DISCRETE
+                # the scheme's update through its guarded buffer (run_steps' _disc)
+                _disc(P, Kp, R, C, pc, t_new, xn[:nq] + nz[:nq], xn[nq : nq + 2] + nz[nq:], xcn, sigma, ubar, info)
+                if info[0] != 0:
+                    ctl[C_T] = t
+                    return x, li, AT_DISCRETE
+        x = xn
+        t = t_new

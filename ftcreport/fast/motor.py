@@ -27,8 +27,11 @@ The gear model ``tau_w = eta_g N tau_l`` holds in both directions of power flow,
 drives the motor the "gear loss" (1 - eta_g) tau_l omega_m is negative.  That is the model of E19,
 kept as it is; the power balance (tests/test_motor.py) holds as an identity either way.
 
-Driver (command -> voltage): a static inversion, not a current loop
---------------------------------------------------------------------
+Driver (command -> voltage): the static inversion
+-------------------------------------------------
+The drives (the static inversion, a PI current loop, each with its own model of the motor) are in
+fast/drive.py; :func:`driver_voltage` here is the static driver with the plant's own model, the
+default drive (fast.drive.static_voltage gives its bits when the drive's model is the plant's).
 The controllers command wheel torque tau_c, as in the thesis.  :func:`driver_voltage` inverts the
 motor's steady state with its nominal parameters (it knows no fault):
 
@@ -68,7 +71,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kernels import _mv, _solve2, input_matrix, jit, reduced, s_column
+from .kernels import _mv, _solve2, bbar_rate, jit, reduced, rotor_mass
 
 MODE_NORMAL = 0
 MODE_OPEN = 1
@@ -106,50 +109,6 @@ def healthy_faults(nw: int) -> np.ndarray:
 
 
 @jit
-def _b_and_rate(p, q, thdot):
-    """B(q) of (C.8) and its time derivative along headings moving at thdot (robot order)."""
-    n = p.n
-    N = n + 2
-    nw = 2 * n
-    th = np.empty(n)
-    sth = np.empty(n)
-    cth = np.empty(n)
-    for k in range(n):
-        th[k] = q[N - 1 - k]
-        sth[k] = math.sin(th[k])
-        cth[k] = math.cos(th[k])
-    Bd = np.zeros((N, nw))
-    for i in range(n):
-        ri = p.r[i]
-        for j in (2 * i, 2 * i + 1):
-            # d/dt of B's columns (C.8): U_i' = thetadot_i U_i^perp, d/dt sin(theta_i - theta_k)
-            Bd[0, j] = -sth[i] * thdot[i] / ri
-            Bd[1, j] = cth[i] * thdot[i] / ri
-            for k in range(n):
-                Bd[N - 1 - k, j] = p.D[i, k] * math.cos(th[i] - th[k]) * (thdot[i] - thdot[k]) / ri
-    return input_matrix(p, th, sth, cth), Bd
-
-
-@jit
-def _bbar_rate(p, q, eta, S, Sd):
-    """Bbardot = Sdot^T B + S^T Bdot along qdot = S eta, given S and Sdot of ``kernels.reduced``."""
-    n = p.n
-    _th, col, _t, _s, _w = s_column(p, q)
-    thdot = col * eta[0]
-    thdot[0] = eta[1]
-    B, Bd = _b_and_rate(p, q, thdot)
-    nw = 2 * n
-    Bbd = np.zeros((2, nw))
-    for a in range(2):
-        for j in range(nw):
-            acc = 0.0
-            for i in range(n + 2):
-                acc += Sd[i, a] * B[i, j] + S[i, a] * Bd[i, j]
-            Bbd[a, j] = acc
-    return Bbd
-
-
-@jit
 def bbar_and_rate(p, q, eta):
     r"""(Bbar, Bbardot): Bbar = S^T B (2.74) and d/dt Bbar = Sdot^T B + S^T Bdot along qdot = S eta.
 
@@ -157,7 +116,7 @@ def bbar_and_rate(p, q, eta):
     over r_i, so their rates are the thetadot of S eta (2.63)-(2.64) times the other function.
     """
     _M1, _M2, _C, Bbar, S, Sd = reduced(p, q, eta)
-    return Bbar, _bbar_rate(p, q, eta, S, Sd)
+    return Bbar, bbar_rate(p, q, eta, S, Sd)
 
 
 @jit
@@ -179,17 +138,6 @@ def winding_voltage(mo, v_a, fault):
         else:
             out[j] = v_a[j]
     return out
-
-
-@jit
-def rotor_mass(Mbar1, Bbar, Jw):
-    """Mbar1 + Bbar diag(Jw) Bbar^T: the reduced inertia with the rotors on the wheel axes, (2, 2)."""
-    A = Mbar1.copy()
-    for j in range(Bbar.shape[1]):
-        for a in range(2):
-            for b in range(2):
-                A[a, b] += Jw[j] * Bbar[a, j] * Bbar[b, j]
-    return A
 
 
 @jit
@@ -230,7 +178,7 @@ def motor_plant_rhs(pc, mo, q, eta, i_a, v_a, fault):
     """
     nw = 2 * pc.n
     Mbar1, Mbar2, Cbar, Bbar, S, Sd = reduced(pc, q, eta)
-    Bbd = _bbar_rate(pc, q, eta, S, Sd)
+    Bbd = bbar_rate(pc, q, eta, S, Sd)
     v = winding_voltage(mo, v_a, fault)
     Jw = rotor_inertia_wheel(mo)
     # (Mbar1 + Bbar Jw Bbar^T) etadot = Bbar (tau0 - Jw Bbardot^T eta) - Mbar2 eta - Cbar
@@ -331,9 +279,13 @@ def quasi_static_current(mo, v_a, omega_w, fault):
 
 @jit
 def reset_current(fault, i_a):
-    """The currents at a fault-segment start: 0 on open windings, unchanged elsewhere."""
+    """The currents at a fault-segment start: 0 on open windings, unchanged elsewhere.
+
+    ``i_a`` may be the whole motor-state vector ``[i_a, drive states]`` (fast.drive): only its first
+    nw entries (the currents) are touched.
+    """
     out = i_a.copy()
-    for j in range(i_a.shape[0]):
+    for j in range(fault.shape[0]):
         if int(fault[j, F_MODE]) == MODE_OPEN:
             out[j] = 0.0
     return out

@@ -205,7 +205,7 @@ def C_vector(p: ChainParams, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
 
 
 def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
-    r"""Input matrix B(q) by virtual work, Appendix C (C.2)-(C.8), ERRATA E3: the compiled ``fast.motor._b_and_rate``.
+    r"""Input matrix B(q) by virtual work, Appendix C (C.2)-(C.8), ERRATA E3 (``fast.kernels.input_matrix_and_rate``).
 
     Column ``2i`` (wheel ir) is ``(1/r_i) [U_i; D[i,k] sin(th_i - th_k) + b_i delta_ik]``,
     column ``2i+1`` (wheel il) the same with ``-b_i``.
@@ -214,10 +214,8 @@ def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
     -------
     B : (n + 2, 2 n) ndarray, columns in wheel order 1r, 1l, ..., nr, nl
     """
-    from ..fast.motor import _b_and_rate
-
     # the rate Bdot along headings at rest (thdot = 0) is not used
-    return _b_and_rate(kernel_ref(p), _vec(q), np.zeros(p.n))[0]
+    return _fast().input_matrix_and_rate(kernel_ref(p), _vec(q), np.zeros(p.n))[0]
 
 
 def reduced(p: ChainParams, q: np.ndarray, eta: np.ndarray):

@@ -496,7 +496,7 @@ def _classic_figures(res: dict, series: dict, events: list[float], duration: flo
                 f"the first fault (fitted rate {fitted:.4g} 1/s over {ta:.0f}-{tb:.0f} s)."
             )
             figs.append({"id": "decay", "svg": plots.decay_svg(series[scheme], rate, (ta, tb), scheme), "caption": cap})
-    if res.get("sampled") or res.get("actuator_input") == "voltage":
+    if res.get("sampled") or res.get("actuator_input", "torque") != "torque":
         for f in figs:  # these are of the laws on the ideal plant, not of the loop the tables above analyse
             f["caption"] += (" Of the ideal plant in continuous time (the case-wide analyses below), not this case's "
                              "loop with its sampling and motors: that one is analysed above.")  # fmt: skip

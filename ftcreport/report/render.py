@@ -29,9 +29,11 @@ from ..cases import ordered_schemes, parse_case, with_duration
 from ..check import evaluate
 from ..errors import FtcError, printable
 from ..model.faults import wheel_names
+from ..runner import integrator_words
 from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
 from . import interactive, plots
 from .analysis_figs import analysis_section
+from .plant import plant_block
 from .replay import replay_data
 
 __all__ = ["dependency_versions", "render_all", "render_case", "render_index"]
@@ -128,23 +130,27 @@ def _fault_rows(case, sched, names) -> list[dict]:
 
 
 def armature_voltages(case, series: dict) -> dict:
-    """The driver's armature voltages per scheme on its log times, (K, 2n) [V], for a case with motors.
+    """The drive's armature voltages per scheme on its log times, (K, 2n) [V], for a case with motors.
 
-    Not logged by the engine: rebuilt from the logged command u, the fault gains and frictions and the
-    wheel speeds Bbar(q)^T eta through the driver's static inversion (``fast.motor.driver_voltage``, the
-    function the loop calls).  Exact at a logged instant that is a sample instant (or every instant with
-    continuous control) of a noise-free run with no measurement delay; otherwise the driver saw the
-    state of its last sample, measured, so the figure's caption says it is approximate.
+    Rebuilt from what is logged through the functions the loop calls (fast.drive): the command u with
+    the fault gains and frictions gives tau_c; the wheel speeds Bbar(q)^T eta give the drive's current
+    target i* (``current_target``, with the drive's own model of the motor, [actuators.drive_model]); the
+    static driver's voltage is ``static_voltage`` of it, a PI drive's is ``drive_output`` of i* and its
+    logged states (the current and the integral part; the sampled PI's held voltage is itself a logged
+    state, exact at every instant).  Exact at a logged instant that is a sample instant (or every
+    instant with continuous control) of a noise-free run with no measurement delay and the controller's
+    model equal to the plant's; otherwise the drive saw the state of its last sample, measured, so the
+    figure's caption says it is approximate.
     """
+    from ..fast.drive import DRIVER_PI_SAMPLED, DRIVER_STATIC, current_target, drive_output, static_voltage
     from ..fast.engine import wheel_speeds_rows
-    from ..fast.motor import driver_voltage
-    from ..model.actuators import pack
+    from ..model.actuators import pack_drive
     from ..runner import build
 
     if case.actuators is None:
         return {}
     built = build(case)
-    mo = pack(case.motor_params(), case.robots.n)
+    dr = pack_drive(case.drive_params(), case.motor_params(), case.robots.n)
     sched = built.faults
     sat = case.plant.saturation
     out = {}
@@ -155,9 +161,18 @@ def armature_voltages(case, series: dict) -> dict:
         us = u if sat is None else np.clip(u, -sat, sat)
         tau_c = np.asarray(ts["sigma"], float) * us + np.asarray(ts["ubar"], float)
         omega = wheel_speeds_rows(built.chain, ts["q"], ts["eta"])
-        out[s] = np.array(
-            [driver_voltage(mo, tau_c[k], omega[k], sched.motor(float(t))) for k, t in enumerate(ts["t"])]
-        )
+        xm = np.asarray(ts["i_a"], float)
+        if "z_drive" in ts:
+            xm = np.concatenate((xm, np.asarray(ts["z_drive"], float)), axis=1)
+        volts = []
+        for k, t in enumerate(ts["t"]):
+            fault = sched.motor(float(t))
+            i_star = current_target(dr, tau_c[k], omega[k]) if dr.kind != DRIVER_PI_SAMPLED else np.zeros(0)
+            if dr.kind == DRIVER_STATIC:
+                volts.append(static_voltage(dr, i_star, omega[k], fault))
+            else:
+                volts.append(drive_output(dr, np.ascontiguousarray(xm[k]), i_star, omega[k], fault)[0])
+        out[s] = np.array(volts)
     return out
 
 
@@ -174,8 +189,8 @@ def _motor_figure(case, series: dict, names: list[str], shading: list[dict], mai
     exact = case.simulation.measurement_delay == 0 and not (noise.position or noise.heading or noise.velocity)
     sampled = case.simulation.sample_time is not None
     how = (
-        "rebuilt from the logged command and wheel speeds through the driver's static inversion (the "
-        "function the engine calls; not logged)"
+        "rebuilt from the logged command, wheel speeds and drive states through the drive's own functions "
+        "(those the engine calls; not logged)"
         + (
             ", exact at the sample instants"
             if exact and sampled
@@ -357,6 +372,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         replay = replay_data(
             series, build_plant_chain(case), faults, list(names), {m["scheme"]: m["status"] for m in runs}
         )
+    plant = plant_block(case, runs, series, out, rec.get("base"))  # templates/_plant.html (issue 36)
     return write_page(
         page,
         "case.html",
@@ -371,10 +387,10 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         scheme_colors=plots.SCHEME_COLORS,
         plotly_inline=interactive.inline_plotly()
         if any(f.get("plotly") for f in [*figures, *((requirements or {}).get("figures") or [])])
+        or ((plant or {}).get("identification") or {}).get("figure")
         else None,
         oracle_notes=oracle_notes(verdict, case, base_verdict) if verdict else [],
         shading=shading,
-        plant=None,  # r3-drive's _plant.html (the plant and its idealizations) fills it
         name=name,
         analysis=analysis,
         diagnosis=diagnosis,
@@ -388,6 +404,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         method=case.simulation.method,
         log_every=case.simulation.log_every,
         engines=", ".join(f"{m['scheme']} {m['engine']}" for m in runs if "engine" in m),
+        integrators="; ".join(f"{m['scheme']}: {integrator_words(m)}" for m in runs if m.get("integrator")),
         warnings=rec.get("warnings", []),
         faults=faults,
         runs=runs,
@@ -401,6 +418,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         case_text=text,
         manifest=_manifest(out, name),
         base_cmp=base_cmp,
+        plant=plant,
     )
 
 

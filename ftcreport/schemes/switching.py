@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
+from pydantic import StrictBool
 
 from ..fields import FieldError, Gain, Gain0, Strict, doc_field, number
 from .api import Scheme
@@ -41,6 +42,13 @@ class SwitchingScheme(Strict):
         "(m/s)^2",
     )
     patterns: Literal["all"] | list[list[str]] = doc_field("all", PATTERNS, "-")
+    rotor_inertia: StrictBool = doc_field(
+        True,
+        "with [actuators]: the bank's filters and the law model the chain with the motors' rotor inertia "
+        "eta_g N^2 J_m on each wheel axis (false: the chain alone, as the thesis; the bank then mistakes the "
+        "missing inertia for lost torque and identifies failed wheels that work)",
+        "-",
+    )
 
 
 def check_patterns(name: str, table, case) -> None:
@@ -102,14 +110,18 @@ def models(table) -> int | None:
 
 def _controller(scheme: Scheme, ctx):
     from ..control.switching import SwitchingController
+    from ..model.actuators import rotor_inertia_wheels
 
     table = ctx.params if ctx.params is not None else SwitchingScheme(k_v=ctx.k_v)
+    # the bank's filters know the motors' rotors (issue 36 item 3): eta_g N^2 J_m on each wheel axis
+    motors = ctx.case.motor_params() if ctx.case is not None and table.rotor_inertia else None
     return SwitchingController(
         ctx.chain,
         ctx.kin,
         ctx.k_v,
         patterns=patterns_of(table, ctx.chain),
         u_limit=ctx.saturation,
+        rotor_inertia=None if motors is None else rotor_inertia_wheels(motors),
         **table.model_dump(include={"gamma", "T_min", "c_inst", "c_int", "forgetting", "hysteresis"}),
     )
 

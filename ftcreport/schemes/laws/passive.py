@@ -40,10 +40,18 @@ def oracle_law(P, step, terms, x, out):
 
 @jit
 def switching_law(P, step, terms, x, out):
-    """(3.37) for the selected model's pattern, and the model bank's rates (fast.kernels.switching_rates)."""
+    """(3.37) for the selected model's pattern, and the model bank's rates (fast.kernels.switching_rates).
+
+    With ``P.Jw`` (the motors' rotor inertias) the bank's filters predict with the rotors
+    (fast.kernels.rotor_filter_terms); the law itself uses the chain's model, as every scheme.
+    """
     u = law_for_pattern(terms.MB, terms.w, P.patterns[round(x[P.sel])])
     out.u[:] = u
-    switching_rates(P, terms.MB, u, terms.g, step.eta, x, out.dx)
+    if P.Jw.shape[0] > 0:  # the bank's filters model the motors' rotors (issue 36 item 3); the law keeps the chain's
+        MB, g = F.rotor_filter_terms(step.model, step.q, step.eta, P.Jw)
+        switching_rates(P, MB, u, g, step.eta, x, out.dx)
+    else:
+        switching_rates(P, terms.MB, u, terms.g, step.eta, x, out.dx)
 
 
 @jit

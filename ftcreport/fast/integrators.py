@@ -1,0 +1,307 @@
+r"""The integrators of the compiled loop: their formulas, error estimates and step-size control.
+
+The loop (fast/loop.py) owns the closed loop's rate function ``f(t, x)`` and the Jacobian columns
+of its stiff block; the functions here never see a law or a plant.  They take the stage rates the
+loop computed and return the next stage point, the new state and its local error estimate
+(reverse communication, as in the Fortran ODE codes: the caller evaluates f, the integrator does
+the algebra).  State order ``x = [q, eta, i_a, ..., xc]``: the stiff block is the ``m`` entries
+from ``first``: eta, the motors' currents and whatever else the plant puts after them (``first`` =
+nq: the fixed ROS2 and ETD2, and etd2ec), or the whole plant from q (``first`` = 0: ros2ec, whose W
+needs the coupling of eta's rates to q, k_v d eta_c / dq: without it, as without f_t, a stiff velocity
+loop lags its moving equilibrium by O(h), which the error estimate sees, and the step falls to 1 / k_v).
+
+Fixed-step methods (``SimSettings.method``): RK4 (in the loop), ROS2 (:func:`ros2_first`,
+:func:`ros2_second`) and ETD2 (:func:`etd2_first`, :func:`etd2_second`).
+
+Error-controlled methods, each with an embedded estimate of its local error:
+
+* ``dopri5``: Dormand & Prince (1980), "A family of embedded Runge-Kutta formulae", J. Comput.
+  Appl. Math. 6, 19-26 (the coefficients of Hairer, Norsett & Wanner, "Solving ODEs I", 2nd ed.,
+  Table II.5.2): seven stages, fifth-order solution, fourth-order embedded one; for non-stiff loops.
+* ``ros2ec``: the two-stage Rosenbrock W-method ROS2 (Verwer, Spee, Blom & Hundsdorfer 1999, SIAM J.
+  Sci. Comput. 20, 1456-1480) with W of the whole plant and the rates' time derivative: L-stable,
+  second order for any W; for stiff non-autonomous loops.
+* ``etd2ec``: ETD2RK (Cox & Matthews 2002), exact on the linear block: for the motors between samples
+  (held voltages: the plant is autonomous there).
+
+  Both estimate their error by step doubling (Richardson; Hairer, Norsett & Wanner I, II.4): the
+  step once (x_h) and as two halves (x_hh) with the same linear part, err = (x_hh - x_h) / 3, the
+  leading error of x_hh for a second-order method (O(h^3)); x_hh is the solution.  Their embedded
+  first-order solutions (x + h k1; ETD1, the first stage a) are no good estimate here: O(h^2), and for
+  a stiff component with a slowly moving equilibrium O(h) (the step falls to 1 / k_v), where the
+  second-order solution is accurate (fast.loop._attempt).
+
+Step-size control (Hairer, Norsett & Wanner I, section II.4, and II, section IV.2):
+
+* the error ratio is the max norm r = max_i |err_i| / (atol + rtol max(|x_i|, |x+_i|)) (the norm of
+  MATLAB's ode45, Shampine & Reichelt 1997, "The MATLAB ODE Suite", SIAM J. Sci. Comput. 18: an
+  RMS over thousands of slow controller states would dilute the plant's few errors); a step is
+  accepted when r <= 1;
+* the next step is h fac with fac = 0.9 r^-alpha r_prev^beta (Gustafsson's PI controller; beta = 0
+  is the elementary controller 0.9 r^(-1/k), k the order of the error estimate plus one), fac
+  limited to [0.2, 5] and to at most 1 right after a rejection;
+* the first step from HNW I's starting-step algorithm (II.4, p. 169), in the same norm.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..runs import AUTO_METHODS
+from .expo import phi12, phi12_scalar
+from .kernels import _solve2, jit
+
+__all__ = [
+    "AUTO_METHODS",
+    "DP_A",
+    "DP_B",
+    "DP_C",
+    "DP_E",
+    "METHOD_CODES",
+    "ROS2_GAMMA",
+    "erk_solution",
+    "erk_stage_point",
+    "error_ratio",
+    "etd2_first",
+    "etd2_second",
+    "power_step",
+    "ros2_first",
+    "ros2_second",
+    "solve_small",
+    "starting_step",
+    "step_factor",
+]
+
+#: the methods' codes in the loop (fast.loop.run_steps, run_auto)
+METHOD_CODES = {"rk4": 0, "ros2": 1, "etd2": 2, "dopri5": 3, "ros2ec": 4, "etd2ec": 5}
+
+# Dormand-Prince 5(4): c_i, a_ij, the fifth-order weights b and e = b - bhat (bhat: the fourth order)
+DP_C = np.array([0.0, 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0, 1.0, 1.0])
+DP_A = np.array(
+    [
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [1.0 / 5.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [3.0 / 40.0, 9.0 / 40.0, 0.0, 0.0, 0.0, 0.0],
+        [44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0, 0.0, 0.0, 0.0],
+        [19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0, 0.0, 0.0],
+        [9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0, 0.0],
+        [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0],
+    ]
+)
+DP_B = np.array([35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0, 0.0])
+DP_E = np.array([71.0 / 57600.0, 0.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0])
+
+ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+
+#: step-size controller (HNW I, II.4): safety factor, largest and smallest change per step
+SAFETY, FAC_MAX, FAC_MIN = 0.9, 5.0, 0.2
+
+
+# --------------------------------------------------------------------------- explicit Runge-Kutta
+@jit
+def erk_stage_point(x, K, s, h, A):
+    """x + h sum_j a_sj K_j: the point where stage s (0-based, s >= 1) is evaluated; K: (stages, nx)."""
+    y = x.copy()
+    for j in range(s):
+        a = A[s, j]
+        if a != 0.0:
+            y += (h * a) * K[j]
+    return y
+
+
+@jit
+def erk_solution(x, K, h, B, E):
+    """(x+, err): x+ = x + h sum_j b_j K_j, err = h sum_j e_j K_j (the embedded pair's difference)."""
+    xn = x.copy()
+    err = np.zeros(x.shape[0])
+    for j in range(B.shape[0]):
+        if B[j] != 0.0:
+            xn += (h * B[j]) * K[j]
+        if E[j] != 0.0:
+            err += (h * E[j]) * K[j]
+    return xn, err
+
+
+# --------------------------------------------------------------------------- step-size control
+@jit
+def error_ratio(err, x, xn, rtol, atol):
+    """r = max_i |err_i| / (atol + rtol max(|x_i|, |x+_i|)): the step is accepted when r <= 1."""
+    r = 0.0
+    for i in range(err.shape[0]):
+        sc = atol + rtol * max(abs(x[i]), abs(xn[i]))
+        e = abs(err[i]) / sc
+        if math.isnan(e):
+            return e  # a NaN rejects the step
+        r = max(r, e)
+    return r
+
+
+@jit
+def step_factor(r, r_prev, k, beta, rejected):
+    r"""The next step's factor fac = 0.9 r^-alpha r_prev^beta, alpha = 1/k - 0.75 beta, in [0.2, 5].
+
+    ``k``: the order of the error estimate plus one (err = O(h^k)); ``beta``: Gustafsson's PI term
+    (0.04 for DOPRI5 as in Hairer's code, 0 for the elementary controller); ``r_prev``: the last
+    accepted step's ratio (at least 1e-4); ``rejected``: the step before was rejected (then fac <= 1).
+    """
+    hi = 1.0 if rejected else FAC_MAX
+    if not r > 0.0:
+        return hi if r == 0.0 else FAC_MIN  # an exact step grows; a NaN shrinks
+    alpha = 1.0 / k - 0.75 * beta
+    fac = SAFETY * r ** (-alpha) * max(r_prev, 1e-4) ** beta
+    return min(hi, max(FAC_MIN, fac))
+
+
+@jit
+def _scaled_norm(v, x, rtol, atol):
+    n = 0.0
+    for i in range(v.shape[0]):
+        n = max(n, abs(v[i]) / (atol + rtol * abs(x[i])))
+    return n
+
+
+@jit
+def starting_step(x, f0, f1, h0, order, rtol, atol):
+    """HNW I's starting step (II.4, p. 169): from f0 = f(t, x) and f1 = f(t + h0, x + h0 f0).
+
+    h1 = (0.01 / max(||f0||, ||f1 - f0|| / h0))^(1 / (order + 1)) in the error's scaled max norm;
+    returns min(100 h0, h1).  ``h0`` comes from :func:`first_guess`.
+    """
+    d1 = _scaled_norm(f0, x, rtol, atol)
+    d2 = _scaled_norm(f1 - f0, x, rtol, atol) / h0
+    big = max(d1, d2)
+    h1 = max(1e-06, 0.001 * h0) if big <= 1e-15 else (0.01 / big) ** (1.0 / (order + 1.0))
+    return min(100.0 * h0, h1)
+
+
+@jit
+def first_guess(x, f0, rtol, atol):
+    """HNW's h0 = 0.01 ||x|| / ||f0|| (1e-6 when either is tiny), the probe step of :func:`starting_step`."""
+    d0 = _scaled_norm(x, x, rtol, atol)
+    d1 = _scaled_norm(f0, x, rtol, atol)
+    if d0 < 1e-5 or d1 < 1e-5:
+        return 1e-6
+    return 0.01 * d0 / d1
+
+
+@jit
+def power_step(v, fv, f0, eps):
+    r"""One step of the nonlinear power method for the spectral radius of df/dx (RKC's ``spcrad``:
+    Sommeijer, Shampine & Verwer 1998, J. Comput. Appl. Math. 88, 315-326).
+
+    ``v``: the current direction (unit 2-norm), ``fv`` = f(x + eps v), ``f0`` = f(x): J v ~ (fv - f0) /
+    eps; returns (|J v|, the next unit direction).
+    """
+    w = (fv - f0) / eps
+    n = math.sqrt(np.sum(w * w))
+    if not n > 0.0:
+        return 0.0, v
+    return n, w / n
+
+
+# --------------------------------------------------------------------------- linearly implicit (W-methods)
+@jit
+def solve_small(A, b):
+    """A x = b for the W-method's small system: closed form for 2 x 2, else Gaussian elimination (partial pivoting)."""
+    m = b.shape[0]
+    if m == 2:
+        return _solve2(A, b)
+    M = A.copy()
+    y = b.copy()
+    for c in range(m):
+        p = c
+        for r in range(c + 1, m):
+            if abs(M[r, c]) > abs(M[p, c]):
+                p = r
+        if p != c:
+            for j in range(m):
+                M[c, j], M[p, j] = M[p, j], M[c, j]
+            y[c], y[p] = y[p], y[c]
+        for r in range(c + 1, m):
+            f = M[r, c] / M[c, c]
+            for j in range(c, m):
+                M[r, j] -= f * M[c, j]
+            y[r] -= f * y[c]
+    out = np.empty(m)
+    for c in range(m - 1, -1, -1):
+        acc = y[c]
+        for j in range(c + 1, m):
+            acc -= M[c, j] * out[j]
+        out[c] = acc / M[c, c]
+    return out
+
+
+@jit
+def ros2_first(F, diag, f0, ft, h, first):
+    r"""ROS2's first stage: k1 with (I - gamma h A) k1 = f(t, x) + gamma h f_t(t, x).
+
+    ``ft``: the rates' explicit time derivative (zeros: the fixed-step ROS2 of the shipped cases,
+    which leaves it out).  With it the method is consistent on non-autonomous stiff loops (the
+    reference enters the law through t): the autonomous form with t as a state, t' = 1 (Verwer et
+    al. 1999, (2.1)); without it a stiff component's error is O(h) and ``ros2ec``'s estimate sees it.
+    ``first``: where the block of F's columns starts in x.
+
+    A holds the ``m`` columns F (nx, m) of the stiff block (rows all of x, columns x[first : first + m])
+    and the diagonal ``diag`` of the controller's linear filters; (I - gamma h A) is solved by
+    Sherman-Morrison-Woodbury: with D = I - gamma h diag(diag), (D - gamma h F E^T)^-1 r =
+    D^-1 r + gamma h D^-1 F (I - gamma h E^T D^-1 F)^-1 E^T D^-1 r, an m x m system.
+    Returns (k1, D^-1 F, the m x m matrix, D^-1) for :func:`ros2_second`.
+    """
+    nx, m = F.shape
+    gh = ROS2_GAMMA * h
+    dinv = 1.0 / (1.0 - gh * diag)
+    DF = np.empty((nx, m))
+    for i in range(nx):
+        for j in range(m):
+            DF[i, j] = dinv[i] * F[i, j]
+    small = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            small[i, j] = (1.0 if i == j else 0.0) - gh * DF[first + i, j]
+    rd = dinv * (f0 + gh * ft)
+    k1 = rd + gh * (DF @ solve_small(small, rd[first : first + m]))
+    return k1, DF, small, dinv
+
+
+@jit
+def ros2_second(DF, small, dinv, k1, f2, ft, h, first):
+    r"""ROS2's second stage, (I - gamma h A) k2 = f(t + h, x + h k1) - 2 k1 - gamma h f_t (``f2`` the rates
+    there); returns k2.  The step: x+ = x + 3/2 h k1 + 1/2 h k2; the embedded first order x + h k1
+    differs by h/2 (k1 + k2)."""
+    m = small.shape[0]
+    gh = ROS2_GAMMA * h
+    rd = dinv * (f2 - 2.0 * k1 - gh * ft)
+    return rd + gh * (DF @ solve_small(small, rd[first : first + m]))
+
+
+# --------------------------------------------------------------------------- exponential (ETD2RK)
+@jit
+def etd2_first(J, diag, x, f0, h, nq):
+    r"""ETD2RK's first stage a = x + h phi_1(hL) f(x) (the exponential Euler step, ETD1).
+
+    L: the block J (m x m) on x[nq : nq + m] and the diagonal ``diag`` elsewhere (fast.loop._etd2).
+    Returns (a, phi_2(hJ), phi_2(h diag)) for :func:`etd2_second`.
+    """
+    nx = x.shape[0]
+    m = J.shape[0]
+    P1, P2 = phi12(h * J)
+    p1 = np.empty(nx)
+    p2 = np.empty(nx)
+    for i in range(nx):
+        p1[i], p2[i] = phi12_scalar(h * diag[i])
+    a = x + h * p1 * f0
+    a[nq : nq + m] = x[nq : nq + m] + h * (P1 @ f0[nq : nq + m])
+    return a, P2, p2
+
+
+@jit
+def etd2_second(J, diag, x, a, f0, f1, P2, p2, h, nq):
+    r"""ETD2RK's step x+ = a + h phi_2(hL) (f(a) - f(x) - L (a - x)); ``f1`` = f(t + h, a)."""
+    m = J.shape[0]
+    g = f1 - f0 - diag * (a - x)
+    g[nq : nq + m] = f1[nq : nq + m] - f0[nq : nq + m] - J @ (a[nq : nq + m] - x[nq : nq + m])
+    xn = a + h * p2 * g
+    xn[nq : nq + m] = a[nq : nq + m] + h * (P2 @ g[nq : nq + m])
+    return xn

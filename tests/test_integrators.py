@@ -1,0 +1,236 @@
+"""The error-controlled integrators (fast.integrators) on problems with known solutions (issue 36 item 5).
+
+The loop (fast.loop.run_auto) evaluates the rates and calls these functions for the algebra; here a
+small driver does the same on test equations, so each formula's order, each error estimate's order and
+the step-size control are checked against exact solutions.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ftcreport.fast import integrators as I
+
+
+# --------------------------------------------------------------------------- a driver as the loop's
+def _linear_step(method, f, J, ft, t, x, f0, h):
+    """One ROS2 (W = J, with f_t) or ETD2 (L = J) step, as fast.loop._linear_step."""
+    zero = np.zeros(x.size)
+    if method == "ros2ec":
+        k1, DF, small, dinv = I.ros2_first(J, zero, f0, ft, h, 0)
+        k2 = I.ros2_second(DF, small, dinv, k1, f(t + h, x + h * k1), ft, h, 0)
+        return x + 1.5 * h * k1 + 0.5 * h * k2
+    a, P2, p2 = I.etd2_first(J, zero, x, f0, h, 0)
+    return I.etd2_second(J, zero, x, a, f0, f(t + h, a), P2, p2, h, 0)
+
+
+def _attempt(method, f, jac, t, x, h):
+    """(x+, err, rate evaluations) of one trial step, as fast.loop._attempt does it (f_t by a difference)."""
+    f0 = f(t, x)
+    if method == "dopri5":
+        K = np.zeros((7, x.size))
+        K[0] = f0
+        for s in range(1, 7):
+            K[s] = f(t + I.DP_C[s] * h, I.erk_stage_point(x, K, s, h, I.DP_A))
+        xn, err = I.erk_solution(x, K, h, I.DP_B, I.DP_E)
+        return xn, err, 7
+    J = jac(t, x)
+    dt = 1e-7 * max(1.0, abs(t))
+    ft = (f(t + dt, x) - f0) / dt if method == "ros2ec" else np.zeros(x.size)
+    # step doubling: once and as two halves with the same linear part; err = (two halves - once) / 3
+    one = _linear_step(method, f, J, ft, t, x, f0, h)
+    mid = _linear_step(method, f, J, ft, t, x, f0, 0.5 * h)
+    two = _linear_step(method, f, J, ft, t + 0.5 * h, mid, f(t + 0.5 * h, mid), 0.5 * h)
+    return two, (two - one) / 3.0, 5
+
+
+def _integrate(method, f, jac, x0, t0, t1, rtol, atol, h_max=np.inf):
+    """Error-controlled integration from t0 to t1 (the loop's controller); returns (x, accepted, rejected)."""
+    k_err, beta = (5.0, 0.04) if method == "dopri5" else (3.0, 0.0)
+    x, t = np.array(x0, dtype=float), t0
+    f0 = f(t, x)
+    h0 = I.first_guess(x, f0, rtol, atol)
+    h = min(I.starting_step(x, f0, f(t + h0, x + h0 * f0), h0, 5.0 if method == "dopri5" else 2.0, rtol, atol), h_max)
+    r_prev, acc, rej = 0.0, 0, 0
+    while t < t1:
+        rejected = False
+        while True:
+            h = min(h, h_max, t1 - t)
+            xn, err, _ = _attempt(method, f, jac, t, x, h)
+            r = I.error_ratio(err, x, xn, rtol, atol)
+            if r <= 1.0:
+                break
+            rej += 1
+            rejected = True
+            h *= I.step_factor(r, r_prev, k_err, beta, True)
+        t += h
+        x = xn
+        acc += 1
+        h *= I.step_factor(r, r_prev, k_err, beta, rejected)
+        r_prev = max(r, 1e-4)
+    return x, acc, rej
+
+
+# --------------------------------------------------------------------------- test equations
+def _oscillator(t, x):  # x'' = -x: x = (cos t, -sin t)
+    return np.array([x[1], -x[0]])
+
+
+def _oscillator_jac(t, x):
+    return np.array([[0.0, 1.0], [-1.0, 0.0]])
+
+
+LAM = -1e4
+
+
+def _prothero(t, x):  # Prothero-Robinson: y' = lambda (y - cos t) - sin t, y = cos t; stiff for lambda = -1e4
+    return np.array([LAM * (x[0] - math.cos(t)) - math.sin(t)])
+
+
+def _prothero_jac(t, x):
+    return np.array([[LAM]])
+
+
+def _step_errors(method, h):
+    """(|global error| of one step, |its error estimate|) on the oscillator from (1, 0) at h."""
+    x0 = np.array([1.0, 0.0])
+    xn, err, _ = _attempt(method, _oscillator, _oscillator_jac, 0.0, x0, h)
+    exact = np.array([math.cos(h), -math.sin(h)])
+    return float(np.max(np.abs(xn - exact))), float(np.max(np.abs(err)))
+
+
+@pytest.mark.parametrize(("method", "order", "est_order"), [("dopri5", 5, 4), ("ros2ec", 2, 2)])
+def test_local_error_and_its_estimate_have_the_method_orders(method, order, est_order):
+    """Halving h divides the local error by 2^(p+1) (p the order) and the estimate by 2^(q+1): DOPRI5's
+    embedded fourth order (q = 4); step doubling's (x_hh - x_h) / 3 of a second-order method (q = 2),
+    which also estimates the error itself (within 5 % at h = 0.025).  (ETD2 is exact on the oscillator:
+    its orders are checked on a nonlinear problem below.)"""
+    e1, est1 = _step_errors(method, 0.05)
+    e2, est2 = _step_errors(method, 0.025)
+    assert math.log2(e1 / e2) == pytest.approx(order + 1, abs=0.1)
+    assert math.log2(est1 / est2) == pytest.approx(est_order + 1, abs=0.1)
+    if method != "dopri5":
+        assert est2 == pytest.approx(e2, rel=0.05)
+
+
+def test_etd2ec_is_exact_on_a_linear_problem_and_its_estimate_vanishes():
+    """ETD2 with L the exact Jacobian integrates an affine system exactly: the step and its halves
+    agree, so the estimate is round-off (the currents' transients of the motor cases)."""
+    A = np.array([[-3000.0, 50.0], [0.0, -2.0]])
+    b = np.array([1.0, 0.5])
+    f = lambda t, x: A @ x + b  # noqa: E731
+    x0 = np.array([1.0, -1.0])
+    h = 0.05
+    xn, err, _ = _attempt("etd2ec", f, lambda t, x: A, 0.0, x0, h)
+    from scipy.linalg import expm
+
+    aug = np.zeros((3, 3))
+    aug[:2, :2] = A
+    aug[:2, 2] = b
+    exact = (expm(h * aug) @ np.append(x0, 1.0))[:2]
+    np.testing.assert_allclose(xn, exact, rtol=1e-12, atol=1e-14)
+    assert np.max(np.abs(err)) < 1e-13
+
+
+def test_etd2ec_is_second_order_on_a_nonlinear_problem():
+    """Where N(x) = f(x) - L x is not constant, ETD2's local error is O(h^3), and so is its estimate."""
+
+    def f(t, x):
+        return np.array([-x[0] + 0.5 * math.sin(x[1]), -2.0 * x[1] + x[0] ** 2])
+
+    L = lambda t, x: np.array([[-1.0, 0.0], [0.0, -2.0]])  # noqa: E731  (the linear part only)
+    x0 = np.array([1.0, 0.5])
+    ref, _, _ = _integrate("dopri5", f, None, x0, 0.0, 0.1, 1e-13, 1e-15)
+    ref2, _, _ = _integrate("dopri5", f, None, x0, 0.0, 0.05, 1e-13, 1e-15)
+    x1, est1, _ = _attempt("etd2ec", f, L, 0.0, x0, 0.1)
+    x2, est2, _ = _attempt("etd2ec", f, L, 0.0, x0, 0.05)
+    e1, e2 = np.max(np.abs(x1 - ref)), np.max(np.abs(x2 - ref2))
+    assert math.log2(e1 / e2) == pytest.approx(3.0, abs=0.2)
+    # step doubling's estimate follows the error (O(h^3)) and is close to it
+    assert math.log2(np.max(np.abs(est1)) / np.max(np.abs(est2))) == pytest.approx(3.0, abs=0.2)
+    assert np.max(np.abs(est2)) == pytest.approx(e2, rel=0.2)
+
+
+@pytest.mark.parametrize("rtol", [1e-4, 1e-6, 1e-8, 1e-10])
+def test_dopri5_meets_its_tolerance_on_the_oscillator(rtol):
+    """Over 10 periods the global error follows the tolerance: at most 50 rtol (errors add over ~100 steps
+    with the safety factor 0.9 and rtol of |x| <= 1), and it falls with it."""
+    x, acc, _ = _integrate("dopri5", _oscillator, None, [1.0, 0.0], 0.0, 20 * math.pi, rtol, rtol * 1e-2)
+    err = np.max(np.abs(x - np.array([1.0, 0.0])))
+    assert err < 50 * rtol
+    assert err > 1e-3 * rtol  # not a fixed tiny step: the control really uses the tolerance
+    # steps grow as rtol^(-1/5): from 1e-4 to 1e-10, 10^(6/5) = 16x more steps, within a factor 2
+    if rtol == 1e-10:
+        _, acc4, _ = _integrate("dopri5", _oscillator, None, [1.0, 0.0], 0.0, 20 * math.pi, 1e-4, 1e-6)
+        assert 8.0 < acc / acc4 < 32.0
+
+
+def test_rejections_and_recovery_at_a_fast_transient():
+    """y' = -50 (y - sin t) + cos t from y(0) = 1: a 0.02 s transient, then y = sin t.  The controller
+    rejects steps there (the starting step is tuned on f(0)), then grows them: far fewer steps than a
+    fixed step resolving the transient over the whole interval would take."""
+    f = lambda t, x: np.array([-50.0 * (x[0] - math.sin(t)) + math.cos(t)])  # noqa: E731
+    x, acc, rej = _integrate("dopri5", f, None, [1.0], 0.0, 10.0, 1e-8, 1e-10)
+    assert rej >= 1
+    exact = math.sin(10.0) + math.exp(-500.0)
+    assert abs(x[0] - exact) < 1e-7
+    # explicit: stability holds h below 3.3 / 50 = 0.066 s, so >= 150 steps; far fewer than a 1e-3 grid
+    assert 150 < acc < 2000
+
+
+def test_ros2ec_takes_long_steps_on_a_stiff_problem():
+    """Prothero-Robinson with lambda = -1e4: an explicit method needs h < 3.3e-4 (30,000 steps over 10 s);
+    ROS2 (L-stable) follows y = cos t at steps set by accuracy alone, and meets the tolerance.  Without the f_t
+    term of fast.integrators.ros2_first the stiff component's error is O(h) and an estimate of it held the step
+    near 1 / |lambda|."""
+    x, acc, _ = _integrate("ros2ec", _prothero, _prothero_jac, [1.0], 0.0, 10.0, 1e-6, 1e-8)
+    assert abs(x[0] - math.cos(10.0)) < 1e-5
+    assert acc < 3000  # 1974 measured
+    x4, acc4, _ = _integrate("ros2ec", _prothero, _prothero_jac, [1.0], 0.0, 10.0, 1e-4, 1e-6)
+    assert abs(x4[0] - math.cos(10.0)) < 1e-3
+    assert 4.0 < acc / acc4 < 16.0  # 10x more steps at a 100x tighter tolerance (197 measured at 1e-4)
+    # the same with DOPRI5 is held by stability: at least 10 / 3.3e-4 steps
+    _, acc_dp, _ = _integrate("dopri5", _prothero, None, [1.0], 0.0, 1.0, 1e-6, 1e-8)
+    assert acc_dp > 1.0 / (3.4 / abs(LAM))
+
+
+def test_dopri5_real_stability_boundary():
+    """R(z) = 1 + z b^T (I - z A)^-1 1 reaches |R| = 1 at z = -3.3 on the negative real axis
+    (fast.loop.DOPRI5_REAL_BOUND, auto's stiffness test)."""
+    from ftcreport.fast.loop import DOPRI5_REAL_BOUND
+
+    A = I.DP_A[:6, :6]
+    b = I.DP_B[:6]
+
+    def R(z):
+        return 1.0 + z * b @ np.linalg.solve(np.eye(6) - z * A, np.ones(6))
+
+    zs = np.linspace(-4.0, -0.01, 4000)
+    bound = -zs[np.flatnonzero(np.abs([R(z) for z in zs]) <= 1.0)[0]]
+    assert bound == pytest.approx(3.31, abs=0.01)
+    assert bound >= DOPRI5_REAL_BOUND
+
+
+def test_step_factor_is_the_controllers():
+    """0.9 r^(-1/k) (elementary), limited to [0.2, 5], at most 1 after a rejection; PI with beta."""
+    assert I.step_factor(1.0, 1.0, 5.0, 0.0, False) == pytest.approx(0.9)
+    assert I.step_factor(1e-3, 1.0, 5.0, 0.0, False) == pytest.approx(0.9 * 1e3**0.2)
+    assert I.step_factor(1e-12, 1.0, 5.0, 0.0, False) == 5.0
+    assert I.step_factor(1e-12, 1.0, 5.0, 0.0, True) == 1.0
+    assert I.step_factor(1e12, 1.0, 5.0, 0.0, False) == 0.2
+    assert I.step_factor(0.0, 1.0, 5.0, 0.0, False) == 5.0
+    assert I.step_factor(math.nan, 1.0, 5.0, 0.0, False) == 0.2
+    # PI: alpha = 1/5 - 0.75 beta, times r_prev^beta
+    assert I.step_factor(0.5, 0.25, 5.0, 0.04, False) == pytest.approx(0.9 * 0.5 ** -(0.2 - 0.03) * 0.25**0.04)
+
+
+def test_error_ratio_is_the_max_norm_and_rejects_nan():
+    x = np.array([1.0, 100.0, 0.0])
+    xn = np.array([1.0, 100.0, 0.0])
+    err = np.array([1e-6, 1e-4, 0.0])
+    # scales: 1e-8 + 1e-6 * 1, 1e-8 + 1e-6 * 100, 1e-8: ratios 0.990, 0.9999, 0; the largest
+    assert I.error_ratio(err, x, xn, 1e-6, 1e-8) == pytest.approx(1e-4 / (1e-8 + 1e-4), rel=1e-14)
+    assert math.isnan(I.error_ratio(np.array([math.nan, 0.0, 0.0]), x, xn, 1e-6, 1e-8))

@@ -84,6 +84,7 @@ from .cases import (
     with_duration,
 )
 from .check import GateItem
+from .metrics import HEADLINE_METRICS
 
 __all__ = [
     "BASELINE_ABS_TOL",
@@ -106,16 +107,11 @@ __all__ = [
 
 FORMAT = 1
 BINS = 500
-#: compared by default when the run has them (metrics.json names)
+#: compared by default when the run has them (metrics.json names): every run's headline scalars
+#: (metrics.HEADLINE_METRICS) but the after-fault peak (a baseline compares whole-run scalars; the whole
+#: run's torque_peak is one), then the run's end and the scheme-specific ones
 COMPARED_METRICS: tuple[str, ...] = (
-    "position_error_max",
-    "position_error_rms",
-    "position_error_final",
-    "heading_error_max",
-    "recovery_time_max",
-    "torque_peak",
-    "torque_rms",
-    "energy",
+    *(m for m in HEADLINE_METRICS if m != "torque_peak_after_fault"),
     "t_end",
     "switch_count",
     "switching_match_fraction",

@@ -56,6 +56,7 @@ import numpy as np
 from .control.kinematic import wrap
 
 __all__ = [
+    "HEADLINE_METRICS",
     "METRICS",
     "Metric",
     "metrics_of",
@@ -300,6 +301,21 @@ class Metric:
 _SWITCHING = ("switching",)
 _ADAPTIVE = ("adaptive", "adaptive_frozen")
 _ACTIVE = ("active", "active_ukf")
+
+#: The headline scalars of a run, every scheme's (a subset of :data:`METRICS`): what ``run --verify-dt``
+#: compares between dt and dt/2 (ftcreport.runner.dt_sensitivity) and, but for the after-fault peak,
+#: what a baseline compares by default (ftcreport.baseline.COMPARED_METRICS).
+HEADLINE_METRICS: tuple[str, ...] = (
+    "position_error_max",
+    "position_error_rms",
+    "position_error_final",
+    "heading_error_max",
+    "recovery_time_max",
+    "torque_peak",
+    "torque_peak_after_fault",
+    "torque_rms",
+    "energy",
+)
 
 #: Every entry a run writes beside its identity (case, scheme, settings, status, reason, engine): the
 #: functions of this module, :func:`ftcreport.diagnosis.diagnosis_metrics` and

@@ -16,7 +16,7 @@ from .cases import Case, build_chain, build_plant_chain, case_hash, initial_stat
 from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
 from .errors import CASE_ERRORS as _FTC_CASE_ERRORS
 from .errors import FtcError, RunEnvironmentError, environment_cause
-from .metrics import singularity_margin, torque_metrics, tracking_metrics
+from .metrics import HEADLINE_METRICS, singularity_margin, torque_metrics, tracking_metrics
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
@@ -270,17 +270,6 @@ def explain_nulls(metrics: dict) -> dict:
 
 
 # ---------------------------------------------------------------------- step-size check (run --verify-dt)
-HEADLINE_METRICS = (
-    "position_error_max",
-    "position_error_rms",
-    "position_error_final",
-    "heading_error_max",
-    "recovery_time_max",
-    "torque_peak",
-    "torque_peak_after_fault",
-    "torque_rms",
-    "energy",
-)
 
 
 def halve_dt(case: Case, source: str = "") -> Case:

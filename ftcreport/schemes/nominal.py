@@ -2,15 +2,19 @@ r"""The nominal scheme: the matched law (3.35) assuming healthy wheels, no fault
 
 Its face is :class:`ftcreport.control.tracking.TrackingController`; its law is
 ``schemes.laws.passive.nominal_law`` behind the passive dispatcher (one loop for the passive schemes).
+:func:`matched_law_scheme` builds it and the oracle (schemes/oracle.py), which differ only in their face
+and their words.
 """
 
 from __future__ import annotations
+
+import importlib
 
 from ..fields import Gain, Strict, doc_field
 from .api import Scheme
 from .registry import register_built_in
 
-__all__ = ["K_V", "SCHEME", "NominalScheme"]
+__all__ = ["K_V", "SCHEME", "NominalScheme", "matched_law_scheme"]
 
 K_V = "velocity-error gain of the dynamic law (the thesis's k4 or c6)"
 
@@ -21,19 +25,35 @@ class NominalScheme(Strict):
     k_v: Gain = doc_field(..., K_V, "1/s")
 
 
-def _controller(scheme: Scheme, ctx):
-    from ..control.tracking import TrackingController
+def matched_law_scheme(name: str, face: str, params: type[Strict], **words) -> Scheme:
+    """A scheme of the matched law (3.35) behind the passive dispatcher, its only parameter k_v.
 
-    return TrackingController(ctx.chain, ctx.kin, ctx.k_v)
+    ``face``: ``"module:Class"`` of its Python face, built as ``Class(chain, kin, k_v)``; ``words``: the
+    rest of :class:`~ftcreport.schemes.api.Scheme`'s fields (family, description, reference, label,
+    summary, color, default_run).
+    """
+    module, cls = face.split(":")
+
+    def controller(scheme: Scheme, ctx):
+        face_cls = getattr(importlib.import_module(module, __package__), cls)
+        return face_cls(ctx.chain, ctx.kin, ctx.k_v)
+
+    return Scheme(
+        name,
+        law="ftcreport.schemes.laws.passive:passive_law",
+        discrete="ftcreport.schemes.laws.passive:passive_discrete",
+        params=params,
+        controller=controller,
+        defaults=lambda case, k_v: params(k_v=k_v),
+        **words,
+    )
 
 
 SCHEME = register_built_in(
-    Scheme(
+    matched_law_scheme(
         "nominal",
-        law="ftcreport.schemes.laws.passive:passive_law",
-        discrete="ftcreport.schemes.laws.passive:passive_discrete",
-        params=NominalScheme,
-        controller=_controller,
+        "..control.tracking:TrackingController",
+        NominalScheme,
         family="baseline",
         description="the matched law (3.35) assuming healthy wheels: no FTC",
         reference="thesis 3.2.2, (3.35)",
@@ -41,7 +61,6 @@ SCHEME = register_built_in(
         summary="no FTC",
         color="#d62728",
         default_run=True,
-        defaults=lambda case, k_v: NominalScheme(k_v=k_v),
     ),
     10,
 )

@@ -7,8 +7,7 @@ Its face is :class:`ftcreport.control.baselines.OracleController`; its law is
 from __future__ import annotations
 
 from ..fields import Gain, Strict, doc_field
-from .api import Scheme
-from .nominal import K_V
+from .nominal import K_V, matched_law_scheme
 from .registry import register_built_in
 
 __all__ = ["SCHEME", "OracleScheme"]
@@ -20,19 +19,11 @@ class OracleScheme(Strict):
     k_v: Gain = doc_field(..., K_V, "1/s")
 
 
-def _controller(scheme: Scheme, ctx):
-    from ..control.baselines import OracleController
-
-    return OracleController(ctx.chain, ctx.kin, ctx.k_v)
-
-
 SCHEME = register_built_in(
-    Scheme(
+    matched_law_scheme(
         "oracle",
-        law="ftcreport.schemes.laws.passive:passive_law",
-        discrete="ftcreport.schemes.laws.passive:passive_discrete",
-        params=OracleScheme,
-        controller=_controller,
+        "..control.baselines:OracleController",
+        OracleScheme,
         family="bound",
         description="(3.35) told the true sigma and ubar at every instant",
         reference="thesis (3.35) with the true pattern",
@@ -40,7 +31,6 @@ SCHEME = register_built_in(
         summary="told the true faults",
         color="#2ca02c",
         default_run=True,
-        defaults=lambda case, k_v: OracleScheme(k_v=k_v),
     ),
     90,
 )

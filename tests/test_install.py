@@ -72,7 +72,12 @@ def test_a_read_only_install_runs_a_case_and_writes_nothing_inside():
 def _install_and_run(base: Path) -> None:
     base.chmod(0o755)  # the unprivileged run reads the install and the probe
     site = base / "site"
-    pip = [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--target", str(site), str(ROOT)]
+    # from a copy of the checkout's sources: pip builds in the source tree, and a build/ left there by an
+    # earlier version (modules since moved or removed) would be installed along with them
+    src = base / "src"
+    skip = shutil.ignore_patterns("build", "dist", ".git", ".venv*", "reports", "*.egg-info", "__pycache__")
+    shutil.copytree(ROOT, src, ignore=skip)
+    pip = [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--target", str(site), str(src)]
     res = subprocess.run(pip, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     package = site / "ftcreport"

@@ -555,7 +555,9 @@ def _table(rows: list[dict]) -> str:
     lines = [head, "-" * len(head)]
     for m in rows:
         after = [p["position_error_max"] for p in m.get("phases", [])[1:] if p["position_error_max"] is not None]
-        wall = m.get("wall_time", 0.0) / max(m.get("t_end") or m["duration"], 1e-9)
+        # compiling (or loading) the engine's loop excluded, as the case page's schemes table has it
+        wall = max(0.0, m.get("wall_time", 0.0) - (m.get("compile_time") or 0.0))
+        wall /= max(m.get("t_end") or m["duration"], 1e-9)
         lines.append(
             f"{m['scheme']:<{w}} {m['status']:<9} {_fmt(max(after) if after else None):>20} "
             f"{_fmt(m.get('position_error_final')):>10} {_fmt(m.get('switch_count'), 'd'):>8} "

@@ -359,3 +359,14 @@ def test_progress_bars_are_named_after_their_command(monkeypatch):
         assert kind in shown[kind] and unit in shown[kind] and "4/4" in shown[kind], shown[kind]
         if kind != "campaign":
             assert "campaign" not in shown[kind]
+
+
+def test_the_run_table_reads_wall_time_per_simulated_second_without_compiling():
+    """The terminal's wall/sim-s, like the case page's schemes table, leaves out compiling (or loading)
+    the engine's loop: a first run that spent 9 s of its 10 s compiling 10 s of simulated time shows 0.100."""
+    from ftcreport.cli import _table
+
+    row = {"scheme": "nominal", "status": "ok", "phases": [], "wall_time": 10.0, "compile_time": 9.0,
+           "t_end": 10.0, "duration": 10.0}  # fmt: skip
+    assert _table([row]).splitlines()[-1].split()[-1] == "0.100"
+    assert _table([row | {"compile_time": None}]).splitlines()[-1].split()[-1] == "1.000"

@@ -568,6 +568,18 @@ def first_discrete(P, Kp, R, pc, t, q, eta, xc, info):
 
 
 @jit
+def _finite(f0, u):
+    """Whether the rates and the command of a step's first evaluation are all finite."""
+    for i in range(f0.shape[0]):
+        if not math.isfinite(f0[i]):
+            return False
+    for i in range(u.shape[0]):  # noqa: SIM110 - a loop, no temporary array, in the step
+        if not math.isfinite(u[i]):
+            return False
+    return True
+
+
+@jit
 def run_steps(
     P0, Kp0, R0, pc0, pp0,
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
@@ -640,14 +652,7 @@ def run_steps(
             f0, u, tau = _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig_buf if want else empty)
         if info[0] != 0:
             return x, k, li, AT_STATE
-        ok = True
-        for i in range(nx):
-            if not math.isfinite(f0[i]):
-                ok = False
-        for i in range(u.shape[0]):
-            if not math.isfinite(u[i]):
-                ok = False
-        if not ok:
+        if not _finite(f0, u):
             info[0] = E_NONFINITE_DERIV
             info[1] = t
             return x, k, li, AT_STATE
@@ -986,14 +991,7 @@ def run_auto(
         ctl[C_EVALS] += 1.0
         if info[0] != 0:
             return x, li, AT_STATE
-        ok = True
-        for i in range(nx):
-            if not math.isfinite(f0[i]):
-                ok = False
-        for i in range(u.shape[0]):
-            if not math.isfinite(u[i]):
-                ok = False
-        if not ok:
+        if not _finite(f0, u):
             info[0] = E_NONFINITE_DERIV
             info[1] = t
             return x, li, AT_STATE

@@ -641,3 +641,69 @@ def test_concurrent_writers_of_one_kernel_keep_each_signature_its_own_entry(tmp_
     assert loaded == {"float64": [[2.0, 4.0, 6.0], 1], "int64": [[2, 4, 6], 2], "float32": [[2.0, 4.0, 6.0], 3]}
     entries = sorted(p.name for p in (tmp_path / "cache").rglob("kmod.twice-*.nbc"))
     assert len(entries) == 3, entries  # one data file per signature
+
+
+# --------------------------------------------------------------------------- environments across processes
+_CALLER = """
+from ftcreport.fast.compiling import jit
+
+
+@jit
+def twice(x):
+    return x * 2  # an array out: its wrapper reads the dtype from the environment's constants, by index
+
+
+@jit
+def use(x):
+    return twice(x)[0] + 1.0  # embeds twice's code: its entry keeps twice's environment
+"""
+
+_CALL = """
+import json
+import numpy as np
+from numba.core.environment import Environment
+import kmod
+
+x = np.arange(3.0)
+if TWICE_FIRST:
+    out = kmod.twice(x).tolist()
+out = [kmod.use(x), kmod.twice(x).tolist()]
+consts = [len(e.consts) for k, e in list(Environment._memo.items()) if "twice" in k]
+hits = [kmod.use._cache_hits.total(), kmod.twice._cache_hits.total()]
+print(json.dumps({"out": out, "consts": consts, "hits": hits}))
+"""
+
+
+def test_a_kernel_compiled_while_a_loaded_caller_holds_its_environment_loads_everywhere(tmp_path):
+    """numba names an environment after the function, its argument types and a per-process compile
+    counter (the same in two processes that compile in the same order) and keeps one live environment
+    per name.  A process that loads ``use`` (its entry embeds ``twice`` and twice's environment) and
+    then compiles ``twice`` (its own entry missing: flushed, or not yet written by a concurrent worker)
+    gets the caller's environment and appends the dtype behind the pickled copy: twice's wrapper reads
+    constant 1.  A third process that loads ``use`` and then that entry of twice: numba's load keeps the
+    caller's one-constant environment, and the call failed with CI's ``In
+    'NRT_adapt_ndarray_to_python', 'descr' is NULL``.  Now a loaded entry completes the live environment."""
+    (tmp_path / "kmod.py").write_text(_CALLER)
+    first = _last_json(_python("TWICE_FIRST = True" + _CALL, tmp_path))  # twice compiled first: counter 1
+    assert first == {"out": [1.0, [0.0, 2.0, 4.0]], "consts": [1], "hits": [0, 0]}
+    (index,) = (tmp_path / "cache").rglob("kmod.twice-*.nbi")
+    index.unlink()  # twice's entry gone, use's kept
+    second = _last_json(_python("TWICE_FIRST = False" + _CALL, tmp_path))  # twice compiled first here too
+    assert second == {"out": [1.0, [0.0, 2.0, 4.0]], "consts": [2], "hits": [1, 0]}  # compiled onto use's copy
+    third = _last_json(_python("TWICE_FIRST = False" + _CALL, tmp_path))
+    assert third == {"out": [1.0, [0.0, 2.0, 4.0]], "consts": [2], "hits": [1, 1]}  # both from the cache
+
+
+def test_an_environment_whose_cached_constants_disagree_is_a_miss():
+    """A live environment holding other values where the entry's code reads its own: the entry cannot be
+    used without breaking the live code, so it is a miss (EnvConflictError, compiled again), not a repair."""
+    from numba.core.environment import Environment
+
+    env = Environment({"__name__": __name__})
+    env.env_name = "ftcreport-test-env"
+    env.consts[:] = [np.dtype("float64")]
+    assert compiling.environment(compiling.EnvRecord(env, [np.dtype("float64"), np.dtype("int64")])) is env
+    assert list(env.consts) == [np.dtype("float64"), np.dtype("int64")]  # completed, index 0 unmoved
+    with pytest.raises(compiling.EnvConflictError, match="ftcreport-test-env"):
+        compiling.environment(compiling.EnvRecord(env, [np.dtype("int32")]))
+    assert compiling.environment(env) is env  # an entry numba reduced itself: as it is

@@ -62,6 +62,7 @@ import warnings
 import weakref
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import NamedTuple
 
 import numba
 from numba.core import caching, compiler, registry
@@ -467,7 +468,17 @@ class KernelCacheImpl(caching.CompileResultCacheImpl):
 
     _locator_classes = [KernelLocator]  # noqa: RUF012 - numba's class attribute, a list of ftcreport's own
 
+    def reduce(self, cres):
+        """numba's payload, its environments as :class:`EnvRecord` (read back by :func:`environment`)."""
+        payload = list(cres._reduce())
+        payload[2] = EnvRecord.of(payload[2])
+        payload[8] = tuple(EnvRecord.of(env) for env in payload[8])
+        return tuple(payload)
+
     def rebuild(self, target_context, payload):
+        payload = list(payload)
+        payload[2] = environment(payload[2])
+        payload[8] = tuple(environment(env) for env in payload[8])
         if not accelerated():
             return super().rebuild(target_context, payload)
         try:
@@ -492,6 +503,16 @@ class KernelCache(caching.FunctionCache):
     **A loaded entry is checked.**  An entry whose compiled signature is not the one asked for (a
     cache written before the lock, by another tool, or damaged) is a miss: the function's entries
     are flushed and it compiles again.
+
+    **An entry's environment agrees with the process's.**  numba names a compiled function's
+    environment (the Python constants its wrapper reads, by index: the dtype of an array it returns)
+    after the function, its argument types and a per-process compile counter, so one name recurs
+    across processes, and numba keeps one live environment per name: a load takes the live one and
+    drops the entry's constants.  A function compiled while a loaded caller holds its environment
+    appends its constants behind the caller's copies (``'descr' is NULL`` when another process
+    loads that entry after the caller).  Environments are stored as :class:`EnvRecord` and read
+    back by :func:`environment`, which completes a live environment with the entry's constants, or
+    makes the entry a miss when the two disagree.
 
     **A stale index is a miss.**  An index that cannot be read back (:data:`STALE_ENTRY`: written by
     another version of ftcreport whose modules or classes it names are gone, or truncated) is a
@@ -523,6 +544,8 @@ class KernelCache(caching.FunctionCache):
         with self._locked(fcntl.LOCK_SH if fcntl else 0):
             try:
                 cres = super().load_overload(sig, target_context)
+            except EnvConflictError:  # the live environment holds other constants: compile here, keep the entry
+                return None
             except Exception as exc:
                 if not _stale(exc):
                     raise
@@ -538,6 +561,48 @@ class KernelCache(caching.FunctionCache):
     def save_overload(self, sig, data) -> None:
         with self._locked(fcntl.LOCK_EX if fcntl else 0):
             super().save_overload(sig, data)
+
+
+class EnvConflictError(Exception):
+    """A cache entry's environment constants disagree with the live environment of the same name."""
+
+
+class EnvRecord(NamedTuple):
+    """A compiled function's environment as a cache entry stores it: numba's environment (pickled by
+    numba: read back, it is the live one of its name if there is one) and the constants it held."""
+
+    env: object
+    consts: list
+
+    @classmethod
+    def of(cls, env) -> EnvRecord:
+        return cls(env, list(env.consts))
+
+
+def _same_const(a, b) -> bool:
+    if a is b:
+        return True
+    try:
+        return type(a) is type(b) and bool(a == b)
+    except Exception:  # an array or an object without a plain equality: not provably the same
+        return False
+
+
+def environment(record):
+    """The environment of ``record`` holding the record's constants at their indices.
+
+    numba's unpickling gave the live environment of the name if there is one, else a new one with
+    the record's constants.  A live one holding a prefix of them (equal values: a dtype read back
+    from a pickle is a new object) gets the rest appended, which moves no index its code reads;
+    anything else is an :class:`EnvConflictError`.  Not a record (an entry numba reduced): returned."""
+    if not isinstance(record, EnvRecord):
+        return record
+    env, want = record
+    have = env.consts
+    if not all(_same_const(a, b) for a, b in zip(have, want, strict=False)):
+        raise EnvConflictError(f"environment {env.env_name}: the cached constants differ from the live ones")
+    have.extend(want[len(have) :])
+    return env
 
 
 def _arg_types(sig) -> tuple:

@@ -425,7 +425,9 @@ def test_every_kernel_cache_is_outside_the_package_and_keyed_on_all_compiled_sou
 
     root = Path(F.__file__).parent
     h = hashlib.sha256()
-    for sub in ("fast", "schemes", "schemes/laws"):  # the engine, the scheme interface, the built-in laws
+    # the engine, the scheme interface, the built-in laws, and the domains whose compiled kernels live beside
+    # their faces (model, control, observers, references)
+    for sub in ("fast", "schemes", "schemes/laws", "model", "control", "observers", "references"):
         for path in sorted((root.parent / sub).glob("*.py")):
             h.update(path.name.encode() + b"\0" + path.read_bytes())
     assert compiling.engine_stamp() == h.hexdigest()
@@ -444,6 +446,26 @@ def test_every_kernel_cache_is_outside_the_package_and_keyed_on_all_compiled_sou
         return x
 
     assert not isinstance(elsewhere._cache._impl._locator, compiling.KernelLocator)
+
+
+def test_every_file_that_defines_kernels_is_in_the_engine_stamp():
+    """A compiled kernel's source must be in :func:`engine_stamp` (its callers' entries embed its code): every
+    file of the package with a function decorated ``@jit`` or ``@jit(...)`` lies in a stamped directory."""
+    import ast
+
+    root = Path(F.__file__).resolve().parents[1]
+    stamped = {(root / sub).resolve() for sub in compiling._ENGINE_FILES}
+    with_kernels = []
+    for path in root.rglob("*.py"):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.FunctionDef) and any(
+                (d.func if isinstance(d, ast.Call) else d).__dict__.get("id") == "jit" for d in node.decorator_list
+            ):
+                with_kernels.append(path)
+                break
+    assert len(with_kernels) >= 15  # the domains' compiled modules, the engine's, the built-in laws
+    assert [p for p in with_kernels if p.parent.resolve() not in stamped] == []
 
 
 def test_cache_dir_is_keyed_by_versions_and_cpu_and_overridable(tmp_path, monkeypatch):

@@ -406,7 +406,7 @@ def jit(fn: Callable | None = None, *, cache: bool = True, **options):
 
 
 # --------------------------------------------------------------------------- the cache
-_ENGINE_FILES = ("fast", "schemes", "schemes/laws")  # the compiled sources: the engine, the scheme interface, laws
+_ENGINE_FILES = ("fast", "schemes", "schemes/laws", "model", "control", "observers", "references")  # compiled sources
 
 
 def engine_stamp() -> str:

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ReferenceError, reference_articulation_reason, reference_speed_reason
+from ..errors import ReferenceError, reference_articulation_reason, reference_speed_reason
 
 __all__ = [
     "FlatReference",
@@ -50,7 +50,7 @@ __all__ = [
 
 def _F():
     """The compiled kernels (numba is loaded on first use, not with the package)."""
-    from .fast import kernels
+    from ..fast import kernels
 
     return kernels
 
@@ -62,7 +62,7 @@ def _terms(terms) -> np.ndarray:
 def _as_ref(packed):
     """The kernels' tuple as the loop passes it to them (``fast.refs.to_ref``): one compile of each
     kernel serves the loop and these calls from Python."""
-    from .fast.refs import to_ref
+    from ..fast.refs import to_ref
 
     return to_ref(packed)
 

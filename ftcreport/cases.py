@@ -495,7 +495,7 @@ def _plugin_table(name: str, scheme: Any, table: Any) -> BaseModel:
         if err["type"] == "extra_forbidden":
             why = "unknown field" + did_you_mean(str(err["loc"][-1]), list(model.model_fields))
         else:
-            why = _message(err)
+            why = _message(err, model)
         raise _FieldError(f"schemes.{name}" + (f".{loc}" if loc else ""), why) from None
     except ValueError as exc:  # a validator of the plug-in's model raising outside pydantic's wrapping
         raise _FieldError(f"schemes.{name}", str(exc)) from None
@@ -1396,15 +1396,16 @@ def _submodel(annotation: Any) -> type[BaseModel] | None:
     return None
 
 
-def known_fields(loc: tuple[Any, ...]) -> list[str]:
-    """Field names of the table at ``loc`` (a pydantic location inside a case), [] when it is not a table."""
-    model = _table_model(loc)
+def known_fields(loc: tuple[Any, ...], root: type[BaseModel]) -> list[str]:
+    """Field names of the table at ``loc`` (a pydantic location inside ``root``), [] when it is not a table."""
+    model = _table_model(loc, root)
     return [] if model is None else list(model.model_fields)
 
 
-def _table_model(loc: tuple[Any, ...]) -> type[BaseModel] | None:
-    """The model of the table at ``loc`` (a pydantic location inside a case), None when it is not a table."""
-    model: type[BaseModel] = Case
+def _table_model(loc: tuple[Any, ...], root: type[BaseModel]) -> type[BaseModel] | None:
+    """The model of the table at ``loc`` (a pydantic location inside ``root``: the case, or a plug-in's
+    parameter table), None when it is not a table."""
+    model: type[BaseModel] = root
     skip = 0  # keys of dict-valued fields (thresholds.<scheme>.<metric>) are not field names
     for part in loc:
         if isinstance(part, int) or _is_tag(part):
@@ -1434,19 +1435,20 @@ _BOUND_OPS = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", ">="), "
 _BOUND_OPS["less_than_equal"] = ("le", "<=")
 
 
-def _message(err: dict) -> str:
-    """One reason for one pydantic error: ranges as 'must be >= 0, got -1', unknown keys with a suggestion."""
+def _message(err: dict, root: type[BaseModel]) -> str:
+    """One reason for one pydantic error of a ``root`` model: ranges as 'must be >= 0, got -1', unknown keys with
+    a suggestion."""
     kind = err["type"]
     if kind == "extra_forbidden":
         key = str(err["loc"][-1])
-        return "unknown field" + did_you_mean(key, known_fields(tuple(err["loc"][:-1])))
+        return "unknown field" + did_you_mean(key, known_fields(tuple(err["loc"][:-1]), root))
     if kind in _BOUND_OPS:
         name, op = _BOUND_OPS[kind]
         return f"must be {op} {err['ctx'][name]:g}, got {err['input']}"
     if kind in ("literal_error", "enum"):  # every Literal (and enum) field of the schema
         return _choice_message(err["input"], str((err.get("ctx") or {}).get("expected", "")))
     if kind == "missing":
-        return _missing_message(tuple(err["loc"]))
+        return _missing_message(tuple(err["loc"]), root)
     if kind in _EXPECTED:
         return f"{_EXPECTED[kind]} is expected, got {_describe(err['input'])}"
     if kind == "finite_number":
@@ -1493,11 +1495,11 @@ def _describe(v: Any) -> str:
     return f"a {type(v).__name__}"  # a TOML date or time
 
 
-def _missing_message(loc: tuple[Any, ...]) -> str:
+def _missing_message(loc: tuple[Any, ...], root: type[BaseModel]) -> str:
     """``required and missing: <the field's description>; add it to [table]`` (the schema's own words)."""
     if isinstance(loc[-1], int):  # an item of a fixed-length list ([x, y]) left out
         return f"item {loc[-1]} is missing: {_format_loc(loc[:-1])} needs {loc[-1] + 1} values or more"
-    model = _table_model(loc[:-1])
+    model = _table_model(loc[:-1], root)
     field = None if model is None else model.model_fields.get(str(loc[-1]))
     what = f": {field.description.rstrip('.')}" if field is not None and field.description else ""
     table = _format_loc(loc[:-1])
@@ -1526,8 +1528,8 @@ def _rank(err: dict) -> int:
     return int(kind.endswith("_type") or kind == "literal_error" or kind.endswith("_parsing"))
 
 
-def _field_errors(errors: list[dict]) -> list[tuple[str, str]]:
-    """Every field in error once, as (field path, reason): pydantic's errors grouped by field.
+def _field_errors(errors: list[dict], root: type[BaseModel]) -> list[tuple[str, str]]:
+    """Every field in error once, as (field path, reason): pydantic's errors of a ``root`` model grouped by field.
 
     A union field reports one error per member (``a = -300`` is neither a valid float nor a list):
     the member that matches the input's type is the reason (:func:`_rank`), and a member whose
@@ -1552,7 +1554,7 @@ def _field_errors(errors: list[dict]) -> list[tuple[str, str]]:
     for loc in sorted(kept, key=lambda loc: best[loc][0]):
         err = best[loc][1]
         ctx_err = (err.get("ctx") or {}).get("error")
-        out.append((loc, ctx_err.msg if isinstance(ctx_err, _FieldError) else _message(err)))
+        out.append((loc, ctx_err.msg if isinstance(ctx_err, _FieldError) else _message(err, root)))
     return out
 
 
@@ -1568,7 +1570,7 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         case = Case.model_validate(data)
     except ValidationError as exc:
         found = {loc for loc, _ in controls}
-        _refuse(source, controls + [(loc, why) for loc, why in _field_errors(exc.errors()) if loc not in found])
+        _refuse(source, controls + [(loc, why) for loc, why in _field_errors(exc.errors(), Case) if loc not in found])
     except CaseError:
         if controls:  # a plugins path with a control character is not looked for
             _refuse(source, controls)
@@ -1952,7 +1954,7 @@ def with_duration(case: Case, duration: float) -> Case:
     try:  # validated again: the sampling's limits depend on the duration
         sim = Simulation.model_validate({**s.model_dump(), "duration": float(duration), "dt": min(s.dt, duration)})
     except ValidationError as exc:
-        loc, why = _field_errors(exc.errors())[0]
+        loc, why = _field_errors(exc.errors(), Case)[0]
         loc = loc if loc.startswith("simulation") else f"simulation.{loc}"
         raise CaseError(f"{case.name}: --duration {duration:g}: {loc}: {why}") from None
     faults = [f for f in case.faults if f.time < duration]

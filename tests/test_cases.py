@@ -286,13 +286,13 @@ def test_every_literal_field_says_what_it_expects(model, field, allowed):
 
     from pydantic import TypeAdapter, ValidationError
 
-    from ftcreport.cases import _message
+    from ftcreport.cases import Case, _message
 
     typo = f"{allowed[0]}x"  # one letter more than the first allowed value: difflib's closest
     with pytest.raises(ValidationError) as info:
         TypeAdapter(Literal[allowed]).validate_python(typo)
     (err,) = info.value.errors()
-    msg = _message(err)
+    msg = _message(err, Case)
     listed = ", ".join(repr(a) for a in allowed)
     assert msg == f"got '{typo}'; expected one of {listed} (did you mean '{allowed[0]}'?)", msg
 

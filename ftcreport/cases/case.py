@@ -1,0 +1,478 @@
+"""The whole case (pydantic model) and its checks across tables."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import get_args
+
+from pydantic import field_validator, model_validator
+
+from ..errors import FtcError
+from ..fields import _f, _FieldError, _num, _Strict, did_you_mean
+from ..limits import budget_problem, name_problem
+from ..model import FaultEvent, FaultSchedule, wheel_index, wheel_names
+from ..model.actuators import DriveParams, MotorParams
+from ..model.faults import motor_row
+from .scheme_tables import (
+    SCHEME_NAMES,
+    Kinematic,
+    Schemes,
+    _scheme_file,
+    _scheme_hook,
+    configured_schemes,
+    known_schemes,
+)
+from .tables import Actuators, Fault, Initial, Plant, Reference, Robots, Simulation
+from .thresholds import BaselineSpec, Bound, CampaignSpec, Claim, Requirement, Status
+
+
+class Case(_Strict):
+    """A validated case (cases/README.md documents every field; its tables are generated from these models)."""
+
+    name: str | None = _f(
+        None,
+        "defaults to the file name without .toml; a safe name: [A-Za-z0-9][A-Za-z0-9_.-]{0,63}, not a name the "
+        "report uses itself (index, *.html, manifest.json, metrics.parquet, assets, campaigns, coverage, fdi, "
+        "junit.xml), unique within a batch ignoring letter case (see Limits)",
+        "-",
+    )
+    description: str = _f("", "one line shown in reports", "-")
+    plugins: list[str] = _f(
+        [],
+        "scheme files (ftcreport.schemes) loaded before [schemes] is read, paths relative to the case file; each "
+        "registers its schemes, which [schemes.<name>] and schemes.run may then name",
+        "-",
+    )
+    base_case: str | None = _f(
+        None,
+        "path of the case this file overlays, relative to this file: the base's tables, then this file's "
+        "(tables merged key by key, arrays such as [[faults]] replaced whole); name, description, thresholds, "
+        "claims, requirements, baseline, campaign, expected_status and expected_status_of are this file's own, never "
+        "the base's",
+        "-",
+        max_length=1000,
+    )
+    robots: Robots = _f(..., "the chain ([robots])", "-")
+    reference: Reference = _f(..., "the last robot's path ([reference])", "-")
+    initial: Initial = _f(Initial(), "initial state ([initial])", "-")
+    faults: list[Fault] = _f([], "fault events sorted by time ([[faults]])", "-")
+    actuators: Actuators | None = _f(
+        None, "DC motors on the wheels ([actuators]); absent: the wheel torque is the command", "-"
+    )
+    kinematic: Kinematic = _f(..., "kinematic controller ([kinematic])", "-")
+    schemes: Schemes = _f(..., "the schemes to run ([schemes.<name>])", "-")
+    simulation: Simulation = _f(..., "integration settings ([simulation])", "-")
+    plant: Plant = _f(Plant(), "saturation, noise, mismatch ([plant])", "-")
+    recovery_band: _num(None, 1e3, gt=0) = _f(0.01, "the band of the recovery-time metric", "m")
+    expected_status: list[Status] = _f(
+        ["ok"],
+        "run outcomes that are not failures for batch/run exit codes (a case built to lose tracking lists them)",
+        "-",
+    )
+    expected_status_of: dict[str, list[Status]] = _f(
+        {},
+        "per scheme: its outcomes that are not failures, in place of expected_status (say why in a comment)",
+        "-",
+    )
+    thresholds: dict[str, dict[str, Bound]] = _f(
+        {}, "[thresholds.<scheme>] metric = { min, max } for ftcreport check", "-"
+    )
+    campaign: CampaignSpec | None = _f(None, "distributions for ftcreport campaign (ignored by batch)", "-")
+    claims: list[Claim] = _f([], "thesis claims checked against the runs ([[claims]], ftcreport.claims)", "-")
+    requirements: list[Requirement] = _f(
+        [], "bounds on a signal over event-defined windows ([[requirements]], ftcreport.requirements)", "-"
+    )
+    baseline: BaselineSpec | None = _f(
+        None, "tolerances of check --baseline ([baseline], ftcreport.baseline); absent: the documented defaults", "-"
+    )
+
+    @field_validator("name")
+    @classmethod
+    def _safe_name(cls, v: str | None) -> str | None:
+        return _check_name(v)
+
+    @model_validator(mode="after")
+    def _budget(self) -> Case:
+        _check_budget(self)
+        return self
+
+    @field_validator("faults")
+    @classmethod
+    def _sorted(cls, v: list[Fault]) -> list[Fault]:
+        times = [f.time for f in v]
+        if times != sorted(times):
+            k = next(i for i in range(1, len(times)) if times[i] < times[i - 1])
+            raise ValueError(
+                f"events must be sorted by time: event {k} (t = {times[k]}) comes after t = {times[k - 1]}"
+            )
+        return v
+
+    @model_validator(mode="after")
+    def _consistency(self) -> Case:
+        n = self.robots.n
+        for i, f in enumerate(self.faults):
+            try:
+                wheel_index(f.wheel, n)
+            except FtcError as exc:
+                raise _FieldError(f"faults[{i}].wheel", str(exc)) from None
+            if f.time >= self.simulation.duration:
+                raise _FieldError(
+                    f"faults[{i}].time", f"{f.time} s is not before the end of the run ({self.simulation.duration} s)"
+                )
+        for i, f in enumerate(self.faults):
+            _check_motor_fault(i, f, self.actuators is not None)
+        if self.actuators is not None:
+            for table, prefix in ((self.actuators, "actuators"), (self.actuators.drive_model, "actuators.drive_model")):
+                for key in type(table).model_fields:
+                    v = getattr(table, key)
+                    if isinstance(v, list) and len(v) != n:
+                        raise _FieldError(f"{prefix}.{key}", f"{len(v)} values given, a {n}-robot chain needs {n}")
+            _check_drive_rate(self.actuators, self.simulation)
+        seen: set[tuple[float, int]] = set()
+        for i, f in enumerate(self.faults):
+            key = (f.time, wheel_index(f.wheel, n))
+            if key in seen:
+                raise _FieldError(f"faults[{i}]", f"a second event on wheel {f.wheel} at t = {f.time}")
+            seen.add(key)
+        if self.kinematic.kind == "two_link":
+            if n != 2:
+                raise _FieldError("kinematic.kind", f"'two_link' needs 2 robots, the chain has {n}; use 'chained'")
+            for k in ("k1", "k2", "k3"):
+                if getattr(self.kinematic, k) is None:
+                    raise _FieldError(f"kinematic.{k}", "required by the two-link controller")
+        if isinstance(self.kinematic.c_chain, list) and len(self.kinematic.c_chain) != n:
+            raise _FieldError("kinematic.c_chain", f"{len(self.kinematic.c_chain)} gains given, {n} needed")
+        if self.simulation.dt > self.simulation.duration:
+            raise _FieldError("simulation.dt", "longer than the duration")
+        for sname in configured_schemes(self):  # each scheme's own checks of its table against the case
+            hook = _scheme_hook(sname, "validate")
+            if hook is not None:
+                hook(getattr(self.schemes, sname), self)
+        for key in ("a", "b", "r", "m", "I", "d"):
+            v = getattr(self.plant.mismatch, key)
+            count = n - 1 if key == "d" else n
+            if isinstance(v, list) and len(v) != count:
+                raise _FieldError(f"plant.mismatch.{key}", f"{len(v)} factors given, {count} needed")
+        if self.initial.headings_deg is not None and len(self.initial.headings_deg) != n:
+            raise _FieldError("initial.headings_deg", f"{len(self.initial.headings_deg)} values for {n} robots")
+        _check_initial_articulation(self.initial, self.simulation.singularity_margin_deg)
+        if self.campaign is not None:
+            if self.campaign.fault_time[1] >= self.simulation.duration:
+                raise _FieldError(
+                    "campaign.fault_time",
+                    f"upper bound must be before the end of the run ({self.simulation.duration} s)",
+                )
+            _check_campaign_draws(self.campaign, n, keeps=bool(self.faults))
+        run = self.schemes.run
+        if run is not None and not run:
+            raise _FieldError(
+                "schemes", "no scheme to run: schemes.run is empty (list some of " + ", ".join(SCHEME_NAMES) + ")"
+            )
+        listed = {str(Path(p).resolve()) for p in self.plugins}
+        for s in list(self.schemes.model_extra or {}):
+            where = _scheme_file(s)
+            if where is not None and where not in listed:
+                raise _FieldError(
+                    f"schemes.{s}",
+                    f"scheme '{s}' comes from {where}, which this case does not list in plugins (a batch or campaign "
+                    "worker would not know it)",
+                )
+        for s in configured_schemes(self):
+            if run is not None and s not in run:
+                raise _FieldError(f"schemes.{s}", f"configured but not listed in schemes.run ({', '.join(run)})")
+        known = known_schemes()
+        outcomes = ", ".join(repr(v) for v in get_args(Status))
+        if not self.expected_status:
+            raise _FieldError(
+                "expected_status", f"empty: every run would count as failed, even 'ok'; list some of {outcomes}"
+            )
+        for s, listed in self.expected_status_of.items():
+            if not listed:
+                raise _FieldError(
+                    f"expected_status_of.{s}",
+                    f"empty: every run of {s} would count as failed, even 'ok'; list some of {outcomes}",
+                )
+        for s in self.expected_status_of:
+            if s not in known:
+                raise _FieldError(
+                    f"expected_status_of.{s}", f"unknown scheme{did_you_mean(s, known)} (known: {', '.join(known)})"
+                )
+        ids = [c.id for c in self.claims]
+        for i, c in enumerate(self.claims):
+            if ids.count(c.id) > 1:
+                raise _FieldError(f"claims[{i}].id", f"'{c.id}' is used by more than one claim")
+            for key in ("scheme", "relative_to"):
+                s = getattr(c, key)
+                if s is not None and run is not None and s not in run:
+                    raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not run by this case (schemes.run)")
+            if c.not_applicable is None and c.metric is not None:
+                kinds = ("sequence",) if c.sequence is not None else ("number", "table", "list")
+                for s in (c.scheme, c.relative_to):
+                    if s is not None and (why := metric_problem(s, c.metric, kinds)) is not None:
+                        raise _FieldError(f"claims[{i}].metric", why)
+        _check_requirements(self, run, known)
+        for scheme, metrics in self.thresholds.items():
+            if scheme not in known:
+                raise _FieldError(
+                    f"thresholds.{scheme}", f"unknown scheme{did_you_mean(scheme, known)} (known: {', '.join(known)})"
+                )
+            for metric, bound in metrics.items():
+                if (why := metric_problem(scheme, metric)) is not None:
+                    raise _FieldError(f"thresholds.{scheme}.{metric}", why)
+                if bound.min is None and bound.max is None:
+                    raise _FieldError(f"thresholds.{scheme}.{metric}", "give min, max or both")
+        return self
+
+    # ------------------------------------------------------------------ derived
+    def expected_for(self, scheme: str) -> set[str]:
+        """Outcomes of ``scheme``'s run that are not failures (expected_status_of, else expected_status)."""
+        return set(self.expected_status_of.get(scheme, self.expected_status))
+
+    def unexpected(self, scheme: str, status: str, reason: str | None) -> str:
+        """Why a run of ``scheme`` that ended ``status`` is a failure: its reason, or which field expected otherwise."""
+        if reason:
+            return f"{status}: {reason}"
+        field = f"expected_status_of.{scheme}" if scheme in self.expected_status_of else "expected_status"
+        want = " or ".join(repr(s) for s in sorted(self.expected_for(scheme)))
+        return f"{status}, where the case expects {want} ({field})"
+
+    def fault_schedule(self) -> FaultSchedule:
+        return FaultSchedule(
+            self.robots.n,
+            [FaultEvent(f.time, f.wheel.strip().lower(), f.sigma, f.ubar, f.motor, f.value) for f in self.faults],
+        )
+
+    def motor_params(self) -> list[MotorParams] | None:
+        """The wheels' motors per robot, leader first ([actuators]), or None without the table."""
+        return None if self.actuators is None else self.actuators.params(self.robots.n)
+
+    def drive_params(self) -> list[DriveParams] | None:
+        """The wheels' drives per robot, leader first ([actuators]), or None without the table."""
+        return None if self.actuators is None else self.actuators.drive_params(self.robots.n)
+
+    def warnings(self) -> list[str]:
+        """Uncompensable phases, naming the event that makes them so; an RK4 step the motors' currents defeat."""
+        out = []
+        motors = self.motor_params()
+        rk4 = None if motors is None else _rk4_on_currents(self.simulation, motors, self.drive_params())
+        if rk4 is not None:
+            out.append(rk4)
+        sw = getattr(self.schemes, "switching", None)
+        if motors is not None and sw is not None and sw.c_int == 0.0 and "switching" in configured_schemes(self):
+            out.append(
+                "schemes.switching: with [actuators] the thesis's instantaneous cost (c_int = 0) takes the drive's "
+                "torque errors for lost wheels, and a model chosen on one such moment stays (the wheels it leaves "
+                "undriven cannot be tested): measured 62 % exact identification on three_link_switching_motors "
+                "against 99.6 % without motors; c_int = 10, forgetting = 1 (Narendra & Balakrishnan's cost) gives "
+                "97.8 % (cases/README.md, the switching bank with motors)"
+            )
+        sched = self.fault_schedule()
+        names = wheel_names(self.robots.n)
+        for start, end, pat in sched.uncompensable_intervals(self.simulation.duration):
+            idx = [i for i, f in enumerate(self.faults) if f.time == start]
+            failed = [w for w, s in zip(names, pat, strict=True) if s == 0]
+            why = (
+                "both wheels of robot 1 failed: omega_1 cannot be actuated"
+                if pat[0] == 0 and pat[1] == 0
+                else "fewer than two wheels work"
+            )
+            where = f"faults[{idx[0]}]" if idx else "faults"
+            out.append(
+                f"{where} (t = {start:g} s): pattern with {','.join(failed)} failed is uncompensable "
+                f"until {end:g} s ({why}); tracking is expected to be lost"
+            )
+        return out
+
+
+def _check_drive_rate(act: Actuators, sim: Simulation) -> None:
+    """A sampled PI drive's period must be a whole number of steps (its samples land on steps)."""
+    if act.drive_rate is None:
+        return
+    period = 1.0 / act.drive_rate
+    ratio = period / sim.dt
+    if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+        raise _FieldError(
+            "actuators.drive_rate",
+            f"{act.drive_rate:g} Hz (period {period:g} s) is not a whole number of steps dt = {sim.dt:g} s: "
+            "the drive's samples must land on steps (choose dt = period / k)",
+        )
+
+
+def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> None:
+    """[[requirements]]: ids unique, the scheme known and run, robots and wheels of this chain."""
+    ids = [r.id for r in case.requirements]
+    for i, r in enumerate(case.requirements):
+        if r.id in ids[:i]:
+            raise _FieldError(f"requirements[{i}].id", f"'{r.id}' is already the id of requirements[{ids.index(r.id)}]")
+        if r.scheme != "*" and r.scheme not in known:
+            raise _FieldError(
+                f"requirements[{i}].scheme",
+                f"unknown scheme '{r.scheme}'{did_you_mean(r.scheme, known)} (known: {', '.join(known)}, or \"*\")",
+            )
+        if r.scheme != "*" and run is not None and r.scheme not in run:
+            raise _FieldError(f"requirements[{i}].scheme", f"scheme '{r.scheme}' is not run by this case (schemes.run)")
+        for key, why in r.problems(case.robots.n):
+            raise _FieldError(f"requirements[{i}].{key}", why)
+
+
+def metric_problem(scheme: str, name: str, kinds: tuple[str, ...] = ("number",)) -> str | None:
+    """Why the metric ``name`` cannot be compared on a run of ``scheme`` as one of ``kinds``, or None.
+
+    The names are those a run writes (:data:`ftcreport.metrics.METRICS`, the one list); ``name`` may be
+    ``metric.key``, an entry of a table metric.  An unknown name gets the closest of the scheme's own.
+    """
+    from ..metrics import METRICS, metrics_of
+
+    base, _, key = name.partition(".")
+    own = metrics_of(scheme)
+    if base not in METRICS:
+        hint = did_you_mean(base, own) or f" (a {scheme} run writes {', '.join(_numbers(own))})"
+        return f"unknown metric{hint}"
+    m = METRICS[base]
+    if base not in own:
+        return f"'{base}' is not a metric of the {scheme} scheme (only {', '.join(m.schemes or ())} runs write it)"
+    if key and m.kind != "table":
+        return f"'{base}' is a {m.kind}, not a table of numbers: '{name}' reads no entry of it"
+    kind = "number" if key else m.kind
+    if kind not in kinds:
+        return f"'{base}' is not a number (a {m.kind}); compare {' or '.join(kinds)} metrics here"
+    return None
+
+
+def _numbers(names: list[str]) -> list[str]:
+    from ..metrics import METRICS
+
+    return [k for k in names if METRICS[k].kind == "number"]
+
+
+def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
+    """The faults a campaign draws exist: its wheels are wheels of the chain, each listed once, at least
+    as many as the faults it draws per sample (each on a distinct wheel), and it draws a fault at all
+    (unless the case keeps faults of its own)."""
+    lo, hi = spec.faults
+    if spec.wheels == "any":
+        wheels, which = wheel_names(n), f"the {2 * n} wheels of the {n}-robot chain"
+    else:
+        if not spec.wheels:
+            raise _FieldError(
+                "campaign.wheels", 'no wheel: a sample could draw no fault; list the wheels a fault may hit, or "any"'
+            )
+        seen: dict[str, int] = {}
+        for i, w in enumerate(spec.wheels):
+            try:
+                wheel_index(w, n)
+            except FtcError as exc:
+                raise _FieldError(f"campaign.wheels[{i}]", str(exc)) from None
+            first = seen.setdefault(w.strip().lower(), i)
+            if first != i:
+                raise _FieldError(
+                    f"campaign.wheels[{i}]", f"{w!r} is listed twice (wheels[{first}]); faults hit distinct wheels"
+                )
+        wheels, which = list(seen), f"the {len(seen)} wheels of campaign.wheels"
+    if hi > len(wheels):
+        raise _FieldError(
+            "campaign.faults",
+            f"up to {hi} faults per sample, each on a distinct wheel, but only {len(wheels)} wheels can fail "
+            f"({which}); the draw would be cut silently",
+        )
+    if hi == 0 and not (spec.keep_base_faults and keeps):
+        raise _FieldError(
+            "campaign.faults",
+            f"[{lo}, {hi}] draws no fault and keeps none of the case's (keep_base_faults): every sample would be "
+            "fault-free and 'succeed'; give an upper bound of 1 or more",
+        )
+
+
+def _check_motor_fault(i: int, f: Fault, has_actuators: bool) -> None:
+    """A [[faults]] entry's motor fields: the kind needs [actuators], its value its range."""
+    if f.motor is None:
+        if f.value is not None:
+            raise _FieldError(f"faults[{i}].value", "a value belongs to a motor fault: set motor (or remove value)")
+        return
+    if not has_actuators:
+        raise _FieldError(
+            f"faults[{i}].motor", f"motor fault {f.motor!r} needs the [actuators] table (the plant has no motors)"
+        )
+    for key in ("sigma", "ubar"):
+        if key in f.model_fields_set:
+            raise _FieldError(
+                f"faults[{i}].{key}", f"a motor event sets the motor only; give {key} in an event of its own"
+            )
+    try:
+        motor_row(f.motor, f.value)
+    except FtcError as exc:
+        raise _FieldError(f"faults[{i}].value", str(exc)) from None
+
+
+def _check_initial_articulation(ini: Initial, margin_deg: float) -> None:
+    """Absolute headings whose articulation angle starts within the singularity margin of 90 deg (ERRATA P4).
+
+    The engine's test (fast.kernels._check_state: |cos(theta_i - theta_(i+1))| <= sin(margin)) on the
+    headings as given, so the run that would stop at t = 0 is refused here, naming the field.  Offset
+    mode adds the reference's headings at t = 0 (built only with the reference): the run checks those.
+    """
+    if ini.mode != "absolute" or ini.headings_deg is None:
+        return
+    lim = math.sin(math.radians(margin_deg))
+    th = [math.radians(h) for h in ini.headings_deg]
+    for i in range(len(th) - 1):
+        if abs(math.cos(th[i] - th[i + 1])) <= lim:
+            phi = ini.headings_deg[i] - ini.headings_deg[i + 1]
+            raise _FieldError(
+                "initial.headings_deg",
+                f"the articulation angle theta_{i + 1} - theta_{i + 2} = {phi:g} deg starts within "
+                f"simulation.singularity_margin_deg = {margin_deg:g} deg of +/-90 deg: the chain is singular "
+                "there (ERRATA P4) and the run would stop at t = 0",
+            )
+
+
+#: The leftmost point of RK4's stability region |1 + z + z^2/2 + z^3/6 + z^4/24| <= 1, on the real axis
+#: (z = -2.7853; a scan of the complex plane finds no point of the region further left).
+RK4_REAL_LIMIT = 2.785
+
+
+def _rk4_on_currents(sim: Simulation, motors: list[MotorParams], drives: list[DriveParams]) -> str | None:
+    """RK4 with a step no armature current survives (the run stops step_unstable): a warning, else None.
+
+    A motor's current and speed obey L_a J s^2 + (R_a J + L_a b) s + (R_a b + k_m k_b) = 0 (thesis
+    (2.26)-(2.29)); the roots sum to -(R_a / L_a + b / J), so the fast one (or a complex pair's real part)
+    lies at or left of -R_a / (2 L_a), and RK4 is unstable for certain once dt R_a / (2 L_a) > 2.785.
+    A continuous PI drive adds K_p to R_a (L_a s^2 + (R_a + K_p) s + K_i = 0 with the rotor held; with
+    the gains of pole-zero cancellation the roots are -R_a / L_a and -2 pi f): the bound is then
+    dt (R_a + K_p) / (2 L_a).  Steps between the likely and the certain bound may fail too (the run
+    says so); ETD2 is exact on the currents and the drive at any step (fast.loop._etd2).
+    """
+    if sim.method != "rk4":
+        return None
+    pi = drives[0].driver == "pi" and drives[0].drive_rate is None
+    # [s] the fastest time constant: L_a / (R_a + K_p), K_p = 0 without the PI
+    tau = min(m.L_a / (m.R_a + (d.kp if pi else 0.0)) for m, d in zip(motors, drives, strict=True))
+    if sim.dt / (2.0 * tau) <= RK4_REAL_LIMIT:
+        return None
+    what = "L_a / (R_a + K_p)" if pi else "L_a / R_a"
+    return (
+        f"simulation.dt: {sim.dt:g} s with method = 'rk4' cannot integrate the armature currents of [actuators] "
+        f"({what} = {tau * 1e3:.3g} ms: RK4 is unstable beyond dt = {2 * RK4_REAL_LIMIT * tau * 1e3:.3g} ms "
+        f"for certain, likely beyond {RK4_REAL_LIMIT * tau * 1e3:.3g} ms): the runs will stop step_unstable; use "
+        'method = "etd2" (exact on the currents at any step) or a smaller dt'
+    )
+
+
+def _check_name(v: str | None) -> str | None:
+    """A case name is a directory name and a page title: the safe set of ftcreport.limits."""
+    if v is not None and (why := name_problem(v)) is not None:
+        raise ValueError(why)
+    return v
+
+
+def _check_budget(case: Case) -> None:
+    """Refuse, before it starts, a run over the step limit or memory budget (ftcreport.limits)."""
+    s = case.simulation
+    for scheme in configured_schemes(case):
+        cfg = getattr(case.schemes, scheme)
+        pats = getattr(cfg, "patterns", "all")
+        models = None if pats == "all" else len(pats)
+        problem = budget_problem(case.robots.n, s.duration, s.dt, s.log_every, scheme, models)
+        if problem is not None:
+            raise _FieldError(*problem)

@@ -78,21 +78,33 @@ def interrupt_of(exc: BaseException | None) -> KeyboardInterrupt | None:
 
 _shield: list[int] = [0]  # > 0: inside cleanup code (shielded()): a stop signal is not raised there
 
+#: Python that C code calls back into: llvmlite (its object cache hands LLVM a cached kernel's machine code)
+#: and numba's unpickling from compiled code.  An exception raised there is printed and dropped, and the C
+#: caller, handed nothing, crashes (CI, round 3: SIGTERM in ``_raw_object_cache_getbuffer``, exit -11).
+_CALLBACK_FILES = (f"{os.sep}llvmlite{os.sep}", os.path.join("numba", "core", "serialize.py"))
+
 
 def _on_stop_signal(signum, frame) -> None:
     """Raise :class:`Interrupted`; not inside cleanup (:func:`shielded`), a finaliser or a callback of the collector.
 
-    Python runs signal handlers between bytecodes, also inside garbage-collection callbacks and
-    finalisers, where an exception is printed ("Exception ignored in ...", with a traceback) and
-    dropped: the command would go on as if nothing happened.  There the signal is sent again 50 ms
-    later instead.  In cleanup code it is dropped: the cleanup is already stopping the command.
+    Python runs signal handlers between bytecodes, also inside garbage-collection callbacks,
+    finalisers and callbacks from C (:data:`_CALLBACK_FILES`), where an exception is printed
+    ("Exception ignored in ...", with a traceback) and dropped: the command would go on as if nothing
+    happened, or its C caller crash.  There the signal is sent again 50 ms later instead.  In cleanup
+    code it is dropped: the cleanup is already stopping the command.
     """
     if _shield[0] > 0:
         return
     callbacks = {getattr(getattr(cb, "__func__", cb), "__code__", None) for cb in gc.callbacks}
     f, depth = frame, 0
     while f is not None and depth < 12:
-        if f.f_code.co_name == "__del__" or f.f_code.co_filename.endswith("weakref.py") or f.f_code in callbacks:
+        code = f.f_code
+        if (
+            code.co_name == "__del__"
+            or code.co_filename.endswith("weakref.py")
+            or code in callbacks
+            or any(part in code.co_filename for part in _CALLBACK_FILES)
+        ):
             threading.Timer(0.05, os.kill, (os.getpid(), signum)).start()
             return
         f, depth = f.f_back, depth + 1

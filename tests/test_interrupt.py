@@ -232,6 +232,30 @@ def test_an_interrupt_wrapped_by_compiled_code_is_an_interrupt():
     assert interrupt_of(ValueError("x")) is None
 
 
+def test_a_stop_signal_inside_a_callback_from_c_is_sent_again_not_raised(monkeypatch):
+    """CI, round 3: SIGTERM arrived while LLVM was inside llvmlite's object-cache callback (a cached kernel
+    loading); the handler raised there, Python printed "Exception ignored on calling ctypes callback
+    function" and dropped it, LLVM got no buffer and the process died with -11.  In a frame of llvmlite
+    (or of numba's unpickling from compiled code) the handler sends the signal again 50 ms later, and
+    raises once the callback has returned."""
+    import llvmlite.binding
+
+    from ftcreport import lifetime
+
+    sent = []
+    monkeypatch.setattr(lifetime.os, "kill", lambda pid, sig: sent.append((pid, sig)))
+    where = str(Path(llvmlite.binding.__file__).parent / "executionengine.py")
+    scope = {"handler": lifetime._on_stop_signal, "sys": sys, "signum": signal.SIGTERM}
+    exec(compile("def _raw_object_cache_getbuffer():\n    handler(signum, sys._getframe())\n", where, "exec"), scope)
+    scope["_raw_object_cache_getbuffer"]()  # as the callback: no exception
+    deadline = time.monotonic() + 5.0
+    while not sent and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert sent == [(os.getpid(), signal.SIGTERM)]
+    with pytest.raises(lifetime.Interrupted):  # anywhere else: raised at once
+        lifetime._on_stop_signal(signal.SIGTERM, sys._getframe())
+
+
 def _alive(session: int) -> list[str]:
     """The processes of a session (the command started with start_new_session) still running (zombies aside)."""
     out = []

@@ -7,7 +7,7 @@ with the actuator fault model (2.102) and optional torque saturation::
     etadot = Mbar1^-1 (Bbar tau - Mbar2 eta - Cbar),   tau = sigma sat(u) + ubar
 
 :func:`simulate` runs the closed loop on the compiled engine
-(:func:`ftcreport.fast.engine.simulate_compiled` over the loop template ``ftcreport/fast/loop.py``)
+(:func:`ftcreport.fast.simulate.simulate_compiled` over the loop template ``ftcreport/fast/loop.py``)
 for a controller built by the package (:func:`ftcreport.runner.make_controller`, the classes of
 :mod:`ftcreport.control`) or a registered scheme (:mod:`ftcreport.schemes`).  There is no second
 loop in Python (issue 17: each equation exists once): a new law is written as a scheme (README,
@@ -59,7 +59,7 @@ steps in a row, ``GROWTH_TOTAL`` = 20 times larger overall, ending above
 ``GROWTH_FLOOR`` = 1 N m; the constants are in :mod:`ftcreport.runs`): growth by
 e per step is a rate of 1 / dt, a mode with lambda dt > 1 that the step does not
 resolve.  Such a stop, and a divergence at a bound, is labelled by what a
-smaller step does to it (issue 36 item 4, :func:`ftcreport.fast.engine._relabel`):
+smaller step does to it (issue 36 item 4, :func:`ftcreport.fast.recheck._relabel`):
 the interval is run again from a checkpoint before it with the method's
 error-controlled twin, and the stop is ``"step_unstable"`` only if that run
 passes it or stops later; ``"singular"`` if it also stops, no later, with the
@@ -311,7 +311,8 @@ def simulate(
         Bad initial state, ``engine="python"``, or a controller without a compiled counterpart
         (write it as a scheme: :mod:`ftcreport.schemes`).
     """
-    from .fast.engine import compiled_spec, simulate_compiled
+    from .fast.engine import compiled_spec
+    from .fast.simulate import simulate_compiled
 
     nq = plant.chain.n_q
     q0 = np.asarray(q0, dtype=float)

@@ -123,9 +123,9 @@ def test_a_discontinuity_is_passed_at_the_minimum_step():
     at 0.0442 s and passes; at atol = 1e-12 (a weight at 0 is held to 1e-12) no step is short enough: the
     step at min_step is taken anyway, counted and reported, and the run goes on (measured: 11 such steps
     in 1 s, the first at 0.0093 s, among 529)."""
-    from ftcreport.fast import engine, loop
+    from ftcreport.fast import auto_run, loop
 
-    assert engine.FORCED_STREAK == loop.FORCED_STREAK
+    assert auto_run.FORCED_STREAK == loop.FORCED_STREAK
     run, m = _run("two_link_adaptive_eight", "adaptive", duration=1.0, method="auto")
     assert run.status == "ok", run.reason
     assert np.min(np.diff(run.t_stream)) == pytest.approx(1e-8, rel=1e-6)

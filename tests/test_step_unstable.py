@@ -3,7 +3,7 @@ step removes.
 
 Three detectors (ftcreport.sim's docstring) stop a fixed-step run: a trial stage that leaves the domain,
 a new state that jumps past a check in one step, and a sustained geometric growth of the applied torque.
-The engine then runs the interval again at dt/4 (fast.engine._recheck): ``step_unstable`` when the finer
+The engine then runs the interval again at dt/4 (fast.recheck._recheck): ``step_unstable`` when the finer
 run passes the stop (or stops later), ``singular`` when it also stops no later in a law's singular set,
 ``diverged`` when the blow-up persists.  The torque laws of the growth tests are the GEOMETRIC and
 EXPLODING harnesses (tests/data/harness_scheme.py).

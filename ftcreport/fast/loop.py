@@ -587,7 +587,7 @@ def run_steps(
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
     lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf, dr0,
 ):  # fmt: skip
-    """Steps k0..k1 of a run (sim.simulate through fast.engine.simulate_compiled); returns (x, k, li, where).
+    """Steps k0..k1 of a run (sim.simulate through fast.simulate.simulate_compiled); returns (x, k, li, where).
 
     ``where`` says where an error stopped the loop (AT_STATE, AT_TRIAL, AT_DISCRETE).
     ``grow`` = [max |tau| at the previous step, streak length, max |tau| at the streak start]
@@ -742,7 +742,7 @@ def run_steps(
 
 
 # =========================================================================== error-controlled steps
-# ``opt`` (run_auto's settings, written by fast.engine.simulate_compiled):
+# ``opt`` (run_auto's settings, written by fast.auto_run._simulate_auto):
 O_RTOL, O_ATOL, O_HMAX, O_HMIN, O_TEND, O_TCHUNK, O_CLOCK, O_T0, O_DWELL, O_TMIN, O_METHOD, O_CLOCK_DISC = range(12)
 # ``ctl`` (its state, carried across calls; fast.engine reads the counts and the method):
 C_T, C_H, C_RPREV, C_ACCEPTED, C_REJECTED, C_EVALS, C_SEG, C_REANCHOR, C_METHOD, C_RHO, C_CAUSE = range(11)

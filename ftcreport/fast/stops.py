@@ -1,0 +1,145 @@
+"""A compiled run's stop: the error code's status and reason, and whether the state is at the singular set."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..errors import (
+    articulation_reason,
+    bound_reason,
+    chained_reason,
+    kappa_reason,
+    nonfinite_reason,
+    reference_articulation_reason,
+    reference_speed_reason,
+    step_growth_reason,
+    step_words,
+    trial_stage_reason,
+    two_link_reason,
+    with_step,
+)
+from . import kernels as F
+from .integrators import AUTO_METHODS
+
+if TYPE_CHECKING:
+    from .engine import Spec
+
+
+# --------------------------------------------------------------------------- errors
+def _how(settings, used: str | None = None) -> str:
+    """The step a reason names: dt and the method (fixed), or the method used and its tolerances."""
+    if settings.method in AUTO_METHODS:
+        return step_words(settings.dt, used or settings.method, settings.rtol, settings.atol)
+    return step_words(settings.dt, settings.method)
+
+
+def _message(info: np.ndarray, t: float, settings, ref: F.Ref, how: str = "") -> tuple[str, str]:
+    """(status, reason) of a kernel error code (one wording per stop: ftcreport.errors)."""
+    how = how or _how(settings)
+    code = int(info[0])
+    a, b, c = (float(v) for v in info[1:4])
+    if code == F.E_STATE_SINGULAR:
+        return "singular", articulation_reason(int(a), b, settings.singularity_margin)
+    if code in (F.E_NONFINITE_STATE, F.E_NONFINITE_DERIV):
+        reason = nonfinite_reason("state" if code == F.E_NONFINITE_STATE else "control or derivative", a)
+        return "diverged", with_step(reason, how)
+    if code == F.E_SPEED:
+        return "diverged", with_step(bound_reason("velocity", [a, b], settings.max_speed), how)
+    if code == F.E_POSITION:
+        return "diverged", with_step(bound_reason("position", [a, b], settings.max_position, " m"), how)
+    if code == F.E_TWO_LINK_ETH:
+        return "singular", two_link_reason(f"heading error e_theta of robot {ref.n}", a)
+    if code == F.E_TWO_LINK_PHI:
+        return "singular", two_link_reason("articulation angle theta_1 - theta_2", a)
+    if code == F.E_CHAINED_THN:
+        return "singular", chained_reason(f"theta_{ref.n}", a, " in its frame")
+    if code == F.E_CHAINED_ART:
+        return "singular", chained_reason(f"theta_{int(a) + 1} - theta_{int(a) + 2}", b)
+    if code == F.E_KAPPA:
+        return "singular", kappa_reason(a)
+    if code == F.E_REF_SPEED:
+        return "error", reference_speed_reason(a, int(b), c, ref.min_speed)
+    if code == F.E_REF_ART:
+        return "error", reference_articulation_reason(a, int(b), c, ref.max_art)
+    if code == F.E_UKF:
+        from .ukf import ukf_message
+
+        reason = f"the UKF stopped at t = {b:.6g} s: {ukf_message(int(a))}"
+        return "diverged", with_step(reason, how)
+    if code == F.E_STEP_GROWTH:
+        from ..runs import GROWTH_FACTOR, GROWTH_STEPS
+
+        return "step_unstable", step_growth_reason(a, b, c, GROWTH_STEPS, GROWTH_FACTOR, how)
+    return "error", f"compiled engine: unknown error code {code} at t = {t:.6g} s"
+
+
+def _stop(
+    info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: F.Ref, spec: Spec | None = None
+) -> tuple[str, str, float]:
+    """(status, reason, t_end) of a fixed-step stop: a failed trial stage is a step problem, not a singularity
+    (until the re-check says otherwise, :func:`_relabel`); a scheme that wrote past its buffers is an error
+    naming the scheme and the buffer (ftcreport.schemes.api)."""
+    if int(info[0]) == F.E_LAW_WRITE and spec is not None:
+        from ..schemes.controller import write_reason
+
+        return "error", write_reason(spec.controller, int(info[1]), float(info[2])), float(info[2])
+    how = _how(settings)
+    if int(info[0]) == F.E_STEP_JUMP:
+        from ..runs import step_jump_words
+
+        words = step_jump_words(int(info[1]), float(info[2]), float(info[3]))
+        return "step_unstable", trial_stage_reason(t_state, words, how, settings.method, stage=False), t_state
+    if where == F.AT_TRIAL and int(info[0]) not in (F.E_REF_SPEED, F.E_REF_ART):
+        _, detail = _message(info, t_state, settings, ref)
+        return "step_unstable", trial_stage_reason(t_state, detail, how, settings.method), t_state
+    if where == F.AT_STATE:
+        return (*_message(info, t_state, settings, ref), t_state)
+    return (*_message(info, t_next, settings, ref), t_next)
+
+
+def _in_singular_set(info, where: int, x: np.ndarray, t: float, settings, spec: Spec) -> bool:
+    """Did the run stop because the accepted state reached a law's singular set (ERRATA P4, E12d)?
+
+    At the accepted state (``where`` AT_STATE) a singular code is the set itself.  At a trial stage it
+    is only if the accepted state x at t is already near the set the stage reached: within
+    JUMP_MARGINS singularity margins of it (|cos| of the angle below sin(20 deg) at the default 2 deg
+    margin; for the chained form, its law refusing x with its tolerance widened to that), the band
+    within which fast.kernels._step_jump does not call an arrival at the set a step's blow-up.  A stage
+    that reaches the set from farther out is a blow-up passing through it (``diverged`` if it persists).
+    """
+    from ..runs import JUMP_MARGINS
+
+    code = int(info[0])
+    if code not in _SINGULAR_CODES:
+        return False
+    if where == F.AT_STATE:
+        return True
+    band = math.sin(JUMP_MARGINS * settings.singularity_margin)
+    nq = spec.chain.n + 2
+    q = x[:nq]
+    kin = spec.controller.kin
+    if code == F.E_TWO_LINK_PHI:
+        return abs(math.cos(q[3] - q[2])) <= band
+    if code == F.E_TWO_LINK_ETH:  # the heading error of robot n against the reference's heading at t
+        return abs(math.cos(q[2] - float(kin.reference.at(t).q_d[2]))) <= band
+    if code in (F.E_CHAINED_THN, F.E_CHAINED_ART, F.E_KAPPA) and hasattr(kin, "singular_tol"):
+        import copy
+
+        from ..errors import FtcError
+
+        wide = copy.copy(kin)  # the same law, refusing a band of the sets around them
+        wide.singular_tol, wide._kin, wide._cache = band, None, None
+        try:
+            wide.law(t, q, x[-int(spec.controller.n_states) :])
+        except FtcError:
+            return True
+    return False
+
+
+#: the kinematic laws' and the chained form's singular sets (ERRATA P4, E12d): a stop there is ``singular``
+_SINGULAR_CODES = frozenset(
+    (F.E_STATE_SINGULAR, F.E_TWO_LINK_ETH, F.E_TWO_LINK_PHI, F.E_CHAINED_THN, F.E_CHAINED_ART, F.E_KAPPA)
+)

@@ -223,3 +223,31 @@ def kin_discrete(Kp, R, C, t, xc, info):
         thd = C.QD[0, 2]
         if abs(_wrap(thd - xc[0])) > Kp.band:
             xc[0] = thd
+
+
+@jit
+def _reanchor_time(Kp, R, C, t_a, t_b, psi, info):
+    """When in (t_a, t_b] the chained law's frame psi must re-anchor (fast.kernels.kin_discrete: once the
+    reference heading theta_d(t) leaves psi +/- band): t_b if it need not, else the first instant found
+    by bisection on theta_d (a function of t alone: an event known from the reference), to 1e-12 s
+    relative, on the side where it must (so that the discrete update there re-anchors)."""
+    if Kp.kind != KIN_CHAINED:
+        return t_b
+    ref_side(Kp, R, C, t_b, psi, info)
+    if info[0] != 0 or abs(_wrap(C.QD[0, 2] - psi)) <= Kp.band:
+        info[:] = 0.0
+        return t_b
+    a, b = t_a, t_b
+    for _ in range(80):
+        if b - a <= 1e-12 * max(1.0, abs(b)):
+            break
+        m = 0.5 * (a + b)
+        ref_side(Kp, R, C, m, psi, info)
+        if info[0] != 0:
+            info[:] = 0.0
+            return t_b
+        if abs(_wrap(C.QD[0, 2] - psi)) > Kp.band:
+            b = m
+        else:
+            a = m
+    return b

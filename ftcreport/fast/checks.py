@@ -68,3 +68,15 @@ def _step_jump(pp, x, xn, nq, lim, max_speed, max_position, frac, lim_far, info)
             info[3] = math.degrees(math.acos(min(1.0, c1)))
             return 4
     return 0
+
+
+@jit
+def _finite(f0, u):
+    """Whether the rates and the command of a step's first evaluation are all finite."""
+    for i in range(f0.shape[0]):
+        if not math.isfinite(f0[i]):
+            return False
+    for i in range(u.shape[0]):  # noqa: SIM110 - a loop, no temporary array, in the step
+        if not math.isfinite(u[i]):
+            return False
+    return True

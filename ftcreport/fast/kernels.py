@@ -24,6 +24,7 @@ from ..control.active_compiled import (  # noqa: F401 - re-exported
 )
 from ..control.kinematic_compiled import (  # noqa: F401 - re-exported
     _chained_law,
+    _reanchor_time,
     _two_link_law,
     eta_c_and_dot,
     kin_discrete,
@@ -83,6 +84,7 @@ from ..references.compiled import (  # noqa: F401 - re-exported
 )
 from .checks import (  # noqa: F401 - re-exported
     _check_state,
+    _finite,
     _min_art_cos,
     _step_jump,
 )

@@ -32,14 +32,10 @@ import numpy as np
 from ftcreport.fast.drive import (
     DRIVER_PI,
     DRIVER_PI_SAMPLED,
-    DRIVER_STATIC,
     current_target,
-    drive_fault_equivalent,
     drive_jacobian,
-    drive_output,
     motor_state_count,
     pi_sample,
-    static_voltage,
 )
 from ftcreport.fast.integrators import (
     DP_A,
@@ -71,16 +67,16 @@ from ftcreport.fast.kernels import (
     KIN_CHAINED,
     _check_state,
     _clip,
+    _finite,
     _mv,
+    _reanchor_time,
     _solve2,
     _step_jump,
-    _wrap,
     jit,
     plant_rhs,
-    reduced,
-    ref_side,
 )
-from ftcreport.fast.motor import motor_plant_rhs, reset_current
+from ftcreport.fast.loop_plant import _delayed, _drive_input, _drive_speeds, _motors, true_faults
+from ftcreport.fast.motor import reset_current
 from ftcreport.fast.refs import as_ref
 from ftcreport.schemes.api import N_GUARD, Out, Step, Terms
 from ftcreport.schemes.kernels import engine_terms as TERMS
@@ -100,61 +96,6 @@ TERMS_MODE = 0  # LOOP-TERMS
 # the loop's variant (fast.engine.loop_for writes the case's): numba prunes the branches these close
 # before typing, so a loop without motors or sampled control never compiles their kernels
 MOTORS, SAMPLED = True, True  # LOOP-VARIANT
-
-
-@jit
-def _drive_speeds(ctx, qm, etam):
-    """The drive's wheel speeds: Bbar(q)^T eta at the measured state (the controller's chain model)."""
-    Bm = reduced(ctx[3], qm, etam)[3]
-    return _mv(Bm.T, etam)
-
-
-@jit
-def _drive_input(ctx, tau_c, fm, om):
-    """What a drive makes of the commanded torques at its measured wheel speeds ``om`` (held under
-    sampled control): the static driver's voltage (fast.drive.static_voltage of the current
-    target), or the PI's current target i* (fast.drive.current_target)."""
-    dr = ctx[10]
-    i_star = current_target(dr, tau_c, om)
-    if dr.kind == DRIVER_STATIC:
-        return static_voltage(dr, i_star, om, fm)
-    return i_star
-
-
-@jit
-def _reads_speed(dr):
-    """A PI drive with back-EMF feedforward reads the wheel speeds between control samples too."""
-    return dr.kind != DRIVER_STATIC and dr.ff.shape[0] > 0 and dr.ff.max() != 0.0
-
-
-@jit
-def _motors(ctx, x, tau_c, fm, v_h, qm, etam):
-    """(qdot, etadot, motor-state rates, tau_w, v_a) of the chain driven by its DC motors and drives.
-
-    The plant is (2.26)-(2.29) with E19 (fast.motor.motor_plant_rhs); the motor states after eta are
-    the currents and the drives' states (fast.drive).  The drive turns the commanded torques tau_c
-    at the measured wheel speeds into its input (:func:`_drive_input`), or holds ``v_h`` (sampled
-    control: the static driver's voltage, the PI's current target), and its output into v_a.
-    """
-    pp, nq, mo, nm, dr = ctx[4], ctx[5], ctx[8], ctx[9], ctx[10]
-    nw = mo.R_a.shape[0]
-    xm = x[nq + 2 : nq + 2 + nm]
-    held = dr.kind == DRIVER_PI_SAMPLED or v_h.shape[0] > 0
-    om = _drive_speeds(ctx, qm, etam) if not held or _reads_speed(dr) else np.zeros(nw)
-    if dr.kind == DRIVER_PI_SAMPLED:  # its own samples hold its voltage (_drive_tick)
-        din = np.zeros(0)
-    elif v_h.shape[0] > 0:
-        din = v_h
-    else:
-        din = _drive_input(ctx, tau_c, fm, om)
-    v, ddot = drive_output(dr, xm, din, om, fm)
-    qdot, etadot, idot, tau_w = motor_plant_rhs(pp, mo, x[:nq], x[nq : nq + 2], xm[:nw], v, fm)
-    if nm == nw:
-        return qdot, etadot, idot, tau_w, v
-    xmdot = np.empty(nm)
-    xmdot[:nw] = idot
-    xmdot[nw:] = ddot
-    return qdot, etadot, xmdot, tau_w, v
 
 
 @jit
@@ -201,22 +142,6 @@ def _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
             us = u if math.isnan(sat) else _clip(u, -sat, sat)
             din = current_target(dr, sigma * us + ubar, om)
     return drive_jacobian(pp, mo, dr, x[:nq], x[nq : nq + 2], x[nq + 2 : nq + 2 + nm], din, om, fm)
-
-
-@jit
-def true_faults(ctx, x, sigma, ubar, fm):
-    """The (sigma, ubar) the chain sees: the command faults composed with the motors' equivalents.
-
-    tau_w ~ s_m (sigma u + ubar) + u_m, so sigma_true = s_m sigma, ubar_true = s_m ubar + u_m
-    (fast.drive.drive_fault_equivalent at the wheel speeds of x: the motors' faults, and what the
-    drive's model of a healthy motor gets wrong); without motors, (sigma, ubar).
-    """
-    if ctx[9] == 0:
-        return sigma, ubar
-    pp, nq = ctx[4], ctx[5]
-    Bb = reduced(pp, x[:nq], x[nq : nq + 2])[3]
-    sm, um = drive_fault_equivalent(ctx[8], ctx[10], fm, _mv(Bb.T, x[nq : nq + 2]))
-    return sm * sigma, sm * ubar + um
 
 
 @jit
@@ -493,21 +418,6 @@ def _ros2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, F
 
 
 @jit
-def _delayed(mbuf, hold_t, q, eta):
-    """The measurement of d = len(mbuf) - 1 samples before: ``mbuf`` is a ring of the last d + 1
-    samples' [q, eta], ``hold_t[3]`` counts the samples; before the d-th, the first sample's."""
-    nq = q.shape[0]
-    d1 = mbuf.shape[0]
-    c = int(hold_t[3])
-    slot = c % d1
-    mbuf[slot, :nq] = q
-    mbuf[slot, nq:] = eta
-    hold_t[3] = c + 1.0
-    src = max(c - (d1 - 1), 0) % d1
-    return mbuf[src, :nq].copy(), mbuf[src, nq:].copy()
-
-
-@jit
 def sample(P, ctx, t, x, sigma, ubar, fm, nz, info, hold_t, u_h, dx_h, sig_h, v_h, mbuf):
     """One sample of a discrete-time controller at t (sampled control, period T_s = hold_t[2]).
 
@@ -565,18 +475,6 @@ def first_discrete(P, Kp, R, pc, t, q, eta, xc, info):
     nw = 2 * pc.n
     z = np.zeros(nw)
     _disc(as_ref(P), as_ref(Kp), as_ref(R), C, as_ref(pc), t, q, eta, xc, z + 1.0, z, info)
-
-
-@jit
-def _finite(f0, u):
-    """Whether the rates and the command of a step's first evaluation are all finite."""
-    for i in range(f0.shape[0]):
-        if not math.isfinite(f0[i]):
-            return False
-    for i in range(u.shape[0]):  # noqa: SIM110 - a loop, no temporary array, in the step
-        if not math.isfinite(u[i]):
-            return False
-    return True
 
 
 @jit
@@ -852,34 +750,6 @@ def _spectral_radius(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
         if it >= 15:
             rho = max(rho, last)
     return 1.2 * max(rho, last), evals
-
-
-@jit
-def _reanchor_time(Kp, R, C, t_a, t_b, psi, info):
-    """When in (t_a, t_b] the chained law's frame psi must re-anchor (fast.kernels.kin_discrete: once the
-    reference heading theta_d(t) leaves psi +/- band): t_b if it need not, else the first instant found
-    by bisection on theta_d (a function of t alone: an event known from the reference), to 1e-12 s
-    relative, on the side where it must (so that the discrete update there re-anchors)."""
-    if Kp.kind != KIN_CHAINED:
-        return t_b
-    ref_side(Kp, R, C, t_b, psi, info)
-    if info[0] != 0 or abs(_wrap(C.QD[0, 2] - psi)) <= Kp.band:
-        info[:] = 0.0
-        return t_b
-    a, b = t_a, t_b
-    for _ in range(80):
-        if b - a <= 1e-12 * max(1.0, abs(b)):
-            break
-        m = 0.5 * (a + b)
-        ref_side(Kp, R, C, m, psi, info)
-        if info[0] != 0:
-            info[:] = 0.0
-            return t_b
-        if abs(_wrap(C.QD[0, 2] - psi)) > Kp.band:
-            b = m
-        else:
-            a = m
-    return b
 
 
 @jit

@@ -196,3 +196,16 @@ def test_the_analysis_reaches_no_report_cli_or_store():
         assert not [w for w in _reach(graph, m) if _under(w, EDGES)], m
         stdlib = {d.split(".")[0] for d in _imports(ROOT.parent / (m.replace(".", "/") + ".py"))}
         assert not stdlib & set(IO_MODULES), (m, stdlib & set(IO_MODULES))
+
+
+#: the loop and what it is made of know the scheme interface (ftcreport.schemes.api, .kernels), the plant
+#: (model, the motors and drives of fast/) and the engine's own parts, never a concrete law, observer or
+#: reference (issue 38 item 6): those reach it through the scheme interface only
+LOOP_PARTS = ("ftcreport.fast.loop", "ftcreport.fast.loop_plant", "ftcreport.fast.integrators")
+CONCRETE = ("ftcreport.control", "ftcreport.observers", "ftcreport.references", "ftcreport.fast.kernels")
+
+
+@pytest.mark.parametrize("part", LOOP_PARTS)
+def test_the_loop_imports_no_concrete_law_observer_or_reference(part):
+    direct = _graph()[part]
+    assert not [d for d in direct if _under(d, CONCRETE)], sorted(direct)

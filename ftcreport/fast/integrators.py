@@ -50,8 +50,9 @@ import math
 import numpy as np
 
 from ..runs import AUTO_METHODS
+from .compiling import jit
 from .expo import phi12, phi12_scalar
-from .kernels import _solve2, jit
+from .packed import _solve2
 
 __all__ = [
     "AUTO_METHODS",

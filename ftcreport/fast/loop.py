@@ -29,6 +29,8 @@ import math
 
 import numpy as np
 
+from ftcreport.fast.checks import _check_state, _finite, _step_jump
+from ftcreport.fast.compiling import jit
 from ftcreport.fast.drive import (
     DRIVER_PI,
     DRIVER_PI_SAMPLED,
@@ -54,7 +56,9 @@ from ftcreport.fast.integrators import (
     starting_step,
     step_factor,
 )
-from ftcreport.fast.kernels import (
+from ftcreport.fast.loop_plant import _delayed, _drive_input, _drive_speeds, _motors, true_faults
+from ftcreport.fast.motor import reset_current
+from ftcreport.fast.packed import (
     AT_DISCRETE,
     AT_STATE,
     AT_TRIAL,
@@ -64,25 +68,19 @@ from ftcreport.fast.kernels import (
     E_NONFINITE_STATE,
     E_STEP_GROWTH,
     E_STEP_JUMP,
-    KIN_CHAINED,
-    _check_state,
     _clip,
-    _finite,
     _mv,
-    _reanchor_time,
     _solve2,
-    _step_jump,
-    jit,
-    plant_rhs,
 )
-from ftcreport.fast.loop_plant import _delayed, _drive_input, _drive_speeds, _motors, true_faults
-from ftcreport.fast.motor import reset_current
 from ftcreport.fast.refs import as_ref
+from ftcreport.model.compiled import plant_rhs
 from ftcreport.schemes.api import N_GUARD, Out, Step, Terms
 from ftcreport.schemes.kernels import engine_terms as TERMS
 from ftcreport.schemes.kernels import guards_intact, no_discrete, no_law, readonly
 from ftcreport.schemes.kernels import kinematic_discrete as KDISC
 from ftcreport.schemes.kernels import kinematic_eval as KEVAL
+from ftcreport.schemes.kernels import kinematic_event_time as KEVENT
+from ftcreport.schemes.kernels import kinematic_events as KEVENTS
 from ftcreport.schemes.kernels import kinematic_signals as KSIG
 from ftcreport.schemes.kernels import new_kinematic_cache as KCACHE
 
@@ -756,7 +754,7 @@ def _spectral_radius(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
 def _next_event(events, seg, t, opt, hold_t, sampled, x, npl, ctl):
     """The first instant after t that a step must land on: a fault time, a sample, a tick of the clock
     (sensor noise, a discrete-time filter), the end of a switching dwell, the chained frame's
-    re-anchoring (located by :func:`_reanchor_time`), the run's end."""
+    re-anchoring (located by ``KEVENT``, the scheme interface's :func:`kinematic_event_time`), the run's end."""
     t_ev = opt[O_TEND]
     if ctl[C_REANCHOR] > t:
         t_ev = min(t_ev, ctl[C_REANCHOR])
@@ -906,7 +904,7 @@ def run_auto(
                 ctl[C_H] = starting_step(x, f0, f1, h0, 5.0 if method == 3.0 else 2.0, rtol, atol)
         method = int(ctl[C_METHOD])
         # the chained frame re-anchors after the steps (continuous control, discrete updates every step)
-        reanchors = Kp.kind == KIN_CHAINED and not (SAMPLED and sampled) and opt[O_CLOCK_DISC] == 0.0
+        reanchors = KEVENTS(Kp) and not (SAMPLED and sampled) and opt[O_CLOCK_DISC] == 0.0
         k_err = 5.0 if method == 3 else 3.0  # err = O(h^k)
         beta = 0.04 if method == 3 else 0.0  # PI control for DOPRI5 (Hairer's code), elementary otherwise
         rejected = False
@@ -936,7 +934,7 @@ def run_auto(
                 elif r <= 1.0:
                     t_try = t_ev if land else t + h
                     if reanchors:  # a re-anchoring inside the step: land on it instead (not a rejection)
-                        t_star = _reanchor_time(Kp, R, C, t, t_try, xn[npl], info)
+                        t_star = KEVENT(Kp, R, C, t, t_try, xn[npl], info)
                         if t_star < t_try:
                             ctl[C_REANCHOR] = t_star
                             continue

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..model.compiled import reduced
+from .compiling import jit
 from .drive import (
     DRIVER_PI_SAMPLED,
     DRIVER_STATIC,
@@ -20,8 +22,8 @@ from .drive import (
     drive_output,
     static_voltage,
 )
-from .kernels import _mv, jit, reduced
 from .motor import motor_plant_rhs
+from .packed import _mv
 
 
 @jit

@@ -19,6 +19,8 @@ from numba.core.extending import intrinsic
 from numba.core.imputils import impl_ret_borrowed
 
 from ..fast.kernels import (
+    KIN_CHAINED,
+    _reanchor_time,
     eta_c_and_dot,
     jit,
     kin_discrete,
@@ -34,6 +36,8 @@ __all__ = [
     "guards_intact",
     "kinematic_discrete",
     "kinematic_eval",
+    "kinematic_event_time",
+    "kinematic_events",
     "kinematic_signals",
     "legacy_matched_terms",
     "legacy_no_discrete",
@@ -48,6 +52,14 @@ __all__ = [
 kinematic_discrete = kin_discrete  # the chained law's re-anchoring after each step
 new_kinematic_cache = new_cache
 legacy_matched_terms = matched_terms  # the round-2 law's helper (kinematic signals into its sig)
+kinematic_event_time = _reanchor_time  # when in (t_a, t_b] the chained law's frame must re-anchor (t_b: not)
+
+
+@jit
+def kinematic_events(Kp):
+    """Whether the kinematic law has events an error-controlled step must land on (the chained law's
+    re-anchoring: :func:`kinematic_event_time`)."""
+    return Kp.kind == KIN_CHAINED
 
 
 @intrinsic

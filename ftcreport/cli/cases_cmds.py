@@ -171,7 +171,3 @@ def _check_schemes(file: Path) -> None:
             typer.echo("\n".join("     | " + line for line in f.detail.strip().splitlines()))
     if failed:
         raise typer.Exit(code=2)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    app()

@@ -34,10 +34,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftcreport.campaign import draw_variant, run_campaign, sample_seeds  # noqa: E402
 from ftcreport.cases import parse_case  # noqa: E402
 from ftcreport.runner import build, make_controller, run_metrics  # noqa: E402
 from ftcreport.sim import simulate  # noqa: E402
+from ftcreport.studies.campaign import draw_variant, run_campaign, sample_seeds  # noqa: E402
 
 SCHEMES = ["nominal", "switching", "oracle"]
 
@@ -72,7 +72,7 @@ def cluster_fixed_costs(workers: int) -> dict:
     """Seconds to start a LocalCluster, check versions and register the warm-up plugin."""
     from dask.distributed import Client, LocalCluster
 
-    from ftcreport.cluster import WarmUp, check_versions
+    from ftcreport.studies.cluster import WarmUp, check_versions
 
     t0 = time.perf_counter()
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",

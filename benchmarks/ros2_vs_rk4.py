@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ftcreport.cases import load_case
-from ftcreport.metrics import tracking_errors
+from ftcreport.evaluation.metrics import tracking_errors
 from ftcreport.runner import build, make_controller
 from ftcreport.sim import SimSettings, simulate
 
@@ -76,7 +76,7 @@ def main() -> None:
         }
         print(json.dumps({scheme: out[scheme]}, indent=1), flush=True)
     if args.out:
-        from ftcreport.store import write_atomic
+        from ftcreport.storage.store import write_atomic
 
         write_atomic(Path(args.out), json.dumps(out, indent=1).encode())
 

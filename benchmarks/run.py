@@ -87,7 +87,7 @@ def motor_cases(seconds: float, repeats: int) -> dict:
     Accuracy: the largest position difference of each from fine-step RK4 (0.25 ms, h / tau = 0.57),
     on the same sample instants.
     """
-    from ftcreport.metrics import tracking_errors
+    from ftcreport.evaluation.metrics import tracking_errors
 
     settings = (
         ("etd2", {}, repeats),
@@ -268,7 +268,7 @@ def peak_rss_400s(cold: bool = True) -> dict:
 
 def _cold_env(d: str) -> dict:
     """An environment with an empty compile cache: the generated loop modules' and numba's cache of ftcreport's
-    kernels (both under ``FTCREPORT_CACHE``, ftcreport/paths.py), and numba's own for anything else."""
+    kernels (both under ``FTCREPORT_CACHE``, ftcreport/infra/paths.py), and numba's own for anything else."""
     import os
 
     return dict(os.environ, NUMBA_CACHE_DIR=str(Path(d) / "numba"), FTCREPORT_CACHE=str(Path(d) / "ftcreport"))
@@ -344,7 +344,7 @@ def scaling(seconds: float) -> dict:
     A circle of radius 5 m at 0.5 m/s, the thesis robot, the chained law for n >= 3 (the two-link
     law for n = 2), every compensable pattern as the bank: 3 * 4^(n-1) - 2 models, dt = 0.01 s.
     Switching keeps O(n^2) states whatever the bank (superposed filters, control/switching.py) and
-    runs while its pattern table fits the memory budget (ftcreport.limits: n <= 10), healthy and
+    runs while its pattern table fits the memory budget (ftcreport.infra.limits: n <= 10), healthy and
     with three wheel faults (``switching+faults``: nr at 0.5 s, 2l at 1 s, 1r at 1.5 s, so that it
     switches); adaptive banks above max_models are not run (their state alone would be
     2n * 3 * 4^(n-1) floats per step and stage).  The controller and its kernel tables are built
@@ -353,7 +353,7 @@ def scaling(seconds: float) -> dict:
     from ftcreport.control.adaptive import AdaptiveController
     from ftcreport.control.switching import SwitchingController
     from ftcreport.control.tracking import TrackingController
-    from ftcreport.limits import budget_problem, n_models
+    from ftcreport.infra.limits import budget_problem, n_models
     from ftcreport.model import FaultEvent, FaultSchedule
     from ftcreport.sim import Plant, SimSettings, demo_chain
 

@@ -154,7 +154,7 @@ def interrupted_message(exc: BaseException) -> str:
 
     A command that stores nothing (or was interrupted before it could) says only that it was interrupted.
     """
-    signum = getattr(exc, "signum", None)  # ftcreport.lifetime.Interrupted: SIGTERM and SIGHUP are named
+    signum = getattr(exc, "signum", None)  # ftcreport.infra.lifetime.Interrupted: SIGTERM and SIGHUP are named
     how = "interrupted" if signum in (None, 2) else f"interrupted by {exc.args[0] if exc.args else signum}"
     stored = getattr(exc, "ftc_stored", None)
     if stored is None:

@@ -16,7 +16,7 @@ from .cases import Case, build_chain, build_plant_chain, case_hash, initial_stat
 from .control.kinematic import ChainedBackstepping, TwoLinkKinematic
 from .errors import CASE_ERRORS as _FTC_CASE_ERRORS
 from .errors import FtcError, RunEnvironmentError, environment_cause
-from .metrics import HEADLINE_METRICS, singularity_margin, torque_metrics, tracking_metrics
+from .evaluation.metrics import HEADLINE_METRICS, singularity_margin, torque_metrics, tracking_metrics
 from .references import FlatReference
 from .sim import Plant, Run, SimSettings, simulate
 
@@ -44,7 +44,7 @@ CASE_ERRORS: tuple[type[BaseException], ...] = (*_FTC_CASE_ERRORS, np.linalg.Lin
 def expected_engine(scheme: str) -> str:
     """The engine that runs a scheme: the compiled one, the only engine since issue 17.
 
-    Part of the result cache key (``ftcreport.batch.run_key``), so it is known before the run;
+    Part of the result cache key (``ftcreport.studies.batch.run_key``), so it is known before the run;
     ``tests/test_tidy.py`` checks it against the engine each run records.
     """
     return "compiled"
@@ -92,7 +92,7 @@ def build(case: Case) -> Built:
 
 def make_controller(built: Built, scheme: str):
     """The controller of one scheme of the case: the registered scheme bound to the case (ftcreport.schemes)."""
-    from .families import default_k_v
+    from .evaluation.families import default_k_v
     from .schemes import SchemeContext, SchemeController, get
 
     case = built.case
@@ -181,7 +181,7 @@ def _identity(case: Case, scheme: str) -> dict:
 
 
 def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
-    """The metrics.json content of one run (see ftcreport.metrics for definitions)."""
+    """The metrics.json content of one run (see ftcreport.evaluation.metrics for definitions)."""
     out = _identity(case, scheme) | {"status": run.status, "reason": run.reason, "t_end": run.t_end}
     out["engine"] = run.meta["engine"]  # "compiled" (ftcreport.fast): the only engine
     if "integrator" in run.meta:  # the method that ran (auto's pick), its steps and its stop's re-check
@@ -209,9 +209,9 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
 
 
 def _requirements(case: Case, scheme: str, run: Run, built: Built, t: np.ndarray, S: dict) -> list[dict]:
-    """The case's requirements on this run (ftcreport.requirements), windows from the run's fault events."""
+    """The case's requirements on this run (ftcreport.evaluation.requirements), windows from the run's fault events."""
+    from .evaluation.requirements import evaluate_requirements
     from .model import wheel_index
-    from .requirements import evaluate_requirements
 
     return evaluate_requirements(
         case.requirements,
@@ -276,7 +276,7 @@ def halve_dt(case: Case, source: str = "") -> Case:
     """The case ``run --verify-dt`` compares with: at half the step (logged every 2 * log_every steps: the
     same instants), or for an error-controlled method at a tenth of rtol and atol (the same dt).
 
-    Raises CaseError when the halved run is over the limits of ftcreport.limits.
+    Raises CaseError when the halved run is over the limits of ftcreport.infra.limits.
     """
     from .cases import _check_budget, _FieldError
     from .errors import CaseError

@@ -92,14 +92,14 @@ class Run:
         """The run as an ``xarray.Dataset``: dimensions time, coordinate, velocity, wheel, robot, ...
 
         Units in each variable's ``units`` attribute; status, engine, case hash and the fault
-        schedule as metadata (:func:`ftcreport.tidy.run_dataset`; xarray is imported only then).
+        schedule as metadata (:func:`ftcreport.storage.tidy.run_dataset`; xarray is imported only then).
         """
         return self.views["xarray"](self)
 
     def to_pandas(self):
         """The run as a wide ``pandas.DataFrame`` indexed by time, columns ``q[x]``, ``tau[2l]``, ...
 
-        (:func:`ftcreport.tidy.run_frame`; pandas is imported only then).
+        (:func:`ftcreport.storage.tidy.run_frame`; pandas is imported only then).
         """
         return self.views["pandas"](self)
 

@@ -14,7 +14,7 @@ from conftest import harness
 
 from ftcreport.cases import load_case, with_duration
 from ftcreport.control.active import ActiveController
-from ftcreport.diagnosis import Declaration, detect, match_events, true_events
+from ftcreport.evaluation.diagnosis import Declaration, detect, match_events, true_events
 from ftcreport.model import Chain, FaultEvent, FaultSchedule
 from ftcreport.observers import FarzaObserver, UKFEstimator
 from ftcreport.runner import build, make_controller, run_scheme

@@ -317,7 +317,7 @@ def test_twelve_robot_analysis_enumerates_what_the_page_shows(tmp_path):
     for s in list(data["schemes"]):
         if s != "nominal":
             del data["schemes"][s]
-    # 3 * 4^11 switching models are over the memory budget (ftcreport.limits): the analysis needs no run
+    # 3 * 4^11 switching models are over the memory budget (ftcreport.infra.limits): the analysis needs no run
     data["schemes"]["run"] = ["nominal", "oracle"]
     path = tmp_path / "twelve.toml"
     path.write_text(tomli_w.dumps(data))

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from ftcreport.analysis import analyze_case
 from ftcreport.cases import configured_schemes, load_case
 from ftcreport.cli import _public, app
-from ftcreport.store import _jsonable
+from ftcreport.storage.store import _jsonable
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = sorted((ROOT / "cases").glob("*.toml")) + sorted((ROOT / "cases" / "motors").glob("*.toml"))

@@ -15,10 +15,10 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
-from ftcreport.baseline import band, compare_metric, compare_signal, edges_for, envelope, field_diff
 from ftcreport.cases import parse_case
 from ftcreport.cli import app
 from ftcreport.errors import CaseError
+from ftcreport.studies.baseline import band, compare_metric, compare_signal, edges_for, envelope, field_diff
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 runner = CliRunner()
@@ -186,7 +186,7 @@ def test_a_missing_baseline_fails_and_a_missing_directory_is_bad_input(tmp_path)
 
 
 def test_the_compared_metrics_are_names_a_case_may_tune():
-    from ftcreport.baseline import COMPARED_METRICS
     from ftcreport.cases import BASELINE_METRIC_NAMES
+    from ftcreport.studies.baseline import COMPARED_METRICS
 
     assert set(COMPARED_METRICS) <= set(BASELINE_METRIC_NAMES)

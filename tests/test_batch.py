@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from ftcreport.batch import run_batch
 from ftcreport.cli import app
+from ftcreport.studies.batch import run_batch
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 runner = CliRunner()
@@ -31,7 +31,7 @@ def batch_dir(tmp_path_factory):
 
 
 def test_every_case_runs_through_every_scheme(batch_dir):
-    from ftcreport.families import FAMILIES
+    from ftcreport.evaluation.families import FAMILIES
 
     out, res = batch_dir
     names = {p.stem for p in CASES.glob("*.toml")}
@@ -65,10 +65,10 @@ def test_every_case_runs_through_every_scheme(batch_dir):
 
 
 def test_every_run_writes_exactly_the_metrics_validation_knows(batch_dir):
-    """ftcreport.metrics.METRICS is the list case validation checks threshold and claim names against
+    """ftcreport.evaluation.metrics.METRICS is the list case validation checks threshold and claim names against
     (issue 34 item 12): a run of every scheme writes exactly its entries beside its identity."""
     from ftcreport.cases import load_case
-    from ftcreport.metrics import metrics_of
+    from ftcreport.evaluation.metrics import metrics_of
     from ftcreport.runner import _identity
 
     out, _ = batch_dir
@@ -335,8 +335,8 @@ def test_every_thesis_case_page_has_its_claims_section(batch_dir):
 def test_a_cold_batch_starts_every_loop_in_the_first_wave():
     # issue 20 item 3: the workers compile distinct loops side by side (schemes/laws' two dispatchers,
     # each plug-in's, each motor/sampled variant) before any loop's second run
-    from ftcreport.batch import _compile_first, _loop_of
     from ftcreport.cases import configured_schemes, load_case
+    from ftcreport.studies.batch import _compile_first, _loop_of
 
     cases = [load_case(CASES / f"{n}.toml") for n in ("two_link_active", "two_link_sliding_mode")]
     cases.append(load_case(CASES / "motors" / "two_link_active_motors.toml"))
@@ -389,7 +389,7 @@ def test_batch_reports_its_workers_peak_memory(tmp_path):
 def test_peak_rss_is_this_process_high_water_mark_in_mb():
     import resource
 
-    from ftcreport.batch import peak_rss_mb
+    from ftcreport.studies.batch import peak_rss_mb
 
     peak = peak_rss_mb()
     # ru_maxrss (KiB on Linux) also counts what the process had before its exec, so it is at least VmHWM
@@ -418,7 +418,7 @@ def _runs(display, n: int) -> None:
 
 
 def test_the_display_is_one_overall_bar_and_the_active_runs():
-    from ftcreport.display import BatchDisplay
+    from ftcreport.cli.display import BatchDisplay
 
     d = BatchDisplay.make(98, True, _terminal())
     _runs(d, 98)
@@ -438,7 +438,7 @@ def test_the_display_is_one_overall_bar_and_the_active_runs():
 
 
 def test_the_display_fits_a_24_row_terminal():
-    from ftcreport.display import BatchDisplay
+    from ftcreport.cli.display import BatchDisplay
 
     d = BatchDisplay.make(98, True, _terminal())
     _runs(d, 98)
@@ -455,7 +455,7 @@ def test_no_display_off_a_terminal_or_when_quiet():
 
     from rich.console import Console
 
-    from ftcreport.display import BatchDisplay
+    from ftcreport.cli.display import BatchDisplay
 
     assert BatchDisplay.make(4, True, Console(file=io.StringIO())).live is None  # piped stderr, a CI log
     assert BatchDisplay.make(4, False, _terminal()).live is None  # --quiet
@@ -485,7 +485,7 @@ def test_batch_workers_leave_ctrl_c_to_the_batch_process():
     import multiprocessing as mp
     import signal
 
-    from ftcreport.batch import _Pool
+    from ftcreport.studies.batch import _Pool
 
     before = signal.getsignal(signal.SIGINT)
     with _Pool(max_workers=1, mp_context=mp.get_context("spawn")) as pool:

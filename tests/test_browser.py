@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from ftcreport.batch import run_batch
+from ftcreport.studies.batch import run_batch
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 # the motor overlay of two_link_switching (its page compares with it, so both run)
@@ -289,9 +289,9 @@ def test_campaign_sample_page(driver, tmp_path):
 
     from selenium.webdriver.common.by import By
 
-    from ftcreport.campaign import read_table, run_campaign
     from ftcreport.cases import parse_case
     from ftcreport.report.campaign import render_campaign
+    from ftcreport.studies.campaign import read_table, run_campaign
 
     data = tomllib.loads((CASES / "two_link_campaign.toml").read_text())
     data["simulation"]["duration"] = 8.0

@@ -22,7 +22,10 @@ import pytest
 import tomli_w
 
 from ftcreport import __version__
-from ftcreport.campaign import (
+from ftcreport.cases import parse_case
+from ftcreport.errors import CaseError, FtcError
+from ftcreport.report.campaign import render_campaign
+from ftcreport.studies.campaign import (
     campaign_hash,
     case_content_hash,
     draw_variant,
@@ -35,10 +38,7 @@ from ftcreport.campaign import (
     wilson_interval,
     write_table,
 )
-from ftcreport.cases import parse_case
-from ftcreport.cluster import check_versions
-from ftcreport.errors import CaseError, FtcError
-from ftcreport.report.campaign import render_campaign
+from ftcreport.studies.cluster import check_versions
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMES = ["nominal", "oracle"]
@@ -438,7 +438,7 @@ def test_killed_campaign_resumes_on_a_real_scheduler(scheduler, tmp_path):
 
 def test_coverage_runs_on_the_real_scheduler(scheduler, tmp_path):
     """The coverage map takes the same Dask path: equal to in-process, keys from its own hash."""
-    from ftcreport.coverage import run_coverage
+    from ftcreport.studies.coverage import run_coverage
 
     data = _base_data()
     data["simulation"]["duration"] = 6.0

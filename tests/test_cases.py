@@ -138,7 +138,7 @@ def test_unreadable_and_invalid_toml(tmp_path):
 
 # ------------------------------------------------------------------ every family by default (issue 21)
 def test_every_shipped_case_runs_every_family_or_says_why():
-    from ftcreport.families import FAMILIES, not_applicable
+    from ftcreport.evaluation.families import FAMILIES, not_applicable
 
     for path in ALL:
         case = load_case(path)

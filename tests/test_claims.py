@@ -12,13 +12,13 @@ import tomli_w
 from typer.testing import CliRunner
 
 from ftcreport.cases import load_case, parse_case
-from ftcreport.check import claim_item
-from ftcreport.claims import evaluate_claim, evaluate_claims, model_sequence
 from ftcreport.cli import app
 from ftcreport.errors import CaseError
+from ftcreport.evaluation.claims import evaluate_claim, evaluate_claims, model_sequence
 from ftcreport.model import Chain
 from ftcreport.report.junit import junit_xml
 from ftcreport.report.plots import robot_velocities
+from ftcreport.studies.check import claim_item
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 THESIS = sorted(p for p in CASES.glob("*.toml") if load_case(p).description.startswith("Thesis"))

@@ -86,7 +86,7 @@ def test_demo_bad_parameter_is_one_line():
 def test_run_command_writes_results(tmp_path):
     import json
 
-    from ftcreport.store import load_timeseries
+    from ftcreport.storage.store import load_timeseries
 
     case = Path(__file__).resolve().parents[1] / "cases" / "two_link_uncompensable.toml"
     res = runner.invoke(app, ["run", str(case), "--out", str(tmp_path), "--duration", "3", "--scheme", "oracle"])
@@ -229,14 +229,14 @@ def test_an_interrupt_before_any_run_finished_says_nothing_was_stored(tmp_path, 
     ],
 )
 def test_an_interrupted_batch_says_how_many_runs_it_stored(tmp_path, monkeypatch, stored, said):
-    import ftcreport.batch
+    import ftcreport.studies.batch
 
     def execute(todo, out, jobs, show_progress, res, expected, finish):
         assert len(todo) == 4  # the case's four schemes, none cached
         res.stored = stored  # as _collect counts the runs whose worker stored them
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(ftcreport.batch, "_execute", execute)
+    monkeypatch.setattr(ftcreport.studies.batch, "_execute", execute)
     case = "cases/two_link_switching.toml"
     res = runner.invoke(app, ["batch", case, "--out", str(tmp_path), "--duration", "0.2", "-q"])
     assert res.exit_code == 130
@@ -253,9 +253,9 @@ def test_a_command_that_stores_nothing_says_only_interrupted(tmp_path, monkeypat
 
 
 def test_an_interrupted_campaign_counts_its_samples(tmp_path, monkeypatch):
-    import ftcreport.cluster
+    import ftcreport.studies.cluster
 
-    monkeypatch.setattr(ftcreport.cluster, "execute", _interrupt)
+    monkeypatch.setattr(ftcreport.studies.cluster, "execute", _interrupt)
     args = ["campaign", "cases/two_link_campaign.toml", "-n", "2", "--in-process", "--out", str(tmp_path / "c"), "-q"]
     res = runner.invoke(app, args)
     assert res.exit_code == 130

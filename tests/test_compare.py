@@ -1,4 +1,4 @@
-"""The comparison logic (ftcreport.compare) on hand-made metrics: ranking, ties, regret, failures."""
+"""The comparison logic (ftcreport.evaluation.compare) on hand-made metrics: ranking, ties, regret, failures."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from ftcreport.compare import (
+from ftcreport.evaluation.compare import (
     SPECS,
     compare_case,
     compare_metric,

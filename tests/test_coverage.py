@@ -11,7 +11,10 @@ import pytest
 
 from ftcreport import __version__
 from ftcreport.cases import parse_case
-from ftcreport.coverage import (
+from ftcreport.errors import FtcError
+from ftcreport.model import pattern_is_compensable
+from ftcreport.report.coverage import coverage_grids, render_coverage
+from ftcreport.studies.coverage import (
     CoverageFault,
     _curvature,
     fault_set,
@@ -19,9 +22,6 @@ from ftcreport.coverage import (
     predicted_compensable,
     run_coverage,
 )
-from ftcreport.errors import FtcError
-from ftcreport.model import pattern_is_compensable
-from ftcreport.report.coverage import coverage_grids, render_coverage
 
 ROOT = Path(__file__).resolve().parents[1]
 

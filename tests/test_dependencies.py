@@ -100,7 +100,7 @@ def test_the_scan_finds_an_undeclared_import(tmp_path, monkeypatch):
 def test_the_numeric_core_does_not_load_pandas_or_xarray():
     code = (
         "import sys\n"
-        "import ftcreport.sim, ftcreport.runner, ftcreport.cases, ftcreport.metrics, ftcreport.model\n"
+        "import ftcreport.sim, ftcreport.runner, ftcreport.cases, ftcreport.evaluation.metrics, ftcreport.model\n"
         "print(sorted(m for m in ('pandas', 'xarray', 'pyarrow', 'h5netcdf', 'matplotlib') if m in sys.modules))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ftcreport.diagnosis import detect, match_events, phase_combined_effect, true_events
+from ftcreport.evaluation.diagnosis import detect, match_events, phase_combined_effect, true_events
 from ftcreport.model import Chain, FaultEvent, FaultSchedule
 
 grid = np.arange(0.0, 60.0, 0.05)
@@ -132,7 +132,7 @@ def test_combined_effect_is_exact_when_the_individual_parameters_are_not():
     u = np.ones((K, 4))
     rho_true = np.tile([1.0, 0.0, 1.0, 1.0], (K, 1))
     rho_hat = np.tile([0.5, 0.5, 1.0, 1.0], (K, 1))  # each wrong by 0.5, their sum right
-    from ftcreport.diagnosis import combined_effect
+    from ftcreport.evaluation.diagnosis import combined_effect
 
     ce_t = combined_effect(MB, u, rho_true, np.zeros((K, 4)))
     ce_h = combined_effect(MB, u, rho_hat, np.zeros((K, 4)))
@@ -175,7 +175,7 @@ def test_input_matrices_solve_the_reduced_model_at_every_row():
     Tolerance 1e-14 absolute on entries of order 0.3: the closed-form 2 x 2 inverse and LU differ
     only in round-off (a few ulps of the entries times cond(Mbar1), which is below 10 here).
     """
-    from ftcreport.diagnosis import input_matrices
+    from ftcreport.evaluation.diagnosis import input_matrices
     from ftcreport.model import kernels as K
 
     chain = Chain.uniform(3, d=[0.5, 0.7])

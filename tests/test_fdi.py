@@ -12,8 +12,8 @@ import pytest
 from scipy.stats import norm
 
 from ftcreport.cases import parse_case
-from ftcreport.fdi import cusum_state, roc, run_fdi, score, threshold_state
 from ftcreport.report.fdi import render_fdi
+from ftcreport.studies.fdi import cusum_state, roc, run_fdi, score, threshold_state
 
 ROOT = Path(__file__).resolve().parents[1]
 DT, K, K0 = 0.1, 200, 100  # 20 s segments, the step at 10 s

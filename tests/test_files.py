@@ -183,7 +183,7 @@ def _hold_lock(out: Path, command: str = "batch") -> subprocess.Popen:
     code = textwrap.dedent(
         f"""
         import sys, time
-        from ftcreport.store import output_lock
+        from ftcreport.storage.store import output_lock
         with output_lock({str(out)!r}, {command!r}):
             print("held", flush=True)
             time.sleep(120)

@@ -493,7 +493,7 @@ def test_mutated_cases_through_one_batch(batch, tmp_path_factory):
 # ------------------------------------------------------------------ stored results (issue 34)
 # A stored batch (one case, two runs) is damaged the ways a disk, a copy or a hand can damage it, then
 # read back: ``report`` must name every damaged run and exit 1 (an undamaged store: 0), never exit 3
-# or drop a run silently; the batch's cache decision (ftcreport.store.check_run with the run's key) must
+# or drop a run silently; the batch's cache decision (ftcreport.storage.store.check_run with the run's key) must
 # re-run exactly the damaged runs; for a few examples ``batch`` itself re-runs them and the store is
 # whole again.  FUZZ_STORED_EXAMPLES (default 16, about 3.5 s each: report renders the page, export
 # writes netCDF) sets the count; a tenth of them (at least 2) also go through ``batch`` (about 18 s each:
@@ -615,9 +615,9 @@ def _damaged_store(stored_store, tmp_path, mutation):
 )
 @given(mutation=stored_mutations())
 def test_a_damaged_stored_result_is_named_never_served(stored_store, tmp_path_factory, mutation):
-    from ftcreport.batch import run_key
     from ftcreport.cases import load_case
-    from ftcreport.store import check_run
+    from ftcreport.storage.store import check_run
+    from ftcreport.studies.batch import run_key
 
     case, out, label, changed = _damaged_store(stored_store, tmp_path_factory.mktemp("dmg"), mutation)
     res = runner.invoke(app, ["report", "--out", str(out)])
@@ -646,7 +646,7 @@ def test_a_damaged_stored_result_is_named_never_served(stored_store, tmp_path_fa
 )
 @given(mutation=stored_mutations())
 def test_batch_re_runs_a_damaged_stored_result(stored_store, tmp_path_factory, mutation):
-    from ftcreport.store import check_run
+    from ftcreport.storage.store import check_run
 
     case, out, label, changed = _damaged_store(stored_store, tmp_path_factory.mktemp("dmgb"), mutation)
     res = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])

@@ -18,10 +18,28 @@ ROOT = Path(__file__).resolve().parents[1] / "ftcreport"
 CORE = ("ftcreport.model", "ftcreport.control", "ftcreport.observers", "ftcreport.sim", "ftcreport.references")
 CORE += ("ftcreport.fast.kernels", "ftcreport.fast.loop", "ftcreport.fast.ukf", "ftcreport.fast.motor")
 #: the edges the core must not reach
-EDGES = ("ftcreport.report", "ftcreport.cli", "ftcreport.tidy", "ftcreport.store", "ftcreport.manifest")
-EDGES += ("ftcreport.results", "ftcreport.batch", "ftcreport.campaign", "ftcreport.coverage", "ftcreport.fdi")
-EDGES += ("ftcreport.cluster", "ftcreport.cases", "ftcreport.schema_doc", "ftcreport.runner", "ftcreport.check")
-EDGES += ("ftcreport.lifetime",)
+EDGES = (
+    "ftcreport.report",
+    "ftcreport.cli",
+    "ftcreport.storage.tidy",
+    "ftcreport.storage.store",
+    "ftcreport.storage.manifest",
+)
+EDGES += (
+    "ftcreport.storage.results",
+    "ftcreport.studies.batch",
+    "ftcreport.studies.campaign",
+    "ftcreport.studies.coverage",
+    "ftcreport.studies.fdi",
+)
+EDGES += (
+    "ftcreport.studies.cluster",
+    "ftcreport.cases",
+    "ftcreport.cases.schema_doc",
+    "ftcreport.runner",
+    "ftcreport.studies.check",
+)
+EDGES += ("ftcreport.infra.lifetime",)
 #: standard modules that read or write files or the network, and plotting
 IO_MODULES = ("json", "pickle", "shutil", "tomllib", "csv", "sqlite3", "socket", "urllib", "matplotlib", "plotly")
 
@@ -209,3 +227,45 @@ CONCRETE = ("ftcreport.control", "ftcreport.observers", "ftcreport.references", 
 def test_the_loop_imports_no_concrete_law_observer_or_reference(part):
     direct = _graph()[part]
     assert not [d for d in direct if _under(d, CONCRETE)], sorted(direct)
+
+
+#: the top level groups by role (issue 38 item 6): folders, and the four modules every room shares
+TOP_LEVEL_MODULES = {"__init__", "_moved", "errors", "runner", "runs", "sim"}
+
+
+def test_the_top_level_holds_folders_by_role_and_four_modules():
+    modules = {p.stem for p in ROOT.glob("*.py")}
+    assert modules == TOP_LEVEL_MODULES, sorted(modules - TOP_LEVEL_MODULES)
+    rooms = {p.name for p in ROOT.iterdir() if (p / "__init__.py").is_file()}
+    for room in rooms:  # every room says what it is for
+        doc = ast.get_docstring(ast.parse((ROOT / room / "__init__.py").read_text()))
+        assert doc and len(doc) > 30, room
+
+
+def test_the_paths_of_earlier_releases_import_the_moved_modules():
+    """``ftcreport.batch`` (the README's record_case) and every other moved path: the same module object, in a
+    fresh interpreter, whichever name is imported first; a patch through the old name reaches the new."""
+    import subprocess
+    import sys
+
+    from ftcreport._moved import MOVED
+
+    assert len(MOVED) == 27
+    for name in MOVED:  # every old path is gone from the tree: the alias is the only way in
+        assert not (ROOT / f"{name}.py").exists(), name
+    code = (
+        "import importlib, sys\n"
+        "from ftcreport._moved import MOVED\n"
+        "for old, new in MOVED.items():\n"
+        "    a = importlib.import_module('ftcreport.' + old)\n"
+        "    b = importlib.import_module('ftcreport.' + new)\n"
+        "    assert a is b and sys.modules['ftcreport.' + old] is b, old\n"
+        "    assert b.__name__ == b.__spec__.name == 'ftcreport.' + new, (old, b.__spec__.name)\n"
+        "from ftcreport.batch import record_case, run_key\n"
+        "import ftcreport.batch as old, ftcreport.studies.batch as new\n"
+        "old.run_key = 'patched'\n"
+        "assert new.run_key == 'patched'\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]

@@ -81,7 +81,7 @@ def _install_and_run(base: Path) -> None:
     res = subprocess.run(pip, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     package = site / "ftcreport"
-    assert (package / "fast" / "kernels.py").is_file() and (package / "paths.py").is_file()
+    assert (package / "fast" / "kernels.py").is_file() and (package / "infra" / "paths.py").is_file()
     subprocess.run(["chmod", "-R", "a-w", str(site)], check=True)
     before = _listing(site)
     (base / "probe.py").write_text(PROBE)

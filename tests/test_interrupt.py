@@ -26,8 +26,8 @@ import pytest
 import tomli_w
 
 from ftcreport.cases import SCHEME_NAMES, load_case
-from ftcreport.families import FAMILIES
-from ftcreport.store import check_run
+from ftcreport.evaluation.families import FAMILIES
+from ftcreport.storage.store import check_run
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 pytestmark = pytest.mark.slow
@@ -162,7 +162,7 @@ def test_two_campaigns_at_once_one_runs_one_is_refused(tmp_path):
 # ------------------------------------------------------------------ issue 34, break 4: processes end with their command
 def test_stop_signals_raise_and_a_hangup_ignored_at_start_stays_ignored():
     """SIGTERM raises Interrupted (exit 143); a SIGHUP the process was started ignoring (nohup) stays ignored."""
-    from ftcreport.lifetime import Interrupted, exit_code, handle_stop_signals
+    from ftcreport.infra.lifetime import Interrupted, exit_code, handle_stop_signals
 
     saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
@@ -185,7 +185,7 @@ def test_a_process_tied_to_its_parent_ends_when_the_parent_is_killed(how, tmp_pa
     patch = "L._set_pdeathsig = lambda: False; " if how == "polling" else ""
     tied = tmp_path / "tied"
     grandchild = (
-        f"import os, pathlib, time, ftcreport.lifetime as L; {patch}L.die_with_parent(os.getppid()); "
+        f"import os, pathlib, time, ftcreport.infra.lifetime as L; {patch}L.die_with_parent(os.getppid()); "
         f"pathlib.Path({str(tied)!r}).touch(); time.sleep(60)"
     )
     parent = (
@@ -219,7 +219,7 @@ def test_a_process_tied_to_its_parent_ends_when_the_parent_is_killed(how, tmp_pa
 def test_an_interrupt_wrapped_by_compiled_code_is_an_interrupt():
     """numba's dispatcher returns "a result with an exception set" when a signal handler raised during the
     call: Python raises SystemError from the interrupt; it is the interrupt (not the task's failure)."""
-    from ftcreport.lifetime import Interrupted, interrupt_of
+    from ftcreport.infra.lifetime import Interrupted, interrupt_of
 
     stop = Interrupted(signal.SIGHUP)
     try:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import harness
 
-from ftcreport.metrics import phase_metrics, recovery_time, switching_metrics, torque_metrics
+from ftcreport.evaluation.metrics import phase_metrics, recovery_time, switching_metrics, torque_metrics
 from ftcreport.model import Chain
 from ftcreport.sim import Plant, SimSettings, simulate
 
@@ -79,7 +79,7 @@ def test_means_over_time_weigh_samples_by_their_time():
     """Error-controlled runs have unequal steps (issue 36): a mean over time must not count a stretch of
     short steps (a transient) more than its time.  RMS values are trapezoids; fractions of what is held
     over each step weigh each sample by the step it starts."""
-    from ftcreport.metrics import time_mean
+    from ftcreport.evaluation.metrics import time_mean
 
     rng = np.random.default_rng(7)
     t = np.concatenate(([0.0], np.cumsum(rng.uniform(1e-4, 0.2, 400))))  # unequal steps, up to 2000x apart

@@ -198,7 +198,7 @@ def test_a_stored_overlay_parses_on_its_own(tmp_path):
 
 def test_the_motor_page_compares_with_its_base(tmp_path):
     """A short batch of a motor case and its base: the page has the side-by-side table."""
-    from ftcreport.batch import run_batch
+    from ftcreport.studies.batch import run_batch
 
     motor = ROOT / "cases" / "motors" / "three_link_switching_motors.toml"
     res = run_batch(

@@ -21,7 +21,7 @@ import tomli_w
 from typer.testing import CliRunner
 
 from ftcreport.cli import app
-from ftcreport.limits import MAX_STEPS, MEMORY_BUDGET_BYTES, budget_problem, name_collisions, name_problem
+from ftcreport.infra.limits import MAX_STEPS, MEMORY_BUDGET_BYTES, budget_problem, name_collisions, name_problem
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 runner = CliRunner()
@@ -194,7 +194,7 @@ def test_markup_in_case_text_is_escaped_on_every_page(tmp_path):
     ],
 )
 def test_os_errors_while_writing_are_one_line(tmp_path, monkeypatch, err, text):
-    import ftcreport.store as store
+    import ftcreport.storage.store as store
 
     def failing(*a, **k):
         raise OSError(err, os.strerror(err), str(tmp_path / "o" / "x.json"))
@@ -331,7 +331,7 @@ def _hold_lock(out: Path) -> subprocess.Popen:
     code = textwrap.dedent(
         f"""
         import sys, time
-        from ftcreport.store import output_lock
+        from ftcreport.storage.store import output_lock
         with output_lock({str(out)!r}, "batch"):
             print("held", flush=True)
             time.sleep(60)
@@ -440,7 +440,7 @@ def test_dt_sensitivity_rules():
 
 
 def test_partial_files_are_cleaned_except_in_nested_output_directories(tmp_path):
-    from ftcreport.store import output_lock
+    from ftcreport.storage.store import output_lock
 
     out = tmp_path / "o"
     (out / "c" / "nominal").mkdir(parents=True)

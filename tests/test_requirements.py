@@ -17,11 +17,11 @@ import tomli_w
 from typer.testing import CliRunner
 
 from ftcreport.cases import parse_case, with_duration
-from ftcreport.check import requirement_items
 from ftcreport.cli import app
 from ftcreport.errors import CaseError
-from ftcreport.requirements import evaluate_requirements, windows
+from ftcreport.evaluation.requirements import evaluate_requirements, windows
 from ftcreport.runner import run_scheme
+from ftcreport.studies.check import requirement_items
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 runner = CliRunner()
@@ -121,7 +121,7 @@ def test_a_window_holds_one_is_violated_one_is_empty(run):
     recs = {x["id"]: x for x in m["requirements"]}
     assert set(recs) == {"settled", "tight", "late"}
     t, q, qd = r.t_stream, r.stream["q"], r.stream["q_d"]
-    err = np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])  # independent of ftcreport.requirements
+    err = np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])  # independent of ftcreport.evaluation.requirements
 
     held = recs["settled"]  # 25 s to the end (30 s): the only fault is at 20 s
     inside = (t >= 25.0) & (t <= 30.0)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from ftcreport.cases import load_case
-from ftcreport.metrics import tracking_errors
+from ftcreport.evaluation.metrics import tracking_errors
 from ftcreport.runner import build, make_controller
 from ftcreport.sim import SimSettings, simulate
 

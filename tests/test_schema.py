@@ -14,9 +14,9 @@ import pytest
 from typer.testing import CliRunner
 
 from ftcreport.cases import case_schema, did_you_mean, parse_case
+from ftcreport.cases.schema_doc import schema_json, update_readme
 from ftcreport.cli import app
 from ftcreport.errors import CaseError
-from ftcreport.schema_doc import schema_json, update_readme
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = sorted((ROOT / "cases").glob("*.toml"))
@@ -102,9 +102,9 @@ def test_readme_tables_and_schema_file_match_the_models():
     readme = ROOT / "cases" / "README.md"
     text = readme.read_text()
     assert text.count("<!-- schema:") >= 19
-    assert update_readme(text) == text, "cases/README.md drifted: run python -m ftcreport.schema_doc"
+    assert update_readme(text) == text, "cases/README.md drifted: run python -m ftcreport.cases.schema_doc"
     stored = (ROOT / "cases" / "case.schema.json").read_text()
-    assert stored == schema_json(), "cases/case.schema.json drifted: run python -m ftcreport.schema_doc"
+    assert stored == schema_json(), "cases/case.schema.json drifted: run python -m ftcreport.cases.schema_doc"
 
 
 def test_drift_is_detected():

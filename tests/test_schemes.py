@@ -1,7 +1,7 @@
 """The scheme API's edges (issue 17 item 3): plug-in schemes in case files, run, batch, campaign, reports.
 
 Two plug-in laws are compiled here (each once; numba caches them and their loops in ftcreport's cache
-directory, ftcreport/paths.py): tests/data/copy_nominal_scheme.py and the worked example
+directory, ftcreport/infra/paths.py): tests/data/copy_nominal_scheme.py and the worked example
 examples/schemes/sliding_mode.py.
 """
 
@@ -17,11 +17,11 @@ import pytest
 from typer.testing import CliRunner
 
 from ftcreport import compare
-from ftcreport.campaign import run_campaign
 from ftcreport.cases import case_hash, configured_schemes, load_case, parse_case, with_duration
 from ftcreport.cli import app
 from ftcreport.errors import CaseError
 from ftcreport.runner import run_scheme
+from ftcreport.studies.campaign import run_campaign
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "cases" / "two_link_sliding_mode.toml"

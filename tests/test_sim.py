@@ -15,7 +15,7 @@ from conftest import harness
 
 from ftcreport.control import TrackingController, TwoLinkKinematic
 from ftcreport.errors import ModelError
-from ftcreport.metrics import singularity_margin
+from ftcreport.evaluation.metrics import singularity_margin
 from ftcreport.model import Chain, FaultEvent, FaultSchedule
 from ftcreport.references import FlatReference, circle
 from ftcreport.sim import Plant, SimSettings, simulate, time_grid

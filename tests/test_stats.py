@@ -7,7 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from ftcreport.stats import bootstrap_mean_ci, compare_metric, compare_success, mcnemar_exact, wilson_interval
+from ftcreport.evaluation.stats import (
+    bootstrap_mean_ci,
+    compare_metric,
+    compare_success,
+    mcnemar_exact,
+    wilson_interval,
+)
 
 
 def test_mcnemar_exact_by_hand():

@@ -12,7 +12,7 @@ from ftcreport.control.baselines import OracleController
 from ftcreport.control.kinematic import TwoLinkKinematic
 from ftcreport.control.switching import SwitchingController
 from ftcreport.errors import UncompensableError
-from ftcreport.metrics import tracking_errors
+from ftcreport.evaluation.metrics import tracking_errors
 from ftcreport.model import Chain, FaultEvent, FaultSchedule
 from ftcreport.references import FlatReference, unicycle
 from ftcreport.runner import build, run_scheme

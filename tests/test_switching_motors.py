@@ -125,7 +125,7 @@ def test_the_motor_case_page_shows_the_plant_and_the_identification(tmp_path):
     """A batch of the static motor case, the PI case and their base (to 25 s: the first fault at 20 s):
     every page has the idealizations; the motor pages what the drive assumes and the identification
     figure (applied model against the true pattern, the cost excesses) with the base's fraction."""
-    from ftcreport.batch import run_batch
+    from ftcreport.studies.batch import run_batch
 
     res = run_batch([BASE, STATIC, PI], tmp_path, jobs=2, duration=25.0, show_progress=False)
     assert not res.case_errors and not res.failed_runs, (res.case_errors, res.failed_runs)

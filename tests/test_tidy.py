@@ -15,14 +15,14 @@ import xarray as xr
 from typer.testing import CliRunner
 
 import ftcreport
-from ftcreport.batch import record_case, run_batch, run_key
 from ftcreport.cases import SCHEME_NAMES, case_hash, load_case, with_duration
-from ftcreport.check import ThresholdResult, threshold_item
 from ftcreport.cli import app
 from ftcreport.report.junit import junit_xml
 from ftcreport.runner import expected_engine, run_scheme
-from ftcreport.store import save_run
-from ftcreport.tidy import METRICS_DTYPES, UNITS, read_run, write_metrics_parquet, write_netcdf
+from ftcreport.storage.store import save_run
+from ftcreport.storage.tidy import METRICS_DTYPES, UNITS, read_run, write_metrics_parquet, write_netcdf
+from ftcreport.studies.batch import record_case, run_batch, run_key
+from ftcreport.studies.check import ThresholdResult, threshold_item
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 SCHEMES = ("nominal", "switching", "adaptive", "adaptive_frozen", "active", "active_ukf", "oracle")
@@ -126,7 +126,7 @@ def test_cache_key_includes_engine_and_numeric_versions(monkeypatch):
     base = run_key(case, "active")
     assert run_key(case, "active") == base
     assert run_key(case, "active_ukf") != base
-    import ftcreport.manifest as M
+    import ftcreport.storage.manifest as M
 
     real = M.numeric_versions()
     monkeypatch.setattr(M, "numeric_versions", lambda: {**real, "numba": "0.0.1"})
@@ -209,7 +209,7 @@ def test_batch_writes_manifest_parquet_and_page_provenance(tmp_path):
 def test_junit_has_properties_time_and_timestamp():
     held = ThresholdResult("c", "switching", "position_error_final", None, 1e-3, 2e-4, True, "")
     results = [threshold_item(held, time=3.25)]
-    from ftcreport.manifest import build_manifest
+    from ftcreport.storage.manifest import build_manifest
 
     manifest = build_manifest("batch", cases={"c": "abc"}, runs=[{"case": "c", "scheme": "switching"}])
     xml = junit_xml(

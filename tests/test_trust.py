@@ -274,8 +274,8 @@ def test_7_junit_terminal_and_html_escape_a_control_character_in_a_file_name(tmp
 
 
 def test_7_junit_is_well_formed_whatever_the_text():
-    from ftcreport.check import GateItem
     from ftcreport.report.junit import junit_xml
+    from ftcreport.studies.check import GateItem
 
     evil = "".join(chr(i) for i in range(32)) + "\x7f\x85\ud800<&>\"'"
     item = GateItem(kind="claim", case=evil, name=evil, ok=False, message=evil, detail=evil)
@@ -299,7 +299,7 @@ def test_9_a_generated_name_is_refused_as_a_case_name(tmp_path, name):
 
 
 def test_9_every_name_a_batch_writes_at_the_top_of_out_is_reserved(stored, tmp_path):
-    from ftcreport.limits import RESERVED_NAMES
+    from ftcreport.infra.limits import RESERVED_NAMES
 
     case, src = stored
     out = tmp_path / "o"
@@ -354,7 +354,7 @@ def test_10_jobs_is_capped_by_the_runs_and_the_cores(tmp_path):
 
 
 def test_10_jobs_beyond_the_cores_is_capped_by_the_cores():
-    from ftcreport.batch import worker_count
+    from ftcreport.studies.batch import worker_count
 
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     n, why = worker_count(10**5, runs=10**6)
@@ -486,7 +486,7 @@ def test_12_a_misspelt_metric_or_scheme_is_refused_with_a_hint(tmp_path, top, fi
 
 
 def test_12_every_shipped_threshold_and_claim_names_a_metric_its_scheme_writes():
-    from ftcreport.metrics import METRICS
+    from ftcreport.evaluation.metrics import METRICS
 
     for p in sorted((ROOT / "cases").rglob("*.toml")):
         data = tomllib.loads(p.read_text())

@@ -408,7 +408,7 @@ def chained_frozen_time_poles(chain: Chain, kinematic, k_v: float, duration: flo
 
 def scheme_gain(case, scheme: str) -> float:
     """The velocity gain k_v a scheme of the case runs with (a plug-in without one: the case's default)."""
-    from ..families import default_k_v
+    from ..evaluation.families import default_k_v
 
     k_v = getattr(getattr(case.schemes, scheme, None), "k_v", None)
     return float(default_k_v(case) if k_v is None else k_v)

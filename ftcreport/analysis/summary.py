@@ -2,7 +2,7 @@
 
 :func:`text_summary` reads the dict of :func:`ftcreport.analysis.analyze_case`; :func:`verdict_sentence`
 is the one sentence the comparison's verdict cites for a scheme (issue 37 item 7, called from
-``ftcreport.compare``).
+``ftcreport.evaluation.compare``).
 """
 
 from __future__ import annotations

@@ -13,7 +13,6 @@ can build variants in memory.
 
 from __future__ import annotations
 
-from ..fields import _FieldError, did_you_mean  # noqa: F401 - re-exported (the schema's suggestions)
 from .build import (  # noqa: F401 - re-exported
     TEMPLATE,
     build_chain,
@@ -36,6 +35,7 @@ from .case import (  # noqa: F401 - re-exported
     _rk4_on_currents,
     metric_problem,
 )
+from .fields import _FieldError, did_you_mean  # noqa: F401 - re-exported (the schema's suggestions)
 from .files import (  # noqa: F401 - re-exported
     _ABSENT,
     OWN_FIELDS,

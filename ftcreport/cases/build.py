@@ -8,9 +8,9 @@ import numpy as np
 from pydantic import ValidationError
 
 from ..errors import CaseError
-from ..fields import _FieldError
 from ..model import Chain
 from .case import Case, _check_budget
+from .fields import _FieldError
 from .parse import _field_errors
 from .tables import Simulation
 

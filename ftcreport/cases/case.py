@@ -9,11 +9,11 @@ from typing import get_args
 from pydantic import field_validator, model_validator
 
 from ..errors import FtcError
-from ..fields import _f, _FieldError, _num, _Strict, did_you_mean
-from ..limits import budget_problem, name_problem
+from ..infra.limits import budget_problem, name_problem
 from ..model import FaultEvent, FaultSchedule, wheel_index, wheel_names
 from ..model.actuators import DriveParams, MotorParams
 from ..model.faults import motor_row
+from .fields import _f, _FieldError, _num, _Strict, did_you_mean
 from .scheme_tables import (
     SCHEME_NAMES,
     Kinematic,
@@ -79,12 +79,16 @@ class Case(_Strict):
         {}, "[thresholds.<scheme>] metric = { min, max } for ftcreport check", "-"
     )
     campaign: CampaignSpec | None = _f(None, "distributions for ftcreport campaign (ignored by batch)", "-")
-    claims: list[Claim] = _f([], "thesis claims checked against the runs ([[claims]], ftcreport.claims)", "-")
+    claims: list[Claim] = _f(
+        [], "thesis claims checked against the runs ([[claims]], ftcreport.evaluation.claims)", "-"
+    )
     requirements: list[Requirement] = _f(
-        [], "bounds on a signal over event-defined windows ([[requirements]], ftcreport.requirements)", "-"
+        [], "bounds on a signal over event-defined windows ([[requirements]], ftcreport.evaluation.requirements)", "-"
     )
     baseline: BaselineSpec | None = _f(
-        None, "tolerances of check --baseline ([baseline], ftcreport.baseline); absent: the documented defaults", "-"
+        None,
+        "tolerances of check --baseline ([baseline], ftcreport.studies.baseline); absent: the documented defaults",
+        "-",
     )
 
     @field_validator("name")
@@ -319,10 +323,10 @@ def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> 
 def metric_problem(scheme: str, name: str, kinds: tuple[str, ...] = ("number",)) -> str | None:
     """Why the metric ``name`` cannot be compared on a run of ``scheme`` as one of ``kinds``, or None.
 
-    The names are those a run writes (:data:`ftcreport.metrics.METRICS`, the one list); ``name`` may be
+    The names are those a run writes (:data:`ftcreport.evaluation.metrics.METRICS`, the one list); ``name`` may be
     ``metric.key``, an entry of a table metric.  An unknown name gets the closest of the scheme's own.
     """
-    from ..metrics import METRICS, metrics_of
+    from ..evaluation.metrics import METRICS, metrics_of
 
     base, _, key = name.partition(".")
     own = metrics_of(scheme)
@@ -341,7 +345,7 @@ def metric_problem(scheme: str, name: str, kinds: tuple[str, ...] = ("number",))
 
 
 def _numbers(names: list[str]) -> list[str]:
-    from ..metrics import METRICS
+    from ..evaluation.metrics import METRICS
 
     return [k for k in names if METRICS[k].kind == "number"]
 
@@ -460,14 +464,14 @@ def _rk4_on_currents(sim: Simulation, motors: list[MotorParams], drives: list[Dr
 
 
 def _check_name(v: str | None) -> str | None:
-    """A case name is a directory name and a page title: the safe set of ftcreport.limits."""
+    """A case name is a directory name and a page title: the safe set of ftcreport.infra.limits."""
     if v is not None and (why := name_problem(v)) is not None:
         raise ValueError(why)
     return v
 
 
 def _check_budget(case: Case) -> None:
-    """Refuse, before it starts, a run over the step limit or memory budget (ftcreport.limits)."""
+    """Refuse, before it starts, a run over the step limit or memory budget (ftcreport.infra.limits)."""
     s = case.simulation
     for scheme in configured_schemes(case):
         cfg = getattr(case.schemes, scheme)

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CaseError
-from ..inputs import input_problem, read_input
+from ..infra.inputs import input_problem, read_input
 from ..runs import AUTO_METHODS
 from .case import Case
 from .parse import parse_case
@@ -31,7 +31,7 @@ def case_schema() -> dict[str, Any]:
     """The JSON Schema of a case file, generated from the models (descriptions, units, ranges).
 
     ``ftcreport cases schema`` prints it; ``cases/case.schema.json`` is this, written by
-    ``python -m ftcreport.schema_doc`` (a test fails when it drifts).
+    ``python -m ftcreport.cases.schema_doc`` (a test fails when it drifts).
     """
     schema = Case.model_json_schema(mode="validation")
     return {

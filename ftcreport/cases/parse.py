@@ -9,9 +9,9 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from ..errors import CaseError, FtcError, printable
-from ..fields import _FieldError
-from ..limits import name_problem
+from ..infra.limits import name_problem
 from .case import Case
+from .fields import _FieldError
 from .messages import _format_loc, _message, _rank
 
 
@@ -69,7 +69,7 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
         if (why := name_problem(stem)) is not None:
             raise CaseError(f'{source}: name: taken from the file name: {why}; set name = "..." in the file')
         case = case.model_copy(update={"name": stem})
-    from ..families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
+    from ..evaluation.families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
 
     return fill_defaults(case)
 

@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING, Any, Literal
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model, field_validator, model_validator
 
 from ..errors import FtcError
-from ..fields import Gain, Gain0, _f, _FieldError, _num, _Strict, did_you_mean
 from ..schemes import built_in as _built_in_schemes
+from .fields import Gain, Gain0, _f, _FieldError, _num, _Strict, did_you_mean
 from .messages import _format_loc, _message, _rank
 
 if TYPE_CHECKING:
@@ -45,7 +45,7 @@ class _SchemesBase(_Strict):
     """The schemes to run; every scheme present is run with the shared kinematic controller.
 
     Issue 21: every family runs unless ``run`` narrows the list; a family without its table gets
-    the defaults of :mod:`ftcreport.families` (k_v: this table's ``k_v``, else the first table's,
+    the defaults of :mod:`ftcreport.evaluation.families` (k_v: this table's ``k_v``, else the first table's,
     else the thesis's).  A registered (plug-in) scheme's table, ``[schemes.<name>]``, is validated
     with that scheme's parameter model and kept as an extra field (:func:`configured_schemes`).
     """
@@ -204,10 +204,10 @@ def option_schemes(option: str, names: list[str], case: Case, among: list[str] |
     ``among``: the schemes the command can run (default: those the case configures).  A name that
     is no scheme at all is blamed on the option, with the known schemes and the closest one
     (``--scheme: got 'swiching'; known schemes: ...; did you mean 'switching'?``); a scheme the
-    case does not run says so with the reason of :func:`ftcreport.families.not_applicable`.
+    case does not run says so with the reason of :func:`ftcreport.evaluation.families.not_applicable`.
     Raises :class:`FtcError` (exit 2); returns ``names``.
     """
-    from ..families import not_applicable
+    from ..evaluation.families import not_applicable
 
     known = known_schemes()
     among = configured_schemes(case) if among is None else among

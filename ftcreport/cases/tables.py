@@ -7,7 +7,11 @@ from typing import Any, Literal
 
 from pydantic import StrictBool, model_validator
 
-from ..fields import (
+from ..model.actuators import DRIVE_MODEL_FIELDS, MAXON_RE65, DriveParams, MotorParams
+from ..model.chain import THESIS_ROBOT
+from ..model.faults import MOTOR_KINDS
+from ..runs import AUTO_METHODS
+from .fields import (
     Angle,
     Coord,
     Factor,
@@ -27,10 +31,6 @@ from ..fields import (
     _num,
     _Strict,
 )
-from ..model.actuators import DRIVE_MODEL_FIELDS, MAXON_RE65, DriveParams, MotorParams
-from ..model.chain import THESIS_ROBOT
-from ..model.faults import MOTOR_KINDS
-from ..runs import AUTO_METHODS
 
 
 class Robots(_Strict):
@@ -386,7 +386,7 @@ class Noise(_Strict):
     position: Std = _f(0.0, "on x and y", "m")
     heading: Std = _f(0.0, "on every theta", "rad")
     velocity: Std = _f(0.0, "on v_n and omega_1", "m/s, rad/s")
-    # 63 bits: campaigns give each sample a SeedSequence child of 63 bits (ftcreport.campaign.sample_seeds)
+    # 63 bits: campaigns give each sample a SeedSequence child of 63 bits (ftcreport.studies.campaign.sample_seeds)
     seed: Int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**63 - 1)
 
 

@@ -7,9 +7,9 @@ from typing import Annotated, Literal
 from pydantic import Field, StrictBool, model_validator
 
 from ..errors import FtcError
-from ..fields import _NUMBER, Limit, Std, Time, Torque, Unit, _f, _FieldError, _num, _Strict, did_you_mean
+from ..evaluation.requirements import SIGNALS as REQUIREMENT_SIGNALS
 from ..model import wheel_index
-from ..requirements import SIGNALS as REQUIREMENT_SIGNALS
+from .fields import _NUMBER, Limit, Std, Time, Torque, Unit, _f, _FieldError, _num, _Strict, did_you_mean
 from .scheme_tables import known_schemes
 
 Status = Literal["ok", "singular", "diverged", "step_unstable"]  # run outcomes (ftcreport.sim)
@@ -26,7 +26,7 @@ _Count = Annotated[int, Field(ge=0, le=100), _NUMBER]
 
 
 class Claim(_Strict):
-    """A thesis claim about the case, checked by ``ftcreport check`` (ftcreport.claims, issue 18)."""
+    """A thesis claim about the case, checked by ``ftcreport check`` (ftcreport.evaluation.claims, issue 18)."""
 
     id: str = _f(..., "short name, unique in the case", "-")
     source: str = _f(..., "where the thesis says it: section, figure or table", "-")
@@ -77,7 +77,7 @@ _SIGNAL_NAMES = tuple(REQUIREMENT_SIGNALS)
 
 
 class Requirement(_Strict):
-    """A bound on a signal over windows defined by events, checked at every step (ftcreport.requirements)."""
+    """A bound on a signal over windows defined by events, checked at every step (ftcreport.evaluation.requirements)."""
 
     id: str = _f(..., "short name, unique in the case (the JUnit testcase's name)", "-", min_length=1, max_length=64)
     description: str = _f("", "the requirement in words (shown on the page)", "-")
@@ -150,10 +150,10 @@ class Requirement(_Strict):
         return out
 
 
-#: [baseline] defaults: ftcreport.baseline's module docstring and cases/README.md ("Baselines") say why
+#: [baseline] defaults: ftcreport.studies.baseline's module docstring and cases/README.md ("Baselines") say why
 BASELINE_REL_TOL = 1e-3
 BASELINE_ABS_TOL = 1e-9
-#: the scalar metrics of metrics.json a [baseline.metrics.<name>] table may name (ftcreport.baseline
+#: the scalar metrics of metrics.json a [baseline.metrics.<name>] table may name (ftcreport.studies.baseline
 #: compares COMPARED_METRICS, a part of them, by default)
 BASELINE_METRIC_NAMES: tuple[str, ...] = (
     "position_error_max", "position_error_rms", "position_error_final", "position_error_iae", "heading_error_max",
@@ -177,7 +177,7 @@ class Tolerance(_Strict):
 
 
 class BaselineSpec(_Strict):
-    """Tolerances of ``ftcreport check --baseline`` for this case (ftcreport.baseline; as Simulink Test's criteria).
+    """Tolerances of ``ftcreport check --baseline`` for this case (``studies.baseline``; as Simulink Test's criteria).
 
     A value passes when |new - baseline| <= max(abs_tol, rel_tol |baseline|); a signal when it stays
     in that band around the baseline's, widened in time by leading_tol and lagging_tol.
@@ -218,7 +218,7 @@ class BaselineSpec(_Strict):
 
 
 class CampaignSpec(_Strict):
-    """Distributions a Monte Carlo campaign draws variants of the case from (ftcreport.campaign)."""
+    """Distributions a Monte Carlo campaign draws variants of the case from (ftcreport.studies.campaign)."""
 
     faults: tuple[_Count, _Count] = _f((1, 2), "number of fault events per sample, each on a distinct wheel", "1")
     fault_time: tuple[Time, Time] = _f(..., "event times; the upper bound must be before the end of the run", "s")

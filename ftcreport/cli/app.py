@@ -41,9 +41,9 @@ class _ErrorBoundary(TyperGroup):
             return self._invoke(ctx, argv)
         import warnings
 
-        from ..lifetime import handle_stop_signals
+        from ..infra.lifetime import handle_stop_signals
 
-        # SIGINT, SIGTERM, SIGHUP: Interrupted inside the command, ignored once it is over (ftcreport.lifetime)
+        # SIGINT, SIGTERM, SIGHUP: Interrupted inside the command, ignored once it is over (ftcreport.infra.lifetime)
         with warnings.catch_warnings(record=True) as caught, handle_stop_signals():
             warnings.simplefilter("default")  # library warnings: one summary line, not a dump
             for quiet in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
@@ -71,7 +71,7 @@ class _ErrorBoundary(TyperGroup):
                 raise typer.Exit(code=2) from None
             raise
         except BaseException as exc:
-            from ..lifetime import interrupt_of
+            from ..infra.lifetime import interrupt_of
 
             exc = interrupt_of(exc) or exc  # a stop signal that came back wrapped (compiled code) is one
             if ctx.params.get("debug") and not isinstance(exc, KeyboardInterrupt | FtcError):
@@ -124,7 +124,7 @@ def _classify(exc: BaseException) -> tuple[str, int]:
 
     if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, SIGTERM, SIGHUP: 128 + the signal's number
         from ..errors import interrupted_message
-        from ..lifetime import exit_code
+        from ..infra.lifetime import exit_code
 
         return interrupted_message(exc), exit_code(exc)
     if isinstance(exc, FtcError):
@@ -157,7 +157,7 @@ def _classify(exc: BaseException) -> tuple[str, int]:
 
 def _crash_log(exc: BaseException) -> str:
     """Write the traceback to a log file (FTCREPORT_LOG_DIR or the temp directory); return its path."""
-    from ..crashlog import write_crash_log
+    from ..infra.crashlog import write_crash_log
 
     return write_crash_log(exc)
 

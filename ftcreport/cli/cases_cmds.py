@@ -63,7 +63,7 @@ def cases_new(
     import os
 
     from ..cases import TEMPLATE, load_case
-    from ..limits import name_problem
+    from ..infra.limits import name_problem
 
     if (why := name_problem(name)) is not None:
         raise FtcError(f"{directory}: name: {why}")
@@ -97,7 +97,7 @@ def cases_schema(
 
     Example: ftcreport cases schema > case.schema.json
     """
-    from ..schema_doc import markdown_tables, schema_json
+    from ..cases.schema_doc import markdown_tables, schema_json
 
     typer.echo(markdown_tables() if markdown else schema_json(), nl=False)
 

@@ -55,8 +55,8 @@ def demo(
     import numpy as np
 
     from ..control import TrackingController
-    from ..limits import budget_problem
-    from ..metrics import singularity_margin
+    from ..evaluation.metrics import singularity_margin
+    from ..infra.limits import budget_problem
     from ..model import FaultEvent, FaultSchedule
     from ..sim import Plant, SimSettings, demo_chain, simulate
 
@@ -102,7 +102,7 @@ def batch(
 
     Example: ftcreport batch cases/ --jobs 2
     """
-    from ..batch import failures_summary, run_batch
+    from ..studies.batch import failures_summary, run_batch
 
     res = run_batch(cases or [Path("cases")], out, jobs, force, duration, show_progress=not quiet)
     peak = res.worker_peak_rss_mb
@@ -113,7 +113,7 @@ def batch(
         f"report: {out / 'index.html'}"
     )
     if verbose:
-        from ..store import load_metrics
+        from ..storage.store import load_metrics
 
         for name, scheme in sorted(res.simulated + res.cached):
             m = load_metrics(out, name, scheme) or {}
@@ -158,7 +158,7 @@ def run(
     from ..cases import configured_schemes, dropped_faults, load_case, option_schemes, with_duration
     from ..errors import RunEnvironmentError
     from ..runner import build, dt_sensitivity, halve_dt, run_scheme
-    from ..store import save_run
+    from ..storage.store import save_run
 
     notes = []
     try:
@@ -181,8 +181,8 @@ def run(
     if not quiet:
         for w in [*notes, *c.warnings()]:
             typer.echo(printable(f"warning: {case}: {w}"), err=True)
-    from ..batch import record_case, run_key, write_case_manifest
-    from ..store import output_lock
+    from ..storage.store import output_lock
+    from ..studies.batch import record_case, run_key, write_case_manifest
 
     rows = []
     not_stored: dict[str, str] = {}  # scheme -> why: failures of the environment, never stored as the result
@@ -215,7 +215,7 @@ def run(
                 render_index(out)
     except BaseException as exc:  # the interrupt message says how many schemes' runs are stored
         from ..errors import note_stored
-        from ..lifetime import interrupt_of
+        from ..infra.lifetime import interrupt_of
 
         if (stop := interrupt_of(exc)) is not None:
             note_stored(stop, len(rows))
@@ -264,10 +264,10 @@ def run(
 
 def _run_gate(out: Path, name: str, schemes: list[str]):
     """The gate items of the runs ``run`` just stored (thresholds, claims and the other kinds of
-    ftcreport.check.CASE_ITEMS, not the runs' status: ``run`` reports those itself), restricted to
+    ftcreport.studies.check.CASE_ITEMS, not the runs' status: ``run`` reports those itself), restricted to
     ``schemes``: an item that reads a scheme not run (``--scheme``) or a run that failed (already
     reported as such) is not judged."""
-    from ..check import CASE_ITEMS, run_items, stored_case
+    from ..studies.check import CASE_ITEMS, run_items, stored_case
 
     case = stored_case(out, name)
     items = [item for source in CASE_ITEMS if source is not run_items for item in source(case)]
@@ -327,12 +327,12 @@ def report(
 
     Example: ftcreport report --out reports
     """
-    from ..check import stored_case
     from ..report.render import render_all
+    from ..studies.check import stored_case
 
     if not out.is_dir():
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
-    from ..store import output_lock, read_json
+    from ..storage.store import output_lock, read_json
 
     with output_lock(out, "report"), _render_progress() as (notify, done):
         page = render_all(out, force=True, notify=notify, done=done)
@@ -405,13 +405,13 @@ def check(
     import datetime as _dt
     import time as _time
 
-    from ..batch import run_batch
-    from ..check import exit_code, gate, summary
     from ..report.junit import write_junit
-    from ..store import read_json
+    from ..storage.store import read_json
+    from ..studies.batch import run_batch
+    from ..studies.check import exit_code, gate, summary
 
     if baseline is not None:
-        from ..baseline import check_dest
+        from ..studies.baseline import check_dest
 
         check_dest(baseline)  # a mistyped --baseline before anything runs
     started = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
@@ -420,9 +420,9 @@ def check(
     items = gate(out, res.cases, res.case_errors, res.not_stored)
     baseline_page = None
     if baseline is not None:
-        from ..baseline import baseline_items
         from ..report.baseline_page import render_baseline
-        from ..store import output_lock
+        from ..storage.store import output_lock
+        from ..studies.baseline import baseline_items
 
         found, comparisons = baseline_items(out, res.cases, baseline)
         items += found
@@ -471,9 +471,9 @@ def baseline_save(
 
     Example: ftcreport baseline save cases/ --dest baselines/main
     """
-    from ..baseline import save_baseline
-    from ..batch import run_batch
-    from ..store import output_lock
+    from ..storage.store import output_lock
+    from ..studies.baseline import save_baseline
+    from ..studies.batch import run_batch
 
     if dest.exists() and not dest.is_dir():
         raise FtcError(f"{dest}: --dest: exists and is not a directory")

@@ -55,7 +55,7 @@ def analyze(
     say = None if quiet or not sys.stderr.isatty() else (lambda line: typer.echo(f"  analysed {line}", err=True))
     res = analyze_case(c, runs=runs, confirm=confirm, progress=say)
     if as_json:
-        from ..store import _jsonable
+        from ..storage.store import _jsonable
 
         typer.echo(json.dumps(_jsonable(_public(res)), indent=2))
         return
@@ -76,9 +76,9 @@ def _public(obj):
 
 def _current_runs(results: Path, case) -> dict:
     """The stored time series of the case's schemes under ``results`` whose cache key is current."""
-    from ..batch import run_key
     from ..cases import configured_schemes
-    from ..store import cached_key, load_timeseries
+    from ..storage.store import cached_key, load_timeseries
+    from ..studies.batch import run_key
 
     out = {}
     for scheme in configured_schemes(case):
@@ -111,10 +111,10 @@ def campaign(
 
     Example: ftcreport campaign cases/two_link_campaign.toml --samples 200 --workers 2
     """
-    from ..campaign import read_table, run_campaign, select_schemes
     from ..cases import load_case
     from ..report.campaign import render_campaign
-    from ..store import output_lock
+    from ..storage.store import output_lock
+    from ..studies.campaign import read_table, run_campaign, select_schemes
 
     base = load_case(case)
     out_dir = out or Path("reports") / "campaigns" / base.name
@@ -137,9 +137,9 @@ def sample(
 
     Example: ftcreport sample reports/campaigns/two_link_campaign 17
     """
-    from ..campaign import read_table
     from ..report.campaign import render_campaign, render_sample
-    from ..store import output_lock
+    from ..storage.store import output_lock
+    from ..studies.campaign import read_table
 
     if not (campaign_dir / "campaign.json").is_file():
         raise FtcError(f"{campaign_dir}: not a campaign directory (no campaign.json); run 'ftcreport campaign' first")
@@ -175,8 +175,8 @@ def export(
 
     Example: ftcreport export --out reports
     """
-    from ..store import output_lock
-    from ..tidy import export as _export
+    from ..storage.store import output_lock
+    from ..storage.tidy import export as _export
 
     if not out.is_dir():
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
@@ -219,9 +219,9 @@ def coverage(
     Example: ftcreport coverage cases/two_link_campaign.toml --times 5,10,15
     """
     from ..cases import load_case
-    from ..coverage import run_coverage
     from ..report.coverage import render_coverage
-    from ..store import output_lock
+    from ..storage.store import output_lock
+    from ..studies.coverage import run_coverage
 
     base = load_case(case)
     out_dir = out or Path("reports") / "coverage" / base.name
@@ -256,9 +256,9 @@ def fdi(
     Example: ftcreport fdi cases/two_link_campaign.toml -n 20
     """
     from ..cases import load_case
-    from ..fdi import run_fdi
     from ..report.fdi import render_fdi
-    from ..store import output_lock
+    from ..storage.store import output_lock
+    from ..studies.fdi import run_fdi
 
     base = load_case(case)
     out_dir = out or Path("reports") / "fdi" / base.name

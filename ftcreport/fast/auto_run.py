@@ -37,7 +37,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     """An error-controlled run (fast.loop.run_auto): chunks by time (1 % of the run, for the progress
     callback), each logged at every accepted step into buffers that the stream and the decimated log
     (every ``log_every``-th accepted step, and the last) take from, as for the fixed steps."""
-    from ..limits import MAX_STEPS, MEMORY_BUDGET_BYTES
+    from ..infra.limits import MAX_STEPS, MEMORY_BUDGET_BYTES
     from ..runs import Run
 
     t0, duration = float(settings.t0), float(settings.duration)
@@ -91,14 +91,14 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
                 break
             if done:
                 break
-            if cap is None and stream:  # the stream's rows within the memory budget (ftcreport.limits)
+            if cap is None and stream:  # the stream's rows within the memory budget (ftcreport.infra.limits)
                 width = sum(v[0].size for v in stream.values())
                 cap = min(MAX_STEPS, MEMORY_BUDGET_BYTES // (8 * width))
             if cap is not None and si > cap:
                 status = "error"
                 reason = (
                     f"at t = {t_now:.6g} s the error-controlled run has taken {si} steps, the limit of "
-                    f"ftcreport.limits (MAX_STEPS, or its metric stream over MEMORY_BUDGET_BYTES; mean step "
+                    f"ftcreport.infra.limits (MAX_STEPS, or its metric stream over MEMORY_BUDGET_BYTES; mean step "
                     f"{(t_now - t0) / si:.3g} s): loosen simulation.rtol/atol, or name a stiff method (ros2ec, etd2ec)"
                 )
                 break

@@ -34,7 +34,7 @@ pipeline):
    and parses the bitcode on the first link (``FTCREPORT_LAZY_LINK=0``: parsed on load, as numba does).
 4. **The cache outside the package** (issue 38 item 3): :class:`KernelCache` is numba's function
    cache with ftcreport's locator (:class:`KernelLocator`): entries under
-   ``ftcreport.paths.cache_dir("numba")``, stamped with the source file's and every compiled
+   ``ftcreport.infra.paths.cache_dir("numba")``, stamped with the source file's and every compiled
    source's hash (:func:`engine_stamp`: a kernel links kernels of other files, and numba keys an
    entry on its own file only).  numba documents no per-function registration of a cache locator
    (``NUMBA_CACHE_LOCATOR_CLASSES`` is process-wide), so ftcreport's cache implementation is a
@@ -434,7 +434,7 @@ class KernelLocator(_Locator):
     the source file's (modification time and size, as numba's) and :func:`engine_stamp`."""
 
     def __init__(self, py_func, py_file: str) -> None:
-        from ..paths import cache_dir
+        from ..infra.paths import cache_dir
 
         self._py_file = py_file  # numba's warnings read it
         self._lineno = py_func.__code__.co_firstlineno

@@ -13,7 +13,7 @@ here, vectorized, from the log.
 The loop runs in chunks of about 1 % of the steps so that the progress
 callback is called every ~1 % of the run.  numba compiles the kernels
 on first use and caches the machine code in the user's cache directory
-(:mod:`ftcreport.paths`): a fresh install builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
+(:mod:`ftcreport.infra.paths`): a fresh install builds the cache on its first run (:func:`ftcreport.sim.warm_up` does it
 explicitly and reports the time).
 
 The Python side of a run, by role: this module (the spec, the loops' modules, the chunked calls, the
@@ -209,9 +209,9 @@ def _initial_currents(loop, spec: Spec, plant, mo, dr, sigma, ubar, fm, t0: floa
 
 
 def _cache_dir() -> Path:
-    """Where the generated loop modules live: ``ftcreport.paths.cache_dir("loops")`` (the user's cache
+    """Where the generated loop modules live: ``ftcreport.infra.paths.cache_dir("loops")`` (the user's cache
     directory or ``$FTCREPORT_CACHE``, keyed by versions and CPU), never inside the installed package."""
-    from ..paths import cache_dir
+    from ..infra.paths import cache_dir
 
     return cache_dir("loops")
 

@@ -1,6 +1,6 @@
 """The baseline page (issue 35 item 10): ``OUT/baseline.html`` from ``templates/baseline.html``.
 
-:func:`render_baseline` shows every case x scheme against the baseline (ftcreport.baseline): which
+:func:`render_baseline` shows every case x scheme against the baseline (ftcreport.studies.baseline): which
 fields of the case changed since it was saved, the metrics with their deltas and tolerances, and for
 each signal outside its band a figure as the Simulation Data Inspector draws a comparison: the
 baseline's tolerance band, its envelope and the new run above, their difference against the
@@ -121,9 +121,9 @@ def _band_figure(case: str, scheme: str, sig: str, unit: str, drawn: dict, new_t
 
 def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:
     """Write ``OUT/baseline.html``: every case x scheme against the baseline in ``dest``."""
-    from ..baseline import key_signals
     from ..model.faults import wheel_names
-    from ..store import load_timeseries, read_json
+    from ..storage.store import load_timeseries, read_json
+    from ..studies.baseline import key_signals
 
     out = Path(out)
     rows, cases, figures = [], [], []

@@ -21,10 +21,10 @@ matplotlib.use("svg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ..campaign import COMPARED_METRICS, summarize
-from ..compare import BOUND
 from ..errors import FtcError
-from ..store import _jsonable, read_json, write_atomic
+from ..evaluation.compare import BOUND
+from ..storage.store import _jsonable, read_json, write_atomic
+from ..studies.campaign import COMPARED_METRICS, summarize
 from . import plots
 from .render import figure, write_page
 
@@ -162,14 +162,14 @@ def render_sample(out: Path, index: int) -> Path:
     """Re-simulate sample ``index`` of the campaign in ``out`` and write its page, a case page (verdict,
     replay, figures) at ``<out>/sample_pages/sample-NNNNN/index.html``; returns its path.
 
-    The sample's variant is drawn again from the campaign's seed (``ftcreport.campaign.sample_seeds``),
+    The sample's variant is drawn again from the campaign's seed (``ftcreport.studies.campaign.sample_seeds``),
     so its runs are the campaign's; its results are stored beside the page like a batch's.
     """
-    from ..batch import record_case, run_key
-    from ..campaign import draw_variant, sample_seeds
     from ..cases import _toml_value, parse_case
     from ..runner import run_scheme
-    from ..store import save_run
+    from ..storage.store import save_run
+    from ..studies.batch import record_case, run_key
+    from ..studies.campaign import draw_variant, sample_seeds
     from .render import render_case
 
     out = Path(out)

@@ -12,8 +12,8 @@ matplotlib.use("svg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ..coverage import DEFAULT_CRITERIA, recovery_bound
 from ..model import wheel_names
+from ..studies.coverage import DEFAULT_CRITERIA, recovery_bound
 from .render import write_page
 
 __all__ = ["coverage_grids", "map_tables", "render_coverage"]

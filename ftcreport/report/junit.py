@@ -1,4 +1,4 @@
-"""JUnit XML of the gate: one testcase per gate item (:mod:`ftcreport.check`).
+"""JUnit XML of the gate: one testcase per gate item (:mod:`ftcreport.studies.check`).
 
 A run is the testcase ``<case>.<scheme>`` / ``status``; a threshold ``<case>.<scheme>`` / ``<metric>``;
 a thesis claim ``<case>.claims`` / ``<id>``; a case file that could not be read ``<file>`` / ``load``
@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 from xml.etree import ElementTree as ET
 
-from ..check import GateItem
 from ..errors import printable
-from ..store import write_atomic
+from ..storage.store import write_atomic
+from ..studies.check import GateItem
 
 __all__ = ["flatten", "junit_xml", "write_junit"]
 
@@ -59,7 +59,7 @@ def junit_xml(
     ``timestamp`` of the suite.
     """
     items = list(items)
-    suite = ET.Element("testsuite", name="ftcreport.check")
+    suite = ET.Element("testsuite", name="ftcreport.studies.check")
     if timestamp is not None:
         suite.set("timestamp", _x(timestamp))
     if properties:

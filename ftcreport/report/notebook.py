@@ -1,7 +1,7 @@
 """Notebook views (``_repr_html_``): a summary table and one small inline SVG figure.
 
 :func:`run_html` shows a :class:`~ftcreport.sim.Run`; :func:`case_html` a case's stored results
-(:class:`ftcreport.results.CaseResults`).  Both are self-contained HTML (escaped text, inline SVG).
+(:class:`ftcreport.storage.results.CaseResults`).  Both are self-contained HTML (escaped text, inline SVG).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..results import CaseResults
     from ..sim import Run
+    from ..storage.results import CaseResults
 
 __all__ = ["case_html", "error_figure", "run_html"]
 

@@ -26,7 +26,7 @@ from ..control.switching import TIE_RTOL
 from ..model.actuators import DRIVE_MODEL_FIELDS
 from ..model.faults import wheel_names
 from ..runs import AUTO_METHODS
-from ..store import stored_metrics
+from ..storage.store import stored_metrics
 from .interactive import _layout, _r, _trace, decimate
 
 __all__ = ["identification_fig", "plant_block"]

@@ -24,13 +24,14 @@ from pathlib import Path
 import jinja2
 import numpy as np
 
-from .. import __version__, compare
+from .. import __version__
 from ..cases import ordered_schemes, parse_case, with_duration
-from ..check import evaluate
 from ..errors import FtcError, printable
+from ..evaluation import compare
 from ..model.faults import wheel_names
 from ..runner import integrator_words
-from ..store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
+from ..storage.store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
+from ..studies.check import evaluate
 from . import interactive, plots
 from .analysis_figs import analysis_section
 from .plant import plant_block
@@ -66,7 +67,7 @@ def _fmt(x) -> str:
 
 @functools.cache  # one lookup per process: every page of a report shows the same versions
 def dependency_versions() -> str:
-    from ..manifest import _dist_version
+    from ..storage.manifest import _dist_version
 
     names = ["numpy", "scipy", "control", "numba", "matplotlib", "jinja2", "pydantic", "typer"]
     return f"ftcreport {__version__}; " + ", ".join(f"{n} {_dist_version(n) or '?'}" for n in names)
@@ -498,8 +499,8 @@ def _thesis_figures(case, series: dict, names: list[str], shading: list[dict]) -
 
 
 def _claims(name: str, case, runs: list[dict]) -> list:
-    """The case's thesis claims evaluated against its runs (ftcreport.claims), for the page."""
-    from ..claims import evaluate_claims
+    """The case's thesis claims evaluated against its runs (ftcreport.evaluation.claims), for the page."""
+    from ..evaluation.claims import evaluate_claims
 
     return evaluate_claims(name, case.claims, {m["scheme"]: m for m in runs})
 

@@ -4,7 +4,7 @@
 window that does not hold with its first violation, the extreme value) and, per requirement, a figure
 (:func:`requirement_figure`) of its signal per scheme with every window shaded, the bound drawn over
 each window and each scheme's first violation marked: its time and value come from every integration
-step (ftcreport.requirements, stored in metrics.json), the curves from the logged samples
+step (ftcreport.evaluation.requirements, stored in metrics.json), the curves from the logged samples
 (min-max decimated, :func:`ftcreport.report.interactive.decimate`).  Figures are plotly specs drawn like
 the page's other figures (``div.plotly-fig`` with its JSON spec beside it).
 """
@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from ..evaluation.requirements import SIGNALS, applies_to, signal_label, signal_values
 from ..model import wheel_index
-from ..requirements import SIGNALS, applies_to, signal_label, signal_values
 from . import interactive
 from .plots import SCHEME_COLORS
 

@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..fields import Gain, Strict, doc_field, number
+from ..cases.fields import Gain, Strict, doc_field, number
 from .api import Scheme
 from .nominal import K_V
 from .registry import register_built_in
@@ -29,7 +29,7 @@ OBSERVER_RATIO = 100.0
 
 
 class Diagnosis(Strict):
-    """Fault detection on the estimated gains and frictions (ftcreport.diagnosis)."""
+    """Fault detection on the estimated gains and frictions (ftcreport.evaluation.diagnosis)."""
 
     gain_band: Gain = doc_field(0.1, "a gain estimate beyond this from the last declared value is an excursion", "1")
     friction_band: Gain = doc_field(0.2, "the same for a friction estimate", "N m")
@@ -99,8 +99,8 @@ def derived(ctrl, xc: np.ndarray, meas: np.ndarray, costs: bool) -> dict[str, np
 
 
 def metrics(case, name, t, S, built, ctrl, run) -> dict:
-    """Fault diagnosis from the estimates (ftcreport.diagnosis) and the estimator's final values."""
-    from ..diagnosis import diagnosis_metrics
+    """Fault diagnosis from the estimates (ftcreport.evaluation.diagnosis) and the estimator's final values."""
+    from ..evaluation.diagnosis import diagnosis_metrics
 
     cfg = getattr(case.schemes, name)
     names = ctrl.est.parameter_names()

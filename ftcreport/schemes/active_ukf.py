@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from ..fields import Gain, Gain0, Strict, doc_field, number
+from ..cases.fields import Gain, Gain0, Strict, doc_field, number
 from .active import ESTIMATE, TAU, Diagnosis, derived, metrics
 from .api import Scheme
 from .nominal import K_V

@@ -12,7 +12,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..fields import Gain, Strict, doc_field
+from ..cases.fields import Gain, Strict, doc_field
 from .api import Scheme
 from .nominal import K_V
 from .registry import register_built_in

@@ -167,11 +167,11 @@ class Scheme:
     ``derived_names`` (``ctx -> tuple``); stiff : ``ctx -> (n_states,)``, the exact diagonal of its
     states' linear part (ROS2 and ETD2 use it); start : the discrete update also runs at t0; metrics :
     ``(case, scheme, t, S, built, controller, run) -> dict``, its own metrics; default_run : run on
-    every case unless ``schemes.run`` narrows the list (ftcreport.families); defaults : ``(case, k_v) ->
+    every case unless ``schemes.run`` narrows the list (ftcreport.evaluation.families); defaults : ``(case, k_v) ->
     table``, the table a case that does not give one gets; not_applicable : ``(case, k_v) -> str |
     None``, why a default table is not added; validate : ``(table, case) -> None``, raising
     ``fields.FieldError`` for a table that does not fit the case; budget : ``(n, table) -> (values
-    logged per sample, bytes of its bank, models)`` beyond the common ones (ftcreport.limits); cost :
+    logged per sample, bytes of its bank, models)`` beyond the common ones (ftcreport.infra.limits); cost :
     ``(case) -> float``, a run's relative cost per step (a batch starts the longest first).
     """
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib
 
-from ..fields import Gain, Strict, doc_field
+from ..cases.fields import Gain, Strict, doc_field
 from .api import Scheme
 from .registry import register_built_in
 

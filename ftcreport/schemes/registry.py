@@ -83,7 +83,7 @@ def _where(fn) -> str:
 
 def _check(scheme: Scheme) -> None:
     """The declarations a scheme can get wrong before anything is compiled."""
-    from ..names import NAME_PATTERN
+    from ..infra.names import NAME_PATTERN
 
     if not NAME_PATTERN.fullmatch(scheme.name):
         rule = "a letter or digit, then letters, digits, '_', '.', '-' (at most 64)"
@@ -198,7 +198,7 @@ def resolve(fn):
 
 def load_plugin(path: str | Path) -> None:
     """Import a scheme file (it registers its schemes when imported); idempotent per file."""
-    from ..inputs import input_problem
+    from ..infra.inputs import input_problem
 
     if not os.path.lexists(path):
         raise ModelError(f"{path}: no such scheme file")

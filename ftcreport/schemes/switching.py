@@ -13,7 +13,7 @@ from typing import Literal
 import numpy as np
 from pydantic import StrictBool
 
-from ..fields import FieldError, Gain, Gain0, Strict, doc_field, number
+from ..cases.fields import FieldError, Gain, Gain0, Strict, doc_field, number
 from .api import Scheme
 from .nominal import K_V
 from .registry import register_built_in
@@ -149,8 +149,8 @@ def _derived_names(ctrl) -> tuple[str, ...]:
 
 
 def _metrics(case, name, t, S, built, ctrl, run) -> dict:
-    """Detection of the true pattern by the applied model (ftcreport.metrics.switching_metrics)."""
-    from ..metrics import switching_metrics
+    """Detection of the true pattern by the applied model (ftcreport.evaluation.metrics.switching_metrics)."""
+    from ..evaluation.metrics import switching_metrics
 
     out = switching_metrics(t, S["selected"], ctrl.patterns, S["sigma"], list(built.faults.times))
     out["patterns"] = ctrl.patterns.astype(int).tolist()

@@ -7,7 +7,7 @@ Edge module (files, processes, progress).  For each case file:
 * each scheme's run is cached (not simulated again) when its record ``<out>/<case>/<scheme>/record.json``
   is sound, matches its files (size and SHA-256) and holds :func:`run_key`, the hash of (case
   content, package version, scheme, the engine that runs it, the versions that can change
-  numbers: numpy, scipy, numba, ...) (:func:`ftcreport.store.check_run`; ``force`` re-runs).  A
+  numbers: numpy, scipy, numba, ...) (:func:`ftcreport.storage.store.check_run`; ``force`` re-runs).  A
   stored run that is not sound is re-run with one line naming its file and why.  Otherwise the
   run is simulated in a worker process and stored atomically as soon as it finishes, so an
   interrupted batch keeps every finished run;
@@ -23,12 +23,12 @@ Progress (on a terminal's stderr only, not with ``--quiet``): one overall bar (r
 batch's total, elapsed time, an estimate of the time left) and one line per run a worker is on
 (case / scheme and its fraction of simulated time); a finished run leaves the display (rich).
 
-Provenance: ``<out>/manifest.json`` describes the batches into ``out`` (:mod:`ftcreport.manifest`:
+Provenance: ``<out>/manifest.json`` describes the batches into ``out`` (:mod:`ftcreport.storage.manifest`:
 package, git revision, dependency versions, Python, platform, CPU of the last; per run the engine,
 status, cache key and noise seed; per case its content hash; ``batches``: each batch's time and
 cases), merged across batches (:func:`merge_manifest`); ``<out>/<case>/manifest.json`` the same for
 one case (its page shows it).  ``<out>/metrics.parquet`` holds every run's metrics, one row per
-(case, scheme, phase) (:func:`ftcreport.tidy.metrics_table`).
+(case, scheme, phase) (:func:`ftcreport.storage.tidy.metrics_table`).
 
 Memory: each worker returns its peak resident memory with its result (:func:`peak_rss_mb`); the
 batch's maximum over its workers is :attr:`BatchResult.worker_peak_rss_mb`, printed by
@@ -53,12 +53,21 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import __version__
-from .cases import Case, case_hash, configured_schemes, dropped_faults, load_case, overlay_text, with_duration
-from .display import BatchDisplay
-from .errors import CaseError, FtcError, note_stored, printable
-from .inputs import read_input
-from .store import OutputError, check_inside, check_run, output_lock, read_json, save_run, write_atomic, write_json
+from .. import __version__
+from ..cases import Case, case_hash, configured_schemes, dropped_faults, load_case, overlay_text, with_duration
+from ..cli.display import BatchDisplay
+from ..errors import CaseError, FtcError, note_stored, printable
+from ..infra.inputs import read_input
+from ..storage.store import (
+    OutputError,
+    check_inside,
+    check_run,
+    output_lock,
+    read_json,
+    save_run,
+    write_atomic,
+    write_json,
+)
 
 __all__ = [
     "BatchResult",
@@ -154,7 +163,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
     """Store the case record and a copy of the case file (provenance); returns the case content hash.
 
     ``notes``: warnings beside the case's own (the faults a ``--duration`` drops)."""
-    from .families import not_applicable
+    from ..evaluation.families import not_applicable
 
     key = case_hash(case, __version__)
     # an overlay (base_case) is stored resolved, so the copy parses on its own
@@ -185,7 +194,7 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
 
 def plugin_info(case: Case) -> dict[str, dict]:
     """``{name: {family, description, reference, file}}`` of the registered schemes a case runs."""
-    from .schemes import registered
+    from ..schemes import registered
 
     reg = registered()
     out = {}
@@ -205,9 +214,9 @@ def plugin_info(case: Case) -> dict[str, dict]:
 
 def run_key(case: Case, scheme: str) -> str:
     """Result cache key of one scheme of a case: case content, package version, scheme, engine and
-    the dependency versions that can change numbers (:func:`ftcreport.manifest.numeric_versions`)."""
-    from .manifest import numeric_versions
-    from .runner import expected_engine
+    the dependency versions that can change numbers (:func:`ftcreport.storage.manifest.numeric_versions`)."""
+    from ..runner import expected_engine
+    from ..storage.manifest import numeric_versions
 
     blob = {
         "case": case_hash(case, __version__),
@@ -247,7 +256,7 @@ def _run_record(
 
 def write_case_manifest(out: Path, case: Case, settings: dict, runs: list[dict] | None = None) -> Path:
     """``<out>/<case>/manifest.json``: the environment, the case's content hash and its runs."""
-    from .manifest import build_manifest, write_manifest
+    from ..storage.manifest import build_manifest, write_manifest
 
     out = Path(out)
     if runs is None:
@@ -270,7 +279,7 @@ def write_manifests(
 
     With ``res``, the batch manifest's ``memory`` holds the workers' peak resident memory.
     """
-    from .manifest import build_manifest, write_manifest
+    from ..storage.manifest import build_manifest, write_manifest
 
     out = Path(out)
     peaks = res.run_peak_rss_mb if res is not None else {}
@@ -332,7 +341,7 @@ def memory_summary(res: BatchResult) -> dict:
 def _cost(case: Case, scheme: str) -> float:
     """A rough relative cost of a run (steps x the scheme's per-step weight, ``Scheme.cost``): the longest
     start first, so the last worker does not start a long run when the others are done."""
-    from .schemes import get
+    from ..schemes import get
 
     steps = case.simulation.duration / case.simulation.dt
     hook = get(scheme).cost
@@ -343,7 +352,7 @@ def _loop_of(case: Case, scheme: str) -> tuple:
     """Which compiled loop a run needs (ftcreport.fast.engine.loop_for): one per (law, discrete update) of
     the registry (the built-in schemes share two dispatchers: schemes/laws), motors and sampled control
     are variants of each."""
-    from .schemes import get
+    from ..schemes import get
 
     sc = get(scheme)
     group = (_name(sc.law), _name(sc.discrete), sc.terms)
@@ -376,7 +385,7 @@ def _compile_first(todo: list) -> list:
 def error_record_name(path: Path, avoid: Iterable[str] = ()) -> str:
     """Directory of a rejected case file's record: its stem when that is a safe name not in ``avoid``
     (lower-case names of the batch's valid cases), else a hash of the path."""
-    from .limits import name_problem
+    from ..infra.limits import name_problem
 
     stem = Path(path).stem
     if name_problem(stem) is None and stem.lower() not in set(avoid):
@@ -426,8 +435,8 @@ class _Tie:
 
     def bind(self) -> None:
         """In the worker: die with the batch, write only inside its ``out`` and only while it lives."""
-        from .lifetime import die_with_parent
-        from .store import confine, set_write_guard
+        from ..infra.lifetime import die_with_parent
+        from ..storage.store import confine, set_write_guard
 
         die_with_parent(self.parent)
         confine(Path(self.out))
@@ -451,8 +460,8 @@ def _worker(case_data: dict, source: str, scheme: str, out: str, key: str) -> tu
     A failure that is not the case's outcome (:func:`ftcreport.runner.run_scheme` raises it: the
     environment, or a bug) is not stored: the metrics returned are then ``{"not_stored": why}``.
     """
-    from .cases import parse_case
-    from .runner import run_scheme
+    from ..cases import parse_case
+    from ..runner import run_scheme
 
     progress_q = _PROGRESS_Q[0]
     worker = {"pid": os.getpid()}
@@ -484,8 +493,8 @@ def _worker(case_data: dict, source: str, scheme: str, out: str, key: str) -> tu
 def _not_the_case(exc: BaseException) -> str:
     """Why a run failed when the failure is not its case's outcome: the environment's words, or a bug's
     one line with the log holding its traceback."""
-    from .crashlog import write_crash_log
-    from .errors import RunEnvironmentError, environment_cause
+    from ..errors import RunEnvironmentError, environment_cause
+    from ..infra.crashlog import write_crash_log
 
     if isinstance(exc, RunEnvironmentError):
         return str(exc)
@@ -524,7 +533,7 @@ def run_batch(
 ) -> BatchResult:
     """Run every case x scheme not already cached, then render the reports.
 
-    Holds the output directory's lock (:func:`ftcreport.store.output_lock`) throughout:
+    Holds the output directory's lock (:func:`ftcreport.storage.store.output_lock`) throughout:
     a second batch, run, report or check on the same ``out`` fails at once with a message.
     """
     out = Path(out)
@@ -595,11 +604,11 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
         settings = {"jobs": jobs, "force": force, "duration": duration}
         write_manifests(out, loaded, set(res.cached), settings, res)
         if _parquet_stale(out):
-            from .tidy import write_metrics_parquet
+            from ..storage.tidy import write_metrics_parquet
 
             write_metrics_parquet(out)
         if render:
-            from .report.render import render_all
+            from ..report.render import render_all
 
             render_all(out, pool=pool, notify=_render_notice if show_progress else None)
 
@@ -631,8 +640,8 @@ def _parquet_stale(out: Path) -> bool:
 
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict, finish) -> None:
     """Run ``todo`` in worker processes, then ``finish(pool)`` (the pages render in the same workers)."""
-    from .lifetime import shielded, stop_processes
-    from .store import lock_fd
+    from ..infra.lifetime import shielded, stop_processes
+    from ..storage.store import lock_fd
 
     ctx = mp.get_context("spawn")
     q = ctx.Queue()  # the workers' progress reports, handed to each worker as it starts

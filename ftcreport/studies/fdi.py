@@ -18,7 +18,7 @@ Two detectors run on the logged traces of an active scheme (Farza observer or UK
   (``Mbar1^-1 Bbar e_j u_j`` for a gain loss, ``Mbar1^-1 Bbar e_j`` for a friction)
   is best aligned with the mean residual just before the alarm.
 
-Scoring (:func:`score`), own to this module (``ftcreport.diagnosis`` keeps its own):
+Scoring (:func:`score`), own to this module (``ftcreport.evaluation.diagnosis`` keeps its own):
 time before the first fault (after ``skip`` seconds of start-up) is fault-free; a
 rising edge of the alarm state there is a false alarm; the fault is detected when
 the alarm state is on at some instant at or after its onset, the delay is that
@@ -36,10 +36,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from . import __version__
-from .errors import FtcError
-from .schemes import built_in
-from .store import locked
+from .. import __version__
+from ..errors import FtcError
+from ..schemes import built_in
+from ..storage.store import locked
 
 __all__ = [
     "cusum_state",
@@ -145,12 +145,12 @@ def fdi_traces(base_json: str, index: int, campaign_seed: int, scheme: str, cali
 
     ``calibration``: the fault-free window [s] where the residual's scale is estimated.
     """
+    from ..cases import parse_case
+    from ..evaluation.diagnosis import combined_effect, input_matrices
+    from ..model import wheel_names
+    from ..runner import build, make_controller
+    from ..sim import simulate
     from .campaign import campaign_hash, case_content_hash, draw_variant, sample_seeds
-    from .cases import parse_case
-    from .diagnosis import combined_effect, input_matrices
-    from .model import wheel_names
-    from .runner import build, make_controller
-    from .sim import simulate
 
     base = parse_case(json.loads(base_json), "fdi base")
     seeds = sample_seeds(campaign_seed, index)
@@ -252,7 +252,7 @@ def _isolated_residual(seg: dict, first: int, window: int = 10) -> tuple[str, st
     cos = np.abs(sig @ r) / np.where(norms > 0, norms, np.inf)
     j = int(np.argmax(cos))
     p = sig.shape[0] // 2
-    from .model import wheel_names
+    from ..model import wheel_names
 
     w = list(wheel_names(p // 2))[j % p]
     return w, ("gain" if j < p else "friction")
@@ -323,15 +323,15 @@ def run_fdi(
     """
     from pathlib import Path
 
+    from ..storage.manifest import build_manifest, write_manifest
+    from ..storage.store import _jsonable, write_atomic
     from .campaign import CampaignResult, case_content_hash, load_records, run_hash, run_tasks
-    from .manifest import build_manifest, write_manifest
-    from .store import _jsonable, write_atomic
 
     if base.campaign is None:
         raise FtcError(f"{base.name}: no [campaign] table: the FDI evaluation draws campaign samples")
     configured = [s for s in ACTIVE if getattr(base.schemes, s) is not None]
     if schemes is not None and configured:  # a name that is no active scheme of the case: the option's fault
-        from .cases import option_schemes
+        from ..cases import option_schemes
 
         option_schemes("--schemes", list(schemes), base, among=configured)
     schemes = configured if schemes is None else list(schemes)

@@ -53,7 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .control.kinematic import wrap
+from ..control.kinematic import wrap
 
 __all__ = [
     "HEADLINE_METRICS",
@@ -304,7 +304,7 @@ _ACTIVE = ("active", "active_ukf")
 
 #: The headline scalars of a run, every scheme's (a subset of :data:`METRICS`): what ``run --verify-dt``
 #: compares between dt and dt/2 (ftcreport.runner.dt_sensitivity) and, but for the after-fault peak,
-#: what a baseline compares by default (ftcreport.baseline.COMPARED_METRICS).
+#: what a baseline compares by default (ftcreport.studies.baseline.COMPARED_METRICS).
 HEADLINE_METRICS: tuple[str, ...] = (
     "position_error_max",
     "position_error_rms",
@@ -318,7 +318,7 @@ HEADLINE_METRICS: tuple[str, ...] = (
 )
 
 #: Every entry a run writes beside its identity (case, scheme, settings, status, reason, engine): the
-#: functions of this module, :func:`ftcreport.diagnosis.diagnosis_metrics` and
+#: functions of this module, :func:`ftcreport.evaluation.diagnosis.diagnosis_metrics` and
 #: :func:`ftcreport.runner.run_metrics` (tests/test_batch.py checks that a run of every scheme writes
 #: exactly these).  Case validation checks the metric names of ``[thresholds.<scheme>]`` and
 #: ``[[claims]]`` against it (``ftcreport.cases``).

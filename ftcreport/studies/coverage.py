@@ -16,8 +16,8 @@ until the position error enters the success bound on the final error (:func:`rec
 0.05 m by default) and stays in it to the end, so a run that completes within that bound
 always has one (without such a bound: the case's recovery band).
 
-Execution, resumption and provenance are the campaign's (:mod:`ftcreport.campaign`,
-:mod:`ftcreport.cluster`): Dask keys from a hash of the content, one atomic file per
+Execution, resumption and provenance are the campaign's (:mod:`ftcreport.studies.campaign`,
+:mod:`ftcreport.studies.cluster`): Dask keys from a hash of the content, one atomic file per
 item carrying the version, stale items refused unless ``force``, ``manifest.json``.
 """
 
@@ -32,7 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
+from .. import __version__
+from ..cases import Case, ordered_schemes, parse_case
+from ..errors import FtcError
+from ..evaluation.metrics import recovery_time, tracking_errors
+from ..model import pattern_is_compensable, wheel_names
+from ..storage.store import _jsonable, locked, write_atomic
 from .campaign import (
     CampaignResult,
     _scalar_metrics,
@@ -44,11 +49,6 @@ from .campaign import (
     select_schemes,
     write_rows,
 )
-from .cases import Case, ordered_schemes, parse_case
-from .errors import FtcError
-from .metrics import recovery_time, tracking_errors
-from .model import pattern_is_compensable, wheel_names
-from .store import _jsonable, locked, write_atomic
 
 __all__ = [
     "FAULT_KINDS",
@@ -173,7 +173,7 @@ def _variant(base: Case, fault: CoverageFault, onset: float) -> Case:
     data = json.loads(base.model_dump_json())
     data.pop("campaign", None)
     data["faults"] = [{"time": onset, "wheel": w, "sigma": fault.sigma, "ubar": fault.ubar} for w in fault.wheels]
-    # a safe case name (ftcreport.limits: [A-Za-z0-9][A-Za-z0-9_.-]{0,63}); the label stays in the table
+    # a safe case name (ftcreport.infra.limits: [A-Za-z0-9][A-Za-z0-9_.-]{0,63}); the label stays in the table
     slug = f"{fault.kind}-{'-'.join(fault.wheels)}-{fault.sigma:g}-{fault.ubar:g}-t{onset:g}"
     data["name"] = f"{base.name[:24]}.{slug}"[:64]
     return parse_case(data, f"{base.name} (coverage {fault.label} at {onset:g} s)")
@@ -185,7 +185,7 @@ def run_item(base_json: str, index: int, fault: dict, onset: float, schemes: lis
     Runs in a Dask worker or in-process.  ``rhash`` is the coverage run's hash, recomputed
     by the client on resume; the record carries the version of the process that ran it.
     """
-    from .runner import build, run_scheme
+    from ..runner import build, run_scheme
 
     base = parse_case(json.loads(base_json), "coverage base")
     f = CoverageFault(fault["kind"], tuple(fault["wheels"]), fault["sigma"], fault["ubar"])
@@ -374,7 +374,7 @@ def run_coverage(
     if res.failed:
         write_atomic(out / "failed.json", json.dumps(res.failed, indent=1).encode())
     res.wall_time = time.perf_counter() - wall0
-    from .manifest import build_manifest, write_manifest
+    from ..storage.manifest import build_manifest, write_manifest
 
     meta = {"case": base.name, "n": base.robots.n, "base": json.loads(base_json), **settings, "hash": rhash}
     write_atomic(out / "coverage.json", json.dumps(meta, indent=1).encode())

@@ -57,9 +57,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ..model.chain import Chain
+from ..model.faults import FaultSchedule, wheel_names
 from .metrics import time_mean
-from .model.chain import Chain
-from .model.faults import FaultSchedule, wheel_names
 
 __all__ = [
     "Declaration",
@@ -286,7 +286,7 @@ def input_matrices(chain: Chain, q: np.ndarray) -> np.ndarray:
     One compiled call (``fast.kernels.input_matrices_rows``): a per-row call from Python would
     load and emit the model kernel ``reduced`` in every process that computes it (issue 20 item 7).
     """
-    from .fast.engine import input_matrices_rows
+    from ..fast.engine import input_matrices_rows
 
     return input_matrices_rows(chain, q)
 

@@ -13,7 +13,7 @@ fault to the next fault"::
     max = 0.01                      # min, max, or both (within the band [min, max])
 
 **Signals** (:data:`SIGNALS`), computed at every accepted integration step (the metric stream
-:attr:`ftcreport.sim.Run.stream`, as every metric of :mod:`ftcreport.metrics`, so ``log_every``
+:attr:`ftcreport.sim.Run.stream`, as every metric of :mod:`ftcreport.evaluation.metrics`, so ``log_every``
 changes nothing): ``position_error`` |P_n - P_nd| [m]; ``heading_error`` |wrap(theta_i - theta_id)|
 [rad] of robot ``robot``, or the largest over the robots; ``torque`` the applied torque of wheel
 ``wheel`` [N m] (tau = sigma sat(u) + ubar, thesis 2.101); ``torque_abs`` its magnitude, or the
@@ -41,7 +41,7 @@ must see (cases/README.md, "Requirements").
 
 :func:`evaluate_requirements` runs where the stream exists (:func:`ftcreport.runner.run_metrics`),
 and the records are stored with the run's metrics (``metrics.json``, key ``requirements``);
-:func:`ftcreport.check.requirement_items` turns the stored records into gate items for ``check`` and JUnit.
+:func:`ftcreport.studies.check.requirement_items` turns the stored records into gate items for ``check`` and JUnit.
 """
 
 from __future__ import annotations
@@ -146,7 +146,7 @@ def signal_values(
         q, qd = S["q"], S["q_d"]
         return np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])
     if signal == "heading_error":
-        from .control.kinematic import wrap
+        from ..control.kinematic import wrap
 
         head = np.abs(wrap(S["q"][:, 2:] - S["q_d"][:, 2:]))  # (K, n), last robot first
         n = head.shape[1]

@@ -6,7 +6,7 @@
   markers with the generated table (the prose around the markers is hand-written);
 * ``cases/case.schema.json`` is :func:`ftcreport.cases.case_schema` (for editors: ``.taplo.toml``).
 
-``python -m ftcreport.schema_doc`` rewrites both files; ``--check`` exits 1 when they drift
+``python -m ftcreport.cases.schema_doc`` rewrites both files; ``--check`` exits 1 when they drift
 (tests/test_schema.py does the same check).
 """
 
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from . import cases as C
+from .. import cases as C
 
 __all__ = ["SECTIONS", "markdown_tables", "schema_json", "table", "update_readme"]
 
@@ -51,7 +51,7 @@ SECTIONS: dict[str, tuple[str, type[BaseModel], tuple[str, ...]]] = {
 def _scheme_sections() -> dict[str, tuple[str, type[BaseModel], tuple[str, ...]]]:
     """One section per built-in scheme's parameter model (schemes sharing a model share its section, keyed
     by the first), then one per table nested in them (``diagnosis``), keyed by the field's name."""
-    from .schemes import built_in
+    from ..schemes import built_in
 
     by_model: dict[type, list[str]] = {}
     for name, sc in built_in().items():
@@ -193,8 +193,8 @@ def table(model: type[BaseModel], skip: tuple[str, ...] = ()) -> str:
 
 
 def metrics_table() -> str:
-    """The metrics a threshold or a claim may name (:data:`ftcreport.metrics.METRICS`), one row each."""
-    from .metrics import METRICS
+    """The metrics a threshold or a claim may name (:data:`ftcreport.evaluation.metrics.METRICS`), one row each."""
+    from ..evaluation.metrics import METRICS
 
     what = {
         "number": "a number: thresholds and claims bound it",
@@ -251,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
         if old != text:
             drift.append(path)
             if "--check" not in args:
-                from .store import write_atomic
+                from ..storage.store import write_atomic
 
                 write_atomic(path, text.encode())
     for p in drift:

@@ -121,7 +121,7 @@ def _bank(n: int, scheme: str, N: int) -> tuple[int, int]:
 
 
 def _budget_hook(scheme: str):
-    from .schemes import every
+    from ..schemes import every
 
     sc = every().get(scheme)
     return None if sc is None else sc.budget

@@ -2,7 +2,7 @@
 
 ``ftcreport.load_results("reports")`` returns a :class:`Results` table (a ``pandas.DataFrame``),
 one row per stored run (case, scheme) with the run-level metrics of
-:data:`ftcreport.tidy.METRICS_DTYPES`; ``res.run(case, scheme)`` loads that run's time series as a
+:data:`ftcreport.storage.tidy.METRICS_DTYPES`; ``res.run(case, scheme)`` loads that run's time series as a
 :class:`~ftcreport.sim.Run` (``.to_xarray()``, ``.to_pandas()``), ``res.case(name)`` gives a
 :class:`CaseResults` that shows itself in a notebook (scheme table and one figure).
 """
@@ -14,8 +14,8 @@ from typing import ClassVar
 
 import pandas as pd
 
-from .errors import FtcError
-from .sim import Run
+from ..errors import FtcError
+from ..sim import Run
 from .store import load_metrics, stored_schemes
 from .tidy import METRICS_DTYPES, metrics_table, read_run
 
@@ -48,7 +48,7 @@ class CaseResults:
         return []
 
     def _repr_html_(self) -> str:
-        from .report.notebook import case_html
+        from ..report.notebook import case_html
 
         return case_html(self)
 
@@ -83,7 +83,7 @@ _RUN_COLUMNS = [c for c in METRICS_DTYPES if not c.startswith("phase")]
 def load_results(reports_dir: str | Path = "reports") -> Results:
     """Every stored run under ``reports_dir`` as a :class:`Results` table (typed columns).
 
-    Per-phase metrics are in ``metrics.parquet`` (:func:`ftcreport.tidy.metrics_table`).
+    Per-phase metrics are in ``metrics.parquet`` (:func:`ftcreport.storage.tidy.metrics_table`).
     """
     root = Path(reports_dir)
     if not root.is_dir():

@@ -4,7 +4,7 @@ Stop signals.  SIGINT (Ctrl-C), SIGTERM (``kill``, a service manager, a CI timeo
 terminal closed) all stop a command the same way (:func:`handle_stop_signals`): the first one
 raises :class:`Interrupted` (a ``KeyboardInterrupt``) in the main thread, so every command unwinds
 through its ``finally`` blocks: worker processes are terminated and waited for, temporary files
-removed, and the output directory's lock released last (:func:`ftcreport.store.output_lock`).
+removed, and the output directory's lock released last (:func:`ftcreport.storage.store.output_lock`).
 That cleanup runs :func:`shielded`: a signal meanwhile is dropped, so it is not cut short (it
 waits at most 5 s for the workers, then kills them); elsewhere a second signal raises again (an
 interrupt swallowed by a library is not the end of it), and SIGKILL ends everything.  The exit code
@@ -15,9 +15,9 @@ Worker processes.  A worker must not outlive its command when the command is SIG
 ``finally`` runs then).  :func:`die_with_parent` asks Linux to SIGKILL the worker when its
 parent ends (``prctl(PR_SET_PDEATHSIG)``), and checks that the parent did not end before the
 request; elsewhere a daemon thread polls the parent's pid.  A batch worker also holds its
-command's lock (:func:`ftcreport.store.lock_fd`), so the lock is free only when the last of them
+command's lock (:func:`ftcreport.storage.store.lock_fd`), so the lock is free only when the last of them
 is gone, and checks before each write that its parent is alive
-(:func:`ftcreport.store.set_write_guard`).
+(:func:`ftcreport.storage.store.set_write_guard`).
 """
 
 from __future__ import annotations

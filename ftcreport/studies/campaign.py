@@ -4,10 +4,10 @@ base case + ``[campaign]`` distributions --draw(seeds(campaign seed, index))--> 
 variant --run every scheme (runner.run_scheme)--> one row per scheme (metrics.json names)
 rows --atomic per-sample files--> samples/<index>.json --atomic rewrite--> results.csv + results.parquet
 results.csv --summarize--> success rates (Wilson intervals), distributions, worst patterns,
-                           paired comparisons (McNemar, bootstrap; ftcreport.stats) --> index.html
-provenance --> manifest.json (ftcreport.manifest: versions, platform, git, seeds, case hash)
+                           paired comparisons (McNemar, bootstrap; ftcreport.evaluation.stats) --> index.html
+provenance --> manifest.json (ftcreport.storage.manifest: versions, platform, git, seeds, case hash)
 
-Execution goes through ``dask.distributed`` (:mod:`ftcreport.cluster`): by default a
+Execution goes through ``dask.distributed`` (:mod:`ftcreport.studies.cluster`): by default a
 ``LocalCluster`` of processes on the loopback interface, or an existing scheduler
 given by address; the same ``client.submit`` path serves both.  ``in_process=True``
 runs the same sample function in this process (the reference the cluster run is
@@ -47,12 +47,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .cases import Case, configured_schemes, ordered_schemes, parse_case, plugin_digest
-from .errors import CaseError, FtcError
-from .model import pattern_is_compensable, wheel_names
-from .stats import compare_metric, compare_success, wilson_interval
-from .store import _jsonable, locked, write_atomic
+from .. import __version__
+from ..cases import Case, configured_schemes, ordered_schemes, parse_case, plugin_digest
+from ..errors import CaseError, FtcError
+from ..evaluation.stats import compare_metric, compare_success, wilson_interval
+from ..model import pattern_is_compensable, wheel_names
+from ..storage.store import _jsonable, locked, write_atomic
 
 __all__ = [
     "CampaignResult",
@@ -182,7 +182,7 @@ def draw_variant(base: Case, seeds: SampleSeeds) -> Case:
     noise["position"] = float(rng.uniform(*spec.noise_position))
     noise["heading"] = float(rng.uniform(*spec.noise_heading))
     noise["seed"] = int(seeds.noise)
-    data["name"] = f"{base.name[:40]}.s{seeds.draw}"  # a safe case name (ftcreport.limits): at most 64 characters
+    data["name"] = f"{base.name[:40]}.s{seeds.draw}"  # a safe case name (ftcreport.infra.limits): at most 64 characters
     return parse_case(data, f"{base.name} (campaign draw, seed {seeds.draw})")
 
 
@@ -212,7 +212,7 @@ def run_sample(base_json: str, index: int, campaign_seed: int, schemes: list[str
     carries the package version and the campaign hash *of the process that ran it*, so the
     client can tell a foreign or stale result from its own.
     """
-    from .runner import build, run_scheme
+    from ..runner import build, run_scheme
 
     base = parse_case(json.loads(base_json), "campaign base")
     seeds = sample_seeds(campaign_seed, index)
@@ -344,7 +344,7 @@ COMPARED_METRICS: dict[str, str] = {
 
 
 def comparisons(rows: list[dict], schemes: list[str]) -> list[dict]:
-    """Paired comparisons of every pair of schemes on the samples both ran (ftcreport.stats).
+    """Paired comparisons of every pair of schemes on the samples both ran (ftcreport.evaluation.stats).
 
     Success: exact McNemar.  Each metric of :data:`COMPARED_METRICS`: bootstrap CI of the
     mean per-sample difference on the samples where both values exist (a recovery time
@@ -437,7 +437,7 @@ def stale_reason(rec: dict, expected: dict) -> str | None:
 
 def _reference_lines() -> tuple[str, ...]:
     """The built-in schemes every other is compared with: the baseline (no FTC) and the bound (the oracle)."""
-    from .schemes import built_in
+    from ..schemes import built_in
 
     return tuple(name for name, sc in built_in().items() if sc.family in ("baseline", "bound"))
 
@@ -445,7 +445,7 @@ def _reference_lines() -> tuple[str, ...]:
 def select_schemes(base: Case, schemes: list[str] | None) -> list[str]:
     """The schemes to run: ``schemes`` (all configured in ``base`` when None); an unknown or unconfigured
     one is refused, blamed on the ``--schemes`` option (:func:`ftcreport.cases.option_schemes`)."""
-    from .cases import option_schemes
+    from ..cases import option_schemes
 
     return configured_schemes(base) if schemes is None else option_schemes("--schemes", list(schemes), base)
 
@@ -600,13 +600,13 @@ def run_tasks(
     on_store: Callable[[dict], None] | None = None,
     **cluster,
 ) -> None:
-    """Run ``func(*args[i])`` for every task ``i`` (:func:`ftcreport.cluster.execute`) behind a progress bar.
+    """Run ``func(*args[i])`` for every task ``i`` (:func:`ftcreport.studies.cluster.execute`) behind a progress bar.
 
     Task keys come from ``kind`` and the run hash ``expected["campaign"]`` (:func:`task_key`).  A result
     must belong to this run (:func:`stale_reason` against ``expected``); it is written atomically at once
     to ``folder/<rec[what]>.json`` (the index with ``width`` digits), entered in ``records`` and
     ``res.completed``, then handed to ``on_store``; a failed task's message goes to ``res.failed``.
-    ``cluster``: the keywords of :func:`ftcreport.cluster.execute` (scheduler, workers, in_process, retries).
+    ``cluster``: the keywords of :func:`ftcreport.studies.cluster.execute` (scheduler, workers, in_process, retries).
     """
     from .cluster import execute
 
@@ -640,14 +640,14 @@ def _noting_stored(res: CampaignResult, noun: str):
     try:
         yield
     except KeyboardInterrupt as exc:
-        from .errors import note_stored
+        from ..errors import note_stored
 
         note_stored(exc, len(res.completed), noun)
         raise
 
 
 def _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process) -> None:
-    from .manifest import build_manifest, write_manifest
+    from ..storage.manifest import build_manifest, write_manifest
 
     m = build_manifest(
         "campaign",

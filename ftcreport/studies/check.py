@@ -2,7 +2,7 @@
 
 A gate item is one thing that holds or not, with a name and a one-line message: a run (its status
 is one its case expects), a threshold (``[thresholds.<scheme>]`` maps metric names of
-``metrics.json`` to ``{min, max}``), a thesis claim (:mod:`ftcreport.claims`), a case file that
+``metrics.json`` to ``{min, max}``), a thesis claim (:mod:`ftcreport.evaluation.claims`), a case file that
 could not be read.  The exit code, the terminal lines and the JUnit testcases all come from the
 list (:func:`exit_code`, :meth:`GateItem.line`, :func:`ftcreport.report.junit.junit_xml`), so they
 cannot disagree: ``check`` exits 1 when any item fails, 2 when a case file is bad input.
@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .claims import ClaimResult, bound_text, evaluate_claims
-from .requirements import applies_to
-from .store import StoredRun, read_json, stored_runs
+from ..evaluation.claims import ClaimResult, bound_text, evaluate_claims
+from ..evaluation.requirements import applies_to
+from ..storage.store import StoredRun, read_json, stored_runs
 
 __all__ = [
     "CASE_ITEMS",
@@ -123,7 +123,7 @@ class StoredCase:
 
 
 def stored_case(out: Path, name: str, not_stored: dict[str, str] | None = None) -> StoredCase:
-    """The case ``name`` under ``out`` as stored (every run checked: :func:`ftcreport.store.check_run`)."""
+    """The case ``name`` under ``out`` as stored (every run checked: :func:`ftcreport.storage.store.check_run`)."""
     rec = read_json(Path(out) / name / "case.json")
     return StoredCase(name, rec if isinstance(rec, dict) else {}, stored_runs(out, name), dict(not_stored or {}))
 
@@ -279,7 +279,7 @@ def _get(obj, key: str):
 def requirement_items(
     case: str, requirements: Sequence[Any], metrics_by_scheme: Mapping[str, dict | None]
 ) -> list[GateItem]:
-    """One item per requirement x scheme x window (issue 35 item 11; :mod:`ftcreport.requirements`).
+    """One item per requirement x scheme x window (issue 35 item 11; :mod:`ftcreport.evaluation.requirements`).
 
     ``requirements``: the case's ``[[requirements]]`` (models or dicts); ``metrics_by_scheme``: the
     stored metrics (None: the scheme was not run).  A window holds when every step's value is within

@@ -2,7 +2,7 @@
 
 Layout under the output directory (``reports/`` by default)::
 
-    <case>/<scheme>/metrics.json      the metrics (ftcreport.metrics names), status and reason
+    <case>/<scheme>/metrics.json      the metrics (ftcreport.evaluation.metrics names), status and reason
     <case>/<scheme>/timeseries.npz    t, q, q_d, eta, u, tau, sigma, ubar and the controller's signals
     <case>/<scheme>/record.json       the run's record, written last: what the directory holds
 
@@ -37,10 +37,10 @@ from typing import Any
 
 import numpy as np
 
-from . import __version__
-from .errors import FtcError
-from .lifetime import shielded
-from .sim import Run
+from .. import __version__
+from ..errors import FtcError
+from ..infra.lifetime import shielded
+from ..sim import Run
 
 __all__ = [
     "RECORD",
@@ -349,7 +349,7 @@ def _short(exc: BaseException) -> str:
 def stored_schemes(out: Path, case_name: str) -> list[str]:
     """The schemes with something of a run stored for a case, sound or not (built-in ones first, then
     plug-in ones by name)."""
-    from .cases import ordered_schemes
+    from ..cases import ordered_schemes
 
     d = Path(out) / case_name
     if not d.is_dir():

@@ -7,7 +7,7 @@ key that is already held receives the first client's result.  The old key
 ``sample-{seed}-{i}`` was the same for two campaigns on the default seed; the
 key is ``ftcreport-{kind}-{run hash}-{index}`` where the run hash covers
 the base case content, the schemes, the settings and the package version
-(:func:`ftcreport.campaign.run_hash`, :func:`ftcreport.campaign.task_key`).
+(:func:`ftcreport.studies.campaign.run_hash`, :func:`ftcreport.studies.campaign.task_key`).
 
 Before submitting, :func:`check_versions` compares the versions the workers
 report through Dask's own version report (``Client.get_versions``, which also
@@ -30,9 +30,9 @@ from typing import Any
 
 from distributed import WorkerPlugin
 
-from .errors import FtcError
-from .lifetime import interrupt_of, shielded
-from .manifest import NUMERIC_DEPENDENCIES
+from ..errors import FtcError
+from ..infra.lifetime import interrupt_of, shielded
+from ..storage.manifest import NUMERIC_DEPENDENCIES
 
 __all__ = ["CHECKED_PACKAGES", "WarmUp", "check_versions", "execute"]
 
@@ -60,7 +60,7 @@ class WarmUp(WorkerPlugin):
         self.quiet = quiet
 
     async def setup(self, worker) -> None:
-        from .sim import warm_up
+        from ..sim import warm_up
 
         if self.quiet:
             logging.getLogger("distributed").setLevel(logging.CRITICAL)

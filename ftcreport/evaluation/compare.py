@@ -1,8 +1,8 @@
 r"""Who wins, by how much, and why: the comparison of schemes on one case and across cases (pure).
 
 Input is a tidy table of metrics, one :class:`Row` per (case, scheme, metric), built from the
-``metrics.json`` dicts of the runs by :func:`tidy` (names of :mod:`ftcreport.metrics` and
-:mod:`ftcreport.diagnosis`).  No I/O, no plotting: the report renders what this module returns.
+``metrics.json`` dicts of the runs by :func:`tidy` (names of :mod:`ftcreport.evaluation.metrics` and
+:mod:`ftcreport.evaluation.diagnosis`).  No I/O, no plotting: the report renders what this module returns.
 
 Definitions (every headline metric is "lower is better"):
 
@@ -38,7 +38,7 @@ import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
-from .schemes import built_in
+from ..schemes import built_in
 
 __all__ = [
     "ACTIVE",
@@ -352,7 +352,7 @@ def compare_case(
 
 def _analysis_sentences(analysis: dict, verdicts, metrics) -> list[str]:
     """The linearized analysis cited where a scheme loses or chatters, or nominal wins (issue 37 item 7)."""
-    from .analysis.summary import analysis_sentences
+    from ..analysis.summary import analysis_sentences
 
     after = verdicts.get("after_fault_error_max")
     ranking = [r.scheme for r in after.ranking] if after else []

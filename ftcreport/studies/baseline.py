@@ -73,7 +73,7 @@ from typing import Any
 
 import numpy as np
 
-from .cases import (
+from ..cases import (
     BASELINE_ABS_TOL,
     BASELINE_METRIC_NAMES,
     BASELINE_REL_TOL,
@@ -83,8 +83,8 @@ from .cases import (
     parse_case,
     with_duration,
 )
+from ..evaluation.metrics import HEADLINE_METRICS
 from .check import GateItem
-from .metrics import HEADLINE_METRICS
 
 __all__ = [
     "BASELINE_ABS_TOL",
@@ -128,7 +128,7 @@ _UNITS = {
 # ------------------------------------------------------------------------------ pure comparison
 def key_signals(ts: Mapping[str, np.ndarray], wheels: list[str]) -> dict[str, np.ndarray]:
     """The compared signals of a logged run: position_error, heading_error[i] (robot i, leader 1), torque[w]."""
-    from .control.kinematic import wrap
+    from ..control.kinematic import wrap
 
     q, qd = np.asarray(ts["q"], float), np.asarray(ts["q_d"], float)
     out = {"position_error": np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])}
@@ -374,8 +374,8 @@ def _file_hash(path: Path) -> str:
 
 def stored_case(out: Path, name: str):
     """(the case as stored beside its runs, its text, its record); raises FtcError when unreadable."""
-    from .errors import FtcError
-    from .store import read_json
+    from ..errors import FtcError
+    from ..storage.store import read_json
 
     rec = read_json(Path(out) / name / "case.json") or {}
     try:
@@ -415,9 +415,9 @@ def save_baseline(out: Path, names: Iterable[str], dest: Path) -> list[tuple[str
     Returns the (case, reason) pairs not saved: a case whose runs ended with a status the case
     does not expect (a failure is never kept as the reference), or that has no stored run.
     """
-    from .manifest import environment, numeric_versions
-    from .model.faults import wheel_names
-    from .store import check_run, load_timeseries, read_json, write_atomic, write_json
+    from ..model.faults import wheel_names
+    from ..storage.manifest import environment, numeric_versions
+    from ..storage.store import check_run, load_timeseries, read_json, write_atomic, write_json
 
     out, dest = Path(out), Path(dest)
     refused: list[tuple[str, str]] = []
@@ -520,7 +520,7 @@ class CaseComparison:
 
 def _load(dest: Path, name: str) -> tuple[dict | None, dict[str, np.ndarray] | None, str]:
     """(the case's baseline record, its signal arrays, why not) from ``dest``."""
-    from .store import read_json
+    from ..storage.store import read_json
 
     rec = read_json(dest / name / "baseline.json")
     if not isinstance(rec, dict) or not isinstance(rec.get("schemes"), dict):
@@ -540,8 +540,8 @@ def _load(dest: Path, name: str) -> tuple[dict | None, dict[str, np.ndarray] | N
 
 def compare_case(out: Path, name: str, dest: Path) -> CaseComparison:
     """Compare the stored runs of one case under ``out`` with its baseline in ``dest``."""
-    from .model.faults import wheel_names
-    from .store import load_metrics, load_timeseries
+    from ..model.faults import wheel_names
+    from ..storage.store import load_metrics, load_timeseries
 
     out, dest = Path(out), Path(dest)
     case, _text, _rec = stored_case(out, name)
@@ -679,8 +679,8 @@ def baseline_items(out: Path, names: Iterable[str], dest: Path) -> tuple[list[Ga
 
 def check_dest(dest: Path) -> None:
     """Refuse a --baseline directory that holds no baseline at all (a mistyped path: exit 2)."""
-    from .errors import FtcError
-    from .store import read_json
+    from ..errors import FtcError
+    from ..storage.store import read_json
 
     if not (Path(dest) / "baseline.json").is_file() or not isinstance(read_json(Path(dest) / "baseline.json"), dict):
         raise FtcError(

@@ -8,7 +8,7 @@ import tempfile
 import traceback
 from pathlib import Path
 
-from . import __version__
+from .. import __version__
 
 __all__ = ["write_crash_log"]
 

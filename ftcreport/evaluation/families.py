@@ -34,7 +34,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .cases import Case
+    from ..cases import Case
 
 __all__ = ["FAMILIES", "KV_THESIS", "default_k_v", "fill_defaults", "not_applicable"]
 
@@ -42,7 +42,7 @@ KV_THESIS = {"two_link": 10.0, "chained": 2.0}
 
 
 def _families() -> tuple[str, ...]:
-    from .schemes import built_in
+    from ..schemes import built_in
 
     return tuple(name for name, sc in built_in().items() if sc.default_run)
 
@@ -52,7 +52,7 @@ FAMILIES = _families()  # the registry's schemes that run on every case by defau
 
 def default_k_v(case: Case) -> float:
     """The velocity gain the default tables use (see the module docstring)."""
-    from .schemes import built_in
+    from ..schemes import built_in
 
     if case.schemes.k_v is not None:
         return float(case.schemes.k_v)
@@ -69,7 +69,7 @@ def _wanted(case: Case) -> list[str]:
 
 
 def _physics_reason(case: Case, scheme: str, k_v: float) -> str | None:
-    from .schemes import get
+    from ..schemes import get
 
     hook = get(scheme).not_applicable
     return None if hook is None else hook(case, k_v)
@@ -92,7 +92,7 @@ def not_applicable(case: Case) -> dict[str, str]:
 def fill_defaults(case: Case) -> Case:
     """The case with a default table (``Scheme.defaults``) for every wanted family it does not configure,
     and for every other built-in scheme ``schemes.run`` names without a table."""
-    from .schemes import built_in
+    from ..schemes import built_in
 
     k_v = default_k_v(case)
     add = {}

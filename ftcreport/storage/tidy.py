@@ -32,13 +32,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .model.faults import wheel_names
+from ..model.faults import wheel_names
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
     import xarray as xr
 
-    from .sim import Run
+    from ..sim import Run
 
 __all__ = [
     "METRICS_DTYPES",
@@ -224,8 +224,8 @@ def read_run(out: Path, case: str, scheme: str) -> Run | None:
     """A stored run (``<out>/<case>/<scheme>/``) as a :class:`Run` with its metadata, or None."""
     import tomllib
 
-    from .cases import parse_case
-    from .sim import Run
+    from ..cases import parse_case
+    from ..sim import Run
     from .store import load_metrics, load_timeseries
 
     out = Path(out)
@@ -369,10 +369,10 @@ def export(out: Path, dest: Path | None = None, damaged: list[str] | None = None
     """netCDF of every stored run (``<dest>/<case>/<scheme>/timeseries.nc``) and ``<dest>/metrics.parquet``.
 
     ``dest`` defaults to ``out`` (the files go beside the JSON and ``.npz``).  A damaged stored run
-    (:func:`ftcreport.store.check_run`) gets no netCDF and is a row with status ``error`` in the table;
+    (:func:`ftcreport.storage.store.check_run`) gets no netCDF and is a row with status ``error`` in the table;
     its problem (``<file>: <why>``) is appended to ``damaged`` when given.
     """
-    from .errors import FtcError
+    from ..errors import FtcError
     from .store import stored_runs
 
     out = Path(out)

@@ -1,5 +1,5 @@
 """The one rule for the names a user gives (cases, schemes): a leaf module, so that every reader
-(``ftcreport.limits``, the scheme registry) imports it without importing the others."""
+(``ftcreport.infra.limits``, the scheme registry) imports it without importing the others."""
 
 from __future__ import annotations
 

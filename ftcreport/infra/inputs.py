@@ -20,7 +20,7 @@ import os
 import stat
 from pathlib import Path
 
-from .errors import CaseError
+from ..errors import CaseError
 
 __all__ = ["MAX_INPUT_BYTES", "InputFileError", "input_problem", "read_input"]
 

@@ -35,7 +35,8 @@ from ftcreport.runner import run_scheme
 run, metrics = run_scheme(with_duration(load_case(sys.argv[1]), 2.0), "nominal")
 arrays = {"t": run.t} | {k: np.asarray(v) for k, v in run.signals.items()}
 np.savez(sys.argv[2], **arrays)
-print(json.dumps({"package": ftcreport.__file__, "status": metrics["status"], "n": int(run.t.size)}))
+files = [getattr(m, "__file__", None) for k, m in list(sys.modules.items()) if k.split(".")[0] == "ftcreport"]
+print(json.dumps({"package": ftcreport.__file__, "status": metrics["status"], "n": int(run.t.size), "files": files}))
 """
 
 
@@ -95,6 +96,10 @@ def _install_and_run(base: Path) -> None:
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout.splitlines()[-1])
     assert Path(out["package"]).is_relative_to(package)  # the install ran, not this checkout
+    # every module of the run came from the install: a subpackage missing from the wheel would otherwise be
+    # found in this checkout by the editable install's finder, and the test would pass on a broken install
+    outside = [f for f in out["files"] if f is not None and not Path(f).is_relative_to(package)]
+    assert not outside, outside[:5]
     assert out["status"] == "ok" and out["n"] > 100
     assert _listing(site) == before  # nothing written, changed or removed inside the install
     assert any((work / "cache").rglob("*.nbi")) and any((work / "cache").rglob("ftcreport_loop_*.py"))

@@ -23,7 +23,7 @@ MOVED = {
     **{m: f"storage.{m}" for m in ("store", "results", "tidy", "manifest")},
     **{m: f"infra.{m}" for m in ("paths", "inputs", "crashlog", "lifetime", "limits", "names")},
     "display": "cli.display",
-    "fields": "cases.fields",
+    "fields": "schemes.fields",
     "schema_doc": "cases.schema_doc",
 }
 

@@ -269,3 +269,47 @@ def test_the_paths_of_earlier_releases_import_the_moved_modules():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+
+
+#: the entry points a process may import first: a CLI command, a Dask worker unpickling a task
+#: (studies.campaign.run_sample), the warm-up plugin (sim), a plug-in author (schemes), a notebook
+FIRST_IMPORTS = (
+    "from ftcreport.schemes import get; get('nominal')",
+    "import ftcreport.sim",
+    "import ftcreport.studies.campaign",
+    "import ftcreport.studies.cluster",
+    "import ftcreport.evaluation.metrics",
+    "import ftcreport.runner",
+    "import ftcreport.fast.engine",
+    "import ftcreport.analysis",
+)
+
+
+@pytest.mark.parametrize("first", FIRST_IMPORTS)
+def test_a_case_loads_whatever_the_process_imported_first(first):
+    """The [schemes] table is built from the registry: no import order may build it from a half-filled one
+    (a built-in scheme's file importing the case package while the registry loads it gave 'schemes.nominal:
+    unknown field' on Dask workers, whose first import is the task's module)."""
+    import subprocess
+    import sys
+
+    case = ROOT.parent / "cases" / "two_link_switching.toml"
+    code = f"{first}\nfrom ftcreport.cases import load_case\nload_case({str(case)!r})\nprint('ok')\n"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-1500:]
+
+
+def test_moved_modules_still_find_the_checkout():
+    """Two moved modules locate the checkout from their own file: the manifest's git revision (None would
+    silently drop the provenance) and the schema docs' files (cases/README.md, cases/case.schema.json)."""
+    import subprocess
+
+    from ftcreport.cases import schema_doc
+    from ftcreport.storage import manifest
+
+    head = subprocess.run(
+        ["git", "-C", str(ROOT.parent), "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+    ).stdout.strip()
+    git = manifest._git()
+    assert git is not None and git["revision"] == head, git
+    assert schema_doc.main(["--check"]) == 0

@@ -13,6 +13,7 @@ can build variants in memory.
 
 from __future__ import annotations
 
+from ..schemes.fields import _FieldError, did_you_mean  # noqa: F401 - re-exported (the schema's suggestions)
 from .build import (  # noqa: F401 - re-exported
     TEMPLATE,
     build_chain,
@@ -35,7 +36,6 @@ from .case import (  # noqa: F401 - re-exported
     _rk4_on_currents,
     metric_problem,
 )
-from .fields import _FieldError, did_you_mean  # noqa: F401 - re-exported (the schema's suggestions)
 from .files import (  # noqa: F401 - re-exported
     _ABSENT,
     OWN_FIELDS,

@@ -9,8 +9,8 @@ from pydantic import ValidationError
 
 from ..errors import CaseError
 from ..model import Chain
+from ..schemes.fields import _FieldError
 from .case import Case, _check_budget
-from .fields import _FieldError
 from .parse import _field_errors
 from .tables import Simulation
 

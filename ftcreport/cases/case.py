@@ -13,7 +13,7 @@ from ..infra.limits import budget_problem, name_problem
 from ..model import FaultEvent, FaultSchedule, wheel_index, wheel_names
 from ..model.actuators import DriveParams, MotorParams
 from ..model.faults import motor_row
-from .fields import _f, _FieldError, _num, _Strict, did_you_mean
+from ..schemes.fields import _f, _FieldError, _num, _Strict, did_you_mean
 from .scheme_tables import (
     SCHEME_NAMES,
     Kinematic,

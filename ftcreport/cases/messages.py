@@ -7,7 +7,7 @@ from typing import Any, get_args, get_origin
 
 from pydantic import BaseModel
 
-from .fields import _Strict, did_you_mean
+from ..schemes.fields import _Strict, did_you_mean
 
 
 def _is_tag(part: Any) -> bool:

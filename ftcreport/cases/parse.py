@@ -10,8 +10,8 @@ from pydantic import BaseModel, ValidationError
 
 from ..errors import CaseError, FtcError, printable
 from ..infra.limits import name_problem
+from ..schemes.fields import _FieldError
 from .case import Case
-from .fields import _FieldError
 from .messages import _format_loc, _message, _rank
 
 

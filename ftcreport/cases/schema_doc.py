@@ -244,7 +244,7 @@ def _files(root: Path) -> dict[Path, str]:
 def main(argv: list[str] | None = None) -> int:
     """Rewrite cases/README.md tables and cases/case.schema.json (``--check``: exit 1 if they drift)."""
     args = sys.argv[1:] if argv is None else argv
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]  # ftcreport/cases/schema_doc.py -> the checkout
     drift = []
     for path, text in _files(root).items():
         old = path.read_text() if path.exists() else ""

@@ -10,7 +10,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError, create_model, field
 
 from ..errors import FtcError
 from ..schemes import built_in as _built_in_schemes
-from .fields import Gain, Gain0, _f, _FieldError, _num, _Strict, did_you_mean
+from ..schemes.fields import Gain, Gain0, _f, _FieldError, _num, _Strict, did_you_mean
 from .messages import _format_loc, _message, _rank
 
 if TYPE_CHECKING:

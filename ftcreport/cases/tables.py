@@ -11,7 +11,7 @@ from ..model.actuators import DRIVE_MODEL_FIELDS, MAXON_RE65, DriveParams, Motor
 from ..model.chain import THESIS_ROBOT
 from ..model.faults import MOTOR_KINDS
 from ..runs import AUTO_METHODS
-from .fields import (
+from ..schemes.fields import (
     Angle,
     Coord,
     Factor,

@@ -9,7 +9,7 @@ from pydantic import Field, StrictBool, model_validator
 from ..errors import FtcError
 from ..evaluation.requirements import SIGNALS as REQUIREMENT_SIGNALS
 from ..model import wheel_index
-from .fields import _NUMBER, Limit, Std, Time, Torque, Unit, _f, _FieldError, _num, _Strict, did_you_mean
+from ..schemes.fields import _NUMBER, Limit, Std, Time, Torque, Unit, _f, _FieldError, _num, _Strict, did_you_mean
 from .scheme_tables import known_schemes
 
 Status = Literal["ok", "singular", "diverged", "step_unstable"]  # run outcomes (ftcreport.sim)

@@ -13,8 +13,8 @@ from typing import Literal
 
 import numpy as np
 
-from ..cases.fields import Gain, Strict, doc_field, number
 from .api import Scheme
+from .fields import Gain, Strict, doc_field, number
 from .nominal import K_V
 from .registry import register_built_in
 

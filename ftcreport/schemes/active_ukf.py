@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from ..cases.fields import Gain, Gain0, Strict, doc_field, number
 from .active import ESTIMATE, TAU, Diagnosis, derived, metrics
 from .api import Scheme
+from .fields import Gain, Gain0, Strict, doc_field, number
 from .nominal import K_V
 from .registry import register_built_in
 

@@ -12,8 +12,8 @@ from typing import Literal
 
 import numpy as np
 
-from ..cases.fields import Gain, Strict, doc_field
 from .api import Scheme
+from .fields import Gain, Strict, doc_field
 from .nominal import K_V
 from .registry import register_built_in
 from .switching import PATTERNS, check_patterns, patterns_of

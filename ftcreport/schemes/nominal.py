@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import importlib
 
-from ..cases.fields import Gain, Strict, doc_field
 from .api import Scheme
+from .fields import Gain, Strict, doc_field
 from .registry import register_built_in
 
 __all__ = ["K_V", "SCHEME", "NominalScheme", "matched_law_scheme"]

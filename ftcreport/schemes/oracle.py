@@ -6,7 +6,7 @@ Its face is :class:`ftcreport.control.baselines.OracleController`; its law is
 
 from __future__ import annotations
 
-from ..cases.fields import Gain, Strict, doc_field
+from .fields import Gain, Strict, doc_field
 from .nominal import K_V, matched_law_scheme
 from .registry import register_built_in
 

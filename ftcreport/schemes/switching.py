@@ -13,8 +13,8 @@ from typing import Literal
 import numpy as np
 from pydantic import StrictBool
 
-from ..cases.fields import FieldError, Gain, Gain0, Strict, doc_field, number
 from .api import Scheme
+from .fields import FieldError, Gain, Gain0, Strict, doc_field, number
 from .nominal import K_V
 from .registry import register_built_in
 

@@ -91,7 +91,7 @@ def _cpu() -> str:
 
 def _git() -> dict[str, Any] | None:
     """Revision of the checkout this package runs from, or None (installed copy, no git)."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]  # ftcreport/storage/manifest.py -> the checkout
     if not (root / ".git").exists():
         return None
     try:

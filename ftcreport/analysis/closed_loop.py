@@ -322,6 +322,7 @@ class SchemeLoop:
         self.nk = int(self.ctrl.kin.n_states)
         self.held, self.has_disc = _layout(self.ctrl, self.nk)
         self.linearized = [i for i in range(int(self.ctrl.n_states)) if i not in self.held]
+        self._linearized_at: dict[tuple, Blocks] = {}  # :meth:`blocks` by the content of its arguments
 
     # ------------------------------------------------------------------------------------------ calls
     def law(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, st, ut) -> tuple[np.ndarray, np.ndarray]:
@@ -380,7 +381,20 @@ class SchemeLoop:
     # ------------------------------------------------------------------------------------------ Jacobians
     def blocks(self, pt: Point, period: float | None = None, basis: np.ndarray | None = None) -> Blocks:
         """The loop's Jacobians at ``pt`` (``period``: the sample time a discrete update is linearized for;
-        ``basis``: a parameter block's basis to use, from :attr:`Blocks.basis` of the same point)."""
+        ``basis``: a parameter block's basis to use, from :attr:`Blocks.basis` of the same point).
+
+        Each point once: the same time, faults, plant and controller states, held signal, turning rate,
+        period and basis (their exact bytes) give the blocks already computed, as a copy (the limits are
+        searched at the first phase's worst instant, which with the healthy pattern and no run is that
+        phase's point itself).
+        """
+        key = _point_key(pt, period, basis)
+        if key not in self._linearized_at:
+            self._linearized_at[key] = self._blocks(pt, period, basis)
+        return copy.copy(self._linearized_at[key])
+
+    def _blocks(self, pt: Point, period: float | None, basis: np.ndarray | None) -> Blocks:
+        """:meth:`blocks` computed."""
         ny = self.n_q + 2
         fz, t = pt.faults, pt.t
         Fx = self.plant.state_columns(pt.xp, pt.a, fz)
@@ -448,6 +462,15 @@ class SchemeLoop:
         Dc = central_columns(lambda c: d(y0, c), xc0[lin])
         Dy = central_columns(lambda y: d(y, xc0[lin]), y0)
         return Dc, Dy
+
+
+def _point_key(pt: Point, period: float | None, basis: np.ndarray | None) -> tuple:
+    """Everything :meth:`SchemeLoop.blocks` reads of its arguments, exactly (arrays by dtype, shape and bytes)."""
+    arrays = (pt.xp, pt.xc, pt.a, pt.faults.sigma, pt.faults.ubar, pt.faults.motor)
+    if basis is not None:
+        arrays += (basis,)
+    exact = tuple((a.dtype.str, a.shape, a.tobytes()) for a in map(np.asarray, arrays))
+    return (float(pt.t), float(pt.omega), None if period is None else float(period), basis is None, exact)
 
 
 def _healthy_row() -> np.ndarray:

@@ -322,6 +322,11 @@ class SchemeLoop:
         self.nk = int(self.ctrl.kin.n_states)
         self.held, self.has_disc = _layout(self.ctrl, self.nk)
         self.linearized = [i for i in range(int(self.ctrl.n_states)) if i not in self.held]
+        lin = np.array(self.linearized, dtype=int)
+        # the linearized states as a slice when contiguous (the adaptive weights, 36,852 for six robots:
+        # a view and a copy where an index array gathers and scatters them at every evaluation)
+        contiguous = lin.size > 0 and np.array_equal(lin, np.arange(lin[0], lin[0] + lin.size))
+        self._lin: slice | np.ndarray = slice(int(lin[0]), int(lin[0]) + lin.size) if contiguous else lin
         self._linearized_at: dict[tuple, Blocks] = {}  # :meth:`blocks` by the content of its arguments
 
     # ------------------------------------------------------------------------------------------ calls
@@ -402,14 +407,15 @@ class SchemeLoop:
         na = pt.a.size
         y0 = pt.xp[:ny].copy()
         lin = np.array(self.linearized, dtype=int)
+        at = self._lin  # the same states, for indexing
 
         def g(xp, y, xc):
             a, dx = self.controller(t, xp, y, xc, fz)
-            return np.concatenate((a, dx[lin]))
+            return np.concatenate((a, dx[at]))
 
         def with_c(c):
             xc = pt.xc.copy()
-            xc[lin] = c
+            xc[at] = c
             return xc
 
         Gy = central_columns(lambda y: g(pt.xp, y, pt.xc), y0)
@@ -417,12 +423,12 @@ class SchemeLoop:
         Gx = np.zeros((na + lin.size, self.plant.n_states))
         if motor_faults:  # the oracle is told the faults the chain sees, which depend on the wheel speeds
             Gx = central_columns(lambda x: g(x, y0, pt.xc), pt.xp)
-        c0 = pt.xc[lin]
+        c0 = pt.xc[at]
         disc = None
         if self.has_disc:
             if period is None:
                 raise ModelError(f"scheme {self.scheme}: its discrete update needs a sample time to be linearized")
-            disc = self._discrete_map(pt, period, lin)
+            disc = self._discrete_map(pt, period, at)
         elif lin.size and not np.any(Gx):
             block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis)
             if block is not None:
@@ -448,7 +454,7 @@ class SchemeLoop:
             kept=kept, dropped=int(lin.size - keep.size), omega=pt.omega, frame=frame,
         )  # fmt: skip
 
-    def _discrete_map(self, pt: Point, period: float, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _discrete_map(self, pt: Point, period: float, lin: slice | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(Dc, Dy): the Jacobian of the discrete update c <- d(c, y) at pt for samples ``period`` apart."""
         nq, ny = self.n_q, self.n_q + 2
         xc0 = pt.xc.copy()

@@ -111,8 +111,8 @@ def central_columns(f, x0: np.ndarray, columns=None, step: float = STEP) -> np.n
     return np.column_stack(out)
 
 
-def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP) -> np.ndarray:
-    """``J(x0) v`` by a central difference along v (h scaled to v and x0).
+def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP, x0_norm: float | None = None) -> np.ndarray:
+    """``J(x0) v`` by a central difference along v (h scaled to v and x0; ``x0_norm``: |x0| if known).
 
     The norms are sums of squares, not ``np.linalg.norm``: on a vector of 36,840 adaptive weights that
     calls the threaded BLAS, 27 ms a call on the loaded 2-core machine against 0.1 ms.
@@ -120,8 +120,11 @@ def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP) -> np.ndar
     nv = math.sqrt(float(np.sum(v * v)))
     if nv == 0.0:
         return np.zeros(np.asarray(f(x0)).size)
-    h = step * max(1.0, math.sqrt(float(np.sum(x0 * x0)))) / nv
-    return (np.asarray(f(x0 + h * v)) - np.asarray(f(x0 - h * v))) / (2.0 * h)
+    if x0_norm is None:
+        x0_norm = math.sqrt(float(np.sum(x0 * x0)))
+    h = step * max(1.0, x0_norm) / nv
+    hv = h * v
+    return (np.asarray(f(x0 + hv)) - np.asarray(f(x0 - hv))) / (2.0 * h)
 
 
 # ----------------------------------------------------------------------------------------------- plant
@@ -745,12 +748,13 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarr
     probes = 2  # random directions: a rate that reads the states shows in either, unless orthogonal to both
     V = rng.standard_normal((c0.size, probes))
     V /= np.sqrt(np.sum(V * V, axis=0))
-    outs = np.column_stack([directional(g, c0, V[:, k]) for k in range(probes)])
+    norm = math.sqrt(float(np.sum(c0 * c0)))  # every direction below differentiates at c0
+    outs = np.column_stack([directional(g, c0, V[:, k], x0_norm=norm) for k in range(probes)])
     scale = max(1.0, float(np.abs(outs[:na]).max()))
     if np.abs(outs[na:]).max() > 1e-7 * scale:
         return None  # the states' rates read the states: differentiate them all
     # W = K_c G_cy: the torque's rate along each measurement direction
-    W = np.column_stack([directional(lambda c: g(c)[:na], c0, Gy[na:, k]) for k in range(Gy.shape[1])])
+    W = np.column_stack([directional(lambda c: g(c)[:na], c0, Gy[na:, k], x0_norm=norm) for k in range(Gy.shape[1])])
     if basis is None:
         U, s, _ = np.linalg.svd(W, full_matrices=False)
         # directions below 1e-6 of the largest are the differences' error (~1e-9 here), not dynamics

@@ -332,3 +332,36 @@ def test_twelve_robot_analysis_enumerates_what_the_page_shows(tmp_path):
     # the healthy law keeps every compensable enumerated pattern stable and no other (see velocity_loop)
     vl = res["nominal_velocity_loop"]
     assert vl["stable_patterns"] == vl["compensable_patterns"]
+
+
+def test_chained_circle_frozen_poles_are_each_instants_own():
+    """chained_circle_analysis computes each instant's Jacobian once (the RK4 steps share their ends): every
+    frozen instant's poles are still those of the Jacobian at that instant, computed afresh."""
+    from ftcreport.analysis import chained_circle_analysis, closed_loop_jacobian
+    from ftcreport.control.kinematic import ChainedBackstepping
+    from ftcreport.references import FlatReference, circle
+
+    chain = Chain.uniform(2, d=1.0)
+    ref = FlatReference(circle(5.0, 0.5), chain.d)
+    kin = ChainedBackstepping(chain.d, ref, [0.3] * 2, 2.0, 2.0, 5.0)
+    res = chained_circle_analysis(chain, kin, 5.0, 0.1, steps=6)
+    ctrl = TrackingController(chain, kin, 5.0)
+    xc = kin.initial_state(0.0, ref.at(0.0).q_d)
+    poles = []
+    for t in np.linspace(0.0, res["period"], 7):
+        r = ref.at(float(t))
+        ev = np.linalg.eigvals(closed_loop_jacobian(chain, ctrl, float(t), r.q_d, r.eta_d, xc))
+        poles.append(ev[np.argsort(-ev.real)])
+    for row, ev in zip(res["frozen"], poles, strict=True):
+        assert np.allclose(np.array(row["poles"]), np.column_stack((ev.real, ev.imag)), rtol=1e-12, atol=1e-12)
+    assert not np.allclose(poles[0], poles[-1])  # the instants differ: one shared entry would show
+
+
+def test_compensable_patterns_are_computed_once_and_handed_out_as_new_lists():
+    from ftcreport.model.faults import compensable_patterns, model_patterns, pattern_is_compensable
+
+    first = compensable_patterns(3)
+    first.clear()  # a caller's list is its own
+    pats = compensable_patterns(3)
+    assert len(pats) == 3 * 2**4 - 2 and pats[0] == (1,) * 6 and all(map(pattern_is_compensable, pats))
+    assert model_patterns(3) == pats and model_patterns(2) == compensable_patterns(2)

@@ -206,3 +206,48 @@ def test_the_parameter_block_keeps_every_pole_the_plant_sees():
     for v in nonzero:
         assert np.min(np.abs(world - v)) < 1e-6 * scale
     assert np.all(reduced.real < 0)
+
+
+def _same_blocks(a, b) -> bool:
+    names = ("Fx", "Fa", "Gx", "Gy", "Gc", "Dc", "Dy")
+    return all(np.array_equal(getattr(a, n), getattr(b, n)) for n in names) and (a.na, a.kept, a.dropped, a.omega) == (
+        b.na, b.kept, b.dropped, b.omega)  # fmt: skip
+
+
+def test_blocks_are_served_again_only_for_the_same_point():
+    """SchemeLoop.blocks keeps what it computed by the exact content of its point: the same point gives the
+    numbers a fresh loop computes, as a copy; another instant, other faults or another controller state
+    (two schemes' points differ there) are linearized anew and give other numbers."""
+    case, built = _case("two_link_adaptive_circle.toml")
+    loop = SchemeLoop(case, "adaptive", built)
+    healthy = Faults.healthy(4, False)
+    faulty = Faults(np.array([1.0, 1.0, 0.0, 1.0]), np.zeros(4), np.zeros((0, 4)))
+    pt = loop.point(4.0, healthy)
+    first = loop.blocks(pt)
+    first.omega = 123.0  # a caller's change to its copy does not reach the next caller
+    again = loop.blocks(loop.point(4.0, healthy))
+    fresh = SchemeLoop(case, "adaptive", built).blocks(pt)
+    assert _same_blocks(again, fresh) and again.omega != 123.0
+    for other in (loop.point(5.0, healthy), loop.point(4.0, faulty)):
+        assert not _same_blocks(loop.blocks(other), fresh)
+    moved = loop.point(4.0, healthy)
+    moved.xc = moved.xc.copy()
+    moved.xc[loop.linearized[0]] += 1e-3  # other weights: another point
+    assert not np.array_equal(loop.blocks(moved).Gy, fresh.Gy)
+    nominal = SchemeLoop(case, "nominal", built)  # another scheme's loop keeps its own
+    assert not _same_blocks(nominal.blocks(nominal.point(4.0, healthy)), fresh)
+
+
+@pytest.mark.parametrize("scheme", ["adaptive", "active", "switching"])
+def test_the_limits_case_gain_is_the_loop_at_its_point(scheme):
+    """The gain family's blocks at the case's own k_v are the loop already linearized at that point
+    (phases.scheme_limits uses them instead of linearizing a copy of the case with the same gain)."""
+    from ftcreport.analysis.phases import _blocks_at_gain
+
+    case, built = _case("two_link_active.toml")
+    loop = SchemeLoop(case, scheme, built)
+    fz = Faults.healthy(built.chain.n_wheels, False)
+    base = loop.blocks(loop.point(2.0, fz))
+    again = _blocks_at_gain(case, scheme, built, fz, None, 2.0, loop.k_v, None, base)
+    assert _same_blocks(again, base)
+    assert not _same_blocks(_blocks_at_gain(case, scheme, built, fz, None, 2.0, 2.0 * loop.k_v, None, base), base)

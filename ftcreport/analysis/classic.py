@@ -349,9 +349,15 @@ def chained_circle_analysis(chain: Chain, kinematic, k_v: float, omega_d: float,
     band = kinematic.band
     T = band / abs(omega_d)
 
-    def A_at(t):
-        r = ref.at(t)
-        return closed_loop_jacobian(chain, ctrl, t, r.q_d, r.eta_d, xc)
+    jacobians: dict[float, np.ndarray] = {}
+
+    def A_at(t: float) -> np.ndarray:
+        # each instant once: a step's end t + h is the next step's start (the same float), and t = 0 is
+        # also the first frozen instant (a third of the Jacobians)
+        if t not in jacobians:
+            r = ref.at(t)
+            jacobians[t] = closed_loop_jacobian(chain, ctrl, t, r.q_d, r.eta_d, xc)
+        return jacobians[t]
 
     m = chain.n_q + 2
     frozen = []

@@ -111,8 +111,8 @@ def central_columns(f, x0: np.ndarray, columns=None, step: float = STEP) -> np.n
     return np.column_stack(out)
 
 
-def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP) -> np.ndarray:
-    """``J(x0) v`` by a central difference along v (h scaled to v and x0).
+def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP, x0_norm: float | None = None) -> np.ndarray:
+    """``J(x0) v`` by a central difference along v (h scaled to v and x0; ``x0_norm``: |x0| if known).
 
     The norms are sums of squares, not ``np.linalg.norm``: on a vector of 36,840 adaptive weights that
     calls the threaded BLAS, 27 ms a call on the loaded 2-core machine against 0.1 ms.
@@ -120,8 +120,11 @@ def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP) -> np.ndar
     nv = math.sqrt(float(np.sum(v * v)))
     if nv == 0.0:
         return np.zeros(np.asarray(f(x0)).size)
-    h = step * max(1.0, math.sqrt(float(np.sum(x0 * x0)))) / nv
-    return (np.asarray(f(x0 + h * v)) - np.asarray(f(x0 - h * v))) / (2.0 * h)
+    if x0_norm is None:
+        x0_norm = math.sqrt(float(np.sum(x0 * x0)))
+    h = step * max(1.0, x0_norm) / nv
+    hv = h * v
+    return (np.asarray(f(x0 + hv)) - np.asarray(f(x0 - hv))) / (2.0 * h)
 
 
 # ----------------------------------------------------------------------------------------------- plant
@@ -322,6 +325,12 @@ class SchemeLoop:
         self.nk = int(self.ctrl.kin.n_states)
         self.held, self.has_disc = _layout(self.ctrl, self.nk)
         self.linearized = [i for i in range(int(self.ctrl.n_states)) if i not in self.held]
+        lin = np.array(self.linearized, dtype=int)
+        # the linearized states as a slice when contiguous (the adaptive weights, 36,852 for six robots:
+        # a view and a copy where an index array gathers and scatters them at every evaluation)
+        contiguous = lin.size > 0 and np.array_equal(lin, np.arange(lin[0], lin[0] + lin.size))
+        self._lin: slice | np.ndarray = slice(int(lin[0]), int(lin[0]) + lin.size) if contiguous else lin
+        self._linearized_at: dict[tuple, Blocks] = {}  # :meth:`blocks` by the content of its arguments
 
     # ------------------------------------------------------------------------------------------ calls
     def law(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, st, ut) -> tuple[np.ndarray, np.ndarray]:
@@ -380,7 +389,20 @@ class SchemeLoop:
     # ------------------------------------------------------------------------------------------ Jacobians
     def blocks(self, pt: Point, period: float | None = None, basis: np.ndarray | None = None) -> Blocks:
         """The loop's Jacobians at ``pt`` (``period``: the sample time a discrete update is linearized for;
-        ``basis``: a parameter block's basis to use, from :attr:`Blocks.basis` of the same point)."""
+        ``basis``: a parameter block's basis to use, from :attr:`Blocks.basis` of the same point).
+
+        Each point once: the same time, faults, plant and controller states, held signal, turning rate,
+        period and basis (their exact bytes) give the blocks already computed, as a copy (the limits are
+        searched at the first phase's worst instant, which with the healthy pattern and no run is that
+        phase's point itself).
+        """
+        key = _point_key(pt, period, basis)
+        if key not in self._linearized_at:
+            self._linearized_at[key] = self._blocks(pt, period, basis)
+        return copy.copy(self._linearized_at[key])
+
+    def _blocks(self, pt: Point, period: float | None, basis: np.ndarray | None) -> Blocks:
+        """:meth:`blocks` computed."""
         ny = self.n_q + 2
         fz, t = pt.faults, pt.t
         Fx = self.plant.state_columns(pt.xp, pt.a, fz)
@@ -388,14 +410,15 @@ class SchemeLoop:
         na = pt.a.size
         y0 = pt.xp[:ny].copy()
         lin = np.array(self.linearized, dtype=int)
+        at = self._lin  # the same states, for indexing
 
         def g(xp, y, xc):
             a, dx = self.controller(t, xp, y, xc, fz)
-            return np.concatenate((a, dx[lin]))
+            return np.concatenate((a, dx[at]))
 
         def with_c(c):
             xc = pt.xc.copy()
-            xc[lin] = c
+            xc[at] = c
             return xc
 
         Gy = central_columns(lambda y: g(pt.xp, y, pt.xc), y0)
@@ -403,12 +426,12 @@ class SchemeLoop:
         Gx = np.zeros((na + lin.size, self.plant.n_states))
         if motor_faults:  # the oracle is told the faults the chain sees, which depend on the wheel speeds
             Gx = central_columns(lambda x: g(x, y0, pt.xc), pt.xp)
-        c0 = pt.xc[lin]
+        c0 = pt.xc[at]
         disc = None
         if self.has_disc:
             if period is None:
                 raise ModelError(f"scheme {self.scheme}: its discrete update needs a sample time to be linearized")
-            disc = self._discrete_map(pt, period, lin)
+            disc = self._discrete_map(pt, period, at)
         elif lin.size and not np.any(Gx):
             block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis)
             if block is not None:
@@ -434,7 +457,7 @@ class SchemeLoop:
             kept=kept, dropped=int(lin.size - keep.size), omega=pt.omega, frame=frame,
         )  # fmt: skip
 
-    def _discrete_map(self, pt: Point, period: float, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _discrete_map(self, pt: Point, period: float, lin: slice | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(Dc, Dy): the Jacobian of the discrete update c <- d(c, y) at pt for samples ``period`` apart."""
         nq, ny = self.n_q, self.n_q + 2
         xc0 = pt.xc.copy()
@@ -448,6 +471,15 @@ class SchemeLoop:
         Dc = central_columns(lambda c: d(y0, c), xc0[lin])
         Dy = central_columns(lambda y: d(y, xc0[lin]), y0)
         return Dc, Dy
+
+
+def _point_key(pt: Point, period: float | None, basis: np.ndarray | None) -> tuple:
+    """Everything :meth:`SchemeLoop.blocks` reads of its arguments, exactly (arrays by dtype, shape and bytes)."""
+    arrays = (pt.xp, pt.xc, pt.a, pt.faults.sigma, pt.faults.ubar, pt.faults.motor)
+    if basis is not None:
+        arrays += (basis,)
+    exact = tuple((a.dtype.str, a.shape, a.tobytes()) for a in map(np.asarray, arrays))
+    return (float(pt.t), float(pt.omega), None if period is None else float(period), basis is None, exact)
 
 
 def _healthy_row() -> np.ndarray:
@@ -716,12 +748,13 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarr
     probes = 2  # random directions: a rate that reads the states shows in either, unless orthogonal to both
     V = rng.standard_normal((c0.size, probes))
     V /= np.sqrt(np.sum(V * V, axis=0))
-    outs = np.column_stack([directional(g, c0, V[:, k]) for k in range(probes)])
+    norm = math.sqrt(float(np.sum(c0 * c0)))  # every direction below differentiates at c0
+    outs = np.column_stack([directional(g, c0, V[:, k], x0_norm=norm) for k in range(probes)])
     scale = max(1.0, float(np.abs(outs[:na]).max()))
     if np.abs(outs[na:]).max() > 1e-7 * scale:
         return None  # the states' rates read the states: differentiate them all
     # W = K_c G_cy: the torque's rate along each measurement direction
-    W = np.column_stack([directional(lambda c: g(c)[:na], c0, Gy[na:, k]) for k in range(Gy.shape[1])])
+    W = np.column_stack([directional(lambda c: g(c)[:na], c0, Gy[na:, k], x0_norm=norm) for k in range(Gy.shape[1])])
     if basis is None:
         U, s, _ = np.linalg.svd(W, full_matrices=False)
         # directions below 1e-6 of the largest are the differences' error (~1e-9 here), not dynamics

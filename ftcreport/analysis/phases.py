@@ -313,11 +313,13 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
             grid = _grid(res["value"] or guess, period)
             out["_curves"] = {"T": grid.tolist(), "rho_T": [rho(T) for T in grid]}
     k_v = loop.k_v
+
+    def at_gain(k: float, t: float, b: Blocks) -> Blocks:
+        # at the case's own gain the loop is the one linearized there, b (tests/test_limits.py: the same numbers)
+        return b if k == k_v else _blocks_at_gain(case, scheme, built, fz, psis.get(t), t, k, period, b)
+
     try:
-        fam = [
-            gain_family(lambda k, t=t, b=b: _blocks_at_gain(case, scheme, built, fz, psis.get(t), t, k, period, b), k_v)
-            for t, b in zip(ts, blocks, strict=True)
-        ]
+        fam = [gain_family(lambda k, t=t, b=b: at_gain(k, t, b), k_v) for t, b in zip(ts, blocks, strict=True)]
     except ModelError as exc:  # a plug-in without a k_v field
         for name in picks:
             out[name]["k_v_max"] = None

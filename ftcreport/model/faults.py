@@ -35,6 +35,7 @@ vanish, e.g. with only 1r and 2r working at tan(phi) = -d/b_2;
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import re
@@ -106,9 +107,16 @@ def compensable_patterns(n: int) -> list[tuple[int, ...]]:
     Ordered by the number of failed wheels, then lexicographically with the
     healthy pattern first.  Length 3 * 2^(2n-2) - 2.
     """
+    return list(_compensable_patterns(n))
+
+
+@functools.cache
+def _compensable_patterns(n: int) -> tuple[tuple[int, ...], ...]:
+    """:func:`compensable_patterns` once per n (3,070 of 4,096 for six robots, 15 ms; each multi-model
+    controller built asks for them, the analysis's limits build several)."""
     pats = [p for p in itertools.product((1, 0), repeat=2 * n) if pattern_is_compensable(p)]
     pats.sort(key=lambda p: (2 * n - sum(p), tuple(-x for x in p)))
-    return pats
+    return tuple(pats)
 
 
 def model_patterns(n: int, patterns=None) -> list[tuple[int, ...]]:
@@ -126,6 +134,8 @@ def model_patterns(n: int, patterns=None) -> list[tuple[int, ...]]:
     pats = compensable_patterns(n) if patterns is None else [tuple(int(x) for x in p) for p in patterns]
     if not pats:
         raise FaultError("patterns: at least one failure pattern is needed")
+    if patterns is None:
+        return pats  # compensable and 2n long by construction
     for p in pats:
         if len(p) != 2 * n:
             raise FaultError(f"patterns: {p} has {len(p)} entries, the chain has {2 * n} wheels")

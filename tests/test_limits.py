@@ -115,3 +115,39 @@ def test_motor_case_limits_match_a_bisection_by_simulation(which, predicted, lo,
         lo, hi = (lo, mid) if _grows(case, "nominal", which, mid) else (mid, hi)
     simulated = math.sqrt(lo * hi)
     assert simulated == pytest.approx(predicted, rel=0.05)
+
+
+def test_sample_time_variant_integrates_the_plant_at_the_case_step_or_finer():
+    """A confirmation's sample-time variant keeps the case's steps per sample where its dt fits (1.37 ms:
+    one ETD2 step, as the case at 5 ms) and otherwise takes the case's dt or finer (204 ms: 41 steps of
+    4.98 ms): one step per sample of 204 ms on the two-link circle grew the slow kinematic pair by 1.0019
+    per sample, where 16 and 64 steps agree on 0.9987-0.9991 (a stable loop called a limit cycle)."""
+    from ftcreport.analysis.confirm import variant
+
+    case = load_case(ROOT / "cases" / "motors" / "two_link_active_motors.toml")
+    for T, steps in ((1.371e-3, 1), (0.2041, 41)):
+        s = variant(case, "nominal", "sample_time_max", T, 200).simulation
+        assert s.sample_time == T and s.dt == pytest.approx(T / steps, rel=1e-12) and s.dt <= case.simulation.dt
+
+
+def test_slow_kinematic_limit_on_the_circle_is_confirmed_by_the_engine():
+    """two_link_active_motors (circle, omega = 0.5 rad/s, k_v = 20): the sample-time limit is the slow
+    kinematic pair's (|z| = 1.0012 at 1.1x, time constant ~ 3 min), predicted at 236 ms.  The engine's runs
+    (two runs 1e-8 m apart, read as ftcreport.analysis.confirm reads them, 1500 samples) are bounded at 0.9x
+    (growth 0.9995 per sample) and grow at 1.1x (1.0012).  Before, the plant's ZOH frozen in world
+    coordinates put the limit at 292 ms, and one ETD2 step per sample made the runs diverge at 0.9x of it."""
+    from ftcreport.analysis.confirm import NUDGE, classify, variant
+    from ftcreport.analysis.phases import analyze_scheme
+    from ftcreport.runner import run_scheme
+
+    case = load_case(ROOT / "cases" / "motors" / "two_link_active_motors.toml")
+    limit = analyze_scheme(case, "nominal", build(case), margins=False)["limits"]["sample_time_max"]
+    assert limit == pytest.approx(0.2363, rel=2e-3)
+    out = {}
+    for f in (0.9, 1.1):
+        v = variant(case, "nominal", "sample_time_max", f * limit, 1500)
+        run, _ = run_scheme(v, "nominal")
+        other, _ = run_scheme(variant(case, "nominal", "sample_time_max", f * limit, 1500, NUDGE), "nominal")
+        out[f] = classify(run, other, v.simulation.sample_time)
+    assert out[0.9]["outcome"] == "bounded" and out[0.9]["rho"] < 1.0
+    assert out[1.1]["outcome"] == "limit cycle" and out[1.1]["rho"] > 1.0

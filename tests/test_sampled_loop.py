@@ -10,7 +10,7 @@ import pytest
 import scipy.linalg
 
 from ftcreport.analysis.closed_loop import Faults, SchemeLoop
-from ftcreport.analysis.sampled import closed_loop_matrix, parts, zoh
+from ftcreport.analysis.sampled import closed_loop_matrix, parts, plant_zoh, zoh
 from ftcreport.cases import load_case
 from ftcreport.runner import build
 
@@ -111,8 +111,10 @@ def test_sampled_loop_matrix_is_the_controllers_recursion(case_file, scheme):
 
 def test_small_sample_time_recovers_the_continuous_poles():
     """As T -> 0 the sampled loop's equivalent poles ln(z) / T tend to the continuous loop's (co-moving frame
-    included), at first order in T (the hold's lag), as the sampled engine converges (tests/test_sampling.py):
-    on the two-link thesis case the slow poles' error falls tenfold from T = 1e-4 to 1e-5 s."""
+    included), as the sampled engine converges (tests/test_sampling.py): on the two-link thesis case the
+    velocity-loop pole (-10.4) at first order in T (the hold's lag: its error falls tenfold from T = 1e-4 to
+    1e-5 s), the kinematic ones within 1e-8 at both (the plant's ZOH taken in the turning frame is exact on
+    the circle; the world-frame ZOH turned afterwards left them a first-order error, 3.4e-6 at 1e-4 s)."""
     case = load_case(ROOT / "cases" / "two_link_switching.toml")
     built = build(case)
     loop = SchemeLoop(case, "nominal", built)
@@ -123,4 +125,39 @@ def test_small_sample_time_recovers_the_continuous_poles():
         s = np.log(np.linalg.eigvals(closed_loop_matrix(blk, T, 0)).astype(complex)) / T
         err[T] = np.array([np.min(np.abs(s - v)) / abs(v) for v in lam])
     assert np.all(err[1e-5] < 1e-6)
-    np.testing.assert_allclose(err[1e-4] / err[1e-5], 10.0, rtol=0.1)
+    np.testing.assert_allclose(err[1e-4][0] / err[1e-5][0], 10.0, rtol=0.1)  # -10.4: the velocity loop's
+    assert np.all(err[1e-4][1:] < 1e-8) and np.all(err[1e-5][1:] < 1e-8)
+
+
+def test_plant_zoh_on_a_turning_reference_is_the_transition_along_the_sample():
+    """On the circle (two_link_active_motors, omega = 0.5 rad/s) the plant's Jacobian in world coordinates
+    turns with the reference within a sample.  Its transition over T = 262 ms with the signal held, built
+    independently as the product of the augmented matrix's expm over 64 sub-intervals, each linearized at
+    its own midpoint on the reference (scipy), then written in the frame the reference has at the sample's
+    end, equals plant_zoh (the ZOH of Fx - omega J) to 1e-7 of the largest entry (1.5e-8 measured, 2.5e-7
+    with 16 sub-intervals, 1e-9 with 256: the midpoint rule's h^2); the world-frame Jacobian frozen at the
+    sample's start and turned afterwards (the model before) is 3.1e-4 off whatever the sub-intervals, which
+    moved the slow kinematic pair's |z| at 262 ms from 1.00135 to 0.99878 (the limit from 236 to 292 ms)."""
+    case = load_case(ROOT / "cases" / "motors" / "two_link_active_motors.toml")
+    built = build(case)
+    loop = SchemeLoop(case, "nominal", built)
+    fz = Faults.healthy(4, True)
+    t0, T, n = 17.5, 0.2624, 64
+    pt = loop.point(t0, fz, period=5e-3)
+    blk = loop.blocks(pt, 5e-3)
+    mp, na = blk.Fx.shape[0], blk.na
+    aug = np.eye(mp + na)
+    for k in range(n):
+        p = loop.point(t0 + (k + 0.5) * T / n, fz, period=5e-3)
+        A = loop.plant.state_columns(p.xp, pt.a, fz)  # the signal held at its value of the sample's start
+        B = loop.plant.input_columns(p.xp, pt.a, fz)
+        step = scipy.linalg.expm(np.block([[A, B], [np.zeros((na, mp + na))]]) * (T / n))
+        aug = step @ aug
+    c, s = np.cos(blk.omega * T), np.sin(blk.omega * T)
+    R = np.eye(mp)
+    R[:2, :2] = [[c, s], [-s, c]]  # world -> the frame turned by omega T
+    Phi, Gam = R @ aug[:mp, :mp], R @ aug[:mp, mp:]
+    Phi_z, Gam_z = plant_zoh(blk, T)
+    assert _rel(Phi_z, Phi) < 1e-7 and _rel(Gam_z, Gam) < 1e-7
+    Phi_w, _ = zoh(blk.Fx, blk.Fa, T)
+    assert _rel(R @ Phi_w, Phi) > 1e-4

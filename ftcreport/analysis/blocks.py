@@ -79,6 +79,17 @@ class Blocks:
             A[j, i] -= self.omega
         return A
 
+    def plant_co_moving(self) -> np.ndarray:
+        """Fx - omega J on the plant's world-frame vectors: the plant alone in the frame turning with the
+        reference (what the plant's ZOH over a sample is taken of, :func:`~ftcreport.analysis.sampled.plant_zoh`)."""
+        mp = self.Fx.shape[0]
+        A = self.Fx.copy()
+        for i, j in self.frame:
+            if i < mp and j < mp:
+                A[i, j] += self.omega
+                A[j, i] -= self.omega
+        return A
+
     def velocity_loop(self) -> Blocks:
         """The inner loop alone: the same blocks with the configuration q held (its rows and columns out).
 

@@ -35,7 +35,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .blocks import Blocks
-from .sampled import closed_loop_matrix, spectral_radius, zoh
+from .sampled import closed_loop_matrix, plant_zoh, spectral_radius
 
 __all__ = ["K_MAX", "T_MAX", "T_MIN", "boundary", "continuous_margin", "fastest_pole", "gain_family", "largest_gain"]
 __all__ += ["MARGINAL_S", "MARGINAL_Z", "largest_sample_time", "sampled_radius", "stability"]
@@ -164,12 +164,12 @@ def stability(measure: float, poles: np.ndarray, discrete: bool) -> str:
 
 def sampled_radius(blk: Blocks, T: float, delay: int) -> float:
     """Spectral radius of the sampled loop at T (in the frame turning with the reference)."""
-    return spectral_radius(closed_loop_matrix(blk, T, delay, zoh(blk.Fx, blk.Fa, T)))
+    return spectral_radius(closed_loop_matrix(blk, T, delay, plant_zoh(blk, T)))
 
 
 def dominant_pole(blk: Blocks, T: float, delay: int) -> complex:
     """The sampled loop's eigenvalue of largest modulus at T (the mode that crosses at the limit)."""
-    ev = np.linalg.eigvals(closed_loop_matrix(blk, T, delay, zoh(blk.Fx, blk.Fa, T)))
+    ev = np.linalg.eigvals(closed_loop_matrix(blk, T, delay, plant_zoh(blk, T)))
     return complex(ev[np.argmax(np.abs(ev))])
 
 

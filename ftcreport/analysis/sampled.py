@@ -15,7 +15,15 @@ Linearized about a frozen operating point (:class:`~ftcreport.analysis.closed_lo
     a(j)      = Gx_a x_p(j) + Gy_a yhat(j) + Gc_a c(j)
     c^-(j+1)  = c(j) + T (Gx_c x_p(j) + Gy_c yhat(j) + Gc_c c(j)) (forward Euler, as the engine)
 
-``[Phi, Gamma] = [I, 0] expm([[A_p, B_p], [0, 0]] T)`` is the ZOH of the plant with a held:
+``[Phi, Gamma] = [I, 0] expm([[A_p, B_p], [0, 0]] T)`` is the ZOH of the plant with a held, taken in
+the frame turning with the reference (:func:`plant_zoh`: ``A_p = Fx - omega J``, the plant's part of
+:meth:`Blocks.co_moving`).  On a moving reference the plant's Jacobian in world coordinates turns with
+the reference within the sample (the direction of travel, d(S(q) eta)/d theta); in the turning frame
+it is constant on a constant-curvature reference, so this ZOH is exact there.  Freezing the world-frame
+Jacobian over the sample and turning its result by -omega T afterwards (the model before
+2026-11-27) is not: it errs by about omega T |A_p| T / 2 in Phi, and on the two-link circle
+(omega = 0.5 rad/s) it put the slow kinematic pair's crossing at 292 ms where the engine's runs,
+converged in their step, cross between 204 and 262 ms (now 236 ms; tests/test_sampled_loop.py).
 ``control.sample_system(ss(A_p, B_p, I, 0), T, 'zoh')`` computes exactly this (scipy's
 ``cont2discrete``, the same matrix exponential).  :func:`zoh` gets it instead from the engine's own
 phi function, ``Phi = I + A T phi_1(A T)``, ``Gamma = T phi_1(A T) B`` (``fast.expo.phi12``, the
@@ -44,7 +52,7 @@ import numpy as np
 
 from .blocks import Blocks
 
-__all__ = ["closed_loop_matrix", "open_loop_at_input", "parts", "spectral_radius", "zoh"]
+__all__ = ["closed_loop_matrix", "open_loop_at_input", "parts", "plant_zoh", "spectral_radius", "zoh"]
 
 
 def zoh(A: np.ndarray, B: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
@@ -61,10 +69,16 @@ def zoh(A: np.ndarray, B: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]
     return np.eye(n) + (A * float(T)) @ P1, float(T) * (P1 @ B)
 
 
+def plant_zoh(blk: Blocks, T: float) -> tuple[np.ndarray, np.ndarray]:
+    """(Phi, Gamma) of the plant over one sample in the frame turning with the reference (module docstring):
+    the ZOH of ``Fx - omega J`` (:meth:`Blocks.plant_co_moving`); the plain :func:`zoh` when it does not turn."""
+    return zoh(blk.plant_co_moving(), blk.Fa, T)
+
+
 def closed_loop_matrix(blk: Blocks, T: float, delay: int = 0, plant: tuple | None = None) -> np.ndarray:
     r"""The sampled loop's matrix M: ``z(j+1) = M z(j)``, ``z = [x_p, b_1..b_d, c^-]`` (module docstring).
 
-    ``plant``: (Phi, Gamma) when already computed for this T.
+    ``plant``: (Phi, Gamma) when already computed for this T (:func:`plant_zoh`).
     """
     M0, Bz, Ka = parts(blk, T, delay, plant)
     return M0 + Bz @ Ka
@@ -76,7 +90,7 @@ def parts(blk: Blocks, T: float, delay: int = 0, plant: tuple | None = None):
     M0 is the loop with every actuator input open (the plant's free motion, the delay line, the
     controller's own states); B the held inputs' columns (Gamma in the plant's rows).
     """
-    Phi, Gam = zoh(blk.Fx, blk.Fa, T) if plant is None else plant
+    Phi, Gam = plant_zoh(blk, T) if plant is None else plant
     mp, ny, na, nc = blk.Fx.shape[0], blk.Gy.shape[1], blk.na, blk.nc
     nb = delay * ny
     nz = mp + nb + nc
@@ -106,11 +120,13 @@ def parts(blk: Blocks, T: float, delay: int = 0, plant: tuple | None = None):
 
 
 def _turn(M0: np.ndarray, Bz: np.ndarray, blk: Blocks, T: float, delay: int) -> None:
-    """The co-moving frame in discrete time: world-frame vectors turned by -omega T at each sample.
+    """The co-moving frame in discrete time: the held parts' world-frame vectors turned by -omega T.
 
     The continuous loop subtracts omega J (:meth:`Blocks.co_moving`); over a sample the frame turning
-    with the reference turns by omega T, so every world-frame pair of the new state (the plant's P_n,
-    its copies in the delay line, an observer's estimates) is rotated by R(-omega T).
+    with the reference turns by omega T.  The plant's rows are already in the new frame (its ZOH is
+    taken in the turning frame, :func:`plant_zoh`); what the sample only copies or steps by forward
+    Euler in the world frame (the delay line's copies of P_n, an observer's estimates) is rotated by
+    R(-omega T).
     """
     if blk.omega == 0.0 or not blk.frame:
         return
@@ -119,7 +135,6 @@ def _turn(M0: np.ndarray, Bz: np.ndarray, blk: Blocks, T: float, delay: int) -> 
     pairs = []
     for i, j in blk.frame:
         if i < mp:
-            pairs.append((i, j))
             if i < ny and j < ny:
                 pairs += [(mp + k * ny + i, mp + k * ny + j) for k in range(delay)]
         else:

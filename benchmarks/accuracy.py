@@ -12,15 +12,19 @@ switching logic runs at the steps' ends, and its instants are part of what is co
 Accuracy: the largest |x, y| error of P_n against the reference at the fault instants and the end (every run
 lands on them); cost: rate evaluations of the closed loop (the loop's own count; 4 per step for RK4, ROS2 and
 ETD2) and the loop's warm wall time (the least of ``--repeats``).  For each case the cheapest ``auto`` whose
-error is at most the fixed step's is named, with its cost relative to the fixed step.  Writes JSON::
+error is at most the fixed step's is named, with its cost relative to the fixed step.  With ``--refine 2,4`` the
+fixed step also runs at dt/2 and dt/4 (the fixed method's own accuracy-cost line), and each ``auto`` row gets the
+fixed step's evaluations at that row's error (log-log interpolation between the refinements that bracket it; none
+outside them): the comparison at equal accuracy where the fixed step is not at the shipped dt.  Writes JSON::
 
-    nice python benchmarks/accuracy.py [--json FILE] [--scheme nominal] [--max-step-factor 10] [CASE ...]
+    nice python benchmarks/accuracy.py [--json FILE] [--scheme nominal] [--max-step-factor 10] [--refine 2,4] [CASE ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import glob
+import itertools
 import json
 import math
 import platform
@@ -67,7 +71,20 @@ def _row(label: str, run, metrics) -> dict:
             "evaluations": int(evals), "loop_wall_s": round(float(run.wall_time), 5)}  # fmt: skip
 
 
-def measure(path: Path, scheme_wanted: str, factor: float, repeats: int) -> dict:
+def _fixed_cost_at(line: list[dict], error: float) -> float | None:
+    """The fixed step's evaluations at ``error``: log-log interpolation between the two refinements whose errors
+    bracket it (the fixed method's own accuracy-cost line), or None outside the measured range (no extrapolation)."""
+    pts = sorted((math.log(r["error_m"]), math.log(r["evaluations"])) for r in line)
+    if not pts or not math.isfinite(error) or error <= 0:
+        return None
+    le = math.log(error)
+    for (e0, c0), (e1, c1) in itertools.pairwise(pts):
+        if e0 <= le <= e1 and e1 > e0:
+            return math.exp(c0 + (c1 - c0) * (le - e0) / (e1 - e0))
+    return None
+
+
+def measure(path: Path, scheme_wanted: str, factor: float, repeats: int, refine: tuple[int, ...] = ()) -> dict:
     case = load_case(path)
     schemes = configured_schemes(case)
     scheme = scheme_wanted if scheme_wanted in schemes else schemes[0]
@@ -80,12 +97,19 @@ def measure(path: Path, scheme_wanted: str, factor: float, repeats: int) -> dict
     rows = []
     fixed, fm = _run(case, scheme, repeats)
     rows.append(_row(f"{sim.method} dt = {sim.dt:g}", fixed, fm) | {"error_m": _error(fixed, ref, instants)})
+    finer = []  # the fixed step refined: the fixed method's own accuracy-cost line
+    for k in refine:
+        run, m = _run(case, scheme, repeats, dt=sim.dt / k)
+        finer.append(_row(f"{sim.method} dt = {sim.dt / k:g}", run, m) | {"error_m": _error(run, ref, instants)})
     for rtol in RTOLS:
         run, m = _run(case, scheme, repeats, method="auto", rtol=rtol, atol=rtol / 100, dt=sim.dt * factor)
         rows.append(_row(f"auto rtol = {rtol:g}", run, m) | {"rtol": rtol, "error_m": _error(run, ref, instants)})
     target = rows[0]["error_m"]
     ok = [r for r in rows[1:] if r["status"] == "ok" and r["error_m"] <= target]
     best = min(ok, key=lambda r: r["evaluations"]) if ok else None
+    line = [r for r in [rows[0], *finer] if r["status"] == "ok" and r["error_m"] > 0]
+    for r in rows[1:]:
+        r["fixed_evaluations_at_this_error"] = _fixed_cost_at(line, r["error_m"]) if r["status"] == "ok" else None
     return {
         "case": str(path.relative_to(ROOT)),
         "scheme": scheme,
@@ -94,6 +118,7 @@ def measure(path: Path, scheme_wanted: str, factor: float, repeats: int) -> dict
         "max_step": sim.dt * factor,
         "reference": {"method": TWIN[sim.method], "status": ref.status, "steps": int(ref.steps)},
         "rows": rows,
+        "fixed_refined": finer,
         "cheapest_auto_as_accurate": None
         if best is None
         else {
@@ -112,12 +137,14 @@ def main() -> None:
     ap.add_argument("--max-step-factor", type=float, default=10.0, help="auto's longest step, times the case's dt")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--refine", default="", help="also the fixed step at dt/k for these k (e.g. 2,4): its cost line")
     args = ap.parse_args()
     shipped = glob.glob(str(ROOT / "cases" / "*.toml")) + glob.glob(str(ROOT / "cases" / "motors" / "*.toml"))
     files = [Path(f).resolve() for f in args.cases] or sorted(Path(f) for f in shipped)
     out = {"date": time.strftime("%Y-%m-%d"), "machine": platform.processor() or platform.machine(), "cases": []}
     for f in files:
-        res = measure(f, args.scheme, args.max_step_factor, args.repeats)
+        refine = tuple(int(k) for k in args.refine.split(",") if k)
+        res = measure(f, args.scheme, args.max_step_factor, args.repeats, refine)
         out["cases"].append(res)
         best = res["cheapest_auto_as_accurate"]
         fixed = res["rows"][0]

@@ -313,3 +313,14 @@ def test_moved_modules_still_find_the_checkout():
     git = manifest._git()
     assert git is not None and git["revision"] == head, git
     assert schema_doc.main(["--check"]) == 0
+
+
+def test_pyproject_lists_every_package_folder():
+    """setuptools installs the packages pyproject lists: every folder of ftcreport/ with an __init__.py, and
+    the templates (mapped from templates/).  A folder left out is missing from a wheel and a non-editable
+    install (tests/test_install.py runs one), which the editable install of a checkout hides."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT.parent / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    on_disk = {_module_name(p) for p in ROOT.rglob("__init__.py") if "__pycache__" not in p.parts}
+    assert listed == on_disk | {"ftcreport.templates"}, (sorted(on_disk - listed), sorted(listed - on_disk))

@@ -198,22 +198,17 @@ class BaselineSpec(_Strict):
 
     @model_validator(mode="after")
     def _known_names(self) -> BaselineSpec:
-        for name in self.metrics:
-            if name not in BASELINE_METRIC_NAMES:
-                raise _FieldError(
-                    f"baseline.metrics.{name}",
-                    "not a scalar metric of metrics.json"
-                    + did_you_mean(name, list(BASELINE_METRIC_NAMES))
-                    + f" (known: {', '.join(BASELINE_METRIC_NAMES)})",
-                )
-        for name in self.signals:
-            if name not in BASELINE_SIGNAL_FAMILIES:
-                raise _FieldError(
-                    f"baseline.signals.{name}",
-                    "not a baseline signal"
-                    + did_you_mean(name, list(BASELINE_SIGNAL_FAMILIES))
-                    + f" (known: {', '.join(BASELINE_SIGNAL_FAMILIES)})",
-                )
+        tables = (
+            ("metrics", self.metrics, BASELINE_METRIC_NAMES, "not a scalar metric of metrics.json"),
+            ("signals", self.signals, BASELINE_SIGNAL_FAMILIES, "not a baseline signal"),
+        )
+        for field, given, known, what in tables:
+            for name in given:
+                if name not in known:
+                    raise _FieldError(
+                        f"baseline.{field}.{name}",
+                        what + did_you_mean(name, list(known)) + f" (known: {', '.join(known)})",
+                    )
         return self
 
 

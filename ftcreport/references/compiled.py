@@ -15,7 +15,7 @@ from ..fast.packed import E_REF_ART, E_REF_SPEED, KIN_CHAINED, _wrap
 from ..model.chained_compiled import to_frame, xi_T
 
 
-# =========================================================================== references (references.py)
+# ==================================================================== references (faces: references/__init__.py)
 @jit
 def path_jets(R, t):
     """Normalized Taylor coefficients (f^(k)(t) / k!) of x_d, y_d at t (references.TrigPath).

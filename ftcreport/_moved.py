@@ -22,7 +22,7 @@ MOVED = {
     **{m: f"studies.{m}" for m in ("batch", "campaign", "coverage", "fdi", "cluster", "check", "baseline")},
     **{m: f"storage.{m}" for m in ("store", "results", "tidy", "manifest")},
     **{m: f"infra.{m}" for m in ("paths", "inputs", "crashlog", "lifetime", "limits", "names")},
-    "display": "cli.display",
+    "display": "studies.display",
     "fields": "schemes.fields",
     "schema_doc": "cases.schema_doc",
 }

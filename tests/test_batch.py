@@ -418,7 +418,7 @@ def _runs(display, n: int) -> None:
 
 
 def test_the_display_is_one_overall_bar_and_the_active_runs():
-    from ftcreport.cli.display import BatchDisplay
+    from ftcreport.studies.display import BatchDisplay
 
     d = BatchDisplay.make(98, True, _terminal())
     _runs(d, 98)
@@ -438,7 +438,7 @@ def test_the_display_is_one_overall_bar_and_the_active_runs():
 
 
 def test_the_display_fits_a_24_row_terminal():
-    from ftcreport.cli.display import BatchDisplay
+    from ftcreport.studies.display import BatchDisplay
 
     d = BatchDisplay.make(98, True, _terminal())
     _runs(d, 98)
@@ -455,7 +455,7 @@ def test_no_display_off_a_terminal_or_when_quiet():
 
     from rich.console import Console
 
-    from ftcreport.cli.display import BatchDisplay
+    from ftcreport.studies.display import BatchDisplay
 
     assert BatchDisplay.make(4, True, Console(file=io.StringIO())).live is None  # piped stderr, a CI log
     assert BatchDisplay.make(4, False, _terminal()).live is None  # --quiet

@@ -55,7 +55,6 @@ from pathlib import Path
 
 from .. import __version__
 from ..cases import Case, case_hash, configured_schemes, dropped_faults, load_case, overlay_text, with_duration
-from ..cli.display import BatchDisplay
 from ..errors import CaseError, FtcError, note_stored, printable
 from ..infra.inputs import read_input
 from ..storage.store import (
@@ -68,6 +67,7 @@ from ..storage.store import (
     write_atomic,
     write_json,
 )
+from .display import BatchDisplay
 
 __all__ = [
     "BatchResult",

@@ -29,7 +29,7 @@ RUN = """
 import json, sys
 import numpy as np
 from ftcreport.cases import configured_schemes, load_case, with_duration
-from ftcreport.fast import compiling
+from ftcreport.jit import compiling
 from ftcreport.runner import run_scheme
 
 out = {"accelerated": compiling.accelerated(), "runs": []}

@@ -230,7 +230,7 @@ _RSS_400S = (
     "from ftcreport.cases import load_case\n"
     "from ftcreport.runner import run_scheme\n"
     "run, m = run_scheme(load_case({case!r}), 'active')\n"
-    "from ftcreport.fast.lazy_link import enabled\n"
+    "from ftcreport.jit.lazy_link import enabled\n"
     "hwm = [int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]\n"
     "print(m['status'], run.t.size, hwm, int(enabled()))\n"
 )

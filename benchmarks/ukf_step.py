@@ -1,4 +1,4 @@
-"""Wall time of one UKF step: compiled (ftcreport.fast.ukf) against filterpy (tests/ukf_reference.py).
+"""Wall time of one UKF step: compiled (ftcreport.observers.ukf_compiled) against filterpy (tests/ukf_reference.py).
 
     python benchmarks/ukf_step.py [--n 2,3] [--steps 2000] [--repeats 5] [--json FILE]
 
@@ -29,9 +29,9 @@ sys.path.insert(0, str(ROOT / "tests"))  # the filterpy reference
 from ukf_reference import FilterpyUKF  # noqa: E402
 
 from ftcreport.fast import kernels as F  # noqa: E402
-from ftcreport.fast.ukf import ukf_params, ukf_step  # noqa: E402
 from ftcreport.model import Chain  # noqa: E402
 from ftcreport.observers import UKFEstimator  # noqa: E402
+from ftcreport.observers.ukf_compiled import ukf_params, ukf_step  # noqa: E402
 
 DTS = (0.005, 0.01, 0.02)  # the simulation steps of cases/*.toml
 H = 0.01  # the step used for timing (the cost does not depend on h)

@@ -25,6 +25,12 @@ MOVED = {
     "display": "studies.display",
     "fields": "schemes.fields",
     "schema_doc": "cases.schema_doc",
+    # the compile machinery went below every domain (issue 38 item 6)
+    **{f"fast.{m}": f"jit.{m}" for m in ("compiling", "lazy_link", "packed", "refs")},
+    # each compiled kernel beside its readable face, by domain
+    "fast.motor": "model.motor_compiled",
+    "fast.drive": "model.drive_compiled",
+    "fast.ukf": "observers.ukf_compiled",
 }
 
 

@@ -214,7 +214,7 @@ class Plant:
         Seed of the noise generator (runs are reproducible).
     motors : MotorParams or sequence of MotorParams, optional
         A DC motor per wheel (one set per robot, leader first), thesis (2.26)-(2.29): the command
-        becomes armature voltages (the driver's static inversion, ftcreport.fast.motor) and the
+        becomes armature voltages (the driver's static inversion, ftcreport.model.motor_compiled) and the
         wheel torque follows the currents.  None: the ideal torque plant (tau = command).
     drive : DriveParams or sequence of DriveParams, optional
         The motors' drives (ftcreport.model.actuators.DriveParams: the static inversion or a PI

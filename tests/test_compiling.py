@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 from numba import njit
 
-from ftcreport.fast import compiling
 from ftcreport.fast import kernels as F
 from ftcreport.fast.engine import loop_for
-from ftcreport.fast.refs import as_ref
+from ftcreport.jit import compiling
+from ftcreport.jit.refs import as_ref
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -188,7 +188,7 @@ def test_numba_is_left_as_found_after_a_run(tmp_path):
 # --------------------------------------------------------------------------- the acceleration, scoped
 _KERNELS = """
 import numpy as np
-from ftcreport.fast.compiling import jit
+from ftcreport.jit.compiling import jit
 
 
 @jit
@@ -220,8 +220,8 @@ _DEFERRED_PROBE = """
 import json
 import numpy as np
 from numba import njit
-from ftcreport.fast import compiling
-from ftcreport.fast.compiling import jit
+from ftcreport.jit import compiling
+from ftcreport.jit.compiling import jit
 import kmod
 
 
@@ -287,7 +287,7 @@ def test_below_an_entry_point_cheap_passes_and_deferred_code_then_from_the_cache
 _ENTRY_PROBE = """
 import json
 import numpy as np
-from ftcreport.fast import compiling
+from ftcreport.jit import compiling
 from ftcreport.fast import kernels as F
 from ftcreport.fast.engine import _chain
 from ftcreport.model import Chain
@@ -327,7 +327,7 @@ _OFF_PROBE = """
 import json
 import numpy as np
 from numba.core.codegen import JITCodeLibrary
-from ftcreport.fast import compiling
+from ftcreport.jit import compiling
 import kmod
 
 x = np.linspace(-1.0, 1.0, 5)
@@ -356,7 +356,7 @@ def test_fast_compile_off_is_numbas_own_pipeline_with_the_same_numbers(tmp_path)
 _FAIL_PROBE = """
 import json, warnings
 import numpy as np
-from ftcreport.fast import compiling
+from ftcreport.jit import compiling
 import kmod
 
 
@@ -427,7 +427,7 @@ def test_every_kernel_cache_is_outside_the_package_and_keyed_on_all_compiled_sou
     h = hashlib.sha256()
     # the engine, the scheme interface, the built-in laws, and the domains whose compiled kernels live beside
     # their faces (model, control, observers, references)
-    for sub in ("fast", "schemes", "schemes/laws", "model", "control", "observers", "references"):
+    for sub in ("jit", "fast", "schemes", "schemes/laws", "model", "control", "observers", "references"):
         for path in sorted((root.parent / sub).glob("*.py")):
             h.update(path.name.encode() + b"\0" + path.read_bytes())
     assert compiling.engine_stamp() == h.hexdigest()
@@ -509,7 +509,7 @@ def test_the_slice_size_message_of_a_kernel_is_numbas_own(tmp_path):
     kernels = textwrap.dedent(
         """
         from numba import njit
-        from ftcreport.fast.compiling import jit
+        from ftcreport.jit.compiling import jit
 
         def assign(a, b):
             a[:] = b
@@ -536,7 +536,7 @@ def test_a_cache_index_written_by_other_code_is_a_miss_not_an_error(monkeypatch,
 
     from numba.core import caching
 
-    from ftcreport.fast import compiling
+    from ftcreport.jit import compiling
 
     monkeypatch.setenv("FTCREPORT_CACHE", str(tmp_path))
     flushed = []
@@ -568,7 +568,7 @@ def test_a_cache_entry_of_another_signature_is_a_miss(monkeypatch, tmp_path):
     from numba import types
     from numba.core import caching
 
-    from ftcreport.fast import compiling
+    from ftcreport.jit import compiling
 
     monkeypatch.setenv("FTCREPORT_CACHE", str(tmp_path))
     flushed = []
@@ -582,7 +582,7 @@ def test_a_cache_entry_of_another_signature_is_a_miss(monkeypatch, tmp_path):
 
 # --------------------------------------------------------------------------- concurrent cache writers
 _TWICE = """
-from ftcreport.fast.compiling import jit
+from ftcreport.jit.compiling import jit
 
 
 @jit
@@ -667,7 +667,7 @@ def test_concurrent_writers_of_one_kernel_keep_each_signature_its_own_entry(tmp_
 
 # --------------------------------------------------------------------------- environments across processes
 _CALLER = """
-from ftcreport.fast.compiling import jit
+from ftcreport.jit.compiling import jit
 
 
 @jit

@@ -1,4 +1,4 @@
-"""The wheels' drives (issue 36 items 1-2): fast/drive.py with the motor plant, and in the loop.
+"""The wheels' drives (issue 36 items 1-2): model/drive_compiled.py with the motor plant, and in the loop.
 
 Kernel tests integrate the chain, the motors and the drive with an RK4 written here (as
 test_motor.py does); loop tests run short cases through the engine.  What is checked:
@@ -27,10 +27,10 @@ from conftest import random_chain, random_q
 
 from ftcreport.cases import parse_case
 from ftcreport.errors import CaseError
-from ftcreport.fast import drive as D
 from ftcreport.fast import kernels as K
-from ftcreport.fast import motor as M
 from ftcreport.fast.engine import _chain, wheel_speeds_rows
+from ftcreport.model import drive_compiled as D
+from ftcreport.model import motor_compiled as M
 from ftcreport.model.actuators import MAXON_RE65, DriveParams, pack, pack_drive
 from ftcreport.model.chain import Chain
 from ftcreport.runner import run_scheme
@@ -244,7 +244,7 @@ def test_power_balance_with_the_pi_drive(n):
 # ------------------------------------------------------------------ exact Jacobian columns
 @pytest.mark.parametrize("kind", ["pi", "pi_ff", "pi_sampled"])
 def test_drive_jacobian_matches_finite_differences(kind, rng):
-    """d(etadot, motor-state rates)/d(motor states) of fast.drive against central differences, with faults,
+    """d(etadot, motor-state rates)/d(motor states) of model.drive_compiled against central differences, with faults,
     on unsaturated and saturated wheels (the PI's target chosen so that some outputs are clipped)."""
     n = 2
     nw = 2 * n
@@ -337,7 +337,7 @@ def _quasi_static(pc, mo, dr, fault, T=0.6, settle=0.3):
     ],
 )
 def test_drive_equivalents_hold_in_quasi_steady_state(driver, model, row):
-    """sigma tau_c + ubar of fast.drive.drive_fault_equivalent is the wheel torque (less the rotor's
+    """sigma tau_c + ubar of model.drive_compiled.drive_fault_equivalent is the wheel torque (less the rotor's
     inertial term) once the electrical transients settled: to < 1 % with L_a a tenth of the datasheet's
     (the quasi-static error ~ (L_a / R_a) / mechanical time; the PI at 2 kHz settles faster still)."""
     pc = _chain(THESIS2.params)
@@ -384,7 +384,7 @@ PI = {"driver": "pi", "current_bandwidth": 1000.0}
 def test_etd2_with_the_pi_drive_converges_to_fine_rk4():
     """Sampled control at 5 ms, the continuous PI at 1 kHz: ETD2 at one step per sample against RK4
     at 0.05 ms (RK4 needs dt < 2.785 L_a / (R_a + K_p) = 0.33 ms), and at second order in its step.
-    The drive's states are in ETD2's linear part with exact columns (fast.drive.drive_jacobian)."""
+    The drive's states are in ETD2's linear part with exact columns (model.drive_compiled.drive_jacobian)."""
     ref = _run(_case(PI, 5e-5, "rk4"))
     errs = []
     for dt in (5e-3, 2.5e-3, 1.25e-3):
@@ -441,7 +441,7 @@ def test_sampled_pi_drive_under_continuous_control_with_each_integrator():
 
 def test_electrical_power_balance_in_the_loop_with_the_pi_drive():
     """v i = R_a i^2 + d/dt(L_a i^2 / 2) + k_b N omega i per wheel over a continuous-control run, with v
-    rebuilt from the logged currents, integral parts and commands (fast.drive.pi_voltage)."""
+    rebuilt from the logged currents, integral parts and commands (model.drive_compiled.pi_voltage)."""
     dt, T = 5e-5, 1.0
     case = _case(PI | {"J_m": 0.0, "b_m": 0.0, "V_max": 1e5}, dt, "rk4", T=T, sample_time=None, scheme="adaptive")
     run = _run(case, "adaptive")

@@ -13,7 +13,7 @@ import numpy as np
 from numba import typeof
 
 from ftcreport.fast import kernels as F
-from ftcreport.fast.refs import RefProxy, RefType, _ref_type, to_ref
+from ftcreport.jit.refs import RefProxy, RefType, _ref_type, to_ref
 from ftcreport.references import FlatReference, eight
 
 

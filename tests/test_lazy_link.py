@@ -20,7 +20,7 @@ MODULE = textwrap.dedent(
     """
     import numpy as np
     from numba import njit
-    from ftcreport.fast.compiling import jit
+    from ftcreport.jit.compiling import jit
 
     @jit
     def poly(x):
@@ -43,8 +43,8 @@ PROBE = textwrap.dedent(
     import llvmlite.binding as ll
     from numba import njit
     from numba.core.codegen import JITCodeLibrary
-    from ftcreport.fast import lazy_link
-    from ftcreport.fast.compiling import KernelLibrary, jit
+    from ftcreport.jit import lazy_link
+    from ftcreport.jit.compiling import KernelLibrary, jit
     import lazymod
 
     seen = {}  # the object code each load received (numba drops its copy once the engine has it)
@@ -130,7 +130,7 @@ def test_the_switch_parses_on_load(tmp_path):
     (tmp_path / "lazymod.py").write_text(MODULE)
     _python("import numpy as np, lazymod; lazymod.poly(np.zeros(3))", tmp_path)
     code = (
-        "import numpy as np, lazymod\nfrom ftcreport.fast import lazy_link\n"
+        "import numpy as np, lazymod\nfrom ftcreport.jit import lazy_link\n"
         "lazymod.poly(np.zeros(3))\nlib = lazymod.poly.overloads[lazymod.poly.signatures[0]].library\n"
         "print(lazy_link.enabled(), lib._shared_module is not None, lib._ftc_bitcode is None,"
         " lazymod.poly.stats.cache_hits.get(lazymod.poly.signatures[0], 0))"
@@ -139,7 +139,7 @@ def test_the_switch_parses_on_load(tmp_path):
 
 
 def test_defined_symbols_rejects_what_is_not_elf64_little_endian():
-    from ftcreport.fast.lazy_link import defined_symbols
+    from ftcreport.jit.lazy_link import defined_symbols
 
     assert defined_symbols(b"\xcf\xfa\xed\xfe" + bytes(60)) is None  # a Mach-O header
     assert defined_symbols(b"\x7fELF\x01\x01" + bytes(60)) is None  # ELF32

@@ -128,7 +128,7 @@ def test_plant_jacobian_against_the_sympy_model():
 
 
 def test_motor_plant_current_columns_are_the_central_differences():
-    """The currents' exact columns (fast.motor.current_jacobian) equal central differences of the rates."""
+    """The currents' exact columns (model.motor_compiled.current_jacobian) equal central differences of the rates."""
     case, built = _case("motors/two_link_active_motors.toml")
     loop = SchemeLoop(case, "nominal", built)
     fz = Faults.healthy(4, True)

@@ -1,4 +1,4 @@
-"""DC motors on the wheels (thesis 2.3.3, ERRATA E19, issue 19): the open-loop plant of fast/motor.py.
+"""DC motors on the wheels (thesis 2.3.3, ERRATA E19, issue 19): the open-loop plant of model/motor_compiled.py.
 
 The loop is not wired yet, so every run here is a fixed-step RK4 over ``motor_plant_rhs`` written in
 the test, with the driver evaluated continuously (no sampling) where a torque command is given.
@@ -14,9 +14,9 @@ from conftest import random_chain, random_q
 
 from ftcreport.errors import FaultError
 from ftcreport.fast import kernels as K
-from ftcreport.fast import motor as M
 from ftcreport.fast.engine import _chain
 from ftcreport.model import FaultEvent, FaultSchedule
+from ftcreport.model import motor_compiled as M
 from ftcreport.model.actuators import MAXON_RE65, MotorParams, pack
 
 
@@ -497,7 +497,7 @@ def test_case_actuators_table_and_motor_faults():
 # ------------------------------------------------------------------ the ETD2 step's Jacobian block
 @pytest.mark.parametrize("n", [2, 3])
 def test_current_jacobian_matches_finite_differences_with_faults(n):
-    """fast.motor.current_jacobian (the exact current columns of ETD2's L) against central differences
+    """model.motor_compiled.current_jacobian (the exact current columns of ETD2's L) against central differences
     of motor_plant_rhs, on healthy, k_m-lost, hot (R_a x 1.8), open, shorted and stuck windings."""
     rng, pc, mo = _setup(n, 11 + n)
     q, eta = _start(rng, n)

@@ -260,7 +260,7 @@ def test_electrical_power_balance_along_a_sampled_closed_loop_run():
     """v_a i = R_a i^2 + d/dt(L_a i^2 / 2) + k_b N omega_w i per wheel, integrated over a run, with v_a
     recomputed by the driver kernel from the held command and the wheel speeds at the samples; the
     back-EMF power is the mechanical power to the chain plus the gear losses (J_m = b_m = 0)."""
-    from ftcreport.fast import motor as FM
+    from ftcreport.model import motor_compiled as FM
     from ftcreport.model.actuators import pack
 
     dt, T_s, T = 5e-5, 2e-4, 1.0

@@ -26,8 +26,8 @@ from conftest import random_chain, random_q
 
 from ftcreport.cases import load_case, parse_case, resolve_overlay
 from ftcreport.fast import kernels as K
-from ftcreport.fast import motor as M
 from ftcreport.fast.engine import _chain
+from ftcreport.model import motor_compiled as M
 from ftcreport.model.actuators import MAXON_RE65, pack, rotor_inertia_wheels
 from ftcreport.runner import run_scheme
 

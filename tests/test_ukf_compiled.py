@@ -1,4 +1,4 @@
-"""The compiled UKF step (ftcreport.fast.ukf) against filterpy's (tests/ukf_reference.py, the reference).
+"""The compiled UKF step (ftcreport.observers.ukf_compiled) against filterpy's (tests/ukf_reference.py, the reference).
 
 Tolerances.  Both run the same equations in the same order; they differ in the
 order of the sums (loops here, BLAS there), in round-off only.  Along 300 steps
@@ -24,7 +24,9 @@ from numpy.linalg import LinAlgError
 from ukf_reference import FilterpyUKF
 
 from ftcreport.fast import kernels as F
-from ftcreport.fast.ukf import (
+from ftcreport.model import Chain
+from ftcreport.observers import UKFEstimator
+from ftcreport.observers.ukf_compiled import (
     UKF_NONFINITE,
     UKF_OK,
     UKF_PREDICTED_NOT_PD,
@@ -34,8 +36,6 @@ from ftcreport.fast.ukf import (
     ukf_params,
     ukf_step,
 )
-from ftcreport.model import Chain
-from ftcreport.observers import UKFEstimator
 
 STEPS = 300
 X_TOL_SD = 1e-9  # |dx_i| / sd_i (see the module docstring)
@@ -157,7 +157,7 @@ def test_non_finite_state_gives_the_status():
 @pytest.mark.parametrize("n", [2, 3])
 def test_sigma_propagation_is_midpoint_sigmas_bitwise(n, estimate):
     """_propagate shares the first stage among the parameter-direction points: same numbers, bit for bit."""
-    from ftcreport.fast.ukf import _propagate, _sigma_points
+    from ftcreport.observers.ukf_compiled import _propagate, _sigma_points
 
     chain = Chain.uniform(n)
     pc = F.Chain(*chain.params)
@@ -180,7 +180,7 @@ def test_factorisations_match_lapack():
     """Cholesky (upper) and the LU inverse against scipy / numpy: round-off of a 19 x 19 SPD matrix."""
     import scipy.linalg
 
-    from ftcreport.fast.ukf import _cholesky_upper, _lu_inverse
+    from ftcreport.observers.ukf_compiled import _cholesky_upper, _lu_inverse
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(19, 19))

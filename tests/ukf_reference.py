@@ -1,4 +1,4 @@
-"""The filterpy UKF step: the reference the compiled step (ftcreport.fast.ukf.ukf_step) is tested against.
+"""The filterpy UKF step: the reference the compiled step (ftcreport.observers.ukf_compiled.ukf_step) is tested against.
 
 It was ``UKFEstimator.step`` while the Python loop ran the filter; the package now runs only the
 compiled step, so filterpy's lives here (tests/test_ukf_compiled.py, benchmarks/ukf_step.py).

@@ -61,8 +61,8 @@ class Blocks:
     def continuous(self) -> np.ndarray:
         r"""A of ``x' = A x``, x = [x_p, c], for control at every instant (y = [q, eta] = C x_p)::
 
-            A = [[Fx + Fa (Gx_a + Gy_a C), Fa Gc_a],
-                 [Gx_c + Gy_c C,           Gc_c  ]]
+        A = [[Fx + Fa (Gx_a + Gy_a C), Fa Gc_a],
+             [Gx_c + Gy_c C,           Gc_c  ]]
         """
         mp, ny, na = self.Fx.shape[0], self.Gy.shape[1], self.na
         Cy = np.eye(ny, mp)

@@ -5,7 +5,7 @@ scheme's compiled law with its own states.  This module evaluates each part as t
 operating point on the reference, and differentiates it by central differences:
 
 * the plant, ``x_p' = f_p(x_p, a)`` with ``x_p = [q, eta, i_a]`` (thesis (2.70); with ``[actuators]``
-  the motors (2.26)-(2.29) with ERRATA E19, ``fast.motor.motor_plant_rhs``) and ``a`` the signal the
+  the motors (2.26)-(2.29) with ERRATA E19, ``model.motor_compiled.motor_plant_rhs``) and ``a`` the signal the
   controller holds at the actuator inputs: the torque command ``u`` on the ideal plant, the driver's
   armature voltage with motors (:class:`Plant`);
 * the controller, ``(a, c') = g(x_p, y, c)``: the scheme's law (``law(P, Kp, R, C, pc, t, q, eta, xc,
@@ -76,7 +76,7 @@ class Faults:
     """The faults of one phase: command faults (2.101)-(2.102) and the motors' fault table.
 
     sigma, ubar : (2n,) ndarrays, wheel order 1r, 1l, 2r, ...; motor : (2n, 4) ndarray (rows
-    ``[k_m scale, R_a scale, mode, v_stuck]``, ``fast.motor``) or an empty (0, 4) array without motors.
+    ``[k_m scale, R_a scale, mode, v_stuck]``, ``model.motor_compiled``) or an empty (0, 4) array without motors.
     """
 
     sigma: np.ndarray
@@ -85,7 +85,7 @@ class Faults:
 
     @classmethod
     def healthy(cls, nw: int, motors: bool) -> Faults:
-        from ..fast.motor import healthy_faults
+        from ..model.motor_compiled import healthy_faults
 
         return cls(np.ones(nw), np.zeros(nw), healthy_faults(nw) if motors else np.zeros((0, 4)))
 
@@ -132,11 +132,11 @@ class Plant:
     r"""The plant as the controller's samples see it: x_p' = f_p(x_p, a) (pure).
 
     ``x_p = [q (n + 2), eta (2), motor states]``: with ``[actuators]`` the currents i_a (2n) and, for a
-    PI drive, its integral parts z (2n) after them (fast.drive).  ``a`` is what the controller holds at
+    PI drive, its integral parts z (2n) after them (model.drive_compiled).  ``a`` is what the controller holds at
     the actuator inputs: on the ideal plant the torque command u (the plant applies
     ``tau = sigma sat(u) + ubar``, (2.101)-(2.102)); with the static driver its armature voltage; with
     a PI drive its current target i*, the drive being a continuous part of the plant
-    (``fast.drive.pi_voltage``: v_a = sat(K_p (i* - i_a) + z + c_ff k_b N omega), z' = K_i (i* - i_a)).
+    (``model.drive_compiled.pi_voltage``: v_a = sat(K_p (i* - i_a) + z + c_ff k_b N omega), z' = K_i (i* - i_a)).
     The drive's own model of the motor (``[actuators.drive_model]``) turns the command into ``a``
     (:meth:`command`).  A PI drive at its own rate (``drive_rate``) is analysed as the continuous PI:
     its period is a fraction of the controller's (the case rejects a rate that is not a whole number
@@ -158,8 +158,8 @@ class Plant:
         self.nm = 0
         self.input_name, self.input_unit = "torque", "N m"
         if built.plant.motors is not None:
-            from ..fast.drive import DRIVER_STATIC
             from ..model.actuators import pack, pack_drive
+            from ..model.drive_compiled import DRIVER_STATIC
 
             self.motors = pack(built.plant.motors, self.chain.n)
             self.drive = pack_drive(getattr(built.plant, "drive", None), built.plant.motors, self.chain.n)
@@ -179,7 +179,7 @@ class Plant:
         """(sigma, ubar) the chain sees: the command faults with the motors' equivalents at xp's wheel speeds."""
         if self.motors is None:
             return fz.sigma, fz.ubar
-        from ..fast.motor import fault_equivalent
+        from ..model.motor_compiled import fault_equivalent
 
         nq = self.n_q
         sm, um = fault_equivalent(self.motors, fz.motor, self.wheel_speeds(self._pref, xp[:nq], xp[nq : nq + 2]))
@@ -188,13 +188,13 @@ class Plant:
     def command(self, u: np.ndarray, omega_meas: np.ndarray, fz: Faults) -> np.ndarray:
         """The held actuator signal for the law's command u: u itself, or what the drive makes of it.
 
-        The drive's current target at the measured wheel speeds (``fast.drive.current_target``, with
+        The drive's current target at the measured wheel speeds (``model.drive_compiled.current_target``, with
         the drive's model), fed the command after the command faults and the limit; the static
-        driver's voltage of it (``fast.drive.static_voltage``), or the target itself for a PI drive.
+        driver's voltage of it (``model.drive_compiled.static_voltage``), or the target itself for a PI drive.
         """
         if self.motors is None:
             return u
-        from ..fast.drive import current_target, static_voltage
+        from ..model.drive_compiled import current_target, static_voltage
 
         i_star = current_target(self.drive, fz.sigma * self.clip(u) + fz.ubar, omega_meas)
         return i_star if self.pi else static_voltage(self.drive, i_star, omega_meas, fz.motor)
@@ -206,13 +206,13 @@ class Plant:
         if self.motors is None:
             qdot, etadot = self._F.plant_rhs(self._pref, q, eta, fz.sigma * self.clip(a) + fz.ubar)
             return np.concatenate((qdot, etadot))
-        from ..fast.motor import motor_plant_rhs
+        from ..model.motor_compiled import motor_plant_rhs
 
         xm = xp[nq + 2 :]
         if not self.pi:
             qdot, etadot, idot, _tau = motor_plant_rhs(self._pref, self.motors, q, eta, xm, a, fz.motor)
             return np.concatenate((qdot, etadot, idot))
-        from ..fast.drive import pi_voltage
+        from ..model.drive_compiled import pi_voltage
 
         omega = self.wheel_speeds(self._pref, q, eta)  # read by the PI only with back-EMF feedforward
         v, zdot = pi_voltage(self.drive, a, xm[:nw], xm[nw:], omega, fz.motor)
@@ -221,15 +221,15 @@ class Plant:
 
     def operating_currents(self, q: np.ndarray, eta: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         """The motor states at the operating point: the currents quasi-static for the held voltages a
-        (L_a di/dt = 0), or a PI drive's steady state for the held target a (``fast.drive.pi_steady_states``)."""
+        (L_a di/dt = 0), or a PI drive's steady state for the held target a (``drive_compiled.pi_steady_states``)."""
         if self.motors is None:
             return _EMPTY
         omega = self.wheel_speeds(self._pref, q, eta)
         if self.pi:
-            from ..fast.drive import pi_steady_states
+            from ..model.drive_compiled import pi_steady_states
 
             return pi_steady_states(self.motors, self.drive, a, omega, fz.motor)[: self.nm]
-        from ..fast.motor import quasi_static_current
+        from ..model.motor_compiled import quasi_static_current
 
         return quasi_static_current(self.motors, a, omega, fz.motor)
 
@@ -237,10 +237,10 @@ class Plant:
         """d f_p / d a, (n_states, 2n): the currents' rows are exact (1/L_a on working windings)."""
         if self.motors is None or self.pi:  # a PI: K_p / L_a and K_i off its limits, central differences
             return central_columns(lambda v: self.rates(xp, v, fz), a)
-        from ..fast.motor import winding_voltage
+        from ..model.motor_compiled import winding_voltage
 
         B = np.zeros((self.n_states, self.nw))
-        # the winding sees the driver's voltage except when open, shorted or stuck (fast.motor)
+        # the winding sees the driver's voltage except when open, shorted or stuck (model.motor_compiled)
         passes = winding_voltage(self.motors, np.ones(self.nw), fz.motor) == 1.0
         B[self.n_q + 2 :, :] = np.diag(np.where(passes, 1.0 / self.motors.L_a, 0.0))
         return B
@@ -251,7 +251,7 @@ class Plant:
         f = lambda x: self.rates(x, a, fz)  # noqa: E731
         if self.motors is None or self.pi:  # a PI: affine in i_a and z off its limits
             return central_columns(f, xp)
-        from ..fast.motor import current_jacobian
+        from ..model.motor_compiled import current_jacobian
 
         J = np.zeros((self.n_states, self.n_states))
         J[:, : nq + 2] = central_columns(f, xp, range(nq + 2))
@@ -294,7 +294,7 @@ class SchemeLoop:
     def __init__(self, case, scheme: str, built=None, k_v: float | None = None, controller=None) -> None:
         from ..fast import kernels as F
         from ..fast.engine import compiled_spec, law_buffers, loop_for
-        from ..fast.refs import to_ref
+        from ..jit.refs import to_ref
         from ..runner import build, make_controller
 
         built = built if built is not None else build(case)

@@ -49,8 +49,16 @@ import numpy as np
 
 from ..errors import FtcError
 
-__all__ = ["MAX_SAMPLES", "MIN_SAMPLES", "NUDGE", "START", "classify", "confirm_limit", "needs_confirmation",
-           "sampled_steps"]
+__all__ = [
+    "MAX_SAMPLES",
+    "MIN_SAMPLES",
+    "NUDGE",
+    "START",
+    "classify",
+    "confirm_limit",
+    "needs_confirmation",
+    "sampled_steps",
+]
 
 MIN_SAMPLES = 200
 MAX_SAMPLES = 5_000
@@ -233,6 +241,7 @@ def confirm_limit(case, scheme: str, which: str, limit: float, crossing: complex
 
 def sentence(which: str, res: dict) -> str:
     """'predicted 1.37 ms; at 1.23 ms bounded, at 1.51 ms limit cycle' (and a contradiction said so)."""
+
     def show(v: float) -> str:
         return f"{v * 1e3:.3g} ms" if res["unit"] == "s" else f"{v:.4g} {res['unit']}"
 

@@ -48,6 +48,7 @@ from .sampled import closed_loop_matrix
 
 __all__ = ["RunStates", "analyze_scheme", "fault_phases", "instants", "pole_rows", "time_varying"]
 
+
 def fault_phases(case) -> list[tuple[float, float]]:
     """The phases of the fault schedule: [0, first event), ..., [last event, duration]."""
     end = float(case.simulation.duration)
@@ -386,4 +387,3 @@ def _motor_words(table: np.ndarray, names) -> list[str]:
         if bits:
             out.append(f"{names[j]}: " + ", ".join(bits))
     return out
-

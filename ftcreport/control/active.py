@@ -96,19 +96,19 @@ class ActiveController(SchemeController):
     def P(self):
         """The compiled law's parameters (schemes.laws.active.Active; offsets in the scheme's own states)."""
         if self._P is None:
-            from ..fast import kernels as F
+            from ..jit.packed import LAW_ACTIVE, law_params
             from ..model.kernels import packed
             from ..schemes.laws.active import active
 
             nk = self.kin.n_states
             nan = float("nan")
-            law = F.law_params(
-                F.LAW_ACTIVE, self.k_v, self.chain.n_wheels, self.n_states,
+            law = law_params(
+                LAW_ACTIVE, self.k_v, self.chain.n_wheels, self.n_states,
                 u_limit=nan if self.u_limit is None else float(self.u_limit),
             )  # fmt: skip
             pc = packed(self.chain.params)
             if self.discrete_time:
-                from ..fast.ukf import UkfLaw, ukf_params
+                from ..observers.ukf_compiled import UkfLaw, ukf_params
 
                 o = self.est
                 ukf = UkfLaw(
@@ -128,6 +128,6 @@ class ActiveController(SchemeController):
         if self.tau is not None:
             nw = self.chain.n_wheels
             xc[self._filt] = np.concatenate((np.ones(nw), np.zeros(nw)))
-        if self.discrete_time:  # the engine's discrete update computes the first command at t0 (fast.ukf)
+        if self.discrete_time:  # the engine's discrete update computes the first command at t0 (observers.ukf_compiled)
             xc[self._t] = t
         return xc

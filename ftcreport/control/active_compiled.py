@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from ..fast.compiling import jit
+from ..jit.compiling import jit
 from ..model.compiled import plant_rhs
 
 

@@ -116,11 +116,11 @@ class AdaptiveController(SchemeController):
     def P(self):
         """The compiled law's parameters (fast.kernels.Law; offsets in the scheme's own states)."""
         if self._P is None:
-            from ..fast import kernels as F
+            from ..jit.packed import LAW_ADAPTIVE, law_params
 
             nk = self.kin.n_states
-            self._P = F.law_params(
-                F.LAW_ADAPTIVE, self.k_v, self.chain.n_wheels, self.n_states,
+            self._P = law_params(
+                LAW_ADAPTIVE, self.k_v, self.chain.n_wheels, self.n_states,
                 patterns=np.ascontiguousarray(self.patterns, dtype=float), gamma=self.gamma,
                 chi0=self._chi.start - nk, uf0=self._uf.start - nk,
                 Gamma_f=np.ascontiguousarray(self.Gamma_f, dtype=float), adapt=int(self.adapt),

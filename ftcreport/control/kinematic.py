@@ -87,10 +87,10 @@ __all__ = ["ChainedBackstepping", "KinematicOutput", "TwoLinkKinematic", "to_fra
 
 
 def _F():
-    """The compiled kernels (numba is loaded on first use, not with the package)."""
-    from ..fast import kernels
+    """The compiled twin of this module (numba is loaded on first use, not with the package)."""
+    from . import kinematic_compiled as compiled
 
-    return kernels
+    return compiled
 
 
 def wrap(a):

@@ -10,16 +10,20 @@ import math
 
 import numpy as np
 
-from ..fast.compiling import jit
-from ..fast.packed import (
+from ..jit.compiling import jit
+from ..jit.packed import (  # noqa: F401 - for the face (kinematic.py)
     E_CHAINED_ART,
     E_CHAINED_THN,
     E_KAPPA,
+    E_REF_ART,
+    E_REF_SPEED,
     E_TWO_LINK_ETH,
     E_TWO_LINK_PHI,
     KIN_CHAINED,
     KIN_TWO_LINK,
+    Kin,
     _wrap,
+    new_cache,
 )
 from ..model.chained_compiled import to_frame, xi_T
 from ..references.compiled import ref_side

@@ -183,12 +183,12 @@ class SwitchingController(SchemeController):
         the scheme's own states, after the kinematic controller's) and the walk's tables
         (fast.kernels.switching_rates, switching_select), built once."""
         if self._packed is None:
-            from ..fast import kernels as F
+            from ..jit.packed import LAW_SWITCHING, law_params
 
             codes, trie = self.walk_tables()
             nk = self.kin.n_states
-            self._packed = F.law_params(
-                F.LAW_SWITCHING, self.k_v, self.chain.n_wheels, self.n_states,
+            self._packed = law_params(
+                LAW_SWITCHING, self.k_v, self.chain.n_wheels, self.n_states,
                 patterns=np.ascontiguousarray(self.patterns, dtype=float), gamma=self.gamma, T_min=self.T_min,
                 c_inst=self.c_inst, c_int=self.c_int, forgetting=self.forgetting, hysteresis=self.hysteresis,
                 u_limit=float("nan") if self.u_limit is None else float(self.u_limit), hat0=self._filt.start - nk,
@@ -204,10 +204,10 @@ class SwitchingController(SchemeController):
 
     def costs(self, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
         """J_(k) for every model, (N,), at the controller state ``xc`` (fast.kernels.switching_costs)."""
-        from ..fast import kernels as F
+        from .switching_compiled import switching_costs
 
         own = np.asarray(xc, dtype=float)[self.kin.n_states :]
-        return F.switching_costs(self.packed(), np.ascontiguousarray(eta, dtype=float), own)
+        return switching_costs(self.packed(), np.ascontiguousarray(eta, dtype=float), own)
 
     def filters(self, xc: np.ndarray) -> np.ndarray:
         """etahat_(k) of every model, (N, 2): h - sum_j (1 - sigma_kj) z_j."""

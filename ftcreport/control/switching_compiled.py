@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
-from ..fast.compiling import jit
-from ..fast.packed import TIE_RTOL, _clip, _mv, _solve2, _tri
+from ..jit.compiling import jit
+from ..jit.packed import TIE_RTOL, _clip, _mv, _solve2, _tri
 from ..model.compiled import bbar_rate, reduced, rotor_mass
 
 
@@ -399,7 +399,7 @@ def rotor_filter_terms(pc, q, eta, Jw):
     r"""(MB, g) of the bank's filters (3.42) for a chain whose wheels carry rotors of inertia Jw (issue 36 item 3).
 
     With a DC motor on each wheel the rotor's inertia eta_g N^2 J_m turns with the wheel (ERRATA E19,
-    fast.motor.motor_plant_rhs): (Mbar1 + Bbar Jw Bbar^T) etadot = Bbar (tau - Jw Bbardot^T eta) -
+    model.motor_compiled.motor_plant_rhs): (Mbar1 + Bbar Jw Bbar^T) etadot = Bbar (tau - Jw Bbardot^T eta) -
     Mbar2 eta - Cbar, so etadot = g + MB tau with MB = A^-1 Bbar, g = -A^-1 (Mbar2 eta + Cbar +
     Bbar Jw Bbardot^T eta), A = Mbar1 + Bbar Jw Bbar^T.  The law's own (3.37) keeps the chain's model.
     """

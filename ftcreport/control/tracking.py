@@ -43,10 +43,10 @@ __all__ = [
 
 
 def _F():
-    """The compiled kernels (numba is loaded on first use, not with the package)."""
-    from ..fast import kernels
+    """The compiled twin of this module (numba is loaded on first use, not with the package)."""
+    from . import tracking_compiled as compiled
 
-    return kernels
+    return compiled
 
 
 class LawTerms(NamedTuple):
@@ -138,11 +138,11 @@ class TrackingController(SchemeController):
     def P(self):
         """The compiled law's parameters (fast.kernels.Law: the pattern the law assumes)."""
         if self._P is None:
-            from ..fast import kernels as F
+            from ..jit.packed import LAW_ORACLE, LAW_TRACKING, law_params
 
-            kind = F.LAW_ORACLE if self.scheme_name == "oracle" else F.LAW_TRACKING
+            kind = LAW_ORACLE if self.scheme_name == "oracle" else LAW_TRACKING
             sigma = np.ascontiguousarray(self.sigma, dtype=float)
-            self._P = F.law_params(kind, self.k_v, self.chain.n_wheels, self.n_states, sigma=sigma)
+            self._P = law_params(kind, self.k_v, self.chain.n_wheels, self.n_states, sigma=sigma)
         return self._P
 
     # --------------------------------------------------------------- pieces

@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from ..fast.compiling import jit
-from ..fast.packed import _inv2, _mv, _solve2
+from ..jit.compiling import jit
+from ..jit.packed import _inv2, _mv, _solve2
 from ..model.compiled import reduced
 from .kinematic_compiled import eta_c_and_dot
 

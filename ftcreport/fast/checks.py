@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 
-from .compiling import jit
-from .packed import E_POSITION, E_SPEED, E_STATE_SINGULAR
+from ..jit.compiling import jit
+from ..jit.packed import E_POSITION, E_SPEED, E_STATE_SINGULAR
 
 
 @jit

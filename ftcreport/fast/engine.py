@@ -40,12 +40,12 @@ try:
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None
 
+from ..jit.compiling import engine_stamp
+from ..model.drive_compiled import motor_state_count
 from ..model.kernels import kernel_ref, packed
 from ..schemes.api import GUARD, N_GUARD, TERMS_MODES
 from ..schemes.controller import SchemeController
 from . import kernels as F
-from .compiling import engine_stamp
-from .drive import motor_state_count
 
 __all__ = ["Spec", "compiled_spec", "loop_for"]
 
@@ -175,14 +175,14 @@ def _split_signals(
 
 # --------------------------------------------------------------------------- the loop
 def _no_motors():
-    from .motor import Motors
+    from ..model.motor_compiled import Motors
 
     z = np.zeros(0)
     return Motors(z, z, z, z, z, z, z, z, z, z)
 
 
 def _no_drive():
-    from .drive import DRIVER_STATIC, Drive
+    from ..model.drive_compiled import DRIVER_STATIC, Drive
 
     z = np.zeros(0)
     return Drive(DRIVER_STATIC, z, z, z, z, z, z, z, z, z, z, z, z, NAN)
@@ -190,8 +190,8 @@ def _no_drive():
 
 def _initial_currents(loop, spec: Spec, plant, mo, dr, sigma, ubar, fm, t0: float, x: np.ndarray, npl: int):
     """The motor states at t0 (currents, drive states): quasi-static for the first command (its wheel
-    torque is the command; fast.drive.initial_motor_states)."""
-    from .drive import initial_motor_states
+    torque is the command; model.drive_compiled.initial_motor_states)."""
+    from ..model.drive_compiled import initial_motor_states
 
     nq = plant.chain.n_q
     pc = spec.chain
@@ -448,7 +448,7 @@ class _Loop:
         self.pp = pp = _chain(chain.params)
         self.share = not plant.noisy and all(np.array_equal(a, b) for a, b in zip(pp, spec.chain, strict=True))
         # sampled control: [next sample time, last sample time, T_s, samples taken], the held u, rates, signals,
-        # and a sampled PI drive's [next sample time, period] (fast.drive)
+        # and a sampled PI drive's [next sample time, period] (model.drive_compiled)
         ts = settings.sample_time
         self.hold_t = np.array([t0, NAN, NAN if ts is None else float(ts), 0.0, t0, self.dr.T_d])
         self.mbuf = np.zeros((int(settings.measurement_delay) + 1, nq + 2))  # the delayed measurements' ring
@@ -489,7 +489,7 @@ class _Loop:
     def steps(self, grid, fidx, noise, method: int, k0: int, k1: int, logged) -> tuple[int, int, int]:
         """run_steps over steps k0..k1 of ``grid``: (last step, rows logged, where); updates x."""
         spec, st = self.spec, self.settings
-        # compiles the loop on its first use (fast.compiling); the law's errors name the scheme (_law_errors)
+        # compiles the loop on its first use (jit.compiling); the law's errors name the scheme (_law_errors)
         with _compiling(self.loop, self.loop.run_steps), _law_errors(spec):
             self.x, k_last, li, where = self.loop.run_steps(
                 self.P, spec.kin, spec.ref, spec.chain, self.pp,
@@ -563,7 +563,7 @@ def _chunk_signals(spec: Spec, plant, nq: int, rows, bufs, costs: bool = True) -
         "t": lt[rows], "q": lq[rows], "eta": leta[rows], "u": lu[rows], "tau": ltau[rows], "sigma": lsig[rows],
         "ubar": lubar[rows], "xc": lxc[rows],
     }  # fmt: skip
-    if lia.shape[1]:  # the motor states: the currents, then the drives' states (fast.drive)
+    if lia.shape[1]:  # the motor states: the currents, then the drives' states (model.drive_compiled)
         nw = plant.chain.n_wheels
         out["i_a"] = lia[rows][:, :nw]
         if lia.shape[1] > nw:

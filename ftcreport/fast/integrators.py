@@ -49,10 +49,10 @@ import math
 
 import numpy as np
 
+from ..jit.compiling import jit
+from ..jit.packed import _solve2
 from ..runs import AUTO_METHODS
-from .compiling import jit
 from .expo import phi12, phi12_scalar
-from .packed import _solve2
 
 __all__ = [
     "AUTO_METHODS",

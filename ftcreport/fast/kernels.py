@@ -2,7 +2,7 @@ r"""The compiled kernels of every domain under one name, for the engine and the 
 
 Each compiled function lives beside its readable face, by domain (issue 38 item 6):
 
-* :mod:`ftcreport.fast.packed`: the packed parameter tuples, the error codes, small helpers;
+* :mod:`ftcreport.jit.packed`: the packed parameter tuples, the error codes, small helpers;
 * :mod:`ftcreport.model.compiled`: the chain model (S, M, C, B, the reduced model, the plant);
 * :mod:`ftcreport.model.chained_compiled`: the chained-form coordinates (Theorem 2.1);
 * :mod:`ftcreport.references.compiled`: the references' jets and points;
@@ -50,46 +50,8 @@ from ..control.tracking_compiled import (  # noqa: F401 - re-exported
     law_terms,
     matched_terms,
 )
-from ..model.chained_compiled import (  # noqa: F401 - re-exported
-    chained_xi_T,
-    to_frame,
-    xi_T,
-)
-from ..model.compiled import (  # noqa: F401 - re-exported
-    _coriolis,
-    _mass,
-    bbar_rate,
-    input_matrices_rows,
-    input_matrix,
-    input_matrix_and_rate,
-    mass_and_coriolis,
-    plant_rhs,
-    reduced,
-    rotor_mass,
-    s_column,
-    s_matrix,
-    wheel_speeds_rows,
-)
-from ..observers.farza_compiled import (  # noqa: F401 - re-exported
-    farza_derivative,
-    farza_estimates,
-)
-from ..references.compiled import (  # noqa: F401 - re-exported
-    _conv,
-    _shift3,
-    path_jets,
-    ref_jets,
-    ref_point,
-    ref_side,
-)
-from .checks import (  # noqa: F401 - re-exported
-    _check_state,
-    _finite,
-    _min_art_cos,
-    _step_jump,
-)
-from .compiling import jit  # noqa: F401 - re-exported: fast/ukf.py, drive.py, motor.py take it from here
-from .packed import (  # noqa: F401 - re-exported
+from ..jit.compiling import jit  # noqa: F401 - re-exported
+from ..jit.packed import (  # noqa: F401 - re-exported
     AT_DISCRETE,
     AT_STATE,
     AT_TRIAL,
@@ -132,4 +94,42 @@ from .packed import (  # noqa: F401 - re-exported
     _wrap,
     law_params,
     new_cache,
+)
+from ..model.chained_compiled import (  # noqa: F401 - re-exported
+    chained_xi_T,
+    to_frame,
+    xi_T,
+)
+from ..model.compiled import (  # noqa: F401 - re-exported
+    _coriolis,
+    _mass,
+    bbar_rate,
+    input_matrices_rows,
+    input_matrix,
+    input_matrix_and_rate,
+    mass_and_coriolis,
+    plant_rhs,
+    reduced,
+    rotor_mass,
+    s_column,
+    s_matrix,
+    wheel_speeds_rows,
+)
+from ..observers.farza_compiled import (  # noqa: F401 - re-exported
+    farza_derivative,
+    farza_estimates,
+)
+from ..references.compiled import (  # noqa: F401 - re-exported
+    _conv,
+    _shift3,
+    path_jets,
+    ref_jets,
+    ref_point,
+    ref_side,
+)
+from .checks import (  # noqa: F401 - re-exported
+    _check_state,
+    _finite,
+    _min_art_cos,
+    _step_jump,
 )

@@ -30,15 +30,6 @@ import math
 import numpy as np
 
 from ftcreport.fast.checks import _check_state, _finite, _step_jump
-from ftcreport.fast.compiling import jit
-from ftcreport.fast.drive import (
-    DRIVER_PI,
-    DRIVER_PI_SAMPLED,
-    current_target,
-    drive_jacobian,
-    motor_state_count,
-    pi_sample,
-)
 from ftcreport.fast.integrators import (
     DP_A,
     DP_B,
@@ -57,8 +48,8 @@ from ftcreport.fast.integrators import (
     step_factor,
 )
 from ftcreport.fast.loop_plant import _delayed, _drive_input, _drive_speeds, _motors, true_faults
-from ftcreport.fast.motor import reset_current
-from ftcreport.fast.packed import (
+from ftcreport.jit.compiling import jit
+from ftcreport.jit.packed import (
     AT_DISCRETE,
     AT_STATE,
     AT_TRIAL,
@@ -72,8 +63,17 @@ from ftcreport.fast.packed import (
     _mv,
     _solve2,
 )
-from ftcreport.fast.refs import as_ref
+from ftcreport.jit.refs import as_ref
 from ftcreport.model.compiled import plant_rhs
+from ftcreport.model.drive_compiled import (
+    DRIVER_PI,
+    DRIVER_PI_SAMPLED,
+    current_target,
+    drive_jacobian,
+    motor_state_count,
+    pi_sample,
+)
+from ftcreport.model.motor_compiled import reset_current
 from ftcreport.schemes.api import N_GUARD, Out, Step, Terms
 from ftcreport.schemes.kernels import engine_terms as TERMS
 from ftcreport.schemes.kernels import guards_intact, no_discrete, no_law, readonly
@@ -98,7 +98,7 @@ MOTORS, SAMPLED = True, True  # LOOP-VARIANT
 
 @jit
 def _drive_tick(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
-    """A sampled PI drive's sample at t (fast.drive.pi_sample), in place on x's drive states.
+    """A sampled PI drive's sample at t (model.drive_compiled.pi_sample), in place on x's drive states.
 
     The current target: the one held at the last control sample (sampled control), or the law's
     command at t (continuous control); the drive measures its current and the wheel speeds now.
@@ -120,7 +120,7 @@ def _drive_tick(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
 
 @jit
 def _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h):
-    """d(etadot, motor-state rates) / d(motor states) at x, exact (fast.drive.drive_jacobian).
+    """d(etadot, motor-state rates) / d(motor states) at x, exact (model.drive_compiled.drive_jacobian).
 
     The continuous PI's columns depend on whether its output saturates, so on its current target:
     held (sampled control), or from the law's command at x (one more evaluation of the law).
@@ -262,8 +262,8 @@ def _deriv(P, ctx, t, x, sigma, ubar, fm, nz, info, sig):
     ``ctx = (Kp, R, C, pc, pp, nq, sat, share, mo, nm, dr)``; ``share``: the controller's
     model is the plant's and there is no noise, so the reduced matrices the
     controller computed at (q, eta) are the plant's; ``nm``: the plant states the motors add
-    after eta, their currents and their drives' states (fast.drive.motor_state_count; 0: the
-    ideal torque plant); ``dr`` the drives (fast.drive.Drive).
+    after eta, their currents and their drives' states (model.drive_compiled.motor_state_count; 0: the
+    ideal torque plant); ``dr`` the drives (model.drive_compiled.Drive).
     """
     Kp, R, C, pc, pp, nq, sat, share, _mo, nm, _dr = ctx
     q = x[:nq]
@@ -372,7 +372,7 @@ def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
 
     x' = f(x) is split as L x + N(x), L linear: J, the Jacobian block of the rates of
     [eta, i_a] in [eta, i_a] (eta's columns by forward differences at x, 2 evaluations; the
-    currents' exact, fast.motor.current_jacobian), where the stiff
+    currents' exact, model.motor_compiled.current_jacobian), where the stiff
     modes live (the motors' L_a / R_a, the velocity loop); the controller's exact ``diag``
     (its linear filters, as for ROS2); zero elsewhere (q).  With the phi functions of h L::
 
@@ -496,11 +496,11 @@ def run_steps(
     across calls, ``mbuf`` the last d + 1 samples' measurements (a delay of d samples).
 
     DC motors when ``mo`` has wheels: the state is [q, eta, i_a, drive states, xc]; ``fmot`` holds the
-    motor-fault table of each fault segment (fast.motor), ``dr0`` the drives (fast.drive), ``v_h``
+    motor-fault table of each fault segment (model.motor_compiled), ``dr0`` the drives (model.drive_compiled), ``v_h``
     the drive inputs held by sampled control; a sampled PI drive runs at ``hold_t[4]`` (its next
     sample time), period ``hold_t[5]``.
     """
-    # the parameter tuples behind one pointer each, for every kernel below (fast.refs)
+    # the parameter tuples behind one pointer each, for every kernel below (jit.refs)
     P, Kp, R, pc, pp, mo, dr = as_ref(P0), as_ref(Kp0), as_ref(R0), as_ref(pc0), as_ref(pp0), as_ref(mo0), as_ref(dr0)
     nq = pp.n + 2
     nx = x.shape[0]

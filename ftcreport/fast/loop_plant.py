@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..jit.compiling import jit
+from ..jit.packed import _mv
 from ..model.compiled import reduced
-from .compiling import jit
-from .drive import (
+from ..model.drive_compiled import (
     DRIVER_PI_SAMPLED,
     DRIVER_STATIC,
     current_target,
@@ -22,8 +23,7 @@ from .drive import (
     drive_output,
     static_voltage,
 )
-from .motor import motor_plant_rhs
-from .packed import _mv
+from ..model.motor_compiled import motor_plant_rhs
 
 
 @jit
@@ -36,8 +36,8 @@ def _drive_speeds(ctx, qm, etam):
 @jit
 def _drive_input(ctx, tau_c, fm, om):
     """What a drive makes of the commanded torques at its measured wheel speeds ``om`` (held under
-    sampled control): the static driver's voltage (fast.drive.static_voltage of the current
-    target), or the PI's current target i* (fast.drive.current_target)."""
+    sampled control): the static driver's voltage (model.drive_compiled.static_voltage of the current
+    target), or the PI's current target i* (model.drive_compiled.current_target)."""
     dr = ctx[10]
     i_star = current_target(dr, tau_c, om)
     if dr.kind == DRIVER_STATIC:
@@ -55,8 +55,8 @@ def _reads_speed(dr):
 def _motors(ctx, x, tau_c, fm, v_h, qm, etam):
     """(qdot, etadot, motor-state rates, tau_w, v_a) of the chain driven by its DC motors and drives.
 
-    The plant is (2.26)-(2.29) with E19 (fast.motor.motor_plant_rhs); the motor states after eta are
-    the currents and the drives' states (fast.drive).  The drive turns the commanded torques tau_c
+    The plant is (2.26)-(2.29) with E19 (model.motor_compiled.motor_plant_rhs); the motor states after eta are
+    the currents and the drives' states (model.drive_compiled).  The drive turns the commanded torques tau_c
     at the measured wheel speeds into its input (:func:`_drive_input`), or holds ``v_h`` (sampled
     control: the static driver's voltage, the PI's current target), and its output into v_a.
     """
@@ -86,7 +86,7 @@ def true_faults(ctx, x, sigma, ubar, fm):
     """The (sigma, ubar) the chain sees: the command faults composed with the motors' equivalents.
 
     tau_w ~ s_m (sigma u + ubar) + u_m, so sigma_true = s_m sigma, ubar_true = s_m ubar + u_m
-    (fast.drive.drive_fault_equivalent at the wheel speeds of x: the motors' faults, and what the
+    (model.drive_compiled.drive_fault_equivalent at the wheel speeds of x: the motors' faults, and what the
     drive's model of a healthy motor gets wrong); without motors, (sigma, ubar).
     """
     if ctx[9] == 0:

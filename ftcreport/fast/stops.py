@@ -65,7 +65,7 @@ def _message(info: np.ndarray, t: float, settings, ref: F.Ref, how: str = "") ->
     if code == F.E_REF_ART:
         return "error", reference_articulation_reason(a, int(b), c, ref.max_art)
     if code == F.E_UKF:
-        from .ukf import ukf_message
+        from ..observers.ukf_compiled import ukf_message
 
         reason = f"the UKF stopped at t = {b:.6g} s: {ukf_message(int(a))}"
         return "diverged", with_step(reason, how)

@@ -25,7 +25,7 @@ size for the thesis robots (30 kg, wheel radius 0.15 m, ``chain.THESIS_ROBOT``):
 Time constants of these defaults: electrical L_a / R_a = 0.44 ms, mechanical (motor alone)
 R_a J_m / (k_m k_b) = 3.23 ms.
 
-The drive (:class:`DriveParams`, ftcreport.fast.drive gives the equations): "static" (a voltage
+The drive (:class:`DriveParams`, ftcreport.model.drive_compiled gives the equations): "static" (a voltage
 computed from the torque command by inverting the motor's steady state, today's driver) or "pi" (a
 PI current loop, the servo-drive class of maxon's ESCON: its hardware reference gives a PI current
 controller sampled at 53.6 kHz, an output voltage of at most 0.98 of the supply and a peak current
@@ -149,7 +149,7 @@ class DriveParams:
     ----------
     driver : str
         "static" (the steady-state inversion, voltage computed from the torque command) or "pi"
-        (a PI current loop, ftcreport.fast.drive).
+        (a PI current loop, ftcreport.model.drive_compiled).
     R_a, L_a, k_m, k_b, N, eta_g, b_m : float
         The drive's model of the motor and gear (the plant's :class:`MotorParams` by default).
     b_m_compensation : float
@@ -225,7 +225,7 @@ def rotor_inertia_wheels(motors: Sequence[MotorParams]) -> np.ndarray:
 
 
 def pack(motors: MotorParams | Sequence[MotorParams], n: int):
-    """Per-wheel arrays for the compiled kernels: ``fast.motor.Motors`` of length 2 n.
+    """Per-wheel arrays for the compiled kernels: ``model.motor_compiled.Motors`` of length 2 n.
 
     Parameters
     ----------
@@ -234,7 +234,7 @@ def pack(motors: MotorParams | Sequence[MotorParams], n: int):
     n : int
         Number of robots.
     """
-    from ..fast.motor import Motors
+    from .motor_compiled import Motors
 
     per_robot = _per_robot(motors, MotorParams, n, "motor")
     cols = {f.name: np.empty(2 * n) for f in fields(MotorParams)}
@@ -246,13 +246,13 @@ def pack(motors: MotorParams | Sequence[MotorParams], n: int):
 
 
 def pack_drive(drives: DriveParams | Sequence[DriveParams] | None, motors: MotorParams | Sequence[MotorParams], n: int):
-    """Per-wheel arrays of the drives: ``fast.drive.Drive`` for 2 n wheels.
+    """Per-wheel arrays of the drives: ``model.drive_compiled.Drive`` for 2 n wheels.
 
     ``drives`` None: the static driver with the plant's own model of every motor (today's driver).
     The limits (V_max, I_max) are the plant's supply and the drive's current limit, from ``motors``.
     Every robot's drive must be of the same kind and rate (the loop runs one kind).
     """
-    from ..fast.drive import DRIVER_PI, DRIVER_PI_SAMPLED, DRIVER_STATIC, Drive
+    from .drive_compiled import DRIVER_PI, DRIVER_PI_SAMPLED, DRIVER_STATIC, Drive
 
     mots = _per_robot(motors, MotorParams, n, "motor")
     drs = [DriveParams.of_motor(m) for m in mots] if drives is None else _per_robot(drives, DriveParams, n, "drive")

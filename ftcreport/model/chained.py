@@ -58,7 +58,7 @@ class ChainedForm:
 
     def _ang(self, th: np.ndarray) -> tuple[np.ndarray, float, float]:
         """xi_2..xi_(m-1) and (T21, T22) at headings th (robot order): the compiled kernel."""
-        from ..fast.kernels import chained_xi_T  # numba: loaded on first use, not with the model
+        from .chained_compiled import chained_xi_T
 
         ang = np.empty(self.n)
         work = np.zeros((9 * self.n, self.n + 2))
@@ -75,7 +75,7 @@ class ChainedForm:
 
     def xi_and_T(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(xi(q), T_alpha(q))`` in one call: the compiled ``xi_T``."""
-        from ..fast.kernels import xi_T
+        from .chained_compiled import xi_T
 
         xi, T = np.empty(self.m), np.empty((2, 2))
         xi_T(np.ascontiguousarray(q, dtype=float), self._d, np.zeros((9 * self.n, self.n + 2)), xi, T)

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import math
 
-from ..fast.compiling import jit
-from ..fast.packed import _wrap
+from ..jit.compiling import jit
+from ..jit.packed import _wrap
 
 
 # =========================================================================== chained form

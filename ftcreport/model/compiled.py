@@ -11,8 +11,13 @@ import math
 
 import numpy as np
 
-from ..fast.compiling import jit
-from ..fast.packed import _inv2, _mv, _solve2
+from ..jit.compiling import jit
+from ..jit.packed import (
+    Chain,  # noqa: F401 - the face (model/kernels.py) reads its twin only
+    _inv2,
+    _mv,
+    _solve2,
+)
 
 
 # =========================================================================== model (model/kernels.py)

@@ -10,10 +10,10 @@ A :class:`FaultSchedule` holds time-stamped events, each setting (sigma, ubar)
 of one wheel from its time on; a later event on the same wheel replaces it,
 so intermittent faults (a wheel that recovers) are two events.
 
-Motor faults (issue 19, plants with DC motors: ``fast.motor``) sit in the same schedule: an event
+Motor faults (issue 19, plants with DC motors: ``model.motor_compiled``) sit in the same schedule: an event
 with ``motor`` set (one of :data:`MOTOR_KINDS`) sets that wheel's motor state instead of its
 (sigma, ubar); ``motor = "none"`` repairs the motor.  :meth:`FaultSchedule.motor` gives the table
-``(2n, 4)`` of ``[k_m scale, R_a scale, mode, v_stuck]`` rows that ``fast.motor`` reads.
+``(2n, 4)`` of ``[k_m scale, R_a scale, mode, v_stuck]`` rows that ``model.motor_compiled`` reads.
 
 Redundancy rule (2.103), derived from the structure of Bbar = S^T B
 ------------------------------------------------------------------
@@ -271,7 +271,7 @@ class FaultSchedule:
     def motor(self, t: float) -> np.ndarray:
         """Motor-fault table at time t, (2n, 4): rows ``[k_m scale, R_a scale, mode, v_stuck]``.
 
-        mode: 0 normal, 1 open circuit, 2 shorted winding, 3 driver stuck (``fast.motor``).
+        mode: 0 normal, 1 open circuit, 2 shorted winding, 3 driver stuck (``model.motor_compiled``).
         Healthy rows are ``[1, 1, 0, 0]``; without motor events every row is.
         """
         return self._motor[self._row(t)]

@@ -10,7 +10,7 @@ right-hand side, the wheel speeds, the input matrix B(q), the inertia matrix M(q
 and the vector C(q, qdot) -- exists once, in the compiled kernels
 (:mod:`ftcreport.fast.kernels`: ``reduced`` builds M and C with ``_mass`` and
 ``_coriolis``, which ``mass_and_coriolis`` also serves to Python;
-:mod:`ftcreport.fast.motor`); the functions of that name here are faces over
+:mod:`ftcreport.model.motor_compiled`); the functions of that name here are faces over
 them.  A(q) exists only here (the engine never needs it).  The tests check them
 against the thesis's explicit matrices and a sympy Lagrangian, and the reduced
 model against them (S^T A^T = 0, Mbar1 = S^T M S, Bbar = S^T B, power balance).
@@ -60,7 +60,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..fast.kernels import Chain as ChainParams
+    from ..jit.packed import Chain as ChainParams
 
 __all__ = [
     "A_matrix",
@@ -82,10 +82,10 @@ __all__ = [
 
 
 def _fast():
-    """The compiled kernels (numba is loaded on first use, not with the package)."""
-    from ..fast import kernels
+    """The compiled twin of this module (numba is loaded on first use, not with the package)."""
+    from . import compiled
 
-    return kernels
+    return compiled
 
 
 def __getattr__(name: str):
@@ -126,12 +126,12 @@ def packed(p):
 
 
 def kernel_ref(p):
-    """p as the loop passes it to the kernels (``fast.refs.to_ref`` of :func:`packed`).
+    """p as the loop passes it to the kernels (``jit.refs.to_ref`` of :func:`packed`).
 
     A kernel called from Python with it is compiled for the loop's argument types, so the loop's
     compile and the faces' calls share one compile (docs/ENGINE.md, "Compile time (session 9)").
     """
-    from ..fast.refs import to_ref
+    from ..jit.refs import to_ref
 
     return to_ref(packed(p))
 

@@ -170,9 +170,9 @@ class FarzaObserver:
         ``tau``, ``est0`` and ``filt0`` are the active controller's: its estimate filter's time
         constant (None: unfiltered), where the observer's and the filter's states start in its state.
         """
-        from ..fast import kernels as F
+        from ..jit.packed import Obs
 
-        return F.Obs(
+        return Obs(
             self.Theta, self.k0, self.k1, math.nan if self.p_max is None else float(self.p_max), int(self.est_rho),
             int(self.est_ubar), self.p, self.sign, math.nan if tau is None else float(tau),
             np.ascontiguousarray(self.AY), np.ascontiguousarray(self.Soinv), int(est0), self.n_states, int(filt0),
@@ -187,10 +187,10 @@ class FarzaObserver:
     def derivative(self, u: np.ndarray, y: np.ndarray, s: np.ndarray) -> np.ndarray:
         """Observer state derivative, (n_states,), for measured q = y and applied control u: the compiled
         ``farza_derivative``, (4.4)-(4.11) with E15, E16 and the P guard."""
-        from ..fast import kernels as F
+        from .farza_compiled import farza_derivative
 
         v = (np.ascontiguousarray(x, dtype=float) for x in (u, y, s))
-        return F.farza_derivative(self._O(), self.chain.packed(), *v)
+        return farza_derivative(self._O(), self.chain.packed(), *v)
 
     # ------------------------------------------------------------------ estimator interface
     discrete_time = False  # integrated with the plant (continuous observer)

@@ -20,7 +20,7 @@ the role of the Farza observer's Theta and P guard.
 
 The filter's state (x, P) is carried in a flat array so the controller's state
 remains the whole truth (restartable, logged).  The step exists once, compiled
-(:func:`ftcreport.fast.ukf.ukf_step`, Merwe scaled sigma points with filterpy's
+(:func:`ftcreport.observers.ukf_compiled.ukf_step`, Merwe scaled sigma points with filterpy's
 order of operations); :class:`UKFEstimator` checks and holds the tuning (Qc, R,
 P(0), the sigma-point parameters) and lays out the state.  The filterpy filter
 the compiled step is tested against is tests/ukf_reference.py.
@@ -41,7 +41,7 @@ __all__ = ["SigmaPoints", "UKFEstimator"]
 
 
 class SigmaPoints(NamedTuple):
-    """Merwe scaled sigma points' parameters (Wan & van der Merwe 2000); fast.ukf.merwe_weights gives the weights."""
+    """Merwe scaled sigma points' parameters (Wan & van der Merwe 2000); ukf_compiled.merwe_weights: the weights."""
 
     alpha: float
     beta: float

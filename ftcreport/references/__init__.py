@@ -49,10 +49,10 @@ __all__ = [
 
 
 def _F():
-    """The compiled kernels (numba is loaded on first use, not with the package)."""
-    from ..fast import kernels
+    """The compiled twin of this module (numba is loaded on first use, not with the package)."""
+    from . import compiled
 
-    return kernels
+    return compiled
 
 
 def _terms(terms) -> np.ndarray:
@@ -60,9 +60,9 @@ def _terms(terms) -> np.ndarray:
 
 
 def _as_ref(packed):
-    """The kernels' tuple as the loop passes it to them (``fast.refs.to_ref``): one compile of each
+    """The kernels' tuple as the loop passes it to them (``jit.refs.to_ref``): one compile of each
     kernel serves the loop and these calls from Python."""
-    from ..fast.refs import to_ref
+    from ..jit.refs import to_ref
 
     return to_ref(packed)
 
@@ -298,7 +298,7 @@ class FlatReference:
         return {**self.__dict__, "_ref": None}
 
     def _kernel_ref(self):
-        """:meth:`packed` as the kernels' calls from Python take it (``fast.refs.to_ref``; built once)."""
+        """:meth:`packed` as the kernels' calls from Python take it (``jit.refs.to_ref``; built once)."""
         if self._ref is None:
             self._ref = _as_ref(self.packed())
         return self._ref

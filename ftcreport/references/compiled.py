@@ -10,8 +10,14 @@ import math
 
 import numpy as np
 
-from ..fast.compiling import jit
-from ..fast.packed import E_REF_ART, E_REF_SPEED, KIN_CHAINED, _wrap
+from ..jit.compiling import jit
+from ..jit.packed import (
+    E_REF_ART,
+    E_REF_SPEED,
+    KIN_CHAINED,
+    Ref,  # noqa: F401 - the face (references/__init__.py) reads its twin only
+    _wrap,
+)
 from ..model.chained_compiled import to_frame, xi_T
 
 

@@ -133,7 +133,7 @@ def _fault_rows(case, sched, names) -> list[dict]:
 def armature_voltages(case, series: dict) -> dict:
     """The drive's armature voltages per scheme on its log times, (K, 2n) [V], for a case with motors.
 
-    Rebuilt from what is logged through the functions the loop calls (fast.drive): the command u with
+    Rebuilt from what is logged through the functions the loop calls (model.drive_compiled): the command u with
     the fault gains and frictions gives tau_c; the wheel speeds Bbar(q)^T eta give the drive's current
     target i* (``current_target``, with the drive's own model of the motor, [actuators.drive_model]); the
     static driver's voltage is ``static_voltage`` of it, a PI drive's is ``drive_output`` of i* and its
@@ -143,9 +143,9 @@ def armature_voltages(case, series: dict) -> dict:
     model equal to the plant's; otherwise the drive saw the state of its last sample, measured, so the
     figure's caption says it is approximate.
     """
-    from ..fast.drive import DRIVER_PI_SAMPLED, DRIVER_STATIC, current_target, drive_output, static_voltage
     from ..fast.engine import wheel_speeds_rows
     from ..model.actuators import pack_drive
+    from ..model.drive_compiled import DRIVER_PI_SAMPLED, DRIVER_STATIC, current_target, drive_output, static_voltage
     from ..runner import build
 
     if case.actuators is None:

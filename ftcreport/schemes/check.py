@@ -551,9 +551,9 @@ def _compile_or_bounds_failure(exc, law, disc, files, head, path, ctrl, state) -
 def _locate_in_python(ctrl, state, law, disc, files) -> tuple[str, str | None]:
     """Run the law (then the discrete update) once in Python on the state that failed, where numpy raises at the
     offending line: ("law" or "discrete", "file:line" or None)."""
-    from ..fast import kernels as F
     from ..fast.engine import compiled_spec, law_buffers
-    from ..fast.refs import to_ref
+    from ..jit.packed import new_cache
+    from ..jit.refs import to_ref
     from .api import Out, Step, Terms
 
     spec = compiled_spec(ctrl)
@@ -562,7 +562,7 @@ def _locate_in_python(ctrl, state, law, disc, files) -> tuple[str, str | None]:
     bufs = law_buffers(spec)
     nw, no, ns = ctrl.chain.n_wheels, ctrl.n_own, spec.n_sig - spec.n_kin_sig
     info = np.zeros(4)
-    C = to_ref(F.new_cache(ctrl.chain.n))  # refs, as in the loop: the kernels the law calls are typed as there
+    C = to_ref(new_cache(ctrl.chain.n))  # refs, as in the loop: the kernels the law calls are typed as there
     kin = (to_ref(spec.kin), to_ref(spec.ref), C, xc[:nk].copy(), np.zeros(1))
     step = Step(float(t), q.copy(), eta.copy(), sigma, ubar, to_ref(spec.chain), info, kin)
     # terms of the right shapes (not the engine's values: only the offending line is sought here)

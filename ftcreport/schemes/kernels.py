@@ -18,17 +18,11 @@ from numba import njit, types
 from numba.core.extending import intrinsic
 from numba.core.imputils import impl_ret_borrowed
 
-from ..fast.kernels import (
-    KIN_CHAINED,
-    _reanchor_time,
-    eta_c_and_dot,
-    jit,
-    kin_discrete,
-    law_terms,
-    matched_terms,
-    new_cache,
-    reduced,
-)
+from ..control.kinematic_compiled import _reanchor_time, eta_c_and_dot, kin_discrete
+from ..control.tracking_compiled import law_terms, matched_terms
+from ..jit.compiling import jit
+from ..jit.packed import KIN_CHAINED, new_cache
+from ..model.compiled import reduced
 from .api import GUARD, Terms
 
 __all__ = [

@@ -131,12 +131,12 @@ def _derived(ctrl, xc: np.ndarray, meas: np.ndarray, costs: bool) -> dict[str, n
     P = ctrl.packed()
     out = {"selected": np.round(xc[:, P.sel]).astype(float)}
     if costs:  # no metric reads them: the metric stream does not compute them at every step
-        from ..fast import kernels as F
-        from ..fast.refs import to_ref
+        from ..control.switching_compiled import switching_costs_rows
+        from ..jit.refs import to_ref
 
         nq = ctrl.chain.n_q
         eta = np.ascontiguousarray(meas[:, nq : nq + 2], dtype=float)
-        J = F.switching_costs_rows(to_ref(P), eta, np.ascontiguousarray(xc, dtype=float), ctrl.log_costs)
+        J = switching_costs_rows(to_ref(P), eta, np.ascontiguousarray(xc, dtype=float), ctrl.log_costs)
         if ctrl.log_costs:
             out["cost"] = J
         else:

@@ -20,7 +20,7 @@ whose ``P.mode`` chooses the law (one law: numba compiles one loop for all of th
 - ``FARZA``: the velocity law on the true eta with Farza's observer (fast.kernels.farza_derivative)
   integrated alongside as the scheme's state, fed the applied u and the measured q.
 - ``UKF``: the velocity law sampled at every step (held over the step) with the compiled UKF
-  (fast.ukf.ukf_step) run at the samples on the held u; state ``[UKF state, held u, last sample]``.
+  (observers.ukf_compiled.ukf_step) run at the samples on the held u; state ``[UKF state, held u, last sample]``.
 
 :func:`controller` builds the ``SchemeController``.  The scheme declares ``terms="none"``: the engine
 never evaluates the kinematic controller for these laws (a circle reference keeps its re-anchoring
@@ -38,7 +38,7 @@ import numpy as np
 from ftcreport import schemes
 from ftcreport.control import ChainedBackstepping, TwoLinkKinematic
 from ftcreport.fast import kernels as F
-from ftcreport.fast.ukf import UKF_OK, Ukf, ukf_params, ukf_step
+from ftcreport.observers.ukf_compiled import UKF_OK, Ukf, ukf_params, ukf_step
 from ftcreport.references import FlatReference, circle
 from ftcreport.schemes import Scheme, SchemeController, register
 from ftcreport.schemes.laws.active import _no_obs
@@ -62,7 +62,7 @@ class P(NamedTuple):
     k_jump: int
     healthy: np.ndarray  # (2n,) ones
     obs: Any  # fast.kernels.Obs (FARZA) or a placeholder
-    ukf: Any  # fast.ukf.Ukf (UKF) or a placeholder
+    ukf: Any  # observers.ukf_compiled.Ukf (UKF) or a placeholder
     ch: Any  # the controller's fast.kernels.Chain (the discrete update has no pc)
     ns: int  # the estimator's states (FARZA, UKF)
 

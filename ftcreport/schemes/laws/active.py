@@ -2,7 +2,7 @@ r"""The active built-in schemes' laws, behind one dispatcher so that they share 
 
 Active FTC (thesis chapter 4): an estimator of q, eta, the wheels' gains and frictions from the
 measured q, and the law (4.14) on its estimates.  :func:`active_law` runs Farza's observer
-(4.3)-(4.9), integrated with the plant, or the UKF (fast.ukf), run at the samples by the discrete
+(4.3)-(4.9), integrated with the plant, or the UKF (observers.ukf_compiled), run at the samples by the discrete
 update with its command held in between; both over :class:`Active` (the scheme's slot filled, a
 placeholder in the other), so the estimate filters and the law's terms are compiled once for both.
 Their terms are at the estimated velocity, so they ask for them (``terms_at``): their scheme
@@ -16,18 +16,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ...fast import kernels as F
-from ...fast.kernels import (
-    _clip,
-    _mv,
-    active_signals,
-    estimate_filters,
-    farza_derivative,
-    farza_estimates,
-    jit,
-    law_for_pattern,
-)
-from ...fast.ukf import UKF_OK, Ukf, UkfLaw, _ukf_estimates, _ukf_used, ukf_step
+from ...control.active_compiled import active_signals, estimate_filters
+from ...control.tracking_compiled import law_for_pattern
+from ...jit.compiling import jit
+from ...jit.packed import E_UKF, LAW_ACTIVE, Chain, Law, Obs, _clip, _mv
+from ...observers.farza_compiled import farza_derivative, farza_estimates
+from ...observers.ukf_compiled import UKF_OK, Ukf, UkfLaw, _ukf_estimates, _ukf_used, ukf_step
 from ..kernels import terms_at, terms_with
 
 __all__ = ["LAW_ACTIVE_UKF", "Active", "active", "active_discrete", "active_law", "farza_law", "ukf_discrete"]
@@ -40,24 +34,24 @@ class Active(NamedTuple):
     """An active scheme's parameters: ``kind`` (LAW_ACTIVE or LAW_ACTIVE_UKF) and its slot filled."""
 
     kind: int
-    law: F.Law
-    obs: F.Obs
+    law: Law
+    obs: Obs
     ukf: UkfLaw
 
 
-def _no_obs() -> F.Obs:
+def _no_obs() -> Obs:
     z = np.zeros((1, 1))
-    return F.Obs(1.0, 1.0, 1.0, math.nan, 0, 0, 0, 1.0, math.nan, z, z, 0, 0, 0)
+    return Obs(1.0, 1.0, 1.0, math.nan, 0, 0, 0, 1.0, math.nan, z, z, 0, 0, 0)
 
 
-def _no_ukf(law: F.Law, chain: F.Chain) -> UkfLaw:
+def _no_ukf(law: Law, chain: Chain) -> UkfLaw:
     z1, z2 = np.zeros(1), np.zeros((1, 1))
     return UkfLaw(law, Ukf(1, 1, False, False, z2, z2, z1, z1, 1.0), chain, 0, 0, math.nan, 0, 0)
 
 
-def active(law: F.Law, chain: F.Chain, obs: F.Obs | None = None, ukf: UkfLaw | None = None) -> Active:
+def active(law: Law, chain: Chain, obs: Obs | None = None, ukf: UkfLaw | None = None) -> Active:
     """Pack an active scheme: Farza's observer (``obs``) or the UKF (``ukf``), a placeholder in the other."""
-    kind = F.LAW_ACTIVE if ukf is None else LAW_ACTIVE_UKF
+    kind = LAW_ACTIVE if ukf is None else LAW_ACTIVE_UKF
     return Active(kind, law, _no_obs() if obs is None else obs, _no_ukf(law, chain) if ukf is None else ukf)
 
 
@@ -122,7 +116,7 @@ def ukf_discrete(P, step, x):
         ns = P.ukf.nx * (P.ukf.nx + 1)
         s_new, status = ukf_step(P.pf, P.ukf, x[P.est0 : P.est0 + ns], x[P.u0 : P.u0 + nw], step.q, h)
         if status != UKF_OK:
-            step.info[0] = F.E_UKF
+            step.info[0] = E_UKF
             step.info[1] = status
             step.info[2] = t
             return
@@ -138,7 +132,7 @@ def ukf_discrete(P, step, x):
 @jit
 def active_law(P, step, terms, x, out):
     """The law of the active scheme ``P.kind``: on Farza's observer's estimates or the UKF's."""
-    if P.kind == F.LAW_ACTIVE:
+    if P.kind == LAW_ACTIVE:
         farza_law(P, step, terms, x, out)
     else:
         ukf_law(P.ukf, step, terms, x, out)

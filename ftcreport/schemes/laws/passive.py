@@ -11,8 +11,10 @@ on the matched terms (3.35)-(3.37) the engine computed at the measured state.
 
 from __future__ import annotations
 
-from ...fast import kernels as F
-from ...fast.kernels import _mv, jit, law_for_pattern, switching_rates, switching_select
+from ...control.switching_compiled import rotor_filter_terms, switching_rates, switching_select
+from ...control.tracking_compiled import law_for_pattern
+from ...jit.compiling import jit
+from ...jit.packed import LAW_ADAPTIVE, LAW_ORACLE, LAW_SWITCHING, LAW_TRACKING, _mv
 
 __all__ = [
     "adaptive_discrete",
@@ -48,7 +50,7 @@ def switching_law(P, step, terms, x, out):
     u = law_for_pattern(terms.MB, terms.w, P.patterns[round(x[P.sel])])
     out.u[:] = u
     if P.Jw.shape[0] > 0:  # the bank's filters model the motors' rotors (issue 36 item 3); the law keeps the chain's
-        MB, g = F.rotor_filter_terms(step.model, step.q, step.eta, P.Jw)
+        MB, g = rotor_filter_terms(step.model, step.q, step.eta, P.Jw)
         switching_rates(P, MB, u, g, step.eta, x, out.dx)
     else:
         switching_rates(P, terms.MB, u, terms.g, step.eta, x, out.dx)
@@ -112,11 +114,11 @@ def adaptive_discrete(P, step, x):
 def passive_law(P, step, terms, x, out):
     """The law of the passive (or baseline) scheme ``P.kind``."""
     k = P.kind
-    if k == F.LAW_TRACKING:
+    if k == LAW_TRACKING:
         nominal_law(P, step, terms, x, out)
-    elif k == F.LAW_ORACLE:
+    elif k == LAW_ORACLE:
         oracle_law(P, step, terms, x, out)
-    elif k == F.LAW_SWITCHING:
+    elif k == LAW_SWITCHING:
         switching_law(P, step, terms, x, out)
     else:
         adaptive_law(P, step, terms, x, out)
@@ -126,7 +128,7 @@ def passive_law(P, step, terms, x, out):
 def passive_discrete(P, step, x):
     """The discrete update of the passive scheme ``P.kind`` (switching rule, weight clip)."""
     k = P.kind
-    if k == F.LAW_SWITCHING:
+    if k == LAW_SWITCHING:
         switching_discrete(P, step, x)
-    elif k == F.LAW_ADAPTIVE:
+    elif k == LAW_ADAPTIVE:
         adaptive_discrete(P, step, x)

@@ -30,8 +30,8 @@ kept as it is; the power balance (tests/test_motor.py) holds as an identity eith
 Driver (command -> voltage): the static inversion
 -------------------------------------------------
 The drives (the static inversion, a PI current loop, each with its own model of the motor) are in
-fast/drive.py; :func:`driver_voltage` here is the static driver with the plant's own model, the
-default drive (fast.drive.static_voltage gives its bits when the drive's model is the plant's).
+model/drive_compiled.py; :func:`driver_voltage` here is the static driver with the plant's own model, the
+default drive (model.drive_compiled.static_voltage gives its bits when the drive's model is the plant's).
 The controllers command wheel torque tau_c, as in the thesis.  :func:`driver_voltage` inverts the
 motor's steady state with its nominal parameters (it knows no fault):
 
@@ -71,7 +71,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kernels import _mv, _solve2, bbar_rate, jit, reduced, rotor_mass
+from ..jit.compiling import jit
+from ..jit.packed import _mv, _solve2
+from .compiled import bbar_rate, reduced, rotor_mass
 
 MODE_NORMAL = 0
 MODE_OPEN = 1
@@ -281,7 +283,7 @@ def quasi_static_current(mo, v_a, omega_w, fault):
 def reset_current(fault, i_a):
     """The currents at a fault-segment start: 0 on open windings, unchanged elsewhere.
 
-    ``i_a`` may be the whole motor-state vector ``[i_a, drive states]`` (fast.drive): only its first
+    ``i_a`` may be the whole motor-state vector ``[i_a, drive states]`` (model.drive_compiled): only its first
     nw entries (the currents) are touched.
     """
     out = i_a.copy()

@@ -60,11 +60,12 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from . import kernels as F
-from .kernels import jit
+from ..jit import packed as P
+from ..jit.compiling import jit
+from ..model.compiled import reduced
 
 if TYPE_CHECKING:
-    from ..observers.ukf import UKFEstimator
+    from .ukf import UKFEstimator
 
 __all__ = [
     "UKF_NONFINITE",
@@ -311,7 +312,7 @@ def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
     qd2 = np.empty(N)
     ed1 = np.empty(2)
     ed2 = np.empty(2)
-    terms0 = F.reduced(pc, X[0, :N], X[0, N : N + 2])
+    terms0 = reduced(pc, X[0, :N], X[0, N : N + 2])
     half = 0.5 * h
     for i in range(m):
         x = X[i]
@@ -335,13 +336,13 @@ def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
         if same:
             Mbar1, Mbar2, Cbar, Bbar, S, _Sd = terms0
         else:
-            Mbar1, Mbar2, Cbar, Bbar, S, _Sd = F.reduced(pc, q, eta)
+            Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(pc, q, eta)
         _rhs(Mbar1, Mbar2, Cbar, Bbar, S, eta, tau, qd1, ed1)
         for j in range(N):
             qm[j] = q[j] + half * qd1[j]
         for j in range(2):
             em[j] = eta[j] + half * ed1[j]
-        Mbar1, Mbar2, Cbar, Bbar, S, _Sd = F.reduced(pc, qm, em)
+        Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(pc, qm, em)
         _rhs(Mbar1, Mbar2, Cbar, Bbar, S, em, tau, qd2, ed2)
         for j in range(N):
             Xf[i, j] = q[j] + h * qd2[j]
@@ -476,9 +477,9 @@ def ukf_step(pc, U, s, u, y, h):
 class UkfLaw(NamedTuple):
     """Active FTC on the UKF's estimates: what its law and discrete update need (the scheme's P)."""
 
-    law: F.Law  # k_v, u_limit
+    law: P.Law  # k_v, u_limit
     ukf: Ukf
-    pf: F.Chain  # the filter's (and the law's) chain model
+    pf: P.Chain  # the filter's (and the law's) chain model
     est0: int  # the filter's flat [x, P] in xc
     filt0: int  # the estimates' filters (tau), 2 nw
     tau: float  # nan: unfiltered
@@ -510,5 +511,5 @@ def _ukf_used(L, xc, nw, rho_e, ubar_e):
         rho = xc[L.filt0 : L.filt0 + nw].copy()
         ubar = xc[L.filt0 + nw : L.filt0 + 2 * nw].copy()
     if not math.isnan(L.law.u_limit):
-        ubar = F._clip(ubar, -L.law.u_limit, L.law.u_limit)
-    return F._clip(rho, 0.0, 1.0), ubar
+        ubar = P._clip(ubar, -L.law.u_limit, L.law.u_limit)
+    return P._clip(rho, 0.0, 1.0), ubar

@@ -1,4 +1,4 @@
-r"""Compiled wheel drives: torque command -> armature voltage, beside the motors of fast/motor.py.
+r"""Compiled wheel drives: torque command -> armature voltage, beside the motors of model/motor_compiled.py.
 
 The controllers command wheel torques tau_c (thesis 2.3.3); a drive turns each into the voltage
 across its motor's winding.  It knows the motor only through its own model (``Drive``: R_a, L_a,
@@ -67,8 +67,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kernels import jit
-from .motor import (
+from ..jit.compiling import jit
+from .motor_compiled import (
     F_KM,
     F_MODE,
     F_RA,
@@ -219,7 +219,7 @@ def drive_output(dr, xm, drive_in, omega_w, fault):
 
 @jit
 def drive_jacobian(pc, mo, dr, q, eta, xm, drive_in, omega_w, fault):
-    r"""d(etadot, motor-state rates) / d(motor states), (2 + nm, nm): exact, as fast.motor.current_jacobian.
+    r"""d(etadot, motor-state rates) / d(motor states), (2 + nm, nm): exact, as model.motor_compiled.current_jacobian.
 
     Columns: the currents, then the drive's states.  The plant part is motor.current_jacobian (the
     plant is affine in i_a).  The continuous PI adds, on a wheel whose winding sees the drive
@@ -264,7 +264,7 @@ def _same_model(mo, dr, j):
 def drive_fault_equivalent(mo, dr, fault, omega_w):
     r"""Quasi-static (sigma, ubar) of each wheel's drive and motor against the ideal torque plant, (2.102).
 
-    As fast.motor.fault_equivalent (the static driver with the plant's own model: that function's
+    As model.motor_compiled.fault_equivalent (the static driver with the plant's own model: that function's
     numbers, bit for bit), extended to a drive whose model differs from the plant's (hats) and to
     the PI drive.  With g N = eta_g N, i* = (tau_c / (g_h N_h) + b_h N_h omega) / k_h and a winding
     in normal mode (k_m, k_b scaled by s, R_a by rho):
@@ -277,7 +277,7 @@ def drive_fault_equivalent(mo, dr, fault, omega_w):
 
     So a PI drive hides a resistance fault entirely, and a drive that compensates less drag than
     the rotor has (b_h < b_m) leaves a healthy wheel with ubar = -g N^2 (b_m - b_h) omega.  Open,
-    short and stuck windings do not depend on the drive (fast.motor.fault_equivalent).  None holds
+    short and stuck windings do not depend on the drive (model.motor_compiled.fault_equivalent).  None holds
     while a drive saturates.
     """
     sigma, ubar = fault_equivalent(mo, fault, omega_w)
@@ -307,7 +307,7 @@ def drive_fault_equivalent(mo, dr, fault, omega_w):
 def initial_motor_states(mo, dr, tau_c, omega_w, fault):
     """The motor states at t0 for the first command: quasi-static, so the first torque is the command.
 
-    Static: the currents of the first voltage (fast.motor.quasi_static_current).  PI: the loop's
+    Static: the currents of the first voltage (model.motor_compiled.quasi_static_current).  PI: the loop's
     steady state for the first current target (:func:`pi_steady_states`).
     """
     i_star = current_target(dr, tau_c, omega_w)

@@ -406,7 +406,8 @@ def jit(fn: Callable | None = None, *, cache: bool = True, **options):
 
 
 # --------------------------------------------------------------------------- the cache
-_ENGINE_FILES = ("fast", "schemes", "schemes/laws", "model", "control", "observers", "references")  # compiled sources
+#: the folders of compiled sources
+_ENGINE_FILES = ("jit", "fast", "schemes", "schemes/laws", "model", "control", "observers", "references")
 
 
 def engine_stamp() -> str:

@@ -353,8 +353,9 @@ def scaling(seconds: float) -> dict:
     from ftcreport.control.adaptive import AdaptiveController
     from ftcreport.control.switching import SwitchingController
     from ftcreport.control.tracking import TrackingController
-    from ftcreport.infra.limits import budget_problem, n_models
+    from ftcreport.infra.limits import n_models
     from ftcreport.model import FaultEvent, FaultSchedule
+    from ftcreport.schemes.budget import budget_problem
     from ftcreport.sim import Plant, SimSettings, demo_chain
 
     max_models = 60_000

@@ -21,7 +21,8 @@ import tomli_w
 from typer.testing import CliRunner
 
 from ftcreport.cli import app
-from ftcreport.infra.limits import MAX_STEPS, MEMORY_BUDGET_BYTES, budget_problem, name_collisions, name_problem
+from ftcreport.infra.limits import MAX_STEPS, MEMORY_BUDGET_BYTES, name_collisions, name_problem
+from ftcreport.schemes.budget import budget_problem
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 runner = CliRunner()

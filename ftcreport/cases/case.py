@@ -9,10 +9,11 @@ from typing import get_args
 from pydantic import field_validator, model_validator
 
 from ..errors import FtcError
-from ..infra.limits import budget_problem, name_problem
+from ..infra.limits import name_problem
 from ..model import FaultEvent, FaultSchedule, wheel_index, wheel_names
 from ..model.actuators import DriveParams, MotorParams
 from ..model.faults import motor_row
+from ..schemes.budget import budget_problem
 from ..schemes.fields import _f, _FieldError, _num, _Strict, did_you_mean
 from .scheme_tables import (
     SCHEME_NAMES,

@@ -56,8 +56,8 @@ def demo(
 
     from ..control import TrackingController
     from ..evaluation.metrics import singularity_margin
-    from ..infra.limits import budget_problem
     from ..model import FaultEvent, FaultSchedule
+    from ..schemes.budget import budget_problem
     from ..sim import Plant, SimSettings, demo_chain, simulate
 
     if not 2 <= robots <= 12:

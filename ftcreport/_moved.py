@@ -31,6 +31,17 @@ MOVED = {
     "fast.motor": "model.motor_compiled",
     "fast.drive": "model.drive_compiled",
     "fast.ukf": "observers.ukf_compiled",
+    # the scheme interface's compiled side and the built-in laws and schemes live with the control laws;
+    # the check of a new law runs it through the engine
+    "schemes.kernels": "control.interface_compiled",
+    "schemes.laws": "control.laws",
+    "schemes.laws.active": "control.laws.active",
+    "schemes.laws.passive": "control.laws.passive",
+    **{
+        f"schemes.{m}": f"control.builtin.{m}"
+        for m in ("nominal", "oracle", "switching", "adaptive", "active", "active_ukf")
+    },
+    "schemes.check": "fast.scheme_check",
 }
 
 
@@ -64,4 +75,6 @@ class _MovedFinder(importlib.abc.MetaPathFinder):
 def install(package: str) -> None:
     """Let ``package.<old name>`` import the moved module (once per process)."""
     if not any(isinstance(f, _MovedFinder) for f in sys.meta_path):
-        sys.meta_path.append(_MovedFinder(package))
+        # first: a moved package (schemes.laws) keeps its files on its __path__, where the path finder would
+        # load them a second time under the old name
+        sys.meta_path.insert(0, _MovedFinder(package))

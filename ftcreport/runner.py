@@ -104,7 +104,7 @@ def make_controller(built: Built, scheme: str):
     k_v = getattr(cfg, "k_v", None)
     k_v = default_k_v(case) if k_v is None else k_v
     if sc.controller is None:  # a plug-in: the engine runs its compiled law
-        from .schemes.check import ensure_checked
+        from .fast.scheme_check import ensure_checked
 
         ctrl = SchemeController(sc, built.chain, kin, k_v, cfg, saturation=case.plant.saturation, case=case)
         ensure_checked(ctrl)  # its first run: its law under bounds checks first (once per version of its file)

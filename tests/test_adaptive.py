@@ -10,6 +10,7 @@ import pytest
 
 from ftcreport.cases import load_case
 from ftcreport.control.adaptive import AdaptiveController
+from ftcreport.control.interface_compiled import engine_terms
 from ftcreport.control.kinematic import TwoLinkKinematic
 from ftcreport.errors import ModelError
 from ftcreport.fast import kernels as F
@@ -17,7 +18,6 @@ from ftcreport.fast.engine import compiled_spec, law_buffers, loop_for
 from ftcreport.model import Chain
 from ftcreport.references import FlatReference, eight
 from ftcreport.runner import build, make_controller, run_scheme
-from ftcreport.schemes.kernels import engine_terms
 
 CASES = Path(__file__).resolve().parents[1] / "cases"
 
@@ -30,7 +30,7 @@ def eight_case():
 
 
 def test_pattern_laws_realise_the_bracket():
-    """The compiled adaptive law (schemes.laws.passive.adaptive_law, run by the loop's first_law) with the
+    """The compiled adaptive law (control.laws.passive.adaptive_law, run by the loop's first_law) with the
     weights of model k alone (chi_(k) = 1): u = u_(k), Mbar1^-1 Bbar sigma_(k) u_(k) = w - Mbar1^-1 Bbar uhat_f
     (3.121), nothing to assumed-failed wheels."""
     built = build(load_case(CASES / "three_link_adaptive.toml"))

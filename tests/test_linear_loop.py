@@ -13,8 +13,8 @@ from ftcreport.analysis import closed_loop_jacobian, two_link_error_jacobian
 from ftcreport.analysis.closed_loop import Faults, SchemeLoop, central_columns
 from ftcreport.analysis.phases import analyze_scheme
 from ftcreport.cases import load_case, with_duration
+from ftcreport.control.builtin.switching import patterns_of
 from ftcreport.runner import build, run_scheme
-from ftcreport.schemes.switching import patterns_of
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -130,7 +130,7 @@ def test_a_law_writing_past_its_declared_signal_is_an_error_naming_the_scheme_an
 def test_the_guard_cells_catch_a_write_past_the_signals_in_a_real_run(tmp_path, monkeypatch):
     """Without the first run's check (e.g. a record of an earlier version), the guard cells after out.sig stop
     the run at the first call: status error naming the scheme and the signal it wrote past."""
-    import ftcreport.schemes.check as check
+    import ftcreport.fast.scheme_check as check
 
     monkeypatch.setattr(check, "ensure_checked", lambda ctrl: None)
     case = _overrun_case(tmp_path, "sm_past_guard", "4")  # two cells past the three declared values
@@ -141,7 +141,7 @@ def test_the_guard_cells_catch_a_write_past_the_signals_in_a_real_run(tmp_path, 
 
 
 def test_the_guards_catch_a_write_past_the_state_rates(tmp_path, monkeypatch):
-    import ftcreport.schemes.check as check
+    import ftcreport.fast.scheme_check as check
 
     monkeypatch.setattr(check, "ensure_checked", lambda ctrl: None)
     path, _ = _variant(tmp_path, "sm_past_dx", "    out.sig[2] = K\n", "    out.sig[2] = K\n    out.dx[0] = 1.0\n")

@@ -160,7 +160,7 @@ def schemes_cmd(
 
 def _check_schemes(file: Path) -> None:
     """``schemes check FILE``: the battery's lines (failures first, numba's message after a TypingError)."""
-    from ..schemes.check import check_file
+    from ..fast.scheme_check import check_file
 
     typer.echo(f"checking {file} (compiles the laws with and without bounds checks: a minute or two when cold)")
     findings = check_file(file)

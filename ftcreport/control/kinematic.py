@@ -81,6 +81,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ModelError, SingularityError, chained_reason, kappa_reason, two_link_reason
+from ..model.kernels import wrap  # re-exported: the angle wrap the kinematic laws and the metrics share
 from ..references import FlatReference, RefPoint
 
 __all__ = ["ChainedBackstepping", "KinematicOutput", "TwoLinkKinematic", "to_frame", "wrap"]
@@ -91,11 +92,6 @@ def _F():
     from . import kinematic_compiled as compiled
 
     return compiled
-
-
-def wrap(a):
-    """Angle(s) wrapped to [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def to_frame(q: np.ndarray, psi: float) -> np.ndarray:

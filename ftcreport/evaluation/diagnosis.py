@@ -283,12 +283,12 @@ def match_events(
 def input_matrices(chain: Chain, q: np.ndarray) -> np.ndarray:
     """Mbar1^-1 Bbar at each logged configuration, (K, 2, 2n) (both depend on q only).
 
-    One compiled call (``fast.kernels.input_matrices_rows``): a per-row call from Python would
+    One compiled call (``model.compiled.input_matrices_rows``): a per-row call from Python would
     load and emit the model kernel ``reduced`` in every process that computes it (issue 20 item 7).
     """
-    from ..fast.engine import input_matrices_rows
+    from ..model.kernels import input_matrices_rows
 
-    return input_matrices_rows(chain, q)
+    return input_matrices_rows(chain.params, q)
 
 
 def combined_effect(MB: np.ndarray, u: np.ndarray, rho: np.ndarray, ubar: np.ndarray) -> np.ndarray:

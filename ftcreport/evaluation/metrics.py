@@ -53,7 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..control.kinematic import wrap
+from ..model.kernels import wrap
 
 __all__ = [
     "HEADLINE_METRICS",

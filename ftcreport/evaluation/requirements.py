@@ -146,7 +146,7 @@ def signal_values(
         q, qd = S["q"], S["q_d"]
         return np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])
     if signal == "heading_error":
-        from ..control.kinematic import wrap
+        from ..model.kernels import wrap
 
         head = np.abs(wrap(S["q"][:, 2:] - S["q_d"][:, 2:]))  # (K, n), last robot first
         n = head.shape[1]

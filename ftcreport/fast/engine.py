@@ -42,6 +42,7 @@ except ImportError:  # pragma: no cover - not POSIX
 
 from ..jit.compiling import engine_stamp
 from ..model.drive_compiled import motor_state_count
+from ..model.kernels import input_matrices_rows as model_input_matrices_rows
 from ..model.kernels import kernel_ref, packed
 from ..schemes.api import GUARD, N_GUARD, TERMS_MODES
 from ..schemes.controller import SchemeController
@@ -105,7 +106,7 @@ def compiled_spec(controller) -> Spec | None:
 
 def _no_discrete(law):
     """The discrete update of a scheme without one (the round-2 form's for a round-2 law)."""
-    from ..schemes.kernels import legacy_no_discrete, no_discrete
+    from ..control.interface_compiled import legacy_no_discrete, no_discrete
     from ..schemes.registry import legacy
 
     return legacy_no_discrete if legacy(law) else no_discrete
@@ -143,9 +144,8 @@ def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
 
 
 def input_matrices_rows(chain, Q: np.ndarray) -> np.ndarray:
-    """Mbar1(q)^-1 Bbar(q), (K, 2, 2n), at K configurations: one compiled call (no per-row Python)."""
-    Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)
-    return F.input_matrices_rows(kernel_ref(chain.params), Q)  # a ref: the loop's compile of reduced
+    """Mbar1(q)^-1 Bbar(q), (K, 2, 2n), at K configurations (:func:`ftcreport.model.kernels.input_matrices_rows`)."""
+    return model_input_matrices_rows(chain.params, Q)
 
 
 # --------------------------------------------------------------------------- signals from the log
@@ -228,7 +228,7 @@ def loop_for(law, disc, motors: bool = True, sampled: bool = True, terms: int = 
     always in (RK4 and ROS2 share the stages; a batch of RK4 and ROS2 cases needs one loop).
     ``terms``: how the matched terms reach the law (ftcreport.schemes.api.TERMS_MODES), a constant of
     the law's loop.  ``checked``: the bounds-checked loop of ``ftcreport schemes check`` (``law`` and
-    ``disc`` are then bounds-checked copies, ftcreport.schemes.check.boundschecked; nothing is cached).
+    ``disc`` are then bounds-checked copies, ftcreport.fast.scheme_check.boundschecked; nothing is cached).
 
     The loop's module is written once per (law, discrete update) from ftcreport/fast/loop.py, with
     its LOOP-BINDING line importing them, and imported under a name that is the same in every
@@ -276,7 +276,7 @@ def _load_loop(law, disc, motors: bool, sampled: bool, terms: int = 0, checked: 
         source = Path(inspect.getfile(py)).read_bytes()
         parts.append((py.__module__, py.__qualname__, alias, hashlib.sha1(source).hexdigest()[:12]))
     if checked:  # the bounds-checked copies (memoized: the same objects as the caller's)
-        lines = ["from ftcreport.schemes.check import boundschecked"]
+        lines = ["from ftcreport.fast.scheme_check import boundschecked"]
         lines += [f"from {m} import {q} as _{a}0  # source {h}" for m, q, a, h in parts]
         lines += [f"{a} = boundschecked(_{a}0)" for _m, _q, a, _h in parts]
     else:
@@ -289,7 +289,7 @@ def _load_loop(law, disc, motors: bool, sampled: bool, terms: int = 0, checked: 
     text = text.replace(LEGACY_LINE, f"LEGACY = {legacy(law)}")
     variant = f"MOTORS, SAMPLED = {motors}, {sampled}"
     if checked:  # every function of the module compiled with bounds checks, not cached
-        variant += "\nfrom ftcreport.schemes.check import checked_jit as jit  # noqa: E402"
+        variant += "\nfrom ftcreport.fast.scheme_check import checked_jit as jit  # noqa: E402"
     text = text.replace(VARIANT, variant)
     tag = "__".join(f"{m}.{q}" for m, q, _, _ in parts)
     tag += "__" + "".join(c for c, on in zip("ms", (motors, sampled), strict=True) if on) + ("", "o", "n")[terms]

@@ -7,7 +7,7 @@ through the globals ``LAW`` and ``DISC``, and the kinematic controller's part of
 matched terms, the kinematic signals, its discrete update) through ``TERMS``, ``KEVAL``,
 ``KSIG``, ``KDISC`` and ``KCACHE``.  :func:`ftcreport.fast.engine.loop_for` writes, for each
 scheme, a module that is this file with the line marked ``LOOP-BINDING`` importing that scheme's
-law and the scheme interface's kernels (ftcreport.schemes.kernels): numba compiles each such
+law and the scheme interface's kernels (ftcreport.control.interface_compiled): numba compiles each such
 module on the scheme's first use and caches it beside the module, under a key that is the same in
 every process.  So a case compiles only the loops of the schemes it runs, and a plug-in scheme
 (ftcreport.schemes) gets a loop as fast as a built-in one.  (Passing the law as an argument
@@ -29,6 +29,14 @@ import math
 
 import numpy as np
 
+from ftcreport.control.interface_compiled import engine_terms as TERMS
+from ftcreport.control.interface_compiled import guards_intact, no_discrete, no_law, readonly
+from ftcreport.control.interface_compiled import kinematic_discrete as KDISC
+from ftcreport.control.interface_compiled import kinematic_eval as KEVAL
+from ftcreport.control.interface_compiled import kinematic_event_time as KEVENT
+from ftcreport.control.interface_compiled import kinematic_events as KEVENTS
+from ftcreport.control.interface_compiled import kinematic_signals as KSIG
+from ftcreport.control.interface_compiled import new_kinematic_cache as KCACHE
 from ftcreport.fast.checks import _check_state, _finite, _step_jump
 from ftcreport.fast.integrators import (
     DP_A,
@@ -75,14 +83,6 @@ from ftcreport.model.drive_compiled import (
 )
 from ftcreport.model.motor_compiled import reset_current
 from ftcreport.schemes.api import N_GUARD, Out, Step, Terms
-from ftcreport.schemes.kernels import engine_terms as TERMS
-from ftcreport.schemes.kernels import guards_intact, no_discrete, no_law, readonly
-from ftcreport.schemes.kernels import kinematic_discrete as KDISC
-from ftcreport.schemes.kernels import kinematic_eval as KEVAL
-from ftcreport.schemes.kernels import kinematic_event_time as KEVENT
-from ftcreport.schemes.kernels import kinematic_events as KEVENTS
-from ftcreport.schemes.kernels import kinematic_signals as KSIG
-from ftcreport.schemes.kernels import new_kinematic_cache as KCACHE
 
 LAW, DISC = no_law, no_discrete  # LOOP-BINDING
 

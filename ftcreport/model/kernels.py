@@ -72,12 +72,14 @@ __all__ = [
     "S_matrix",
     "axle_midpoints",
     "eta_dot",
+    "input_matrices_rows",
     "kernel_ref",
     "make_params",
     "packed",
     "positions",
     "reduced",
     "wheel_speeds",
+    "wrap",
 ]
 
 
@@ -275,3 +277,14 @@ def wheel_speeds(p: ChainParams, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
     omega_ir = (v_i + b_i omega_i) / r_i, omega_il = (v_i - b_i omega_i) / r_i.
     """
     return _fast().wheel_speeds_rows(kernel_ref(p), _vec(q)[None, :], _vec(eta)[None, :])[0]
+
+
+def input_matrices_rows(p: ChainParams, Q: np.ndarray) -> np.ndarray:
+    """Mbar1(q)^-1 Bbar(q), (K, 2, 2n), at K configurations: one compiled call (no per-row Python)."""
+    Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, int(p.n) + 2)  # [x_n, y_n, theta_n, ..., theta_1]
+    return _fast().input_matrices_rows(kernel_ref(p), Q)  # a ref: the loop's compile of reduced
+
+
+def wrap(a):
+    """Angle(s) wrapped to [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi

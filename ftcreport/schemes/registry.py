@@ -1,11 +1,12 @@
 r"""The one registry of schemes: the built-in ones and the plug-ins, registered the same way.
 
-The built-in schemes register themselves from their own files (every module of this package but
-the interface's, :data:`INTERFACE`) the first time the registry is read, each with its place in the
+The built-in schemes register themselves from their own files (every module of
+:data:`BUILT_IN_PACKAGE`, ``ftcreport/control/builtin/``) the first time the registry is read, each with
+its place in the
 order the case schema and the reports list them; a plug-in registers itself when its file is
 imported (:func:`load_plugin`, a case's ``plugins``).  Every reader (the runner, the engine, the
 case schema, the families, the reports, campaigns) asks here.  Adding a built-in scheme is adding
-its file here (and its law's, under ``laws/``, when it has its own) and its tests.
+its file there (and its law's, under ``control/laws/``, when it has its own) and its tests.
 """
 
 from __future__ import annotations
@@ -24,8 +25,9 @@ from .api import TERMS_MODES, Scheme
 
 __all__ = ["built_in", "get", "load_plugin", "register", "registered", "resolve"]
 
-#: The modules of this package that are the interface, not a built-in scheme.
-INTERFACE = frozenset({"api", "registry", "controller", "kernels", "check", "laws"})
+#: The package of the built-in schemes' files (each registers its schemes when imported).  The registry
+#: imports them by name, as it imports a plug-in by path: the registry sits below the laws they run.
+BUILT_IN_PACKAGE = "ftcreport.control.builtin"
 
 _REGISTRY: dict[str, Scheme] = {}
 _BUILT_IN: list[str] = []
@@ -51,9 +53,9 @@ def _load_built_ins() -> None:
         try:
             import pkgutil
 
-            here = [str(Path(__file__).parent)]  # this package's folder (not the package: no import cycle)
-            for mod in sorted(m.name for m in pkgutil.iter_modules(here) if m.name not in INTERFACE):
-                importlib.import_module(f"{__package__}.{mod}")
+            package = importlib.import_module(BUILT_IN_PACKAGE)
+            for mod in sorted(m.name for m in pkgutil.iter_modules(package.__path__)):
+                importlib.import_module(f"{BUILT_IN_PACKAGE}.{mod}")
             _loaded = True
         finally:
             _loader = None

@@ -37,11 +37,11 @@ import numpy as np
 
 from ftcreport import schemes
 from ftcreport.control import ChainedBackstepping, TwoLinkKinematic
+from ftcreport.control.laws.active import _no_obs
 from ftcreport.fast import kernels as F
 from ftcreport.observers.ukf_compiled import UKF_OK, Ukf, ukf_params, ukf_step
 from ftcreport.references import FlatReference, circle
 from ftcreport.schemes import Scheme, SchemeController, register
-from ftcreport.schemes.laws.active import _no_obs
 
 VELOCITY, EXPLODING, GEOMETRIC, FARZA, UKF = range(5)
 

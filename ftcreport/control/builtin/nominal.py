@@ -1,8 +1,8 @@
 r"""The nominal scheme: the matched law (3.35) assuming healthy wheels, no fault tolerance (the baseline).
 
 Its face is :class:`ftcreport.control.tracking.TrackingController`; its law is
-``schemes.laws.passive.nominal_law`` behind the passive dispatcher (one loop for the passive schemes).
-:func:`matched_law_scheme` builds it and the oracle (schemes/oracle.py), which differ only in their face
+``control.laws.passive.nominal_law`` behind the passive dispatcher (one loop for the passive schemes).
+:func:`matched_law_scheme` builds it and the oracle (control/builtin/oracle.py), which differ only in their face
 and their words.
 """
 
@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import importlib
 
-from .api import Scheme
-from .fields import Gain, Strict, doc_field
-from .registry import register_built_in
+from ...schemes.api import Scheme
+from ...schemes.fields import Gain, Strict, doc_field
+from ...schemes.registry import register_built_in
 
 __all__ = ["K_V", "SCHEME", "NominalScheme", "matched_law_scheme"]
 
@@ -40,8 +40,8 @@ def matched_law_scheme(name: str, face: str, params: type[Strict], **words) -> S
 
     return Scheme(
         name,
-        law="ftcreport.schemes.laws.passive:passive_law",
-        discrete="ftcreport.schemes.laws.passive:passive_discrete",
+        law="ftcreport.control.laws.passive:passive_law",
+        discrete="ftcreport.control.laws.passive:passive_discrete",
         params=params,
         controller=controller,
         defaults=lambda case, k_v: params(k_v=k_v),
@@ -52,7 +52,7 @@ def matched_law_scheme(name: str, face: str, params: type[Strict], **words) -> S
 SCHEME = register_built_in(
     matched_law_scheme(
         "nominal",
-        "..control.tracking:TrackingController",
+        "..tracking:TrackingController",
         NominalScheme,
         family="baseline",
         description="the matched law (3.35) assuming healthy wheels: no FTC",

@@ -43,8 +43,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ModelError
-from .api import Scheme
-from .controller import write_reason
+from ..schemes.api import Scheme
+from ..schemes.controller import write_reason
 
 __all__ = ["Finding", "check_file", "check_scheme", "ensure_checked"]
 
@@ -146,7 +146,7 @@ def _contexts(scheme: Scheme) -> list[tuple[str, object]]:
     from ..control.kinematic import ChainedBackstepping, TwoLinkKinematic
     from ..model import Chain
     from ..references import FlatReference, circle, eight
-    from .controller import SchemeController
+    from ..schemes.controller import SchemeController
 
     out = []
     table = _default_table(scheme)
@@ -157,7 +157,7 @@ def _contexts(scheme: Scheme) -> list[tuple[str, object]]:
     for label, chain, kin in (("2 robots, two-link controller", two, kin2), ("3 robots, chained", three, kin3)):
         k_v = getattr(table, "k_v", None) or 5.0
         if scheme.controller is not None:
-            from .api import SchemeContext
+            from ..schemes.api import SchemeContext
 
             nz, nq = len(kin.z_names), chain.n_q
             ctx = SchemeContext(chain, kin, k_v, table, 5.0, kin.n_states, 6 + nz + nq)
@@ -210,7 +210,7 @@ class _Call:
     """The law (and the discrete update) of a bound scheme, called through its loop's entry points."""
 
     def __init__(self, ctrl, checked: bool = False) -> None:
-        from ..fast.engine import compiled_spec, loop_for
+        from .engine import compiled_spec, loop_for
 
         self.ctrl = ctrl
         self.spec = compiled_spec(ctrl)
@@ -223,7 +223,7 @@ class _Call:
 
     def law(self, t, q, eta, xc, sigma, ubar):
         """(u, dx, sig_own, info, row): one call; sig_own pre-filled with a sentinel to see what is written."""
-        from ..fast.engine import law_buffers
+        from .engine import law_buffers
 
         bufs = law_buffers(self.spec)
         n_sig = self.spec.n_sig - self.spec.n_kin_sig
@@ -237,7 +237,7 @@ class _Call:
 
     def discrete(self, t, q, eta, xc):
         """(xc after, info, buffers): one discrete update on a copy of xc."""
-        from ..fast.engine import law_buffers
+        from .engine import law_buffers
 
         bufs = law_buffers(self.spec)
         info = np.zeros(4)
@@ -301,7 +301,7 @@ def checked_jit(fn=None, **kw):
 # ---------------------------------------------------------------------------------------- the battery
 def check_file(path: str | Path) -> list[Finding]:
     """The battery for every scheme a scheme file registers (the file is imported first)."""
-    from .registry import load_plugin, registered
+    from ..schemes.registry import load_plugin, registered
 
     p = Path(path)
     if not p.is_file():
@@ -329,7 +329,7 @@ def _defined_in(sc: Scheme, path: Path) -> bool:
 
 def check_scheme(sc: Scheme, path: str) -> list[Finding]:
     """The battery for one registered scheme (``path``: its file, for the messages)."""
-    from .registry import legacy, resolve
+    from ..schemes.registry import legacy, resolve
 
     name = sc.name
     head = f"scheme {name}"
@@ -452,7 +452,7 @@ def _pack_problem(P, where: str = "P") -> str | None:
 def _run_battery(sc: Scheme, ctrl, label: str, files: set[str], path: str, full: bool = True) -> list[Finding]:
     """Checks 4-7 on one bound scheme: [] when everything holds.  ``full=False`` (a plug-in's first run):
     the compile, the bounds-checked run and the guards only (a test law may blow up on purpose)."""
-    from .registry import resolve
+    from ..schemes.registry import resolve
 
     law = resolve(sc.law)
     disc = resolve(sc.discrete) if sc.discrete is not None else None
@@ -551,10 +551,10 @@ def _compile_or_bounds_failure(exc, law, disc, files, head, path, ctrl, state) -
 def _locate_in_python(ctrl, state, law, disc, files) -> tuple[str, str | None]:
     """Run the law (then the discrete update) once in Python on the state that failed, where numpy raises at the
     offending line: ("law" or "discrete", "file:line" or None)."""
-    from ..fast.engine import compiled_spec, law_buffers
     from ..jit.packed import new_cache
     from ..jit.refs import to_ref
-    from .api import Out, Step, Terms
+    from ..schemes.api import Out, Step, Terms
+    from .engine import compiled_spec, law_buffers
 
     spec = compiled_spec(ctrl)
     _, t, q, eta, xc, sigma, ubar = state
@@ -657,7 +657,7 @@ def ensure_checked(ctrl) -> None:
     """Before a plug-in scheme's first run: the bounds-checked battery (checks 5-7) on the case's own chain,
     controller and table, once per version of the scheme's file (recorded in the cache directory).  Raises
     :class:`~ftcreport.errors.ModelError` with the first failure's line."""
-    from .registry import built_in, resolve
+    from ..schemes.registry import built_in, resolve
 
     sc = ctrl.scheme
     if sc.name in built_in():
@@ -677,7 +677,7 @@ def ensure_checked(ctrl) -> None:
             _CHECKED.add(key)
             return
         files = {str(Path(src).resolve())}
-        from .registry import legacy
+        from ..schemes.registry import legacy
 
         if not legacy(law):
             problems = _run_battery(sc, ctrl, f"{ctrl.chain.n} robots", files, src, full=False)
@@ -694,6 +694,6 @@ def ensure_checked(ctrl) -> None:
 
 
 def _record_dir() -> Path:
-    from ..fast.engine import _cache_dir
+    from .engine import _cache_dir
 
     return _cache_dir() / "checked"  # beside the generated loops (the user cache directory)

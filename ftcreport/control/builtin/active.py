@@ -2,7 +2,7 @@ r"""The active scheme: the Farza et al. (2009) adaptive observer of q, eta, the 
 compensating law (4.14) on its estimates (thesis chapter 4).
 
 Its face is :class:`ftcreport.control.active.ActiveController` over a
-:class:`ftcreport.observers.FarzaObserver`; its law is ``schemes.laws.active.farza_law`` behind the
+:class:`ftcreport.observers.FarzaObserver`; its law is ``control.laws.active.farza_law`` behind the
 active dispatcher (one loop with the UKF scheme).  The law asks for the matched terms at the
 estimated velocity itself (``terms="own"``).
 """
@@ -13,10 +13,10 @@ from typing import Literal
 
 import numpy as np
 
-from .api import Scheme
-from .fields import Gain, Strict, doc_field, number
+from ...schemes.api import Scheme
+from ...schemes.fields import Gain, Strict, doc_field, number
+from ...schemes.registry import register_built_in
 from .nominal import K_V
-from .registry import register_built_in
 
 __all__ = ["ESTIMATE", "OBSERVER_RATIO", "SCHEME", "TAU", "THETA_THESIS", "ActiveScheme", "Diagnosis"]
 
@@ -65,8 +65,8 @@ class ActiveScheme(Strict):
 
 
 def _controller(scheme: Scheme, ctx):
-    from ..control.active import ActiveController
-    from ..observers import FarzaObserver
+    from ...observers import FarzaObserver
+    from ..active import ActiveController
 
     cfg = ctx.params if ctx.params is not None else ActiveScheme(k_v=ctx.k_v)
     obs = FarzaObserver(
@@ -100,7 +100,7 @@ def derived(ctrl, xc: np.ndarray, meas: np.ndarray, costs: bool) -> dict[str, np
 
 def metrics(case, name, t, S, built, ctrl, run) -> dict:
     """Fault diagnosis from the estimates (ftcreport.evaluation.diagnosis) and the estimator's final values."""
-    from ..evaluation.diagnosis import diagnosis_metrics
+    from ...evaluation.diagnosis import diagnosis_metrics
 
     cfg = getattr(case.schemes, name)
     names = ctrl.est.parameter_names()
@@ -148,8 +148,8 @@ def _not_applicable(case, k_v: float) -> str | None:
 SCHEME = register_built_in(
     Scheme(
         "active",
-        law="ftcreport.schemes.laws.active:active_law",
-        discrete="ftcreport.schemes.laws.active:active_discrete",
+        law="ftcreport.control.laws.active:active_law",
+        discrete="ftcreport.control.laws.active:active_discrete",
         params=ActiveScheme,
         terms="own",
         controller=_controller,

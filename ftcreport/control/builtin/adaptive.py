@@ -3,7 +3,7 @@ estimate (thesis 3.3.2, (3.113)-(3.127)); ``adaptive_frozen`` holds the weights 
 their initial values (what adaptation buys).
 
 Their face is :class:`ftcreport.control.adaptive.AdaptiveController`; the law and the weights' clip are
-``schemes.laws.passive``'s behind the passive dispatcher.
+``control.laws.passive``'s behind the passive dispatcher.
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from typing import Literal
 
 import numpy as np
 
-from .api import Scheme
-from .fields import Gain, Strict, doc_field
+from ...schemes.api import Scheme
+from ...schemes.fields import Gain, Strict, doc_field
+from ...schemes.registry import register_built_in
 from .nominal import K_V
-from .registry import register_built_in
 from .switching import PATTERNS, check_patterns, patterns_of
 
 __all__ = ["FROZEN", "SCHEME", "AdaptiveScheme"]
@@ -32,7 +32,7 @@ class AdaptiveScheme(Strict):
 
 def _controller(adapt: bool):
     def build(scheme: Scheme, ctx):
-        from ..control.adaptive import AdaptiveController
+        from ..adaptive import AdaptiveController
 
         table = ctx.params if ctx.params is not None else AdaptiveScheme(k_v=ctx.k_v)
         return AdaptiveController(
@@ -93,8 +93,8 @@ def _budget(n: int, N: int) -> tuple[int, int]:
 
 
 _COMMON = dict(
-    law="ftcreport.schemes.laws.passive:passive_law",
-    discrete="ftcreport.schemes.laws.passive:passive_discrete",
+    law="ftcreport.control.laws.passive:passive_law",
+    discrete="ftcreport.control.laws.passive:passive_discrete",
     params=AdaptiveScheme,
     derived=_derived,
     derived_names=("chi_hat", "uf_hat"),

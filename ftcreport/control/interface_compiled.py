@@ -18,12 +18,12 @@ from numba import njit, types
 from numba.core.extending import intrinsic
 from numba.core.imputils import impl_ret_borrowed
 
-from ..control.kinematic_compiled import _reanchor_time, eta_c_and_dot, kin_discrete
-from ..control.tracking_compiled import law_terms, matched_terms
 from ..jit.compiling import jit
 from ..jit.packed import KIN_CHAINED, new_cache
 from ..model.compiled import reduced
-from .api import GUARD, Terms
+from ..schemes.api import GUARD, Terms
+from .kinematic_compiled import _reanchor_time, eta_c_and_dot, kin_discrete
+from .tracking_compiled import law_terms, matched_terms
 
 __all__ = [
     "engine_terms",

@@ -3,18 +3,18 @@ the law (4.14) on its estimates, both at the samples, the command held in betwee
 
 Its face is :class:`ftcreport.control.active.ActiveController` over a
 :class:`ftcreport.observers.UKFEstimator`; its law and discrete update (the filter's step) are
-``schemes.laws.active``'s behind the active dispatcher.
+``control.laws.active``'s behind the active dispatcher.
 """
 
 from __future__ import annotations
 
 from typing import Literal
 
+from ...schemes.api import Scheme
+from ...schemes.fields import Gain, Gain0, Strict, doc_field, number
+from ...schemes.registry import register_built_in
 from .active import ESTIMATE, TAU, Diagnosis, derived, metrics
-from .api import Scheme
-from .fields import Gain, Gain0, Strict, doc_field, number
 from .nominal import K_V
-from .registry import register_built_in
 
 __all__ = ["SAMPLED_LIMIT", "SCHEME", "ActiveUKFScheme"]
 
@@ -37,8 +37,8 @@ class ActiveUKFScheme(Strict):
 
 
 def _controller(scheme: Scheme, ctx):
-    from ..control.active import ActiveController
-    from ..observers import UKFEstimator
+    from ...observers import UKFEstimator
+    from ..active import ActiveController
 
     cfg = ctx.params if ctx.params is not None else ActiveUKFScheme(k_v=ctx.k_v)
     noise = cfg.model_dump(include={"meas_std", "eta_noise", "rho_noise", "ubar_noise", "rho_std0", "ubar_std0"})
@@ -74,8 +74,8 @@ def _cost(case) -> float:
 SCHEME = register_built_in(
     Scheme(
         "active_ukf",
-        law="ftcreport.schemes.laws.active:active_law",
-        discrete="ftcreport.schemes.laws.active:active_discrete",
+        law="ftcreport.control.laws.active:active_law",
+        discrete="ftcreport.control.laws.active:active_discrete",
         params=ActiveUKFScheme,
         terms="own",
         start=True,  # the filter's first step and the first command at t0

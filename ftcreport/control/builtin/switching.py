@@ -1,7 +1,7 @@
 r"""The switching scheme: multiple models and a switching mechanism (thesis 3.2, 3.3.1, (3.42)-(3.48)).
 
 Its face is :class:`ftcreport.control.switching.SwitchingController` (the model bank, the superposed
-filters' layout, the walk's tables); its law and switching rule are ``schemes.laws.passive``'s
+filters' layout, the walk's tables); its law and switching rule are ``control.laws.passive``'s
 behind the passive dispatcher.  The applied model and the costs are computed from the logged
 state (:func:`_derived`), not logged by the law.
 """
@@ -13,10 +13,10 @@ from typing import Literal
 import numpy as np
 from pydantic import StrictBool
 
-from .api import Scheme
-from .fields import FieldError, Gain, Gain0, Strict, doc_field, number
+from ...schemes.api import Scheme
+from ...schemes.fields import FieldError, Gain, Gain0, Strict, doc_field, number
+from ...schemes.registry import register_built_in
 from .nominal import K_V
-from .registry import register_built_in
 
 __all__ = ["PATTERNS", "SCHEME", "SwitchingScheme", "check_patterns", "patterns_of"]
 
@@ -53,8 +53,8 @@ class SwitchingScheme(Strict):
 
 def check_patterns(name: str, table, case) -> None:
     """The table's patterns on the case's chain: wheels of the chain, each once, each model once, compensable."""
-    from ..errors import FtcError
-    from ..model import pattern_is_compensable, wheel_index
+    from ...errors import FtcError
+    from ...model import pattern_is_compensable, wheel_index
 
     if table.patterns == "all":
         return
@@ -89,7 +89,7 @@ def check_patterns(name: str, table, case) -> None:
 
 def patterns_of(table, chain) -> list[tuple[int, ...]] | None:
     """The 0/1 patterns of a table's ``patterns`` on ``chain`` (None: every compensable pattern)."""
-    from ..model import wheel_index
+    from ...model import wheel_index
 
     if table is None or table.patterns == "all":
         return None
@@ -109,8 +109,8 @@ def models(table) -> int | None:
 
 
 def _controller(scheme: Scheme, ctx):
-    from ..control.switching import SwitchingController
-    from ..model.actuators import rotor_inertia_wheels
+    from ...model.actuators import rotor_inertia_wheels
+    from ..switching import SwitchingController
 
     table = ctx.params if ctx.params is not None else SwitchingScheme(k_v=ctx.k_v)
     # the bank's filters know the motors' rotors (issue 36 item 3): eta_g N^2 J_m on each wheel axis
@@ -131,8 +131,8 @@ def _derived(ctrl, xc: np.ndarray, meas: np.ndarray, costs: bool) -> dict[str, n
     P = ctrl.packed()
     out = {"selected": np.round(xc[:, P.sel]).astype(float)}
     if costs:  # no metric reads them: the metric stream does not compute them at every step
-        from ..control.switching_compiled import switching_costs_rows
-        from ..jit.refs import to_ref
+        from ...jit.refs import to_ref
+        from ..switching_compiled import switching_costs_rows
 
         nq = ctrl.chain.n_q
         eta = np.ascontiguousarray(meas[:, nq : nq + 2], dtype=float)
@@ -150,7 +150,7 @@ def _derived_names(ctrl) -> tuple[str, ...]:
 
 def _metrics(case, name, t, S, built, ctrl, run) -> dict:
     """Detection of the true pattern by the applied model (ftcreport.evaluation.metrics.switching_metrics)."""
-    from ..evaluation.metrics import switching_metrics
+    from ...evaluation.metrics import switching_metrics
 
     out = switching_metrics(t, S["selected"], ctrl.patterns, S["sigma"], list(built.faults.times))
     out["patterns"] = ctrl.patterns.astype(int).tolist()
@@ -168,7 +168,7 @@ def _budget(n: int, N: int) -> tuple[int, int]:
     whatever the bank (control/switching.py), selected and last switch, N costs up to MAX_LOGGED_COSTS models
     (2 above); the (N, 2n) pattern array, the list of tuples it is built from (about 64 + 8 * 2n bytes per
     model) and the walk's tables (9 * 2^(2n) bytes)."""
-    from ..control.switching import MAX_LOGGED_COSTS
+    from ..switching import MAX_LOGGED_COSTS
 
     wheels = 2 * n
     width = 2 + 2 * wheels + (wheels + 1) * (wheels + 2) // 2 + 2 + (N if N <= MAX_LOGGED_COSTS else 2)
@@ -178,8 +178,8 @@ def _budget(n: int, N: int) -> tuple[int, int]:
 SCHEME = register_built_in(
     Scheme(
         "switching",
-        law="ftcreport.schemes.laws.passive:passive_law",
-        discrete="ftcreport.schemes.laws.passive:passive_discrete",
+        law="ftcreport.control.laws.passive:passive_law",
+        discrete="ftcreport.control.laws.passive:passive_discrete",
         params=SwitchingScheme,
         controller=_controller,
         derived=_derived,

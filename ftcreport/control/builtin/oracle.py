@@ -1,14 +1,14 @@
 r"""The oracle: (3.35) told the true sigma and ubar at every instant, the bound every FTC scheme is read against.
 
 Its face is :class:`ftcreport.control.baselines.OracleController`; its law is
-``schemes.laws.passive.oracle_law`` behind the passive dispatcher.
+``control.laws.passive.oracle_law`` behind the passive dispatcher.
 """
 
 from __future__ import annotations
 
-from .fields import Gain, Strict, doc_field
+from ...schemes.fields import Gain, Strict, doc_field
+from ...schemes.registry import register_built_in
 from .nominal import K_V, matched_law_scheme
-from .registry import register_built_in
 
 __all__ = ["SCHEME", "OracleScheme"]
 
@@ -22,7 +22,7 @@ class OracleScheme(Strict):
 SCHEME = register_built_in(
     matched_law_scheme(
         "oracle",
-        "..control.baselines:OracleController",
+        "..baselines:OracleController",
         OracleScheme,
         family="bound",
         description="(3.35) told the true sigma and ubar at every instant",

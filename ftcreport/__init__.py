@@ -13,23 +13,27 @@ __all__ = ["__version__", "load_results"]
 
 
 def _view(module: str, name: str):
-    """A conversion of ftcreport.sim.Run that lives at the edges (imported on first use)."""
+    """A function that lives at the edges (imported on first use)."""
 
-    def convert(run):
+    def convert(*args, **kwargs):
         from importlib import import_module
 
-        return getattr(import_module(module, __name__), name)(run)
+        return getattr(import_module(module, __name__), name)(*args, **kwargs)
 
     return convert
 
 
 def _install_views() -> None:
-    """Run.to_xarray, to_pandas and _repr_html_: the core (sim) names no edge module; the package wires them."""
+    """Run.to_xarray, to_pandas and _repr_html_, a case's stored results in a notebook, the pages a batch
+    renders: the rooms below (sim, storage, studies) name no edge module above them; the package wires them."""
+    from . import storage, studies
     from .runs import Run
 
     Run.views["xarray"] = _view(".storage.tidy", "run_dataset")
     Run.views["pandas"] = _view(".storage.tidy", "run_frame")
     Run.views["html"] = _view(".report.notebook", "run_html")
+    storage.VIEWS["case_html"] = _view(".report.notebook", "case_html")
+    studies.PAGES["render_all"] = _view(".report.render", "render_all")
 
 
 def __getattr__(name: str):

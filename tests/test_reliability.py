@@ -195,12 +195,12 @@ def test_markup_in_case_text_is_escaped_on_every_page(tmp_path):
     ],
 )
 def test_os_errors_while_writing_are_one_line(tmp_path, monkeypatch, err, text):
-    import ftcreport.storage.store as store
+    import ftcreport.infra.atomic as atomic
 
     def failing(*a, **k):
         raise OSError(err, os.strerror(err), str(tmp_path / "o" / "x.json"))
 
-    monkeypatch.setattr(store.tempfile, "mkstemp", failing)  # every atomic write fails
+    monkeypatch.setattr(atomic.tempfile, "mkstemp", failing)  # every atomic write fails
     p = _case(tmp_path)
     res = runner.invoke(app, ["run", str(p), "--out", str(tmp_path / "o"), "--duration", "0.2"])
     _one_error_line(res, 2, "x.json", text)

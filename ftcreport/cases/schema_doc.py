@@ -251,9 +251,9 @@ def main(argv: list[str] | None = None) -> int:
         if old != text:
             drift.append(path)
             if "--check" not in args:
-                from ..storage.store import write_atomic
+                from ..infra.atomic import replace_file
 
-                write_atomic(path, text.encode())
+                replace_file(path, text.encode())
     for p in drift:
         print(f"{p}: {'out of date' if '--check' in args else 'rewritten'}")
     return 1 if drift and "--check" in args else 0

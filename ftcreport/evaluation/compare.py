@@ -352,7 +352,7 @@ def compare_case(
 
 def _analysis_sentences(analysis: dict, verdicts, metrics) -> list[str]:
     """The linearized analysis cited where a scheme loses or chatters, or nominal wins (issue 37 item 7)."""
-    from ..analysis.summary import analysis_sentences
+    from .verdict_analysis import analysis_sentences
 
     after = verdicts.get("after_fault_error_max")
     ranking = [r.scheme for r in after.ranking] if after else []

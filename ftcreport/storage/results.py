@@ -16,6 +16,7 @@ import pandas as pd
 
 from ..errors import FtcError
 from ..sim import Run
+from . import VIEWS
 from .store import load_metrics, stored_schemes
 from .tidy import METRICS_DTYPES, metrics_table, read_run
 
@@ -48,9 +49,8 @@ class CaseResults:
         return []
 
     def _repr_html_(self) -> str:
-        from ..report.notebook import case_html
-
-        return case_html(self)
+        """Notebook view: scheme table and one figure (:func:`ftcreport.report.notebook.case_html`)."""
+        return VIEWS["case_html"](self)
 
     def __repr__(self) -> str:
         return f"CaseResults({str(self.root)!r}, {self.name!r}: {', '.join(self.schemes) or 'no runs'})"

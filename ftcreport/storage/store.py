@@ -27,7 +27,6 @@ import io
 import json
 import math
 import os
-import tempfile
 import time
 import zipfile
 from collections.abc import Iterable
@@ -39,6 +38,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import FtcError
+from ..infra.atomic import TMP_SUFFIX, replace_file
 from ..infra.lifetime import shielded
 from ..sim import Run
 
@@ -67,35 +67,17 @@ __all__ = [
     "write_json",
 ]
 
-TMP_SUFFIX = ".partial"  # a temporary file of write_atomic; only a killed process leaves one behind
 LOCK_NAME = ".ftcreport.lock"
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write bytes to ``path`` atomically (temporary file + rename)."""
+    """Write bytes to ``path`` atomically (temporary file + rename: :func:`ftcreport.infra.atomic.replace_file`),
+    inside the registered output directories and while this process may write (a stopped worker exits)."""
     path = Path(path)
     if _roots:
         check_inside(path)
     _check_may_write()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())  # what open() would give, not mkstemp's 0600
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        _check_may_write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+    replace_file(path, data, before_rename=_check_may_write)
 
 
 def _jsonable(obj: Any) -> Any:

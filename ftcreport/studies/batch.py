@@ -67,6 +67,7 @@ from ..storage.store import (
     write_atomic,
     write_json,
 )
+from . import PAGES
 from .display import BatchDisplay
 
 __all__ = [
@@ -607,10 +608,8 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
             from ..storage.tidy import write_metrics_parquet
 
             write_metrics_parquet(out)
-        if render:
-            from ..report.render import render_all
-
-            render_all(out, pool=pool, notify=_render_notice if show_progress else None)
+        if render:  # ftcreport.report.render.render_all (studies names no report module: PAGES)
+            PAGES["render_all"](out, pool=pool, notify=_render_notice if show_progress else None)
 
     if todo:
         workers, capped = worker_count(jobs, len(todo))

@@ -1,0 +1,46 @@
+"""A file written whole or not at all: a temporary file in the same directory, synced, then renamed into place.
+
+A reader never sees a half-written file, and an interrupted write leaves the old file as it was (and at
+worst a temporary ``.<name>.<random>.partial`` beside it).  The result store's ``write_atomic``
+(:mod:`ftcreport.storage.store`) adds its guards around this; the case schema's docs
+(:mod:`ftcreport.cases.schema_doc`) write their files with it directly.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+__all__ = ["TMP_SUFFIX", "replace_file"]
+
+TMP_SUFFIX = ".partial"  # a temporary file of replace_file; only a killed process leaves one behind
+
+
+def replace_file(path: Path, data: bytes, before_rename: Callable[[str], None] | None = None) -> None:
+    """Write bytes to ``path`` atomically (temporary file + rename), creating its directory.
+
+    ``before_rename(tmp)``: called with the temporary file's name once it holds the data, before the rename.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())  # what open() would give, not mkstemp's 0600
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        if before_rename is not None:
+            before_rename(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask

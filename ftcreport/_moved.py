@@ -34,9 +34,6 @@ MOVED = {
     # the scheme interface's compiled side and the built-in laws and schemes live with the control laws;
     # the check of a new law runs it through the engine
     "schemes.kernels": "control.interface_compiled",
-    "schemes.laws": "control.laws",
-    "schemes.laws.active": "control.laws.active",
-    "schemes.laws.passive": "control.laws.passive",
     **{
         f"schemes.{m}": f"control.builtin.{m}"
         for m in ("nominal", "oracle", "switching", "adaptive", "active", "active_ukf")

@@ -30,7 +30,7 @@ def eight_case():
 
 
 def test_pattern_laws_realise_the_bracket():
-    """The compiled adaptive law (control.laws.passive.adaptive_law, run by the loop's first_law) with the
+    """The compiled adaptive law (control.passive_law.adaptive_law, run by the loop's first_law) with the
     weights of model k alone (chi_(k) = 1): u = u_(k), Mbar1^-1 Bbar sigma_(k) u_(k) = w - Mbar1^-1 Bbar uhat_f
     (3.121), nothing to assumed-failed wheels."""
     built = build(load_case(CASES / "three_link_adaptive.toml"))

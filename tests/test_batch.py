@@ -333,7 +333,7 @@ def test_every_thesis_case_page_has_its_claims_section(batch_dir):
 
 
 def test_a_cold_batch_starts_every_loop_in_the_first_wave():
-    # issue 20 item 3: the workers compile distinct loops side by side (control/laws' two dispatchers,
+    # issue 20 item 3: the workers compile distinct loops side by side (control/*_law.py' two dispatchers,
     # each plug-in's, each motor/sampled variant) before any loop's second run
     from ftcreport.cases import configured_schemes, load_case
     from ftcreport.studies.batch import _compile_first, _loop_of
@@ -348,8 +348,8 @@ def test_a_cold_batch_starts_every_loop_in_the_first_wave():
     assert keys[: len(distinct)] == distinct  # every distinct loop once, before any repeat
     laws = {k[0][0] for k in distinct}  # each loop by its law (the registry's "module:function")
     assert {
-        "ftcreport.control.laws.passive:passive_law",
-        "ftcreport.control.laws.active:active_law",
+        "ftcreport.control.passive_law:passive_law",
+        "ftcreport.control.active_law:active_law",
         "ftcreport_plugin_sliding_mode:law",
     } == laws
     assert any(k[1] for k in distinct)  # the motor case's loops are a variant of their own

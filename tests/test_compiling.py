@@ -79,7 +79,7 @@ def test_ref_reads_the_same_fields_as_the_tuple():
 
 
 def test_variants_are_separate_modules_with_their_constants():
-    from ftcreport.control.laws.passive import passive_discrete, passive_law
+    from ftcreport.control.passive_law import passive_discrete, passive_law
 
     plain = loop_for(passive_law, passive_discrete, motors=False, sampled=False)
     motors = loop_for(passive_law, passive_discrete, motors=True, sampled=False)
@@ -416,18 +416,18 @@ def test_numba_llvm_lock_event_is_off_while_an_entry_point_compiles_and_back_aft
 
 # --------------------------------------------------------------------------- the cache (38.3)
 def test_every_kernel_cache_is_outside_the_package_and_keyed_on_all_compiled_sources():
-    # a kernel cached from one file (control/laws/passive.py) links kernels of another (fast/kernels.py): its
+    # a kernel cached from one file (control/passive_law.py) links kernels of another (fast/kernels.py): its
     # cache entry must go stale when any compiled source changes, not only its own file
     import hashlib
 
     from ftcreport import paths
-    from ftcreport.control.laws import passive
+    from ftcreport.control import passive_law as passive
 
     root = Path(F.__file__).parent
     h = hashlib.sha256()
     # the engine, the scheme interface, the built-in laws, and the domains whose compiled kernels live beside
     # their faces (model, control, observers, references)
-    for sub in ("jit", "fast", "schemes", "control/laws", "model", "control", "observers", "references"):
+    for sub in ("jit", "fast", "schemes", "model", "control", "observers", "references"):
         for path in sorted((root.parent / sub).glob("*.py")):
             h.update(path.name.encode() + b"\0" + path.read_bytes())
     assert compiling.engine_stamp() == h.hexdigest()
@@ -494,7 +494,7 @@ def test_cache_dir_is_keyed_by_versions_and_cpu_and_overridable(tmp_path, monkey
 
 def test_generated_loops_live_in_the_cache_dir(tmp_path, monkeypatch):
     from ftcreport import paths
-    from ftcreport.control.laws.passive import passive_discrete, passive_law
+    from ftcreport.control.passive_law import passive_discrete, passive_law
     from ftcreport.fast import engine
 
     loop = loop_for(passive_law, passive_discrete, motors=False, sampled=False)

@@ -94,11 +94,11 @@ class ActiveController(SchemeController):
 
     @property
     def P(self):
-        """The compiled law's parameters (control.laws.active.Active; offsets in the scheme's own states)."""
+        """The compiled law's parameters (control.active_law.Active; offsets in the scheme's own states)."""
         if self._P is None:
             from ..jit.packed import LAW_ACTIVE, law_params
             from ..model.kernels import packed
-            from .laws.active import active
+            from .active_law import active
 
             nk = self.kin.n_states
             nan = float("nan")

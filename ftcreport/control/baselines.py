@@ -32,7 +32,7 @@ def nominal(chain: Chain, kinematic: TwoLinkKinematic | ChainedBackstepping, k_v
 class OracleController(TrackingController):
     """Dynamic law with the true sigma and ubar (upper bound of every FTC scheme): the oracle scheme's face.
 
-    Its law is the compiled ``control.laws.passive.oracle_law``, told the faults the plant applies at
+    Its law is the compiled ``control.passive_law.oracle_law``, told the faults the plant applies at
     every stage of every step."""
 
     scheme_name = "oracle"

@@ -100,7 +100,7 @@ def _kin_signals(sig, kin, ecd, C):
 
 
 # =========================================================================== the schemes' building blocks
-# The schemes' laws are ftcreport/control/laws (the scheme API's contract, ftcreport.schemes.api); here
+# The schemes' laws are ftcreport/control/*_law.py (the scheme API's contract, ftcreport.schemes.api); here
 # the kernels they share: the matched terms (matched_terms, the round-2 plug-in API's), the switching
 # bank's filters and rule, the active laws' estimate filters and signals.
 

@@ -407,7 +407,7 @@ def jit(fn: Callable | None = None, *, cache: bool = True, **options):
 
 # --------------------------------------------------------------------------- the cache
 #: the folders of compiled sources
-_ENGINE_FILES = ("jit", "fast", "schemes", "control/laws", "model", "control", "observers", "references")
+_ENGINE_FILES = ("jit", "fast", "schemes", "model", "control", "observers", "references")
 
 
 def engine_stamp() -> str:

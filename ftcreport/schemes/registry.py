@@ -6,7 +6,7 @@ its place in the
 order the case schema and the reports list them; a plug-in registers itself when its file is
 imported (:func:`load_plugin`, a case's ``plugins``).  Every reader (the runner, the engine, the
 case schema, the families, the reports, campaigns) asks here.  Adding a built-in scheme is adding
-its file there (and its law's, under ``control/laws/``, when it has its own) and its tests.
+its file there (and its law, ``control/*_law.py``, when it has its own) and its tests.
 """
 
 from __future__ import annotations

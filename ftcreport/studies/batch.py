@@ -351,7 +351,7 @@ def _cost(case: Case, scheme: str) -> float:
 
 def _loop_of(case: Case, scheme: str) -> tuple:
     """Which compiled loop a run needs (ftcreport.fast.engine.loop_for): one per (law, discrete update) of
-    the registry (the built-in schemes share two dispatchers: control/laws), motors and sampled control
+    the registry (the built-in schemes share two dispatchers: control/*_law.py), motors and sampled control
     are variants of each."""
     from ..schemes import get
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from ftcreport import schemes
 from ftcreport.control import ChainedBackstepping, TwoLinkKinematic
-from ftcreport.control.laws.active import _no_obs
+from ftcreport.control.active_law import _no_obs
 from ftcreport.fast import kernels as F
 from ftcreport.observers.ukf_compiled import UKF_OK, Ukf, ukf_params, ukf_step
 from ftcreport.references import FlatReference, circle

@@ -2,7 +2,7 @@ r"""The active scheme: the Farza et al. (2009) adaptive observer of q, eta, the 
 compensating law (4.14) on its estimates (thesis chapter 4).
 
 Its face is :class:`ftcreport.control.active.ActiveController` over a
-:class:`ftcreport.observers.FarzaObserver`; its law is ``control.laws.active.farza_law`` behind the
+:class:`ftcreport.observers.FarzaObserver`; its law is ``control.active_law.farza_law`` behind the
 active dispatcher (one loop with the UKF scheme).  The law asks for the matched terms at the
 estimated velocity itself (``terms="own"``).
 """
@@ -148,8 +148,8 @@ def _not_applicable(case, k_v: float) -> str | None:
 SCHEME = register_built_in(
     Scheme(
         "active",
-        law="ftcreport.control.laws.active:active_law",
-        discrete="ftcreport.control.laws.active:active_discrete",
+        law="ftcreport.control.active_law:active_law",
+        discrete="ftcreport.control.active_law:active_discrete",
         params=ActiveScheme,
         terms="own",
         controller=_controller,

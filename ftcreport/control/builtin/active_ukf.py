@@ -3,7 +3,7 @@ the law (4.14) on its estimates, both at the samples, the command held in betwee
 
 Its face is :class:`ftcreport.control.active.ActiveController` over a
 :class:`ftcreport.observers.UKFEstimator`; its law and discrete update (the filter's step) are
-``control.laws.active``'s behind the active dispatcher.
+``control.active_law``'s behind the active dispatcher.
 """
 
 from __future__ import annotations
@@ -74,8 +74,8 @@ def _cost(case) -> float:
 SCHEME = register_built_in(
     Scheme(
         "active_ukf",
-        law="ftcreport.control.laws.active:active_law",
-        discrete="ftcreport.control.laws.active:active_discrete",
+        law="ftcreport.control.active_law:active_law",
+        discrete="ftcreport.control.active_law:active_discrete",
         params=ActiveUKFScheme,
         terms="own",
         start=True,  # the filter's first step and the first command at t0

@@ -3,7 +3,7 @@ estimate (thesis 3.3.2, (3.113)-(3.127)); ``adaptive_frozen`` holds the weights 
 their initial values (what adaptation buys).
 
 Their face is :class:`ftcreport.control.adaptive.AdaptiveController`; the law and the weights' clip are
-``control.laws.passive``'s behind the passive dispatcher.
+``control.passive_law``'s behind the passive dispatcher.
 """
 
 from __future__ import annotations
@@ -93,8 +93,8 @@ def _budget(n: int, N: int) -> tuple[int, int]:
 
 
 _COMMON = dict(
-    law="ftcreport.control.laws.passive:passive_law",
-    discrete="ftcreport.control.laws.passive:passive_discrete",
+    law="ftcreport.control.passive_law:passive_law",
+    discrete="ftcreport.control.passive_law:passive_discrete",
     params=AdaptiveScheme,
     derived=_derived,
     derived_names=("chi_hat", "uf_hat"),

@@ -1,7 +1,7 @@
 r"""The nominal scheme: the matched law (3.35) assuming healthy wheels, no fault tolerance (the baseline).
 
 Its face is :class:`ftcreport.control.tracking.TrackingController`; its law is
-``control.laws.passive.nominal_law`` behind the passive dispatcher (one loop for the passive schemes).
+``control.passive_law.nominal_law`` behind the passive dispatcher (one loop for the passive schemes).
 :func:`matched_law_scheme` builds it and the oracle (control/builtin/oracle.py), which differ only in their face
 and their words.
 """
@@ -40,8 +40,8 @@ def matched_law_scheme(name: str, face: str, params: type[Strict], **words) -> S
 
     return Scheme(
         name,
-        law="ftcreport.control.laws.passive:passive_law",
-        discrete="ftcreport.control.laws.passive:passive_discrete",
+        law="ftcreport.control.passive_law:passive_law",
+        discrete="ftcreport.control.passive_law:passive_discrete",
         params=params,
         controller=controller,
         defaults=lambda case, k_v: params(k_v=k_v),

@@ -1,7 +1,7 @@
 r"""The oracle: (3.35) told the true sigma and ubar at every instant, the bound every FTC scheme is read against.
 
 Its face is :class:`ftcreport.control.baselines.OracleController`; its law is
-``control.laws.passive.oracle_law`` behind the passive dispatcher.
+``control.passive_law.oracle_law`` behind the passive dispatcher.
 """
 
 from __future__ import annotations

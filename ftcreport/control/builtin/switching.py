@@ -1,7 +1,7 @@
 r"""The switching scheme: multiple models and a switching mechanism (thesis 3.2, 3.3.1, (3.42)-(3.48)).
 
 Its face is :class:`ftcreport.control.switching.SwitchingController` (the model bank, the superposed
-filters' layout, the walk's tables); its law and switching rule are ``control.laws.passive``'s
+filters' layout, the walk's tables); its law and switching rule are ``control.passive_law``'s
 behind the passive dispatcher.  The applied model and the costs are computed from the logged
 state (:func:`_derived`), not logged by the law.
 """
@@ -178,8 +178,8 @@ def _budget(n: int, N: int) -> tuple[int, int]:
 SCHEME = register_built_in(
     Scheme(
         "switching",
-        law="ftcreport.control.laws.passive:passive_law",
-        discrete="ftcreport.control.laws.passive:passive_discrete",
+        law="ftcreport.control.passive_law:passive_law",
+        discrete="ftcreport.control.passive_law:passive_discrete",
         params=SwitchingScheme,
         controller=_controller,
         derived=_derived,

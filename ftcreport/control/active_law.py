@@ -16,13 +16,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ...jit.compiling import jit
-from ...jit.packed import E_UKF, LAW_ACTIVE, Chain, Law, Obs, _clip, _mv
-from ...observers.farza_compiled import farza_derivative, farza_estimates
-from ...observers.ukf_compiled import UKF_OK, Ukf, UkfLaw, _ukf_estimates, _ukf_used, ukf_step
-from ..active_compiled import active_signals, estimate_filters
-from ..interface_compiled import terms_at, terms_with
-from ..tracking_compiled import law_for_pattern
+from ..jit.compiling import jit
+from ..jit.packed import E_UKF, LAW_ACTIVE, Chain, Law, Obs, _clip, _mv
+from ..observers.farza_compiled import farza_derivative, farza_estimates
+from ..observers.ukf_compiled import UKF_OK, Ukf, UkfLaw, _ukf_estimates, _ukf_used, ukf_step
+from .active_compiled import active_signals, estimate_filters
+from .interface_compiled import terms_at, terms_with
+from .tracking_compiled import law_for_pattern
 
 __all__ = ["LAW_ACTIVE_UKF", "Active", "active", "active_discrete", "active_law", "farza_law", "ukf_discrete"]
 __all__ += ["ukf_law"]

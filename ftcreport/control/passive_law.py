@@ -5,16 +5,16 @@ every kernel the law reaches.  Binding the built-in laws one by one made a cold 
 loop per scheme (each with its own copy of the model, the reference and the kinematic law); here
 nominal (the tracking law), the oracle, switching and adaptive sit behind :func:`passive_law`,
 over one parameter type (fast.kernels.Law, ``P.kind`` chooses).  The active schemes have theirs
-(:mod:`ftcreport.control.laws.active`).  Each law is the scheme API's: ``law(P, step, terms, x, out)``
+(:mod:`ftcreport.control.active_law`).  Each law is the scheme API's: ``law(P, step, terms, x, out)``
 on the matched terms (3.35)-(3.37) the engine computed at the measured state.
 """
 
 from __future__ import annotations
 
-from ...jit.compiling import jit
-from ...jit.packed import LAW_ADAPTIVE, LAW_ORACLE, LAW_SWITCHING, LAW_TRACKING, _mv
-from ..switching_compiled import rotor_filter_terms, switching_rates, switching_select
-from ..tracking_compiled import law_for_pattern
+from ..jit.compiling import jit
+from ..jit.packed import LAW_ADAPTIVE, LAW_ORACLE, LAW_SWITCHING, LAW_TRACKING, _mv
+from .switching_compiled import rotor_filter_terms, switching_rates, switching_select
+from .tracking_compiled import law_for_pattern
 
 __all__ = [
     "adaptive_discrete",

@@ -1,4 +1,4 @@
-"""How ftcreport's kernels are compiled (fast/compiling.py): numba left as found, the acceleration scoped to
+"""How ftcreport's kernels are compiled (jit/compiling.py): numba left as found, the acceleration scoped to
 ftcreport's own kernels, refs, the loop's variant constants, the cache outside the package.
 
 None of these may change a number: the golden windows (tests/test_golden.py) hold the results at 1e-9, and

@@ -1,5 +1,5 @@
 """ftcreport's kernels load from the cache without parsing their linking IR until a compile links it
-(fast/lazy_link.py, fast/compiling.py ``KernelLibrary.load``); another package's functions load as numba does.
+(jit/lazy_link.py, jit/compiling.py ``KernelLibrary.load``); another package's functions load as numba does.
 
 Each check runs in a fresh process with its own cache directories (tmp_path), so the first process
 compiles and saves and the second loads from the cache: the path the lazy load changes.

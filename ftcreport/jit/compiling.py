@@ -321,7 +321,7 @@ class KernelCompiler(compiler.Compiler):
     """numba's default compiler (its pipelines unchanged) writing into a :class:`KernelLibrary`.
 
     It compiles the kernels of :func:`jit` and ftcreport's own overloads (``jit_options={"pipeline_class":
-    KernelCompiler}``, fast/refs.py): an overload's implementation is held by numba's dispatcher, which
+    KernelCompiler}``, jit/refs.py): an overload's implementation is held by numba's dispatcher, which
     takes compiled functions only, so its machine code is never deferred (the cheap passes below an entry
     point still apply)."""
 

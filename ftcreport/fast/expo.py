@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from .kernels import jit
+from ..jit.compiling import jit
 
 #: terms of phi_2's Taylor series at ||X||_1 <= 1/2 (remainder (1/2)^15 / 16! < 1e-17)
 TAYLOR_TERMS = 14

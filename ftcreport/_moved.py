@@ -72,6 +72,6 @@ class _MovedFinder(importlib.abc.MetaPathFinder):
 def install(package: str) -> None:
     """Let ``package.<old name>`` import the moved module (once per process)."""
     if not any(isinstance(f, _MovedFinder) for f in sys.meta_path):
-        # first: a moved package (schemes.laws) keeps its files on its __path__, where the path finder would
-        # load them a second time under the old name
+        # first: an alias of a moved package would otherwise let the path finder load the package's files a
+        # second time under the old name, from the package's __path__ (seen while control/laws/ was one)
         sys.meta_path.insert(0, _MovedFinder(package))

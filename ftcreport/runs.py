@@ -137,7 +137,7 @@ def stream_of(signals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def step_jump_words(kind: int, before: float, after: float) -> str:
-    """The words of a ``_step_jump`` triple (fast.kernels._step_jump: kind, before, after)."""
+    """The words of a ``_step_jump`` triple (fast.checks._step_jump: kind, before, after)."""
     if kind == 1:
         return "non-finite new state"
     what = {2: ("velocity", ""), 3: ("position", " m"), 4: ("an articulation angle's distance from 90 deg", " deg")}

@@ -92,12 +92,23 @@ def _imports(path: Path, source: str | None = None) -> set[str]:
 
 
 def _graph() -> dict[str, set[str]]:
-    files = {_module_name(p): p for p in ROOT.rglob("*.py") if ".venv" not in p.parts and "_loops" not in p.parts}
+    files = {_module_name(p): p for p in ROOT.rglob("*.py") if "__pycache__" not in p.parts}
     graph = {}
     for name, path in files.items():
         deps = {d for d in _imports(path) if d in files and d != name}
         graph[name] = deps
     return graph
+
+
+def test_the_package_imports_no_old_path_of_a_moved_module():
+    """The graph above knows only the files on disk: an import of an old path (ftcreport.batch, an alias of
+    ftcreport/_moved.py) would be a dependency it cannot see, so the package itself uses none."""
+    from ftcreport._moved import MOVED
+
+    old = {f"ftcreport.{name}" for name in MOVED}
+    files = [p for p in ROOT.rglob("*.py") if "__pycache__" not in p.parts]
+    found = sorted(f"{_module_name(p)} -> {d}" for p in files for d in _imports(p) if d in old)
+    assert len(files) > 100 and not found, found
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -217,19 +228,33 @@ def test_the_analysis_reaches_no_report_cli_or_store():
         assert not stdlib & set(IO_MODULES), (m, stdlib & set(IO_MODULES))
 
 
-#: the loop and what it is made of know the scheme interface (ftcreport.schemes.api and its compiled side,
+#: the loop and what it is made of, and the run's Python side around it (the metric stream, the stops, the
+#: re-checks), know the scheme interface (ftcreport.schemes.api and its compiled side,
 #: control/interface_compiled.py), the plant (model, with the motors' and drives' kernels) and the engine's
 #: own parts, never a concrete law, observer or reference (issue 38 item 6): those reach it through the
 #: scheme interface only
 LOOP_PARTS = ("ftcreport.fast.loop", "ftcreport.fast.loop_plant", "ftcreport.fast.integrators")
+LOOP_PARTS += ("ftcreport.fast.engine", "ftcreport.fast.simulate", "ftcreport.fast.auto_run")
+LOOP_PARTS += ("ftcreport.fast.recheck", "ftcreport.fast.stops")
 CONCRETE = ("ftcreport.control", "ftcreport.observers", "ftcreport.references", "ftcreport.fast.kernels")
-INTERFACE = ("ftcreport.control.interface_compiled",)
+#: the interface's compiled side and what it is built on: the kinematic terms every law is handed (the
+#: kinematic law, the matched terms, the reference's jets the kinematic law reads) are the engine's business
+#: (issue 38 item 5), computed once per step for whichever scheme runs
+INTERFACE = ("ftcreport.control.interface_compiled", "ftcreport.control.kinematic_compiled")
+INTERFACE += ("ftcreport.control.tracking_compiled", "ftcreport.references.compiled")
 
 
 @pytest.mark.parametrize("part", LOOP_PARTS)
 def test_the_loop_imports_no_concrete_law_observer_or_reference(part):
-    direct = _graph()[part]
-    assert not [d for d in direct if _under(d, CONCRETE) and not _under(d, INTERFACE)], sorted(direct)
+    """Transitively: what the part imports, what that imports, and so on."""
+    graph = _graph()
+    seen, todo = set(), [part]
+    while todo:
+        for d in graph.get(todo.pop(), ()):
+            if d in graph and d not in seen:
+                seen.add(d)
+                todo.append(d)
+    assert not [d for d in seen if _under(d, CONCRETE) and not _under(d, INTERFACE)], sorted(seen)
 
 
 #: the top level groups by role (issue 38 item 6): folders, and the four modules every room shares
@@ -359,6 +384,19 @@ def test_no_cycle_between_folders_and_the_rooms_are_layered():
     rank = {r: i for i, r in enumerate(ROOM_ORDER)}
     upward = {e: why for e, why in edges.items() if rank[e[0]] <= rank[e[1]]}
     assert not upward, sorted(upward.items())[:5]
+
+
+def test_the_readme_lists_the_rooms_in_their_order():
+    """README's "Layout" says each room imports only those listed before it: its order is ROOM_ORDER's."""
+    import re
+
+    text = (ROOT.parent / "README.md").read_text().split("## Layout", 1)[1]
+    listed = []
+    for line in text.split("```")[1].splitlines():
+        m = re.match(r"ftcreport/(\S+?)(?:/|\.py,?)\s", line)
+        if m:
+            listed += [m.group(1)] + (["runs"] if m.group(1) == "errors" else [])
+    assert listed == list(ROOM_ORDER), listed
 
 
 def test_no_cycle_between_packages_nested_ones_included():

@@ -413,7 +413,7 @@ def _check_motor_fault(i: int, f: Fault, has_actuators: bool) -> None:
 def _check_initial_articulation(ini: Initial, margin_deg: float) -> None:
     """Absolute headings whose articulation angle starts within the singularity margin of 90 deg (ERRATA P4).
 
-    The engine's test (fast.kernels._check_state: |cos(theta_i - theta_(i+1))| <= sin(margin)) on the
+    The engine's test (fast.checks._check_state: |cos(theta_i - theta_(i+1))| <= sin(margin)) on the
     headings as given, so the run that would stop at t = 0 is refused here, naming the field.  Offset
     mode adds the reference's headings at t = 0 (built only with the reference): the run checks those.
     """

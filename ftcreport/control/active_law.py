@@ -27,7 +27,7 @@ from .tracking_compiled import law_for_pattern
 __all__ = ["LAW_ACTIVE_UKF", "Active", "active", "active_discrete", "active_law", "farza_law", "ukf_discrete"]
 __all__ += ["ukf_law"]
 
-LAW_ACTIVE_UKF = 5  # after fast.kernels.LAW_TRACKING .. LAW_ACTIVE
+LAW_ACTIVE_UKF = 5  # after jit.packed.LAW_TRACKING .. LAW_ACTIVE
 
 
 class Active(NamedTuple):

@@ -114,7 +114,7 @@ class AdaptiveController(SchemeController):
 
     @property
     def P(self):
-        """The compiled law's parameters (fast.kernels.Law; offsets in the scheme's own states)."""
+        """The compiled law's parameters (jit.packed.Law; offsets in the scheme's own states)."""
         if self._P is None:
             from ..jit.packed import LAW_ADAPTIVE, law_params
 

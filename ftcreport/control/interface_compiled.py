@@ -7,7 +7,7 @@ at the measured state (:func:`engine_terms`), the kinematic law alone for the lo
 the terms at another velocity with :func:`terms_at` (or another model, :func:`terms_with`).
 
 ``step.kin`` is ``(Kp, R, C, xk, fresh)``: the kinematic law's parameters, the reference, the
-per-step cache (fast.kernels.Cache), the kinematic controller's states and a one-value flag set
+per-step cache (jit.packed.Cache), the kinematic controller's states and a one-value flag set
 when the law evaluated the kinematic law itself (its signals are then the ones logged).
 """
 

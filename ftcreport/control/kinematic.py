@@ -1,6 +1,6 @@
 r"""Kinematic controllers: eta_c, T_alpha and f_eta for the dynamic layer.
 
-Both laws exist once, in the compiled kernels (``fast.kernels._two_link_law`` and
+Both laws exist once, in the compiled kernels (``control.kinematic_compiled._two_link_law`` and
 ``_chained_law``, with their equations and errata); the classes here hold and
 check the gains, pack them (``packed(h)``, the kernels' ``Kin`` tuple) and call
 the kernels.  Two designs, both returning a :class:`KinematicOutput` from ``law(t, q, xc)``
@@ -135,7 +135,7 @@ class _Face:
     _cache: object = None
 
     def packed(self, h: float = 1e-5):
-        """The law as the compiled kernels take it (``fast.kernels.Kin``); h: step of the etadot_c difference."""
+        """The law as the compiled kernels take it (``jit.packed.Kin``); h: step of the etadot_c difference."""
         if self._kin is None or self._kin.h != float(h):
             self._kin = self._pack(float(h))
         return self._kin

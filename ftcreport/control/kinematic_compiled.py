@@ -231,7 +231,7 @@ def kin_discrete(Kp, R, C, t, xc, info):
 
 @jit
 def _reanchor_time(Kp, R, C, t_a, t_b, psi, info):
-    """When in (t_a, t_b] the chained law's frame psi must re-anchor (fast.kernels.kin_discrete: once the
+    """When in (t_a, t_b] the chained law's frame psi must re-anchor (kin_discrete: once the
     reference heading theta_d(t) leaves psi +/- band): t_b if it need not, else the first instant found
     by bisection on theta_d (a function of t alone: an event known from the reference), to 1e-12 s
     relative, on the side where it must (so that the discrete update there re-anchors)."""

@@ -4,7 +4,7 @@ numba compiles the closed loop (fast/loop.py) once per law it is bound to, and e
 every kernel the law reaches.  Binding the built-in laws one by one made a cold batch compile one
 loop per scheme (each with its own copy of the model, the reference and the kinematic law); here
 nominal (the tracking law), the oracle, switching and adaptive sit behind :func:`passive_law`,
-over one parameter type (fast.kernels.Law, ``P.kind`` chooses).  The active schemes have theirs
+over one parameter type (jit.packed.Law, ``P.kind`` chooses).  The active schemes have theirs
 (:mod:`ftcreport.control.active_law`).  Each law is the scheme API's: ``law(P, step, terms, x, out)``
 on the matched terms (3.35)-(3.37) the engine computed at the measured state.
 """
@@ -42,10 +42,10 @@ def oracle_law(P, step, terms, x, out):
 
 @jit
 def switching_law(P, step, terms, x, out):
-    """(3.37) for the selected model's pattern, and the model bank's rates (fast.kernels.switching_rates).
+    """(3.37) for the selected model's pattern, and the model bank's rates (control.switching_compiled.switching_rates).
 
     With ``P.Jw`` (the motors' rotor inertias) the bank's filters predict with the rotors
-    (fast.kernels.rotor_filter_terms); the law itself uses the chain's model, as every scheme.
+    (control.switching_compiled.rotor_filter_terms); the law itself uses the chain's model, as every scheme.
     """
     u = law_for_pattern(terms.MB, terms.w, P.patterns[round(x[P.sel])])
     out.u[:] = u
@@ -58,7 +58,7 @@ def switching_law(P, step, terms, x, out):
 
 @jit
 def switching_discrete(P, step, x):
-    """After each step: the switching rule (fast.kernels.switching_select)."""
+    """After each step: the switching rule (control.switching_compiled.switching_select)."""
     switching_select(P, step.t, step.eta, x)
 
 

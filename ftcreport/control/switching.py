@@ -15,7 +15,7 @@ Thesis sections 3.2.2.2-3.2.2.3 and 3.3.1 (3.33-3.48, 3.107), ERRATA E8, E12f, E
   e' = -gamma e + Mbar1^-1 Bbar (sigma - sigma_(k)) u = -gamma e.
   The filters are linear in sigma_(k), so they are run by superposition (issue 20 item 5):
   the healthy model's filter h and one filter z_j per wheel, ``etahat_(k) = h - sum_j (1 - sigma_kj) z_j``;
-  2 + 4n states for the whole bank instead of 2 N (fast.kernels.switching_rates).
+  2 + 4n states for the whole bank instead of 2 N (control.switching_compiled.switching_rates).
 * Costs (3.46), with the optional forgetting integral of Narendra & Balakrishnan
   (1994): ``J_(k) = c_inst |etatilde_(k)|^2 + c_int int_0^t exp(-lambda (t - s)) |etatilde_(k)(s)|^2 ds``;
   the integral is ``I' = -lambda I + |etatilde|^2`` per model; superposed, it is the quadratic form
@@ -34,14 +34,14 @@ Thesis sections 3.2.2.2-3.2.2.3 and 3.3.1 (3.33-3.48, 3.107), ERRATA E8, E12f, E
   floating-point operations (another BLAS, another compiler) from the first such
   tie on.
 
-* The least cost is found without visiting every model (fast.kernels._walk: a depth-first walk over
+* The least cost is found without visiting every model (control.switching_compiled._walk: a depth-first walk over
   the wheels that skips the subtrees whose lower bound cannot win), so n = 8 (49,150 models) runs
   in real time; the chosen model is the exhaustive rule's (tests/test_switching_bank.py).
 
 The controller's state is ``[kinematic state, h (2), z_1 .. z_2n (2 each), M's upper triangle
 ((2n + 1)(2n + 2) / 2, if c_int > 0), selected index, time of the last switch]``; the last two are
 discrete (zero derivative, changed only by :meth:`discrete`).  The equations are the compiled
-kernels' (fast.kernels.switching_rates, switching_select, switching_costs), called from here too.
+kernels' (control.switching_compiled.switching_rates, switching_select, switching_costs), called from here too.
 
 Logged signals: ``selected`` and, for banks of at most :data:`MAX_LOGGED_COSTS` models, ``cost``
 (every model's J, (N,) per sample); larger banks log ``cost_selected`` (the applied model's J) and
@@ -64,7 +64,7 @@ __all__ = ["MAX_LOGGED_COSTS", "TIE_RTOL", "SwitchingController"]
 
 TIE_RTOL = 1e-9  # switching costs this close (relative) to the smallest are ties
 MAX_LOGGED_COSTS = 4096  # banks up to this size log every model's cost (n <= 6 with every pattern)
-WALK_MIN_MODELS = 32  # 0/1 banks from this size on are searched by the walk (fast.kernels._walk)
+WALK_MIN_MODELS = 32  # 0/1 banks from this size on are searched by the walk (control.switching_compiled._walk)
 
 
 class SwitchingController(SchemeController):
@@ -95,7 +95,7 @@ class SwitchingController(SchemeController):
         Index of the model applied at the start (0: the first pattern).
     rotor_inertia : (2n,) array_like, optional
         The DC motors' rotor inertia on each wheel axis, eta_g N^2 J_m [kg m^2] (ERRATA E19): the
-        filters (3.42) predict eta with it (fast.kernels.rotor_filter_terms); the law keeps the
+        filters (3.42) predict eta with it (control.switching_compiled.rotor_filter_terms); the law keeps the
         chain's model.  None: the chain alone (no motors, or a bank that ignores them).
     """
 
@@ -155,7 +155,7 @@ class SwitchingController(SchemeController):
 
     # ------------------------------------------------------------------ helpers
     def walk_tables(self) -> tuple[np.ndarray, np.ndarray]:
-        """(codes, trie) of the walk (fast.kernels.Law), or empty arrays when every pattern is evaluated.
+        """(codes, trie) of the walk (jit.packed.Law), or empty arrays when every pattern is evaluated.
 
         codes[sum_j sigma_j 2^j] is the bank index of a 0/1 pattern (-1: not in the bank);
         trie[2^d + (code mod 2^d)] is 1 when a bank pattern starts with those d wheels; trie[0] is 1
@@ -179,9 +179,9 @@ class SwitchingController(SchemeController):
         return codes, trie
 
     def packed(self):
-        """The kernels' parameters (fast.kernels.Law): the bank, the superposed filters' layout (offsets in
+        """The kernels' parameters (jit.packed.Law): the bank, the superposed filters' layout (offsets in
         the scheme's own states, after the kinematic controller's) and the walk's tables
-        (fast.kernels.switching_rates, switching_select), built once."""
+        (control.switching_compiled.switching_rates, switching_select), built once."""
         if self._packed is None:
             from ..jit.packed import LAW_SWITCHING, law_params
 
@@ -203,7 +203,7 @@ class SwitchingController(SchemeController):
         return self.packed()
 
     def costs(self, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
-        """J_(k) for every model, (N,), at the controller state ``xc`` (fast.kernels.switching_costs)."""
+        """J_(k) for every model, (N,), at the controller state ``xc`` (control.switching_compiled.switching_costs)."""
         from .switching_compiled import switching_costs
 
         own = np.asarray(xc, dtype=float)[self.kin.n_states :]

@@ -11,7 +11,7 @@ Lyapunov function decreases.  :class:`TrackingController` applies it with the
 healthy pattern (the ``nominal`` baseline); the FTC schemes' compiled laws use
 the same kernels with other patterns.
 
-The law lives once, in the compiled kernels (``fast.kernels.law_terms`` and
+The law lives once, in the compiled kernels (``control.tracking_compiled.law_terms`` and
 ``law_for_pattern``, which cite the equations and errata); the helpers here are
 their faces, and :meth:`TrackingController.evaluate` is the compiled loop's law at
 one state for the analyses (``analysis.closed_loop_jacobian``).
@@ -136,7 +136,7 @@ class TrackingController(SchemeController):
 
     @property
     def P(self):
-        """The compiled law's parameters (fast.kernels.Law: the pattern the law assumes)."""
+        """The compiled law's parameters (jit.packed.Law: the pattern the law assumes)."""
         if self._P is None:
             from ..jit.packed import LAW_ORACLE, LAW_TRACKING, law_params
 

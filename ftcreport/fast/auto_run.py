@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import kernels as F
+from ..jit.packed import AT_STATE, AT_TRIAL, E_LAW_WRITE, E_MIN_STEP, E_STEP_JUMP
 from .engine import _FIRST_CALLS, _READY, NAN, _collect, _compile_time, _finish, _Loop, _timing_mark
 from .stops import _how, _in_singular_set, _message, _stop
 
@@ -65,7 +65,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     wall0 = _time.perf_counter()
     first_s, calls = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if L.info[0] != 0:
-        status, reason, _ = _stop(L.info, F.AT_STATE, t0, t0, settings, spec.ref, spec)
+        status, reason, _ = _stop(L.info, AT_STATE, t0, t0, settings, spec.ref, spec)
     chunk = 0
     with np.errstate(all="ignore"):
         while status == "ok":
@@ -175,11 +175,11 @@ def _auto_cause(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> 
     used = _CODE_NAMES.get(int(ctl[8]), settings.method)
     how = _how(settings, used)
     t = float(ctl[0])
-    if int(info[0]) == F.E_LAW_WRITE:  # the scheme wrote past its buffers (the loop's guard cells)
+    if int(info[0]) == E_LAW_WRITE:  # the scheme wrote past its buffers (the loop's guard cells)
         from ..schemes.controller import write_reason
 
         return "error", write_reason(spec.controller, int(info[1]), float(info[2]))
-    if int(info[0]) != F.E_MIN_STEP:
+    if int(info[0]) != E_MIN_STEP:
         status, reason = _message(info, t, settings, spec.ref, how)
         if status == "step_unstable":  # a stop of the fixed-step detectors' kind: the error control followed it
             status = "diverged"
@@ -193,14 +193,14 @@ def _auto_cause(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> 
             "crossed at every step)"
         )
         return "diverged", min_step_reason(t, float(info[2]), how, settings.min_step, why)
-    if code == F.E_STEP_JUMP:
+    if code == E_STEP_JUMP:
         from ..runs import step_jump_words
 
         why = f"every shorter step blew up ({step_jump_words(int(cause[1]), float(cause[2]), float(cause[3]))})"
         return "diverged", min_step_reason(t, float(info[2]), how, settings.min_step, why)
     status, words = _message(cause, t, settings, spec.ref, how)
     why = f"every shorter step's trial stage left the domain ({words})"
-    if _in_singular_set(cause, F.AT_TRIAL, L.x, t, settings, spec):  # the state is at the set's edge
+    if _in_singular_set(cause, AT_TRIAL, L.x, t, settings, spec):  # the state is at the set's edge
         return "singular", min_step_reason(t, float(info[2]), how, settings.min_step, why)
     if status == "error":  # the reference's own infeasibility (E_REF_*)
         return "error", words

@@ -1,4 +1,4 @@
-r"""The compiled engine: the one simulation loop (ftcreport/fast/loop.py on ftcreport.fast.kernels).
+r"""The compiled engine: the one simulation loop (ftcreport/fast/loop.py, on the domains' compiled kernels).
 
 :func:`compiled_spec` reads a controller built by the Python faces (the classes of
 :mod:`ftcreport.control`, a registered scheme's ``SchemeController``) into the plain
@@ -41,12 +41,14 @@ except ImportError:  # pragma: no cover - not POSIX
     fcntl = None
 
 from ..jit.compiling import engine_stamp
+from ..jit.packed import Chain, Kin, Ref
+from ..model import compiled as model_compiled
+from ..model.compiled import reduced
 from ..model.drive_compiled import motor_state_count
 from ..model.kernels import input_matrices_rows as model_input_matrices_rows
 from ..model.kernels import kernel_ref, packed
 from ..schemes.api import GUARD, N_GUARD, TERMS_MODES
 from ..schemes.controller import SchemeController
-from . import kernels as F
 
 __all__ = ["Spec", "compiled_spec", "loop_for"]
 
@@ -56,12 +58,12 @@ NAN = float("nan")
 class Spec(NamedTuple):
     """Everything the kernels need of a controller (a scheme bound to a case: ftcreport.schemes)."""
 
-    kin: F.Kin
-    ref: F.Ref
+    kin: Kin
+    ref: Ref
     law: object  # the scheme's compiled law (ftcreport.schemes.api)
     disc: object  # its discrete update
     P: tuple  # its packed parameters
-    chain: F.Chain
+    chain: Chain
     n_sig: int  # the logged signals: the kinematic ones, then the law's
     controller: SchemeController
     start: bool = False  # the discrete update also runs at t0, before the first step
@@ -69,7 +71,7 @@ class Spec(NamedTuple):
     n_kin_sig: int = 0  # the kinematic signals' count (they come first in the signal row)
 
 
-def _chain(params) -> F.Chain:
+def _chain(params) -> Chain:
     return packed(params)  # Chain.params is already the kernels' tuple (model.kernels.make_params)
 
 
@@ -140,7 +142,7 @@ def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
     """Wheel speeds (K, 2n) at K states: the compiled reduced model's Bbar(q)^T eta, row by row."""
     Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)
     ETA = np.ascontiguousarray(ETA, dtype=float).reshape(-1, 2)
-    return F.wheel_speeds_rows(kernel_ref(chain.params), Q, ETA)  # a ref: the loop's compile of reduced
+    return model_compiled.wheel_speeds_rows(kernel_ref(chain.params), Q, ETA)  # a ref: the loop's compile of reduced
 
 
 def input_matrices_rows(chain, Q: np.ndarray) -> np.ndarray:
@@ -204,7 +206,7 @@ def _initial_currents(loop, spec: Spec, plant, mo, dr, sigma, ubar, fm, t0: floa
         return np.zeros(npl - nq - 2)  # the loop reports the law's failure at its first step
     sat = plant.saturation
     tau_c = sigma * (u if sat is None else np.clip(u, -sat, sat)) + ubar
-    omega = F.reduced(kernel_ref(plant.chain.params), q, eta)[3].T @ eta
+    omega = reduced(kernel_ref(plant.chain.params), q, eta)[3].T @ eta
     return initial_motor_states(mo, dr, tau_c, omega, fm)
 
 

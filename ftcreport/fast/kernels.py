@@ -1,4 +1,4 @@
-r"""The compiled kernels of every domain under one name, for the engine and the faces.
+r"""The compiled kernels of every domain under one name, for Python callers that want them all.
 
 Each compiled function lives beside its readable face, by domain (issue 38 item 6):
 
@@ -11,7 +11,10 @@ Each compiled function lives beside its readable face, by domain (issue 38 item 
 * :mod:`ftcreport.observers.farza_compiled`: the Farza observer;
 * :mod:`ftcreport.fast.checks`: the loop's state checks.
 
-This module only gathers their names (``from ftcreport.fast import kernels as F``; ``F.reduced``).
+This module only gathers their names (``from ftcreport.fast import kernels as F``; ``F.reduced``) for the
+linearized analysis, the tests and a notebook.  The package's own modules import each kernel from its
+domain (the faces their twin, the engine what the loop binds), so that no room below the engine depends on
+this list.
 Each function cites its thesis equation and erratum (docs/ERRATA.md).  Nothing here does I/O.
 """
 

@@ -788,7 +788,7 @@ def run_auto(
     the longest step and to the next instant it must land on (:func:`_next_event`: faults, samples,
     the clock of noise and discrete-time filters, dwell ends, the end); a trial step whose error
     ratio exceeds 1 is rejected and retried shorter, and one whose stage leaves the domain (or whose
-    new state jumps past a check, fast.kernels._step_jump) is retried at a quarter of its length.
+    new state jumps past a check, fast.checks._step_jump) is retried at a quarter of its length.
     At the minimum step a step whose error estimate is still over the tolerance (a discontinuity of
     the rates inside it: the adaptive law's projection at its bounds) is taken and counted
     (ctl[C_FORCED]); FORCED_STREAK of them in a row, or a trial stage that leaves the domain at the

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import step_words
-from . import kernels as F
+from ..jit.packed import AT_TRIAL, E_STEP_GROWTH
 from .auto_run import _AUTO_CODES, _auto_arrays, _auto_stop
 from .engine import NAN
 from .integrators import METHOD_CODES
@@ -191,7 +191,7 @@ def _relabel(code: int, where: int, reason: str, recheck: dict, settings, t_stop
     fine = recheck
     growth = fine["growth"]
     finer = f"at dt/{RECHECK_SPLIT} = {fine['dt']:g} s"
-    if code == F.E_STEP_GROWTH and growth is not None and growth > GROWTH_FACTOR**GROWTH_STEPS:
+    if code == E_STEP_GROWTH and growth is not None and growth > GROWTH_FACTOR**GROWTH_STEPS:
         return "diverged", (
             f"{reason}; {finer} the torque grows as fast ({growth:.3g}x over the same {GROWTH_STEPS} steps of dt): "
             "the loop's own fast mode, not the step's"
@@ -199,7 +199,7 @@ def _relabel(code: int, where: int, reason: str, recheck: dict, settings, t_stop
     if fine["status"] == "ok":
         return "step_unstable", vanishes_reason(reason, finer, fine["to"])
     if fine["status"] == "singular":
-        trial = where == F.AT_TRIAL and code in _SINGULAR_CODES  # the step dt's trial stage reached the set
+        trial = where == AT_TRIAL and code in _SINGULAR_CODES  # the step dt's trial stage reached the set
         return "singular", persists_reason(fine["reason"], settings.dt, finer, t_stop, fine["t_end"], True, trial)
     controlled = fine.get("controlled")
     if controlled is not None and controlled["status"] == "ok":  # only a much smaller step passes it

@@ -645,7 +645,7 @@ def _one_state(call: _Call, sc: Scheme, ctrl, state, head, law, disc, label) -> 
     return None
 
 
-_E_LAW_WRITE = 16  # fast.kernels.E_LAW_WRITE (not imported: numba is loaded only when a check runs)
+_E_LAW_WRITE = 16  # jit.packed.E_LAW_WRITE (not imported: numba is loaded only when a check runs)
 
 
 # ---------------------------------------------------------------------------------------- a plug-in's first run

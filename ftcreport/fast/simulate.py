@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import kernels as F
+from ..jit.packed import AT_STATE
 from .auto_run import _simulate_auto
 from .engine import _FIRST_CALLS, _READY, _collect, _compile_time, _finish, _Loop, _timing_mark
 from .integrators import METHOD_CODES
@@ -58,7 +58,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     wall0 = _time.perf_counter()
     first_s, chunks = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if L.info[0] != 0:  # the first command failed (at t0, before any step)
-        status, reason, t_end = _stop(L.info, F.AT_STATE, t_end, t_end, settings, spec.ref, spec)
+        status, reason, t_end = _stop(L.info, AT_STATE, t_end, t_end, settings, spec.ref, spec)
     with np.errstate(all="ignore"):
         while status == "ok":
             k1 = min(k + chunk - 1, n_steps)

@@ -21,7 +21,27 @@ from ..errors import (
     two_link_reason,
     with_step,
 )
-from . import kernels as F
+from ..jit.packed import (
+    AT_STATE,
+    AT_TRIAL,
+    E_CHAINED_ART,
+    E_CHAINED_THN,
+    E_KAPPA,
+    E_LAW_WRITE,
+    E_NONFINITE_DERIV,
+    E_NONFINITE_STATE,
+    E_POSITION,
+    E_REF_ART,
+    E_REF_SPEED,
+    E_SPEED,
+    E_STATE_SINGULAR,
+    E_STEP_GROWTH,
+    E_STEP_JUMP,
+    E_TWO_LINK_ETH,
+    E_TWO_LINK_PHI,
+    E_UKF,
+    Ref,
+)
 from .integrators import AUTO_METHODS
 
 if TYPE_CHECKING:
@@ -36,40 +56,40 @@ def _how(settings, used: str | None = None) -> str:
     return step_words(settings.dt, settings.method)
 
 
-def _message(info: np.ndarray, t: float, settings, ref: F.Ref, how: str = "") -> tuple[str, str]:
+def _message(info: np.ndarray, t: float, settings, ref: Ref, how: str = "") -> tuple[str, str]:
     """(status, reason) of a kernel error code (one wording per stop: ftcreport.errors)."""
     how = how or _how(settings)
     code = int(info[0])
     a, b, c = (float(v) for v in info[1:4])
-    if code == F.E_STATE_SINGULAR:
+    if code == E_STATE_SINGULAR:
         return "singular", articulation_reason(int(a), b, settings.singularity_margin)
-    if code in (F.E_NONFINITE_STATE, F.E_NONFINITE_DERIV):
-        reason = nonfinite_reason("state" if code == F.E_NONFINITE_STATE else "control or derivative", a)
+    if code in (E_NONFINITE_STATE, E_NONFINITE_DERIV):
+        reason = nonfinite_reason("state" if code == E_NONFINITE_STATE else "control or derivative", a)
         return "diverged", with_step(reason, how)
-    if code == F.E_SPEED:
+    if code == E_SPEED:
         return "diverged", with_step(bound_reason("velocity", [a, b], settings.max_speed), how)
-    if code == F.E_POSITION:
+    if code == E_POSITION:
         return "diverged", with_step(bound_reason("position", [a, b], settings.max_position, " m"), how)
-    if code == F.E_TWO_LINK_ETH:
+    if code == E_TWO_LINK_ETH:
         return "singular", two_link_reason(f"heading error e_theta of robot {ref.n}", a)
-    if code == F.E_TWO_LINK_PHI:
+    if code == E_TWO_LINK_PHI:
         return "singular", two_link_reason("articulation angle theta_1 - theta_2", a)
-    if code == F.E_CHAINED_THN:
+    if code == E_CHAINED_THN:
         return "singular", chained_reason(f"theta_{ref.n}", a, " in its frame")
-    if code == F.E_CHAINED_ART:
+    if code == E_CHAINED_ART:
         return "singular", chained_reason(f"theta_{int(a) + 1} - theta_{int(a) + 2}", b)
-    if code == F.E_KAPPA:
+    if code == E_KAPPA:
         return "singular", kappa_reason(a)
-    if code == F.E_REF_SPEED:
+    if code == E_REF_SPEED:
         return "error", reference_speed_reason(a, int(b), c, ref.min_speed)
-    if code == F.E_REF_ART:
+    if code == E_REF_ART:
         return "error", reference_articulation_reason(a, int(b), c, ref.max_art)
-    if code == F.E_UKF:
-        from ..observers.ukf_compiled import ukf_message
+    if code == E_UKF:
+        from ..jit.packed import ukf_message
 
         reason = f"the UKF stopped at t = {b:.6g} s: {ukf_message(int(a))}"
         return "diverged", with_step(reason, how)
-    if code == F.E_STEP_GROWTH:
+    if code == E_STEP_GROWTH:
         from ..runs import GROWTH_FACTOR, GROWTH_STEPS
 
         return "step_unstable", step_growth_reason(a, b, c, GROWTH_STEPS, GROWTH_FACTOR, how)
@@ -77,25 +97,25 @@ def _message(info: np.ndarray, t: float, settings, ref: F.Ref, how: str = "") ->
 
 
 def _stop(
-    info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: F.Ref, spec: Spec | None = None
+    info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: Ref, spec: Spec | None = None
 ) -> tuple[str, str, float]:
     """(status, reason, t_end) of a fixed-step stop: a failed trial stage is a step problem, not a singularity
     (until the re-check says otherwise, :func:`_relabel`); a scheme that wrote past its buffers is an error
     naming the scheme and the buffer (ftcreport.schemes.api)."""
-    if int(info[0]) == F.E_LAW_WRITE and spec is not None:
+    if int(info[0]) == E_LAW_WRITE and spec is not None:
         from ..schemes.controller import write_reason
 
         return "error", write_reason(spec.controller, int(info[1]), float(info[2])), float(info[2])
     how = _how(settings)
-    if int(info[0]) == F.E_STEP_JUMP:
+    if int(info[0]) == E_STEP_JUMP:
         from ..runs import step_jump_words
 
         words = step_jump_words(int(info[1]), float(info[2]), float(info[3]))
         return "step_unstable", trial_stage_reason(t_state, words, how, settings.method, stage=False), t_state
-    if where == F.AT_TRIAL and int(info[0]) not in (F.E_REF_SPEED, F.E_REF_ART):
+    if where == AT_TRIAL and int(info[0]) not in (E_REF_SPEED, E_REF_ART):
         _, detail = _message(info, t_state, settings, ref)
         return "step_unstable", trial_stage_reason(t_state, detail, how, settings.method), t_state
-    if where == F.AT_STATE:
+    if where == AT_STATE:
         return (*_message(info, t_state, settings, ref), t_state)
     return (*_message(info, t_next, settings, ref), t_next)
 
@@ -107,7 +127,7 @@ def _in_singular_set(info, where: int, x: np.ndarray, t: float, settings, spec: 
     is only if the accepted state x at t is already near the set the stage reached: within
     JUMP_MARGINS singularity margins of it (|cos| of the angle below sin(20 deg) at the default 2 deg
     margin; for the chained form, its law refusing x with its tolerance widened to that), the band
-    within which fast.kernels._step_jump does not call an arrival at the set a step's blow-up.  A stage
+    within which fast.checks._step_jump does not call an arrival at the set a step's blow-up.  A stage
     that reaches the set from farther out is a blow-up passing through it (``diverged`` if it persists).
     """
     from ..runs import JUMP_MARGINS
@@ -115,17 +135,17 @@ def _in_singular_set(info, where: int, x: np.ndarray, t: float, settings, spec: 
     code = int(info[0])
     if code not in _SINGULAR_CODES:
         return False
-    if where == F.AT_STATE:
+    if where == AT_STATE:
         return True
     band = math.sin(JUMP_MARGINS * settings.singularity_margin)
     nq = spec.chain.n + 2
     q = x[:nq]
     kin = spec.controller.kin
-    if code == F.E_TWO_LINK_PHI:
+    if code == E_TWO_LINK_PHI:
         return abs(math.cos(q[3] - q[2])) <= band
-    if code == F.E_TWO_LINK_ETH:  # the heading error of robot n against the reference's heading at t
+    if code == E_TWO_LINK_ETH:  # the heading error of robot n against the reference's heading at t
         return abs(math.cos(q[2] - float(kin.reference.at(t).q_d[2]))) <= band
-    if code in (F.E_CHAINED_THN, F.E_CHAINED_ART, F.E_KAPPA) and hasattr(kin, "singular_tol"):
+    if code in (E_CHAINED_THN, E_CHAINED_ART, E_KAPPA) and hasattr(kin, "singular_tol"):
         import copy
 
         from ..errors import FtcError
@@ -140,6 +160,4 @@ def _in_singular_set(info, where: int, x: np.ndarray, t: float, settings, spec: 
 
 
 #: the kinematic laws' and the chained form's singular sets (ERRATA P4, E12d): a stop there is ``singular``
-_SINGULAR_CODES = frozenset(
-    (F.E_STATE_SINGULAR, F.E_TWO_LINK_ETH, F.E_TWO_LINK_PHI, F.E_CHAINED_THN, F.E_CHAINED_ART, F.E_KAPPA)
-)
+_SINGULAR_CODES = frozenset((E_STATE_SINGULAR, E_TWO_LINK_ETH, E_TWO_LINK_PHI, E_CHAINED_THN, E_CHAINED_ART, E_KAPPA))

@@ -9,7 +9,7 @@ bitcode, about 32 MB once parsed (measured: VmRSS around ``llvmlite.binding.pars
 that never compiles.
 
 ftcreport's kernels load from the cache into their own library class
-(:meth:`ftcreport.fast.compiling.KernelLibrary.load`), which keeps the bitcode as bytes, takes the
+(:meth:`ftcreport.jit.compiling.KernelLibrary.load`), which keeps the bitcode as bytes, takes the
 symbol names from the object's ELF symbol table (:func:`defined_symbols`: its defined global and weak
 symbols, the names the execution engine can resolve) and parses the bitcode on the first link.  The
 machine code run is numba's own, loaded the same way: the numbers cannot change.  Only ftcreport's

@@ -32,10 +32,30 @@ E_KAPPA = 10  # info: kappa - Delta_1
 E_REF_SPEED = 11  # info: t, robot (1-based), speed
 E_REF_ART = 12  # info: t, link index, angle [deg]
 E_STEP_GROWTH = 13  # info: t, max |tau| at the streak start, max |tau| now [N m]
-E_UKF = 15  # info: the UKF step's status (observers.ukf_compiled.UKF_*), t
+E_UKF = 15  # info: the UKF step's status (UKF_* below), t
 E_STEP_JUMP = 14  # info: kind, before, after (_step_jump: non-finite new state or a check failed in one step)
 E_LAW_WRITE = 16  # info: the buffer a scheme wrote past (0 u, 1 dx, 2 sig, 3 its state in the discrete update), t
 E_MIN_STEP = 17  # info: t, the step that fell below the minimum (error-controlled methods, fast.loop.run_auto)
+
+#: the UKF step's statuses (observers/ukf_compiled.py's ``ukf_step``; E_UKF's info carries one)
+UKF_OK = 0
+UKF_NONFINITE = 1  # x or P (input, predicted or updated) has a non-finite entry
+UKF_PRIOR_NOT_PD = 2  # the input P is not positive definite (Cholesky of c P fails)
+UKF_PREDICTED_NOT_PD = 3  # the predicted P is not positive definite (the redraw before the update)
+UKF_S_SINGULAR = 4  # the innovation covariance S is singular (zero pivot)
+
+_MESSAGES = {
+    UKF_NONFINITE: "the UKF's state or covariance became non-finite",
+    UKF_PRIOR_NOT_PD: "the UKF's covariance P is not positive definite (Cholesky of (lambda + n) P failed)",
+    UKF_PREDICTED_NOT_PD: "the UKF's predicted covariance is not positive definite (Cholesky failed)",
+    UKF_S_SINGULAR: "the UKF's innovation covariance S is singular",
+}
+
+
+def ukf_message(status: int) -> str:
+    """The user's message for a status of the UKF step ("" for UKF_OK)."""
+    return _MESSAGES.get(int(status), "") if status else ""
+
 
 # where run_steps stopped (its 4th return value)
 AT_STATE = 0  # at the accepted state of step k (checks, the law at the step start, growth)
@@ -72,7 +92,7 @@ class Chain(NamedTuple):
 
 
 class Ref(NamedTuple):
-    """A FlatReference on a TrigPath (references.py)."""
+    """A FlatReference on a TrigPath (references/__init__.py)."""
 
     n: int
     x0: float

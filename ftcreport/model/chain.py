@@ -102,7 +102,7 @@ class Chain:
         object.__setattr__(self, "params", K.make_params(**vals))
 
     def packed(self):
-        """The chain as the compiled kernels take it (``fast.kernels.Chain``; built once)."""
+        """The chain as the compiled kernels take it (``jit.packed.Chain``; built once)."""
         return self.params
 
     # ------------------------------------------------------------------ build

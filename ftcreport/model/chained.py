@@ -12,7 +12,7 @@ the derivative of ``xi_k`` with respect to x along the motion.  Then::
     alpha = T_alpha(q) eta,   T_alpha = [[cos theta_n, 0], [L_g1 xi_2, d xi_2 / d theta_1]]
 
 The map is computed numerically, for any n, by Taylor-mode differentiation
-along the flow of g1 (``ftcreport.fast.kernels.chained_xi_T``, compiled; its
+along the flow of g1 (``model.chained_compiled.chained_xi_T``, compiled; its
 docstring and the kernels' module docstring give the recursion): one
 implementation, used by the compiled engine and by this class alike.
 The same map derived with sympy (in the link lengths as symbols,
@@ -21,7 +21,7 @@ tests/chained_reference.py) is the independent check the tests compare against
 replace the thesis's hand-printed three-link formulas, which ERRATA E5e-E5g
 list as wrong.  Valid while |theta_n| < 90 deg and every articulation
 angle |theta_i - theta_(i+1)| < 90 deg (the backstepping kernel refuses
-states outside, ``fast.kernels._chained_law``).
+states outside, ``control.kinematic_compiled._chained_law``).
 
 The inverse map uses that ``xi_(m-1-j)`` is the first coordinate to depend on
 theta_(n-j) and is affine in ``tan(theta_(n-j) - theta_(n-j+1))``: the angles are

@@ -2,7 +2,7 @@ r"""Array kernels of the n-link 2WD chain model (the simulation hot path).
 
 Every function takes plain ``numpy`` arrays and a ``ChainParams`` tuple of
 constant arrays computed once per chain (:func:`make_params`; it is the compiled
-kernels' ``fast.kernels.Chain``, whose fields are documented there), and
+kernels' ``jit.packed.Chain``, whose fields are documented there), and
 returns new arrays.
 
 What the simulation evaluates -- S and Sdot, the reduced model, the plant's
@@ -207,7 +207,7 @@ def C_vector(p: ChainParams, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
 
 
 def B_matrix(p: ChainParams, q: np.ndarray) -> np.ndarray:
-    r"""Input matrix B(q) by virtual work, Appendix C (C.2)-(C.8), ERRATA E3 (``fast.kernels.input_matrix_and_rate``).
+    r"""Input matrix B(q) by virtual work, Appendix C (C.2)-(C.8), ERRATA E3 (``model.compiled.input_matrix_and_rate``).
 
     Column ``2i`` (wheel ir) is ``(1/r_i) [U_i; D[i,k] sin(th_i - th_k) + b_i delta_ik]``,
     column ``2i+1`` (wheel il) the same with ``-b_i``.

@@ -9,7 +9,7 @@ armature-controlled brushed DC motor behind a gear of ratio N and efficiency eta
     tau_w = eta_g N tau_l                                                      (gear, E19)
 
 The wheel speeds come from the chain's state, omega_w = Bbar(q)^T eta (virtual work, as
-``kernels.wheel_speeds_rows``).  The rotor inertia seen on the wheel axis makes the chain's
+``model.compiled.wheel_speeds_rows``).  The rotor inertia seen on the wheel axis makes the chain's
 equation implicit: with
 
     tau_w = eta_g N k_m i - eta_g N^2 b_m omega_w - eta_g N^2 J_m domega_w/dt,
@@ -154,7 +154,7 @@ def motor_plant_rhs(pc, mo, q, eta, i_a, v_a, fault):
 
     Parameters
     ----------
-    pc : kernels.Chain
+    pc : jit.packed.Chain
     mo : Motors
     q : (n + 2,) ndarray
         Configuration [x_n, y_n, theta_n, ..., theta_1] (as kernels.reduced).

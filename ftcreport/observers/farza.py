@@ -27,9 +27,9 @@ is a slower parameter convergence (smaller adaptation gain) when p_max is small.
 ``p_max = None`` reproduces the printed law.
 
 The observer's equations exist once, in the compiled kernels
-(``fast.kernels.farza_derivative`` and ``farza_estimates``); :class:`FarzaObserver`
+(``observers.farza_compiled.farza_derivative`` and ``farza_estimates``); :class:`FarzaObserver`
 checks and holds the tuning, lays out the state, packs the tuple the kernels take
-(``packed()``, ``fast.kernels.Obs``) and calls them.
+(``packed()``, ``jit.packed.Obs``) and calls them.
 """
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ class FarzaObserver:
         return s
 
     def packed(self, tau: float | None = None, est0: int = 0, filt0: int = 0):
-        """The observer as the compiled kernels take it (``fast.kernels.Obs``).
+        """The observer as the compiled kernels take it (``jit.packed.Obs``).
 
         ``tau``, ``est0`` and ``filt0`` are the active controller's: its estimate filter's time
         constant (None: unfiltered), where the observer's and the filter's states start in its state.

@@ -26,7 +26,7 @@ One step over the sample h with the control u held:
 * predict: ``X_k <- f(X_k)``, f one midpoint (RK2) step of the process model
   ``q' = S(q) eta``, ``Mbar1 eta' = -Mbar2 eta - Cbar + Bbar (diag(rho) u + ubar)``
   (thesis (2.63), (2.70) with the fault model (2.102)), rho' = ubar' = 0: the
-  numbers of kernels.midpoint_sigmas, the kernel the reference UKF in tests/ calls,
+  numbers of control.active_compiled.midpoint_sigmas, the kernel the reference UKF in tests/ calls,
   bit for bit (:func:`_propagate` shares the first stage among the points
   that differ from X_0 in the parameters only);
   ``x = sum Wm_k X_k``, ``P = sum Wc_k (X_k - x)(X_k - x)^T + Qc h``;
@@ -81,18 +81,14 @@ __all__ = [
 ]
 
 # status of ukf_step
-UKF_OK = 0
-UKF_NONFINITE = 1  # x or P (input, predicted or updated) has a non-finite entry
-UKF_PRIOR_NOT_PD = 2  # the input P is not positive definite (Cholesky of c P fails)
-UKF_PREDICTED_NOT_PD = 3  # the predicted P is not positive definite (the redraw before the update)
-UKF_S_SINGULAR = 4  # the innovation covariance S is singular (zero pivot)
-
-_MESSAGES = {
-    UKF_NONFINITE: "the UKF's state or covariance became non-finite",
-    UKF_PRIOR_NOT_PD: "the UKF's covariance P is not positive definite (Cholesky of (lambda + n) P failed)",
-    UKF_PREDICTED_NOT_PD: "the UKF's predicted covariance is not positive definite (Cholesky failed)",
-    UKF_S_SINGULAR: "the UKF's innovation covariance S is singular",
-}
+from ..jit.packed import (
+    UKF_NONFINITE,
+    UKF_OK,
+    UKF_PREDICTED_NOT_PD,
+    UKF_PRIOR_NOT_PD,
+    UKF_S_SINGULAR,
+    ukf_message,
+)
 
 
 class Ukf(NamedTuple):
@@ -128,7 +124,7 @@ def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[np.n
 def ukf_params(est: UKFEstimator) -> Ukf:
     """The :class:`Ukf` of a UKFEstimator (its sigma-point parameters, Qc and R).
 
-    :func:`ukf_step`'s model is ``kernels.Chain(*est.chain.params)``: the
+    :func:`ukf_step`'s model is ``jit.packed.Chain(*est.chain.params)``: the
     filter's chain, which is not the plant's in the model-mismatch cases.
     """
     pts = est.points
@@ -144,11 +140,6 @@ def ukf_params(est: UKFEstimator) -> Ukf:
         Wc,
         c,
     )
-
-
-def ukf_message(status: int) -> str:
-    """The user's message for a status of :func:`ukf_step` ("" for UKF_OK)."""
-    return _MESSAGES.get(int(status), "") if status else ""
 
 
 # =========================================================================== kernels
@@ -257,7 +248,7 @@ def _lu_inverse(A, Ainv):
 
 @jit
 def _rhs(Mbar1, Mbar2, Cbar, Bbar, S, eta, tau, qd, ed):
-    """kernels.plant_rhs from the model terms into qd, ed, with its operations in its order (no allocation).
+    """model.compiled.plant_rhs from the model terms into qd, ed, with its operations in its order (no allocation).
 
     ``qd = S eta`` (2.63);  ``Mbar1 ed = Bbar tau - Mbar2 eta - Cbar`` (2.70), solved in closed form.
     """
@@ -266,7 +257,7 @@ def _rhs(Mbar1, Mbar2, Cbar, Bbar, S, eta, tau, qd, ed):
         for j in range(2):
             acc += S[i, j] * eta[j]
         qd[i] = acc
-    # r = Bbar tau - Mbar2 eta - Cbar, then Cramer's rule as kernels._solve2
+    # r = Bbar tau - Mbar2 eta - Cbar, then Cramer's rule as jit.packed._solve2
     r0 = _rhs_row(Mbar2, Cbar, Bbar, eta, tau, 0)
     r1 = _rhs_row(Mbar2, Cbar, Bbar, eta, tau, 1)
     det = Mbar1[0, 0] * Mbar1[1, 1] - Mbar1[0, 1] * Mbar1[1, 0]
@@ -276,7 +267,7 @@ def _rhs(Mbar1, Mbar2, Cbar, Bbar, S, eta, tau, qd, ed):
 
 @jit
 def _rhs_row(Mbar2, Cbar, Bbar, eta, tau, i):
-    """Row i of Bbar tau - Mbar2 eta - Cbar, each product summed from 0 as kernels._mv."""
+    """Row i of Bbar tau - Mbar2 eta - Cbar, each product summed from 0 as jit.packed._mv."""
     bt = 0.0
     for j in range(tau.shape[0]):
         bt += Bbar[i, j] * tau[j]
@@ -288,7 +279,8 @@ def _rhs_row(Mbar2, Cbar, Bbar, eta, tau, i):
 
 @jit
 def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
-    """kernels.midpoint_sigmas(pc, X, u, h, est_rho, est_ubar) into Xf, bitwise, with fewer model evaluations.
+    """``control.active_compiled.midpoint_sigmas(pc, X, u, h, est_rho, est_ubar)`` into Xf, bitwise, with fewer
+    model evaluations.
 
     One midpoint step of (2.63), (2.70), (2.102) per sigma point, u held::
 
@@ -298,9 +290,9 @@ def _propagate(pc, X, u, h, est_rho, est_ubar, Xf):
     The sigma points along the parameter directions (rows N + 2.. of the
     triangular factor) keep sigma 0's (q, eta) exactly, so the first stage's
     model terms (kernels.reduced: Mbar1, Mbar2, Cbar, Bbar, S) are evaluated
-    once for all of them; ``f`` is then formed as kernels.plant_rhs forms it
+    once for all of them; ``f`` is then formed as model.compiled.plant_rhs forms it
     (:func:`_rhs`, the same operations without allocating).  Tested bitwise
-    against kernels.midpoint_sigmas.
+    against control.active_compiled.midpoint_sigmas.
     """
     m = X.shape[0]
     N = pc.n + 2
@@ -363,8 +355,8 @@ def ukf_step(pc, U, s, u, y, h):
 
     Parameters
     ----------
-    pc : kernels.Chain
-        The filter's model (``kernels.Chain(*chain.params)``).
+    pc : jit.packed.Chain
+        The filter's model (``jit.packed.Chain(*chain.params)``).
     U : Ukf
         Filter constants (:func:`ukf_params`).
     s : (nx + nx * nx,) ndarray

@@ -12,7 +12,7 @@ generalized to n)::
 Derivatives are propagated exactly with truncated Taylor series ("jets"),
 so q_d(t), eta_d(t) and etadot_d(t) satisfy the kinematics to round-off,
 for any n.  The jets are computed once, by the compiled kernels
-(``fast.kernels.path_jets``, ``ref_jets``, ``ref_point``); :class:`TrigPath` and
+(``references.compiled.path_jets``, ``ref_jets``, ``ref_point``); :class:`TrigPath` and
 :class:`FlatReference` hold and check the parameters and call them.  The
 unicycle quantities (x_d, y_d, theta_d, v_d, omega_d and their derivatives) of
 the two-link scheme (3.5-3.7) are those of robot n.
@@ -288,7 +288,7 @@ class FlatReference:
         return self.path.kind
 
     def packed(self):
-        """The reference as the compiled kernels take it (``fast.kernels.Ref``; built once)."""
+        """The reference as the compiled kernels take it (``jit.packed.Ref``; built once)."""
         if self._packed is None:
             self._packed = _pack(self.path, self.n, self.d, self.order, self.max_articulation, self.min_speed)
         return self._packed

@@ -6,7 +6,9 @@ with :func:`register`; from then on ``ftcreport run``, ``batch``, ``campaign`` a
 like the built-in schemes, which register themselves the same way from their own files in
 ``ftcreport/control/builtin/`` (``nominal.py``, ``switching.py``, ``adaptive.py``, ``active.py``,
 ``active_ukf.py``, ``oracle.py``), beside the laws they run.  This package is the interface and the
-registry only: it sits below the laws (``control``) and the engine (``fast``), which import it.
+registry only: it sits below the laws (``control``) and the engine (``fast``), which import it.  The
+compiled helpers a law calls (``jit``, ``terms_at``, ...) are lent here by name, on first use, from the
+rooms that define them (docs/ARCHITECTURE.md, "Layers").
 numba compiles the loop once per law, on the law's first use, and caches it.
 
 The contract (what a law is handed, what it may write, what is checked) is

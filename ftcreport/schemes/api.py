@@ -84,7 +84,7 @@ class Step(NamedTuple):
     eta: np.ndarray  # (2,) measured velocities [v_n, omega_1]
     sigma_true: np.ndarray  # (2n,) the effectiveness the plant applies (an oracle's only)
     ubar_true: np.ndarray  # (2n,) the friction the plant applies [N m] (an oracle's only)
-    model: Any  # the controller's chain model (fast.kernels.Chain): schemes.reduced(model, q, eta)
+    model: Any  # the controller's chain model (jit.packed.Chain): schemes.reduced(model, q, eta)
     info: np.ndarray  # (4,) the error flag: info[0] != 0 stops the run (code, then three numbers)
     kin: Any  # the engine's kinematic side (opaque): what schemes.terms_at reads
 
@@ -94,7 +94,7 @@ class Terms(NamedTuple):
 
     ``w = -k_v eta_e - T^T f_eta + Mbar1^-1 (Mbar2 eta + Cbar) + etadot_c``, ``MB = Mbar1^-1 Bbar``,
     ``g = -Mbar1^-1 (Mbar2 eta + Cbar)``, ``eta_e = eta - eta_c``: ``u = (MB diag(sigma))^+ w`` gives
-    ``eta_e' = -k_v eta_e - T^T f_eta`` when sigma is the true pattern (fast.kernels.law_terms).
+    ``eta_e' = -k_v eta_e - T^T f_eta`` when sigma is the true pattern (control.tracking_compiled.law_terms).
     """
 
     w: np.ndarray  # (2,)

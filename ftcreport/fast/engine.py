@@ -45,7 +45,6 @@ from ..jit.packed import Chain, Kin, Ref
 from ..model import compiled as model_compiled
 from ..model.compiled import reduced
 from ..model.drive_compiled import motor_state_count
-from ..model.kernels import input_matrices_rows as model_input_matrices_rows
 from ..model.kernels import kernel_ref, packed
 from ..schemes.api import GUARD, N_GUARD, TERMS_MODES
 from ..schemes.controller import SchemeController
@@ -143,11 +142,6 @@ def wheel_speeds_rows(chain, Q: np.ndarray, ETA: np.ndarray) -> np.ndarray:
     Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, chain.n_q)
     ETA = np.ascontiguousarray(ETA, dtype=float).reshape(-1, 2)
     return model_compiled.wheel_speeds_rows(kernel_ref(chain.params), Q, ETA)  # a ref: the loop's compile of reduced
-
-
-def input_matrices_rows(chain, Q: np.ndarray) -> np.ndarray:
-    """Mbar1(q)^-1 Bbar(q), (K, 2, 2n), at K configurations (:func:`ftcreport.model.kernels.input_matrices_rows`)."""
-    return model_input_matrices_rows(chain.params, Q)
 
 
 # --------------------------------------------------------------------------- signals from the log

@@ -40,6 +40,7 @@ try:
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None
 
+from ..infra.atomic import replace_file
 from ..jit.compiling import engine_stamp
 from ..jit.packed import Chain, Kin, Ref
 from ..model import compiled as model_compiled
@@ -295,9 +296,7 @@ def _load_loop(law, disc, motors: bool, sampled: bool, terms: int = 0, checked: 
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.py"
     if not path.exists() or path.read_text() != text:
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)  # atomic: a concurrent process sees the old or the new file, whole
+        replace_file(path, text.encode())  # atomic: a concurrent process sees the old or the new file, whole
     module = sys.modules.get(name)
     if module is None or getattr(module, "__file__", None) != str(path):
         spec = importlib.util.spec_from_file_location(name, path)

@@ -151,3 +151,28 @@ def test_slow_kinematic_limit_on_the_circle_is_confirmed_by_the_engine():
         out[f] = classify(run, other, v.simulation.sample_time)
     assert out[0.9]["outcome"] == "bounded" and out[0.9]["rho"] < 1.0
     assert out[1.1]["outcome"] == "limit cycle" and out[1.1]["rho"] > 1.0
+
+
+def test_switching_banks_filters_set_the_sample_time_limit_and_the_engine_agrees():
+    """two_link_active_motors's switching: the bank's reconstruction filters (c' = -gamma c + ..., gamma =
+    10 1/s) reach no torque while the selection holds, so the loop's poles leave them out; a sampled
+    controller steps them by forward Euler (z = 1 - gamma T), and the run is bounded only if they are
+    stable: the limit is 2 / gamma = 200 ms exactly (the marginal band 1e-6 above it), not the
+    tracking loop's 236 ms.  Before, the analysis predicted 236 ms and the engine's run at 0.9x of it
+    overflowed its filters.  The engine agrees: bounded at 180 ms, the filters run away at 220 ms while
+    q and eta stay on the reference."""
+    from ftcreport.analysis.confirm import confirm_limit
+    from ftcreport.analysis.phases import analyze_scheme
+
+    case = load_case(ROOT / "cases" / "motors" / "two_link_active_motors.toml")
+    res = analyze_scheme(case, "switching", build(case), margins=False)
+    assert res["limits"]["sample_time_max"] == pytest.approx(2.0 / 10.0, rel=2e-6)
+    assert res["crossing"]["sample_time_max"][0] == pytest.approx(1.0 - 10.0 * 1.1 * 0.2, rel=1e-5)
+    first = res["phases"][0]
+    assert first["internal_modes"]["spectral_radius"] == pytest.approx(1.0 - 1.0 * 0.005, rel=1e-9)  # slowest filter
+    assert first["stability"] == "stable"
+    z = complex(*res["crossing"]["sample_time_max"])
+    conf = confirm_limit(case, "switching", "sample_time_max", res["limits"]["sample_time_max"], z, "s")
+    below, above = conf["runs"]
+    assert below["outcome"] == "bounded" and above["outcome"] == "diverged"
+    assert "scheme's own states" in above["note"] and conf["agrees"] is True

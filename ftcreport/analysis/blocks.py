@@ -28,6 +28,14 @@ class Blocks:
     ``basis``: the parameter block's orthonormal basis in the actuator space (to linearize the same
     loop at another gain in the same coordinates).
 
+    ``internal`` and ``internal_map``: the left-out states' own Jacobians, their rates against
+    themselves (``Gc_c`` restricted to them) and their discrete update (``Dc`` restricted; None for the
+    identity).  Left out because the plant cannot reach them or they cannot reach the plant, they sit
+    in a diagonal block of their own: the loop's poles do not contain theirs, but the whole loop is
+    bounded only if they are stable too (internal stability).  A sampled controller steps them by
+    forward Euler, so a stable filter ``c' = -gamma c + ...`` (the switching bank's) is unstable
+    beyond ``gamma T = 2`` whatever the tracking does (:meth:`internal_measure`).
+
     ``omega`` and ``frame``: the reference's turning rate and the index pairs (in ``[x_p, c]``) of the
     vectors written in the world frame (the position of P_n, an observer's estimate of it and of its
     velocity).  The loop is linearized about a moving reference; in world coordinates the frozen
@@ -53,6 +61,9 @@ class Blocks:
     omega: float = 0.0
     frame: list = field(default_factory=list)
     basis: np.ndarray | None = None
+    internal: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    internal_map: np.ndarray | None = None
+    _internal_eig: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def nc(self) -> int:
@@ -104,7 +115,38 @@ class Blocks:
         return Blocks(
             self.Fx[np.ix_(keep, keep)], self.Fa[keep], self.Gx[:, keep], self.Gy[:, nq:], self.Gc, self.Dc,
             self.Dy[:, nq:], self.na, self.kept, self.dropped, self.parameter_block, self.omega, frame,
+            internal=self.internal, internal_map=self.internal_map,
         )  # fmt: skip
+
+    def internal_modes(self, T: float | None = None) -> np.ndarray:
+        """The left-out states' own modes that move: eigenvalues of ``internal`` (continuous, T None) or of
+        their sampled map ``(I + T internal) internal_map`` (forward Euler, then the discrete update, as
+        :func:`~ftcreport.analysis.sampled.parts` steps them).
+
+        States that do not move at the point (a weight combination the torque does not see, an estimate
+        the measurement does not reach: zero rates) are constants, not modes: an eigenvalue within 1e-12
+        (relative) of 0 (continuous) or of 1 (discrete) is left out, so that they do not make every loop
+        marginal.
+        """
+        G = self.internal
+        if not G.size:
+            return np.zeros(0, dtype=complex)
+        if T is not None and self.internal_map is not None:
+            ev = np.linalg.eigvals((np.eye(len(G)) + float(T) * G) @ self.internal_map)
+            return ev[np.abs(ev - 1.0) > 1e-12]
+        if self._internal_eig is None:
+            lam = np.linalg.eigvals(G)
+            self._internal_eig = lam[np.abs(lam) > 1e-12 * max(1.0, float(np.abs(lam).max(initial=0.0)))]
+        lam = self._internal_eig
+        return lam if T is None else 1.0 + float(T) * lam
+
+    def internal_measure(self, T: float | None = None) -> float:
+        """The left-out states' largest |z| over a sample of T, or their largest real part (T None);
+        0 and -inf when none of them moves."""
+        ev = self.internal_modes(T)
+        if not ev.size:
+            return 0.0 if T is not None else -np.inf
+        return float(np.abs(ev).max()) if T is not None else float(ev.real.max())
 
     def feedback(self) -> tuple[np.ndarray, np.ndarray]:
         """(B, K) with ``A = A_0 + B K`` and ``a = K x``: the actuator inputs, for margins (continuous)."""

@@ -35,7 +35,9 @@ held at its value (the filter linearized with its gain frozen, the usual lineari
 filter), and every state that the plant can neither excite nor see is dropped by
 :func:`relevant_states` (the Farza observer's sensitivity matrix Y and gain P at zero estimation
 error, the adaptive law's weight combinations that leave the torque unchanged): its modes are
-decoupled, so the poles that remain are exactly those of the loop that reaches the plant.  The
+decoupled, so the poles that remain are exactly those of the loop that reaches the plant.  Their
+own block is kept apart (``Blocks.internal``) and counts for stability: the run stays bounded only if
+it is stable too (the switching bank's filters, stepped by forward Euler in a sampled loop).  The
 adaptive weights (N designs x 2n wheels, 7,670 states for five robots) enter only through the
 torque and have no dynamics of their own at zero error; :func:`_parameter_block` replaces them by
 their image in the torque space (at most 2n states), exactly.
@@ -448,6 +450,7 @@ class SchemeLoop:
         else:
             Dc, Dy = disc
         keep = relevant_states(Gx, Gy, Gc, Dc, Dy, na)
+        out = np.setdiff1d(np.arange(lin.size), keep)  # left out: their own block decides internal stability
         sel = np.concatenate((np.arange(na), na + keep))
         kept = [int(lin[k]) for k in keep]
         where = {i: Fx.shape[0] + k for k, i in enumerate(kept)}
@@ -455,6 +458,7 @@ class SchemeLoop:
         return Blocks(
             Fx, Fa, Gx[sel], Gy[sel], Gc[np.ix_(sel, keep)], Dc[np.ix_(keep, keep)], Dy[keep], na,
             kept=kept, dropped=int(lin.size - keep.size), omega=pt.omega, frame=frame,
+            internal=Gc[na:][np.ix_(out, out)], internal_map=None if disc is None else Dc[np.ix_(out, out)],
         )  # fmt: skip
 
     def _discrete_map(self, pt: Point, period: float, lin: slice | np.ndarray) -> tuple[np.ndarray, np.ndarray]:

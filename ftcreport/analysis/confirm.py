@@ -19,7 +19,9 @@ evolves: the variational response of the loop as the engine runs it, whichever m
 velocity loop at the Nyquist frequency, or a slow kinematic mode at large sample times), and
 unaffected by the error a moving reference leaves under a hold:
 
-* ``diverged``: a run stopped (diverged, step_unstable, singular);
+* ``diverged``: a run stopped (diverged, step_unstable, singular), or the difference of the scheme's own
+  states ran away while q and eta did not show it (:func:`_scheme_states_grow`: a mode the torque
+  does not read, which the analysis counts for stability, ``Blocks.internal``);
 * ``limit cycle``: both completed, but the difference does not decay: it grew 10^4-fold, or it did
   not fall a hundredfold and its growth per sample fitted over the run's second half (``rho``, the
   simulation's own spectral radius of the crossing mode) is at least 1; or, for a mode crossing at
@@ -142,6 +144,9 @@ def classify(run, other, period: float, fast: bool = False) -> dict:
     for r in (run, other):
         if r.status != "ok":
             return {"outcome": "diverged", "status": r.status, "t_end": r.t_end, "reason": r.reason}
+    grown = _scheme_states_grow(run, other)
+    if grown is not None:
+        return {"outcome": "diverged", "status": "ok", "rho": None, "note": grown}
     a, b = _states_at_samples(run, period), _states_at_samples(other, period)
     k = min(len(a), len(b))
     d = a[:k] - b[:k]
@@ -166,6 +171,41 @@ def classify(run, other, period: float, fast: bool = False) -> dict:
     rho = math.exp(slope)
     bounded = rho < 1.0 and not (fast and chatter > CHATTER)
     return {"outcome": "bounded" if bounded else "limit cycle", "status": "ok", "rho": rho, "chatter": chatter}
+
+
+def _scheme_states_grow(run, other) -> str | None:
+    """Why the scheme's own states (``xc``, as logged) run away, or None.
+
+    A mode of the scheme's states that the torque does not read (the switching bank's filters, stepped
+    by forward Euler: unstable beyond gamma T = 2) leaves q and eta alone until it overflows; the
+    analysis counts it (``Blocks.internal``), so its confirmation must see it.  Read on the difference
+    of the two runs, each state relative to its own largest magnitude in the run (units differ; a
+    difference at round-off stays at round-off): it runs away when its last tenth is above a hundred
+    times its value at the middle of the run, still growing and above 1e-4 of the states' own size
+    (the 1e-8 m nudge amplified 10^4-fold), or when it is no longer finite.  A transient as the nudge
+    reaches the scheme's states is over by the middle of a stable run.
+    """
+    xa, xb = run.signals.get("xc"), other.signals.get("xc")
+    if xa is None or xb is None:
+        return None
+    k = min(len(xa), len(xb))
+    if k < 20:
+        return None
+    with np.errstate(invalid="ignore", over="ignore"):
+        a, b = np.asarray(xa[:k], dtype=float), np.asarray(xb[:k], dtype=float)
+        d = a - b
+        if not np.all(np.isfinite(d)):
+            return "the scheme's own states overflowed"
+        scale = np.abs(a).max(axis=0)
+        cols = scale > 0.0
+        if not np.any(cols):
+            return None
+        dist = np.abs(d[:, cols] / scale[cols]).max(axis=1)
+    mid, tail = dist[k // 2], dist[-max(2, k // 10) :]
+    if tail.max() > max(100.0 * mid, 1e-4) and tail[-1] >= tail[0]:
+        growth = tail.max() / max(mid, 1e-300)
+        return f"the scheme's own states ran away (their difference {growth:.3g}-fold over the second half)"
+    return None
 
 
 def _chatter(run, period: float) -> float:

@@ -142,7 +142,8 @@ def gain_family(blocks_at: Callable[[float], Blocks], k_v: float) -> Callable[[f
         s = (k - k_v) / k_v
         out = {n: getattr(b0, n) + s * (getattr(b1, n) - getattr(b0, n)) for n in names}
         return Blocks(b0.Fx, b0.Fa, out["Gx"], out["Gy"], out["Gc"], out["Dc"], out["Dy"], b0.na, b0.kept,
-                      b0.dropped, b0.parameter_block, b0.omega, b0.frame)  # fmt: skip
+                      b0.dropped, b0.parameter_block, b0.omega, b0.frame, internal=b0.internal,
+                      internal_map=b0.internal_map)  # fmt: skip
 
     if same:
         guess = at(0.5 * k_v)
@@ -163,22 +164,26 @@ def stability(measure: float, poles: np.ndarray, discrete: bool) -> str:
 
 
 def sampled_radius(blk: Blocks, T: float, delay: int) -> float:
-    """Spectral radius of the sampled loop at T (in the frame turning with the reference)."""
-    return spectral_radius(closed_loop_matrix(blk, T, delay, plant_zoh(blk, T)))
+    """Spectral radius of the sampled loop at T (in the frame turning with the reference), the left-out
+    states' own modes included (:meth:`Blocks.internal_measure`: the run is bounded only if they are)."""
+    return max(spectral_radius(closed_loop_matrix(blk, T, delay, plant_zoh(blk, T))), blk.internal_measure(T))
 
 
 def dominant_pole(blk: Blocks, T: float, delay: int) -> complex:
-    """The sampled loop's eigenvalue of largest modulus at T (the mode that crosses at the limit)."""
-    ev = np.linalg.eigvals(closed_loop_matrix(blk, T, delay, plant_zoh(blk, T)))
+    """The sampled loop's eigenvalue of largest modulus at T (the mode that crosses at the limit), the
+    left-out states' own modes included."""
+    loop = np.linalg.eigvals(closed_loop_matrix(blk, T, delay, plant_zoh(blk, T)))
+    ev = np.concatenate((loop, blk.internal_modes(T)))
     return complex(ev[np.argmax(np.abs(ev))])
 
 
 def continuous_margin(blk: Blocks) -> float:
-    """The largest real part of the continuous loop's poles beyond the marginal band (< 0: not unstable)."""
+    """The largest real part of the continuous loop's poles beyond the marginal band (< 0: not unstable),
+    the left-out states' own modes included."""
     A = blk.continuous()
-    if not A.size:
+    ev = np.concatenate((np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex), blk.internal_modes()))
+    if not ev.size:
         return -math.inf
-    ev = np.linalg.eigvals(A)
     return float(ev.real.max()) - MARGINAL_S * max(1.0, float(np.abs(ev).max()))
 
 

@@ -218,7 +218,14 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
                 A = blk.continuous()
                 ev = np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex)
                 measure = float(ev.real.max(initial=-math.inf))
-            rows.append({"t": t, "measure": measure, "poles": ev, "blk": blk, "pt": pt, "run": run_xc is not None})
+            # the left-out states' own modes: not poles of the loop the plant sees, but the run is bounded
+            # only if they are stable too (Blocks.internal)
+            inner = blk.internal_modes(period if discrete else None)
+            internal = (float(np.abs(inner).max()) if discrete else float(inner.real.max())) if inner.size else None
+            if internal is not None:
+                measure = max(measure, internal)
+            rows.append({"t": t, "measure": measure, "poles": ev, "blk": blk, "pt": pt, "run": run_xc is not None,
+                         "internal": internal, "n_internal": int(inner.size)})  # fmt: skip
         good = [r for r in rows if "error" not in r]
         key = "spectral_radius" if discrete else "max_real_part"
         entry["instants"] = [
@@ -245,6 +252,9 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
             key: worst["measure"],
             "stable": stability == "stable",
             "stability": stability,
+            "internal_modes": (
+                {"modes": worst["n_internal"], key: worst["internal"]} if worst["internal"] is not None else None
+            ),
             "states": {
                 "plant": int(blk.Fx.shape[0]),
                 "scheme": int(blk.nc),

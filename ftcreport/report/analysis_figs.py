@@ -145,6 +145,7 @@ def phase_rows(res: dict) -> list[dict]:
                     "stability": p.get("stability"),
                     "worst": worst,
                     "margin_note": m.get("note"),
+                    "internal": _internal_text(p.get("internal_modes"), bool(p.get("discrete"))),
                 }
             )
         rows.append(
@@ -157,6 +158,15 @@ def phase_rows(res: dict) -> list[dict]:
             }
         )
     return rows
+
+
+def _internal_text(internal: dict | None, discrete: bool) -> str | None:
+    """'25 states outside the loop: rho 0.995' for a phase's left-out states that move (None when none do)."""
+    if not internal:
+        return None
+    value = internal.get("spectral_radius", internal.get("max_real_part"))
+    name = "rho" if discrete else "max Re"
+    return f"{internal['modes']} state(s) outside the loop: {name} {measure_text(value, discrete)}"
 
 
 def _pattern(p) -> str | None:

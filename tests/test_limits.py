@@ -176,3 +176,32 @@ def test_switching_banks_filters_set_the_sample_time_limit_and_the_engine_agrees
     below, above = conf["runs"]
     assert below["outcome"] == "bounded" and above["outcome"] == "diverged"
     assert "scheme's own states" in above["note"] and conf["agrees"] is True
+
+
+def test_periodic_loop_limit_is_the_product_over_the_reference_period_and_the_engine_agrees():
+    """three_link_switching_pi's nominal on the sinusoid (period 2 pi / 0.2 = 31.4 s): the loop varies
+    along the reference, and its sample-time limit is Floquet's, the growth per sample of the sampled
+    loop's product over one period (24 frozen instants): 715.0 ms.  The worst frozen instant of the
+    first phase alone said 737.6 ms, and the engine's runs at 0.9x of that (664 ms) were read as a limit
+    cycle.  The engine agrees with the product to 1 %: bounded at 0.99x, it leaves the reference at
+    1.01x, where the worst frozen instant still predicts a stable loop."""
+    from ftcreport.analysis.confirm import NUDGE, classify, variant
+    from ftcreport.analysis.phases import analyze_scheme, reference_period
+    from ftcreport.runner import run_scheme
+
+    case = load_case(ROOT / "cases" / "motors" / "three_link_switching_pi.toml")
+    built = build(case)
+    assert reference_period(built) == pytest.approx(2.0 * math.pi / 0.2, rel=1e-12)
+    res = analyze_scheme(case, "nominal", built, margins=False)
+    limit = res["limits"]["sample_time_max"]
+    assert limit == pytest.approx(0.7150, rel=1e-3)
+    note = res["limit_notes"]["limits.sample_time_max"]
+    assert "worst frozen instant of the first phase alone gives 737.6 ms" in note
+    out = {}
+    for f in (0.99, 1.01):
+        v = variant(case, "nominal", "sample_time_max", f * limit, 400)
+        run, _ = run_scheme(v, "nominal")
+        other, _ = run_scheme(variant(case, "nominal", "sample_time_max", f * limit, 400, NUDGE), "nominal")
+        out[f] = classify(run, other, v.simulation.sample_time)
+    assert out[0.99]["outcome"] == "bounded", out[0.99]
+    assert out[1.01]["outcome"] != "bounded", out[1.01]

@@ -172,7 +172,8 @@ def test_switching_banks_filters_set_the_sample_time_limit_and_the_engine_agrees
     assert first["internal_modes"]["spectral_radius"] == pytest.approx(1.0 - 1.0 * 0.005, rel=1e-9)  # slowest filter
     assert first["stability"] == "stable"
     z = complex(*res["crossing"]["sample_time_max"])
-    conf = confirm_limit(case, "switching", "sample_time_max", res["limits"]["sample_time_max"], z, "s")
+    assert res["crossing_internal"] == {"sample_time_max": True, "k_v_max": False}
+    conf = confirm_limit(case, "switching", "sample_time_max", res["limits"]["sample_time_max"], z, "s", True)
     below, above = conf["runs"]
     assert below["outcome"] == "bounded" and above["outcome"] == "diverged"
     assert "scheme's own states" in above["note"] and conf["agrees"] is True
@@ -205,3 +206,41 @@ def test_periodic_loop_limit_is_the_product_over_the_reference_period_and_the_en
         out[f] = classify(run, other, v.simulation.sample_time)
     assert out[0.99]["outcome"] == "bounded", out[0.99]
     assert out[1.01]["outcome"] != "bounded", out[1.01]
+
+
+def test_the_scheme_states_are_read_only_where_the_crossing_mode_is_one_of_them():
+    """classify's reading of the scheme's own states (xc), on two made-up pairs of runs whose q and eta
+    settle (the nudge's difference decays 0.95 per sample): a filter state whose difference grows 1.2 per
+    sample is called diverged when the analysis says the crossing mode is such a state, and the plant's
+    verdict (bounded) stands otherwise; a state at round-off (1e-22, whose difference wanders) and an
+    integral cost still taking up the nudge (its difference grows 300-fold over a short run, as
+    three_link_switching_pi's switching at 0.9x of its k_v limit) are never read as a runaway."""
+    from types import SimpleNamespace
+
+    from ftcreport.analysis.confirm import classify
+
+    T, k = 0.1, 200
+    t = np.arange(k) * T
+    decay = 1e-6 * 0.95 ** np.arange(k)
+
+    def pair(xc_a, xc_b):
+        def run(dq, xc):
+            q = np.zeros((k, 3))
+            q[:, 0] = dq
+            stream = {"q": q, "eta": np.zeros((k, 2)), "u": np.ones((k, 2))}
+            return SimpleNamespace(status="ok", t_stream=t, stream=stream, signals={"xc": xc}, t=t)
+
+        return run(np.zeros(k), xc_a), run(decay, xc_b)
+
+    base = np.ones((k, 1))
+    growing = np.hstack((base, (1e-8 * 1.2 ** np.arange(k))[:, None]))
+    a, b = pair(np.hstack((base, np.zeros((k, 1)))), growing)
+    assert classify(a, b, T, internal=True)["outcome"] == "diverged"
+    assert classify(a, b, T, internal=False)["outcome"] == "bounded"
+    rng = np.random.default_rng(1)
+    noise = np.hstack((base, 1e-22 * rng.standard_normal((k, 1))))
+    integral = np.hstack((base, (1e-9 * np.arange(k) ** 1.5)[:, None]))
+    a, b = pair(np.hstack((base, np.zeros((k, 1)))), noise)
+    assert classify(a, b, T, internal=True)["outcome"] == "bounded"
+    a, b = pair(np.hstack((base, np.zeros((k, 1)))), integral)
+    assert classify(a, b, T, internal=False)["outcome"] == "bounded"

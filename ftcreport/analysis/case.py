@@ -93,7 +93,8 @@ def _confirm(case, scheme: str, res: dict) -> dict:
         if limit is None:
             continue
         z = res.get("crossing", {}).get(which)
-        out[which] = confirm_limit(case, scheme, which, limit, None if z is None else complex(*z), unit)
+        internal = bool(res.get("crossing_internal", {}).get(which, False))
+        out[which] = confirm_limit(case, scheme, which, limit, None if z is None else complex(*z), unit, internal)
     return out
 
 

@@ -340,12 +340,16 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         out[name]["sample_time_max"] = res["value"]
         out["limit_notes"][f"{name}.sample_time_max"] = res["note"]
         if name == "limits" and res["value"] is not None:
-            z = dominant_pole(blocks[0], 1.1 * res["value"], delay)
+            T1 = 1.1 * res["value"]
+            z = dominant_pole(blocks[0], T1, delay)
+            inner = blocks[0].internal_measure(T1) >= abs(z)
             if periodic is not None:  # the frozen instants' dominant pole, at the period's growth per sample
-                zs = [dominant_pole(b, 1.1 * res["value"], delay) for b in periodic[1]]
-                z = max(zs, key=abs)
-                z = z / abs(z) * rho(1.1 * res["value"]) if abs(z) > 0.0 else z
+                z = max((dominant_pole(b, T1, delay) for b in periodic[1]), key=abs)
+                inner = max(b.internal_measure(T1) for b in periodic[1]) >= rho(T1)
+                z = z / abs(z) * rho(T1) if abs(z) > 0.0 else z
             out["crossing"] = {"sample_time_max": [z.real, z.imag]}
+            # whether the crossing mode is one of the left-out states' (the confirmation then reads them)
+            out["crossing_internal"] = {"sample_time_max": bool(inner)}
         if name == "limits":
             grid = _grid(res["value"] or guess, period)
             out["_curves"] = {"T": grid.tolist(), "rho_T": [rho(T) for T in grid]}
@@ -377,8 +381,10 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
             curve = radius if period is not None else margin
             out.setdefault("_curves", {}).update({"k": grid.tolist(), key: [curve(k) for k in grid]})
         if name == "limits" and res["value"] is not None and period is not None:
-            z = dominant_pole(fam[0](1.1 * res["value"]), period, delay)
+            b1 = fam[0](1.1 * res["value"])
+            z = dominant_pole(b1, period, delay)
             out.setdefault("crossing", {})["k_v_max"] = [z.real, z.imag]
+            out.setdefault("crossing_internal", {})["k_v_max"] = bool(b1.internal_measure(period) >= abs(z))
     return out
 
 

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import copy
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,6 +72,9 @@ _EMPTY = np.zeros(0)
 STEP = 1e-6
 #: the adaptive weights are put at least this far inside [0, 1] (:func:`_inside`), far beyond STEP
 WEIGHT_INSIDE = 1e-3
+#: the plant's Jacobians by the built plant they belong to, then by the exact content of their arguments
+#: (:meth:`Plant.state_columns`): every scheme of a case, and its loops at other gains, share them
+_PLANT_JACOBIANS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True)
@@ -169,6 +173,9 @@ class Plant:
             self.nm = self.nw * (2 if self.pi else 1)
             self.input_name, self.input_unit = ("current target", "A") if self.pi else ("voltage", "V")
         self.n_states = self.n_q + 2 + self.nm
+        # the schemes of a case hold the same plant state and, often, the same signal at an instant (the
+        # healthy phase's matched command): its Jacobians once per content, for every scheme and gain
+        self._jacobians = _PLANT_JACOBIANS.setdefault(built.plant, {})
 
     def clip(self, u: np.ndarray) -> np.ndarray:
         return u if self.saturation is None else np.clip(u, -self.saturation, self.saturation)
@@ -237,6 +244,21 @@ class Plant:
 
     def input_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         """d f_p / d a, (n_states, 2n): the currents' rows are exact (1/L_a on working windings)."""
+        return self._once("a", self._input_columns, xp, a, fz)
+
+    def state_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
+        """d f_p / d x_p: central differences in q and eta, the currents' columns exact (affine in i_a)."""
+        return self._once("x", self._state_columns, xp, a, fz)
+
+    def _once(self, which: str, jacobian, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
+        """``jacobian(xp, a, fz)`` computed once per exact content of its arguments (a copy each call)."""
+        arrays = (xp, a, fz.sigma, fz.ubar, fz.motor)
+        key = (which, *((v.dtype.str, v.shape, v.tobytes()) for v in map(np.asarray, arrays)))
+        if key not in self._jacobians:
+            self._jacobians[key] = jacobian(xp, a, fz)
+        return self._jacobians[key].copy()
+
+    def _input_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         if self.motors is None or self.pi:  # a PI: K_p / L_a and K_i off its limits, central differences
             return central_columns(lambda v: self.rates(xp, v, fz), a)
         from ..model.motor_compiled import winding_voltage
@@ -247,8 +269,7 @@ class Plant:
         B[self.n_q + 2 :, :] = np.diag(np.where(passes, 1.0 / self.motors.L_a, 0.0))
         return B
 
-    def state_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
-        """d f_p / d x_p: central differences in q and eta, the currents' columns exact (affine in i_a)."""
+    def _state_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         nq = self.n_q
         f = lambda x: self.rates(x, a, fz)  # noqa: E731
         if self.motors is None or self.pi:  # a PI: affine in i_a and z off its limits

@@ -353,11 +353,20 @@ class SchemeLoop:
         # a view and a copy where an index array gathers and scatters them at every evaluation)
         contiguous = lin.size > 0 and np.array_equal(lin, np.arange(lin[0], lin[0] + lin.size))
         self._lin: slice | np.ndarray = slice(int(lin[0]), int(lin[0]) + lin.size) if contiguous else lin
+        # the same states in the law's buffer of the own states' rates (after the nk kinematic states, held)
+        nk = self.nk
+        self._own = slice(self._lin.start - nk, self._lin.stop - nk) if contiguous else lin - nk
         self._linearized_at: dict[tuple, Blocks] = {}  # :meth:`blocks` by the content of its arguments
 
     # ------------------------------------------------------------------------------------------ calls
     def law(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, st, ut) -> tuple[np.ndarray, np.ndarray]:
         """(u, xc') of the scheme's compiled law at the measured (q, eta) (the scheme API's call)."""
+        u = self._command(t, q, eta, xc, st, ut)
+        # the scheme's own states' rates (the law's out.dx); the kinematic controller's states have none
+        return u, np.concatenate((np.zeros(self.nk), self._bufs[2][: int(self.ctrl.n_states) - self.nk]))
+
+    def _command(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, st, ut) -> np.ndarray:
+        """The law's u at (t, q, eta); its own states' rates are left in the law buffers (``_bufs[2]``)."""
         info = np.zeros(4)
         spec, bufs = self.spec, self._bufs
         u = self._loop.first_law(
@@ -365,11 +374,9 @@ class SchemeLoop:
             np.ascontiguousarray(eta, dtype=float), np.ascontiguousarray(xc, dtype=float),
             np.ascontiguousarray(st, dtype=float), np.ascontiguousarray(ut, dtype=float), info, _EMPTY,
         )  # fmt: skip
-        # the scheme's own states' rates (the law's out.dx); the kinematic controller's states have none
-        dx = np.concatenate((np.zeros(self.nk), bufs[2][: int(self.ctrl.n_states) - self.nk]))
         if info[0] != 0:
             raise ModelError(f"scheme {self.scheme}: the law stops at t = {t:g} s (error code {int(info[0])})")
-        return np.asarray(u, dtype=float), np.asarray(dx, dtype=float)
+        return np.asarray(u, dtype=float)
 
     def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
         """The scheme's discrete update at t (a copy of xc updated)."""
@@ -387,10 +394,23 @@ class SchemeLoop:
         nq = self.n_q
         st, ut = self.plant.true_faults(xp, fz)  # only an oracle reads them
         u, dx = self.law(t, y[:nq], y[nq : nq + 2], xc, st, ut)
+        return self._actuator(u, y, fz), dx
+
+    def _rows(self, t: float, xp: np.ndarray, y: np.ndarray, xc: np.ndarray, fz: Faults, rates: bool = True):
+        """``[a, xc'[linearized]]`` as :meth:`controller` gives them, or a alone (``rates`` False), without
+        copying the rates of the other states (the adaptive weights: 36,852 for six robots)."""
+        nq = self.n_q
+        st, ut = self.plant.true_faults(xp, fz)
+        a = self._actuator(self._command(t, y[:nq], y[nq : nq + 2], xc, st, ut), y, fz)
+        return np.concatenate((a, self._bufs[2][self._own])) if rates else a
+
+    def _actuator(self, u: np.ndarray, y: np.ndarray, fz: Faults) -> np.ndarray:
+        """The held actuator signal for the law's u at the measurement y (:meth:`Plant.command`)."""
         omega = None
         if self.plant.motors is not None:
+            nq = self.n_q
             omega = self.plant.wheel_speeds(self._pc, y[:nq], y[nq : nq + 2])  # the driver's: the model's Bbar
-        return self.plant.command(u, omega, fz), dx
+        return self.plant.command(u, omega, fz)
 
     # ------------------------------------------------------------------------------------------ points
     def point(self, t: float, faults: Faults, psi: float | None = None, applied=None, run_xc=None,
@@ -436,8 +456,7 @@ class SchemeLoop:
         at = self._lin  # the same states, for indexing
 
         def g(xp, y, xc):
-            a, dx = self.controller(t, xp, y, xc, fz)
-            return np.concatenate((a, dx[at]))
+            return self._rows(t, xp, y, xc, fz)  # [a, c']
 
         def with_c(c):
             xc = pt.xc.copy()
@@ -456,7 +475,8 @@ class SchemeLoop:
                 raise ModelError(f"scheme {self.scheme}: its discrete update needs a sample time to be linearized")
             disc = self._discrete_map(pt, period, at)
         elif lin.size and not np.any(Gx):
-            block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis)
+            torque = lambda c: self._rows(t, pt.xp, y0, with_c(c), fz, rates=False)  # noqa: E731
+            block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis, torque)
             if block is not None:
                 Gy_r, Gc_r, U = block
                 rank = Gc_r.shape[1]
@@ -750,7 +770,7 @@ def _closure(dep: np.ndarray, seed: np.ndarray) -> np.ndarray:
         member = new
 
 
-def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarray | None = None):
+def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarray | None = None, torque=None):
     r"""Scheme states without dynamics of their own, replaced by the part of their image the loop reaches.
 
     When the states c have ``dc'/dc = 0`` at the point and reach the plant only through a (the
@@ -765,7 +785,8 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarr
     offsets the adaptation never moves (both block-triangular, eigenvalue 0, outside the loop).  The
     check that the rates do not read the states probes two random directions.  Costs O(ny) law
     evaluations instead of O(len(c)) (7,670 weights for five robots).  ``g(c)`` returns
-    [a, c'] at the point's measurement, ``Gy`` its Jacobian in y (a rows first).  Returns (Gy, Gc) of
+    [a, c'] at the point's measurement, ``torque(c)`` its a rows alone (default: from g), ``Gy`` its
+    Jacobian in y (a rows first).  Returns (Gy, Gc) of
     [a, xi] and the basis U (``basis``: use this one, e.g. the same loop's at another gain), or None
     when the states have dynamics of their own (then each is differentiated).
     """
@@ -777,7 +798,8 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarr
     if np.abs(outs[na:]).max() > 1e-7 * scale:
         return None  # the states' rates read the states: differentiate them all
     # W = K_c G_cy: the torque's rate along each measurement direction
-    W = np.column_stack([directional(lambda c: g(c)[:na], c0, Gy[na:, k], x0_norm=norm) for k in range(Gy.shape[1])])
+    torque = (lambda c: g(c)[:na]) if torque is None else torque
+    W = np.column_stack([directional(torque, c0, Gy[na:, k], x0_norm=norm) for k in range(Gy.shape[1])])
     if basis is None:
         U, s, _ = np.linalg.svd(W, full_matrices=False)
         # directions below 1e-6 of the largest are the differences' error (~1e-9 here), not dynamics

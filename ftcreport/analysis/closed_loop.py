@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import copy
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,6 +72,9 @@ _EMPTY = np.zeros(0)
 STEP = 1e-6
 #: the adaptive weights are put at least this far inside [0, 1] (:func:`_inside`), far beyond STEP
 WEIGHT_INSIDE = 1e-3
+#: the plant's Jacobians by the built plant they belong to, then by the exact content of their arguments
+#: (:meth:`Plant.state_columns`): every scheme of a case, and its loops at other gains, share them
+_PLANT_JACOBIANS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True)
@@ -169,6 +173,9 @@ class Plant:
             self.nm = self.nw * (2 if self.pi else 1)
             self.input_name, self.input_unit = ("current target", "A") if self.pi else ("voltage", "V")
         self.n_states = self.n_q + 2 + self.nm
+        # the schemes of a case hold the same plant state and, often, the same signal at an instant (the
+        # healthy phase's matched command): its Jacobians once per content, for every scheme and gain
+        self._jacobians = _PLANT_JACOBIANS.setdefault(built.plant, {})
 
     def clip(self, u: np.ndarray) -> np.ndarray:
         return u if self.saturation is None else np.clip(u, -self.saturation, self.saturation)
@@ -237,6 +244,21 @@ class Plant:
 
     def input_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         """d f_p / d a, (n_states, 2n): the currents' rows are exact (1/L_a on working windings)."""
+        return self._once("a", self._input_columns, xp, a, fz)
+
+    def state_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
+        """d f_p / d x_p: central differences in q and eta, the currents' columns exact (affine in i_a)."""
+        return self._once("x", self._state_columns, xp, a, fz)
+
+    def _once(self, which: str, jacobian, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
+        """``jacobian(xp, a, fz)`` computed once per exact content of its arguments (a copy each call)."""
+        arrays = (xp, a, fz.sigma, fz.ubar, fz.motor)
+        key = (which, *((v.dtype.str, v.shape, v.tobytes()) for v in map(np.asarray, arrays)))
+        if key not in self._jacobians:
+            self._jacobians[key] = jacobian(xp, a, fz)
+        return self._jacobians[key].copy()
+
+    def _input_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         if self.motors is None or self.pi:  # a PI: K_p / L_a and K_i off its limits, central differences
             return central_columns(lambda v: self.rates(xp, v, fz), a)
         from ..model.motor_compiled import winding_voltage
@@ -247,8 +269,7 @@ class Plant:
         B[self.n_q + 2 :, :] = np.diag(np.where(passes, 1.0 / self.motors.L_a, 0.0))
         return B
 
-    def state_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
-        """d f_p / d x_p: central differences in q and eta, the currents' columns exact (affine in i_a)."""
+    def _state_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         nq = self.n_q
         f = lambda x: self.rates(x, a, fz)  # noqa: E731
         if self.motors is None or self.pi:  # a PI: affine in i_a and z off its limits
@@ -332,11 +353,20 @@ class SchemeLoop:
         # a view and a copy where an index array gathers and scatters them at every evaluation)
         contiguous = lin.size > 0 and np.array_equal(lin, np.arange(lin[0], lin[0] + lin.size))
         self._lin: slice | np.ndarray = slice(int(lin[0]), int(lin[0]) + lin.size) if contiguous else lin
+        # the same states in the law's buffer of the own states' rates (after the nk kinematic states, held)
+        nk = self.nk
+        self._own = slice(self._lin.start - nk, self._lin.stop - nk) if contiguous else lin - nk
         self._linearized_at: dict[tuple, Blocks] = {}  # :meth:`blocks` by the content of its arguments
 
     # ------------------------------------------------------------------------------------------ calls
     def law(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, st, ut) -> tuple[np.ndarray, np.ndarray]:
         """(u, xc') of the scheme's compiled law at the measured (q, eta) (the scheme API's call)."""
+        u = self._command(t, q, eta, xc, st, ut)
+        # the scheme's own states' rates (the law's out.dx); the kinematic controller's states have none
+        return u, np.concatenate((np.zeros(self.nk), self._bufs[2][: int(self.ctrl.n_states) - self.nk]))
+
+    def _command(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, st, ut) -> np.ndarray:
+        """The law's u at (t, q, eta); its own states' rates are left in the law buffers (``_bufs[2]``)."""
         info = np.zeros(4)
         spec, bufs = self.spec, self._bufs
         u = self._loop.first_law(
@@ -344,11 +374,9 @@ class SchemeLoop:
             np.ascontiguousarray(eta, dtype=float), np.ascontiguousarray(xc, dtype=float),
             np.ascontiguousarray(st, dtype=float), np.ascontiguousarray(ut, dtype=float), info, _EMPTY,
         )  # fmt: skip
-        # the scheme's own states' rates (the law's out.dx); the kinematic controller's states have none
-        dx = np.concatenate((np.zeros(self.nk), bufs[2][: int(self.ctrl.n_states) - self.nk]))
         if info[0] != 0:
             raise ModelError(f"scheme {self.scheme}: the law stops at t = {t:g} s (error code {int(info[0])})")
-        return np.asarray(u, dtype=float), np.asarray(dx, dtype=float)
+        return np.asarray(u, dtype=float)
 
     def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
         """The scheme's discrete update at t (a copy of xc updated)."""
@@ -366,10 +394,23 @@ class SchemeLoop:
         nq = self.n_q
         st, ut = self.plant.true_faults(xp, fz)  # only an oracle reads them
         u, dx = self.law(t, y[:nq], y[nq : nq + 2], xc, st, ut)
+        return self._actuator(u, y, fz), dx
+
+    def _rows(self, t: float, xp: np.ndarray, y: np.ndarray, xc: np.ndarray, fz: Faults, rates: bool = True):
+        """``[a, xc'[linearized]]`` as :meth:`controller` gives them, or a alone (``rates`` False), without
+        copying the rates of the other states (the adaptive weights: 36,852 for six robots)."""
+        nq = self.n_q
+        st, ut = self.plant.true_faults(xp, fz)
+        a = self._actuator(self._command(t, y[:nq], y[nq : nq + 2], xc, st, ut), y, fz)
+        return np.concatenate((a, self._bufs[2][self._own])) if rates else a
+
+    def _actuator(self, u: np.ndarray, y: np.ndarray, fz: Faults) -> np.ndarray:
+        """The held actuator signal for the law's u at the measurement y (:meth:`Plant.command`)."""
         omega = None
         if self.plant.motors is not None:
+            nq = self.n_q
             omega = self.plant.wheel_speeds(self._pc, y[:nq], y[nq : nq + 2])  # the driver's: the model's Bbar
-        return self.plant.command(u, omega, fz), dx
+        return self.plant.command(u, omega, fz)
 
     # ------------------------------------------------------------------------------------------ points
     def point(self, t: float, faults: Faults, psi: float | None = None, applied=None, run_xc=None,
@@ -415,8 +456,7 @@ class SchemeLoop:
         at = self._lin  # the same states, for indexing
 
         def g(xp, y, xc):
-            a, dx = self.controller(t, xp, y, xc, fz)
-            return np.concatenate((a, dx[at]))
+            return self._rows(t, xp, y, xc, fz)  # [a, c']
 
         def with_c(c):
             xc = pt.xc.copy()
@@ -435,7 +475,8 @@ class SchemeLoop:
                 raise ModelError(f"scheme {self.scheme}: its discrete update needs a sample time to be linearized")
             disc = self._discrete_map(pt, period, at)
         elif lin.size and not np.any(Gx):
-            block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis)
+            torque = lambda c: self._rows(t, pt.xp, y0, with_c(c), fz, rates=False)  # noqa: E731
+            block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis, torque)
             if block is not None:
                 Gy_r, Gc_r, U = block
                 rank = Gc_r.shape[1]
@@ -729,7 +770,7 @@ def _closure(dep: np.ndarray, seed: np.ndarray) -> np.ndarray:
         member = new
 
 
-def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarray | None = None):
+def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarray | None = None, torque=None):
     r"""Scheme states without dynamics of their own, replaced by the part of their image the loop reaches.
 
     When the states c have ``dc'/dc = 0`` at the point and reach the plant only through a (the
@@ -744,21 +785,21 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarr
     offsets the adaptation never moves (both block-triangular, eigenvalue 0, outside the loop).  The
     check that the rates do not read the states probes two random directions.  Costs O(ny) law
     evaluations instead of O(len(c)) (7,670 weights for five robots).  ``g(c)`` returns
-    [a, c'] at the point's measurement, ``Gy`` its Jacobian in y (a rows first).  Returns (Gy, Gc) of
+    [a, c'] at the point's measurement, ``torque(c)`` its a rows alone (default: from g), ``Gy`` its
+    Jacobian in y (a rows first).  Returns (Gy, Gc) of
     [a, xi] and the basis U (``basis``: use this one, e.g. the same loop's at another gain), or None
     when the states have dynamics of their own (then each is differentiated).
     """
-    rng = np.random.default_rng(0)
-    probes = 2  # random directions: a rate that reads the states shows in either, unless orthogonal to both
-    V = rng.standard_normal((c0.size, probes))
-    V /= np.sqrt(np.sum(V * V, axis=0))
+    V = _probes(c0.size)
+    probes = V.shape[1]
     norm = math.sqrt(float(np.sum(c0 * c0)))  # every direction below differentiates at c0
     outs = np.column_stack([directional(g, c0, V[:, k], x0_norm=norm) for k in range(probes)])
     scale = max(1.0, float(np.abs(outs[:na]).max()))
     if np.abs(outs[na:]).max() > 1e-7 * scale:
         return None  # the states' rates read the states: differentiate them all
     # W = K_c G_cy: the torque's rate along each measurement direction
-    W = np.column_stack([directional(lambda c: g(c)[:na], c0, Gy[na:, k], x0_norm=norm) for k in range(Gy.shape[1])])
+    torque = (lambda c: g(c)[:na]) if torque is None else torque
+    W = np.column_stack([directional(torque, c0, Gy[na:, k], x0_norm=norm) for k in range(Gy.shape[1])])
     if basis is None:
         U, s, _ = np.linalg.svd(W, full_matrices=False)
         # directions below 1e-6 of the largest are the differences' error (~1e-9 here), not dynamics
@@ -766,3 +807,19 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarr
         basis = U[:, :rank]
     rank = basis.shape[1]
     return np.vstack((Gy[:na], basis.T @ W)), np.vstack((basis, np.zeros((rank, rank)))), basis
+
+
+_PROBES: dict[int, np.ndarray] = {}
+
+
+def _probes(size: int, probes: int = 2) -> np.ndarray:
+    """:func:`_parameter_block`'s random unit directions (seed 0), drawn once per size (36,852 weights: 2 ms).
+
+    Two: a rate that reads the states shows in either, unless orthogonal to both.
+    """
+    if size not in _PROBES:
+        V = np.random.default_rng(0).standard_normal((size, probes))
+        V /= np.sqrt(np.sum(V * V, axis=0))
+        V.flags.writeable = False
+        _PROBES[size] = V
+    return _PROBES[size]

@@ -323,7 +323,7 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         out["velocity_loop"] = {"sample_time_max": None, "k_v_max": None}
         why = "the law does not read eta (it estimates the velocity from q): without q there is no velocity loop"
         out["limit_notes"] |= {"velocity_loop.sample_time_max": why, "velocity_loop.k_v_max": why}
-    periodic = _periodic_blocks(case, built, loop, fz, period, delay)
+    periodic = _periodic_blocks(case, built, loop, fz, period)
     for name, pick in picks.items():
         if loop.has_disc:
             out[name]["sample_time_max"] = None
@@ -388,7 +388,7 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
     return out
 
 
-def _periodic_blocks(case, built, loop: SchemeLoop, fz: Faults, period, delay) -> tuple[float, list] | None:
+def _periodic_blocks(case, built, loop: SchemeLoop, fz: Faults, period) -> tuple[float, list] | None:
     """(the reference's period, the loop's blocks at PERIODIC_INSTANTS instants over it) for a sampled or
     motorised case whose loop varies along a periodic reference, else None.
 

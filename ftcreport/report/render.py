@@ -28,6 +28,7 @@ from .. import __version__
 from ..cases import ordered_schemes, parse_case, with_duration
 from ..errors import FtcError, printable
 from ..evaluation import compare
+from ..evaluation.verdict_analysis import limit_words
 from ..model.faults import wheel_names
 from ..runner import integrator_words
 from ..storage.store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
@@ -528,6 +529,7 @@ def _facts(case) -> dict:
         "fractional": any(0 < f.sigma < 1 for f in case.faults),
         "uncompensable": bool(case.warnings()),
         "follower_only": bool(case.faults) and all(not f.wheel.strip().startswith("1") for f in case.faults),
+        "limit": limit_words(case),
     }
 
 

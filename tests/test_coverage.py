@@ -169,3 +169,10 @@ def test_the_header_lists_only_the_kinds_run(tmp_path):
     assert "partial losses (sigma in 0.25, 0.5) and a friction of ubar = 0.5 N m per wheel" in head
     assert "pairs" not in head
 
+
+def test_coverage_links_only_to_an_index_that_exists(tmp_path):
+    """Issue 35 item 7: 'all cases' pointed at ../../index.html, broken under a custom --out."""
+    assert "../../index.html" not in render_coverage(_coverage_dir(tmp_path / "x", ["loss"])).read_text()
+    nested = _coverage_dir(tmp_path / "reports" / "coverage" / "hand", ["loss"])
+    (tmp_path / "reports" / "index.html").write_text("<html></html>")
+    assert '<a href="../../index.html">all cases</a>' in render_coverage(nested).read_text()

@@ -26,7 +26,7 @@ from ..evaluation.compare import BOUND
 from ..storage.store import _jsonable, read_json, write_atomic
 from ..studies.campaign import COMPARED_METRICS, summarize
 from . import plots
-from .render import figure, write_page
+from .render import figure, index_root, write_page
 
 __all__ = ["PAGES", "WORST_K", "comparison_matrices", "failing_samples", "render_campaign", "render_sample"]
 
@@ -250,7 +250,7 @@ def render_campaign(out: Path, rows: list[dict], worst: int = WORST_K) -> Path:
     return write_page(
         out / "index.html",
         "campaign.html",
-        "../../",
+        index_root(out),
         name=meta.get("case", out.name),
         seed=meta.get("seed"),
         success=(meta.get("base", {}).get("campaign") or {}).get("success", {}),

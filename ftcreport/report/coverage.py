@@ -14,7 +14,7 @@ import numpy as np
 
 from ..model import wheel_names
 from ..studies.coverage import DEFAULT_CRITERIA, recovery_bound
-from .render import write_page
+from .render import index_root, write_page
 
 __all__ = ["coverage_grids", "kinds_text", "map_tables", "render_coverage"]
 
@@ -142,7 +142,7 @@ def render_coverage(out: Path) -> Path:
     return write_page(
         out / "index.html",
         "coverage.html",
-        "../../",
+        index_root(out),
         meta=meta,
         kinds=kinds_text(meta),
         summary=summary,

@@ -79,15 +79,25 @@ def _now() -> str:
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
 
 
-def write_page(page: Path, template: str, root: str, **context) -> Path:
+def write_page(page: Path, template: str, root: str | None, **context) -> Path:
     """Render ``template`` with ``context``, the versions and the time, and write it to ``page`` atomically.
 
-    ``root`` is the relative path from the page to the output directory (shared assets, links).
+    ``root`` is the relative path from the page to the output directory (shared assets, links); None: the
+    page has no index to link to (:func:`index_root`).
     """
     context.setdefault("versions", dependency_versions())
     html = _env().get_template(template).render(root=root, version=__version__, rendered=_now(), **context)
     write_atomic(page, html.encode())
     return page
+
+
+def index_root(page_dir: Path, root: str = "../../") -> str | None:
+    """``root`` when an index page exists there relative to ``page_dir``, else None (no link).
+
+    A campaign, coverage or FDI page written into ``reports/<kind>/<case>/`` links the batch's index two
+    levels up; under a custom ``--out`` there may be none, and a link to it would be broken.
+    """
+    return root if (Path(page_dir) / root / "index.html").is_file() else None
 
 
 def figure(fig_id: str, caption: str, **drawing) -> dict:

@@ -323,6 +323,21 @@ def _hand_campaign(out: Path) -> Path:
     return render_campaign(out, read_table(out / "results.csv"))
 
 
+def test_coinciding_ecdf_lines_are_told_apart(tmp_path):
+    """Issue 35 item 7: in the max-error ECDF the schemes' lines coincided and the oracle's, drawn last, hid
+    the others.  Coinciding lines now carry markers of their own (concentric, hollow) and the caption names
+    them and the metric that separates them."""
+    html = _hand_campaign(tmp_path).read_text()
+    fig = html.split('id="fig-max-error"', 1)[1].split("</figure>", 1)[0]
+    caption = fig.split("<figcaption>", 1)[1]
+    assert "switching and oracle coincide" in caption
+    assert "the final error separates them (medians switching 0.001 m, oracle 1e-05 m;" in caption
+    assert "nominal" not in caption
+    svg = fig.split("<svg", 1)[1]
+    assert "switching (3/3; coincides with oracle)" in svg and "oracle (3/3; coincides with switching)" in svg
+    assert "nominal (3/3)" in svg
+
+
 def test_campaign_links_only_to_an_index_that_exists(tmp_path):
     """Issue 35 item 7: the campaign page linked 'all cases' to ../../index.html, broken under a custom --out;
     it links the index only where one exists."""

@@ -256,3 +256,15 @@ def test_the_verdict_opens_with_the_failed_gate_items(tmp_path):
     assert "claim tracks (3.2.3): not reproduced (expected reproduced)" in gate
     assert "requirement switching / tight [21-23 s]: position_error &lt;= 0.001 m: violated" in gate
     assert "switching_match_fraction" not in gate and "settled" not in gate
+
+
+def test_cases_readme_says_run_exits_1_on_a_failed_window():
+    """cases/README.md said that ``run`` prints the requirements and "does not change its exit code", while
+    ``run`` exits 1 when a window is violated or not evaluated (test_check_run_junit_and_page).  The text is
+    the behaviour's: the paragraph on outcomes says ``run`` judges them as ``check`` does and exits 1."""
+    text = " ".join((CASES / "README.md").read_text().split())
+    assert "does not change its exit code" not in text
+    assert (
+        "`run` judges them as `check` does, on the schemes it ran, and exits 1 when a window is violated or "
+        "not evaluated" in text
+    )

@@ -140,7 +140,7 @@ def test_the_verdict_cites_the_analysis():
         s: {"status": "ok", "position_error_final": e, "phases": [{"position_error_max": e}, {"position_error_max": e}]}
         for s, e in (("nominal", 0.01), ("switching", 0.05), ("adaptive", 0.08))
     }
-    v = compare.compare_case("c", runs, {"ok"}, [20.0], {"analysis": analysis})
+    v = compare.compare_case("c", runs, {"ok"}, [20.0], {"analysis": analysis, "limit": "the drive's voltage limit"})
     text = " ".join(v.sentences)
     assert "predicts switching's loop unstable in the phase 20-50 s (spectral radius 10.7" in text
     assert "its sample time 5 ms is beyond its limit 1.37 ms" in text and "chatter" in text
@@ -148,6 +148,37 @@ def test_the_verdict_cites_the_analysis():
     assert "adaptive loses on what it applies, not on stability" in text
     # without the analysis, none of it
     assert "analysis" not in " ".join(compare.compare_case("c", runs, {"ok"}, [20.0], {}).sentences)
+
+
+def test_a_loop_without_a_drive_limit_is_not_said_to_chatter_at_it():
+    """two_link_adaptive_eight (ideal torques, continuous control, no motors) read "the wheels chatter at the
+    drive's limit": a limit exists only with [actuators] or [plant] saturation.  The sentence says what holds
+    for the case: ideal torques, or held by the saturation (continuous), or chatter at it (sampled)."""
+    from ftcreport import compare
+    from ftcreport.evaluation.verdict_analysis import limit_words
+
+    analysis = {
+        "k_v": {"adaptive": 3000.0, "nominal": 3000.0},
+        "phases": {
+            "adaptive": [_phase(0, 20, "stable", -0.1, False), _phase(20, 30, "unstable", 0.4672, False)],
+            "nominal": [_phase(0, 20, "stable", -0.1, False), _phase(20, 30, "stable", -0.05, False)],
+        },
+    }
+    runs = {
+        s: {"status": "ok", "position_error_final": e, "phases": [{"position_error_max": e}, {"position_error_max": e}]}
+        for s, e in (("nominal", 0.01), ("adaptive", 0.05))
+    }
+    ideal = load_case(ROOT / "cases" / "two_link_adaptive_eight.toml")
+    assert limit_words(ideal) is None
+    text = " ".join(compare.compare_case("c", runs, {"ok"}, [20.0], {"analysis": analysis}).sentences)
+    assert "predicts adaptive's loop unstable in the phase 20-30 s (max Re 0.4672 1/s)" in text
+    assert "drive's limit" not in text and "chatter" not in text
+    assert "the case applies ideal torques, with no drive limit or saturation" in text
+    facts = {"analysis": analysis, "limit": "the saturation at 50 N m"}
+    text = " ".join(compare.compare_case("c", runs, {"ok"}, [20.0], facts).sentences)
+    assert "its run completed, the wheels' inputs held by the saturation at 50 N m." in text
+    motors = load_case(ROOT / "cases" / "motors" / "two_link_switching_motors.toml")
+    assert limit_words(motors) == "the drive's voltage limit"
 
 
 def test_schemes_the_analysis_says_the_same_of_share_one_sentence():

@@ -72,6 +72,46 @@ def test_a_signal_shifted_in_time_passes_only_with_a_time_tolerance():
     assert np.all(U - hi == pytest.approx(0.1)) and np.all(lo - L == pytest.approx(0.1))
 
 
+def test_the_overlays_are_not_scaled_by_the_start_up():
+    """Issue 35 item 2: on baseline.html the torque overlays' axis was set by the 4,320 N m start-up spike (so
+    everything after it was a flat line), and the position-error overlays were linear with red circles over
+    differences too small to see.  Now, as on the case page, the axes take their scale from the samples after
+    the first fault (the start-up drawn, not setting the axis), and an error spanning decades is on a log
+    scale."""
+    from ftcreport.report.baseline_page import _band_figure
+
+    t = np.linspace(0.0, 40.0, 40_001)
+    e = edges_for(t, 400)
+    tau = np.where(t < 0.05, 4320.0, 3.0 * np.sin(5 * t))  # the start-up spike, then +-3 N m
+    lo, hi = envelope(t, tau, e)
+    delta, drawn = compare_signal("torque[1r]", "N m", e, lo, hi, t, tau * 1.01, 1e-3, 1e-3)
+    assert delta is not None
+    fig = _band_figure("c", "nominal", "torque[1r]", "N m", drawn, t, tau * 1.01, scale_from=20.0)
+    lay = fig["layout"]
+    assert lay["yaxis"].get("type", "linear") == "linear"
+    top_lo, top_hi = lay["yaxis"]["range"]
+    assert -3.6 < top_lo < -2.9 and 2.9 < top_hi < 3.6, "the axis is the torque after the fault's, not 4,320"
+    d_lo, d_hi = lay["yaxis2"]["range"]
+    assert -0.1 < d_lo < 0 < d_hi < 0.1  # the difference after the fault (1 % of 3 N m), not 43 N m
+    assert max(v for tr in fig["data"] if tr.get("yaxis") != "y2" for v in tr["y"] if v is not None) >= 4320
+    # a wheel lost at 20 s: its zero torque after the fault does not set the axis (the page scales from 1 s)
+    lost = np.where(t < 20.0, tau, 0.0)
+    lo, hi = envelope(t, lost, e)
+    _, drawn = compare_signal("torque[1r]", "N m", e, lo, hi, t, lost * 1.01, 1e-3, 1e-3)
+    top_lo, top_hi = _band_figure("c", "n", "torque[1r]", "N m", drawn, t, lost, scale_from=1.0)["layout"]["yaxis"][
+        "range"
+    ]
+    assert -3.6 < top_lo < -2.9 and 2.9 < top_hi < 3.6
+    # an error decaying over 6 decades: a log axis (plotly ranges in log10 units) that shows the whole run
+    err = 0.08 * np.exp(-t / 2.5) + 1e-9
+    lo, hi = envelope(t, err, e)
+    _, drawn = compare_signal("position_error", "m", e, lo, hi, t, err * 1.05, 1e-3, 1e-12)
+    fig = _band_figure("c", "nominal", "position_error", "m", drawn, t, err * 1.05, scale_from=20.0)
+    assert fig["layout"]["yaxis"]["type"] == "log"
+    a, b = fig["layout"]["yaxis"]["range"]
+    assert a < -7.5 and b > np.log10(0.05)
+
+
 def test_field_diff_names_each_changed_field():
     old = {"schemes": {"switching": {"k_v": 3000.0, "gamma": 10.0}}, "faults": [{"time": 20.0}], "plugins": {}}
     new = {

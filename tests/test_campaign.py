@@ -308,6 +308,48 @@ def test_report_rates_come_from_the_table(tmp_path):
     assert json.loads((tmp_path / "summary.json").read_text())["schemes"]["oracle"]["successes"] == 3
 
 
+def _hand_campaign(out: Path) -> Path:
+    """A campaign page from a hand-made table: switching and oracle have the same max errors on every sample
+    (the initial offset sets them), their final errors differ 100-fold; nominal has its own max errors."""
+    rows = []
+    for i, (err, nom) in enumerate([(0.05, 0.3), (0.25, 0.4), (0.3, 1.5)]):
+        for s, e, fin in (("nominal", nom, 0.2), ("switching", err, 1e-3), ("oracle", err * (1 + 1e-4), 1e-5)):
+            rows.append(_row(i, s, True, "1r", e, 1.0) | {"position_error_final": fin})
+    records = {}
+    for r in rows:
+        records.setdefault(r["sample"], {"sample": r["sample"], "rows": []})["rows"].append(r)
+    write_table(out, records.values())
+    (out / "campaign.json").write_text(json.dumps({"case": "hand", "seed": 0, "base": {}}))
+    return render_campaign(out, read_table(out / "results.csv"))
+
+
+def test_coinciding_ecdf_lines_are_told_apart(tmp_path):
+    """Issue 35 item 7: in the max-error ECDF the schemes' lines coincided and the oracle's, drawn last, hid
+    the others.  Coinciding lines now carry markers of their own (concentric, hollow) and the caption names
+    them and the metric that separates them."""
+    html = _hand_campaign(tmp_path).read_text()
+    fig = html.split('id="fig-max-error"', 1)[1].split("</figure>", 1)[0]
+    caption = fig.split("<figcaption>", 1)[1]
+    assert "switching and oracle coincide" in caption
+    assert "the final error separates them (medians switching 0.001 m, oracle 1e-05 m;" in caption
+    assert "nominal" not in caption
+    svg = fig.split("<svg", 1)[1]
+    assert "switching (3/3; coincides with oracle)" in svg and "oracle (3/3; coincides with switching)" in svg
+    assert "nominal (3/3)" in svg
+
+
+def test_campaign_links_only_to_an_index_that_exists(tmp_path):
+    """Issue 35 item 7: the campaign page linked 'all cases' to ../../index.html, broken under a custom --out;
+    it links the index only where one exists."""
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    assert "../../index.html" not in _hand_campaign(alone).read_text()
+    nested = tmp_path / "reports" / "campaigns" / "hand"
+    nested.mkdir(parents=True)
+    (tmp_path / "reports" / "index.html").write_text("<html></html>")
+    assert '<a href="../../index.html">all cases</a>' in _hand_campaign(nested).read_text()
+
+
 def test_wilson_interval_edges():
     assert wilson_interval(0, 0) == (0.0, 1.0)
     lo, hi = wilson_interval(10, 10)

@@ -145,3 +145,34 @@ def test_coverage_cli_errors_are_one_line(tmp_path):
     r = CliRunner().invoke(app, ["coverage", str(ROOT / "cases" / "two_link_campaign.toml"), "--kinds", "melt"])
     assert r.exit_code == 2 and "--kinds: unknown ['melt']" in r.output
     assert "Traceback" not in r.output
+
+
+def _coverage_dir(out: Path, kinds: list[str]) -> Path:
+    """A coverage directory with its metadata and an empty summary (the page's header and links only)."""
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"case": "hand", "n": 2, "schemes": ["oracle"], "kinds": kinds, "sigmas": [0.25, 0.5]}
+    meta |= {"friction": 0.5, "times": [2.4, 4.2], "base": {}}
+    (out / "coverage.json").write_text(json.dumps(meta))
+    (out / "summary.json").write_text(json.dumps({"schemes": {}}))
+    return out
+
+
+def test_the_header_lists_only_the_kinds_run(tmp_path):
+    """Issue 35 item 7: with --kinds loss,pair the header still listed partial losses (sigma 0.25, 0.5) and a
+    friction; it now names the kinds run, with their settings only where they were used."""
+    html = render_coverage(_coverage_dir(tmp_path / "a", ["loss", "pair"])).read_text()
+    head = html.split("<h1>", 1)[1].split('id="recovery-definition"', 1)[0]
+    assert "single-wheel losses and pairs of losses" in head
+    assert "sigma" not in head and "friction" not in head
+    html = render_coverage(_coverage_dir(tmp_path / "b", ["partial", "friction"])).read_text()
+    head = html.split("<h1>", 1)[1].split('id="recovery-definition"', 1)[0]
+    assert "partial losses (sigma in 0.25, 0.5) and a friction of ubar = 0.5 N m per wheel" in head
+    assert "pairs" not in head
+
+
+def test_coverage_links_only_to_an_index_that_exists(tmp_path):
+    """Issue 35 item 7: 'all cases' pointed at ../../index.html, broken under a custom --out."""
+    assert "../../index.html" not in render_coverage(_coverage_dir(tmp_path / "x", ["loss"])).read_text()
+    nested = _coverage_dir(tmp_path / "reports" / "coverage" / "hand", ["loss"])
+    (tmp_path / "reports" / "index.html").write_text("<html></html>")
+    assert '<a href="../../index.html">all cases</a>' in render_coverage(nested).read_text()

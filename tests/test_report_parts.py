@@ -128,3 +128,22 @@ def test_fault_timeline_shows_partial_gains():
     rows = _fault_rows(case, case.fault_schedule(), wheel_names(3))
     assert rows[-1]["pattern"].startswith("0.8 0.3 0.4 0.2 0.1 0.7")
     assert "partial: 1r 0.8" in rows[-1]["pattern"] and "failed" not in rows[-1]["pattern"]
+
+
+def test_every_series_of_the_error_figure_has_its_own_colour():
+    """Issue 35 item 8: the motor page's comparison with its base case drew 'switching (this case)' and
+    'switching (base)' (names without a scheme colour) in the same blue.  Every legend entry now has a colour
+    of its own, none repeated, the schemes' own colours kept where a series is a scheme."""
+    from ftcreport.report.plots import SCHEME_COLORS
+
+    chain = Chain.uniform(2)
+    phases = fault_phases(_schedule((10.0, "1l", 0.0, 0.0)), 30.0, WHEELS)
+    names = ["switching (this case)", "switching (base)", "nominal (this case)", "nominal (base)", "oracle"]
+    fig = errors_fig({n: _series(chain) for n in names}, phases)
+    shown = [tr for tr in fig["data"] if tr.get("showlegend", True)]
+    colors = [tr["line"]["color"] for tr in shown]
+    assert [tr["name"] for tr in shown] == names
+    assert all(colors) and len(set(colors)) == len(colors), colors
+    assert colors[-1] == SCHEME_COLORS["oracle"]
+    for tr in fig["data"]:  # each heading trace in its position trace's colour
+        assert tr["line"]["color"] == colors[names.index(tr["name"])]

@@ -228,3 +228,43 @@ def test_shipped_case_requirement_holds_on_its_documented_windows():
         ("fault at 50 s: 55-60 s", "holds"),
     ]
     assert recs[0]["value_max"] == pytest.approx(1.65e-3, rel=0.01)  # the comment's number: a 6x margin
+
+
+def test_the_verdict_opens_with_the_failed_gate_items(tmp_path):
+    """Issue 34 break 11: a threshold, claim or requirement that does not hold showed FAIL only in its table
+    lower down; the verdict said nothing.  It now opens with each failed gate item (the same items ``run``
+    and ``check`` print): which one, the scheme, the value against the bound; the ones that hold are not
+    listed there."""
+    data = _data([HOLDS, VIOLATED])
+    data["thresholds"] = {
+        "switching": {"position_error_final": {"max": 1e-9}, "switching_match_fraction": {"min": 0.5}}
+    }
+    claim = {"id": "tracks", "source": "3.2.3", "words": "tracks", "scheme": "switching"}
+    data["claims"] = [claim | {"metric": "position_error_final", "max": 1e-12, "expect": "reproduced"}]
+    src = tmp_path / "req.toml"
+    src.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["run", str(src), "--out", str(tmp_path / "r")])
+    assert res.exit_code == 1, res.output
+    page = (tmp_path / "r" / "req" / "index.html").read_text()
+    verdict = page.split('<section id="verdict">', 1)[1].split("</section>", 1)[0]
+    gate = verdict.split('id="verdict-gate"', 1)[1].split("</div>", 1)[0]
+    assert verdict.index('id="verdict-gate"') < verdict.index('class="verdict-sentence"')
+    assert "3 of the case's 5 thresholds, claims and requirement windows do not hold" in gate
+    assert "(ftcreport run and check exit 1)" in gate
+    final = json.loads((tmp_path / "r" / "req" / "switching" / "metrics.json").read_text())["position_error_final"]
+    assert f"threshold switching / position_error_final: {final:.4g} against &lt;= 1e-09" in gate
+    assert "claim tracks (3.2.3): not reproduced (expected reproduced)" in gate
+    assert "requirement switching / tight [21-23 s]: position_error &lt;= 0.001 m: violated" in gate
+    assert "switching_match_fraction" not in gate and "settled" not in gate
+
+
+def test_cases_readme_says_run_exits_1_on_a_failed_window():
+    """cases/README.md said that ``run`` prints the requirements and "does not change its exit code", while
+    ``run`` exits 1 when a window is violated or not evaluated (test_check_run_junit_and_page).  The text is
+    the behaviour's: the paragraph on outcomes says ``run`` judges them as ``check`` does and exits 1."""
+    text = " ".join((CASES / "README.md").read_text().split())
+    assert "does not change its exit code" not in text
+    assert (
+        "`run` judges them as `check` does, on the schemes it ran, and exits 1 when a window is violated or "
+        "not evaluated" in text
+    )

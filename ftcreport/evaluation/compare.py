@@ -321,7 +321,8 @@ def compare_case(
         Facts of the case the sentences may explain with: ``friction`` (a fault adds a friction
         torque), ``fractional`` (a gain strictly between 0 and 1), ``uncompensable`` (a phase with
         rank(Bbar sigma) < 2), ``analysis`` (the case's linearized analysis, ``ftcreport.analysis.analyze_case``:
-        the verdict then cites it where a scheme loses or chatters, or nominal wins).
+        the verdict then cites it where a scheme loses or chatters, or nominal wins), ``limit`` (what bounds
+        the wheels' inputs, ``verdict_analysis.limit_words``; absent for ideal torques).
     """
     facts = dict(facts or {})
     rows = tidy(case, metrics_by_scheme)
@@ -346,18 +347,18 @@ def compare_case(
     ]
     sentences = _sentences(verdicts, metrics_by_scheme, list(fault_times), facts, failed)
     if facts.get("analysis"):
-        sentences += _analysis_sentences(facts["analysis"], verdicts, metrics_by_scheme)
+        sentences += _analysis_sentences(facts["analysis"], verdicts, metrics_by_scheme, facts.get("limit"))
     return CaseVerdict(case, list(metrics_by_scheme), verdicts, sentences, outside, failed)
 
 
-def _analysis_sentences(analysis: dict, verdicts, metrics) -> list[str]:
+def _analysis_sentences(analysis: dict, verdicts, metrics, limit: str | None = None) -> list[str]:
     """The linearized analysis cited where a scheme loses or chatters, or nominal wins (issue 37 item 7)."""
     from .verdict_analysis import analysis_sentences
 
     after = verdicts.get("after_fault_error_max")
     ranking = [r.scheme for r in after.ranking] if after else []
     stopped = [s for s, m in metrics.items() if m.get("status") != "ok"]
-    return analysis_sentences(analysis, ranking, list(after.winners) if after else [], stopped)
+    return analysis_sentences(analysis, ranking, list(after.winners) if after else [], stopped, limit)
 
 
 def fmt_value(x: float | None, unit: str = "") -> str:

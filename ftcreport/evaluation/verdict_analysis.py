@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["MAX_SENTENCES", "analysis_sentences", "measure_text", "phase_measure", "verdict_sentence"]
+__all__ = ["MAX_SENTENCES", "analysis_sentences", "limit_words", "measure_text", "phase_measure", "verdict_sentence"]
 
 #: at most this many sentences of the analysis in a verdict
 MAX_SENTENCES = 3
@@ -37,13 +37,15 @@ def phase_measure(p: dict) -> str:
     return "max Re -" if v is None else f"max Re {v:.4g} 1/s"
 
 
-def verdict_sentence(scheme: str, analysis: dict, why: str) -> str | None:
+def verdict_sentence(scheme: str, analysis: dict, why: str, limit: str | None = None) -> str | None:
     """One sentence citing the analysis for ``scheme`` in a verdict (issue 37 item 7), or None.
 
-    ``why``: "loses" (ranked below the winners), "chatters" (its sampled loop is predicted unstable
-    in some phase) or "nominal wins" (the healthy law's loop stays stable under the faults).  The
-    sentence names the phase, the spectral radius or the slowest pole, and the limit when the case's
-    setting is beyond it.
+    ``why``: "loses" (ranked below the winners), "chatters" (its loop is predicted unstable in some
+    phase, yet its run completed) or "nominal wins" (the healthy law's loop stays stable under the
+    faults).  The sentence names the phase, the spectral radius or the slowest pole, and the limit when
+    the case's setting is beyond it.  ``limit``: what bounds the wheels' inputs in the case, in words
+    ("the drive's voltage limit", "the saturation at 50 N m"), or None for ideal torques: only a case
+    with a limit is said to chatter at it.
     """
     phases = (analysis or {}).get("phases", {}).get(scheme)
     if not phases:
@@ -74,7 +76,7 @@ def verdict_sentence(scheme: str, analysis: dict, why: str) -> str | None:
         k_v = analysis.get("k_v", {}).get(scheme)
         if kmax and k_v and k_v > kmax:
             text += f"; k_v = {k_v:g} 1/s is beyond its largest stable {kmax:.3g} 1/s"
-        return text + ")" + (": the wheels chatter at the drive's limit." if why == "chatters" else ".")
+        return text + ")" + (_completed(limit, bool(p.get("discrete"))) if why == "chatters" else ".")
     if why == "loses":
         slow = max(done, key=lambda p: p.get("spectral_radius") or p.get("max_real_part") or -math.inf)
         return (
@@ -84,14 +86,35 @@ def verdict_sentence(scheme: str, analysis: dict, why: str) -> str | None:
     return None
 
 
-def analysis_sentences(analysis: dict, ranking: list[str], winners: list[str], stopped: list[str]) -> list[str]:
+def _completed(limit: str | None, discrete: bool) -> str:
+    """Why a loop predicted unstable completed its run, true of the case at hand: a sampled loop with a
+    limit chatters at it, a continuous one is held by it; with ideal torques nothing bounds the wheels."""
+    if limit is None:
+        return ": its run completed all the same; the case applies ideal torques, with no drive limit or saturation."
+    if discrete:
+        return f": the wheels chatter at {limit}."
+    return f": its run completed, the wheels' inputs held by {limit}."
+
+
+def limit_words(case) -> str | None:
+    """What bounds the wheels' inputs of a case, in words for :func:`verdict_sentence`, or None."""
+    if getattr(case, "actuators", None) is not None:
+        return "the drive's voltage limit"
+    sat = getattr(getattr(case, "plant", None), "saturation", None)
+    return None if sat is None else f"the saturation at {sat:g} N m"
+
+
+def analysis_sentences(
+    analysis: dict, ranking: list[str], winners: list[str], stopped: list[str], limit: str | None = None
+) -> list[str]:
     """The verdict's sentences citing the analysis (issue 37 item 7), at most :data:`MAX_SENTENCES`.
 
     ``ranking``: the schemes ranked on the largest error after the faults, best first; ``winners`` its
     winners; ``stopped``: the schemes whose run did not complete.  In this order: a scheme whose loop the
     analysis predicts unstable in a phase (it "chatters" when its run completed: a sampled loop beyond
-    its limit runs on at the drive's limit), nominal among the winners with its loop stable in every
-    phase, and the last-ranked FTC scheme (it "loses") when its loop is stable.
+    its limit runs on at the drive's limit, where the case has one), nominal among the winners with its
+    loop stable in every phase, and the last-ranked FTC scheme (it "loses") when its loop is stable.
+    ``limit``: what bounds the wheels' inputs (:func:`limit_words`), None for ideal torques.
     """
     if not analysis or not analysis.get("phases"):
         return []
@@ -103,7 +126,7 @@ def analysis_sentences(analysis: dict, ranking: list[str], winners: list[str], s
         if scheme in cited or not any(p.get("stability") == "unstable" for p in phases):
             continue
         why = "loses" if scheme in stopped else "chatters"
-        line = verdict_sentence(scheme, analysis, why)
+        line = verdict_sentence(scheme, analysis, why, limit)
         if line:
             same.setdefault(line.replace(f"predicts {scheme}'s loop ", "predicts {who} "), []).append(scheme)
             cited.add(scheme)

@@ -20,6 +20,9 @@ from .render import write_page
 __all__ = ["MAX_BASELINE_FIGURES", "render_baseline"]
 
 MAX_BASELINE_FIGURES = 40  # per baseline page; the tables name every difference
+#: signals drawn on a log axis when their positive values span more than LOG_DECADES decades
+LOG_FAMILIES = ("position_error", "heading_error")
+LOG_DECADES = 2.0
 
 
 def _zoom(mid: np.ndarray, out: np.ndarray, e: np.ndarray) -> list[float]:
@@ -32,10 +35,25 @@ def _zoom(mid: np.ndarray, out: np.ndarray, e: np.ndarray) -> list[float]:
     return [max(float(e[0]), a - pad), min(float(e[-1]), b + pad)]
 
 
-def _yrange(xr: list[float], mid: np.ndarray, *ys: np.ndarray) -> list[float] | None:
+def _shown(xr: list[float], mid: np.ndarray, scale_from: float | None, *ys: np.ndarray) -> np.ndarray:
+    """The intervals that set an axis: those in the x-range from ``scale_from`` on, so the start-up
+    transient is drawn but does not set the axis; all in the x-range when none is after it or the values
+    of ``ys`` there are all one value (a failed wheel's zero torque)."""
     m = (mid >= xr[0]) & (mid <= xr[1])
+    if scale_from is None:
+        return m
+    later = m & (mid >= scale_from)
+    vals = _values(later, ys)
+    return later if vals.size and np.ptp(vals) > 0 else m
+
+
+def _values(m: np.ndarray, ys) -> np.ndarray:
     vals = np.concatenate([np.asarray(y, float)[m] for y in ys]) if m.any() else np.zeros(0)
-    vals = vals[np.isfinite(vals)]
+    return vals[np.isfinite(vals)]
+
+
+def _yrange(m: np.ndarray, *ys: np.ndarray) -> list[float] | None:
+    vals = _values(m, ys)
     if vals.size == 0:
         return None
     lo, hi = float(vals.min()), float(vals.max())
@@ -43,11 +61,30 @@ def _yrange(xr: list[float], mid: np.ndarray, *ys: np.ndarray) -> list[float] | 
     return [lo - pad, hi + pad]
 
 
-def _band_figure(case: str, scheme: str, sig: str, unit: str, drawn: dict, new_t, new_y) -> dict:
+def _log_range(m: np.ndarray, *ys: np.ndarray) -> list[float] | None:
+    """A log axis's range (log10 units) over the positive values, or None when they span under
+    :data:`LOG_DECADES` decades (a linear axis reads them better)."""
+    vals = _values(m, ys)
+    vals = vals[vals > 0]
+    if vals.size == 0:
+        return None
+    a, b = np.log10(vals.min()), np.log10(vals.max())
+    if b - a < LOG_DECADES:
+        return None
+    pad = 0.04 * (b - a)
+    return [float(a - pad), float(b + pad)]
+
+
+def _band_figure(
+    case: str, scheme: str, sig: str, unit: str, drawn: dict, new_t, new_y, scale_from: float | None = None
+) -> dict:
     """Two panels, as the Simulation Data Inspector's comparison: above, the baseline's tolerance band
     (shaded), its envelope and the new run, the intervals outside the band circled; below, the
     difference new - baseline per interval (of the maxima and of the minima) against the tolerance.
-    The x-axis opens on the intervals that differ (double-click: the whole run)."""
+    The x-axis opens on the intervals that differ (double-click: the whole run).  The y-axes take their
+    scale from ``scale_from`` on (past the start-up transient, which is drawn and may run off the axis), as
+    the case page's figures; an error whose values span decades (:data:`LOG_FAMILIES`) is on a
+    log axis over the whole x-range instead."""
     e = np.asarray(drawn["edges"], float)
     mid = 0.5 * (e[:-1] + e[1:])
     x = interactive._r(mid, 6)
@@ -100,15 +137,23 @@ def _band_figure(case: str, scheme: str, sig: str, unit: str, drawn: dict, new_t
              legendgroup="tol", showlegend=False, hovertemplate=f"tolerance %{{y:.3g}} {unit}<extra></extra>"),
     ]  # fmt: skip
     xr = _zoom(mid, out, e)
-    top = _yrange(xr, mid, drawn["upper"], drawn["lower"], drawn["new_hi"], drawn["new_lo"])
-    bottom = _yrange(xr, mid, d_hi, d_lo, tol_hi, tol_lo)
+    tops = (drawn["upper"], drawn["lower"], drawn["new_hi"], drawn["new_lo"])
+    log = _log_range(_shown(xr, mid, None), *tops) if sig.split("[", 1)[0] in LOG_FAMILIES else None
+    top = log or _yrange(_shown(xr, mid, scale_from, *tops), *tops)
+    bottoms = (d_hi, d_lo, tol_hi, tol_lo)
+    bottom = _yrange(_shown(xr, mid, scale_from, *bottoms), *bottoms)
     layout = {
         "title": {"text": f"{case} / {scheme} / {sig}: against the baseline", "font": {"size": 13}},
         "height": 460,
         "margin": {"l": 70, "r": 20, "t": 40, "b": 40},
         "hovermode": "closest",
         "xaxis": {"title": {"text": "t [s]"}, "range": xr, "anchor": "y2"},
-        "yaxis": {"title": {"text": f"{sig} [{unit}]"}, "domain": [0.42, 1], **({"range": top} if top else {})},
+        "yaxis": {
+            "title": {"text": f"{sig} [{unit}]" + (" (log)" if log else "")},
+            "domain": [0.42, 1],
+            "type": "log" if log else "linear",
+            **({"range": top} if top else {}),
+        },
         "yaxis2": {
             "title": {"text": f"difference [{unit}]"},
             "domain": [0, 0.32],
@@ -117,6 +162,14 @@ def _band_figure(case: str, scheme: str, sig: str, unit: str, drawn: dict, new_t
         "legend": {"orientation": "h", "y": -0.16},
     }
     return {"data": data, "layout": layout}
+
+
+def _scale_from(ts) -> float | None:
+    """Where a run's overlays take their y-scale from: 1 s after its start, past the start-up transient (the
+    case page's figures scale from the first fault, but an overlay's x-range opens on the intervals that
+    differ, which may end soon after a fault: a failed wheel's zero torque would set the axis)."""
+    t = None if ts is None else np.asarray(ts.get("t"), float)
+    return None if t is None or t.size < 2 else float(t[0]) + 1.0
 
 
 def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:
@@ -151,14 +204,16 @@ def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:
             if not sc.drawn:
                 continue
             ts = load_timeseries(out, cmp.case, sc.scheme)
-            n = (read_json(out / cmp.case / "case.json") or {}).get("n")
+            rec = read_json(out / cmp.case / "case.json") or {}
+            n = rec.get("n")
+            scale_from = _scale_from(ts)
             new = key_signals(ts, list(wheel_names(int(n)))) if ts is not None and n else {}
             for sig, drawn in sc.drawn.items():
                 if len(figures) >= MAX_BASELINE_FIGURES:
                     break
                 unit = next((d.unit for d in sc.signals if d.signal == sig), "")
                 spec = _band_figure(
-                    cmp.case, sc.scheme, sig, unit, drawn, ts["t"] if sig in new else None, new.get(sig)
+                    cmp.case, sc.scheme, sig, unit, drawn, ts["t"] if sig in new else None, new.get(sig), scale_from
                 )
                 figures.append(
                     {
@@ -167,7 +222,14 @@ def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:
                         "caption": f"{cmp.case} / {sc.scheme} / {sig}: the baseline's tolerance band (grey: "
                         "max(abs_tol, rel_tol |baseline|) around its minimum and maximum per interval, widened by the "
                         "time tolerances), the baseline's envelope (grey lines), the new run (colour) and the "
-                        "intervals where it leaves the band (red circles).",
+                        "intervals where it leaves the band (red circles). "
+                        + (
+                            f"The axes take their scale from t = {scale_from:g} s on: the start-up transient before "
+                            "it is drawn but may run off the axis; "
+                            if scale_from is not None
+                            else ""
+                        )
+                        + "an error spanning decades is on a log axis.",
                     }
                 )
         cases.append(entry)

@@ -26,13 +26,27 @@ from ..evaluation.compare import BOUND
 from ..storage.store import _jsonable, read_json, write_atomic
 from ..studies.campaign import COMPARED_METRICS, summarize
 from . import plots
-from .render import figure, write_page
+from .render import figure, index_root, write_page
 
-__all__ = ["PAGES", "WORST_K", "comparison_matrices", "failing_samples", "render_campaign", "render_sample"]
+__all__ = [
+    "PAGES",
+    "WORST_K",
+    "coincide_note",
+    "coinciding",
+    "comparison_matrices",
+    "failing_samples",
+    "render_campaign",
+    "render_sample",
+]
 
 WORST_K = 3  # failing samples whose page the campaign renders (the others: ``ftcreport sample``)
 PAGES = "sample_pages"  # <campaign>/sample_pages/sample-00017/index.html
 LINESTYLES = ("-", "--", "-.", ":")
+#: hollow markers, largest first, for schemes whose ECDF lines coincide (drawn concentric, all visible)
+MARKERS = (("o", 10.0), ("s", 7.0), ("^", 5.0), ("D", 3.5), ("v", 2.5))
+#: two schemes' ECDFs coincide when their sorted samples agree within this relative tolerance (on the
+#: figure's log scale 2 % is under a line's width)
+COINCIDE_RTOL = 0.02
 
 
 def _rates_svg(summary: dict) -> str:
@@ -49,18 +63,75 @@ def _rates_svg(summary: dict) -> str:
     return plots._svg(fig)
 
 
+def _samples(e: dict, key: str, log: bool) -> np.ndarray:
+    d = np.sort(np.asarray(e[key], dtype=float))
+    return d[np.isfinite(d) & ((d > 0) if log else True)]
+
+
+def coinciding(summary: dict, key: str, log: bool = False) -> list[list[str]]:
+    """Groups of two or more schemes whose ECDFs of ``key`` coincide: as many samples with a value, and
+    the sorted values equal within :data:`COINCIDE_RTOL` (the lines would be drawn over each other)."""
+    groups: list[list[str]] = []
+    for s, e in summary["schemes"].items():
+        d = _samples(e, key, log)
+        if not d.size:
+            continue
+        for g in groups:
+            ref = _samples(summary["schemes"][g[0]], key, log)
+            same_n = ref.size == d.size == len(summary["schemes"][g[0]][key]) == len(e[key])
+            if same_n and np.allclose(d, ref, rtol=COINCIDE_RTOL, atol=0.0):
+                g.append(s)
+                break
+        else:
+            groups.append([s])
+    return [g for g in groups if len(g) > 1]
+
+
+def _names(xs: list[str]) -> str:
+    return xs[0] if len(xs) == 1 else ", ".join(xs[:-1]) + " and " + xs[-1]
+
+
+def coincide_note(summary: dict, rows: list[dict], key: str, log: bool, what: str) -> str:
+    """The caption's sentence on the schemes whose ECDF lines coincide (:func:`coinciding`), and the metric
+    that separates them: the final error, when its medians differ beyond the tolerance ("" if none do)."""
+    out = []
+    for g in coinciding(summary, key, log):
+        text = (
+            f" {_names(g)} coincide (the same {what} within {100 * COINCIDE_RTOL:g} % on every sample); "
+            "their lines carry hollow markers of decreasing size"
+        )
+        fin = {}
+        for s in g:
+            v = [r.get("position_error_final") for r in rows if r.get("scheme") == s]
+            v = [float(x) for x in v if isinstance(x, int | float) and math.isfinite(x)]
+            if v:
+                fin[s] = float(np.median(v))
+        if len(fin) == len(g) and max(fin.values()) > (1 + COINCIDE_RTOL) * min(fin.values()):
+            medians = ", ".join(f"{s} {v:.3g} m" for s, v in fin.items())
+            text += f"; the final error separates them (medians {medians}; see its matrix above)"
+        out.append(text + ".")
+    return "".join(out)
+
+
 def _ecdf_svg(summary: dict, key: str, label: str, log: bool, never: str | None = None) -> str:
-    """Empirical CDFs of a per-sample value, one step line per scheme (its own line style and width, so
-    coinciding schemes stay visible); the fraction of a scheme's samples without a value (e.g. never
-    recovered) is where its line ends below 1."""
+    """Empirical CDFs of a per-sample value, one step line per scheme (its own line style and width); the
+    schemes whose lines coincide (:func:`coinciding`) carry concentric hollow markers and say so in the
+    legend.  The fraction of a scheme's samples without a value (e.g. never recovered) is where its line
+    ends below 1."""
     fig, ax = plt.subplots(figsize=(6.4, 2.8))
+    same = {s: g for g in coinciding(summary, key, log) for s in g}
     for i, (s, e) in enumerate(summary["schemes"].items()):
-        d = np.sort(np.asarray(e[key], dtype=float))
-        d = d[np.isfinite(d) & ((d > 0) if log else True)]
+        d = _samples(e, key, log)
         n = max(int(e.get("n") or 0), d.size, 1)
         if not d.size:
             continue
         y = np.arange(1, d.size + 1) / n
+        style: dict = {}
+        label_s = f"{s} ({d.size}/{n})"
+        if s in same:
+            j = same[s].index(s)
+            style = {"marker": MARKERS[j % len(MARKERS)][0], "ms": MARKERS[j % len(MARKERS)][1], "mfc": "none"}
+            label_s = f"{s} ({d.size}/{n}; coincides with {_names([x for x in same[s] if x != s])})"
         ax.step(
             np.r_[d[0], d],
             np.r_[0.0, y],
@@ -68,7 +139,8 @@ def _ecdf_svg(summary: dict, key: str, label: str, log: bool, never: str | None 
             lw=2.2 - 0.4 * (i % 4),
             ls=LINESTYLES[i % len(LINESTYLES)],
             color=plots.SCHEME_COLORS.get(s, f"C{i}"),
-            label=f"{s} ({d.size}/{n})",
+            label=label_s,
+            **style,
         )
     if log and ax.lines:
         ax.set_xscale("log")
@@ -237,20 +309,21 @@ def render_campaign(out: Path, rows: list[dict], worst: int = WORST_K) -> Path:
                 "max-error",
                 "Empirical CDF of the maximum position error per sample over the whole run, the initial offset "
                 "included (log scale): the fraction of samples at or below each value, one line per scheme "
-                "(further left is better).",
+                "(further left is better)." + coincide_note(summary, rows, "max_errors", True, "max errors"),
                 svg=_ecdf_svg(summary, "max_errors", "max position error [m]", True),
             ),
             figure(
                 "recovery",
                 "Empirical CDF of the recovery time (defined under the rates table) over all samples: a "
-                "scheme's line ends at the fraction of samples that recovered (legend: recovered / samples).",
+                "scheme's line ends at the fraction of samples that recovered (legend: recovered / samples)."
+                + coincide_note(summary, rows, "recovery_times", False, "recovery times"),
                 svg=_ecdf_svg(summary, "recovery_times", "recovery time max [s]", False, "recovered / samples"),
             ),
         ]
     return write_page(
         out / "index.html",
         "campaign.html",
-        "../../",
+        index_root(out),
         name=meta.get("case", out.name),
         seed=meta.get("seed"),
         success=(meta.get("base", {}).get("campaign") or {}).get("success", {}),

@@ -14,9 +14,9 @@ import numpy as np
 
 from ..model import wheel_names
 from ..studies.coverage import DEFAULT_CRITERIA, recovery_bound
-from .render import write_page
+from .render import index_root, write_page
 
-__all__ = ["coverage_grids", "map_tables", "render_coverage"]
+__all__ = ["coverage_grids", "kinds_text", "map_tables", "render_coverage"]
 
 
 def coverage_grids(summary: dict, n: int) -> dict:
@@ -51,6 +51,22 @@ def coverage_grids(summary: dict, n: int) -> dict:
         out["single"][s], out["pairs"][s] = g, p
     out["predicted_single"], out["predicted_pairs"] = pred_s, pred_p
     return out
+
+
+def kinds_text(meta: dict) -> str:
+    """The kinds of fault the coverage ran, in words, each with its settings (``coverage.json``'s ``kinds``,
+    ``sigmas``, ``friction``): only the kinds run are named (``--kinds loss,pair`` has no sigma)."""
+    kinds = list(meta.get("kinds") or [])
+    words = {
+        "loss": "single-wheel losses",
+        "pair": "pairs of losses",
+        "partial": f"partial losses (sigma in {', '.join(f'{x:g}' for x in meta.get('sigmas') or [])})",
+        "friction": f"a friction of ubar = {meta.get('friction', 0):g} N m per wheel",
+    }
+    parts = [words.get(k, k) for k in kinds]
+    if len(parts) < 2:
+        return parts[0] if parts else "no fault"
+    return ", ".join(parts[:-1]) + " and " + parts[-1]
 
 
 def _cell_color(x: float) -> str:
@@ -126,8 +142,9 @@ def render_coverage(out: Path) -> Path:
     return write_page(
         out / "index.html",
         "coverage.html",
-        "../../",
+        index_root(out),
         meta=meta,
+        kinds=kinds_text(meta),
         summary=summary,
         maps=maps,
         criteria=criteria,

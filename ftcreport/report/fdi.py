@@ -12,7 +12,7 @@ matplotlib.use("svg")
 import matplotlib.pyplot as plt
 
 from . import plots
-from .render import figure, write_page
+from .render import figure, index_root, write_page
 
 __all__ = ["FAR_BUDGET", "operating_point", "render_fdi"]
 
@@ -132,5 +132,11 @@ def render_fdi(out: Path) -> Path:
             figure(f"{s}-delay", f"{s}: mean detection delay against false alarms per hour.", svg=_delay_svg(res))
         )
     return write_page(
-        out / "index.html", "fdi.html", "../../", result=result, figures=figures, recommended=recommended, rule=RULE
+        out / "index.html",
+        "fdi.html",
+        index_root(out),
+        result=result,
+        figures=figures,
+        recommended=recommended,
+        rule=RULE,
     )

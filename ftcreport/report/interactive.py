@@ -33,11 +33,33 @@ __all__ = [
     "estimates_fig",
     "inline_plotly",
     "motors_fig",
+    "series_colors",
     "switching_fig",
     "torques_fig",
 ]
 
 MAX_POINTS = 1500  # per trace, after decimation
+#: colours for series that are not a scheme or whose scheme's colour is taken (tab10, then tab20b's darks)
+PALETTE = (
+    "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf",
+    "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173",
+)  # fmt: skip
+
+
+def series_colors(names: list[str]) -> dict[str, str]:
+    """One colour per series name, none repeated: a scheme's own colour (:data:`plots.SCHEME_COLORS`) for a
+    scheme, or for the first series named after it (``switching (this case)``); the others the first colours
+    of :data:`PALETTE` not taken (``switching (base)``), cycling only past 15 series."""
+    out: dict[str, str] = {}
+    for name in names:
+        own = SCHEME_COLORS.get(name) or SCHEME_COLORS.get(name.split(" (", 1)[0])
+        if own and own not in out.values():
+            out[name] = own
+    free = [c for c in PALETTE if c not in out.values() and c not in SCHEME_COLORS.values()]
+    free += [c for c in PALETTE if c not in out.values() and c not in free]
+    for i, name in enumerate(n for n in names if n not in out):
+        out[name] = free[i % len(free)] if free else PALETTE[i % len(PALETTE)]
+    return out
 
 
 @functools.cache  # one compression per process: every page inlines the same bytes
@@ -130,14 +152,16 @@ def _t_end(series: dict) -> float:
 
 
 def errors_fig(series: dict[str, dict], phases: list[dict]) -> dict:
-    """Position error and largest heading error per scheme (log scale)."""
+    """Position error and largest heading error per series (log scale), each in its own colour
+    (:func:`series_colors`)."""
     data = []
+    colors = series_colors(list(series))
     for scheme, ts in series.items():
         q, qd = ts["q"], ts["q_d"]
         pos = np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])
         head = np.abs(wrap(q[:, 2:] - qd[:, 2:])).max(axis=1)
         t, p, h = decimate(ts["t"], np.maximum(pos, 1e-12), np.maximum(head, 1e-9))
-        c = SCHEME_COLORS.get(scheme)
+        c = colors[scheme]
         data.append(_trace(t, _r(p), scheme, "%{y:.3g} m", legendgroup=scheme, line={"color": c, "width": 1.3}))
         heading = {"legendgroup": scheme, "showlegend": False, "line": {"color": c, "width": 1.0}, "yaxis": "y2"}
         data.append(_trace(t, _r(h), scheme, "%{y:.3g} rad", **heading))

@@ -28,10 +28,12 @@ from .. import __version__
 from ..cases import ordered_schemes, parse_case, with_duration
 from ..errors import FtcError, printable
 from ..evaluation import compare
+from ..evaluation.claims import bound_text
+from ..evaluation.verdict_analysis import limit_words
 from ..model.faults import wheel_names
 from ..runner import integrator_words
 from ..storage.store import load_timeseries, read_json, stored_metrics, stored_schemes, write_atomic
-from ..studies.check import evaluate
+from ..studies.check import claim_item, evaluate, requirement_items, threshold_item
 from . import interactive, plots
 from .analysis_figs import analysis_section
 from .plant import plant_block
@@ -77,15 +79,25 @@ def _now() -> str:
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
 
 
-def write_page(page: Path, template: str, root: str, **context) -> Path:
+def write_page(page: Path, template: str, root: str | None, **context) -> Path:
     """Render ``template`` with ``context``, the versions and the time, and write it to ``page`` atomically.
 
-    ``root`` is the relative path from the page to the output directory (shared assets, links).
+    ``root`` is the relative path from the page to the output directory (shared assets, links); None: the
+    page has no index to link to (:func:`index_root`).
     """
     context.setdefault("versions", dependency_versions())
     html = _env().get_template(template).render(root=root, version=__version__, rendered=_now(), **context)
     write_atomic(page, html.encode())
     return page
+
+
+def index_root(page_dir: Path, root: str = "../../") -> str | None:
+    """``root`` when an index page exists there relative to ``page_dir``, else None (no link).
+
+    A campaign, coverage or FDI page written into ``reports/<kind>/<case>/`` links the batch's index two
+    levels up; under a custom ``--out`` there may be none, and a link to it would be broken.
+    """
+    return root if (Path(page_dir) / root / "index.html").is_file() else None
 
 
 def figure(fig_id: str, caption: str, **drawing) -> dict:
@@ -356,6 +368,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
     requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)
     verdict = _verdict(case, name, runs, analysis)
+    gate = _gate_failures(name, case, runs, checks, claims)
     base_verdict = None
     if verdict and rec.get("base") and (out / rec["base"]).is_dir():
         base_case = _stored_case(out, rec["base"], _record(out, rec["base"]) or {})
@@ -380,6 +393,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         root,
         nav_label=nav,
         verdict=verdict,
+        gate=gate,
         verdict_rows=_verdict_rows(verdict) if verdict else [],
         not_run=rec.get("not_run", {}),
         plugin_schemes=rec.get("plugin_schemes", {}),
@@ -521,6 +535,31 @@ def _manifest_stamp(out: Path, name: str) -> bytes:
     return json.dumps(keep, sort_keys=True).encode()
 
 
+def _gate_failures(name: str, case, runs: list[dict], checks: list, claims: list) -> dict | None:
+    """The case's thresholds, claims and requirement windows that do not hold, for the verdict's opening.
+
+    The same gate items ``run`` and ``check`` judge (:mod:`ftcreport.studies.check`): ``{"n", "lines"}``
+    with the number of items judged and one line per failed item (which item, the scheme, the value
+    against the bound), or None when none is stated.
+    """
+    metrics = {m["scheme"]: m for m in runs}
+    items = [threshold_item(r) for r in checks]
+    items += [claim_item(c, i) for i, c in enumerate(claims)]
+    items += requirement_items(name, case.requirements, metrics)
+    if not items:
+        return None
+    lines = []
+    for r in (r for r in checks if not r.ok):
+        got = r.reason if r.actual is None else f"{r.actual:.4g} against {bound_text(r.min, r.max)}"
+        lines.append(f"threshold {r.scheme} / {r.metric}: {got}")
+    for item in items:
+        if not item.ok and item.kind == "claim":
+            lines.append(f"{item.name}: {item.message}")
+        elif not item.ok and item.kind == "requirement":
+            lines.append(f"requirement {item.name.replace(' / requirement ', ' / ', 1)}: {item.message}")
+    return {"n": len(items), "lines": lines}
+
+
 def _facts(case) -> dict:
     """Facts of a case the verdict's sentences may explain with (compare.compare_case)."""
     return {
@@ -528,6 +567,7 @@ def _facts(case) -> dict:
         "fractional": any(0 < f.sigma < 1 for f in case.faults),
         "uncompensable": bool(case.warnings()),
         "follower_only": bool(case.faults) and all(not f.wheel.strip().startswith("1") for f in case.faults),
+        "limit": limit_words(case),
     }
 
 

@@ -323,6 +323,19 @@ def test_10_a_malformed_scheduler_is_bad_input(tmp_path, address):
     assert "--scheduler" in line and address in line, line
 
 
+@pytest.mark.parametrize("command", ["campaign", "coverage", "fdi"])
+@pytest.mark.parametrize("address", ["http://localhost:8786", "https://h:8786", "inproc://x", "udp://h:1"])
+def test_10_an_unsupported_scheduler_scheme_is_bad_input(tmp_path, command, address):
+    case = ROOT / "cases" / "two_link_campaign.toml"
+    out = tmp_path / "o"
+    res = runner.invoke(app, [command, str(case), "--scheduler", address, "--out", str(out), "-q"])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert "--scheduler" in line and address in line and "tcp://HOST:PORT" in line, line
+    assert "tls://" in line and "ws://" in line, line  # the accepted forms
+    assert not out.exists()  # refused before the output directory is made
+
+
 def test_10_a_duration_that_drops_a_fault_says_which(tmp_path):
     case = _write(
         tmp_path,

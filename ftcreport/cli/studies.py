@@ -232,8 +232,9 @@ def coverage(
         "friction": friction,
         "kinds": tuple(_names(kinds) or ()),
     }
+    dask = _dask(scheduler, workers, in_process, quiet, force)  # a malformed --scheduler before out_dir is made
     with output_lock(out_dir, "coverage"):  # a second coverage into out_dir is refused, naming this one
-        res = run_coverage(base, out_dir, **options, **_dask(scheduler, workers, in_process, quiet, force))
+        res = run_coverage(base, out_dir, **options, **dask)
         page = render_coverage(out_dir)
     _done(res, "fault runs", page, f" (onsets {', '.join(f'{t:g}' for t in res.times)} s)")
 

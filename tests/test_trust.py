@@ -336,6 +336,37 @@ def test_10_an_unsupported_scheduler_scheme_is_bad_input(tmp_path, command, addr
     assert not out.exists()  # refused before the output directory is made
 
 
+def test_10_workers_are_capped_by_the_tasks_and_the_cores(tmp_path, monkeypatch):
+    import dask.distributed
+
+    made = []
+
+    class RefusedError(Exception):
+        pass
+
+    def cluster(**kw):  # records what would start, starts nothing
+        made.append(kw["n_workers"])
+        raise RefusedError
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", cluster)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    case = ROOT / "cases" / "two_link_campaign.toml"
+
+    def campaign(samples: str, workers: str):
+        out = tmp_path / f"o{samples}{workers}"
+        return runner.invoke(app, ["campaign", str(case), "-n", samples, "--workers", workers, "--out", str(out), "-q"])
+
+    res = campaign("1", "100000")
+    assert made == [1], made
+    assert "--workers 100000: capped at 1 (the number of samples to run)" in res.stderr, res.stderr
+    res = campaign("1000", "100000")
+    assert made[-1] == cores, made
+    assert f"--workers 100000: capped at {cores} (the cores this process may use ({cores}))" in res.stderr
+    for bad in ("0", "-3"):
+        res = campaign("1", bad)
+        assert res.exit_code == 2 and "--workers" in _errors(res)[0], res.output
+
+
 def test_10_a_duration_that_drops_a_fault_says_which(tmp_path):
     case = _write(
         tmp_path,

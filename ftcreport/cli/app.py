@@ -214,9 +214,12 @@ QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar."
 
 def _dask(scheduler: str | None, workers: int, in_process: bool, quiet: bool, force: bool) -> dict:
     """The keywords a Dask command passes on to run_campaign, run_coverage or run_fdi (``--scheduler``
-    checked first: a malformed address is bad input, exit 2)."""
+    and ``--workers`` checked first: a malformed address or a count below 1 is bad input, exit 2)."""
     if scheduler is not None:
         _check_scheduler(scheduler)
+    from ..infra.limits import worker_count
+
+    worker_count(workers, 1, "--workers")  # below 1 refused; the cap is applied once the tasks are known
     return {
         "scheduler": scheduler,
         "workers": workers,

@@ -420,6 +420,9 @@ def _campaign(tmp_path: Path, **spec) -> Path:
         ({"faults": [1, 3], "wheels": ["1r", "2l"]}, "campaign.faults", "2 wheels"),
         ({"faults": [0, 0]}, "campaign.faults", "no fault"),
         ({"wheels": ["1r", "1R"]}, "campaign.wheels[1]", "twice"),
+        ({"sigma": [1.0, 1.0], "friction_probability": 0.0, "ubar": [-1.0, 1.0]}, "campaign.sigma", "healthy"),
+        ({"sigma": [1.0, 1.0], "friction_probability": 0.3, "ubar": [0.0, 0.0]}, "campaign.sigma", "healthy"),
+        ({"sigma": [1.0, 1.0], "friction_probability": 0.0, "ubar": [0.0, 0.0]}, "campaign.sigma", "healthy"),
     ],
 )
 def test_10_a_campaign_that_cannot_draw_its_faults_is_refused(tmp_path, spec, field, words):
@@ -427,6 +430,19 @@ def test_10_a_campaign_that_cannot_draw_its_faults_is_refused(tmp_path, spec, fi
     assert res.exit_code == 2, res.output
     (line,) = _errors(res)
     assert f": {field}: " in line and words in line, line
+
+
+def test_10_a_campaign_that_draws_only_healthy_wheels_is_refused_before_it_runs(tmp_path):
+    case = _campaign(tmp_path, sigma=[1.0, 1.0], friction_probability=0.0, ubar=[0.0, 0.0])
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["campaign", str(case), "-n", "2", "--in-process", "--out", str(out), "-q"])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f"{case}: campaign.sigma: " in line and "every draw leaves every wheel healthy" in line, line
+    assert "friction_probability" in line, line
+    assert not out.exists()
+    ok = _campaign(tmp_path, sigma=[1.0, 1.0], friction_probability=0.2, ubar=[0.0, 0.5])  # a friction can be drawn
+    assert runner.invoke(app, ["cases", "validate", str(ok)]).exit_code == 0
 
 
 def test_10_a_campaign_of_base_faults_only_is_accepted(tmp_path):

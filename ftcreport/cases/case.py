@@ -353,8 +353,8 @@ def _numbers(names: list[str]) -> list[str]:
 
 def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
     """The faults a campaign draws exist: its wheels are wheels of the chain, each listed once, at least
-    as many as the faults it draws per sample (each on a distinct wheel), and it draws a fault at all
-    (unless the case keeps faults of its own)."""
+    as many as the faults it draws per sample (each on a distinct wheel), and it draws a fault at all, one
+    that changes a wheel (a sigma below 1 or a friction), unless the case keeps faults of its own."""
     lo, hi = spec.faults
     if spec.wheels == "any":
         wheels, which = wheel_names(n), f"the {2 * n} wheels of the {n}-robot chain"
@@ -386,6 +386,17 @@ def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
             "campaign.faults",
             f"[{lo}, {hi}] draws no fault and keeps none of the case's (keep_base_faults): every sample would be "
             "fault-free and 'succeed'; give an upper bound of 1 or more",
+        )
+    # a drawn fault is effective when its sigma is below 1 (drawn from [sigma lo, hi]: below 1 unless lo = 1)
+    # or it adds a friction (drawn with friction_probability, ubar from [ubar lo, hi]: nonzero unless both 0)
+    friction = spec.friction_probability > 0.0 and spec.ubar != (0.0, 0.0)
+    if spec.sigma[0] >= 1.0 and not friction and not (spec.keep_base_faults and keeps):
+        why = "friction_probability = 0" if spec.friction_probability == 0.0 else "ubar = [0, 0]"
+        raise _FieldError(
+            "campaign.sigma",
+            f"[{spec.sigma[0]:g}, {spec.sigma[1]:g}] keeps every motor at full effectiveness and no friction is "
+            f"drawn ({why}): every draw leaves every wheel healthy, so every sample would be fault-free and "
+            "'succeed'; give sigma a lower bound below 1, or a friction_probability above 0 with a nonzero ubar",
         )
 
 

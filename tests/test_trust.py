@@ -545,6 +545,40 @@ def test_12_a_misspelt_metric_or_scheme_is_refused_with_a_hint(tmp_path, top, fi
     assert f": {field}: " in line and hint in line, line
 
 
+def _claim(**kw) -> dict:
+    return {"id": "c", "source": "s", "words": "w", "expect": "reproduced", "metric": "torque_peak", "max": 1.0} | kw
+
+
+@pytest.mark.parametrize(
+    ("top", "field", "hint"),
+    [
+        ({"claims": [_claim(scheme="nominl")]}, "claims[0].scheme", "did you mean 'nominal'?"),
+        ({"claims": [_claim(scheme="nominal", relative_to="swiching")]}, "claims[0].relative_to", "'switching'?"),
+        ({"claims": [_claim(scheme="active")]}, "claims[0].scheme", "not in [schemes] run (nominal)"),
+        (
+            {"thresholds": {"active": {"position_error_final": {"max": 1.0}}}},
+            "thresholds.active",
+            "not in [schemes] run (nominal)",
+        ),
+    ],
+)
+def test_12_a_misspelt_or_not_run_scheme_in_a_claim_or_threshold_is_refused(tmp_path, top, field, hint):
+    case = _write(tmp_path, "ns", **top)
+    res = runner.invoke(app, ["cases", "validate", str(case)])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f"{case}: {field}: " in line and hint in line, line
+    for command in (["run", "--no-report"], ["check"]):  # refused alike, not run then failed by check
+        res = runner.invoke(app, [command[0], str(case), "--out", str(tmp_path / "o"), *command[1:], "-q"])
+        assert res.exit_code == 2 and f"{field}: " in _errors(res)[0], res.output
+
+
+def test_12_every_shipped_case_still_validates():
+    cases = sorted((ROOT / "cases").glob("*.toml")) + sorted((ROOT / "cases" / "motors").glob("*.toml"))
+    res = runner.invoke(app, ["cases", "validate", *map(str, cases)])
+    assert res.exit_code == 0, res.output
+
+
 def test_12_every_shipped_threshold_and_claim_names_a_metric_its_scheme_writes():
     from ftcreport.evaluation.metrics import METRICS
 

@@ -136,7 +136,7 @@ def test_a_batch_goes_on_past_files_that_are_not_files(tmp_path):
     (d / "sub.toml").mkdir()
     (d / "zero.toml").symlink_to("/dev/zero")
     res = _cli("batch", str(d), "--out", str(tmp_path / "o"), "--jobs", "1", "-q", timeout=400)
-    assert res.returncode == 1 and "Traceback" not in res.stderr, (res.returncode, res.stderr)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, (res.returncode, res.stderr)
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error: ")]
     for path, what in ((fifo, "FIFO"), (d / "sub.toml", "directory"), (d / "zero.toml", "character device")):
         assert sum(f"{path}: not a regular file (a {what}" in ln for ln in errors) == 1, (path, errors)
@@ -173,7 +173,7 @@ def test_a_symlinked_case_folder_inside_out_is_refused_not_followed(tmp_path):
     # a batch refuses that case and goes on with the others
     other = _case(tmp_path, "other")
     res = _cli("batch", str(_case(tmp_path)), str(other), "--out", str(out), "--jobs", "1", "-q", timeout=400)
-    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
     assert f"{out / 'short'}: is a symbolic link" in res.stderr
     assert list(elsewhere.iterdir()) == [] and (out / "other" / "nominal" / "metrics.json").is_file()
 

@@ -233,6 +233,38 @@ def test_3_check_on_a_damaged_store_re_runs_and_passes(stored, tmp_path):
     assert "1/1 runs end as the case expects" in res.stdout
 
 
+# ------------------------------------------------------------------ 5. a refused case file is bad input in a batch too
+def test_5_batch_exits_2_when_a_case_file_is_refused_after_running_the_others(tmp_path):
+    d = tmp_path / "cases"
+    d.mkdir()
+    _write(d, "good")
+    _unstable(d, "su")  # a failed run: exit 1 alone
+    (d / "broken.toml").write_text("robots = {n = \n")  # not TOML
+    (d / "dir.toml").mkdir()
+    os.mkfifo(d / "pipe.toml")
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["batch", str(d), "--out", str(out), "--jobs", "1", "-q"])
+    assert res.exit_code == 2, res.output  # bad input outranks a failed run
+    assert "2 case(s): 2 run(s) simulated, 0 cached, 1 failed, 3 case file(s) rejected" in res.stdout, res.stdout
+    errors = _errors(res)
+    for name in ("broken.toml", "dir.toml", "pipe.toml"):
+        assert sum(f"{d / name}: " in ln for ln in errors) == 1, (name, errors)
+    assert any("su / nominal: step_unstable" in ln for ln in errors), errors
+    assert (out / "good" / "nominal" / "record.json").is_file() and (out / "su" / "nominal" / "record.json").is_file()
+    again = runner.invoke(app, ["batch", str(d), "--out", str(out), "-q"])  # cached: the same verdict
+    assert again.exit_code == 2 and "2 cached, 1 failed, 3 case file(s) rejected" in again.stdout, again.output
+    for command in ("check", "run"):  # and as they say on the same file
+        assert runner.invoke(app, [command, str(d / "broken.toml"), "--out", str(out), "-q"]).exit_code == 2
+
+
+def test_5_batch_help_and_the_readme_say_a_refused_case_file_exits_2():
+    res = runner.invoke(app, ["batch", "--help"], env={"COLUMNS": "200"})
+    assert "2 when a case file was refused" in " ".join(res.stdout.split()), res.stdout
+    text = (ROOT / "README.md").read_text()
+    table = " ".join(text[text.index("| exit |") :].split("\n\n")[0].split())
+    assert "a case file `batch` or `check` refused, even when other runs failed" in table, table
+
+
 # ------------------------------------------------------------------ 7. control characters
 @pytest.mark.parametrize(
     ("where", "value"),
@@ -294,7 +326,7 @@ def test_9_a_generated_name_is_refused_as_a_case_name(tmp_path, name):
     stem = tmp_path / f"{name}.toml"  # the file stem is the default name
     stem.write_text(tomli_w.dumps(BASE))
     res = runner.invoke(app, ["batch", str(stem), "--out", str(tmp_path / "o"), "-q"])
-    assert res.exit_code == 1 and "a name the report uses itself" in res.stderr
+    assert res.exit_code == 2 and "a name the report uses itself" in res.stderr
     assert not (tmp_path / "o" / name / "nominal").exists()
 
 

@@ -137,12 +137,14 @@ def sample(
 
     Example: ftcreport sample reports/campaigns/two_link_campaign 17
     """
-    from ..report.campaign import render_campaign, render_sample
+    from ..report.campaign import check_sample_index, render_campaign, render_sample
     from ..storage.store import output_lock
     from ..studies.campaign import read_table
 
     if not (campaign_dir / "campaign.json").is_file():
         raise FtcError(f"{campaign_dir}: not a campaign directory (no campaign.json); run 'ftcreport campaign' first")
+    for i in index:  # every index before any page: a sample the campaign never ran is bad input
+        check_sample_index(campaign_dir, i)
     with output_lock(campaign_dir, "sample"):
         for i in index:
             with _running(f"sample {i}", False):

@@ -246,3 +246,34 @@ def test_two_coverages_at_once_one_runs_one_is_refused(tmp_path):
     assert refused.count("\n") == 1 and f"{out}: --out: in use by ftcreport coverage (pid" in refused, refused
     items = [json.loads(p.read_text()) for p in sorted((out / "items").glob("*.json"))]
     assert sorted(r["item"] for r in items) == list(range(8))  # 4 wheels x 2 kinds, each run once
+
+
+def _files(d: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def test_export_never_overwrites_another_commands_directory(tmp_path):
+    """Audit of issue 34: ``export --out A --dest B`` with B another batch's output replaced B's
+    metrics.parquet with A's rows (exit 0); now refused, exit 2, B untouched, and a batch never
+    writes into an export's directory either."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    for out, name in ((a, "short"), (b, "other")):
+        res = _cli("batch", str(_case(tmp_path, name)), "--out", str(out), "--jobs", "1", "-q", timeout=400)
+        assert res.returncode == 0, res.stderr
+    before = _files(b)
+    res = _cli("export", "--out", str(a), "--dest", str(b))
+    _one_line(res, 2, f"{b}: --dest: holds the results of another kind of command (case results of batch/run)")
+    assert _files(b) == before
+    other = tmp_path / "campaign-like"  # a directory of another family (found by its files)
+    other.mkdir()
+    (other / "coverage.json").write_text("{}")
+    _one_line(_cli("export", "--out", str(a), "--dest", str(other)), 2, f"{other}: --dest: ", "a coverage map")
+    dest = tmp_path / "exported"
+    for _ in range(2):  # a fresh destination, then the same export again: both fine
+        res = _cli("export", "--out", str(a), "--dest", str(dest))
+        assert res.returncode == 0 and (dest / "metrics.parquet").is_file(), res.stderr
+    kept = _files(dest)
+    res = _cli("batch", str(_case(tmp_path, "short")), "--out", str(dest), "-q", timeout=400)
+    _one_line(res, 2, f"{dest}: --out: holds the results of another kind of command (an export")
+    assert _files(dest) == kept
+    assert _cli("export", "--out", str(a)).returncode == 0  # beside the results: still the batch's own

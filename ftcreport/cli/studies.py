@@ -167,7 +167,13 @@ def _done(res, runs: str, page: Path, detail: str = "") -> None:
 @app.command()
 def export(
     out: Annotated[Path, typer.Option(help="Output directory holding stored results.")] = Path("reports"),
-    dest: Annotated[Path | None, typer.Option(help="Where to write (default: beside the results, in OUT).")] = None,
+    dest: Annotated[
+        Path | None,
+        typer.Option(
+            help="Where to write (default: beside the results, in OUT): a new directory or an earlier export's; "
+            "another command's directory (a batch's results, a campaign) is refused."
+        ),
+    ] = None,
 ) -> None:
     """Tidy files of stored results: netCDF per run and metrics.parquet (one row per case, scheme, phase).
 
@@ -185,8 +191,8 @@ def export(
     damaged: list[str] = []
     with contextlib.ExitStack() as locks:  # the results read and the directory written: no batch meanwhile
         locks.enter_context(output_lock(out, "export"))
-        if dest is not None:
-            locks.enter_context(output_lock(dest, "export"))
+        if dest is not None:  # a directory of its own: never another batch's (its metrics.parquet) or family's
+            locks.enter_context(output_lock(dest, "export --dest"))
         paths = _export(out, dest, damaged)
     n_nc = sum(p.suffix == ".nc" for p in paths)
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")

@@ -178,6 +178,23 @@ def test_a_symlinked_case_folder_inside_out_is_refused_not_followed(tmp_path):
     assert list(elsewhere.iterdir()) == [] and (out / "other" / "nominal" / "metrics.json").is_file()
 
 
+def test_an_out_that_is_itself_a_link_is_followed_and_the_readme_says_so(tmp_path):
+    """--out given as a symbolic link to a directory (reports -> a larger disk) is a use kept on purpose:
+    the link is the user's own choice of place, and the results stay inside the directory it names.
+    What is refused is a link *below* --out (test above); the README's exit-2 row says which."""
+    target = tmp_path / "disk" / "reports"
+    target.mkdir(parents=True)
+    link = tmp_path / "reports"
+    link.symlink_to(target)
+    res = _cli("run", str(_case(tmp_path)), "--out", str(link), "--no-report", "-q", timeout=400)
+    assert res.returncode == 0, res.stderr
+    assert (target / "short" / "nominal" / "record.json").is_file() and link.is_symlink()
+    readme = " ".join((CASES.parent / "README.md").read_text().split())
+    row = readme[readme.index("| 2 | bad input") :].split(" |", 2)[1]
+    assert "a case folder or lock file below it that is a symbolic link" in row, row
+    assert "`--out` itself may be a symbolic link to a directory" in row, row
+
+
 # ------------------------------------------------------------------ break 8: every writer locks
 def _hold_lock(out: Path, command: str = "batch") -> subprocess.Popen:
     code = textwrap.dedent(

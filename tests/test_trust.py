@@ -305,6 +305,43 @@ def test_7_junit_terminal_and_html_escape_a_control_character_in_a_file_name(tmp
     assert "\x1b" not in html
 
 
+BIDI = [chr(c) for c in (*range(0x202A, 0x202F), *range(0x2066, 0x206A))]  # embeddings, overrides, isolates
+
+
+@pytest.mark.parametrize("char", BIDI)
+@pytest.mark.parametrize("where", ["claims[0].words", "claims[0].source", "description"])
+def test_7_bidirectional_controls_are_refused_in_every_text(tmp_path, char, where):
+    claim = {"id": "c1", "source": "Fig. 3.4", "words": "tracks", "expect": "reproduced"}
+    claim |= {"scheme": "nominal", "metric": "position_error_final", "max": 1.0}
+    top = {"claims": [claim]}
+    if where == "description":
+        top["description"] = f"safe{char}txet"
+    else:
+        claim[where.rsplit(".", 1)[1]] = f"safe{char}txet"
+    case = _write(tmp_path, "bd", **top)
+    res = runner.invoke(app, ["cases", "validate", str(case)])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f"{case}: {where}: " in line and f"bidirectional control U+{ord(char):04X}" in line, line
+    assert not any(ch in res.output for ch in BIDI), ascii(res.output)
+
+
+def test_7_bidirectional_controls_in_a_file_name_are_escaped_on_the_terminal_junit_and_html(tmp_path):
+    bad = tmp_path / "bad\u202egnp.toml"
+    bad.write_text("[robots]\nn = 2\n")
+    good = _write(tmp_path, "ok")
+    out = tmp_path / "o"
+    junit = tmp_path / "j.xml"
+    res = runner.invoke(app, ["check", str(bad), str(good), "--out", str(out), "--junit", str(junit)])
+    assert res.exit_code == 2, res.output
+    assert "\u202e" not in res.output and "\\u202e" in res.stderr, ascii(res.stderr)
+    assert "\u202e" not in junit.read_text() and "\u202e" not in (out / "index.html").read_text()
+    from ftcreport.errors import printable
+
+    assert all(printable(f"a{ch}b") == f"a\\u{ord(ch):04x}b" for ch in BIDI)
+    assert printable("\u200f\u05d0") == "\u200f\u05d0"  # a right-to-left mark in Hebrew prose is kept
+
+
 def test_7_junit_is_well_formed_whatever_the_text():
     from ftcreport.report.junit import junit_xml
     from ftcreport.studies.check import GateItem

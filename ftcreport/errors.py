@@ -10,6 +10,8 @@ import math
 import re
 
 __all__ = [
+    "BIDI",
+    "BIDI_CONTROLS",
     "CASE_ERRORS",
     "CaseError",
     "FaultError",
@@ -119,12 +121,17 @@ def environment_cause(exc: BaseException) -> str | None:
 
 
 # --------------------------------------------------------------------------- text that cannot break a file
-_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\ud800-\udfff\ufffe\uffff]")
+#: bidirectional embeddings, overrides and isolates (U+202A..U+202E, U+2066..U+2069): they reorder the
+#: text around them on a terminal and in a page, so what is shown is not what is stored ("Trojan Source")
+BIDI_CONTROLS = "\u202a-\u202e\u2066-\u2069"
+_CONTROL = re.compile(rf"[\x00-\x1f\x7f-\x9f\ud800-\udfff\ufffe\uffff{BIDI_CONTROLS}]")
+BIDI = re.compile(f"[{BIDI_CONTROLS}]")  # one of them
 
 
 def printable(text: object, keep: str = "") -> str:
-    """``text`` with every control character (C0, DEL, C1), lone surrogate and non-character written as an
-    escape (``\\x1b``, ``\\ud800``), except those in ``keep``: safe on a terminal, in HTML and in XML 1.0."""
+    """``text`` with every control character (C0, DEL, C1), bidirectional control (:data:`BIDI_CONTROLS`), lone
+    surrogate and non-character written as an escape (``\\x1b``, ``\\u202e``, ``\\ud800``), except those in
+    ``keep``: safe on a terminal, in HTML and in XML 1.0."""
     s = str(text)
     if not _CONTROL.search(s):
         return s

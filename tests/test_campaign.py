@@ -540,6 +540,26 @@ def test_the_worst_failing_sample_has_its_page_with_the_campaigns_runs(failing_c
         render_sample(out / "sample_pages", 0)
 
 
+@pytest.mark.parametrize("indices", [["3"], ["99"], ["1", "99"]])
+def test_sample_refuses_an_index_the_campaign_never_ran(failing_campaign, indices):
+    """Issue 34 audit: ``sample DIR 99`` rendered a page (exit 0) for a sample the 3-sample campaign never
+    ran; now exit 2 naming the range, before any page is rendered."""
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+    from ftcreport.report.campaign import sample_name
+
+    out, _ = failing_campaign
+    before = sorted(p.name for p in (out / "sample_pages").iterdir())
+    res = CliRunner().invoke(app, ["sample", str(out), *indices])
+    assert res.exit_code == 2, res.output
+    (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
+    bad = indices[-1]
+    assert f"sample {bad}: " in line and "samples 0 to 2" in line and str(out) in line, line
+    assert sorted(p.name for p in (out / "sample_pages").iterdir()) == before  # nothing rendered
+    assert not (out / "sample_pages" / sample_name(int(bad))).exists()
+
+
 def test_pairwise_comparisons_are_a_matrix_and_distributions_ecdfs(failing_campaign):
     from ftcreport.report.campaign import comparison_matrices
 

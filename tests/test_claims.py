@@ -84,7 +84,7 @@ def test_ratio_not_applicable_and_not_evaluated():
         (_claim(scheme="nominal", metric="m", max=1.0, sequence=[1]), "either a bound"),
         (_claim(scheme="wizard", metric="m", max=1.0), "unknown scheme"),
         (_claim(not_applicable="why"), "must expect 'not applicable'"),
-        (_claim(scheme="oracle", metric="m", max=1.0), "not run by this case"),
+        (_claim(scheme="oracle", metric="m", max=1.0), r"not in \[schemes\] run"),
     ],
 )
 def test_bad_claims_are_refused_with_the_field(claim, msg):

@@ -136,7 +136,7 @@ def test_a_batch_goes_on_past_files_that_are_not_files(tmp_path):
     (d / "sub.toml").mkdir()
     (d / "zero.toml").symlink_to("/dev/zero")
     res = _cli("batch", str(d), "--out", str(tmp_path / "o"), "--jobs", "1", "-q", timeout=400)
-    assert res.returncode == 1 and "Traceback" not in res.stderr, (res.returncode, res.stderr)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, (res.returncode, res.stderr)
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error: ")]
     for path, what in ((fifo, "FIFO"), (d / "sub.toml", "directory"), (d / "zero.toml", "character device")):
         assert sum(f"{path}: not a regular file (a {what}" in ln for ln in errors) == 1, (path, errors)
@@ -173,9 +173,26 @@ def test_a_symlinked_case_folder_inside_out_is_refused_not_followed(tmp_path):
     # a batch refuses that case and goes on with the others
     other = _case(tmp_path, "other")
     res = _cli("batch", str(_case(tmp_path)), str(other), "--out", str(out), "--jobs", "1", "-q", timeout=400)
-    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
     assert f"{out / 'short'}: is a symbolic link" in res.stderr
     assert list(elsewhere.iterdir()) == [] and (out / "other" / "nominal" / "metrics.json").is_file()
+
+
+def test_an_out_that_is_itself_a_link_is_followed_and_the_readme_says_so(tmp_path):
+    """--out given as a symbolic link to a directory (reports -> a larger disk) is a use kept on purpose:
+    the link is the user's own choice of place, and the results stay inside the directory it names.
+    What is refused is a link *below* --out (test above); the README's exit-2 row says which."""
+    target = tmp_path / "disk" / "reports"
+    target.mkdir(parents=True)
+    link = tmp_path / "reports"
+    link.symlink_to(target)
+    res = _cli("run", str(_case(tmp_path)), "--out", str(link), "--no-report", "-q", timeout=400)
+    assert res.returncode == 0, res.stderr
+    assert (target / "short" / "nominal" / "record.json").is_file() and link.is_symlink()
+    readme = " ".join((CASES.parent / "README.md").read_text().split())
+    row = readme[readme.index("| 2 | bad input") :].split(" |", 2)[1]
+    assert "a case folder or lock file below it that is a symbolic link" in row, row
+    assert "`--out` itself may be a symbolic link to a directory" in row, row
 
 
 # ------------------------------------------------------------------ break 8: every writer locks
@@ -246,3 +263,34 @@ def test_two_coverages_at_once_one_runs_one_is_refused(tmp_path):
     assert refused.count("\n") == 1 and f"{out}: --out: in use by ftcreport coverage (pid" in refused, refused
     items = [json.loads(p.read_text()) for p in sorted((out / "items").glob("*.json"))]
     assert sorted(r["item"] for r in items) == list(range(8))  # 4 wheels x 2 kinds, each run once
+
+
+def _files(d: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def test_export_never_overwrites_another_commands_directory(tmp_path):
+    """Audit of issue 34: ``export --out A --dest B`` with B another batch's output replaced B's
+    metrics.parquet with A's rows (exit 0); now refused, exit 2, B untouched, and a batch never
+    writes into an export's directory either."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    for out, name in ((a, "short"), (b, "other")):
+        res = _cli("batch", str(_case(tmp_path, name)), "--out", str(out), "--jobs", "1", "-q", timeout=400)
+        assert res.returncode == 0, res.stderr
+    before = _files(b)
+    res = _cli("export", "--out", str(a), "--dest", str(b))
+    _one_line(res, 2, f"{b}: --dest: holds the results of another kind of command (case results of batch/run)")
+    assert _files(b) == before
+    other = tmp_path / "campaign-like"  # a directory of another family (found by its files)
+    other.mkdir()
+    (other / "coverage.json").write_text("{}")
+    _one_line(_cli("export", "--out", str(a), "--dest", str(other)), 2, f"{other}: --dest: ", "a coverage map")
+    dest = tmp_path / "exported"
+    for _ in range(2):  # a fresh destination, then the same export again: both fine
+        res = _cli("export", "--out", str(a), "--dest", str(dest))
+        assert res.returncode == 0 and (dest / "metrics.parquet").is_file(), res.stderr
+    kept = _files(dest)
+    res = _cli("batch", str(_case(tmp_path, "short")), "--out", str(dest), "-q", timeout=400)
+    _one_line(res, 2, f"{dest}: --out: holds the results of another kind of command (an export")
+    assert _files(dest) == kept
+    assert _cli("export", "--out", str(a)).returncode == 0  # beside the results: still the batch's own

@@ -69,7 +69,7 @@ def test_binary_case_file_via_batch_is_recorded_and_one_line(tmp_path):
     bad.write_bytes(b"\xff\xfe\x00name = 1\n" + os.urandom(64))
     out = tmp_path / "o"
     res = runner.invoke(app, ["batch", str(bad), "--out", str(out), "-q"])
-    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.exit_code == 2 and "Traceback" not in res.output  # bad input
     assert "bin.toml" in res.stderr and "not UTF-8" in res.stderr
     rec = json.loads((out / "bin" / "case.json").read_text())
     assert rec["status"] == "error" and "not UTF-8" in rec["error"]
@@ -129,7 +129,7 @@ def test_names_differing_only_in_case_collide_in_a_batch(tmp_path):
     assert name_collisions(["Alpha", "beta", "alpha"]) == {2: 0}
     out = tmp_path / "o"
     res = runner.invoke(app, ["batch", str(a), str(b), "--out", str(out), "--duration", "0.2", "-q", "--jobs", "1"])
-    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.exit_code == 2 and "Traceback" not in res.output
     assert "b.toml: name: 'alpha' is already the name of" in res.stderr
     assert json.loads((out / "Alpha" / "nominal" / "metrics.json").read_text())["status"] == "ok"
     assert not (out / "alpha" / "nominal").exists()
@@ -139,7 +139,7 @@ def test_names_differing_only_in_case_collide_in_a_batch(tmp_path):
     broken = c / "alpha.toml"
     broken.write_text("[robots]\nn = 1\n")
     res = runner.invoke(app, ["batch", str(a), str(broken), "--out", str(out), "--duration", "0.2", "-q"])
-    assert res.exit_code == 1 and "robots.n" in res.stderr
+    assert res.exit_code == 2 and "robots.n" in res.stderr
     assert json.loads((out / "Alpha" / "case.json").read_text())["status"] == "ok"
     rejected = [p for p in out.glob("rejected-*/case.json") if "sub/alpha.toml" in p.read_text()]
     assert len(rejected) == 1
@@ -175,7 +175,7 @@ def test_markup_in_case_text_is_escaped_on_every_page(tmp_path):
     res = runner.invoke(
         app, ["batch", str(good), str(bad), "--out", str(out), "--duration", "0.2", "-q", "--jobs", "1"]
     )
-    assert res.exit_code == 1
+    assert res.exit_code == 2
     pages = [out / "index.html", out / "good" / "index.html", out / "bad" / "index.html"]
     for page in pages:
         html = page.read_text()

@@ -64,7 +64,7 @@ def _case(requirements: list[dict], **kw):
         ({"min": 0.1, "max": 0.01}, "requirements[0].max", "the band is empty"),
         ({"max": None}, "requirements[0]", "give a bound"),
         ({"scheme": "swiching"}, "requirements[0].scheme", "did you mean 'switching'"),
-        ({"scheme": "oracle"}, "requirements[0].scheme", "not run by this case"),
+        ({"scheme": "oracle"}, "requirements[0].scheme", "not in [schemes] run"),
         ({"max": "0.01"}, "requirements[0].max", "write it without quotes"),
         ({"bound": 0.01}, "requirements[0].bound", "unknown field"),
     ],

@@ -173,7 +173,7 @@ def test_taplo_config_validates_cases(tmp_path):
         ),
         (
             lambda c: c.update(thresholds={"switchng": {"a": {"max": 1.0}}}),
-            "thresholds.switchng: unknown scheme (did you mean 'switching'?)",
+            "thresholds.switchng: unknown scheme 'switchng' (did you mean 'switching'?)",
         ),
         (lambda c: c["faults"][1].update(sigm=0.5), "faults[1].sigm: unknown field (did you mean 'sigma'?)"),
         (lambda c: c["robots"].update(colour="red"), "robots.colour: unknown field"),

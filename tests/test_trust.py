@@ -233,6 +233,38 @@ def test_3_check_on_a_damaged_store_re_runs_and_passes(stored, tmp_path):
     assert "1/1 runs end as the case expects" in res.stdout
 
 
+# ------------------------------------------------------------------ 5. a refused case file is bad input in a batch too
+def test_5_batch_exits_2_when_a_case_file_is_refused_after_running_the_others(tmp_path):
+    d = tmp_path / "cases"
+    d.mkdir()
+    _write(d, "good")
+    _unstable(d, "su")  # a failed run: exit 1 alone
+    (d / "broken.toml").write_text("robots = {n = \n")  # not TOML
+    (d / "dir.toml").mkdir()
+    os.mkfifo(d / "pipe.toml")
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["batch", str(d), "--out", str(out), "--jobs", "1", "-q"])
+    assert res.exit_code == 2, res.output  # bad input outranks a failed run
+    assert "2 case(s): 2 run(s) simulated, 0 cached, 1 failed, 3 case file(s) rejected" in res.stdout, res.stdout
+    errors = _errors(res)
+    for name in ("broken.toml", "dir.toml", "pipe.toml"):
+        assert sum(f"{d / name}: " in ln for ln in errors) == 1, (name, errors)
+    assert any("su / nominal: step_unstable" in ln for ln in errors), errors
+    assert (out / "good" / "nominal" / "record.json").is_file() and (out / "su" / "nominal" / "record.json").is_file()
+    again = runner.invoke(app, ["batch", str(d), "--out", str(out), "-q"])  # cached: the same verdict
+    assert again.exit_code == 2 and "2 cached, 1 failed, 3 case file(s) rejected" in again.stdout, again.output
+    for command in ("check", "run"):  # and as they say on the same file
+        assert runner.invoke(app, [command, str(d / "broken.toml"), "--out", str(out), "-q"]).exit_code == 2
+
+
+def test_5_batch_help_and_the_readme_say_a_refused_case_file_exits_2():
+    res = runner.invoke(app, ["batch", "--help"], env={"COLUMNS": "200"})
+    assert "2 when a case file was refused" in " ".join(res.stdout.split()), res.stdout
+    text = (ROOT / "README.md").read_text()
+    table = " ".join(text[text.index("| exit |") :].split("\n\n")[0].split())
+    assert "a case file `batch` or `check` refused, even when other runs failed" in table, table
+
+
 # ------------------------------------------------------------------ 7. control characters
 @pytest.mark.parametrize(
     ("where", "value"),
@@ -273,6 +305,43 @@ def test_7_junit_terminal_and_html_escape_a_control_character_in_a_file_name(tmp
     assert "\x1b" not in html
 
 
+BIDI = [chr(c) for c in (*range(0x202A, 0x202F), *range(0x2066, 0x206A))]  # embeddings, overrides, isolates
+
+
+@pytest.mark.parametrize("char", BIDI)
+@pytest.mark.parametrize("where", ["claims[0].words", "claims[0].source", "description"])
+def test_7_bidirectional_controls_are_refused_in_every_text(tmp_path, char, where):
+    claim = {"id": "c1", "source": "Fig. 3.4", "words": "tracks", "expect": "reproduced"}
+    claim |= {"scheme": "nominal", "metric": "position_error_final", "max": 1.0}
+    top = {"claims": [claim]}
+    if where == "description":
+        top["description"] = f"safe{char}txet"
+    else:
+        claim[where.rsplit(".", 1)[1]] = f"safe{char}txet"
+    case = _write(tmp_path, "bd", **top)
+    res = runner.invoke(app, ["cases", "validate", str(case)])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f"{case}: {where}: " in line and f"bidirectional control U+{ord(char):04X}" in line, line
+    assert not any(ch in res.output for ch in BIDI), ascii(res.output)
+
+
+def test_7_bidirectional_controls_in_a_file_name_are_escaped_on_the_terminal_junit_and_html(tmp_path):
+    bad = tmp_path / "bad\u202egnp.toml"
+    bad.write_text("[robots]\nn = 2\n")
+    good = _write(tmp_path, "ok")
+    out = tmp_path / "o"
+    junit = tmp_path / "j.xml"
+    res = runner.invoke(app, ["check", str(bad), str(good), "--out", str(out), "--junit", str(junit)])
+    assert res.exit_code == 2, res.output
+    assert "\u202e" not in res.output and "\\u202e" in res.stderr, ascii(res.stderr)
+    assert "\u202e" not in junit.read_text() and "\u202e" not in (out / "index.html").read_text()
+    from ftcreport.errors import printable
+
+    assert all(printable(f"a{ch}b") == f"a\\u{ord(ch):04x}b" for ch in BIDI)
+    assert printable("\u200f\u05d0") == "\u200f\u05d0"  # a right-to-left mark in Hebrew prose is kept
+
+
 def test_7_junit_is_well_formed_whatever_the_text():
     from ftcreport.report.junit import junit_xml
     from ftcreport.studies.check import GateItem
@@ -294,7 +363,7 @@ def test_9_a_generated_name_is_refused_as_a_case_name(tmp_path, name):
     stem = tmp_path / f"{name}.toml"  # the file stem is the default name
     stem.write_text(tomli_w.dumps(BASE))
     res = runner.invoke(app, ["batch", str(stem), "--out", str(tmp_path / "o"), "-q"])
-    assert res.exit_code == 1 and "a name the report uses itself" in res.stderr
+    assert res.exit_code == 2 and "a name the report uses itself" in res.stderr
     assert not (tmp_path / "o" / name / "nominal").exists()
 
 
@@ -321,6 +390,50 @@ def test_10_a_malformed_scheduler_is_bad_input(tmp_path, address):
     assert res.exit_code == 2, res.output
     (line,) = _errors(res)
     assert "--scheduler" in line and address in line, line
+
+
+@pytest.mark.parametrize("command", ["campaign", "coverage", "fdi"])
+@pytest.mark.parametrize("address", ["http://localhost:8786", "https://h:8786", "inproc://x", "udp://h:1"])
+def test_10_an_unsupported_scheduler_scheme_is_bad_input(tmp_path, command, address):
+    case = ROOT / "cases" / "two_link_campaign.toml"
+    out = tmp_path / "o"
+    res = runner.invoke(app, [command, str(case), "--scheduler", address, "--out", str(out), "-q"])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert "--scheduler" in line and address in line and "tcp://HOST:PORT" in line, line
+    assert "tls://" in line and "ws://" in line, line  # the accepted forms
+    assert not out.exists()  # refused before the output directory is made
+
+
+def test_10_workers_are_capped_by_the_tasks_and_the_cores(tmp_path, monkeypatch):
+    import dask.distributed
+
+    made = []
+
+    class RefusedError(Exception):
+        pass
+
+    def cluster(**kw):  # records what would start, starts nothing
+        made.append(kw["n_workers"])
+        raise RefusedError
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", cluster)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    case = ROOT / "cases" / "two_link_campaign.toml"
+
+    def campaign(samples: str, workers: str):
+        out = tmp_path / f"o{samples}{workers}"
+        return runner.invoke(app, ["campaign", str(case), "-n", samples, "--workers", workers, "--out", str(out), "-q"])
+
+    res = campaign("1", "100000")
+    assert made == [1], made
+    assert "--workers 100000: capped at 1 (the number of samples to run)" in res.stderr, res.stderr
+    res = campaign("1000", "100000")
+    assert made[-1] == cores, made
+    assert f"--workers 100000: capped at {cores} (the cores this process may use ({cores}))" in res.stderr
+    for bad in ("0", "-3"):
+        res = campaign("1", bad)
+        assert res.exit_code == 2 and "--workers" in _errors(res)[0], res.output
 
 
 def test_10_a_duration_that_drops_a_fault_says_which(tmp_path):
@@ -376,6 +489,9 @@ def _campaign(tmp_path: Path, **spec) -> Path:
         ({"faults": [1, 3], "wheels": ["1r", "2l"]}, "campaign.faults", "2 wheels"),
         ({"faults": [0, 0]}, "campaign.faults", "no fault"),
         ({"wheels": ["1r", "1R"]}, "campaign.wheels[1]", "twice"),
+        ({"sigma": [1.0, 1.0], "friction_probability": 0.0, "ubar": [-1.0, 1.0]}, "campaign.sigma", "healthy"),
+        ({"sigma": [1.0, 1.0], "friction_probability": 0.3, "ubar": [0.0, 0.0]}, "campaign.sigma", "healthy"),
+        ({"sigma": [1.0, 1.0], "friction_probability": 0.0, "ubar": [0.0, 0.0]}, "campaign.sigma", "healthy"),
     ],
 )
 def test_10_a_campaign_that_cannot_draw_its_faults_is_refused(tmp_path, spec, field, words):
@@ -383,6 +499,19 @@ def test_10_a_campaign_that_cannot_draw_its_faults_is_refused(tmp_path, spec, fi
     assert res.exit_code == 2, res.output
     (line,) = _errors(res)
     assert f": {field}: " in line and words in line, line
+
+
+def test_10_a_campaign_that_draws_only_healthy_wheels_is_refused_before_it_runs(tmp_path):
+    case = _campaign(tmp_path, sigma=[1.0, 1.0], friction_probability=0.0, ubar=[0.0, 0.0])
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["campaign", str(case), "-n", "2", "--in-process", "--out", str(out), "-q"])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f"{case}: campaign.sigma: " in line and "every draw leaves every wheel healthy" in line, line
+    assert "friction_probability" in line, line
+    assert not out.exists()
+    ok = _campaign(tmp_path, sigma=[1.0, 1.0], friction_probability=0.2, ubar=[0.0, 0.5])  # a friction can be drawn
+    assert runner.invoke(app, ["cases", "validate", str(ok)]).exit_code == 0
 
 
 def test_10_a_campaign_of_base_faults_only_is_accepted(tmp_path):
@@ -483,6 +612,40 @@ def test_12_a_misspelt_metric_or_scheme_is_refused_with_a_hint(tmp_path, top, fi
     assert res.exit_code == 2, res.output
     (line,) = _errors(res)
     assert f": {field}: " in line and hint in line, line
+
+
+def _claim(**kw) -> dict:
+    return {"id": "c", "source": "s", "words": "w", "expect": "reproduced", "metric": "torque_peak", "max": 1.0} | kw
+
+
+@pytest.mark.parametrize(
+    ("top", "field", "hint"),
+    [
+        ({"claims": [_claim(scheme="nominl")]}, "claims[0].scheme", "did you mean 'nominal'?"),
+        ({"claims": [_claim(scheme="nominal", relative_to="swiching")]}, "claims[0].relative_to", "'switching'?"),
+        ({"claims": [_claim(scheme="active")]}, "claims[0].scheme", "not in [schemes] run (nominal)"),
+        (
+            {"thresholds": {"active": {"position_error_final": {"max": 1.0}}}},
+            "thresholds.active",
+            "not in [schemes] run (nominal)",
+        ),
+    ],
+)
+def test_12_a_misspelt_or_not_run_scheme_in_a_claim_or_threshold_is_refused(tmp_path, top, field, hint):
+    case = _write(tmp_path, "ns", **top)
+    res = runner.invoke(app, ["cases", "validate", str(case)])
+    assert res.exit_code == 2, res.output
+    (line,) = _errors(res)
+    assert f"{case}: {field}: " in line and hint in line, line
+    for command in (["run", "--no-report"], ["check"]):  # refused alike, not run then failed by check
+        res = runner.invoke(app, [command[0], str(case), "--out", str(tmp_path / "o"), *command[1:], "-q"])
+        assert res.exit_code == 2 and f"{field}: " in _errors(res)[0], res.output
+
+
+def test_12_every_shipped_case_still_validates():
+    cases = sorted((ROOT / "cases").glob("*.toml")) + sorted((ROOT / "cases" / "motors").glob("*.toml"))
+    res = runner.invoke(app, ["cases", "validate", *map(str, cases)])
+    assert res.exit_code == 0, res.output
 
 
 def test_12_every_shipped_threshold_and_claim_names_a_metric_its_scheme_writes():

@@ -209,8 +209,8 @@ class Case(_Strict):
                 raise _FieldError(f"claims[{i}].id", f"'{c.id}' is used by more than one claim")
             for key in ("scheme", "relative_to"):
                 s = getattr(c, key)
-                if s is not None and run is not None and s not in run:
-                    raise _FieldError(f"claims[{i}].{key}", f"scheme '{s}' is not run by this case (schemes.run)")
+                if s is not None and (why := _scheme_problem(s, run, known)) is not None:
+                    raise _FieldError(f"claims[{i}].{key}", why)
             if c.not_applicable is None and c.metric is not None:
                 kinds = ("sequence",) if c.sequence is not None else ("number", "table", "list")
                 for s in (c.scheme, c.relative_to):
@@ -218,10 +218,8 @@ class Case(_Strict):
                         raise _FieldError(f"claims[{i}].metric", why)
         _check_requirements(self, run, known)
         for scheme, metrics in self.thresholds.items():
-            if scheme not in known:
-                raise _FieldError(
-                    f"thresholds.{scheme}", f"unknown scheme{did_you_mean(scheme, known)} (known: {', '.join(known)})"
-                )
+            if (why := _scheme_problem(scheme, run, known)) is not None:
+                raise _FieldError(f"thresholds.{scheme}", why)
             for metric, bound in metrics.items():
                 if (why := metric_problem(scheme, metric)) is not None:
                     raise _FieldError(f"thresholds.{scheme}.{metric}", why)
@@ -310,15 +308,21 @@ def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> 
     for i, r in enumerate(case.requirements):
         if r.id in ids[:i]:
             raise _FieldError(f"requirements[{i}].id", f"'{r.id}' is already the id of requirements[{ids.index(r.id)}]")
-        if r.scheme != "*" and r.scheme not in known:
-            raise _FieldError(
-                f"requirements[{i}].scheme",
-                f"unknown scheme '{r.scheme}'{did_you_mean(r.scheme, known)} (known: {', '.join(known)}, or \"*\")",
-            )
-        if r.scheme != "*" and run is not None and r.scheme not in run:
-            raise _FieldError(f"requirements[{i}].scheme", f"scheme '{r.scheme}' is not run by this case (schemes.run)")
+        if r.scheme != "*" and (why := _scheme_problem(r.scheme, run, known, ', or "*"')) is not None:
+            raise _FieldError(f"requirements[{i}].scheme", why)
         for key, why in r.problems(case.robots.n):
             raise _FieldError(f"requirements[{i}].{key}", why)
+
+
+def _scheme_problem(name: str, run: list[str] | None, known: list[str], more: str = "") -> str | None:
+    """Why a claim, threshold or requirement may not name the scheme ``name``, or None: it is no scheme
+    (with a did-you-mean), or the case's ``[schemes] run`` does not list it (its bound could never be
+    checked: ``run`` would pass and ``check`` fail on "scheme not run").  ``more``: other accepted names."""
+    if name not in known:
+        return f"unknown scheme '{name}'{did_you_mean(name, known)} (known: {', '.join(known)}{more})"
+    if run is not None and name not in run:
+        return f"scheme '{name}' is not in [schemes] run ({', '.join(run)}): add it there, or remove this entry"
+    return None
 
 
 def metric_problem(scheme: str, name: str, kinds: tuple[str, ...] = ("number",)) -> str | None:
@@ -353,8 +357,8 @@ def _numbers(names: list[str]) -> list[str]:
 
 def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
     """The faults a campaign draws exist: its wheels are wheels of the chain, each listed once, at least
-    as many as the faults it draws per sample (each on a distinct wheel), and it draws a fault at all
-    (unless the case keeps faults of its own)."""
+    as many as the faults it draws per sample (each on a distinct wheel), and it draws a fault at all, one
+    that changes a wheel (a sigma below 1 or a friction), unless the case keeps faults of its own."""
     lo, hi = spec.faults
     if spec.wheels == "any":
         wheels, which = wheel_names(n), f"the {2 * n} wheels of the {n}-robot chain"
@@ -386,6 +390,17 @@ def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
             "campaign.faults",
             f"[{lo}, {hi}] draws no fault and keeps none of the case's (keep_base_faults): every sample would be "
             "fault-free and 'succeed'; give an upper bound of 1 or more",
+        )
+    # a drawn fault is effective when its sigma is below 1 (drawn from [sigma lo, hi]: below 1 unless lo = 1)
+    # or it adds a friction (drawn with friction_probability, ubar from [ubar lo, hi]: nonzero unless both 0)
+    friction = spec.friction_probability > 0.0 and spec.ubar != (0.0, 0.0)
+    if spec.sigma[0] >= 1.0 and not friction and not (spec.keep_base_faults and keeps):
+        why = "friction_probability = 0" if spec.friction_probability == 0.0 else "ubar = [0, 0]"
+        raise _FieldError(
+            "campaign.sigma",
+            f"[{spec.sigma[0]:g}, {spec.sigma[1]:g}] keeps every motor at full effectiveness and no friction is "
+            f"drawn ({why}): every draw leaves every wheel healthy, so every sample would be fault-free and "
+            "'succeed'; give sigma a lower bound below 1, or a friction_probability above 0 with a nonzero ubar",
         )
 
 

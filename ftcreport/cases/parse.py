@@ -8,7 +8,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from ..errors import CaseError, FtcError, printable
+from ..errors import BIDI, CaseError, FtcError, printable
 from ..infra.limits import name_problem
 from ..schemes.fields import _FieldError
 from .case import Case
@@ -86,7 +86,8 @@ def _refuse(source: str, errors: list[tuple[str, str]]) -> None:
 
 
 def _control_errors(data: Any) -> list[tuple[str, str]]:
-    """(field, reason) of every text of the case, keys included, that holds a control character (C0, DEL, C1).
+    """(field, reason) of every text of the case, keys included, that holds a control character (C0, DEL, C1)
+    or a bidirectional control (U+202A..U+202E, U+2066..U+2069: it reorders what a reader sees).
 
     Every text of a case reaches a terminal line, a page or a JUnit file; an escape sequence rewrites
     the terminal, NUL and most others make XML ill-formed (issue 34 item 7).  Only the claims' prose
@@ -98,9 +99,15 @@ def _control_errors(data: Any) -> list[tuple[str, str]]:
 
     def why(text: str, allowed: str = "") -> str | None:
         bad = next(((i, c) for i, c in enumerate(text) if unicodedata.category(c) == "Cc" and c not in allowed), None)
+        shown = printable(text[:60]) + ("..." if len(text) > 60 else "")
+        if (bidi := BIDI.search(text)) is not None and (bad is None or bidi.start() < bad[0]):
+            return (
+                f"bidirectional control U+{ord(bidi.group()):04X} at position {bidi.start()} of '{shown}': it "
+                "reorders the text around it on a terminal and a page, so what a reader sees is not what the "
+                "case says; write the text without it (a right-to-left script needs none)"
+            )
         if bad is None:
             return None
-        shown = printable(text[:60]) + ("..." if len(text) > 60 else "")
         return (
             f"control character U+{ord(bad[1]):04X} at position {bad[0]} of '{shown}': a text of a case holds "
             "printable characters only (a control character breaks the terminal, the pages and the JUnit file)"

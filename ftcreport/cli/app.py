@@ -214,9 +214,12 @@ QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar."
 
 def _dask(scheduler: str | None, workers: int, in_process: bool, quiet: bool, force: bool) -> dict:
     """The keywords a Dask command passes on to run_campaign, run_coverage or run_fdi (``--scheduler``
-    checked first: a malformed address is bad input, exit 2)."""
+    and ``--workers`` checked first: a malformed address or a count below 1 is bad input, exit 2)."""
     if scheduler is not None:
         _check_scheduler(scheduler)
+    from ..infra.limits import worker_count
+
+    worker_count(workers, 1, "--workers")  # below 1 refused; the cap is applied once the tasks are known
     return {
         "scheduler": scheduler,
         "workers": workers,
@@ -226,22 +229,29 @@ def _dask(scheduler: str | None, workers: int, in_process: bool, quiet: bool, fo
     }
 
 
+#: the protocols a scheduler address may name: those of distributed that reach another process
+#: (inproc is this process only; ucx needs a transport ftcreport does not install)
+SCHEDULER_PROTOCOLS = ("tcp", "tls", "ws", "wss")
+
+
 def _check_scheduler(address: str) -> None:
-    """A Dask scheduler address ``[protocol://]host:port`` (distributed's own parser); FtcError naming
-    ``--scheduler`` when it is malformed.  Whether a scheduler answers there is found when connecting."""
+    """A Dask scheduler address ``[protocol://]host:port`` (distributed's own parser) of one of
+    :data:`SCHEDULER_PROTOCOLS`; FtcError naming ``--scheduler`` and the accepted forms when it is
+    malformed.  Whether a scheduler answers there is found when connecting."""
     from distributed.comm.addressing import parse_address, parse_host_port
 
     try:
         protocol, location = parse_address(address, strict=False)
-        if protocol in ("tcp", "tls", "ws", "wss"):
-            host, port = parse_host_port(location)
-            if not host or port is None or not 0 < int(port) < 65536:
-                raise ValueError(f"a host and a port in 1..65535 are expected, got '{location}'")
-        elif not location:
-            raise ValueError(f"no location after '{protocol}://'")
+        if protocol not in SCHEDULER_PROTOCOLS:
+            raise ValueError(f"unsupported protocol '{protocol}://'")
+        host, port = parse_host_port(location)
+        if not host or port is None or not 0 < int(port) < 65536:
+            raise ValueError(f"a host and a port in 1..65535 are expected, got '{location}'")
     except (ValueError, TypeError) as exc:
+        forms = ", ".join(f"{p}://HOST:PORT" for p in SCHEDULER_PROTOCOLS)
         raise FtcError(
-            f"--scheduler: '{address}' is not a scheduler address ({exc}); give tcp://HOST:PORT, e.g. tcp://127.0.0.1:8786"
+            f"--scheduler: '{address}' is not a scheduler address ({exc}); give tcp://HOST:PORT "
+            f"(or {forms.split(', ', 1)[1]}; HOST:PORT means tcp), e.g. tcp://127.0.0.1:8786"
         ) from None
 
 

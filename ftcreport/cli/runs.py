@@ -98,7 +98,9 @@ def batch(
 
     A broken case file or a failing run is recorded and the batch goes on.  A run is cached only when
     its stored record matches its files and key; a failed run is cached as the failure it is.
-    Exit 0 when every run ends as its case expects, 1 when some run (cached or not) or case failed.
+    Exit 0 when every run ends as its case expects, 1 when some run (cached or not) failed, 2 when a case
+    file was refused as bad input (not TOML, not valid, not a regular file), even when a run failed too:
+    the valid cases are run and stored first.
 
     Example: ftcreport batch cases/ --jobs 2
     """
@@ -123,7 +125,7 @@ def batch(
             )
     if res.case_errors or res.failed_runs:
         typer.echo(failures_summary(res), err=True)
-        raise typer.Exit(code=1)
+        raise typer.Exit(code=2 if res.case_errors else 1)  # bad input outranks a failed run, as for check
 
 
 @app.command()

@@ -137,12 +137,14 @@ def sample(
 
     Example: ftcreport sample reports/campaigns/two_link_campaign 17
     """
-    from ..report.campaign import render_campaign, render_sample
+    from ..report.campaign import check_sample_index, render_campaign, render_sample
     from ..storage.store import output_lock
     from ..studies.campaign import read_table
 
     if not (campaign_dir / "campaign.json").is_file():
         raise FtcError(f"{campaign_dir}: not a campaign directory (no campaign.json); run 'ftcreport campaign' first")
+    for i in index:  # every index before any page: a sample the campaign never ran is bad input
+        check_sample_index(campaign_dir, i)
     with output_lock(campaign_dir, "sample"):
         for i in index:
             with _running(f"sample {i}", False):
@@ -165,7 +167,13 @@ def _done(res, runs: str, page: Path, detail: str = "") -> None:
 @app.command()
 def export(
     out: Annotated[Path, typer.Option(help="Output directory holding stored results.")] = Path("reports"),
-    dest: Annotated[Path | None, typer.Option(help="Where to write (default: beside the results, in OUT).")] = None,
+    dest: Annotated[
+        Path | None,
+        typer.Option(
+            help="Where to write (default: beside the results, in OUT): a new directory or an earlier export's; "
+            "another command's directory (a batch's results, a campaign) is refused."
+        ),
+    ] = None,
 ) -> None:
     """Tidy files of stored results: netCDF per run and metrics.parquet (one row per case, scheme, phase).
 
@@ -183,8 +191,8 @@ def export(
     damaged: list[str] = []
     with contextlib.ExitStack() as locks:  # the results read and the directory written: no batch meanwhile
         locks.enter_context(output_lock(out, "export"))
-        if dest is not None:
-            locks.enter_context(output_lock(dest, "export"))
+        if dest is not None:  # a directory of its own: never another batch's (its metrics.parquet) or family's
+            locks.enter_context(output_lock(dest, "export --dest"))
         paths = _export(out, dest, damaged)
     n_nc = sum(p.suffix == ".nc" for p in paths)
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")
@@ -232,8 +240,9 @@ def coverage(
         "friction": friction,
         "kinds": tuple(_names(kinds) or ()),
     }
+    dask = _dask(scheduler, workers, in_process, quiet, force)  # a malformed --scheduler before out_dir is made
     with output_lock(out_dir, "coverage"):  # a second coverage into out_dir is refused, naming this one
-        res = run_coverage(base, out_dir, **options, **_dask(scheduler, workers, in_process, quiet, force))
+        res = run_coverage(base, out_dir, **options, **dask)
         page = render_coverage(out_dir)
     _done(res, "fault runs", page, f" (onsets {', '.join(f'{t:g}' for t in res.times)} s)")
 

@@ -20,6 +20,9 @@ Memory budget
 
 from __future__ import annotations
 
+import os
+
+from ..errors import FtcError
 from .names import NAME_PATTERN
 
 __all__ = [
@@ -31,6 +34,7 @@ __all__ = [
     "n_models",
     "name_collisions",
     "name_problem",
+    "worker_count",
 ]
 
 #: Every file and folder an ftcreport command writes at the top of an output directory (``reports/``),
@@ -89,3 +93,24 @@ def name_collisions(names: list[str]) -> dict[int, int]:
 def n_models(n: int) -> int:
     """Compensable 0/1 failure patterns of an n-robot chain: 3 * 4^(n-1) - 2."""
     return 3 * 4 ** (n - 1) - 2
+
+
+def worker_count(
+    jobs: int | None, runs: int, option: str = "--jobs", noun: str = "runs to simulate"
+) -> tuple[int, str | None]:
+    """Worker processes for ``runs`` tasks: ``jobs`` (default: the cores), at most the number of tasks and the
+    cores this process may use; and why it was capped below the ``jobs`` asked for (None when it was not,
+    or when ``jobs`` was not given).  ``option`` (``--jobs``, ``--workers``) and ``noun`` name them in the
+    message: a number below 1 is refused (FtcError)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    if jobs is not None and jobs < 1:
+        raise FtcError(f"{option}: must be at least 1, got {jobs}")
+    want = cores if jobs is None else jobs
+    n = max(1, min(want, cores, runs))
+    if jobs is None or n == jobs:
+        return n, None
+    why = f"the number of {noun}" if runs < cores else f"the cores this process may use ({cores})"
+    return n, why

@@ -31,6 +31,7 @@ from .render import figure, index_root, write_page
 __all__ = [
     "PAGES",
     "WORST_K",
+    "check_sample_index",
     "coincide_note",
     "coinciding",
     "comparison_matrices",
@@ -230,6 +231,26 @@ def sample_name(index: int) -> str:
     return f"sample-{int(index):05d}"
 
 
+def check_sample_index(out: Path, index: int) -> int:
+    """``index`` when the campaign in ``out`` ran that sample, else FtcError naming the range it ran.
+
+    The range is the campaign's ``--samples`` (``manifest.json``'s settings, rewritten by a resumed
+    campaign), or, without a manifest, the samples stored under ``samples/``.  A page for an index
+    outside it would show a variant the campaign never drew (exit 2, as any bad argument).
+    """
+    out = Path(out)
+    index = int(index)
+    settings = (read_json(out / "manifest.json") or {}).get("settings") if (out / "manifest.json").is_file() else None
+    n = settings.get("samples") if isinstance(settings, dict) else None
+    if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+        stored = [int(p.stem) for p in (out / "samples").glob("*.json") if p.stem.isdigit()]
+        n = max(stored) + 1 if stored else 0
+    if not 0 <= index < n:
+        ran = f"samples 0 to {n - 1}" if n else "no sample"
+        raise FtcError(f"sample {index}: not a sample of the campaign in {out}, which ran {ran}")
+    return index
+
+
 def render_sample(out: Path, index: int) -> Path:
     """Re-simulate sample ``index`` of the campaign in ``out`` and write its page, a case page (verdict,
     replay, figures) at ``<out>/sample_pages/sample-NNNNN/index.html``; returns its path.
@@ -249,9 +270,7 @@ def render_sample(out: Path, index: int) -> Path:
     if not isinstance(meta, dict) or "base" not in meta:
         raise FtcError(f"{out}: not a campaign directory (no campaign.json); run 'ftcreport campaign' first")
     base = parse_case(meta["base"], f"{out / 'campaign.json'}: base")
-    index = int(index)
-    if index < 0:
-        raise FtcError(f"sample {index}: must be >= 0")
+    index = check_sample_index(out, index)
     variant = draw_variant(base, sample_seeds(int(meta["seed"]), index))
     name = sample_name(index)
     variant = variant.model_copy(

@@ -396,6 +396,7 @@ KIND_NAME = ".ftcreport.kind"  # which command family's results a directory hold
 KINDS = {"batch": "results", "run": "results", "check": "results", "report": "results", "export": "results"}
 KINDS |= {"sample": "campaign"}  # ftcreport sample: a campaign's sample pages
 KINDS |= {"baseline save": "baseline"}  # ftcreport baseline save --dest: a baseline's directory
+KINDS |= {"export --dest": "export"}  # ftcreport export --dest: netCDF files and a table, never over a batch's
 _HOMES = {
     "results": "reports",
     "campaign": "reports/campaigns/<case>",
@@ -587,11 +588,17 @@ def _claim(out: Path, kind: str, command: str) -> None:
     except OSError:
         mine = ""
     held = (mine or _legacy_kind(out)) if not _untouched(out) else None  # an empty directory is anyone's
+    if kind == "export" and held == "results" and _legacy_kind(out) is None:
+        held = None  # an export made before it had a family of its own: no case results, no page there
     if held is not None and held != kind:
+        if kind == "export":
+            option, files, home = "--dest", "metrics.parquet and netCDF files", "an empty directory, or no --dest"
+        else:
+            option, files, home = "--out", "index.html and manifest.json", _HOMES.get(kind, "reports")
         raise OutputError(
-            f"{out}: --out: holds the results of another kind of command ({_describe(held)}); ftcreport "
-            f"{command} writes {_describe(kind)}, which would overwrite its index.html and manifest.json: "
-            f"choose another --out (the default is {_HOMES.get(kind, 'reports')})"
+            f"{out}: {option}: holds the results of another kind of command ({_describe(held)}); ftcreport "
+            f"{command.split()[0]} writes {_describe(kind)}, which would overwrite its {files}: "
+            f"choose another {option} (the default is {home})"
         )
     if mine != kind:
         write_atomic(marker, f"{kind}\n".encode())
@@ -603,6 +610,7 @@ def _describe(kind: str) -> str:
         "campaign": "a campaign",
         "coverage": "a coverage map",
         "fdi": "an FDI evaluation",
+        "export": "an export (netCDF files and metrics.parquet)",
     }.get(kind, kind)
 
 

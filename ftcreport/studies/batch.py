@@ -55,8 +55,9 @@ from pathlib import Path
 
 from .. import __version__
 from ..cases import Case, case_hash, configured_schemes, dropped_faults, load_case, overlay_text, with_duration
-from ..errors import CaseError, FtcError, note_stored, printable
+from ..errors import CaseError, note_stored, printable
 from ..infra.inputs import read_input
+from ..infra.limits import worker_count
 from ..storage.store import (
     OutputError,
     check_inside,
@@ -503,24 +504,6 @@ def _not_the_case(exc: BaseException) -> str:
     if cause is not None:
         return cause
     return f"unexpected {type(exc).__name__}: {str(exc)[:200]} (a bug: traceback in {write_crash_log(exc)})"
-
-
-def worker_count(jobs: int | None, runs: int) -> tuple[int, str | None]:
-    """Worker processes for ``runs`` runs: ``jobs`` (default: the cores), at most the number of runs and the
-    cores this process may use; and why it was capped below the ``jobs`` asked for (None when it was not,
-    or when ``jobs`` was not given)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # pragma: no cover - not Linux
-        cores = os.cpu_count() or 1
-    if jobs is not None and jobs < 1:
-        raise FtcError(f"--jobs: must be at least 1, got {jobs}")
-    want = cores if jobs is None else jobs
-    n = max(1, min(want, cores, runs))
-    if jobs is None or n == jobs:
-        return n, None
-    why = "the number of runs to simulate" if runs < cores else f"the cores this process may use ({cores})"
-    return n, why
 
 
 def run_batch(

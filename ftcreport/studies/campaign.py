@@ -629,6 +629,7 @@ def run_tasks(
             store,
             res.failed.__setitem__,
             tick=lambda: bar(len(res.completed), len(res.failed)),
+            noun=UNITS.get(kind, "tasks"),
             **cluster,
         )
     res.workers = info["workers"]

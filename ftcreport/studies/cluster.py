@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sys
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -32,6 +33,7 @@ from distributed import WorkerPlugin
 
 from ..errors import FtcError
 from ..infra.lifetime import interrupt_of, shielded
+from ..infra.limits import worker_count
 from ..storage.manifest import NUMERIC_DEPENDENCIES
 
 __all__ = ["CHECKED_PACKAGES", "WarmUp", "check_versions", "execute"]
@@ -102,12 +104,14 @@ def execute(
     in_process: bool = False,
     retries: int = 2,
     tick: Callable[[], None] = lambda: None,
+    noun: str = "tasks",
 ) -> dict[str, Any]:
     """Run ``func(*tasks[i])`` for every ``i``; ``store(result)`` or ``fail(i, message)`` as each finishes.
 
     ``scheduler``: address of an existing Dask scheduler; otherwise a LocalCluster of ``workers``
-    processes on 127.0.0.1 (or this process when ``in_process``).  Returns what the cluster
-    reported: ``{"workers": {address: versions}}`` (empty in-process).
+    processes on 127.0.0.1 (or this process when ``in_process``), at most the number of tasks and the
+    cores (as ``batch --jobs``; a note on stderr names the cap and ``noun``, what the tasks are).
+    Returns what the cluster reported: ``{"workers": {address: versions}}`` (empty in-process).
     """
     info: dict[str, Any] = {"workers": {}}
     if in_process:
@@ -124,8 +128,11 @@ def execute(
 
     cluster = None
     if scheduler is None:
+        n, capped = worker_count(workers, len(tasks), "--workers", f"{noun} to run")
+        if capped is not None:
+            print(f"ftcreport: note: --workers {workers}: capped at {n} ({capped})", file=sys.stderr, flush=True)
         cluster = LocalCluster(
-            n_workers=max(1, workers),
+            n_workers=n,
             threads_per_worker=1,
             processes=True,
             host="127.0.0.1",

@@ -91,16 +91,21 @@ def test_motor_case_limits_reproduce_the_independent_study():
     assert all(p["stability"] == "unstable" and p["spectral_radius"] > 9 for p in res["phases"])
 
 
-def _grows(case, scheme: str, which: str, value: float) -> bool:
-    """Whether the engine's loop at ``value`` is not bounded: two runs 1e-8 m apart, their difference's
-    sample-rate part and the command's chatter read as ftcreport.analysis.confirm reads them."""
+def _verdict(case, scheme: str, which: str, value: float, samples: int, fast: bool = False) -> dict:
+    """The engine's loop at ``value`` of ``which`` as ftcreport.analysis.confirm reads it: two runs NUDGE
+    apart, their difference (its sample-rate part when ``fast``) and the command's chatter."""
     from ftcreport.analysis.confirm import NUDGE, classify, variant
     from ftcreport.runner import run_scheme
 
-    v = variant(case, scheme, which, value, 600)
+    v = variant(case, scheme, which, value, samples)
     run, _ = run_scheme(v, scheme)
-    other, _ = run_scheme(variant(case, scheme, which, value, 600, NUDGE), scheme)
-    return classify(run, other, v.simulation.sample_time, fast=True)["outcome"] != "bounded"
+    other, _ = run_scheme(variant(case, scheme, which, value, samples, NUDGE), scheme)
+    return classify(run, other, v.simulation.sample_time, fast)
+
+
+def _grows(case, scheme: str, which: str, value: float) -> bool:
+    """Whether the engine's loop at ``value`` is not bounded (:func:`_verdict`, 600 samples, fast)."""
+    return _verdict(case, scheme, which, value, 600, fast=True)["outcome"] != "bounded"
 
 
 @pytest.mark.parametrize(("which", "predicted", "lo", "hi"), [("sample_time_max", 1.371e-3, 1e-3, 2e-3),
@@ -133,22 +138,15 @@ def test_sample_time_variant_integrates_the_plant_at_the_case_step_or_finer():
 def test_slow_kinematic_limit_on_the_circle_is_confirmed_by_the_engine():
     """two_link_active_motors (circle, omega = 0.5 rad/s, k_v = 20): the sample-time limit is the slow
     kinematic pair's (|z| = 1.0012 at 1.1x, time constant ~ 3 min), predicted at 236 ms.  The engine's runs
-    (two runs 1e-8 m apart, read as ftcreport.analysis.confirm reads them, 1500 samples) are bounded at 0.9x
+    (two runs NUDGE apart, read as ftcreport.analysis.confirm reads them, 1500 samples) are bounded at 0.9x
     (growth 0.9995 per sample) and grow at 1.1x (1.0012).  Before, the plant's ZOH frozen in world
     coordinates put the limit at 292 ms, and one ETD2 step per sample made the runs diverge at 0.9x of it."""
-    from ftcreport.analysis.confirm import NUDGE, classify, variant
     from ftcreport.analysis.phases import analyze_scheme
-    from ftcreport.runner import run_scheme
 
     case = load_case(ROOT / "cases" / "motors" / "two_link_active_motors.toml")
     limit = analyze_scheme(case, "nominal", build(case), margins=False)["limits"]["sample_time_max"]
     assert limit == pytest.approx(0.2363, rel=2e-3)
-    out = {}
-    for f in (0.9, 1.1):
-        v = variant(case, "nominal", "sample_time_max", f * limit, 1500)
-        run, _ = run_scheme(v, "nominal")
-        other, _ = run_scheme(variant(case, "nominal", "sample_time_max", f * limit, 1500, NUDGE), "nominal")
-        out[f] = classify(run, other, v.simulation.sample_time)
+    out = {f: _verdict(case, "nominal", "sample_time_max", f * limit, 1500) for f in (0.9, 1.1)}
     assert out[0.9]["outcome"] == "bounded" and out[0.9]["rho"] < 1.0
     assert out[1.1]["outcome"] == "limit cycle" and out[1.1]["rho"] > 1.0
 
@@ -186,9 +184,7 @@ def test_periodic_loop_limit_is_the_product_over_the_reference_period_and_the_en
     first phase alone said 737.6 ms, and the engine's runs at 0.9x of that (664 ms) were read as a limit
     cycle.  The engine agrees with the product to 1 %: bounded at 0.99x, it leaves the reference at
     1.01x, where the worst frozen instant still predicts a stable loop."""
-    from ftcreport.analysis.confirm import NUDGE, classify, variant
     from ftcreport.analysis.phases import analyze_scheme, reference_period
-    from ftcreport.runner import run_scheme
 
     case = load_case(ROOT / "cases" / "motors" / "three_link_switching_pi.toml")
     built = build(case)
@@ -198,12 +194,7 @@ def test_periodic_loop_limit_is_the_product_over_the_reference_period_and_the_en
     assert limit == pytest.approx(0.7150, rel=1e-3)
     note = res["limit_notes"]["limits.sample_time_max"]
     assert "worst frozen instant of the first phase alone gives 737.6 ms" in note
-    out = {}
-    for f in (0.99, 1.01):
-        v = variant(case, "nominal", "sample_time_max", f * limit, 400)
-        run, _ = run_scheme(v, "nominal")
-        other, _ = run_scheme(variant(case, "nominal", "sample_time_max", f * limit, 400, NUDGE), "nominal")
-        out[f] = classify(run, other, v.simulation.sample_time)
+    out = {f: _verdict(case, "nominal", "sample_time_max", f * limit, 400) for f in (0.99, 1.01)}
     assert out[0.99]["outcome"] == "bounded", out[0.99]
     assert out[1.01]["outcome"] != "bounded", out[1.01]
 

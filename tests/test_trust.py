@@ -290,21 +290,6 @@ def test_7_control_characters_in_a_description_and_a_scheme_name_are_refused(tmp
     assert "\x07" not in res.output
 
 
-def test_7_junit_terminal_and_html_escape_a_control_character_in_a_file_name(tmp_path):
-    bad = tmp_path / "bad\x1b[31mname.toml"
-    bad.write_text("[robots]\nn = 2\n")
-    good = _write(tmp_path, "ok")
-    out = tmp_path / "o"
-    junit = tmp_path / "j.xml"
-    res = runner.invoke(app, ["check", str(bad), str(good), "--out", str(out), "--junit", str(junit)])
-    assert res.exit_code == 2, res.output
-    assert "\x1b" not in res.output and "\\x1b" in res.stderr
-    suite = ET.parse(junit).getroot()  # well-formed XML
-    assert any("\\x1b" in (e.get("message") or "") for e in suite.iter("error"))
-    html = (out / "index.html").read_text()
-    assert "\x1b" not in html
-
-
 BIDI = [chr(c) for c in (*range(0x202A, 0x202F), *range(0x2066, 0x206A))]  # embeddings, overrides, isolates
 
 
@@ -326,16 +311,24 @@ def test_7_bidirectional_controls_are_refused_in_every_text(tmp_path, char, wher
     assert not any(ch in res.output for ch in BIDI), ascii(res.output)
 
 
-def test_7_bidirectional_controls_in_a_file_name_are_escaped_on_the_terminal_junit_and_html(tmp_path):
-    bad = tmp_path / "bad\u202egnp.toml"
+@pytest.mark.parametrize(("char", "escaped"), [("\x1b", "\\x1b"), ("\u202e", "\\u202e")], ids=["ESC", "RLO"])
+def test_7_junit_terminal_and_html_escape_a_control_in_a_file_name(tmp_path, char, escaped):
+    """A control character (ESC) or a bidirectional control (U+202E) in a case file's name never reaches
+    the terminal, the JUnit (well-formed XML) or the page raw: each is escaped."""
+    bad = tmp_path / f"bad{char}[31mname.toml"
     bad.write_text("[robots]\nn = 2\n")
     good = _write(tmp_path, "ok")
     out = tmp_path / "o"
     junit = tmp_path / "j.xml"
     res = runner.invoke(app, ["check", str(bad), str(good), "--out", str(out), "--junit", str(junit)])
     assert res.exit_code == 2, res.output
-    assert "\u202e" not in res.output and "\\u202e" in res.stderr, ascii(res.stderr)
-    assert "\u202e" not in junit.read_text() and "\u202e" not in (out / "index.html").read_text()
+    assert char not in res.output and escaped in res.stderr, ascii(res.stderr)
+    suite = ET.parse(junit).getroot()  # well-formed XML
+    assert any(escaped in (e.get("message") or "") for e in suite.iter("error"))
+    assert char not in junit.read_text() and char not in (out / "index.html").read_text()
+
+
+def test_7_printable_escapes_bidirectional_controls_and_keeps_marks():
     from ftcreport.errors import printable
 
     assert all(printable(f"a{ch}b") == f"a\\u{ord(ch):04x}b" for ch in BIDI)

@@ -112,6 +112,7 @@ def _overrun_case(tmp_path: Path, stem: str, by: str):
     data = __import__("tomllib").loads(CASE.read_text())
     data["plugins"] = [str(path)]
     data["schemes"] = {"run": ["nominal", stem], "k_v": 20.0}
+    data["thresholds"] = {k: v for k, v in data.get("thresholds", {}).items() if k in data["schemes"]["run"]}
     return with_duration(parse_case(data, str(CASE)), 2.0)
 
 
@@ -148,6 +149,7 @@ def test_the_guards_catch_a_write_past_the_state_rates(tmp_path, monkeypatch):
     data = __import__("tomllib").loads(CASE.read_text())
     data["plugins"] = [str(path)]
     data["schemes"] = {"run": ["sm_past_dx"], "k_v": 20.0}
+    data["thresholds"] = {k: v for k, v in data.get("thresholds", {}).items() if k in data["schemes"]["run"]}
     _, m = run_scheme(with_duration(parse_case(data, str(CASE)), 1.0), "sm_past_dx")
     assert m["status"] == "error" and "wrote past out.dx (0 state rates" in m["reason"], m
 
@@ -171,6 +173,7 @@ def test_a_round2_law_still_runs_through_the_adapter_with_a_warning():
     data = __import__("tomllib").loads(CASE.read_text())
     data["plugins"] = [str(path)]
     data["schemes"] = {"run": ["nominal", "round2_copy_nominal"], "k_v": 20.0}
+    data["thresholds"] = {k: v for k, v in data.get("thresholds", {}).items() if k in data["schemes"]["run"]}
     with pytest.warns(DeprecationWarning, match=r"round-2 13 arguments"):
         case = with_duration(parse_case(data, str(CASE)), 3.0)
     assert "round2_copy_nominal" in registered()

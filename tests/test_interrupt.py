@@ -256,6 +256,34 @@ def test_a_stop_signal_inside_a_callback_from_c_is_sent_again_not_raised(monkeyp
         lifetime._on_stop_signal(signal.SIGTERM, sys._getframe())
 
 
+def test_a_stopped_pool_has_ended_its_manager_thread():
+    """CI, round 3: a batch stopped by SIGHUP printed its line, then "Exception ignored ... OSError: [Errno 9]
+    Bad file descriptor": the pool, shut down without waiting, was still closing its wake-up pipe in its
+    manager thread when the interpreter's exit wrote to it.  Once stop_pool returns, the manager thread is
+    gone (and the worker with it), so nothing is left to race with the exit."""
+    import multiprocessing as mp
+    import threading
+    from concurrent.futures import ProcessPoolExecutor
+
+    from ftcreport.infra.lifetime import stop_pool
+
+    before = set(threading.enumerate())
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
+    running = pool.submit(time.sleep, 60)
+    waiting = pool.submit(time.sleep, 60)
+    deadline = time.monotonic() + 60
+    while not running.running() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert running.running()
+    workers = list(pool._processes.values())
+    t0 = time.monotonic()
+    stop_pool(pool)
+    assert time.monotonic() - t0 < 5.0  # the workers were terminated, not waited out
+    assert set(threading.enumerate()) - before == set()  # the manager thread (and its feeder) ended
+    assert not any(w.is_alive() for w in workers)
+    assert waiting.cancelled() or isinstance(waiting.exception(timeout=0), Exception)
+
+
 def _alive(session: int) -> list[str]:
     """The processes of a session (the command started with start_new_session) still running (zombies aside)."""
     out = []

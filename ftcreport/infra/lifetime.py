@@ -39,6 +39,7 @@ __all__ = [
     "handle_stop_signals",
     "interrupt_of",
     "shielded",
+    "stop_pool",
     "stop_processes",
 ]
 
@@ -197,3 +198,21 @@ def stop_processes(procs: Iterable, grace: float = 5.0) -> None:
             if p.is_alive():
                 p.kill()
                 p.join(1.0)
+
+
+def stop_pool(pool, grace: float = 5.0) -> None:
+    """Stop a ``ProcessPoolExecutor`` now: its workers terminated (:func:`stop_processes`), the runs still
+    waiting cancelled, and its manager thread ended before this returns (at most ``grace`` more seconds).
+
+    The manager thread closes the pool's wake-up pipe as it ends.  A pool left to end on its own after
+    ``shutdown(wait=False)`` raced with the interpreter's exit, which writes to that pipe
+    (``concurrent.futures.process._python_exit``): "Exception ignored ... OSError: [Errno 9] Bad file
+    descriptor" after the command's last line (CI, round 3, a batch stopped by SIGHUP).  The wait runs in
+    a daemon thread, so a manager that never ends costs ``grace`` seconds, not the command.
+    """
+    stop_processes(list((getattr(pool, "_processes", None) or {}).values()), grace=grace)
+    ender = threading.Thread(
+        target=pool.shutdown, kwargs={"wait": True, "cancel_futures": True}, name="ftcreport-pool-stop", daemon=True
+    )
+    ender.start()
+    ender.join(grace)

@@ -622,7 +622,7 @@ def _parquet_stale(out: Path) -> bool:
 
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict, finish) -> None:
     """Run ``todo`` in worker processes, then ``finish(pool)`` (the pages render in the same workers)."""
-    from ..infra.lifetime import shielded, stop_processes
+    from ..infra.lifetime import shielded, stop_pool
     from ..storage.store import lock_fd
 
     ctx = mp.get_context("spawn")
@@ -647,11 +647,10 @@ def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, 
         except BaseException:  # Ctrl-C, SIGTERM, SIGHUP: stop the workers now; every stored run is complete
             with shielded():
                 display.stop()
-                # terminated and waited for: none writes after this, and their temporary files can go
-                stop_processes(list((getattr(pool, "_processes", None) or {}).values()))
-                # the pool cancels the waiting runs itself: a future cancelled here, which the pool then
+                # terminated and waited for: none writes after this, and their temporary files can go.
+                # The pool cancels the waiting runs itself: a future cancelled here, which the pool then
                 # finds broken (its workers terminated), raised InvalidStateError in its thread (Python 3.11)
-                pool.shutdown(wait=False, cancel_futures=True)
+                stop_pool(pool)
                 # what is on disk now, complete with this batch's key (a worker may have stored a run
                 # whose result this process had not collected yet)
                 res.stored = sum(check_run(out, c.name, s, key=key).sound for c, _, s, key in todo)

@@ -106,13 +106,19 @@ def test_the_typo_shows_numba_s_message_after_the_line(tmp_path):
     assert any(x.startswith("     | ") for x in lines[i + 1 :])  # numba's full message after it
 
 
+def _run_only(data: dict, schemes: dict) -> None:
+    """The case's ``[schemes]`` replaced by ``schemes``, and only the thresholds of the schemes it runs kept
+    (validation refuses a threshold for a scheme the case does not run)."""
+    data["schemes"] = schemes
+    data["thresholds"] = {k: v for k, v in data.get("thresholds", {}).items() if k in schemes["run"]}
+
+
 # ------------------------------------------------------------------ the issue's break: a write past a signal
 def _overrun_case(tmp_path: Path, stem: str, by: str):
     path, _ = _variant(tmp_path, stem, "    out.sig[2] = K\n", f"    out.sig[2] = K\n    out.sig[{by}] = K\n")
     data = __import__("tomllib").loads(CASE.read_text())
     data["plugins"] = [str(path)]
-    data["schemes"] = {"run": ["nominal", stem], "k_v": 20.0}
-    data["thresholds"] = {k: v for k, v in data.get("thresholds", {}).items() if k in data["schemes"]["run"]}
+    _run_only(data, {"run": ["nominal", stem], "k_v": 20.0})
     return with_duration(parse_case(data, str(CASE)), 2.0)
 
 
@@ -148,8 +154,7 @@ def test_the_guards_catch_a_write_past_the_state_rates(tmp_path, monkeypatch):
     path, _ = _variant(tmp_path, "sm_past_dx", "    out.sig[2] = K\n", "    out.sig[2] = K\n    out.dx[0] = 1.0\n")
     data = __import__("tomllib").loads(CASE.read_text())
     data["plugins"] = [str(path)]
-    data["schemes"] = {"run": ["sm_past_dx"], "k_v": 20.0}
-    data["thresholds"] = {k: v for k, v in data.get("thresholds", {}).items() if k in data["schemes"]["run"]}
+    _run_only(data, {"run": ["sm_past_dx"], "k_v": 20.0})
     _, m = run_scheme(with_duration(parse_case(data, str(CASE)), 1.0), "sm_past_dx")
     assert m["status"] == "error" and "wrote past out.dx (0 state rates" in m["reason"], m
 
@@ -172,8 +177,7 @@ def test_a_round2_law_still_runs_through_the_adapter_with_a_warning():
     path = ROOT / "tests" / "data" / "round2_copy_nominal_scheme.py"
     data = __import__("tomllib").loads(CASE.read_text())
     data["plugins"] = [str(path)]
-    data["schemes"] = {"run": ["nominal", "round2_copy_nominal"], "k_v": 20.0}
-    data["thresholds"] = {k: v for k, v in data.get("thresholds", {}).items() if k in data["schemes"]["run"]}
+    _run_only(data, {"run": ["nominal", "round2_copy_nominal"], "k_v": 20.0})
     with pytest.warns(DeprecationWarning, match=r"round-2 13 arguments"):
         case = with_duration(parse_case(data, str(CASE)), 3.0)
     assert "round2_copy_nominal" in registered()

@@ -370,3 +370,41 @@ def test_the_run_table_reads_wall_time_per_simulated_second_without_compiling():
            "t_end": 10.0, "duration": 10.0}  # fmt: skip
     assert _table([row]).splitlines()[-1].split()[-1] == "0.100"
     assert _table([row | {"compile_time": None}]).splitlines()[-1].split()[-1] == "1.000"
+
+
+def test_analyze_reads_a_batchs_stored_runs_and_refuses_a_directory_that_is_not_one(tmp_path):
+    """Round-3 audit: ``analyze CASE --results DIR`` exited 3 on every input (an ImportError: the cache-key
+    reader it called had been replaced by store.check_run).  A batch's current runs give switching's applied
+    model per phase ("run (...)"); a run of another case content is not used, and says so; a directory that
+    holds no results is refused with exit 2, naming it."""
+    import json
+    import tomllib
+
+    import tomli_w
+
+    raw = tomllib.loads((Path(__file__).resolve().parents[1] / "cases" / "two_link_switching.toml").read_text())
+    raw["faults"] = raw["faults"][:1]  # its first fault (20 s) in a 25 s run
+    raw["simulation"]["duration"] = 25.0
+    raw.pop("claims", None)
+    case = tmp_path / "two_link_switching.toml"
+    case.write_text(tomli_w.dumps(raw))
+    out = tmp_path / "results"
+    res = runner.invoke(app, ["batch", str(case), "--out", str(out), "-q"])
+    assert res.exit_code in (0, 1), res.output  # 1: a claim of the full-length case may not hold in 25 s
+    res = runner.invoke(app, ["analyze", str(case), "--json", "--no-confirm", "--results", str(out)])
+    assert res.exit_code == 0, res.output
+    phases = json.loads(res.stdout)["phases"]["switching"]
+    assert all(p["applied_from"].startswith("run (") for p in phases), [p["applied_from"] for p in phases]
+
+    raw["simulation"]["duration"] = 24.0  # another content: not its runs
+    case.write_text(tomli_w.dumps(raw))
+    res = runner.invoke(app, ["analyze", str(case), "--json", "--no-confirm", "--results", str(out)])
+    assert res.exit_code == 0, res.output
+    phases = json.loads(res.stdout)["phases"]["switching"]
+    assert not any(p["applied_from"].startswith("run (") for p in phases)
+    assert "not current" in res.stderr and "switching" in res.stderr
+
+    for bad in (tmp_path / "nowhere", case):
+        res = runner.invoke(app, ["analyze", str(case), "--no-confirm", "--results", str(bad)])
+        assert res.exit_code == 2, res.output
+        assert str(bad.name) in res.output and "Traceback" not in res.output

@@ -75,17 +75,32 @@ def _public(obj):
 
 
 def _current_runs(results: Path, case) -> dict:
-    """The stored time series of the case's schemes under ``results`` whose cache key is current."""
+    """The stored time series of the case's schemes under ``results`` whose run is sound and current (its
+    record's key is this case content's, :func:`ftcreport.storage.store.check_run`); a note on stderr names
+    the schemes analysed without one.  A ``results`` that is not a directory of case results: FtcError."""
     from ..cases import configured_schemes
-    from ..storage.store import cached_key, load_timeseries
+    from ..errors import FtcError
+    from ..storage.store import check_run, kind_of, load_timeseries
     from ..studies.batch import run_key
 
-    out = {}
+    if kind_of(results) != "results":
+        raise FtcError(
+            f"{results}: --results: not a directory of case results (the --out of 'ftcreport batch' or 'run')"
+        )
+    out, missing = {}, []
     for scheme in configured_schemes(case):
-        if cached_key(results, case.name, scheme) == run_key(case, scheme):
-            ts = load_timeseries(results, case.name, scheme)
-            if ts is not None:
-                out[scheme] = ts
+        stored = check_run(results, case.name, scheme, key=run_key(case, scheme))
+        ts = load_timeseries(results, case.name, scheme) if stored.sound else None
+        if ts is None:
+            missing.append(f"{scheme} ({stored.problem or 'no time series'})")
+        else:
+            out[scheme] = ts
+    if missing:
+        typer.echo(
+            f"note: no current stored run in {results} for {', '.join(missing)}: analysed from the initial "
+            "state (not current: the case changed since the run, or it was never run there)",
+            err=True,
+        )
     return out
 
 

@@ -52,6 +52,7 @@ __all__ = [
     "check_run",
     "clean_partial",
     "confine",
+    "kind_of",
     "load_metrics",
     "load_timeseries",
     "lock_fd",
@@ -583,10 +584,7 @@ def _link_target(path: Path) -> str:
 def _claim(out: Path, kind: str, command: str) -> None:
     """Mark ``out`` as holding ``kind`` results, or refuse when it holds another family's (OutputError)."""
     marker = out / KIND_NAME
-    try:
-        mine = marker.read_text(encoding="utf-8", errors="replace").strip() if not marker.is_symlink() else ""
-    except OSError:
-        mine = ""
+    mine = _marker(out)
     held = (mine or _legacy_kind(out)) if not _untouched(out) else None  # an empty directory is anyone's
     if kind == "export" and held == "results" and _legacy_kind(out) is None:
         held = None  # an export made before it had a family of its own: no case results, no page there
@@ -602,6 +600,22 @@ def _claim(out: Path, kind: str, command: str) -> None:
         )
     if mine != kind:
         write_atomic(marker, f"{kind}\n".encode())
+
+
+def kind_of(out: Path) -> str | None:
+    """The family of results ``out`` holds ("results", "campaign", ...), or None (not a directory of ours)."""
+    if not Path(out).is_dir():
+        return None
+    return _marker(Path(out)) or _legacy_kind(Path(out))
+
+
+def _marker(out: Path) -> str:
+    """The kind marker's text in ``out`` ("" when absent, unreadable or a symbolic link)."""
+    marker = out / KIND_NAME
+    try:
+        return marker.read_text(encoding="utf-8", errors="replace").strip() if not marker.is_symlink() else ""
+    except OSError:
+        return ""
 
 
 def _describe(kind: str) -> str:

@@ -235,3 +235,26 @@ def test_the_scheme_states_are_read_only_where_the_crossing_mode_is_one_of_them(
     assert classify(a, b, T, internal=True)["outcome"] == "bounded"
     a, b = pair(np.hstack((base, np.zeros((k, 1)))), integral)
     assert classify(a, b, T, internal=False)["outcome"] == "bounded"
+
+
+@pytest.mark.parametrize("rate", [0.1445, 3.0e-3, 50.0])
+def test_a_loop_unstable_in_continuous_time_has_no_sample_time_limit(rate):
+    """Round-3 audit: three_link_eight_faults' active scheme, whose continuous loop has a pole at +0.1445 1/s,
+    got sample_time_max = 6.92e-6 s = 1e-6 / 0.1445: the search's first point, T = 1e-6 s, read
+    |z| = e^(0.1445 T) = 1 + 1.4e-7 as inside the marginal band 1e-6 of the unit circle.  Unstable as T -> 0 is
+    decided by the growth rate ln|z| / T (the continuous real part), against the continuous band."""
+    res = largest_sample_time(lambda T: math.exp(rate * T), guess=2.0 / 20.0)  # a fastest pole of 20 1/s
+    assert res["value"] is None
+    assert "unstable in continuous time" in res["note"]
+    # a marginal pole (2e-7 1/s against a fastest of 20 1/s, the Farza observer's unseen directions) is not
+    res = largest_sample_time(lambda T: max(math.exp(2e-7 * T), abs(1.0 - 20.0 * T)), guess=2.0 / 20.0)
+    assert res["value"] == pytest.approx(0.1, rel=1e-6)
+
+
+def test_the_gain_limit_is_found_far_below_a_huge_case_gain():
+    """Round-3 audit: with k_v = 9e5 the search stopped at k_v / 1e4 = 90 1/s and gave null ("unstable at every
+    gain down to 90"), where the loop is stable below 87.47 1/s (README: null means no finite limit)."""
+    res = largest_gain(lambda k: k - 87.47, 9.0e5)
+    assert res["value"] == pytest.approx(87.47, rel=1e-6)
+    res = largest_gain(lambda k: 1.0, 9.0e5)  # unstable at every gain: null, and the note says how far down
+    assert res["value"] is None and "unstable at every gain down to" in res["note"]

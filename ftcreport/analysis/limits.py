@@ -19,7 +19,9 @@ and leave the reference at 720 ms.
 
 Both by a walk (factors of 2) that brackets the change of stability, then Brent's method on the
 spectral radius minus 1 (or the largest real part) to a relative 1e-9; null when the walk ends
-stable (no finite limit up to :data:`T_MAX` or :data:`K_MAX`).  A stable set that is not an interval
+stable (no finite limit up to :data:`T_MAX` or :data:`K_MAX`), or when no point is stable: a loop
+unstable in continuous time has no sample-time limit, and a case gain that is unstable is searched
+down to :data:`K_MIN` (or a 1e-4th of the case's gain, if lower).  A stable set that is not an interval
 (stable again beyond an unstable window) is not searched further.
 
 Closed form, for checking: the ideal plant's velocity loop at rest under the matched law (3.35),
@@ -50,7 +52,8 @@ __all__ += ["MARGINAL_S", "MARGINAL_Z", "largest_sample_time", "periodic_growth"
 
 T_MIN = 1e-6  # s: the smallest sample time searched
 T_MAX = 10.0  # s: beyond it a "sample time" is no longer a control loop's
-K_MIN_FACTOR = 1e-4  # the search for k_v goes down to this fraction of the case's gain
+K_MIN = 1e-3  # 1/s: the search for k_v goes down to this gain (or a 1e-4th of the case's, if lower)
+K_MIN_FACTOR = 1e-4
 K_MAX = 1e7  # 1/s
 STEP = 2.0  # the bracketing walk's ratio
 #: |z| within this of 1 is marginal, not a loss of stability: a time constant beyond T / 1e-6 (83 min at
@@ -100,10 +103,20 @@ def largest_sample_time(rho: Callable[[float], float], guess: float, t_min: floa
     loop's limit) and goes up while stable, or down until stable; the limit is then the first loss of
     stability above the stable point found (a window of instability below it, not seen by the walk,
     is not searched for).
+
+    A loop unstable in continuous time has no limit.  That is decided at ``t_min`` by the growth rate
+    ln rho / T (the continuous loop's largest real part as T -> 0) against the continuous marginal band,
+    MARGINAL_S times the fastest pole (2 / ``guess``), as :func:`stability` decides a continuous phase:
+    the discrete band MARGINAL_Z would count a pole at +0.14 1/s as marginal up to T = 7 us.
     """
     margin = lambda T: rho(T) - (1.0 + MARGINAL_Z)  # noqa: E731
-    if margin(t_min) >= 0.0:
-        return {"value": None, "note": f"unstable already at T = {t_min:g} s: the loop is unstable in continuous time"}
+    rate = math.log(max(rho(t_min), 1e-300)) / t_min
+    if rate > MARGINAL_S * max(1.0, 2.0 / guess) or margin(t_min) >= 0.0:
+        return {
+            "value": None,
+            "note": f"the loop is unstable in continuous time (growth rate {rate:.4g} 1/s as T -> 0): no sample "
+            "time stabilizes it",
+        }
     guess = min(max(guess, t_min), t_max)
     if margin(guess) < 0.0:
         pair = _bracket(margin, guess, t_max)
@@ -127,7 +140,7 @@ def largest_gain(margin_at: Callable[[float], float], k_v: float) -> dict:
         if pair is None:
             return {"value": None, "note": f"stable at every gain up to {K_MAX:g} 1/s"}
         return {"value": boundary(margin_at, *pair), "note": ""}
-    k_lo = k_v * K_MIN_FACTOR
+    k_lo = min(k_v * K_MIN_FACTOR, K_MIN)
     pair = _bracket(margin_at, k_v, k_lo)
     if pair is None:
         return {"value": None, "note": f"unstable at every gain down to {k_lo:g} 1/s"}

@@ -386,3 +386,43 @@ def test_chained_circle_interpolated_monodromy_agrees_with_jacobians(monkeypatch
     np.testing.assert_allclose(
         fitted["multipliers"], direct["multipliers"], atol=2e-4 * abs(complex(*direct["multipliers"][0]))
     )
+
+
+def test_a_phase_whose_frozen_instants_disagree_is_inconclusive_not_unstable():
+    """Round-3 audit: four_link_eight_step's healthy phase (0-20 s) was "unstable" for nominal and the oracle,
+    max Re +11.57 1/s at the frozen instant t = 10 s, where the instants at 3.3 and 16.7 s are stable, and
+    every run tracks (nominal ends at 5.5e-6 m); every limit then read "unstable in continuous time".  Frozen
+    instants that disagree decide nothing about a time-varying loop: the phase is "inconclusive" (stable null),
+    says which instants are which, gets no margins, and the limits taken at its worst instant say they are
+    frozen evidence only."""
+    from ftcreport.analysis.phases import analyze_scheme, case_frames
+    from ftcreport.cases import load_case
+    from ftcreport.runner import build
+
+    case = load_case(Path(__file__).resolve().parents[1] / "cases" / "four_link_eight_step.toml")
+    built = build(case)
+    res = analyze_scheme(case, "nominal", built, psis=case_frames(case, built))
+    first = res["phases"][0]
+    assert first["stability"] == "inconclusive" and first["stable"] is None
+    assert first["frozen_disagree"]["unstable_at"] == [10.0]
+    assert first["frozen_disagree"]["stable_at"] == pytest.approx([10.0 / 3.0, 50.0 / 3.0])
+    assert first["max_real_part"] > 1.0  # the worst frozen instant's, still reported
+    assert "stable loop only" in first["margins"]["note"]
+    assert all(p["stability"] == "stable" and p["frozen_disagree"] is None for p in res["phases"][1:])
+    note = res["limit_notes"]["limits.sample_time_max"]
+    assert note.startswith("frozen evidence only: at the instant t = 10 s of the first phase")
+
+
+def test_an_inconclusive_phase_supports_no_claim_of_stability_in_the_verdict():
+    """The verdict neither says a scheme's loop is unstable in a phase whose frozen instants disagree, nor that
+    the healthy law's loop 'stays stable in every fault phase' when one of them is inconclusive."""
+    from ftcreport.evaluation.verdict_analysis import verdict_sentence
+
+    def phase(t0, t1, stability, measure):
+        return {"t_start": t0, "t_end": t1, "stability": stability, "max_real_part": measure, "discrete": False}
+
+    analysis = {"phases": {"nominal": [phase(0, 20, "inconclusive", 11.57), phase(20, 40, "stable", -0.21)]}}
+    assert verdict_sentence("nominal", analysis, "nominal wins") is None
+    assert verdict_sentence("nominal", analysis, "loses") is None
+    analysis["phases"]["nominal"][0] = phase(0, 20, "stable", -0.3)
+    assert verdict_sentence("nominal", analysis, "nominal wins").startswith("The analysis agrees")

@@ -59,7 +59,7 @@ PHASE = {
         "spectral_radius": NUM_OR_NULL,
         "max_real_part": NUM_OR_NULL,
         "stable": {"type": ["boolean", "null"]},
-        "stability": {"enum": ["stable", "marginal", "unstable", "not computed"]},
+        "stability": {"enum": ["stable", "marginal", "unstable", "inconclusive", "not computed"]},
         "margins": MARGINS,
     },
     "oneOf": [{"required": ["spectral_radius"]}, {"required": ["max_real_part"]}],

@@ -262,6 +262,13 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
         if worst["run"] and scheme not in ("nominal", "oracle", "switching"):
             applied_from = "its run's states"
         stability = limits_stability(worst["measure"], worst["poles"], discrete)
+        # frozen instants that disagree (one stable, another unstable) decide nothing about a time-varying
+        # loop: four_link_eight_step's healthy loop is frozen-unstable at 10 s (+11.6 1/s), stable at
+        # 3.3 and 16.7 s, and every run tracks it
+        each = {r["t"]: limits_stability(r["measure"], r["poles"], discrete) for r in good}
+        disagree = "stable" in each.values() and "unstable" in each.values()
+        if disagree:
+            stability = "inconclusive"
         entry |= {
             "pattern_applied": pt.applied,
             "applied_from": applied_from if pt.applied is not None else "the law applies no pattern",
@@ -269,8 +276,14 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
             "poles": [[float(p.real), float(p.imag)] for p in worst["poles"]],
             "pole_table": pole_rows(worst["poles"], period if discrete else None),
             key: worst["measure"],
-            "stable": stability == "stable",
+            "stable": None if disagree else stability == "stable",
             "stability": stability,
+            "frozen_disagree": {
+                "stable_at": [t for t, v in each.items() if v == "stable"],
+                "unstable_at": [t for t, v in each.items() if v == "unstable"],
+            }
+            if disagree
+            else None,
             "internal_modes": (
                 {"modes": worst["n_internal"], key: worst["internal"]} if worst["internal"] is not None else None
             ),
@@ -287,7 +300,7 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
                 blk, period if discrete else None, delay, loop.ctrl.chain.wheels, loop.plant.input_unit, not out_phases
             )
             if margins and stability == "stable"
-            else {"note": f"the closed loop is {stability}: margins are defined for a stable loop only"}
+            else {"note": f"the closed loop is {_words(stability)}: margins are defined for a stable loop only"}
             if margins
             else None
         )
@@ -297,6 +310,16 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
         # at the first phase's worst frozen instant (the limits' searches cost tens of linearizations each)
         t_lim = out_phases[0].get("t_worst", times[phases[0]][0])
         result |= scheme_limits(case, scheme, built, loop, [t_lim], psis, period, delay)
+        split = out_phases[0].get("frozen_disagree")
+        if split:  # the limits are those of one frozen instant that the phase's others contradict: say so
+            others = ", ".join(f"{t:.4g}" for t in split["stable_at"])
+            caveat = (f"frozen evidence only: at the instant t = {t_lim:.4g} s of the first phase, whose other frozen "
+                      f"instants ({others} s) are stable")  # fmt: skip
+            skip = ("the law does not read eta", "not searched")
+            result["limit_notes"] = {
+                k: v if v.startswith(skip) else "; ".join(x for x in (caveat, v) if x)
+                for k, v in result["limit_notes"].items()
+            }
     return result
 
 
@@ -433,6 +456,10 @@ def _law_reads_eta(loop: SchemeLoop, t: float, fz: Faults, psis: dict, period) -
     q, eta = pt.xp[:nq], pt.xp[nq : nq + 2]
     u0 = loop.law(t, q, eta, pt.xc, st, ut)[0]
     return any(np.any(loop.law(t, q, eta + 1e-4 * e, pt.xc, st, ut)[0] != u0) for e in np.eye(2))
+
+
+def _words(stability: str) -> str:
+    return "inconclusive (its frozen instants disagree)" if stability == "inconclusive" else stability
 
 
 def _grid(limit: float, case_value: float | None, points: int = 48) -> np.ndarray:

@@ -81,7 +81,7 @@ def text_summary(res: dict) -> list[str]:
             lines.append(
                 f"    {p['t_start']:g}-{p['t_end']:g} s: true {pattern_text(p['pattern_true'])}, applied "
                 f"{pattern_text(p.get('pattern_applied'))} ({p.get('applied_from', '-')}); {phase_measure(p)}, "
-                f"{p.get('stability')}{_worst_margin(p.get('margins'))}"
+                f"{p.get('stability')}{_split(p.get('frozen_disagree'))}{_worst_margin(p.get('margins'))}"
             )
     for scheme, why in res.get("not_analyzed", {}).items():
         lines.append(f"  {scheme}: not analysed: {why}")
@@ -91,3 +91,12 @@ def text_summary(res: dict) -> list[str]:
         for r in worst:
             lines.append(f"    {r['pattern']}: {r['gramian_min_eig']:.3g}")
     return lines
+
+
+def _split(split: dict | None) -> str:
+    """Where a phase's frozen instants disagree: which are stable and which are not."""
+    if not split:
+        return ""
+    at = lambda ts: ", ".join(f"{t:.4g}" for t in ts)  # noqa: E731
+    unstable, stable = at(split["unstable_at"]), at(split["stable_at"])
+    return f" (frozen instants disagree: unstable at {unstable} s, stable at {stable} s)"

@@ -53,11 +53,13 @@ def verdict_sentence(scheme: str, analysis: dict, why: str, limit: str | None = 
     done = [p for p in phases if p.get("stability") in ("stable", "marginal", "unstable")]
     if not done:
         return None
+    # a phase whose frozen instants disagree supports no claim of "stable in every phase"
+    unsure = any(p.get("stability") == "inconclusive" for p in phases)
     lim = (analysis.get("limits") or {}).get(scheme, {})
     bad = [p for p in done if p["stability"] != "stable"]
     span = lambda p: f"{p['t_start']:g}-{p['t_end']:g} s"  # noqa: E731
     if why == "nominal wins":
-        if bad:
+        if bad or unsure:
             return None
         slow = max(done, key=lambda p: p.get("max_real_part", p.get("spectral_radius", -math.inf)) or -math.inf)
         return (
@@ -77,7 +79,7 @@ def verdict_sentence(scheme: str, analysis: dict, why: str, limit: str | None = 
         if kmax and k_v and k_v > kmax:
             text += f"; k_v = {k_v:g} 1/s is beyond its largest stable {kmax:.3g} 1/s"
         return text + ")" + (_completed(limit, bool(p.get("discrete"))) if why == "chatters" else ".")
-    if why == "loses":
+    if why == "loses" and not unsure:
         slow = max(done, key=lambda p: p.get("spectral_radius") or p.get("max_real_part") or -math.inf)
         return (
             f"Its loop is stable in every phase (slowest at {span(slow)}, {phase_measure(slow)}): {scheme} loses on "

@@ -409,8 +409,8 @@ def test_a_phase_whose_frozen_instants_disagree_is_inconclusive_not_unstable():
     assert first["max_real_part"] > 1.0  # the worst frozen instant's, still reported
     assert "stable loop only" in first["margins"]["note"]
     assert all(p["stability"] == "stable" and p["frozen_disagree"] is None for p in res["phases"][1:])
-    note = res["limit_notes"]["limits.sample_time_max"]
-    assert note.startswith("frozen evidence only: at the instant t = 10 s of the first phase")
+    caveat = res["limit_notes"]["caveat"]
+    assert caveat.startswith("every limit here is frozen evidence only: taken at the instant t = 10 s")
 
 
 def test_an_inconclusive_phase_supports_no_claim_of_stability_in_the_verdict():

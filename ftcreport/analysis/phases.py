@@ -313,13 +313,10 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
         split = out_phases[0].get("frozen_disagree")
         if split:  # the limits are those of one frozen instant that the phase's others contradict: say so
             others = ", ".join(f"{t:.4g}" for t in split["stable_at"])
-            caveat = (f"frozen evidence only: at the instant t = {t_lim:.4g} s of the first phase, whose other frozen "
-                      f"instants ({others} s) are stable")  # fmt: skip
-            skip = ("the law does not read eta", "not searched")
-            result["limit_notes"] = {
-                k: v if v.startswith(skip) else "; ".join(x for x in (caveat, v) if x)
-                for k, v in result["limit_notes"].items()
-            }
+            result["limit_notes"]["caveat"] = (
+                f"every limit here is frozen evidence only: taken at the instant t = {t_lim:.4g} s of the first "
+                f"phase, whose other frozen instants ({others} s) are stable"
+            )
     return result
 
 

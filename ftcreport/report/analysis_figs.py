@@ -101,7 +101,7 @@ def limit_rows(res: dict) -> list[dict]:
 
 _LIMIT_NAMES = {"limits.sample_time_max": "T_s max", "limits.k_v_max": "k_v max",
                 "velocity_loop.sample_time_max": "velocity loop alone, T_s max",
-                "velocity_loop.k_v_max": "velocity loop alone, k_v max"}  # fmt: skip
+                "velocity_loop.k_v_max": "velocity loop alone, k_v max", "caveat": "every limit"}  # fmt: skip
 
 
 def _limit_notes(notes: dict) -> list[str]:

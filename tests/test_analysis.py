@@ -410,7 +410,7 @@ def test_a_phase_whose_frozen_instants_disagree_is_inconclusive_not_unstable():
     assert "stable loop only" in first["margins"]["note"]
     assert all(p["stability"] == "stable" and p["frozen_disagree"] is None for p in res["phases"][1:])
     caveat = res["limit_notes"]["caveat"]
-    assert caveat.startswith("every limit here is frozen evidence only: taken at the instant t = 10 s")
+    assert caveat.startswith("frozen evidence only, taken at the instant t = 10 s of the first phase")
 
 
 def test_an_inconclusive_phase_supports_no_claim_of_stability_in_the_verdict():

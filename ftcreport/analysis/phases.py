@@ -313,10 +313,9 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
         split = out_phases[0].get("frozen_disagree")
         if split:  # the limits are those of one frozen instant that the phase's others contradict: say so
             others = ", ".join(f"{t:.4g}" for t in split["stable_at"])
-            result["limit_notes"]["caveat"] = (
-                f"every limit here is frozen evidence only: taken at the instant t = {t_lim:.4g} s of the first "
-                f"phase, whose other frozen instants ({others} s) are stable"
-            )
+            caveat = (f"frozen evidence only, taken at the instant t = {t_lim:.4g} s of the first phase, whose other "
+                      f"frozen instants ({others} s) are stable")  # fmt: skip
+            result["limit_notes"] = {"caveat": caveat, **result["limit_notes"]}
     return result
 
 

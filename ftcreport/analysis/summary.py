@@ -72,7 +72,7 @@ def text_summary(res: dict) -> list[str]:
             lines.append(f"      the case's own settings against these limits: {', '.join(factors)} (stable below 1x)")
         for key, note in res.get("limit_notes", {}).get(scheme, {}).items():
             if key == "caveat":
-                lines.append(f"      {note}")
+                lines.append(f"      every limit: {note}")
                 continue
             where, _, which = key.rpartition(".")
             lines.append(f"      {which}{' (velocity loop alone)' if where == 'velocity_loop' else ''}: {note}")

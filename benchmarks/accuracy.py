@@ -5,9 +5,11 @@ default nominal: a continuous law, so that the reference is a solution of an ODE
 switching logic runs at the steps' ends, and its instants are part of what is compared):
 
 * a reference: the case's method's error-controlled twin (dopri5 for rk4, ros2ec for ros2, etd2ec for etd2)
-  at rtol = 1e-10, atol = 1e-12, its longest step the case's dt;
+  at rtol = 1e-10, atol = 1e-12, its longest step the case's dt; its resolution is its difference from the
+  same twin at rtol = 1e-11, atol = 1e-13 (1e-12 m on the chains: a fixed step's error below twice it is not
+  resolved, and no comparison is drawn from it);
 * the case as shipped (fixed step dt);
-* ``auto`` at rtol = 1e-2 ... 1e-8 (atol = rtol / 100), its longest step ``--max-step-factor`` x dt.
+* ``auto`` at rtol = 1e-2 ... 1e-10 (atol = rtol / 100), its longest step ``--max-step-factor`` x dt.
 
 Accuracy: the largest |x, y| error of P_n against the reference at the fault instants and the end (every run
 lands on them); cost: rate evaluations of the closed loop (the loop's own count; 4 per step for RK4, ROS2 and
@@ -38,7 +40,7 @@ from ftcreport.runner import run_scheme
 
 ROOT = Path(__file__).resolve().parents[1]
 TWIN = {"rk4": "dopri5", "ros2": "ros2ec", "etd2": "etd2ec"}
-RTOLS = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
+RTOLS = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
 
 
 def _run(case, scheme: str, repeats: int, **sim):
@@ -94,6 +96,8 @@ def measure(path: Path, scheme_wanted: str, factor: float, repeats: int, refine:
     sim = case.simulation
     instants = [t for t in times if t < duration] + [duration]
     ref, _ = _run(case, scheme, 1, method=TWIN[sim.method], rtol=1e-10, atol=1e-12, min_step=1e-12)
+    tighter, _ = _run(case, scheme, 1, method=TWIN[sim.method], rtol=1e-11, atol=1e-13, min_step=1e-12)
+    resolution = _error(ref, tighter, instants)
     rows = []
     fixed, fm = _run(case, scheme, repeats)
     rows.append(_row(f"{sim.method} dt = {sim.dt:g}", fixed, fm) | {"error_m": _error(fixed, ref, instants)})
@@ -105,7 +109,8 @@ def measure(path: Path, scheme_wanted: str, factor: float, repeats: int, refine:
         run, m = _run(case, scheme, repeats, method="auto", rtol=rtol, atol=rtol / 100, dt=sim.dt * factor)
         rows.append(_row(f"auto rtol = {rtol:g}", run, m) | {"rtol": rtol, "error_m": _error(run, ref, instants)})
     target = rows[0]["error_m"]
-    ok = [r for r in rows[1:] if r["status"] == "ok" and r["error_m"] <= target]
+    resolved = target > 2.0 * resolution
+    ok = [r for r in rows[1:] if r["status"] == "ok" and r["error_m"] <= target] if resolved else []
     best = min(ok, key=lambda r: r["evaluations"]) if ok else None
     line = [r for r in [rows[0], *finer] if r["status"] == "ok" and r["error_m"] > 0]
     for r in rows[1:]:
@@ -116,7 +121,13 @@ def measure(path: Path, scheme_wanted: str, factor: float, repeats: int, refine:
         "duration_s": duration,
         "dt": sim.dt,
         "max_step": sim.dt * factor,
-        "reference": {"method": TWIN[sim.method], "status": ref.status, "steps": int(ref.steps)},
+        "reference": {
+            "method": TWIN[sim.method],
+            "status": ref.status,
+            "steps": int(ref.steps),
+            "resolution_m": resolution,
+            "fixed_error_resolved": bool(resolved),
+        },
         "rows": rows,
         "fixed_refined": finer,
         "cheapest_auto_as_accurate": None
@@ -151,7 +162,9 @@ def main() -> None:
         print(
             f"{res['case']} ({res['scheme']}, {res['duration_s']:g} s): {fixed['run']} error {fixed['error_m']:.2g} m, "
             f"{fixed['evaluations']} evaluations; "
-            + ("no auto as accurate" if best is None else f"{best['run']} ({best['method']}): "
+            + (f"not resolved (the reference's resolution: {res['reference']['resolution_m']:.2g} m)"
+               if not res["reference"]["fixed_error_resolved"]
+               else "no auto as accurate" if best is None else f"{best['run']} ({best['method']}): "
                f"{best['evaluations_ratio']:.2f}x the evaluations, {best['wall_ratio']:.2f}x the wall time"),
             flush=True,
         )  # fmt: skip

@@ -413,7 +413,7 @@ def test_verify_dt_flags_a_step_that_is_not_converged(tmp_path):
 
 
 def test_verify_dt_of_an_auto_run_is_a_tolerance_check(tmp_path):
-    """An error-controlled run (method = "auto") is checked at a tenth of its tolerances, at the same dt."""
+    """An error-controlled run (method = "auto") is checked at a tenth of its tolerances and half its longest step."""
     src = (CASES / "two_link_uncompensable.toml").read_text().replace("\ndt = 0.01\n", '\ndt = 0.01\nmethod = "auto"\n')
     case = tmp_path / "c.toml"
     case.write_text(src)
@@ -421,11 +421,58 @@ def test_verify_dt_of_an_auto_run_is_a_tolerance_check(tmp_path):
     args = ["run", str(case), "--scheme", "oracle", "--duration", "3", "--out", str(out), "--verify-dt", "--no-report"]
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
-    assert "rtol = 1e-06 vs 1e-07, atol = 1e-08 vs 1e-09: converged" in res.stdout
+    assert "rtol = 1e-06 vs 1e-07, atol = 1e-08 vs 1e-09, longest step 0.01 s vs 0.005 s: converged" in res.stdout
     m = json.loads((out / "c" / "oracle" / "metrics.json").read_text())
     v = m["verify_dt"]
-    assert v["dt"] == v["dt_half"] == 0.01 and v["converged"]
+    assert v["dt"] == 0.01 and v["dt_half"] == 0.005 and v["converged"] and not v["empty"]
     assert m["integrator"]["rtol"] == 1e-6 and m["integrator"]["requested"] == "auto"
+
+
+def _sampled_auto_case(tmp_path: Path) -> Path:
+    """two_link_campaign under sampled control (20 ms) with method = "auto" at a 10 ms longest step, wheel 2l
+    lost at 3 s: every auto step lands on a sample, so rtol and atol alone do not change the steps."""
+    data = tomllib.loads((CASES / "two_link_campaign.toml").read_text())
+    data.pop("campaign")
+    data["schemes"] = {"run": ["nominal", "oracle"], "nominal": {"k_v": 5.0}, "oracle": {"k_v": 5.0}}
+    data["simulation"] = {"dt": 0.01, "duration": 6.0, "sample_time": 0.02, "method": "auto"}
+    data["faults"] = [{"time": 3.0, "wheel": "2l"}]
+    p = tmp_path / "sampled_auto.toml"
+    p.write_text(tomli_w.dumps(data))
+    return p
+
+
+def test_verify_dt_of_a_sampled_auto_run_halves_the_longest_step(tmp_path):
+    """A sampled loop's auto steps are capped by the samples: at a tenth of rtol and atol alone the refined
+    run was bit-identical and the check said "converged" at 0.00 % on every metric.  The refined run also
+    halves the longest step, and verify_dt records what it was."""
+    case = _sampled_auto_case(tmp_path)
+    out = tmp_path / "o"
+    args = ["run", str(case), "--scheme", "nominal", "--out", str(out), "--verify-dt", "--no-report"]
+    res = runner.invoke(app, args)
+    assert "Traceback" not in res.output, res.output
+    assert "longest step 0.01 s vs 0.005 s" in res.stdout, res.stdout
+    v = json.loads((out / "sampled_auto" / "nominal" / "metrics.json").read_text())["verify_dt"]
+    assert v["dt"] == 0.01 and v["dt_half"] == 0.005
+    assert v["refined_run"] == {"method": "auto", "rtol": 1e-7, "atol": 1e-9, "max_step": 0.005}
+    assert not v["empty"]
+    assert any(r["abs_change"] for r in v["metrics"].values()), v["metrics"]
+
+
+def test_verify_dt_says_a_bit_identical_refined_run_is_an_empty_check(tmp_path, monkeypatch):
+    """A refined run identical to the run on every metric tested nothing: the output says the check was
+    empty (exit 1), never "converged"."""
+    import ftcreport.runner
+
+    monkeypatch.setattr(ftcreport.runner, "halve_dt", lambda c, source="": c)
+    case = _sampled_auto_case(tmp_path)
+    out = tmp_path / "o"
+    args = ["run", str(case), "--scheme", "nominal", "--duration", "1", "--out", str(out), "--verify-dt"]
+    res = runner.invoke(app, [*args, "--no-report"])
+    _one_error_line(res, 1, str(case), "simulation.dt", "nominal", "empty", "bit-identical")
+    assert "converged" not in res.stdout, res.stdout
+    assert "EMPTY" in res.stdout, res.stdout
+    v = json.loads((out / "sampled_auto" / "nominal" / "metrics.json").read_text())["verify_dt"]
+    assert v["empty"] and not v["converged"]
 
 
 def test_dt_sensitivity_rules():
@@ -438,6 +485,10 @@ def test_dt_sensitivity_rules():
     assert v["worst_rel_change"] == pytest.approx(0.2 / 10.2)
     assert not dt_sensitivity(a, a | {"status": "diverged"})["converged"]
     assert not dt_sensitivity(a, a | {"torque_peak": None})["converged"]
+    # the same run twice: an empty check, never "converged"
+    v = dt_sensitivity(a, dict(a))
+    assert v["empty"] and not v["converged"]
+    assert not dt_sensitivity(a, a | {"dt": 0.005, "torque_peak": 10.09})["empty"]
 
 
 def test_partial_files_are_cleaned_except_in_nested_output_directories(tmp_path):

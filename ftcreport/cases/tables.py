@@ -324,7 +324,11 @@ class Simulation(_Strict):
         1e-8, "error-controlled methods: absolute tolerance of every state's local error per step", "state's unit"
     )
     min_step: _num(None, 1.0, gt=0) = _f(
-        1e-8, "error-controlled methods: the run stops (status and reason) when the step falls below this", "s"
+        1e-8,
+        "error-controlled methods: the shortest step; a step at min_step whose error is still over the tolerance "
+        "is taken anyway and counted (integrator.forced_steps in metrics.json; 'run' says how many), and 100 such "
+        "steps in a row, or a trial stage leaving the domain at min_step, stop the run (status and reason)",
+        "s",
     )
     log_every: Int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
     singularity_margin_deg: _num(0.0, lt=90) = _f(

@@ -226,6 +226,9 @@ def run(
         typer.echo(_table(rows))
         if half is not None:
             typer.echo(_dt_table(rows))
+        for m in rows:
+            if (forced := _forced_steps(m)) is not None:
+                typer.echo(printable(f"warning: {case}: simulation.min_step: {m['scheme']}: {forced}"), err=True)
         for item in gate:
             typer.echo(printable(item.line()))
         if duration is not None and (c.thresholds or c.claims or c.requirements):
@@ -283,6 +286,19 @@ def _run_gate(out: Path, name: str, schemes: list[str]):
     case = stored_case(out, name)
     items = [item for source in CASE_ITEMS if source is not run_items for item in source(case)]
     return [item for item in items if set(item.schemes) <= set(schemes)]
+
+
+def _forced_steps(m: dict) -> str | None:
+    """The steps an error-controlled run took at min_step with its local error over the tolerance, in words
+    (the run went on: docs/ENGINE.md), or None when it took none."""
+    g = m.get("integrator") or {}
+    if not g.get("forced_steps"):
+        return None
+    return (
+        f"{g['forced_steps']} step(s) were taken at min_step = {g['min_step']:g} s with the local error over the "
+        f"tolerance (rtol = {g['rtol']:g}, atol = {g['atol']:g}), the first at t = {g['first_forced_at']:.6g} s: "
+        "the accuracy asked for was not met there"
+    )
 
 
 def _dt_table(rows: list[dict]) -> str:

@@ -268,6 +268,36 @@ def test_switching_models_of_a_long_chain_are_refused():
     assert budget_problem(5, 80.0, 0.02, 5, "switching") is None  # five_link_cascade
 
 
+def test_twelve_robots_with_switching_are_refused_for_the_bank_not_the_log(tmp_path):
+    """n = 12: the switching bank's 12582910 patterns alone need about 5.5 GiB; the advice was to raise
+    log_every and shorten the duration, which cannot help.  It names the bank and what helps."""
+    text = (CASES / "three_link_circle_faults.toml").read_text()
+    text = text.replace("n = 3", "n = 12", 1).replace("radius = 5.0", "radius = 30.0", 1)
+    data = tomllib.loads(text)
+    data["schemes"] = {"run": ["nominal", "switching"], **{k: data["schemes"][k] for k in ("nominal", "switching")}}
+    data.pop("thresholds", None)
+    data.pop("claims", None)
+    p = tmp_path / "twelve.toml"
+    p.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["cases", "validate", str(p)])
+    line = _one_error_line(res, 2, "twelve.toml", "robots.n", "switching", "12582910", "bank", "MiB")
+    for words in ("[schemes] run", "fewer robots", "patterns"):
+        assert words in line, (words, line)
+    assert "simulation.log_every" not in line and "simulation.duration" not in line, line
+    # the adaptive bank's weights are logged at every sample: even two samples are over the budget
+    field, why = budget_problem(12, 40.0, 0.01, 10, "adaptive")
+    assert field == "robots.n" and "log_every" not in why and "[schemes] run" in why, why
+
+
+def test_memory_advice_names_the_log_every_that_fits():
+    """When the time series dominate, the advice is the log_every that brings the run within the budget."""
+    field, why = budget_problem(2, 9000.0, 0.001, 1)
+    assert field == "simulation.log_every" and "logged" in why, why
+    k = int(why.split("simulation.log_every to at least ")[1].split()[0].rstrip(","))
+    assert budget_problem(2, 9000.0, 0.001, k) is None
+    assert budget_problem(2, 9000.0, 0.001, k - 1) is not None
+
+
 def test_duration_override_is_checked_against_the_limits(tmp_path):
     p = _case(tmp_path)
     res = runner.invoke(app, ["run", str(p), "--duration", "1e9", "--out", str(tmp_path / "o")])

@@ -141,7 +141,7 @@ def run(
             "--verify-dt",
             help="Run each scheme again at dt/2 (an error-controlled method: also at rtol/10 and atol/10) and print "
             "the change of the headline metrics (stored as verify_dt in metrics.json); exit 1 if a change exceeds "
-            "1 %% (+1e-6 absolute), or if the refined run is bit-identical (the check is empty).",
+            "1 % (+1e-6 absolute), or if the refined run is bit-identical (the check is empty).",
         ),
     ] = False,
     no_report: Annotated[

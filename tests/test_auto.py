@@ -193,3 +193,30 @@ def test_run_says_how_many_steps_were_forced_at_min_step(tmp_path):
                               str(out), "--no-report"])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "min_step" not in res.output
+
+
+def test_rtol_and_atol_of_a_fixed_step_case_set_its_stop_recheck():
+    """rtol and atol are not unused with a fixed step: a stop that persists at dt/4 is checked again by the
+    method's error-controlled twin at the case's rtol and atol (fast.recheck), so they are accepted and the
+    fields' descriptions say so.  RK4 on a k_v = 3000 loop at dt = 5 ms (and 1.25 ms) blows up; DOPRI5
+    passes the instant, its shortest step set by the tolerances."""
+    from ftcreport.cases.tables import Simulation
+
+    chain = Chain.uniform(2, d=1.7)
+    ref = FlatReference(unicycle(0.5, 0.1), chain.d)
+    kin = TwoLinkKinematic(1.7, ref, k1=10, k2=2, k3=0.5)
+    r0 = ref.at(0.0)
+    q0 = r0.q_d + np.array([0.1, 0.05, 0.0, 0.0])
+    shortest = {}
+    for rtol, atol in ((1e-6, 1e-8), (1e-3, 1e-5)):
+        settings = SimSettings(dt=0.005, duration=1.0, method="rk4", rtol=rtol, atol=atol)
+        run = simulate(Plant(chain), TrackingController(chain, kin, k_v=3000.0), q0, r0.eta_d, settings)
+        assert run.status == "step_unstable", run.reason
+        assert f"dopri5 at rtol = {rtol:g}, atol = {atol:g}" in run.reason
+        controlled = run.meta["integrator"]["recheck"]["controlled"]
+        assert controlled["status"] == "ok"
+        shortest[rtol] = controlled["min_step_taken"]
+    assert shortest[1e-3] > 2 * shortest[1e-6]  # the looser tolerance takes longer steps
+    for name in ("rtol", "atol", "min_step"):
+        assert "re-check" in Simulation.model_fields[name].description, name
+    Simulation(dt=0.01, duration=1.0, method="rk4", rtol=1e-3, atol=1e-5)  # accepted

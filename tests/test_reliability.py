@@ -289,6 +289,26 @@ def test_twelve_robots_with_switching_are_refused_for_the_bank_not_the_log(tmp_p
     assert field == "robots.n" and "log_every" not in why and "[schemes] run" in why, why
 
 
+def test_twelve_robots_with_switching_by_default_are_refused_too(tmp_path):
+    """A 12-robot case that names no switching table and no [schemes] run gets switching's default table
+    after validation (every FTC family runs): that table was never checked against the memory budget, so
+    the case validated and its run would have built the 5.5 GiB bank."""
+    text = (CASES / "three_link_circle_faults.toml").read_text()
+    text = text.replace("n = 3", "n = 12", 1).replace("radius = 5.0", "radius = 30.0", 1)
+    data = tomllib.loads(text)
+    data["schemes"] = {"nominal": data["schemes"]["nominal"]}
+    data.pop("thresholds", None)
+    data.pop("claims", None)
+    p = tmp_path / "twelve.toml"
+    p.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["cases", "validate", str(p)])
+    line = _one_error_line(res, 2, "twelve.toml", "robots.n", "switching", "12582910", "bank", "by default")
+    assert "[schemes] run" in line, line
+    data["schemes"]["run"] = ["nominal", "oracle"]  # what the advice says: the case loads
+    p.write_text(tomli_w.dumps(data))
+    assert runner.invoke(app, ["cases", "validate", str(p)]).exit_code == 0
+
+
 def test_memory_advice_names_the_log_every_that_fits():
     """When the time series dominate, the advice is the log_every that brings the run within the budget."""
     field, why = budget_problem(2, 9000.0, 0.001, 1)

@@ -289,6 +289,11 @@ def halve_dt(case: Case, source: str = "") -> Case:
     if sim.method in AUTO_METHODS:
         update |= {"rtol": sim.rtol / 10, "atol": sim.atol / 10}
     half = case.model_copy(update={"simulation": sim.model_copy(update=update)})
+    if sim.method in AUTO_METHODS and sim.min_step >= sim.dt / 2:  # as Simulation's validator asks of dt
+        raise CaseError(
+            f"{source or case.name}: --verify-dt: at dt/2, simulation.min_step: {sim.min_step:g} s is not below the "
+            f"longest step dt/2 = {sim.dt / 2:g} s (lower min_step to check the step)"
+        )
     try:
         _check_budget(half)
     except _FieldError as exc:

@@ -525,6 +525,19 @@ def test_verify_dt_says_a_bit_identical_refined_run_is_an_empty_check(tmp_path, 
     assert v["empty"] and not v["converged"]
 
 
+def test_verify_dt_refuses_an_auto_longest_step_halved_to_its_min_step(tmp_path):
+    """Halving an error-controlled run's longest step must keep it above min_step (as validation does for dt)."""
+    from ftcreport.cases import load_case
+    from ftcreport.errors import CaseError
+    from ftcreport.runner import halve_dt
+
+    case = load_case(
+        _case(tmp_path, simulation={"dt": 0.01, "duration": 1.0, "method": "auto", "min_step": 0.006}, faults=[])
+    )
+    with pytest.raises(CaseError, match=r"--verify-dt: at dt/2, simulation.min_step: 0.006 s is not below"):
+        halve_dt(case, "c.toml")
+
+
 def test_dt_sensitivity_rules():
     from ftcreport.runner import dt_sensitivity
 

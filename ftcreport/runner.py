@@ -273,22 +273,27 @@ def explain_nulls(metrics: dict) -> dict:
 
 
 def halve_dt(case: Case, source: str = "") -> Case:
-    """The case ``run --verify-dt`` compares with: at half the step (logged every 2 * log_every steps: the
-    same instants), or for an error-controlled method at a tenth of rtol and atol (the same dt).
+    """The case ``run --verify-dt`` compares with: at half the step, logged every 2 * log_every steps (a
+    fixed step: the same instants).  An error-controlled method also runs at a tenth of rtol and atol:
+    its longest step halved too, since a run whose every step is capped at dt (a sampled loop's steps
+    land on every sample; or dt binds) takes the same steps at any tolerance.
 
-    Raises CaseError when the halved run is over the limits of ftcreport.infra.limits.
+    Raises CaseError when the refined run is over the limits of ftcreport.infra.limits.
     """
     from .cases import _check_budget, _FieldError
     from .errors import CaseError
     from .runs import AUTO_METHODS
 
     sim = case.simulation
+    update = {"dt": sim.dt / 2, "log_every": sim.log_every * 2}
     if sim.method in AUTO_METHODS:
-        tighter = sim.model_copy(update={"rtol": sim.rtol / 10, "atol": sim.atol / 10})
-        return case.model_copy(update={"simulation": tighter})
-    half = case.model_copy(
-        update={"simulation": sim.model_copy(update={"dt": sim.dt / 2, "log_every": sim.log_every * 2})}
-    )
+        update |= {"rtol": sim.rtol / 10, "atol": sim.atol / 10}
+    half = case.model_copy(update={"simulation": sim.model_copy(update=update)})
+    if sim.method in AUTO_METHODS and sim.min_step >= sim.dt / 2:  # as Simulation's validator asks of dt
+        raise CaseError(
+            f"{source or case.name}: --verify-dt: at dt/2, simulation.min_step: {sim.min_step:g} s is not below the "
+            f"longest step dt/2 = {sim.dt / 2:g} s (lower min_step to check the step)"
+        )
     try:
         _check_budget(half)
     except _FieldError as exc:
@@ -296,11 +301,24 @@ def halve_dt(case: Case, source: str = "") -> Case:
     return half
 
 
+def _refined_run(half: dict) -> dict:
+    """What the refined run of ``--verify-dt`` was: its method and step, or its tolerances and longest step."""
+    g = half.get("integrator") or {}
+    if "rtol" in g:
+        return {"method": g.get("requested", g.get("method")), "rtol": g["rtol"], "atol": g["atol"],
+                "max_step": g["max_step"]}  # fmt: skip
+    return {"method": g.get("method"), "dt": half.get("dt")}
+
+
 def _refinement(full: dict, half: dict) -> str:
-    """What ``--verify-dt`` refined: "dt = 0.01 s vs 0.005 s", or "rtol = 1e-06 vs 1e-07" (error-controlled)."""
+    """What ``--verify-dt`` refined: "dt = 0.01 s vs 0.005 s", or (error-controlled) "rtol = 1e-06 vs 1e-07,
+    atol = 1e-08 vs 1e-09, longest step 0.01 s vs 0.005 s"."""
     a, b = full.get("integrator") or {}, half.get("integrator") or {}
     if "rtol" in a and "rtol" in b:
-        return f"rtol = {a['rtol']:g} vs {b['rtol']:g}, atol = {a['atol']:g} vs {b['atol']:g}"
+        return (
+            f"rtol = {a['rtol']:g} vs {b['rtol']:g}, atol = {a['atol']:g} vs {b['atol']:g}, "
+            f"longest step {a['max_step']:g} s vs {b['max_step']:g} s"
+        )
     return f"dt = {full.get('dt'):g} s vs {half.get('dt'):g} s"
 
 
@@ -327,14 +345,17 @@ def integrator_words(metrics: dict) -> str:
 
 
 def dt_sensitivity(full: dict, half: dict, rtol: float = 0.01, atol: float = 1e-6) -> dict:
-    """Change of the headline metrics from dt to dt/2 (an error-controlled run: from rtol to rtol/10).
+    """Change of the headline metrics from dt to dt/2 (an error-controlled run: also from rtol, atol to a tenth).
 
     Converged when both runs end with the same status and every headline metric
     changes by at most ``atol + rtol * max(|a|, |b|)`` (a metric null in exactly one
     run is a change).  A fixed-step method's error at dt is about the change
     from dt to dt/2 times 2^p / (2^p - 1) (p = 4 for RK4), so the change bounds it.
+    Empty (and not converged) when the refined run is bit-identical to the run on
+    every headline metric and the status: it tested nothing.
     """
     rows, ok, worst, worst_rel = {}, full.get("status") == half.get("status"), "status", 0.0
+    empty = ok and all(full.get(k) == half.get(k) for k in HEADLINE_METRICS)
     refined = _refinement(full, half)
     for k in HEADLINE_METRICS:
         a, b = full.get(k), half.get(k)
@@ -356,11 +377,13 @@ def dt_sensitivity(full: dict, half: dict, rtol: float = 0.01, atol: float = 1e-
         "dt": full.get("dt"),
         "dt_half": half.get("dt"),
         "refined": refined,
+        "refined_run": _refined_run(half),
         "status": f"{full.get('status')} / {half.get('status')}",
         "metrics": rows,
         "rtol": rtol,
         "atol": atol,
-        "converged": ok,
+        "converged": ok and not empty,
+        "empty": empty,
         "worst": worst,
         "worst_rel_change": worst_rel if math.isfinite(worst_rel) else None,
     }

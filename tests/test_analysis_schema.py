@@ -99,6 +99,29 @@ def test_analysis_keys_on_every_shipped_case(path):
         assert "observability" in res["observer"]
     assert "_curves" not in res
     assert all("_bode" not in (p["margins"] or {}) for ph in res["phases"].values() for p in ph)
+    # motor faults in words only on a motor case (README: the phase keys)
+    assert all(("motor_faults" in p) == (case.actuators is not None) for ph in res["phases"].values() for p in ph)
+
+
+def _readme_row(key: str) -> str:
+    return next(ln for ln in (ROOT / "README.md").read_text().splitlines() if ln.startswith(f"| `{key}`"))
+
+
+def test_readme_documents_the_keys_of_a_stopped_or_erred_confirmation_run():
+    """A confirmation run that stopped early carries t_end and reason (analysis.confirm.classify), an erred
+    one reason: the README's key table names them; motor_faults is said to be on motor cases only."""
+    from types import SimpleNamespace
+
+    from ftcreport.analysis.confirm import classify
+
+    stopped = SimpleNamespace(status="diverged", t_end=1.25, reason="non-finite state at t = 1.25 s")
+    run = classify(stopped, stopped, 0.005)
+    assert {"t_end", "reason"} <= set(run)
+    row = _readme_row("confirmation")
+    runs = row[row.index('"runs"') : row.index('"agrees"')]
+    for k in [*run, "reason"]:  # an erred run: {"outcome": "error", "reason"}
+        assert f'"{k}"' in row, (k, runs)
+    assert "only on motor cases" in _readme_row("pattern_true")
 
 
 def test_cli_json_with_confirmation_on_a_motor_case():

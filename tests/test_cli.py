@@ -308,6 +308,15 @@ def test_help_keeps_units_and_table_names():
                 assert " ".join(bracket.split()) in shown, (path, bracket)
 
 
+def test_help_shows_no_doubled_percent():
+    """Click does not %-format help texts: '1 %%' was printed as written (run --verify-dt)."""
+    for path, cmd in _commands():
+        shown = runner.invoke(app, [*path, "--help"]).output
+        assert "%%" not in shown, (path, [ln for ln in shown.splitlines() if "%%" in ln])
+        for text in [cmd.help or "", *(getattr(p, "help", None) or "" for p in cmd.params)]:
+            assert "%%" not in text, (path, text)
+
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -268,6 +268,56 @@ def test_switching_models_of_a_long_chain_are_refused():
     assert budget_problem(5, 80.0, 0.02, 5, "switching") is None  # five_link_cascade
 
 
+def test_twelve_robots_with_switching_are_refused_for_the_bank_not_the_log(tmp_path):
+    """n = 12: the switching bank's 12582910 patterns alone need about 5.5 GiB; the advice was to raise
+    log_every and shorten the duration, which cannot help.  It names the bank and what helps."""
+    text = (CASES / "three_link_circle_faults.toml").read_text()
+    text = text.replace("n = 3", "n = 12", 1).replace("radius = 5.0", "radius = 30.0", 1)
+    data = tomllib.loads(text)
+    data["schemes"] = {"run": ["nominal", "switching"], **{k: data["schemes"][k] for k in ("nominal", "switching")}}
+    data.pop("thresholds", None)
+    data.pop("claims", None)
+    p = tmp_path / "twelve.toml"
+    p.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["cases", "validate", str(p)])
+    line = _one_error_line(res, 2, "twelve.toml", "robots.n", "switching", "12582910", "bank", "MiB")
+    for words in ("[schemes] run", "fewer robots", "patterns"):
+        assert words in line, (words, line)
+    assert "simulation.log_every" not in line and "simulation.duration" not in line, line
+    # the adaptive bank's weights are logged at every sample: even two samples are over the budget
+    field, why = budget_problem(12, 40.0, 0.01, 10, "adaptive")
+    assert field == "robots.n" and "log_every" not in why and "[schemes] run" in why, why
+
+
+def test_twelve_robots_with_switching_by_default_are_refused_too(tmp_path):
+    """A 12-robot case that names no switching table and no [schemes] run gets switching's default table
+    after validation (every FTC family runs): that table was never checked against the memory budget, so
+    the case validated and its run would have built the 5.5 GiB bank."""
+    text = (CASES / "three_link_circle_faults.toml").read_text()
+    text = text.replace("n = 3", "n = 12", 1).replace("radius = 5.0", "radius = 30.0", 1)
+    data = tomllib.loads(text)
+    data["schemes"] = {"nominal": data["schemes"]["nominal"]}
+    data.pop("thresholds", None)
+    data.pop("claims", None)
+    p = tmp_path / "twelve.toml"
+    p.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["cases", "validate", str(p)])
+    line = _one_error_line(res, 2, "twelve.toml", "robots.n", "switching", "12582910", "bank", "by default")
+    assert "[schemes] run" in line, line
+    data["schemes"]["run"] = ["nominal", "oracle"]  # what the advice says: the case loads
+    p.write_text(tomli_w.dumps(data))
+    assert runner.invoke(app, ["cases", "validate", str(p)]).exit_code == 0
+
+
+def test_memory_advice_names_the_log_every_that_fits():
+    """When the time series dominate, the advice is the log_every that brings the run within the budget."""
+    field, why = budget_problem(2, 9000.0, 0.001, 1)
+    assert field == "simulation.log_every" and "logged" in why, why
+    k = int(why.split("simulation.log_every to at least ")[1].split()[0].rstrip(","))
+    assert budget_problem(2, 9000.0, 0.001, k) is None
+    assert budget_problem(2, 9000.0, 0.001, k - 1) is not None
+
+
 def test_duration_override_is_checked_against_the_limits(tmp_path):
     p = _case(tmp_path)
     res = runner.invoke(app, ["run", str(p), "--duration", "1e9", "--out", str(tmp_path / "o")])
@@ -413,7 +463,7 @@ def test_verify_dt_flags_a_step_that_is_not_converged(tmp_path):
 
 
 def test_verify_dt_of_an_auto_run_is_a_tolerance_check(tmp_path):
-    """An error-controlled run (method = "auto") is checked at a tenth of its tolerances, at the same dt."""
+    """An error-controlled run (method = "auto") is checked at a tenth of its tolerances and half its longest step."""
     src = (CASES / "two_link_uncompensable.toml").read_text().replace("\ndt = 0.01\n", '\ndt = 0.01\nmethod = "auto"\n')
     case = tmp_path / "c.toml"
     case.write_text(src)
@@ -421,11 +471,71 @@ def test_verify_dt_of_an_auto_run_is_a_tolerance_check(tmp_path):
     args = ["run", str(case), "--scheme", "oracle", "--duration", "3", "--out", str(out), "--verify-dt", "--no-report"]
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
-    assert "rtol = 1e-06 vs 1e-07, atol = 1e-08 vs 1e-09: converged" in res.stdout
+    assert "rtol = 1e-06 vs 1e-07, atol = 1e-08 vs 1e-09, longest step 0.01 s vs 0.005 s: converged" in res.stdout
     m = json.loads((out / "c" / "oracle" / "metrics.json").read_text())
     v = m["verify_dt"]
-    assert v["dt"] == v["dt_half"] == 0.01 and v["converged"]
+    assert v["dt"] == 0.01 and v["dt_half"] == 0.005 and v["converged"] and not v["empty"]
     assert m["integrator"]["rtol"] == 1e-6 and m["integrator"]["requested"] == "auto"
+
+
+def _sampled_auto_case(tmp_path: Path) -> Path:
+    """two_link_campaign under sampled control (20 ms) with method = "auto" at a 10 ms longest step, wheel 2l
+    lost at 3 s: every auto step lands on a sample, so rtol and atol alone do not change the steps."""
+    data = tomllib.loads((CASES / "two_link_campaign.toml").read_text())
+    data.pop("campaign")
+    data["schemes"] = {"run": ["nominal", "oracle"], "nominal": {"k_v": 5.0}, "oracle": {"k_v": 5.0}}
+    data["simulation"] = {"dt": 0.01, "duration": 6.0, "sample_time": 0.02, "method": "auto"}
+    data["faults"] = [{"time": 3.0, "wheel": "2l"}]
+    p = tmp_path / "sampled_auto.toml"
+    p.write_text(tomli_w.dumps(data))
+    return p
+
+
+def test_verify_dt_of_a_sampled_auto_run_halves_the_longest_step(tmp_path):
+    """A sampled loop's auto steps are capped by the samples: at a tenth of rtol and atol alone the refined
+    run was bit-identical and the check said "converged" at 0.00 % on every metric.  The refined run also
+    halves the longest step, and verify_dt records what it was."""
+    case = _sampled_auto_case(tmp_path)
+    out = tmp_path / "o"
+    args = ["run", str(case), "--scheme", "nominal", "--out", str(out), "--verify-dt", "--no-report"]
+    res = runner.invoke(app, args)
+    assert "Traceback" not in res.output, res.output
+    assert "longest step 0.01 s vs 0.005 s" in res.stdout, res.stdout
+    v = json.loads((out / "sampled_auto" / "nominal" / "metrics.json").read_text())["verify_dt"]
+    assert v["dt"] == 0.01 and v["dt_half"] == 0.005
+    assert v["refined_run"] == {"method": "auto", "rtol": 1e-7, "atol": 1e-9, "max_step": 0.005}
+    assert not v["empty"]
+    assert any(r["abs_change"] for r in v["metrics"].values()), v["metrics"]
+
+
+def test_verify_dt_says_a_bit_identical_refined_run_is_an_empty_check(tmp_path, monkeypatch):
+    """A refined run identical to the run on every metric tested nothing: the output says the check was
+    empty (exit 1), never "converged"."""
+    import ftcreport.runner
+
+    monkeypatch.setattr(ftcreport.runner, "halve_dt", lambda c, source="": c)
+    case = _sampled_auto_case(tmp_path)
+    out = tmp_path / "o"
+    args = ["run", str(case), "--scheme", "nominal", "--duration", "1", "--out", str(out), "--verify-dt"]
+    res = runner.invoke(app, [*args, "--no-report"])
+    _one_error_line(res, 1, str(case), "simulation.dt", "nominal", "empty", "bit-identical")
+    assert "converged" not in res.stdout, res.stdout
+    assert "EMPTY" in res.stdout, res.stdout
+    v = json.loads((out / "sampled_auto" / "nominal" / "metrics.json").read_text())["verify_dt"]
+    assert v["empty"] and not v["converged"]
+
+
+def test_verify_dt_refuses_an_auto_longest_step_halved_to_its_min_step(tmp_path):
+    """Halving an error-controlled run's longest step must keep it above min_step (as validation does for dt)."""
+    from ftcreport.cases import load_case
+    from ftcreport.errors import CaseError
+    from ftcreport.runner import halve_dt
+
+    case = load_case(
+        _case(tmp_path, simulation={"dt": 0.01, "duration": 1.0, "method": "auto", "min_step": 0.006}, faults=[])
+    )
+    with pytest.raises(CaseError, match=r"--verify-dt: at dt/2, simulation.min_step: 0.006 s is not below"):
+        halve_dt(case, "c.toml")
 
 
 def test_dt_sensitivity_rules():
@@ -438,6 +548,10 @@ def test_dt_sensitivity_rules():
     assert v["worst_rel_change"] == pytest.approx(0.2 / 10.2)
     assert not dt_sensitivity(a, a | {"status": "diverged"})["converged"]
     assert not dt_sensitivity(a, a | {"torque_peak": None})["converged"]
+    # the same run twice: an empty check, never "converged"
+    v = dt_sensitivity(a, dict(a))
+    assert v["empty"] and not v["converged"]
+    assert not dt_sensitivity(a, a | {"dt": 0.005, "torque_peak": 10.09})["empty"]
 
 
 def test_partial_files_are_cleaned_except_in_nested_output_directories(tmp_path):

@@ -486,10 +486,11 @@ def _check_name(v: str | None) -> str | None:
     return v
 
 
-def _check_budget(case: Case) -> None:
-    """Refuse, before it starts, a run over the step limit or memory budget (ftcreport.infra.limits)."""
+def _check_budget(case: Case, schemes: list[str] | None = None) -> None:
+    """Refuse, before it starts, a run over the step limit or memory budget (ftcreport.infra.limits): of each of
+    ``schemes`` (default: every scheme the case configures)."""
     s = case.simulation
-    for scheme in configured_schemes(case):
+    for scheme in configured_schemes(case) if schemes is None else schemes:
         cfg = getattr(case.schemes, scheme)
         pats = getattr(cfg, "patterns", "all")
         models = None if pats == "all" else len(pats)

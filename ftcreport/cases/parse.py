@@ -70,8 +70,18 @@ def parse_case(data: dict, source: str = "<case>") -> Case:
             raise CaseError(f'{source}: name: taken from the file name: {why}; set name = "..." in the file')
         case = case.model_copy(update={"name": stem})
     from ..evaluation.families import fill_defaults  # every FTC family unless schemes.run narrows the list (issue 21)
+    from .case import _check_budget
+    from .scheme_tables import configured_schemes
 
-    return fill_defaults(case)
+    filled = fill_defaults(case)
+    for s in configured_schemes(filled):  # a default table was not validated with the case: its run's memory
+        if s not in configured_schemes(case):
+            try:
+                _check_budget(filled, [s])
+            except _FieldError as exc:
+                why = f"{s} runs by default, with a default table ([schemes] run does not leave it out)"
+                _refuse(source, [(exc.loc, f"{exc.msg}; {why}")])
+    return filled
 
 
 #: Fields of prose that may span lines (a TOML multi-line string): tabs and line ends are allowed there.

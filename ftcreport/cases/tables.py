@@ -318,13 +318,24 @@ class Simulation(_Strict):
     # tracking metrics the cases quote), and atol for the states that pass through zero (velocities,
     # filter states, weights): 1e-8 in their units; benchmarks/accuracy.py measures what they give.
     rtol: _num(1e-12, 0.1) = _f(
-        1e-6, "error-controlled methods: relative tolerance of every state's local error per step", "1"
+        1e-6,
+        "error-controlled methods: relative tolerance of every state's local error per step (fixed-step methods: "
+        "of the error-controlled re-check of a stop that persists at dt/4, see step_unstable)",
+        "1",
     )
     atol: _num(1e-15, 1.0) = _f(
-        1e-8, "error-controlled methods: absolute tolerance of every state's local error per step", "state's unit"
+        1e-8,
+        "error-controlled methods: absolute tolerance of every state's local error per step (fixed-step methods: "
+        "of the error-controlled re-check of a stop that persists at dt/4, see step_unstable)",
+        "state's unit",
     )
     min_step: _num(None, 1.0, gt=0) = _f(
-        1e-8, "error-controlled methods: the run stops (status and reason) when the step falls below this", "s"
+        1e-8,
+        "error-controlled methods (and a fixed step's error-controlled re-check of a stop): the shortest step; a "
+        "step at min_step whose error is still over the tolerance is taken anyway and counted "
+        "(integrator.forced_steps in metrics.json; 'run' says how many), and 100 such steps in a row, or a trial "
+        "stage leaving the domain at min_step, stop the run (status and reason)",
+        "s",
     )
     log_every: Int = _f(1, "log one step in log_every", "1", ge=1, le=1_000_000)
     singularity_margin_deg: _num(0.0, lt=90) = _f(

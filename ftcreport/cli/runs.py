@@ -139,9 +139,9 @@ def run(
         bool,
         typer.Option(
             "--verify-dt",
-            help="Run each scheme again at dt/2 (an error-controlled method: at rtol/10 and atol/10) and print the "
-            "change of the headline metrics (stored as verify_dt in metrics.json); exit 1 if a change exceeds "
-            "1 %% (+1e-6 absolute).",
+            help="Run each scheme again at dt/2 (an error-controlled method: also at rtol/10 and atol/10) and print "
+            "the change of the headline metrics (stored as verify_dt in metrics.json); exit 1 if a change exceeds "
+            "1 % (+1e-6 absolute), or if the refined run is bit-identical (the check is empty).",
         ),
     ] = False,
     no_report: Annotated[
@@ -153,7 +153,7 @@ def run(
     Prints a comparison table and the case's thresholds and thesis claims (as 'check' judges them).
     Exit 0 when every run ends as the case expects and every threshold and claim holds, 1 when a run
     stopped early (singular, diverged, error) unless the case expects it, a threshold or claim does not
-    hold, or --verify-dt finds the step not converged; 2 for a bad case file.
+    hold, or --verify-dt finds the step not converged (or its check empty); 2 for a bad case file.
 
     Example: ftcreport run cases/two_link_switching.toml --scheme switching --duration 30
     """
@@ -226,6 +226,9 @@ def run(
         typer.echo(_table(rows))
         if half is not None:
             typer.echo(_dt_table(rows))
+        for m in rows:
+            if (forced := _forced_steps(m)) is not None:
+                typer.echo(printable(f"warning: {case}: simulation.min_step: {m['scheme']}: {forced}"), err=True)
         for item in gate:
             typer.echo(printable(item.line()))
         if duration is not None and (c.thresholds or c.claims or c.requirements):
@@ -253,8 +256,17 @@ def run(
         v = m["verify_dt"]
         g = m.get("integrator") or {}
         field, at, how = ("simulation.dt", f"dt = {v['dt']:g} s", "at dt/2")
-        if "rtol" in g:  # an error-controlled run: checked at a tenth of its tolerances
-            field, at, how = ("simulation.rtol", f"rtol = {g['rtol']:g}", "at rtol/10")
+        if "rtol" in g:  # an error-controlled run: checked at a tenth of its tolerances and half its longest step
+            field = "simulation.rtol"
+            at = f"rtol = {g['rtol']:g}, atol = {g['atol']:g}, longest step dt = {v['dt']:g} s"
+            how = "at rtol/10, atol/10 and dt/2"
+        if v.get("empty"):
+            typer.echo(
+                f"ftcreport: error: {case}: simulation.dt: {m['scheme']}: the step check is empty: the refined run "
+                f"({v['refined']}) is bit-identical to the run on every headline metric, so it tested nothing",
+                err=True,
+            )
+            continue
         typer.echo(
             f"ftcreport: error: {case}: {field}: {m['scheme']}: not converged at {at} "
             f"({v['worst']} changes by {v['worst_rel_change']:.3g} relative {how})",
@@ -276,12 +288,27 @@ def _run_gate(out: Path, name: str, schemes: list[str]):
     return [item for item in items if set(item.schemes) <= set(schemes)]
 
 
+def _forced_steps(m: dict) -> str | None:
+    """The steps an error-controlled run took at min_step with its local error over the tolerance, in words
+    (the run went on: docs/ENGINE.md), or None when it took none."""
+    g = m.get("integrator") or {}
+    if not g.get("forced_steps"):
+        return None
+    return (
+        f"{g['forced_steps']} step(s) were taken at min_step = {g['min_step']:g} s with the local error over the "
+        f"tolerance (rtol = {g['rtol']:g}, atol = {g['atol']:g}), the first at t = {g['first_forced_at']:.6g} s: "
+        "the accuracy asked for was not met there"
+    )
+
+
 def _dt_table(rows: list[dict]) -> str:
     """The change of each headline metric from dt to dt/2, per scheme (run --verify-dt)."""
     lines = [f"{'dt check':<10} {'metric':<22} {'as run':>11} {'refined':>11} {'change':>10} {'relative':>9}"]
     for m in rows:
         v = m["verify_dt"]
         verdict = "converged" if v["converged"] else "NOT converged"
+        if v.get("empty"):
+            verdict = "EMPTY check: the refined run is bit-identical (nothing tested)"
         lines.append(f"{m['scheme']:<10} {v.get('refined')}: {verdict} (status {v['status']})")
         for k, r in v["metrics"].items():
             lines.append(

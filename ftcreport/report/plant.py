@@ -203,7 +203,7 @@ def _idealizations(case: Case) -> list[dict]:
             if sim.method not in AUTO_METHODS
             else f"{sim.method}, error-controlled at rtol = {sim.rtol:g}, atol = {sim.atol:g}, longest step "
             f"{sim.dt:g} s (the method each run took: Provenance): every number carries a local error within "
-            "that tolerance per step ('ftcreport run --verify-dt' re-runs at rtol/10)",
+            "that tolerance per step ('ftcreport run --verify-dt' re-runs at rtol/10, atol/10 and dt/2)",
             "leaves_out": "-",
         }
     )

@@ -25,11 +25,15 @@ def run_memory_bytes(
     """
     steps = math.ceil(duration / dt)
     samples = steps // max(int(log_every), 1) + 2
-    wheels = 2 * n
-    width = 3 * (n + 2) + 8 + 8 * wheels + 16
     N = n_models(n) if models is None else models
     extra, bank = _bank(n, scheme, N)
-    return steps * _BYTES_PER_STEP + samples * (width + extra) * 8 + bank, steps, samples
+    return steps * _BYTES_PER_STEP + samples * (_width(n) + extra) * 8 + bank, steps, samples
+
+
+def _width(n: int) -> int:
+    """Values every run logs per sample (:func:`run_memory_bytes`), the scheme's own left out."""
+    wheels = 2 * n
+    return 3 * (n + 2) + 8 + 8 * wheels + 16
 
 
 def _bank(n: int, scheme: str, N: int) -> tuple[int, int]:
@@ -60,15 +64,64 @@ def budget_problem(
         )
     need, steps, samples = run_memory_bytes(n, duration, dt, log_every, scheme, models)
     if need > MEMORY_BUDGET_BYTES:
-        N = n_models(n) if models is None else models
-        banked = _budget_hook(scheme) is not None
-        why = f" with {N} models (3 * 4^(n-1) - 2 = {n_models(n)} for n = {n})" if banked else ""
-        field = "robots.n" if banked and 4 * _bank(n, scheme, N)[1] > MEMORY_BUDGET_BYTES else "simulation.log_every"
-        return (
-            field,
-            f"the {scheme + ' ' if scheme else ''}run needs about {need / 2**20:.0f} MiB ({samples} logged samples "
-            f"of {steps} steps{why}), "
-            f"over the memory budget of {MEMORY_BUDGET_BYTES / 2**20:.0f} MiB; raise simulation.log_every, "
-            "shorten simulation.duration or list fewer patterns",
-        )
+        return _memory_problem(n, duration, dt, scheme, models, need, steps, samples)
     return None
+
+
+def _memory_problem(
+    n: int, duration: float, dt: float, scheme: str, models: int | None, need: int, steps: int, samples: int
+) -> tuple[str, str]:
+    """(field, reason) of a run over the memory budget: the part of the estimate that dominates (the time
+    grid, the logged time series, or the scheme's model bank) and what brings it within the budget."""
+    N = n_models(n) if models is None else models
+    banked = _budget_hook(scheme) is not None
+    extra, bank = _bank(n, scheme, N)
+    per_sample = (_width(n) + extra) * 8
+    grid = steps * _BYTES_PER_STEP
+    series = samples * per_sample
+    why = f" with {N} models (3 * 4^(n-1) - 2 = {n_models(n)} for n = {n})" if banked else ""
+    head = (
+        f"the {scheme + ' ' if scheme else ''}run needs about {_mib(need)} MiB ({samples} logged samples of {steps} "
+        f"steps{why}), over the memory budget of {_mib(MEMORY_BUDGET_BYTES)} MiB"
+    )
+    fewer = (
+        f"list fewer patterns in [schemes.{scheme}] patterns, leave {scheme} out of [schemes] run (list the schemes "
+        f"to run there, without {scheme}, and drop [schemes.{scheme}]), or use fewer robots"
+    )
+    if banked and bank >= max(grid, series):
+        return (
+            "robots.n",
+            f"{head}: the {scheme} scheme's model bank (its table of {N} patterns and the tables built from it) alone "
+            f"needs about {_mib(bank)} MiB, whatever the duration and logging; {fewer}",
+        )
+    room = MEMORY_BUDGET_BYTES - grid - bank  # what the log may take
+    if series >= grid and room >= 2 * per_sample:  # the log dominates and fewer samples fit
+        every = math.ceil(steps / max(room // per_sample - 2, 1))
+        while every > 1 and _fits(n, duration, dt, every - 1, scheme, models):  # the estimate's own rounding
+            every -= 1
+        while not _fits(n, duration, dt, every, scheme, models):
+            every += 1
+        return (
+            "simulation.log_every",
+            f"{head}: the logged time series take about {_mib(series)} MiB; raise simulation.log_every to at least "
+            f"{every}, or shorten simulation.duration",
+        )
+    if series >= grid:  # even two logged samples (the first and the last) are over: the width is the scheme's
+        return (
+            "robots.n",
+            f"{head}: each logged sample holds {per_sample // 8} values ({extra} of them the {scheme} scheme's, for "
+            f"its {N} models), so no logging interval brings it within the budget; {fewer}",
+        )
+    return (
+        "simulation.dt",
+        f"{head}: the time grid of {steps} steps takes about {_mib(grid)} MiB; raise simulation.dt or shorten "
+        "simulation.duration",
+    )
+
+
+def _fits(n: int, duration: float, dt: float, log_every: int, scheme: str, models: int | None) -> bool:
+    return run_memory_bytes(n, duration, dt, log_every, scheme, models)[0] <= MEMORY_BUDGET_BYTES
+
+
+def _mib(b: float) -> str:
+    return f"{b / 2**20:.0f}"

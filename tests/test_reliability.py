@@ -268,16 +268,24 @@ def test_switching_models_of_a_long_chain_are_refused():
     assert budget_problem(5, 80.0, 0.02, 5, "switching") is None  # five_link_cascade
 
 
-def test_twelve_robots_with_switching_are_refused_for_the_bank_not_the_log(tmp_path):
-    """n = 12: the switching bank's 12582910 patterns alone need about 5.5 GiB; the advice was to raise
-    log_every and shorten the duration, which cannot help.  It names the bank and what helps."""
+def _twelve_robots(tmp_path: Path, tables: list[str]) -> tuple[dict, Path]:
+    """three_link_circle_faults with 12 robots (a circle they fit on), only the scheme tables ``tables`` and no
+    thresholds or claims, written to tmp_path/twelve.toml: (its data, the file)."""
     text = (CASES / "three_link_circle_faults.toml").read_text()
-    text = text.replace("n = 3", "n = 12", 1).replace("radius = 5.0", "radius = 30.0", 1)
-    data = tomllib.loads(text)
-    data["schemes"] = {"run": ["nominal", "switching"], **{k: data["schemes"][k] for k in ("nominal", "switching")}}
+    data = tomllib.loads(text.replace("n = 3", "n = 12", 1).replace("radius = 5.0", "radius = 30.0", 1))
+    data["schemes"] = {k: data["schemes"][k] for k in tables}
     data.pop("thresholds", None)
     data.pop("claims", None)
     p = tmp_path / "twelve.toml"
+    p.write_text(tomli_w.dumps(data))
+    return data, p
+
+
+def test_twelve_robots_with_switching_are_refused_for_the_bank_not_the_log(tmp_path):
+    """n = 12: the switching bank's 12582910 patterns alone need about 5.5 GiB; the advice was to raise
+    log_every and shorten the duration, which cannot help.  It names the bank and what helps."""
+    data, p = _twelve_robots(tmp_path, ["nominal", "switching"])
+    data["schemes"]["run"] = ["nominal", "switching"]
     p.write_text(tomli_w.dumps(data))
     res = runner.invoke(app, ["cases", "validate", str(p)])
     line = _one_error_line(res, 2, "twelve.toml", "robots.n", "switching", "12582910", "bank", "MiB")
@@ -293,14 +301,7 @@ def test_twelve_robots_with_switching_by_default_are_refused_too(tmp_path):
     """A 12-robot case that names no switching table and no [schemes] run gets switching's default table
     after validation (every FTC family runs): that table was never checked against the memory budget, so
     the case validated and its run would have built the 5.5 GiB bank."""
-    text = (CASES / "three_link_circle_faults.toml").read_text()
-    text = text.replace("n = 3", "n = 12", 1).replace("radius = 5.0", "radius = 30.0", 1)
-    data = tomllib.loads(text)
-    data["schemes"] = {"nominal": data["schemes"]["nominal"]}
-    data.pop("thresholds", None)
-    data.pop("claims", None)
-    p = tmp_path / "twelve.toml"
-    p.write_text(tomli_w.dumps(data))
+    data, p = _twelve_robots(tmp_path, ["nominal"])
     res = runner.invoke(app, ["cases", "validate", str(p)])
     line = _one_error_line(res, 2, "twelve.toml", "robots.n", "switching", "12582910", "bank", "by default")
     assert "[schemes] run" in line, line

@@ -110,8 +110,9 @@ def largest_sample_time(rho: Callable[[float], float], guess: float, t_min: floa
     the discrete band MARGINAL_Z would count a pole at +0.14 1/s as marginal up to T = 7 us.
     """
     margin = lambda T: rho(T) - (1.0 + MARGINAL_Z)  # noqa: E731
-    rate = math.log(max(rho(t_min), 1e-300)) / t_min
-    if rate > MARGINAL_S * max(1.0, 2.0 / guess) or margin(t_min) >= 0.0:
+    r0 = rho(t_min)
+    rate = math.log(max(r0, 1e-300)) / t_min
+    if rate > MARGINAL_S * max(1.0, 2.0 / guess) or r0 - (1.0 + MARGINAL_Z) >= 0.0:
         return {
             "value": None,
             "note": f"the loop is unstable in continuous time (growth rate {rate:.4g} 1/s as T -> 0): no sample "

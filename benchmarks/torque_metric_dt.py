@@ -16,7 +16,7 @@ eta_g N (k_m i_a - b_m omega_m - J_m domega_m/dt)) at the start of each step, no
 
     nice python benchmarks/torque_metric_dt.py [--duration 3] [--scheme nominal] [--levels 6] [--auto]
 
-Measured before the fix (ba26aa7: torque_rms and energy the trapezoids over the steps' starts;
+Measured on main (ba26aa7, as today: torque_rms and energy the trapezoids over the steps' starts;
 ``--auto``, 3 s, % from dt/32; the three_link_switching_motors rows equal three_link_adaptive_motors'
 over the first 3 s, both the same three-link base before any fault, and are left out)::
 
@@ -72,8 +72,11 @@ over the first 3 s, both the same three-link base before any fault, and are left
       dt = 0.1562 ms       193.99 ( 0.00%)     302.88 ( 0.00%)     7430.5 ( 0.00%)   0.049123 ( 0.00%)
 
 ``finest@5ms`` gives back the 5 ms numbers: the trajectory at 5 ms is right (the position errors
-agree to 0.1 %), the torque metrics' quadrature is not.  After the fix (the steps' own integrals,
-fast.loop._torque_quad; % from dt/8, ``--levels 4``)::
+agree to 0.1 %), the torque metrics' quadrature is not.  A fix was built and measured (branch
+r3-torquemetric, not merged: each ETD2 step with motors integrates its own torques along ETD2RK's
+continuous extension, Simpson on 16 sub-intervals, and the metrics read those integrals; it costs 5x the
+motor loop's time, 0.155 -> 0.784 s for 20 s of two_link_active_motors, and leaves the error-controlled
+methods on the trapezoid); with it (% from dt/8, ``--levels 4``)::
 
     three_link_adaptive_motors  dt = 5 ms  3.1244 (0.00%)  13.963 (0.00%)  97.587 (0.01%)
                                 0.625 ms   3.1243          13.963          97.578

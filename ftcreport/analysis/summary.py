@@ -17,7 +17,7 @@ from ..evaluation.verdict_analysis import (
 )
 
 __all__ = ["MAX_SENTENCES", "analysis_sentences", "fmt_limit", "measure_text", "pattern_text", "text_summary"]
-__all__ += ["verdict_sentence"]
+__all__ += ["split_text", "verdict_sentence"]
 
 
 def pattern_text(p) -> str:
@@ -84,7 +84,7 @@ def text_summary(res: dict) -> list[str]:
             lines.append(
                 f"    {p['t_start']:g}-{p['t_end']:g} s: true {pattern_text(p['pattern_true'])}, applied "
                 f"{pattern_text(p.get('pattern_applied'))} ({p.get('applied_from', '-')}); {phase_measure(p)}, "
-                f"{p.get('stability')}{_split(p.get('frozen_disagree'))}{_worst_margin(p.get('margins'))}"
+                f"{p.get('stability')}{_in_parentheses(split_text(p.get('frozen_disagree')))}{_worst_margin(p.get('margins'))}"
             )
     for scheme, why in res.get("not_analyzed", {}).items():
         lines.append(f"  {scheme}: not analysed: {why}")
@@ -96,10 +96,15 @@ def text_summary(res: dict) -> list[str]:
     return lines
 
 
-def _split(split: dict | None) -> str:
-    """Where a phase's frozen instants disagree: which are stable and which are not."""
+def split_text(split: dict | None) -> str:
+    """Where a phase's frozen instants disagree ("frozen instants disagree: unstable at 10 s, stable at 3.333,
+    16.67 s"), or "" (the text summary and the page)."""
     if not split:
         return ""
     at = lambda ts: ", ".join(f"{t:.4g}" for t in ts)  # noqa: E731
     unstable, stable = at(split["unstable_at"]), at(split["stable_at"])
-    return f" (frozen instants disagree: unstable at {unstable} s, stable at {stable} s)"
+    return f"frozen instants disagree: unstable at {unstable} s, stable at {stable} s"
+
+
+def _in_parentheses(text: str) -> str:
+    return f" ({text})" if text else ""

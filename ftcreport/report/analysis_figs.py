@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from ..analysis.summary import measure_text
+from ..analysis.summary import measure_text, split_text
 from ..errors import FtcError
 from . import plots
 
@@ -143,7 +143,7 @@ def phase_rows(res: dict) -> list[dict]:
                     "measure_text": measure_text(measure, bool(p.get("discrete"))),
                     "discrete": p.get("discrete"),
                     "stability": p.get("stability"),
-                    "split": _split_text(p.get("frozen_disagree")),
+                    "split": split_text(p.get("frozen_disagree")),
                     "worst": worst,
                     "margin_note": m.get("note"),
                     "internal": _internal_text(p.get("internal_modes"), bool(p.get("discrete"))),
@@ -512,11 +512,3 @@ def _classic_figures(res: dict, series: dict, events: list[float], duration: flo
             f["caption"] += (" Of the ideal plant in continuous time (the case-wide analyses below), not this case's "
                              "loop with its sampling and motors: that one is analysed above.")  # fmt: skip
     return figs
-
-
-def _split_text(split: dict | None) -> str | None:
-    """'10 s; stable at 3.33, 16.7 s' for a phase whose frozen instants disagree, else None."""
-    if not split:
-        return None
-    at = lambda ts: ", ".join(f"{t:.3g}" for t in ts)  # noqa: E731
-    return f"{at(split['unstable_at'])} s; stable at {at(split['stable_at'])} s"

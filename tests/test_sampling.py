@@ -141,3 +141,46 @@ def test_measurement_delay_needs_sampled_control():
         r"measurement_delay: 2 samples needs sampled control",
         r"simulation\.measurement_delay.*needs sampled control",
     )
+
+
+LINE_ON_TRACK = """
+[robots]
+n = 2
+[reference]
+kind = "line"
+speed = 1.0
+[kinematic]
+kind = "two_link"
+k1 = 10.0
+k2 = 2.0
+k3 = 0.5
+[schemes]
+run = ["oracle"]
+k_v = 5.0
+[simulation]
+dt = 0.005
+sample_time = 0.02
+duration = 1.0
+[[requirements]]
+id = "tracks"
+signal = "position_error"
+max = 0.01
+"""
+
+
+def test_the_tracking_error_is_against_the_reference_now_not_the_one_held_since_the_sample():
+    """The round-3 case audit: with sample_time > dt the stream's q_d was the law's, held since the last
+    sample, so a chain exactly on its line read a sawtooth error v (t - t_sample) up to v (T_s - dt) =
+    15 mm, failed a 10 mm requirement, and `--verify-dt` on a dt = T_s case saw v dt / 2 appear."""
+    from ftcreport.runner import run_scheme
+
+    case = parse_case(tomllib.loads(LINE_ON_TRACK), "line_on_track")
+    run, metrics = run_scheme(case, "oracle")
+    assert run.status == "ok", run.reason
+    t, qd = run.t_stream, run.stream["q_d"]
+    # the reference at the step's own time, samples or not (speed 1 m/s along x from the origin)
+    np.testing.assert_allclose(qd[:, 0], t, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(run.signals["q_d"][:, 0], run.t, rtol=0, atol=1e-12)
+    # the chain starts on the line and stays on it: round-off, not 15 mm
+    assert metrics["position_error_max"] < 1e-9
+    assert [r["outcome"] for r in metrics["requirements"]] == ["holds"], metrics["requirements"]

@@ -529,6 +529,10 @@ def _finish(Run, spec, plant, settings, nq, stream, si, log_parts, status, reaso
     logs = _chunk_signals(spec, plant, nq, slice(None), _concat(log_parts)) if log_parts else {}
     t_log = logs.pop("t", np.zeros(0))
     t_stream = stream.pop("t", np.zeros(0))
+    if settings.sample_time is not None:
+        reference = spec.controller.kin.reference
+        _reference_now(reference, t_stream, stream, settings.sample_time)
+        _reference_now(reference, t_log, logs, settings.sample_time)
     return Run(
         t=t_log,
         signals=logs,
@@ -549,6 +553,26 @@ def _finish(Run, spec, plant, settings, nq, stream, si, log_parts, status, reaso
         t_stream=t_stream,
         stream=stream,
     )
+
+
+def _reference_now(reference, t: np.ndarray, signals: dict[str, np.ndarray], sample_time: float) -> None:
+    """``q_d`` and ``eta_d`` of the rows between samples set to the reference at the row's own time.
+
+    Sampled control logs the law's signals as held since the last sample, the reference among them;
+    the tracking errors (metrics, requirements, pages) compare the chain now with the reference now,
+    not with where the reference was at the last sample (a sawtooth of v (t - t_sample)).  Rows at a
+    sample instant already hold it, exactly: they are left alone.
+    """
+    if t.size == 0 or not any(k in signals for k in ("q_d", "eta_d")):
+        return
+    k = t / sample_time
+    between = np.abs(k - np.round(k)) > 1e-9 * np.maximum(1.0, np.abs(k))
+    for i in np.flatnonzero(between):
+        point = reference.at(float(t[i]))
+        if "q_d" in signals:
+            signals["q_d"][i] = point.q_d
+        if "eta_d" in signals:
+            signals["eta_d"][i] = point.eta_d
 
 
 def _chunk_signals(spec: Spec, plant, nq: int, rows, bufs, costs: bool = True) -> dict[str, np.ndarray]:

@@ -194,7 +194,7 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     if t.size < 2:
         return out
     phases = built.faults.phases(min(case.simulation.duration, run.t_end))
-    out |= tracking_metrics(t, S["q"], S["q_d"], phases, case.recovery_band)
+    out |= tracking_metrics(t, S["q"], S["q_d"], phases, case.recovery_band, built.faults.times)
     chain = built.plant.chain
     from .fast.engine import wheel_speeds_rows
 

@@ -96,3 +96,44 @@ def test_means_over_time_weigh_samples_by_their_time():
     # on equal steps the step rule is the mean of the samples
     u = np.arange(11) * 0.1
     np.testing.assert_allclose(time_mean(u, np.arange(11.0) ** 2, "step"), np.mean(np.arange(11.0) ** 2), rtol=1e-14)
+
+
+def test_a_fault_at_t0_makes_the_first_phase_a_fault_phase():
+    """The round-3 case audit: a fault at t = 0 was read as "no fault" (phases[1:] were the fault phases),
+    so a run that never settled passed `recovery_time_max <= 1` with 0 and the page said "With no fault
+    in the run"."""
+    from ftcreport.evaluation.compare import _extract
+    from ftcreport.evaluation.metrics import fault_phases, tracking_metrics
+
+    t = np.linspace(0.0, 2.0, 201)
+    q = np.zeros((t.size, 4))
+    q_d = np.zeros((t.size, 4))
+    q[:, 1] = 0.028  # never within the 0.01 m band
+    m = tracking_metrics(t, q, q_d, [(0.0, 2.0)], 0.01, fault_times=[0.0])
+    assert m["phases"][0]["fault"] is True
+    assert m["recovery_time_max"] is None  # never settles: a threshold on it fails
+    assert _extract("after_fault_error_max", m) == (pytest.approx(0.028), "")
+    # a fault at t = 0 and another at 1 s: both phases are fault phases
+    m2 = tracking_metrics(t, q, q_d, [(0.0, 1.0), (1.0, 2.0)], 0.01, fault_times=[0.0, 1.0])
+    assert [p["fault"] for p in m2["phases"]] == [True, True]
+    # no fault at t = 0: the first phase is the healthy one, as before
+    m3 = tracking_metrics(t, q, q_d, [(0.0, 1.0), (1.0, 2.0)], 0.01, fault_times=[1.0])
+    assert [p["fault"] for p in m3["phases"]] == [False, True]
+    assert len(fault_phases(m3["phases"])) == 1
+    # results stored before the key existed: the phases after the first, as they were read then
+    old = [{k: v for k, v in p.items() if k != "fault"} for p in m3["phases"]]
+    assert fault_phases(old) == old[1:]
+
+
+def test_a_threshold_on_a_null_metric_fails_with_the_runs_reason():
+    """A null recovery_time_max (a fault phase never recovers) fails its bound with why it is null, not
+    "metric absent", which read as a typo in the threshold's name."""
+    from ftcreport.studies.check import evaluate
+
+    why = "some phase that starts with a fault never recovers (see phases[*].recovery_time)"
+    m = {"status": "ok", "recovery_time_max": None, "null_reasons": {"recovery_time_max": why}}
+    (r,) = evaluate("c", {"nominal": {"recovery_time_max": {"max": 1.0}}}, {"nominal": m})
+    assert not r.ok
+    assert r.reason == f"null: {why}"
+    (r,) = evaluate("c", {"nominal": {"recovery_tme_max": {"max": 1.0}}}, {"nominal": m})
+    assert not r.ok and r.reason == "metric absent"

@@ -323,6 +323,8 @@ def _fmt(x, spec: str = ".3g") -> str:
 
 
 def _table(rows: list[dict]) -> str:
+    from ..evaluation.metrics import fault_phases
+
     w = max([10, *(len(m["scheme"]) for m in rows)])  # a plug-in scheme's name may be longer
     head = (
         f"{'scheme':<{w}} {'status':<9} {'max err after faults':>20} {'final err':>10} {'switches':>8} "
@@ -330,7 +332,7 @@ def _table(rows: list[dict]) -> str:
     )
     lines = [head, "-" * len(head)]
     for m in rows:
-        after = [p["position_error_max"] for p in m.get("phases", [])[1:] if p["position_error_max"] is not None]
+        after = [p["position_error_max"] for p in fault_phases(m.get("phases")) if p["position_error_max"] is not None]
         # compiling (or loading) the engine's loop excluded, as the case page's schemes table has it
         wall = max(0.0, m.get("wall_time", 0.0) - (m.get("compile_time") or 0.0))
         wall /= max(m.get("t_end") or m["duration"], 1e-9)

@@ -39,6 +39,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from ..schemes import built_in
+from .metrics import fault_phases
 
 __all__ = [
     "ACTIVE",
@@ -151,16 +152,17 @@ def _extract(key: str, m: Mapping) -> tuple[float | None, str]:
         phases = m.get("phases")
         if not phases:
             return _num(m.get("position_error_max")), "" if "position_error_max" in m else "not computed"
-        if len(phases) == 1:
+        faulty = fault_phases(phases)
+        if not faulty:
             return _num(phases[0].get("position_error_max")), "no fault: whole run"
-        vals = [_num(p.get("position_error_max")) for p in phases[1:]]
+        vals = [_num(p.get("position_error_max")) for p in faulty]
         vals = [v for v in vals if v is not None]
         return (max(vals), "") if vals else (None, "no sample after the faults")
     if key == "torque_peak_after_fault":
         if key not in m:
             return None, "not computed (stored before this metric existed: re-run with --force)"
         v = _num(m[key])
-        if v is None and len(m.get("phases") or []) <= 1 and _num(m.get("torque_peak")) is not None:
+        if v is None and not fault_phases(m.get("phases") or []) and _num(m.get("torque_peak")) is not None:
             return _num(m["torque_peak"]), "no fault: whole run, start-up included"
         return (v, "") if v is not None else (None, "no sample after the first fault")
     if key == "recovery_time_max":
@@ -429,7 +431,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         if whole or not fault_times:
             when = "With no fault in the run" if whole else "After the faults"
         else:
-            when = f"After the faults at {_times([t for t in fault_times if t > 0] or fault_times)}"
+            when = f"After the faults at {_times(fault_times)}"
         w = _names(after.winners)
         tie = " (a tie)" if len(after.winners) > 1 else ""
         parts = [

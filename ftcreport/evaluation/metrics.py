@@ -6,12 +6,13 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
 * position error: distance between P_n and its reference, ``|(x, y) - (x_d, y_d)|`` [m];
 * heading error: ``max_i |wrap(theta_i - theta_id)|`` over every robot [rad];
 * phases: the intervals between fault events (the schedule's event times);
-  per phase ``start``, ``end``, ``position_error_max``, ``position_error_rms``,
+  per phase ``start``, ``end``, ``fault`` (the phase starts with a fault event: the first phase
+  too when a fault acts from t = 0), ``position_error_max``, ``position_error_rms``,
   ``position_error_final`` and ``recovery_time``: the time from the phase start
   until the position error enters the band and stays in it until the phase ends
   (``None`` if it never does);
 * ``recovery_time_max``: the largest recovery time over the phases that start
-  with a fault event (``None`` when one of them never recovers);
+  with a fault event (a fault at t = 0 included) (``None`` when one of them never recovers);
 * ``position_error_iae`` (whole run and per phase): integral of the position
   error over time [m s] (trapezoid over every integration step);
 * torques: ``torque_peak`` = max |tau| over wheels and time [N m] (start-up included),
@@ -48,7 +49,7 @@ each step (the applied model, saturation) by the steps they start.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,7 @@ __all__ = [
     "HEADLINE_METRICS",
     "METRICS",
     "Metric",
+    "fault_phases",
     "metrics_of",
     "phase_metrics",
     "recovery_time",
@@ -141,19 +143,31 @@ def _rms(t: np.ndarray, x: np.ndarray) -> float:
 _PHASE_METRICS = (*(f"position_error_{k}" for k in ("max", "rms", "final", "iae")), "recovery_time")
 
 
-def phase_metrics(t: np.ndarray, pos_err: np.ndarray, phases: Sequence[tuple[float, float]], band: float) -> list[dict]:
-    """Per-phase tracking metrics (see the module docstring)."""
+def phase_metrics(
+    t: np.ndarray,
+    pos_err: np.ndarray,
+    phases: Sequence[tuple[float, float]],
+    band: float,
+    fault_times: Sequence[float] | None = None,
+) -> list[dict]:
+    """Per-phase tracking metrics (see the module docstring).
+
+    ``fault``: the phase starts with a fault event, the first phase too when a fault acts from t = 0
+    (``fault_times`` None: every phase but the first, as the phases are cut at the events).
+    """
     out = []
-    for start, end in phases:
+    for i, (start, end) in enumerate(phases):
+        fault = i > 0 if fault_times is None else any(abs(float(ft) - start) <= 1e-12 for ft in fault_times)
         m = (t >= start) & (t < end) if end < t[-1] else (t >= start) & (t <= end)
         if not np.any(m):  # no logged sample in the phase: every metric unknown
-            out.append({"start": start, "end": end} | dict.fromkeys(_PHASE_METRICS))
+            out.append({"start": start, "end": end, "fault": fault} | dict.fromkeys(_PHASE_METRICS))
             continue
         e = pos_err[m]
         out.append(
             {
                 "start": float(start),
                 "end": float(end),
+                "fault": fault,
                 "position_error_max": float(e.max()),
                 "position_error_rms": _rms(t[m], e),
                 "position_error_final": float(e[-1]),
@@ -165,13 +179,18 @@ def phase_metrics(t: np.ndarray, pos_err: np.ndarray, phases: Sequence[tuple[flo
 
 
 def tracking_metrics(
-    t: np.ndarray, q: np.ndarray, q_d: np.ndarray, phases: Sequence[tuple[float, float]], band: float
+    t: np.ndarray,
+    q: np.ndarray,
+    q_d: np.ndarray,
+    phases: Sequence[tuple[float, float]],
+    band: float,
+    fault_times: Sequence[float] | None = None,
 ) -> dict:
-    """Whole-run and per-phase tracking metrics."""
+    """Whole-run and per-phase tracking metrics (``fault_times``: the schedule's event times)."""
     pos, head = tracking_errors(q, q_d)
     hmax = head.max(axis=1)
-    ph = phase_metrics(t, pos, phases, band)
-    rec = [p["recovery_time"] for p in ph[1:]]  # phases that start with a fault event
+    ph = phase_metrics(t, pos, phases, band, fault_times)
+    rec = [p["recovery_time"] for p in fault_phases(ph)]  # phases that start with a fault event
     return {
         "position_error_max": float(pos.max()),
         "position_error_rms": _rms(t, pos),
@@ -182,6 +201,17 @@ def tracking_metrics(
         "recovery_time_max": (None if any(r is None for r in rec) else float(max(rec))) if rec else 0.0,
         "phases": ph,
     }
+
+
+def fault_phases(phases: Sequence[Mapping]) -> list:
+    """The phases that start with a fault event (a fault at t = 0 makes the first one).
+
+    Results stored before phases carried ``fault``: every phase but the first, as they were read then.
+    """
+    phases = list(phases or [])
+    if phases and all("fault" in p for p in phases):
+        return [p for p in phases if p["fault"]]
+    return phases[1:]
 
 
 def torque_metrics(

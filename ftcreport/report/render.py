@@ -29,6 +29,7 @@ from ..cases import ordered_schemes, parse_case, with_duration
 from ..errors import FtcError, printable
 from ..evaluation import compare
 from ..evaluation.claims import bound_text
+from ..evaluation.metrics import fault_phases
 from ..evaluation.verdict_analysis import limit_words
 from ..model.faults import wheel_names
 from ..runner import integrator_words
@@ -222,7 +223,7 @@ def _motor_figure(case, series: dict, names: list[str], shading: list[dict], mai
 
 
 def _after_max(m: dict) -> float | None:
-    vals = [p["position_error_max"] for p in (m.get("phases") or [])[1:] if p.get("position_error_max") is not None]
+    vals = [p["position_error_max"] for p in fault_phases(m.get("phases")) if p.get("position_error_max") is not None]
     return max(vals) if vals else None
 
 

@@ -203,7 +203,10 @@ def evaluate(case_name: str, thresholds: dict, metrics_by_scheme: dict[str, dict
                 continue
             val = m.get(metric)
             if not isinstance(val, int | float) or isinstance(val, bool):
-                out.append(ThresholdResult(case_name, scheme, metric, lo, hi, None, False, "metric absent"))
+                why = "metric absent"
+                if metric in m and val is None:  # computed, and null for a reason the run stored
+                    why = f"null: {(m.get('null_reasons') or {}).get(metric, 'not defined for this run')}"
+                out.append(ThresholdResult(case_name, scheme, metric, lo, hi, None, False, why))
                 continue
             val = float(val)
             if lo is not None and val < lo:

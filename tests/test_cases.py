@@ -103,6 +103,14 @@ def _base() -> dict:
             "initial.headings_deg",
             "theta_2 - theta_3 = -88.5 deg starts within simulation.singularity_margin_deg = 2 deg of +/-90 deg",
         ),
+        # round-3 case audit: a field of another reference or kinematic kind was silently ignored
+        (lambda c: c["reference"].update(radius=2.0), "reference.radius", "not used by a 'sinusoid' reference"),
+        (
+            lambda c: c["reference"].update(kind="eight"),
+            "reference.speed",
+            "not used by an 'eight' reference (used by: circle, line, sinusoid)",
+        ),
+        (lambda c: c["kinematic"].update(k1=10.0), "kinematic.k1", "not used by a 'chained' kinematic law"),
         # ... a sampling period or a measurement delay longer than the run was accepted
         (
             lambda c: c["simulation"].update(duration=5.0, sample_time=6.0),

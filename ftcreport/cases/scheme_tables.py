@@ -10,7 +10,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError, create_model, field
 
 from ..errors import FtcError
 from ..schemes import built_in as _built_in_schemes
-from ..schemes.fields import Gain, Gain0, _f, _FieldError, _num, _Strict, did_you_mean
+from ..schemes.fields import Gain, Gain0, _f, _FieldError, _num, _Strict, did_you_mean, refuse_unused
 from .messages import _format_loc, _message, _rank
 
 if TYPE_CHECKING:
@@ -39,6 +39,12 @@ class Kinematic(_Strict):
     band_deg: _num(gt=0, lt=90) = _f(
         45.0, "chained: re-anchor the chained-form frame when the reference heading leaves +/- band", "deg"
     )
+
+    @model_validator(mode="after")
+    def _unused(self) -> Kinematic:
+        chained = ("c_chain", "c_alpha2", "c_xi1", "kappa", "mu", "band_deg")
+        refuse_unused(self, "kinematic", "kinematic law", {"two_link": ("k1", "k2", "k3"), "chained": chained})
+        return self
 
 
 class _SchemesBase(_Strict):

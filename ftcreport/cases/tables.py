@@ -30,6 +30,7 @@ from ..schemes.fields import (
     _FieldError,
     _num,
     _Strict,
+    refuse_unused,
 )
 
 
@@ -63,6 +64,16 @@ class Robots(_Strict):
 
 
 _MAX_RADIUS = 1e5  # [m] a circle's radius, and a unicycle's v_d / |omega_d|
+
+
+#: the fields each reference kind reads (Reference.path)
+_REFERENCE_FIELDS = {
+    "unicycle": ("v_d", "omega_d", "x0", "y0", "theta0_deg"),
+    "circle": ("radius", "speed", "center", "start_angle_deg", "ccw"),
+    "eight": ("theta0_deg", "scale"),
+    "line": ("speed", "heading_deg", "start"),
+    "sinusoid": ("speed", "amplitude", "frequency", "heading_deg", "start", "phase_deg"),
+}
 
 
 class Reference(_Strict):
@@ -102,6 +113,7 @@ class Reference(_Strict):
         missing = [k for k in need if getattr(self, k) is None]
         if missing:
             raise ValueError(f"a '{self.kind}' reference needs {', '.join(missing)}")
+        refuse_unused(self, "reference", "reference", _REFERENCE_FIELDS)
         if self.kind == "unicycle" and self.omega_d != 0 and self.v_d / abs(self.omega_d) > _MAX_RADIUS:
             raise _FieldError(
                 "reference.omega_d",

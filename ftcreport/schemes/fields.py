@@ -84,6 +84,26 @@ class FieldError(ValueError):
         self.msg = msg
 
 
+def refuse_unused(table: BaseModel, where: str, what: str, uses: dict[str, tuple[str, ...]]) -> None:
+    """FieldError for the first field that ``table``'s kind does not read and that is set to something else
+    than its default (``uses``: kind -> the fields it reads; ``kind`` itself is always read).
+
+    A field of another kind would otherwise be dropped without a word (an 'eight' reference with a speed:
+    the user's speed never reaches the path).  A default written back (a stored case) is not refused.
+    """
+    kind = table.kind
+    used = set(uses[kind]) | {"kind"}
+    for name, field in type(table).model_fields.items():
+        if name in used or getattr(table, name) == field.default:
+            continue
+        readers = [k for k, fields in uses.items() if name in fields]
+        article = "an" if kind[0] in "aeiou" else "a"
+        raise FieldError(
+            f"{where}.{name}",
+            f"not used by {article} '{kind}' {what} (used by: {', '.join(readers)}); remove it or change kind",
+        )
+
+
 def did_you_mean(key: str, candidates: list[str]) -> str:
     """`` (did you mean 'k_v'?)`` for the closest of ``candidates`` (difflib), or ''."""
     close = difflib.get_close_matches(key, candidates, n=1, cutoff=0.6)

@@ -16,6 +16,21 @@ engine that reorders floating-point operations (for example a move to one implem
 need these widened for the round-off-chaotic runs (two_link_active after its 35 s fault); that is
 to be justified where it happens, not here.
 
+Platforms. The same code on another machine (another CPU, hence other vector widths in the compiled
+loops and other BLAS kernels) reorders floating-point operations too.  Most windows still agree to
+1e-9; two grow the difference through their own dynamics, and are held to ``PLATFORM_ATOL``.  Measured
+on 2026-11-27 on an AMD EPYC (Zen 5) against the windows stored on the earlier machine, with the code
+that stored them (max |difference| in q, eta, and tau relative to its window's peak):
+
+* four_link_eight_step, every scheme: its healthy loop is frozen-unstable at 10 s (+11.57 1/s, the
+  analysis's "inconclusive" phase): 8.9e-10, 4.2e-9, 2.9e-8 (nominal, switching, oracle); Farza's
+  high-gain observer (active) 3.9e-8, 1.9e-6, 1.0e-6.  Held to 1e-5, five times the largest;
+* three_link_eight_faults, active (Farza's observer after its faults): 3.9e-9, 1.7e-7, 1.3e-8.  Held to
+  1e-6, six times the largest.
+
+A change of the method moves these windows by far more: the shipped RK4 step's own error is 3.1e-5 m on
+four_link_eight_step and 1.4e-4 m on three_link_eight_faults (README, the accuracy table).
+
 The UKF (active_ukf) windows were stored from the filterpy loop and are now run by the compiled
 UKF (issue 20): the same equations in another floating-point order (LAPACK's Cholesky and inverse
 against hand-written ones). One step differs by <= 3e-12 in x and 2e-14 in P
@@ -39,6 +54,11 @@ DATA = ROOT / "tests" / "data" / "golden"
 CASES = sorted((ROOT / "cases").glob("*.toml"))
 MAX_ROWS = 200
 UKF_ATOL = 1e-7  # the compiled UKF against windows from the filterpy loop (module docstring)
+#: windows whose own dynamics grow another platform's round-off (module docstring, "Platforms")
+PLATFORM_ATOL = {
+    ("four_link_eight_step", None): 1e-5,
+    ("three_link_eight_faults", "active"): 1e-6,
+}
 
 
 def _pairs() -> list[tuple[Path, str]]:
@@ -85,6 +105,7 @@ def test_golden_window(path, scheme, request):
     assert str(got["status"]) == str(ref["status"])
     np.testing.assert_array_equal(got["t"], ref["t"])
     atol = UKF_ATOL if scheme == "active_ukf" else 1e-9
+    atol = max(atol, PLATFORM_ATOL.get((path.stem, None), 0.0), PLATFORM_ATOL.get((path.stem, scheme), 0.0))
     np.testing.assert_allclose(got["q"], ref["q"], rtol=0, atol=atol)
     np.testing.assert_allclose(got["eta"], ref["eta"], rtol=0, atol=atol)
     scale = max(1.0, float(np.abs(ref["tau"]).max())) if ref["tau"].size else 1.0

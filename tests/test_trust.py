@@ -657,3 +657,26 @@ def test_readme_exit_code_table_names_run_and_check_gates():
     table = text[text.index("| exit |") :].split("\n\n")[0]
     for needle in ("| 0 |", "| 1 |", "| 2 |", "| 3 |", "threshold", "claim", "cached", "damaged"):
         assert needle in table, needle
+
+
+# ------------------------------------------------------------------ round 3: a code change is a cache miss
+def test_a_change_of_the_packages_code_is_a_cache_miss(tmp_path, monkeypatch):
+    """The round-3 gate attack: the result cache key held the case, the version, the engine and the
+    libraries, not ftcreport's own code, so a fix (or a bug) in a metric was served from the cache and
+    `check` gated the old numbers.  The key now holds a digest of the package's sources."""
+    from ftcreport.storage import code_digest
+    from ftcreport.studies.batch import run_key
+
+    case = tmp_path / "c.toml"
+    case.write_text(tomli_w.dumps(BASE))
+    from ftcreport.cases import load_case
+
+    c = load_case(case)
+    before = run_key(c, "nominal")
+    assert run_key(c, "nominal") == before  # the same code: the same key
+    monkeypatch.setattr(code_digest, "DIGEST", "another tree")
+    assert run_key(c, "nominal") != before
+    # the digest covers every module of the package, by content
+    files = code_digest.sources()
+    assert Path(__file__).resolve().parents[1] / "ftcreport" / "evaluation" / "metrics.py" in files
+    assert len(files) > 100

@@ -215,13 +215,16 @@ def plugin_info(case: Case) -> dict[str, dict]:
 
 
 def run_key(case: Case, scheme: str) -> str:
-    """Result cache key of one scheme of a case: case content, package version, scheme, engine and
-    the dependency versions that can change numbers (:func:`ftcreport.storage.manifest.numeric_versions`)."""
+    """Result cache key of one scheme of a case: case content, package version, the package's own code
+    (:mod:`ftcreport.storage.code_digest`), scheme, engine and the dependency versions that can change
+    numbers (:func:`ftcreport.storage.manifest.numeric_versions`)."""
     from ..runner import expected_engine
+    from ..storage import code_digest
     from ..storage.manifest import numeric_versions
 
     blob = {
         "case": case_hash(case, __version__),
+        "code": code_digest.code_digest(),
         "scheme": scheme,
         "engine": expected_engine(scheme),
         "versions": numeric_versions(),

@@ -91,7 +91,9 @@ methods on the trapezoid); with it (% from dt/8, ``--levels 4``)::
 
 each the old trapezoid's dt -> 0 limit (dt/32 above) to 0.02 %.
 
-A cheaper design, measured before it is built (``--fit``, 2026-11-27, 3 s, % from dt/32): each 5 ms
+Built since (evaluation.metrics.step_integrals, the stream's ``tau_mid``; tests/test_torque_metric.py): the
+``dt = ...`` rows of this benchmark now show it, the ``finest@5ms`` row still the trapezoid.  The design,
+measured before it was built (``--fit``, 2026-11-27, 3 s, % from dt/32): each 5 ms
 step's torque is a constant, a drift and the currents' transient, ``A + C s + B exp(-s / T)`` with
 T = L_a / R_a (the plot of the dt/32 stream: a rise within T after each sample, then a straight line).
 Fitted through the step's start, end and midpoint (the midpoint read from the dt/32 stream, as the

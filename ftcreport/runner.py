@@ -200,7 +200,14 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
 
     omega = wheel_speeds_rows(chain, S["q"], S["eta"])  # every step: compiled, one call
     first_fault = min(built.faults.times, default=None)
-    out |= torque_metrics(S["tau"], S["u"], case.plant.saturation, t, omega, first_fault)
+    # inside each step (evaluation.metrics.step_integrals): sampled control holds the command, and with
+    # motors the currents settle within L_a / R_a after each held voltage, read at the steps' midpoints
+    sampled, motors = case.simulation.sample_time is not None, case.actuators is not None
+    fast = case.actuators.L_a / case.actuators.R_a if motors else None
+    out |= torque_metrics(
+        S["tau"], S["u"], case.plant.saturation, t, omega, first_fault, S.get("tau_mid") if sampled else None, fast,
+        held=sampled and not motors,
+    )  # fmt: skip
     out["singularity_margin_min"] = singularity_margin(S["q"])
     hook = ctrl.scheme.metrics  # the scheme's own metrics (switching detection, adaptive weights, diagnosis)
     if hook is not None:

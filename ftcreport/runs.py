@@ -110,7 +110,7 @@ class Run:
 
 #: the signals the metrics read (ftcreport.runner, metrics, diagnosis): kept at every accepted step
 STREAM_SIGNALS = (
-    "q", "eta", "u", "tau", "sigma", "ubar", "q_d", "selected", "uf_hat",
+    "q", "eta", "u", "tau", "tau_mid", "sigma", "ubar", "q_d", "selected", "uf_hat",
     "q_hat", "eta_hat", "rho_hat", "ubar_hat", "P_max",
 )  # fmt: skip
 #: wide signals of which the stream keeps the per-step minimum and maximum only (the metrics read

@@ -20,7 +20,9 @@ bound (two_link_adaptive_eight's energy over 11 s: 1188.798, 1188.781, 1188.855 
 digit the reports show, and 100 atol for a metric near zero (the error-controlled run's own global error
 stays within some tens of its tolerance: tests/test_integrators.py).  A time (recovery) is read at the
 steps: one step dt more.  A scheme whose switching chatters (its metrics change with any step) is not a
-case's twin: the reason is named where another scheme is chosen.
+case's twin: the reason is named where another scheme is chosen.  A case whose every loop is in a limit
+cycle (LIMIT_CYCLE) has its fixed run's error estimated from the spread over dt, dt/2 and dt/4: the
+change from dt to dt/2 alone can be small by chance there.
 """
 
 from __future__ import annotations
@@ -57,6 +59,14 @@ TWINS = {
     "motors/two_link_adaptive_eight_motors": "nominal",
     "motors/two_link_switching_motors": "oracle",  # its switching's limit cycle no step resolves
 }
+#: loops in a limit cycle: their metrics do not converge monotonically in dt, so the change from dt to dt/2
+#: underestimates the fixed run's error; it is estimated from the spread over dt, dt/2 and dt/4 instead
+LIMIT_CYCLE = {
+    # chatters at its voltage limit (k4 T_s = 15); over the twin window the oracle's energy is 51,200,
+    # 51,099 and 51,664 J at dt, dt/2, dt/4 (the torques integrated through each step's transient,
+    # tests/test_torque_metric.py), auto 51,730 J: 0.2 % apart at dt, dt/2, 1.1 % at dt/4
+    "motors/two_link_switching_motors",
+}
 SHIPPED = sorted(p.relative_to(CASES).with_suffix("").as_posix() for p in CASES.glob("**/*.toml"))
 
 
@@ -78,6 +88,7 @@ def test_the_auto_twin_agrees_with_the_fixed_step(name):
     _, fixed = run_scheme(case, scheme)
     _, half = run_scheme(halve_dt(case), scheme)
     twin = case.model_copy(update={"simulation": sim.model_copy(update={"method": "auto"})})
+    quarter = run_scheme(halve_dt(halve_dt(case)), scheme)[1] if name in LIMIT_CYCLE else half
     run, auto = run_scheme(twin, scheme)
     assert auto["status"] == fixed["status"] == half["status"], run.reason
     assert auto["integrator"]["requested"] == "auto"
@@ -89,7 +100,9 @@ def test_the_auto_twin_agrees_with_the_fixed_step(name):
             if a is None and b is None and c is not None:
                 worse[k] = {"fixed": a, "dt/2": b, "auto": c}
             continue
-        tol = 3.0 * abs(a - b) + 1e-3 * abs(a) + 100.0 * sim.atol + (sim.dt if k == "recovery_time_max" else 0.0)
+        d = quarter.get(k)
+        spread = max(abs(a - b), abs(a - d), abs(b - d)) if d is not None else abs(a - b)
+        tol = 3.0 * spread + 1e-3 * abs(a) + 100.0 * sim.atol + (sim.dt if k == "recovery_time_max" else 0.0)
         if c is None or abs(c - a) > tol:
             worse[k] = {"fixed": a, "dt/2": b, "auto": c, "tolerance": tol}
     assert not worse, worse

@@ -137,3 +137,59 @@ def test_a_threshold_on_a_null_metric_fails_with_the_runs_reason():
     assert r.reason == f"null: {why}"
     (r,) = evaluate("c", {"nominal": {"recovery_tme_max": {"max": 1.0}}}, {"nominal": m})
     assert not r.ok and r.reason == "metric absent"
+
+
+def _inside_steps(t, y0, B, C, T, s):
+    """A + C s + B exp(-s/T) inside each step (A = y0 - B), at offsets s of the step starting at t."""
+    return (y0 - B) + C * s + B * np.exp(-s / T)
+
+
+@pytest.mark.parametrize("T", [0.44e-3, 20e-3])  # the currents' transient inside a 5 ms step; and slow
+def test_step_integrals_are_exact_on_the_fitted_shape(T):
+    """The motor cases' torque inside a held-voltage step is a constant, a drift and the currents'
+    transient (benchmarks/torque_metric_dt.py --fit); given its start, midpoint and end the integrals of
+    tau^2 and |tau omega| are exact (to the 16-point Gauss-Legendre quadrature's 1e-9 here; a step in
+    which the power changes sign has a kink the nodes do not resolve, to 1e-3 of that step's work), where
+    the trapezoid misses the transient by 10 % of each step's integral."""
+    from ftcreport.evaluation.metrics import step_integrals
+
+    rng = np.random.default_rng(1)
+    h, K, nw = 0.005, 12, 3
+    t = np.arange(K + 1) * h
+    sign = rng.choice([-1.0, 1.0], (K, nw))  # each step's power keeps its sign (a kink is not resolved)
+    y0 = sign * rng.uniform(2, 4, (K, nw))
+    B = rng.uniform(-1, 1, (K, nw))
+    C = rng.uniform(-50, 50, (K, nw))  # |C h| <= 0.25
+    om = rng.uniform(0.5, 3, (K + 1, nw))
+    tau = np.zeros((K + 1, nw))
+    tau[:-1] = y0
+    tau_mid = np.full((K + 1, nw), np.nan)
+    tau_mid[:-1] = _inside_steps(0, y0, B, C, T, h / 2)
+    end = _inside_steps(0, y0, B, C, T, h)
+    # each step's end is the next start: build the stream so, one step at a time (its own integrals)
+    sq_exact, pw_exact = np.zeros(nw), 0.0
+    fine = np.linspace(0.0, h, 200001)
+    for k in range(K):
+        x = _inside_steps(0, y0[k], B[k], C[k], T, fine[:, None])
+        w = om[k] + (om[k + 1] - om[k]) * fine[:, None] / h
+        sq_exact += np.trapezoid(x * x, fine, axis=0)
+        pw_exact += np.trapezoid(np.sum(np.abs(x * w), axis=1), fine)
+        one = np.stack([y0[k], end[k]])
+        sq, pw = step_integrals(t[k : k + 2], one, om[k : k + 2], np.stack([tau_mid[k], tau_mid[-1]]), T)
+        np.testing.assert_allclose(sq, np.trapezoid(x * x, fine, axis=0), rtol=1e-7)
+        assert pw == pytest.approx(np.trapezoid(np.sum(np.abs(x * w), axis=1), fine), rel=1e-7)
+    # without the midpoint: the trapezoid (what every method without an interpolant keeps)
+    sq_t, _ = step_integrals(t[:2], np.stack([y0[0], end[0]]), om[:2], None, T)
+    np.testing.assert_allclose(sq_t, 0.5 * h * (y0[0] ** 2 + end[0] ** 2))
+
+
+def test_a_held_torque_is_integrated_as_held():
+    """Sampled control without motors holds the command over each step: h tau_k^2, not the trapezoid."""
+    from ftcreport.evaluation.metrics import step_integrals
+
+    t = np.array([0.0, 0.01, 0.02, 0.03])
+    tau = np.array([[1.0], [3.0], [-2.0], [5.0]])
+    om = np.array([[1.0], [1.0], [-1.0], [-1.0]])
+    sq, pw = step_integrals(t, tau, om, held=True)
+    assert sq[0] == pytest.approx(0.01 * (1 + 9 + 4))
+    assert pw == pytest.approx(0.01 * (1 * 1 + 3 * 0.5 * (1 + 1) + 2 * 1))

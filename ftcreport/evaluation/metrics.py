@@ -65,6 +65,7 @@ __all__ = [
     "phase_metrics",
     "recovery_time",
     "singularity_margin",
+    "step_integrals",
     "switching_metrics",
     "time_mean",
     "time_weights",
@@ -214,6 +215,84 @@ def fault_phases(phases: Sequence[Mapping]) -> list:
     return phases[1:]
 
 
+#: Gauss-Legendre nodes and weights on [0, 1] (8 points): each step's two pieces in :func:`step_integrals`
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
+_GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W
+
+
+def step_integrals(
+    t: np.ndarray, tau: np.ndarray, omega: np.ndarray, tau_mid: np.ndarray | None = None, fast: float | None = None,
+    held: bool = False,
+) -> tuple[np.ndarray, float]:  # fmt: skip
+    r"""Per wheel ``int tau^2 dt`` (nw,) and ``int sum_j |tau_j omega_j| dt`` over the steps of a stream.
+
+    How each step [t_k, t_k+1] is integrated depends on what the torque does inside it:
+
+    * ``held`` (sampled control, no motors): tau is the held command, constant over the step (the steps
+      end at the samples): ``h tau_k^2`` and ``tau_k`` times the trapezoid of |omega|, exactly;
+    * ``tau_mid`` (sampled control with motors: the torques at the step's midpoint, from the
+      integrator's interpolant, fast.loop) and ``fast`` (the currents' time constant T = L_a / R_a):
+      after each held voltage step the currents settle within T, inside the step, where no row is.
+      The torque is fitted through the step's start, midpoint and end as ``A + C s + B exp(-s / T)``
+      (a constant, the drift, the transient; for h < T / 10, where the transient is no longer fast,
+      the quadratic through the same points) and integrated on 8 Gauss-Legendre points over
+      [0, min(h/2, 4T)] and 8 over the rest; omega linear in the step.  Measured against dt/32 on every
+      motor case (benchmarks/torque_metric_dt.py --fit): 0.01-0.13 %, against 0.7-6.5 % for the trapezoid;
+    * otherwise (and on a step without a midpoint row): the trapezoid.
+    """
+    t = np.asarray(t, dtype=float)
+    K, nw = tau.shape
+    if K < 2:
+        return np.zeros(nw), 0.0
+    h = np.diff(t)
+    a, b = tau[:-1], tau[1:]
+    wa, wb = np.abs(omega[:-1]), np.abs(omega[1:])
+    if held:
+        return np.sum(h[:, None] * a * a, axis=0), float(np.sum(h[:, None] * np.abs(a) * 0.5 * (wa + wb)))
+    sq = 0.5 * h[:, None] * (a * a + b * b)
+    pw = 0.5 * h * np.sum(np.abs(a * omega[:-1]) + np.abs(b * omega[1:]), axis=1)
+    if tau_mid is None or fast is None or not fast > 0:
+        return sq.sum(axis=0), float(pw.sum())
+    m = np.asarray(tau_mid, dtype=float)[:-1]
+    rows = np.flatnonzero(np.all(np.isfinite(m), axis=1) & (h > 0))
+    for chunk in np.array_split(rows, max(1, rows.size // 8192)):
+        if chunk.size == 0:
+            continue
+        hk = h[chunk][:, None]  # (k, 1)
+        # the nodes: 8 on [0, c] and 8 on [c, h], c = min(h/2, 4T) (the transient lives in the first)
+        c = np.minimum(0.5 * hk, 4.0 * fast)
+        s = np.concatenate((c * _GL_X, c + (hk - c) * _GL_X), axis=1)  # (k, 16)
+        w = np.concatenate((c * _GL_W, (hk - c) * _GL_W), axis=1)
+        x = _fitted(hk, a[chunk], m[chunk], b[chunk], s, fast)  # (k, 16, nw)
+        r = (s / hk)[:, :, None]
+        om = omega[chunk][:, None, :] * (1.0 - r) + omega[chunk + 1][:, None, :] * r
+        sq[chunk] = np.einsum("kj,kjw->kw", w, x * x)
+        pw[chunk] = np.einsum("kj,kj->k", w, np.sum(np.abs(x * om), axis=2))
+    return sq.sum(axis=0), float(pw.sum())
+
+
+def _fitted(h: np.ndarray, y0: np.ndarray, y1: np.ndarray, y2: np.ndarray, s: np.ndarray, T: float) -> np.ndarray:
+    """The torque inside each step at the offsets s (k, J): through y0, y1, y2 (k, nw) at 0, h/2, h."""
+    x = s / h  # (k, J)
+    exp = (h >= 0.1 * T)[:, 0]
+    # the quadratic through the three points (Lagrange on 0, 1/2, 1)
+    l0 = (1 - x) * (1 - 2 * x)
+    l1 = 4 * x * (1 - x)
+    l2 = x * (2 * x - 1)
+    out = l0[:, :, None] * y0[:, None, :] + l1[:, :, None] * y1[:, None, :] + l2[:, :, None] * y2[:, None, :]
+    if np.any(exp):
+        # A + C s + B e^{-s/T}: B from the second difference, which the linear part does not see
+        hk = h[exp]
+        e1, e2 = np.exp(-0.5 * hk / T), np.exp(-hk / T)
+        d = (1.0 - 2.0 * e1 + e2)[:, :, None]  # e^{-s/T}'s second difference over 0, h/2, h (> 0)
+        B = (y0[exp] - 2.0 * y1[exp] + y2[exp])[:, None, :] / d
+        A = y0[exp][:, None, :] - B
+        C = ((y2[exp] - y0[exp])[:, None, :] - B * (e2 - 1.0)[:, :, None]) / hk[:, :, None]
+        se = s[exp][:, :, None]
+        out[exp] = A + C * se + B * np.exp(-se / T)
+    return out
+
+
 def torque_metrics(
     tau: np.ndarray,
     u: np.ndarray,
@@ -221,15 +300,24 @@ def torque_metrics(
     t: np.ndarray | None = None,
     omega: np.ndarray | None = None,
     first_fault: float | None = None,
+    tau_mid: np.ndarray | None = None,
+    fast: float | None = None,
+    held: bool = False,
 ) -> dict:
     """Peak and RMS torque, fraction of time at saturation, (given wheel speeds) energy, and (given the
     times and ``first_fault``) the peak from the first fault on.
 
     ``t`` (K,): the samples' instants, for the means over time (:func:`time_mean`); without it the
-    samples weigh equally.
+    samples weigh equally.  ``tau_mid``, ``fast``, ``held``: how the torque behaves inside each step
+    (:func:`step_integrals`), for the RMS and the energy.
     """
     tt = np.arange(tau.shape[0], dtype=float) if t is None else t
     rms_per_wheel = np.sqrt(time_mean(tt, np.square(tau)))
+    inside = held or (tau_mid is not None and fast is not None)  # else the trapezoid, as time_mean has it
+    inside = inside and t is not None and omega is not None and tt.size > 1 and tt[-1] > tt[0]
+    if inside:
+        sq, work = step_integrals(tt, tau, omega, tau_mid, fast, held)
+        rms_per_wheel = np.sqrt(sq / (tt[-1] - tt[0]))
     sat = 0.0
     if u_limit is not None:
         sat = float(time_mean(tt, np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1), "step"))
@@ -239,7 +327,7 @@ def torque_metrics(
         "saturation_fraction": sat,
     }
     if t is not None and omega is not None:
-        out["energy"] = _iae(t, np.sum(np.abs(tau * omega), axis=1))
+        out["energy"] = work if inside else _iae(t, np.sum(np.abs(tau * omega), axis=1))
     if t is not None:
         after = np.asarray(t) >= first_fault if first_fault is not None else np.zeros(len(tau), dtype=bool)
         out["torque_peak_after_fault"] = float(np.abs(tau[after]).max()) if np.any(after) else None

@@ -462,7 +462,9 @@ class _Loop:
         self.lsig = np.full((rows, nw), np.nan)
         self.lubar = np.full((rows, nw), np.nan)
         self.lxc = np.full((rows, nc), np.nan)
-        self.lia = np.full((rows, nm), np.nan)
+        # the motor states, then (sampled control) each step's wheel torques at its midpoint (fast.loop)
+        # (NaN where none: continuous control, ROS2, DOPRI5; the metrics then keep the trapezoid)
+        self.lia = np.full((rows, nm + nw if nm else 0), np.nan)
         self.lmeas = np.full((rows if self.plant.noisy else 0, nq + 2), np.nan)
         self.lsg = np.full((rows, self.spec.n_sig), np.nan)
         self.lt = np.full(rows, np.nan)
@@ -528,6 +530,7 @@ def _finish(Run, spec, plant, settings, nq, stream, si, log_parts, status, reaso
     stream = {name: v[:si] if v.shape[0] <= si + 1 else v[:si].copy() for name, v in stream.items()}
     logs = _chunk_signals(spec, plant, nq, slice(None), _concat(log_parts)) if log_parts else {}
     t_log = logs.pop("t", np.zeros(0))
+    logs.pop("tau_mid", None)  # a metric-stream quantity: the saved log keeps the states and signals
     t_stream = stream.pop("t", np.zeros(0))
     if settings.sample_time is not None:
         reference = spec.controller.kin.reference
@@ -584,9 +587,11 @@ def _chunk_signals(spec: Spec, plant, nq: int, rows, bufs, costs: bool = True) -
     }  # fmt: skip
     if lia.shape[1]:  # the motor states: the currents, then the drives' states (model.drive_compiled)
         nw = plant.chain.n_wheels
+        nm = lia.shape[1] - nw  # the motor states, then each step's torques at its midpoint (fast.loop)
         out["i_a"] = lia[rows][:, :nw]
-        if lia.shape[1] > nw:
-            out["z_drive"] = lia[rows][:, nw:]
+        if nm > nw:
+            out["z_drive"] = lia[rows][:, nw:nm]
+        out["tau_mid"] = lia[rows][:, nm:]
     meas = lmeas[rows] if plant.noisy else np.concatenate((out["q"], out["eta"]), axis=1)
     out |= _split_signals(spec, lsg[rows], out["xc"], meas, nq, costs)
     if plant.noisy:

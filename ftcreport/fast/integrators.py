@@ -65,6 +65,7 @@ __all__ = [
     "erk_solution",
     "erk_stage_point",
     "error_ratio",
+    "etd2_dense",
     "etd2_first",
     "etd2_second",
     "power_step",
@@ -295,6 +296,31 @@ def etd2_first(J, diag, x, f0, h, nq):
     a = x + h * p1 * f0
     a[nq : nq + m] = x[nq : nq + m] + h * (P1 @ f0[nq : nq + m])
     return a, P2, p2
+
+
+@jit
+def etd2_dense(J, diag, x, a, f0, f1, h, theta, nq):
+    r"""ETD2RK's continuous extension at t + theta h, the step's own interpolant (Hochbruck & Ostermann
+    2010, sec. 2.3: N interpolated linearly between x and a)::
+
+        x(s) = x + s phi_1(s L) f(x) + (s^2 / h) phi_2(s L) (f(a) - f(x) - L (a - x)),   s = theta h
+
+    equal to :func:`etd2_second`'s x+ at theta = 1; exact on the linear part (the currents' transient
+    after a held voltage step), second order in N.  The metric stream reads the torques at theta = 1/2
+    (fast.loop.run_steps: each step's midpoint).
+    """
+    nx = x.shape[0]
+    m = J.shape[0]
+    s = theta * h
+    g = f1 - f0 - diag * (a - x)
+    g[nq : nq + m] = f1[nq : nq + m] - f0[nq : nq + m] - J @ (a[nq : nq + m] - x[nq : nq + m])
+    P1, P2 = phi12(s * J)
+    out = np.empty(nx)
+    for i in range(nx):
+        q1, q2 = phi12_scalar(s * diag[i])
+        out[i] = x[i] + s * q1 * f0[i] + (s * s / h) * q2 * g[i]
+    out[nq : nq + m] = x[nq : nq + m] + s * (P1 @ f0[nq : nq + m]) + (s * s / h) * (P2 @ g[nq : nq + m])
+    return out
 
 
 @jit

@@ -46,6 +46,7 @@ from ftcreport.fast.integrators import (
     erk_solution,
     erk_stage_point,
     error_ratio,
+    etd2_dense,
     etd2_first,
     etd2_second,
     first_guess,
@@ -393,6 +394,29 @@ def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
 
 
 @jit
+def _etd2_mid(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
+    """(x+, x(t + h / 2)): :func:`_etd2`'s step, the same operations (x+ bit-identical), and its
+    continuous extension at the midpoint (fast.integrators.etd2_dense) for the metric stream."""
+    nq, nm = ctx[5], ctx[9]
+    F = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+    if info[0] != 0:
+        return x, x
+    J = np.ascontiguousarray(F[nq : nq + 2 + nm, :])
+    a, P2, p2 = etd2_first(J, diag, x, f0, h, nq)
+    f1 = _stage(P, ctx, t + h, a, sigma, ubar, fm, nz, info, u_h, v_h)
+    if info[0] != 0:
+        return x, x
+    return etd2_second(J, diag, x, a, f0, f1, P2, p2, h, nq), etd2_dense(J, diag, x, a, f0, f1, h, 0.5, nq)
+
+
+@jit
+def _mid_torque(ctx, x, sigma, ubar, fm, u_h, v_h):
+    """The wheel torques at a step's midpoint state x under sampled control (the plant's, the control
+    and the drives' inputs held: no law call, so nothing the loop holds is touched)."""
+    return _plant_deriv(ctx, x, u_h, sigma, ubar, fm, v_h)[2]
+
+
+@jit
 def _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J):
     """One ETD2RK step (:func:`_etd2`) with its linear block J given (the algebra in fast.integrators)."""
     nq = ctx[5]
@@ -577,7 +601,7 @@ def run_steps(
             ltau[li] = tau
             if MOTORS and nm > 0:  # the faults the chain sees (motor faults by their equivalents) and the currents
                 lsig[li], lubar[li] = true_faults(ctx, x, sigma, ubar, fm)
-                lia[li] = x[nq + 2 : npl]
+                lia[li, :nm] = x[nq + 2 : npl]
             else:
                 lsig[li] = sigma
                 lubar[li] = ubar
@@ -589,6 +613,10 @@ def run_steps(
         if k == grid.shape[0] - 1:
             return x, k, li, AT_STATE
         h = grid[k + 1] - t
+        # sampled control with motors: the stream also holds each step's torques at its midpoint (the
+        # metrics' quadrature of the currents' transient after each held voltage step: evaluation.metrics)
+        mid = MOTORS and nm > 0 and SAMPLED and sampled and want and lia.shape[1] > nm
+        xm = x
         if method == 0:
             f2 = _stage(P, ctx, t + 0.5 * h, x + 0.5 * h * f0, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
@@ -600,6 +628,8 @@ def run_steps(
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
             xn = x + (h / 6.0) * (f0 + 2.0 * f2 + 2.0 * f3 + f4)
+            if mid:  # RK4's continuous extension at theta = 1/2 (third order): b = 5/24, 1/6, 1/6, -1/24
+                xm = x + h * ((5.0 / 24.0) * f0 + (1.0 / 6.0) * (f2 + f3) - (1.0 / 24.0) * f4)
         elif method == 1:
             # W-method Jacobian: the columns of eta and the motors' currents (_jacobian_columns), the
             # stiff diagonal for the controller's linear filters (fast.integrators.ros2_first)
@@ -614,7 +644,10 @@ def run_steps(
             kk2 = ros2_second(DF, small, dinv, kk1, f2, empty_ft, h, nq)
             xn = x + 1.5 * h * kk1 + 0.5 * h * kk2
         if MOTORS and method == 2:  # the motor variant only (fast.engine.loop_for): others never compile ETD2
-            xn = _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag)
+            if mid:
+                xn, xm = _etd2_mid(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag)
+            else:
+                xn = _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
         kind = _step_jump(pp, x, xn, nq, lim, max_speed, max_position, growth[3], growth[4], info)
@@ -622,6 +655,8 @@ def run_steps(
             info[0] = E_STEP_JUMP
             info[1] = kind
             return x, k, li, AT_TRIAL
+        if mid and method != 1:  # ROS2 has no interpolant here: its steps keep the trapezoid
+            lia[li - 1, nm:] = _mid_torque(ctx, xm, sigma, ubar, fm, u_h, v_h)
         if SAMPLED and sampled:  # the controller's discrete updates run at its samples
             x = xn
             continue
@@ -658,7 +693,8 @@ REJECT_SHRINK = 0.25
 
 @jit
 def _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, K):
-    """One trial step of an error-controlled method: (x+, err, rate evaluations); info set if a stage failed.
+    """One trial step of an error-controlled method: (x+, err, rate evaluations, x(t + h / 2) or x itself when
+    the method has none: DOPRI5); info set if a stage failed.
 
     3 = dopri5: the stages by fast.integrators.erk_stage_point, the solution and its embedded error by
     erk_solution.  4 = ros2ec, 5 = etd2ec: the step once and as two halves with the same linear part
@@ -674,9 +710,9 @@ def _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, met
             y = erk_stage_point(x, K, s, h, DP_A)
             K[s] = _stage(P, ctx, t + DP_C[s] * h, y, sigma, ubar, fm, nz, info, u_h, v_h)
             if info[0] != 0:
-                return x, x, s
+                return x, x, s, x
         xn, err = erk_solution(x, K, h, DP_B, DP_E)
-        return xn, err, 6
+        return xn, err, 6, x
     # the linear part at x: ETD2's block J of [eta, i_a]; ROS2's W of the whole plant and f_t
     sampled = SAMPLED and u_h.shape[0] > 0
     J = np.zeros((0, 0))
@@ -694,23 +730,23 @@ def _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, met
             ft = (_stage(P, ctx, t + dt, x, sigma, ubar, fm, nz, info, u_h, v_h) - f0) / dt
             ev += 1
     if info[0] != 0:
-        return x, x, ev
+        return x, x, ev, x
     one = _linear_step(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
     ev += 1
     if info[0] != 0:
-        return x, x, ev
+        return x, x, ev, x
     half = 0.5 * h
     mid = _linear_step(P, ctx, t, half, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
     ev += 1
     if info[0] != 0:
-        return x, x, ev
+        return x, x, ev, x
     fmid = _stage(P, ctx, t + half, mid, sigma, ubar, fm, nz, info, u_h, v_h)
     ev += 1
     if info[0] != 0:
-        return x, x, ev
+        return x, x, ev, x
     two = _linear_step(P, ctx, t + half, half, mid, fmid, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
     ev += 1
-    return two, (two - one) / 3.0, ev
+    return two, (two - one) / 3.0, ev, mid
 
 
 @jit
@@ -870,7 +906,7 @@ def run_auto(
         ltau[li] = tau
         if MOTORS and nm > 0:
             lsig[li], lubar[li] = true_faults(ctx, x, sigma, ubar, fm)
-            lia[li] = x[nq + 2 : npl]
+            lia[li, :nm] = x[nq + 2 : npl]
         else:
             lsig[li] = sigma
             lubar[li] = ubar
@@ -918,7 +954,7 @@ def run_auto(
                 h = t_ev - t
             elif t + 2.0 * h > t_ev:  # two equal steps to the event, not one long and one short
                 h = 0.5 * (t_ev - t)
-            xn, err, ev = _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, K)
+            xn, err, ev, xm = _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, K)
             ctl[C_EVALS] += ev
             r = math.inf
             cause = 0
@@ -968,6 +1004,8 @@ def run_auto(
                 return x, li, AT_TRIAL
             ctl[C_H] = max(h_new, h_min)  # the last try is at the minimum step itself
         t_new = t_ev if land else t + h
+        if MOTORS and nm > 0 and SAMPLED and sampled and method != 3 and lia.shape[1] > nm:
+            lia[li - 1, nm:] = _mid_torque(ctx, xm, sigma, ubar, fm, u_h, v_h)  # the first half ends there
         h_next = h * step_factor(r, ctl[C_RPREV], k_err, beta, rejected)
         if land and h < ctl[C_H]:  # a step cut short by an event does not shorten the next
             h_next = max(h_next, ctl[C_H])

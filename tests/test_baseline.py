@@ -230,3 +230,32 @@ def test_the_compared_metrics_are_names_a_case_may_tune():
     from ftcreport.studies.baseline import COMPARED_METRICS
 
     assert set(COMPARED_METRICS) <= set(BASELINE_METRIC_NAMES)
+
+
+@pytest.mark.parametrize(
+    ("damage", "words"),
+    [
+        (lambda r: r["schemes"].update(switching="x"), "schemes.switching is not a table"),
+        (lambda r: r["schemes"]["switching"].update(metrics=None), "schemes.switching.metrics is not a table"),
+        (lambda r: r["schemes"]["switching"].update(signals=None), "schemes.switching.signals is not a list of names"),
+        (lambda r: r.update(case_fields=[1]), "case_fields is not a table"),
+    ],
+)
+def test_a_hand_edited_baseline_fails_naming_the_file_and_the_field(tmp_path, damage, words):
+    """The round-3 gate attack: a baseline.json edited by hand (a scheme's table replaced by a string, its
+    metrics or signals by null) crashed `check` (exit 3, AttributeError/TypeError)."""
+    src, out, dest = tmp_path / "bl.toml", tmp_path / "r", tmp_path / "base"
+    _write(src)
+    data = tomllib.loads(src.read_text())
+    data["simulation"]["duration"], data["faults"][0]["time"] = 2.0, 1.0
+    src.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["baseline", "save", str(src), "--out", str(out), "--dest", str(dest), "-q"])
+    assert res.exit_code == 0, res.output
+    path = dest / "bl" / "baseline.json"
+    rec = json.loads(path.read_text())
+    damage(rec)
+    path.write_text(json.dumps(rec))
+    res = runner.invoke(app, ["check", str(src), "--out", str(out), "--baseline", str(dest), "-q"])
+    assert res.exit_code == 1, res.output
+    assert "a bug" not in res.output and "Traceback" not in res.output
+    assert f"{path}: damaged: {words}" in res.output, res.output

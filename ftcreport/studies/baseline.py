@@ -525,8 +525,11 @@ def _load(dest: Path, name: str) -> tuple[dict | None, dict[str, np.ndarray] | N
     rec = read_json(dest / name / "baseline.json")
     if not isinstance(rec, dict) or not isinstance(rec.get("schemes"), dict):
         saved = read_json(dest / "baseline.json") or {}
-        listed = ", ".join(sorted(saved.get("cases") or {})) or "none"
-        return None, None, f"no baseline of case '{name}' in {dest} (it holds: {listed})"
+        listed = ", ".join(sorted(saved.get("cases") or {})) if isinstance(saved, dict) else ""
+        return None, None, f"no baseline of case '{name}' in {dest} (it holds: {listed or 'none'})"
+    damaged = _damaged(rec)
+    if damaged:
+        return None, None, f"{dest / name / 'baseline.json'}: damaged: {damaged} (save the baseline again)"
     try:
         blob = (dest / name / "signals.npz").read_bytes()
     except OSError:
@@ -536,6 +539,26 @@ def _load(dest: Path, name: str) -> tuple[dict | None, dict[str, np.ndarray] | N
     with np.load(io.BytesIO(blob)) as data:
         arrays = {k: data[k] for k in data.files}
     return rec, arrays, ""
+
+
+def _damaged(rec: dict) -> str:
+    """What of a baseline record :func:`compare_case` reads is not as :func:`save_baseline` wrote it ('' if all)."""
+    tops = (("case_fields", dict, "a table"), ("created", str, "a text"), ("ftcreport", dict, "a table"))
+    for key, kind, what in tops:
+        if rec.get(key) is not None and not isinstance(rec[key], kind):
+            return f"{key} is not {what}"
+    git = (rec.get("ftcreport") or {}).get("git")
+    if git is not None and not isinstance(git, dict):
+        return "ftcreport.git is not a table"
+    for s, old in rec["schemes"].items():
+        if not isinstance(old, dict):
+            return f"schemes.{s} is not a table"
+        if not isinstance(old.get("metrics"), dict):
+            return f"schemes.{s}.metrics is not a table"
+        sig = old.get("signals", [])
+        if not isinstance(sig, list) or not all(isinstance(v, str) for v in sig):
+            return f"schemes.{s}.signals is not a list of names"
+    return ""
 
 
 def compare_case(out: Path, name: str, dest: Path) -> CaseComparison:

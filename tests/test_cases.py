@@ -103,6 +103,12 @@ def _base() -> dict:
             "initial.headings_deg",
             "theta_2 - theta_3 = -88.5 deg starts within simulation.singularity_margin_deg = 2 deg of +/-90 deg",
         ),
+        # round-3 gate attack: a bound no value can satisfy was accepted
+        (
+            lambda c: c["thresholds"]["switching"].update(position_error_final={"min": 2.0, "max": 1.0}),
+            "thresholds.switching.position_error_final",
+            "min = 2 is above max = 1: no value can satisfy both",
+        ),
         # round-3 case audit: a field of another reference or kinematic kind was silently ignored
         (lambda c: c["reference"].update(radius=2.0), "reference.radius", "not used by a 'sinusoid' reference"),
         (

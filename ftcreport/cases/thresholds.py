@@ -14,11 +14,22 @@ from ..schemes.fields import _NUMBER, Limit, Std, Time, Torque, Unit, _f, _Field
 Status = Literal["ok", "singular", "diverged", "step_unstable"]  # run outcomes (ftcreport.sim)
 
 
+def _ordered(lo: float | None, hi: float | None) -> None:
+    """min above max: no value can pass (the gate would fail for ever, whatever the run)."""
+    if lo is not None and hi is not None and lo > hi:
+        raise ValueError(f"min = {lo:g} is above max = {hi:g}: no value can satisfy both")
+
+
 class Bound(_Strict):
     """Bounds on one metric."""
 
     min: Limit | None = _f(None, "lower bound", "unit of the metric")
     max: Limit | None = _f(None, "upper bound", "unit of the metric")
+
+    @model_validator(mode="after")
+    def _order(self) -> Bound:
+        _ordered(self.min, self.max)
+        return self
 
 
 _Count = Annotated[int, Field(ge=0, le=100), _NUMBER]
@@ -45,6 +56,7 @@ class Claim(_Strict):
 
     @model_validator(mode="after")
     def _decidable(self) -> Claim:
+        _ordered(self.min, self.max)
         if self.not_applicable is not None:
             if self.expect != "not applicable":
                 raise ValueError("a claim marked not_applicable must expect 'not applicable'")
@@ -107,6 +119,7 @@ class Requirement(_Strict):
     def _decidable(self) -> Requirement:
         if self.min is None and self.max is None:
             raise ValueError("give a bound: min, max, or both (within [min, max])")
+        _ordered(self.min, self.max)
         return self
 
     def problems(self, n: int) -> list[tuple[str, str]]:

@@ -680,3 +680,17 @@ def test_a_change_of_the_packages_code_is_a_cache_miss(tmp_path, monkeypatch):
     files = code_digest.sources()
     assert Path(__file__).resolve().parents[1] / "ftcreport" / "evaluation" / "metrics.py" in files
     assert len(files) > 100
+
+
+def test_a_case_gated_by_its_runs_alone_says_so(tmp_path):
+    """The gate attack: a case with no thresholds, claims or requirements passed `check` on its runs'
+    statuses with only "0/0 thresholds hold" to show it; a note now names the case."""
+    path = _write(tmp_path, "bare")
+    out = tmp_path / "r"
+    res = runner.invoke(app, ["check", str(path), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "note: bare: no thresholds, claims or requirements: only its runs' outcomes are gated" in res.output
+    gated = _write(tmp_path, "gated", thresholds={"nominal": {"position_error_final": {"max": 1.0}}})
+    res = runner.invoke(app, ["check", str(gated), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "note:" not in res.output

@@ -439,7 +439,7 @@ def check(
     from ..report.junit import write_junit
     from ..storage.store import read_json
     from ..studies.batch import run_batch
-    from ..studies.check import exit_code, gate, summary
+    from ..studies.check import exit_code, gate, summary, ungated
 
     if baseline is not None:
         from ..studies.baseline import check_dest
@@ -475,6 +475,8 @@ def check(
         typer.echo(printable(f"ftcreport: error: {msg}"), err=True)
     for line in summary(items):
         typer.echo(line)
+    for line in ungated(items):
+        typer.echo(printable(line))
     if baseline_page is not None:
         typer.echo(f"baseline comparison: {baseline_page}")
     if (code := exit_code(items)) != 0:

@@ -398,6 +398,20 @@ def exit_code(items: Iterable[GateItem]) -> int:
     return 1 if any(not i.ok for i in items) else 0
 
 
+def ungated(items: Iterable[GateItem]) -> list[str]:
+    """A note per case the gate judges by its runs' outcomes alone (no threshold, claim, requirement or
+    baseline item): its pass says only that the runs ended as expected."""
+    kinds: dict[str, set[str]] = {}
+    for i in items:
+        if not i.error:
+            kinds.setdefault(i.case, set()).add(i.kind)
+    return [
+        f"note: {case}: no thresholds, claims or requirements: only its runs' outcomes are gated"
+        for case, k in kinds.items()
+        if k <= {"run"}
+    ]
+
+
 def summary(items: Iterable[GateItem]) -> list[str]:
     """The count lines: ``3/4 thresholds hold`` per kind of :data:`SUMMARY` (others by their kind's name)."""
     items = [i for i in items if not i.error]

@@ -694,3 +694,52 @@ def test_a_case_gated_by_its_runs_alone_says_so(tmp_path):
     res = runner.invoke(app, ["check", str(gated), "--out", str(out)])
     assert res.exit_code == 0, res.output
     assert "note:" not in res.output
+
+
+def test_check_that_stops_early_leaves_no_passing_junit_behind(tmp_path):
+    """The gate attack: `check --junit ju.xml` passed, then a second check stopped at once (its --out held
+    by a batch: exit 2) and left ju.xml saying every test passed; a CI step publishing it regardless
+    of the exit code showed green.  The stopped check now writes its error as the JUnit file."""
+    path, out, junit = _write(tmp_path, "c"), tmp_path / "r", tmp_path / "ju.xml"
+    res = runner.invoke(app, ["check", str(path), "--out", str(out), "--junit", str(junit)])
+    assert res.exit_code == 0, res.output
+    assert ET.fromstring(junit.read_bytes()).get("failures") == "0"
+    import subprocess
+    import sys
+    import time
+
+    ready = tmp_path / "held"
+    holder = subprocess.Popen(  # another process's batch holds --out
+        [sys.executable, "-c", "import sys, time, pathlib; from ftcreport.storage.store import output_lock\n"
+         "with output_lock(pathlib.Path(sys.argv[1]), 'batch'):\n"
+         "    pathlib.Path(sys.argv[2]).write_text('1'); time.sleep(60)", str(out), str(ready)],
+    )  # fmt: skip
+    try:
+        for _ in range(600):
+            if ready.exists():
+                break
+            time.sleep(0.05)
+        res = runner.invoke(app, ["check", str(path), "--out", str(out), "--junit", str(junit)])
+    finally:
+        holder.kill()
+        holder.wait()
+    assert res.exit_code == 2, res.output
+    suite = ET.fromstring(junit.read_bytes())
+    assert suite.get("errors") == "1" and suite.get("tests") == "1", junit.read_text()
+    assert "batch" in suite.find(".//error").get("message")
+
+
+def test_check_never_writes_its_junit_over_a_file_that_is_not_junit(tmp_path):
+    """The gate attack: `--junit <a run's record.json>` passed, then destroyed the run it had judged."""
+    path, out = _write(tmp_path, "c"), tmp_path / "r"
+    res = runner.invoke(app, ["check", str(path), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    record = out / "c" / "nominal" / "record.json"
+    before = record.read_bytes()
+    res = runner.invoke(app, ["check", str(path), "--out", str(out), "--junit", str(record)])
+    assert res.exit_code == 2, res.output
+    assert f"--junit: {record} exists and is not a JUnit XML file: not overwritten" in res.output
+    assert record.read_bytes() == before
+    res = runner.invoke(app, ["check", str(path), "--out", str(out), "--junit", str(tmp_path)])
+    assert res.exit_code == 2, res.output
+    assert f"--junit: {tmp_path} is a directory: give the XML file's path" in res.output

@@ -406,6 +406,21 @@ def _render_progress():
         yield (lambda k: bar.update(task, total=k)), (lambda name: bar.update(task, advance=1, page=name))
 
 
+def _junit_target(path: Path) -> None:
+    """Refuse a --junit path that is a directory, or an existing file that is not a JUnit report (a stored
+    result, a case file): check writes there, and must not destroy what it judges."""
+    if path.is_dir():
+        raise FtcError(f"--junit: {path} is a directory: give the XML file's path")
+    if path.exists():
+        try:
+            with path.open("rb") as f:
+                head = f.read(512).lstrip()
+        except OSError as exc:
+            raise FtcError(f"--junit: {path}: cannot read ({exc.strerror})") from None
+        if head and not (head.startswith(b"<?xml") or head.startswith(b"<testsuite")):
+            raise FtcError(f"--junit: {path} exists and is not a JUnit XML file: not overwritten")
+
+
 @app.command()
 def check(
     cases: Annotated[list[Path] | None, typer.Argument(help="Case files or directories (default: cases/).")] = None,
@@ -441,13 +456,23 @@ def check(
     from ..studies.batch import run_batch
     from ..studies.check import exit_code, gate, summary, ungated
 
-    if baseline is not None:
-        from ..studies.baseline import check_dest
-
-        check_dest(baseline)  # a mistyped --baseline before anything runs
+    if junit is not None:
+        _junit_target(junit)
     started = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     wall0 = _time.perf_counter()
-    res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
+    try:
+        if baseline is not None:
+            from ..studies.baseline import check_dest
+
+            check_dest(baseline)  # a mistyped --baseline before anything runs
+        res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
+    except FtcError as exc:  # stopped before judging: the JUnit file says so, never an older pass
+        if junit is not None:
+            from ..studies.check import error_items
+
+            write_junit(junit, error_items({"ftcreport check": str(exc)}), time=_time.perf_counter() - wall0,
+                        timestamp=started)  # fmt: skip
+        raise
     items = gate(out, res.cases, res.case_errors, res.not_stored)
     baseline_page = None
     if baseline is not None:

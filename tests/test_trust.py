@@ -743,3 +743,24 @@ def test_check_never_writes_its_junit_over_a_file_that_is_not_junit(tmp_path):
     res = runner.invoke(app, ["check", str(path), "--out", str(out), "--junit", str(tmp_path)])
     assert res.exit_code == 2, res.output
     assert f"--junit: {tmp_path} is a directory: give the XML file's path" in res.output
+
+
+@pytest.mark.parametrize("damage", ["delete", "garble"])
+def test_report_and_export_name_runs_whose_case_record_is_gone(tmp_path, damage):
+    """The gate attack: with <case>/case.json deleted (or garbled) `report` and `export` exited 0 and left
+    the case's runs out without a word (the index still linked the old green page)."""
+    path, out = _write(tmp_path, "c"), tmp_path / "r"
+    res = runner.invoke(app, ["batch", str(path), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    rec = out / "c" / "case.json"
+    if damage == "delete":
+        rec.unlink()
+    else:
+        rec.write_text("garbage")
+    why = "missing" if damage == "delete" else "unreadable or not a case record"
+    line = f"ftcreport: error: {rec}: {why}: the case's 1 stored run(s) (nominal) are not shown or exported"
+    for cmd in (["report", "--out", str(out)], ["export", "--out", str(out), "--dest", str(tmp_path / "x")]):
+        res = runner.invoke(app, cmd)
+        _no_crash(res)
+        assert res.exit_code == 1, (cmd, res.output)
+        assert line in res.stderr, (cmd, res.stderr)

@@ -363,14 +363,14 @@ def report(
 
     if not out.is_dir():
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
-    from ..storage.store import output_lock, read_json
+    from ..storage.store import output_lock, read_json, unrecorded_cases
 
     with output_lock(out, "report"), _render_progress() as (notify, done):
         page = render_all(out, force=True, notify=notify, done=done)
-        bad = []
+        bad = unrecorded_cases(out)  # runs whose case record is gone: not shown, and said so
         for rec in sorted(out.glob("*/case.json")):
-            if (read_json(rec) or {}).get("status") != "ok":
-                continue  # a rejected case file: its page says why
+            if not isinstance(read_json(rec), dict) or read_json(rec).get("status") != "ok":
+                continue  # a rejected case file: its page says why (a damaged record: unrecorded_cases)
             for s, run in stored_case(out, rec.parent.name).runs.items():
                 if not run.absent and not run.sound:
                     bad.append(run.problem)

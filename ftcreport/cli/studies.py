@@ -198,12 +198,12 @@ def export(
 
     Example: ftcreport export --out reports
     """
-    from ..storage.store import output_lock
+    from ..storage.store import output_lock, unrecorded_cases
     from ..storage.tidy import export as _export
 
     if not out.is_dir():
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
-    damaged: list[str] = []
+    damaged: list[str] = unrecorded_cases(out)  # runs whose case record is gone: not exported, and said so
     with contextlib.ExitStack() as locks:  # the results read and the directory written: no batch meanwhile
         locks.enter_context(output_lock(out, "export"))
         if dest is not None:  # a directory of its own: never another batch's (its metrics.parquet) or family's
@@ -211,8 +211,9 @@ def export(
         paths = _export(out, dest, damaged)
     n_nc = sum(p.suffix == ".nc" for p in paths)
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")
-    for problem in damaged:  # left out of the netCDF files, a row with status error in the table
-        typer.echo(printable(f"ftcreport: error: {problem}; not exported (re-run 'ftcreport batch')"), err=True)
+    for problem in damaged:  # left out of the netCDF files (a damaged run: a row with status error in the table)
+        tail = "" if "run 'ftcreport batch'" in problem else "; not exported (re-run 'ftcreport batch')"
+        typer.echo(printable(f"ftcreport: error: {problem}{tail}"), err=True)
     if damaged:
         raise typer.Exit(code=1)
 

@@ -64,6 +64,7 @@ __all__ = [
     "stored_metrics",
     "stored_runs",
     "stored_schemes",
+    "unrecorded_cases",
     "write_atomic",
     "write_json",
 ]
@@ -347,6 +348,30 @@ def stored_runs(out: Path, case_name: str) -> dict[str, StoredRun]:
     rec = read_json(Path(out) / case_name / "case.json")
     case_hash = rec.get("key") if isinstance(rec, dict) and isinstance(rec.get("key"), str) else None
     return {s: check_run(out, case_name, s, case_hash=case_hash) for s in stored_schemes(out, case_name)}
+
+
+def unrecorded_cases(out: Path) -> list[str]:
+    """A problem line per case directory under ``out`` that holds stored runs but no readable case record
+    (``<case>/case.json`` deleted or damaged): its runs would be left out of the pages and the exports
+    without a word.  The case record is written by ``batch`` (studies.batch.record_case)."""
+    out = Path(out)
+    problems = []
+    for d in sorted(p for p in out.iterdir() if p.is_dir() and not p.name.startswith(".")) if out.is_dir() else []:
+        runs = stored_schemes(out, d.name)
+        if not runs:
+            continue
+        rec_path = d / "case.json"
+        if not rec_path.exists():
+            why = "missing"
+        elif not isinstance(read_json(rec_path), dict):
+            why = "unreadable or not a case record"
+        else:
+            continue
+        problems.append(
+            f"{rec_path}: {why}: the case's {len(runs)} stored run(s) ({', '.join(runs)}) are not shown or exported "
+            "(run 'ftcreport batch' on its case file again)"
+        )
+    return problems
 
 
 def read_json(path: Path) -> Any:

@@ -377,7 +377,7 @@ def export(out: Path, dest: Path | None = None, damaged: list[str] | None = None
 
     out = Path(out)
     dest = Path(dest) if dest is not None else out
-    if not out.is_dir() or not any(out.glob("*/case.json")):
+    if not out.is_dir() or not (any(out.glob("*/case.json")) or any(out.glob("*/*/record.json"))):
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
     written = []
     for rec in sorted(out.glob("*/case.json")):

@@ -259,3 +259,22 @@ def test_scoreboard_counts_wins_regret_and_unexpected_statuses():
     assert sb.runs == {"nominal": 2, "switching": 2, "adaptive": 2, "oracle": 2}
     assert [c["case"] for c in sb.cases] == ["a", "b"]
     assert sb.cases[1]["winners"][key] == ["adaptive"]
+
+
+def test_nominal_winning_at_the_torque_limit_is_explained_by_the_limit():
+    """The round-3 case audit: with every scheme saturated the whole run the verdict explained nominal's
+    win by "the faults hit followers only", and with no other fact it claimed "the healthy law's velocity
+    loop stays stable under these patterns" even where the analysis predicted it unstable."""
+    runs = {
+        s: _run(after=a, saturation_fraction=sat)
+        for s, a, sat in (("nominal", 0.05, 1.0), ("switching", 0.2, 0.98), ("oracle", 0.04, 1.0))
+    }
+    v = compare_case("c", runs, fault_times=[20.0], facts={"follower_only": True})
+    (why,) = [s for s in v.sentences if s.startswith("Surprise")]
+    assert "at their torque limit" in why and "98-100 %" in why, why
+    assert "followers only" not in why
+    # no fact at all: no claim about the loop's stability either (the analysis sentence says it, or nothing)
+    runs = {s: _run(after=a) for s, a in (("nominal", 0.05), ("switching", 0.2), ("oracle", 0.04))}
+    v = compare_case("c", runs, fault_times=[20.0], facts={})
+    (why,) = [s for s in v.sentences if s.startswith("Surprise")]
+    assert "stays stable" not in why, why

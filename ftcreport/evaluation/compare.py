@@ -454,7 +454,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
                 parts.append(f"{fmt_value(after.benefit_diff, 'm')} smaller than nominal's")
         out.append(", ".join(parts) + ".")
         if BASELINE in after.winners and not whole and any(contestant(s) for s in ok):
-            out.append(_why_nominal(facts, after))
+            out.append(_why_nominal(facts, after, metrics))
     if failed:
         stops = "; ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)
         out.append(f"Not ranked, the run stopped: {stops}.")
@@ -519,8 +519,26 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
     return out[:4]
 
 
-def _why_nominal(facts, after: MetricVerdict) -> str:
+#: a scheme at its torque limit this fraction of the run or more has its tracking set by the limit
+SATURATED = 0.5
+
+
+def _why_nominal(facts, after: MetricVerdict, metrics: Mapping[str, Mapping] | None = None) -> str:
+    """Why the baseline without FTC is among the best: the case's facts that explain it, else none claimed
+    (the analysis's own sentence says whether the healthy loop stays stable)."""
     why = []
+    sats = [
+        m.get("saturation_fraction")
+        for m in (metrics or {}).values()
+        if m.get("status") == "ok" and isinstance(m.get("saturation_fraction"), int | float)
+    ]
+    if sats and min(sats) >= SATURATED:
+        lo, hi = 100 * min(sats), 100 * max(sats)
+        span = f"{lo:.0f} %" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} %"
+        return (
+            "Surprise: the baseline without FTC is among the best here; the schemes are at their torque limit "
+            f"{span} of the run: the limit, not the law, sets the tracking."
+        )
     if facts.get("fractional"):
         why.append("partial gain losses lie between the 0/1 models of switching and adaptive")
     if facts.get("friction"):
@@ -528,9 +546,7 @@ def _why_nominal(facts, after: MetricVerdict) -> str:
     if facts.get("follower_only"):
         why.append("the faults hit followers only, which need little torque redistribution")
     if not why:
-        why.append(
-            "the healthy law's velocity loop stays stable under these patterns, so redistributing torque buys little"
-        )
+        why.append("no partial loss, friction or follower-only pattern of the case explains it")
     return "Surprise: the baseline without FTC is among the best here; " + "; ".join(why) + "."
 
 

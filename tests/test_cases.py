@@ -378,3 +378,23 @@ def test_an_unexpected_ok_names_the_field_that_expected_otherwise():
     want = " or ".join(repr(s) for s in sorted(case.expected_status))  # the file's own list (or the default)
     assert case.unexpected("nominal", "singular", "") == f"singular, where the case expects {want} (expected_status)"
     assert case.unexpected("nominal", "diverged", "|q| > 1e6 at t = 3 s") == "diverged: |q| > 1e6 at t = 3 s"
+
+
+def test_every_pi_field_under_the_static_drive_is_named_at_once(tmp_path):
+    """The round-3 case audit: `cases validate` named one misplaced PI field per attempt (current_kp, then
+    drive_rate), and a current_bandwidth under the static drive was never named at all."""
+    import tomli_w
+
+    data = tomllib.loads((CASES / "motors" / "two_link_active_motors.toml").read_text())
+    data["base_case"] = str(CASES / "two_link_active.toml")
+    data["actuators"].update(current_kp=2.0, drive_rate=1000.0, current_bandwidth=500.0)
+    path = tmp_path / "x.toml"
+    path.write_text(tomli_w.dumps(data))
+    with pytest.raises(CaseError) as info:
+        load_case(path)
+    assert "actuators: current_bandwidth, current_kp, drive_rate belong to the PI drive" in str(info.value)
+    data["actuators"] = {"current_bandwidth": 500.0}
+    path.write_text(tomli_w.dumps(data))
+    with pytest.raises(CaseError) as info:
+        load_case(path)
+    assert "actuators.current_bandwidth: belongs to the PI drive" in str(info.value)

@@ -265,10 +265,15 @@ class Actuators(_Strict):
 
     @model_validator(mode="after")
     def _pi_fields(self) -> Actuators:
-        if self.driver == "static":  # (current_bandwidth has a default: a stored case writes it back)
-            for key in ("current_kp", "current_ki", "back_emf_feedforward", "drive_rate"):
-                if getattr(self, key) not in (None, False):
-                    raise _FieldError(f"actuators.{key}", 'belongs to the PI drive: set driver = "pi" (or remove it)')
+        if self.driver == "static":  # current_bandwidth has a default a stored case writes back: only another value
+            pi = [k for k in ("current_kp", "current_ki", "back_emf_feedforward", "drive_rate") if getattr(self, k)]
+            if self.current_bandwidth != type(self).model_fields["current_bandwidth"].default:
+                pi.insert(0, "current_bandwidth")
+            if len(pi) == 1:
+                raise _FieldError(f"actuators.{pi[0]}", 'belongs to the PI drive: set driver = "pi" (or remove it)')
+            if pi:  # every one at once, not one per attempt
+                why = 'belong to the PI drive: set driver = "pi" (or remove them)'
+                raise _FieldError("actuators", f"{', '.join(pi)} {why}")
         return self
 
     def params(self, n: int) -> list[MotorParams]:

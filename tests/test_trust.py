@@ -764,3 +764,27 @@ def test_report_and_export_name_runs_whose_case_record_is_gone(tmp_path, damage)
         _no_crash(res)
         assert res.exit_code == 1, (cmd, res.output)
         assert line in res.stderr, (cmd, res.stderr)
+
+
+@pytest.mark.parametrize("damage", ["truncate", "stale"])
+def test_a_damaged_or_stale_metrics_table_is_written_again(tmp_path, damage):
+    """The gate attack: metrics.parquet was redone only when older than some metrics.json; truncated, or
+    dated in the future and then left behind by a changed case, it stayed (exit 0) with the old rows."""
+    import pandas as pd
+
+    path, out = _write(tmp_path, "c"), tmp_path / "r"
+    res = runner.invoke(app, ["batch", str(path), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    pq = out / "metrics.parquet"
+    if damage == "truncate":
+        pq.write_bytes(pq.read_bytes()[:100])
+    else:
+        os.utime(pq, ns=(pq.stat().st_atime_ns, pq.stat().st_mtime_ns + 7_200 * 10**9))  # two hours ahead
+        data = tomllib.loads(path.read_text())
+        data["kinematic"]["k1"] = 5.0
+        path.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["batch", str(path), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    table = pd.read_parquet(pq)
+    stored = json.loads((out / "c" / "nominal" / "metrics.json").read_text())
+    assert stored["position_error_final"] in table["position_error_final"].tolist()

@@ -44,6 +44,7 @@ GENERATED_NAMES: dict[str, str] = {
     "index.html": "the index page (batch, run, report)",
     "manifest.json": "the batch's provenance (batch)",
     "metrics.parquet": "every run's metrics, one row per phase (batch, export)",
+    "metrics.parquet.stamp": "the table's hash and its inputs' digest: redone when either differs (batch, export)",
     "junit.xml": "the usual place of check --junit",
     "assets": "files the pages share",
     "campaigns": "campaign's pages and tables (reports/campaigns/<case>)",

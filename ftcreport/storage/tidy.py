@@ -351,17 +351,59 @@ def metrics_table(out: Path) -> pd.DataFrame:
     return df
 
 
+def table_inputs(out: Path) -> str:
+    """A digest of what :func:`metrics_table` reads: every case record and run record under ``out`` (each
+    run record holds its files' hashes), by path and content."""
+    import hashlib
+
+    out = Path(out)
+    h = hashlib.sha256()
+    for p in sorted([*out.glob("*/case.json"), *out.glob("*/*/record.json")]):
+        h.update(p.relative_to(out).as_posix().encode() + b"\0")
+        try:
+            h.update(p.read_bytes())
+        except OSError:
+            h.update(b"<unreadable>")
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+def table_stale(out: Path, path: Path | None = None) -> bool:
+    """The table at ``path`` (default ``<out>/metrics.parquet``) is missing, damaged (not the bytes its stamp
+    names) or of other inputs than the stored runs now (:func:`table_inputs`): by content, not by date."""
+    import hashlib
+    import json
+
+    out = Path(out)
+    path = Path(path) if path is not None else out / "metrics.parquet"
+    try:
+        stamp = json.loads(path.with_name(path.name + ".stamp").read_text())
+        blob = path.read_bytes()
+    except (OSError, ValueError):
+        return True
+    if not isinstance(stamp, dict) or stamp.get("sha256") != hashlib.sha256(blob).hexdigest():
+        return True
+    return stamp.get("inputs") != table_inputs(out)
+
+
 def write_metrics_parquet(out: Path, path: Path | None = None) -> Path:
-    """``metrics.parquet`` (pyarrow) beside the runs' JSON, atomically; returns its path."""
+    """``metrics.parquet`` (pyarrow) beside the runs' JSON, atomically, and its stamp (``.stamp``: the
+    table's sha256 and its inputs' digest, :func:`table_stale`); returns its path."""
+    import hashlib
     import io
+    import json
 
     from .store import write_atomic
 
     out = Path(out)
     path = Path(path) if path is not None else out / "metrics.parquet"
+    inputs = table_inputs(out)
     buf = io.BytesIO()
     metrics_table(out).to_parquet(buf, engine="pyarrow", index=False)
-    write_atomic(path, buf.getvalue())
+    blob = buf.getvalue()
+    write_atomic(path, blob)
+    stamp = {"sha256": hashlib.sha256(blob).hexdigest(), "inputs": inputs}
+    write_atomic(path.with_name(path.name + ".stamp"), json.dumps(stamp).encode())
     return path
 
 

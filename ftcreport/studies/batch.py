@@ -590,9 +590,9 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
         """Manifests, the tidy table and the pages (in the workers, when there are some)."""
         settings = {"jobs": jobs, "force": force, "duration": duration}
         write_manifests(out, loaded, set(res.cached), settings, res)
-        if _parquet_stale(out):
-            from ..storage.tidy import write_metrics_parquet
+        from ..storage.tidy import table_stale, write_metrics_parquet
 
+        if table_stale(out):  # by content: damaged, or of other runs than those stored now
             write_metrics_parquet(out)
         if render:  # ftcreport.report.render.render_all (studies names no report module: PAGES)
             PAGES["render_all"](out, pool=pool, notify=_render_notice if show_progress else None)
@@ -612,15 +612,6 @@ def _render_notice(pages: int) -> None:
     from rich.console import Console
 
     Console(stderr=True, highlight=False).print(f"rendering {pages} case page(s) (figures and linearized analyses) ...")
-
-
-def _parquet_stale(out: Path) -> bool:
-    """metrics.parquet is missing or older than some run's metrics.json (a warm batch skips pandas)."""
-    pq = out / "metrics.parquet"
-    if not pq.exists():
-        return True
-    stamp = pq.stat().st_mtime_ns
-    return any(p.stat().st_mtime_ns > stamp for p in out.glob("*/*/metrics.json"))
 
 
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict, finish) -> None:

@@ -788,3 +788,19 @@ def test_a_damaged_or_stale_metrics_table_is_written_again(tmp_path, damage):
     table = pd.read_parquet(pq)
     stored = json.loads((out / "c" / "nominal" / "metrics.json").read_text())
     assert stored["position_error_final"] in table["position_error_final"].tolist()
+
+
+def test_an_interrupted_force_batch_counts_only_the_runs_it_stored(tmp_path):
+    """The gate attack: `batch --force` interrupted before any run finished said "11 finished runs are
+    stored": it counted the earlier batch's sound runs, which a forced batch also has in its todo."""
+    from ftcreport.cases import load_case
+    from ftcreport.studies.batch import _records, newly_stored, run_key
+
+    path, out = _write(tmp_path, "c"), tmp_path / "r"
+    res = runner.invoke(app, ["batch", str(path), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    case = load_case(path)
+    todo = [(case, str(path), "nominal", run_key(case, "nominal"))]
+    assert newly_stored(out, todo, _records(out, todo)) == 0  # found on disk, not stored now
+    assert newly_stored(out, todo, {("c", "nominal"): None}) == 1  # absent before: stored by this batch
+    assert newly_stored(out, todo, {("c", "nominal"): b"an older record"}) == 1  # replaced by this batch

@@ -614,10 +614,36 @@ def _render_notice(pages: int) -> None:
     Console(stderr=True, highlight=False).print(f"rendering {pages} case page(s) (figures and linearized analyses) ...")
 
 
+def _records(out: Path, todo) -> dict[tuple[str, str], bytes | None]:
+    """The run records (record.json's bytes, None when absent) of ``todo``'s runs as they are now."""
+    from ..storage.store import RECORD
+
+    def read(p: Path) -> bytes | None:
+        try:
+            return p.read_bytes()
+        except OSError:
+            return None
+
+    return {(c.name, s): read(Path(out) / c.name / s / RECORD) for c, _, s, _ in todo}
+
+
+def newly_stored(out: Path, todo, before: dict[tuple[str, str], bytes | None]) -> int:
+    """How many of ``todo``'s runs this batch stored: sound now, with a record other than ``before``'s
+    (a --force batch's todo holds the earlier batch's sound runs too: those are not this batch's)."""
+    now = _records(out, todo)
+    return sum(
+        1
+        for c, _, s, key in todo
+        if now[(c.name, s)] != before.get((c.name, s)) and check_run(out, c.name, s, key=key).sound
+    )
+
+
 def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, expected: dict, finish) -> None:
     """Run ``todo`` in worker processes, then ``finish(pool)`` (the pages render in the same workers)."""
     from ..infra.lifetime import shielded, stop_pool
     from ..storage.store import lock_fd
+
+    before = _records(out, todo)  # the interrupt message counts what this batch stored, not what it found
 
     ctx = mp.get_context("spawn")
     q = ctx.Queue()  # the workers' progress reports, handed to each worker as it starts
@@ -647,7 +673,7 @@ def _execute(todo, out: Path, jobs: int, show_progress: bool, res: BatchResult, 
                 stop_pool(pool)
                 # what is on disk now, complete with this batch's key (a worker may have stored a run
                 # whose result this process had not collected yet)
-                res.stored = sum(check_run(out, c.name, s, key=key).sound for c, _, s, key in todo)
+                res.stored = newly_stored(out, todo, before)
             raise
         finally:
             q.close()

@@ -119,3 +119,22 @@ def test_all_loops_from_one_eigendecomposition_equal_python_controls_responses(n
         om = frequency_grid(L.poles(), None)
         want = control.frequency_response(L, om).complex.ravel()
         assert np.abs(lp.response(j, om) - want).max() < 1e-10 * np.abs(want).max()
+
+
+def test_a_loop_evaluated_on_its_own_pole_is_infinite_not_a_crash():
+    """CI on a Zen 5 machine: two_link_switching's page stopped with "complex division by zero" in the
+    crossover search: the scalar L_j = -t / (1 + t) met 1 + t = 0 exactly, a pole of L_j on the axis (the
+    array path divides under errstate and gives inf).  Both now give an infinite gain there."""
+    import math
+
+    from ftcreport.analysis.margins import Loops
+
+    w0 = 2.0
+    lp = Loops.__new__(Loops)
+    lp.exact, lp.T = False, None
+    lp.lam = np.array([0.0 + 0.0j])
+    lp.W = np.array([[1.0 + 0.0j]])
+    lp.KV = np.array([[-1j * w0]])  # t(j w0) = -j w0 / (j w0 - 0) = -1 exactly
+    assert math.isinf(abs(lp.at(0)(w0)))
+    assert math.isinf(abs(lp.response(0, [w0])[0]))
+    assert abs(lp.at(0)(1.0) - lp.response(0, [1.0])[0]) < 1e-12  # elsewhere the same value

@@ -99,6 +99,8 @@ class Loops:
             def f(w: float) -> complex:
                 x = complex(math.cos(w * T), math.sin(w * T)) if T else 1j * w
                 t = complex(np.sum(kw / (x - lam)))
+                if 1.0 + t == 0.0:  # a pole of L_j on the axis, met exactly: its gain is infinite there
+                    return complex(math.inf, 0.0)
                 return -t / (1.0 + t)
 
         f.dt = self.T  # type: ignore[attr-defined]

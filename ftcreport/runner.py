@@ -203,7 +203,7 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     # inside each step (evaluation.metrics.step_integrals): sampled control holds the command, and with
     # motors the currents settle within L_a / R_a after each held voltage, read at the steps' midpoints
     sampled, motors = case.simulation.sample_time is not None, case.actuators is not None
-    fast = case.actuators.L_a / case.actuators.R_a if motors else None
+    fast = current_time_constants(case) if motors else None
     out |= torque_metrics(
         S["tau"], S["u"], case.plant.saturation, t, omega, first_fault, S.get("tau_mid") if sampled else None, fast,
         held=sampled and not motors,
@@ -213,6 +213,17 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     if hook is not None:
         out |= hook(case, scheme, t, S, built, ctrl, run)
     return out
+
+
+def current_time_constants(case: Case) -> np.ndarray:
+    """Each wheel's armature-current time constant [s] (robot order, right wheel first): L_a / R_a with the
+    static drive (the back-EMF of a held rotor), L_a / K_p with the PI drive (its closed current loop:
+    1 / (2 pi f) with the gains of pole-zero cancellation).  The metrics' quadrature of each step's
+    transient reads it (evaluation.metrics.step_integrals); a motor fault that changes R_a is not in it."""
+    n = case.robots.n
+    motors, drives = case.actuators.params(n), case.actuators.drive_params(n)
+    per_robot = [m.L_a / (d.kp if d.driver == "pi" else m.R_a) for m, d in zip(motors, drives, strict=True)]
+    return np.repeat(np.asarray(per_robot, dtype=float), 2)
 
 
 def _requirements(case: Case, scheme: str, run: Run, built: Built, t: np.ndarray, S: dict) -> list[dict]:

@@ -76,3 +76,29 @@ def test_a_held_torque_without_motors_does_not_depend_on_the_step():
     # 1.4 % low).  1e-6 leaves omega's quadrature room and catches any step-dependence of the torque's.
     for key in ("torque_rms", "energy"):
         assert coarse[key] == pytest.approx(fine[key], rel=1e-6), key
+
+
+def test_motor_parameters_per_robot_and_the_pi_drive_give_each_wheel_its_time_constant(tmp_path):
+    """The review: the quadrature read L_a / R_a as one number, so a case with per-robot motor values
+    (R_a = [0.365, 0.4], as the fuzz corpus has them) crashed its metrics (TypeError, exit 3), and the PI
+    drive's closed current loop (1 / (2 pi f)) was given the winding's L_a / R_a."""
+    import math
+
+    import numpy as np
+    import tomli_w
+
+    from ftcreport.runner import current_time_constants
+
+    data = tomllib.loads((CASES / "motors" / "two_link_active_motors.toml").read_text())
+    data["base_case"] = str(CASES / "two_link_active.toml")
+    data["actuators"]["R_a"] = [0.365, 0.4]
+    path = tmp_path / "x.toml"
+    path.write_text(tomli_w.dumps(data))
+    case = with_duration(load_case(path), 0.3)
+    L = case.actuators.L_a
+    np.testing.assert_allclose(current_time_constants(case), [L / 0.365, L / 0.365, L / 0.4, L / 0.4], rtol=1e-15)
+    run, m = run_scheme(case, "nominal")
+    assert run.status == "ok" and math.isfinite(m["torque_rms"]) and math.isfinite(m["energy"])
+    pi = load_case(CASES / "motors" / "three_link_switching_pi.toml")
+    f = pi.actuators.current_bandwidth
+    np.testing.assert_allclose(current_time_constants(pi), 1.0 / (2.0 * math.pi * f), rtol=1e-12)

@@ -21,8 +21,9 @@ Names are stable: they are the keys of ``metrics.json`` and of the thresholds
   ``torque_rms``
   = RMS over time of the per-wheel torques (largest wheel), ``saturation_fraction``
   = fraction of time with some |u_j| at the limit, ``energy`` = the motors'
-  absolute mechanical work int sum_j |tau_j omega_j| dt [J] (trapezoid over every
-  step);
+  absolute mechanical work int sum_j |tau_j omega_j| dt [J] (over every step, as
+  :func:`step_integrals` integrates a step: the trapezoid, a held torque, or the motors'
+  transient fitted through the step's midpoint);
 * ``singularity_margin_min``: the smallest distance of an articulation angle
   |theta_i - theta_(i+1)| from 90 deg over the run [rad];
 * switching (ERRATA E12g): the true 0/1 pattern marks a wheel faulty when its
@@ -44,7 +45,9 @@ the start of the step (where the law is evaluated and the torque applied). So
 are exact to the step, and integrals are trapezoids over the steps.  Means over
 time are too (:func:`time_mean`; the error-controlled methods' steps are not
 equal): RMS values by the trapezoid, and fractions of time of what is held over
-each step (the applied model, saturation) by the steps they start.
+each step (the applied model, saturation) by the steps they start.  The torque's
+RMS and the energy follow what the torque does inside a step (:func:`step_integrals`:
+held under sampled control, the currents' transient with motors).
 """
 
 from __future__ import annotations
@@ -221,8 +224,8 @@ _GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W
 
 
 def step_integrals(
-    t: np.ndarray, tau: np.ndarray, omega: np.ndarray, tau_mid: np.ndarray | None = None, fast: float | None = None,
-    held: bool = False,
+    t: np.ndarray, tau: np.ndarray, omega: np.ndarray, tau_mid: np.ndarray | None = None,
+    fast: float | np.ndarray | None = None, held: bool = False,
 ) -> tuple[np.ndarray, float]:  # fmt: skip
     r"""Per wheel ``int tau^2 dt`` (nw,) and ``int sum_j |tau_j omega_j| dt`` over the steps of a stream.
 
@@ -231,7 +234,8 @@ def step_integrals(
     * ``held`` (sampled control, no motors): tau is the held command, constant over the step (the steps
       end at the samples): ``h tau_k^2`` and ``tau_k`` times the trapezoid of |omega|, exactly;
     * ``tau_mid`` (sampled control with motors: the torques at the step's midpoint, from the
-      integrator's interpolant, fast.loop) and ``fast`` (the currents' time constant T = L_a / R_a):
+      integrator's interpolant, fast.loop) and ``fast`` (the currents' time constant T per wheel, or one
+      for all: L_a / R_a with the static drive, L_a / K_p with the PI's, runner.current_time_constants):
       after each held voltage step the currents settle within T, inside the step, where no row is.
       The torque is fitted through the step's start, midpoint and end as ``A + C s + B exp(-s / T)``
       (a constant, the drift, the transient; for h < T / 10, where the transient is no longer fast,
@@ -251,7 +255,8 @@ def step_integrals(
         return np.sum(h[:, None] * a * a, axis=0), float(np.sum(h[:, None] * np.abs(a) * 0.5 * (wa + wb)))
     sq = 0.5 * h[:, None] * (a * a + b * b)
     pw = 0.5 * h * np.sum(np.abs(a * omega[:-1]) + np.abs(b * omega[1:]), axis=1)
-    if tau_mid is None or fast is None or not fast > 0:
+    T = None if fast is None else np.broadcast_to(np.asarray(fast, dtype=float), (nw,))
+    if tau_mid is None or T is None or not np.all(T > 0):
         return sq.sum(axis=0), float(pw.sum())
     m = np.asarray(tau_mid, dtype=float)[:-1]
     rows = np.flatnonzero(np.all(np.isfinite(m), axis=1) & (h > 0))
@@ -260,10 +265,10 @@ def step_integrals(
             continue
         hk = h[chunk][:, None]  # (k, 1)
         # the nodes: 8 on [0, c] and 8 on [c, h], c = min(h/2, 4T) (the transient lives in the first)
-        c = np.minimum(0.5 * hk, 4.0 * fast)
+        c = np.minimum(0.5 * hk, 4.0 * T.max())
         s = np.concatenate((c * _GL_X, c + (hk - c) * _GL_X), axis=1)  # (k, 16)
         w = np.concatenate((c * _GL_W, (hk - c) * _GL_W), axis=1)
-        x = _fitted(hk, a[chunk], m[chunk], b[chunk], s, fast)  # (k, 16, nw)
+        x = _fitted(hk, a[chunk], m[chunk], b[chunk], s, T)  # (k, 16, nw)
         r = (s / hk)[:, :, None]
         om = omega[chunk][:, None, :] * (1.0 - r) + omega[chunk + 1][:, None, :] * r
         sq[chunk] = np.einsum("kj,kjw->kw", w, x * x)
@@ -271,10 +276,10 @@ def step_integrals(
     return sq.sum(axis=0), float(pw.sum())
 
 
-def _fitted(h: np.ndarray, y0: np.ndarray, y1: np.ndarray, y2: np.ndarray, s: np.ndarray, T: float) -> np.ndarray:
-    """The torque inside each step at the offsets s (k, J): through y0, y1, y2 (k, nw) at 0, h/2, h."""
+def _fitted(h: np.ndarray, y0: np.ndarray, y1: np.ndarray, y2: np.ndarray, s: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """The torque inside each step at the offsets s (k, J): through y0, y1, y2 (k, nw) at 0, h/2, h; T (nw,)."""
     x = s / h  # (k, J)
-    exp = (h >= 0.1 * T)[:, 0]
+    exp = (h >= 0.1 * T.max())[:, 0]  # every wheel's transient fast beside the step: the exponential basis
     # the quadratic through the three points (Lagrange on 0, 1/2, 1)
     l0 = (1 - x) * (1 - 2 * x)
     l1 = 4 * x * (1 - x)
@@ -282,12 +287,12 @@ def _fitted(h: np.ndarray, y0: np.ndarray, y1: np.ndarray, y2: np.ndarray, s: np
     out = l0[:, :, None] * y0[:, None, :] + l1[:, :, None] * y1[:, None, :] + l2[:, :, None] * y2[:, None, :]
     if np.any(exp):
         # A + C s + B e^{-s/T}: B from the second difference, which the linear part does not see
-        hk = h[exp]
-        e1, e2 = np.exp(-0.5 * hk / T), np.exp(-hk / T)
-        d = (1.0 - 2.0 * e1 + e2)[:, :, None]  # e^{-s/T}'s second difference over 0, h/2, h (> 0)
+        hk = h[exp]  # (k, 1)
+        e1, e2 = np.exp(-0.5 * hk / T), np.exp(-hk / T)  # (k, nw)
+        d = (1.0 - 2.0 * e1 + e2)[:, None, :]  # e^{-s/T}'s second difference over 0, h/2, h (> 0)
         B = (y0[exp] - 2.0 * y1[exp] + y2[exp])[:, None, :] / d
         A = y0[exp][:, None, :] - B
-        C = ((y2[exp] - y0[exp])[:, None, :] - B * (e2 - 1.0)[:, :, None]) / hk[:, :, None]
+        C = ((y2[exp] - y0[exp])[:, None, :] - B * (e2 - 1.0)[:, None, :]) / hk[:, :, None]
         se = s[exp][:, :, None]
         out[exp] = A + C * se + B * np.exp(-se / T)
     return out

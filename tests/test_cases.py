@@ -398,3 +398,19 @@ def test_every_pi_field_under_the_static_drive_is_named_at_once(tmp_path):
     with pytest.raises(CaseError) as info:
         load_case(path)
     assert "actuators.current_bandwidth: belongs to the PI drive" in str(info.value)
+
+
+def test_an_overlay_that_changes_a_kind_takes_that_table_whole(tmp_path):
+    """The review: refusing a field of another kind broke overlays that switch kinds, since TOML cannot
+    delete the base's keys: two_link_active (a unicycle reference, v_d and omega_d) overlaid with an
+    'eight' reference was refused on reference.v_d.  A table whose kind the overlay changes is the
+    overlay's whole; one whose kind it keeps is merged key by key, as before."""
+    (tmp_path / "o.toml").write_text(
+        f'base_case = "{CASES / "two_link_active.toml"}"\n[reference]\nkind = "eight"\nscale = 0.5\n'
+    )
+    case = load_case(tmp_path / "o.toml")
+    assert case.reference.kind == "eight" and case.reference.scale == 0.5 and case.reference.v_d is None
+    base = load_case(CASES / "two_link_active.toml")
+    (tmp_path / "k.toml").write_text(f'base_case = "{CASES / "two_link_active.toml"}"\n[kinematic]\nk1 = 3.0\n')
+    same = load_case(tmp_path / "k.toml")
+    assert same.kinematic.k1 == 3.0 and same.kinematic.k2 == base.kinematic.k2  # merged key by key

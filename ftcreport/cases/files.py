@@ -71,10 +71,17 @@ OWN_FIELDS = (
 
 
 def _merge(base: dict, over: dict) -> dict:
-    """``over`` on ``base``: tables merged key by key, anything else (values, arrays) replaced whole."""
+    """``over`` on ``base``: tables merged key by key, anything else (values, arrays) replaced whole; a table
+    whose ``kind`` the overlay changes (a reference, the kinematic law) is the overlay's whole: the base's
+    fields of the other kind would be refused (TOML cannot delete a key)."""
     out = dict(base)
     for key, val in over.items():
-        if isinstance(val, dict) and isinstance(out.get(key), dict):
+        switched = (
+            isinstance(val, dict)
+            and isinstance(out.get(key), dict)
+            and val.get("kind", out[key].get("kind")) != out[key].get("kind")
+        )
+        if isinstance(val, dict) and isinstance(out.get(key), dict) and not switched:
             out[key] = _merge(out[key], val)
         else:
             out[key] = val

@@ -97,7 +97,7 @@ def refuse_unused(table: BaseModel, where: str, what: str, uses: dict[str, tuple
         if name in used or getattr(table, name) == field.default:
             continue
         readers = [k for k, fields in uses.items() if name in fields]
-        article = "an" if kind[0] in "aeiou" else "a"
+        article = "an" if kind[0] in "aeio" else "a"  # a 'unicycle'
         raise FieldError(
             f"{where}.{name}",
             f"not used by {article} '{kind}' {what} (used by: {', '.join(readers)}); remove it or change kind",

@@ -745,7 +745,7 @@ def test_check_never_writes_its_junit_over_a_file_that_is_not_junit(tmp_path):
     assert f"--junit: {tmp_path} is a directory: give the XML file's path" in res.output
 
 
-@pytest.mark.parametrize("damage", ["delete", "garble"])
+@pytest.mark.parametrize("damage", ["delete", "garble", "not a table"])
 def test_report_and_export_name_runs_whose_case_record_is_gone(tmp_path, damage):
     """The gate attack: with <case>/case.json deleted (or garbled) `report` and `export` exited 0 and left
     the case's runs out without a word (the index still linked the old green page)."""
@@ -755,8 +755,8 @@ def test_report_and_export_name_runs_whose_case_record_is_gone(tmp_path, damage)
     rec = out / "c" / "case.json"
     if damage == "delete":
         rec.unlink()
-    else:
-        rec.write_text("garbage")
+    else:  # the review: valid JSON that is not a record crashed report (TypeError in the page stamp)
+        rec.write_text("garbage" if damage == "garble" else "[1]")
     why = "missing" if damage == "delete" else "unreadable or not a case record"
     line = f"ftcreport: error: {rec}: {why}: the case's 1 stored run(s) (nominal) are not shown or exported"
     for cmd in (["report", "--out", str(out)], ["export", "--out", str(out), "--dest", str(tmp_path / "x")]):

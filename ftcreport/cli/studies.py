@@ -203,11 +203,11 @@ def export(
 
     if not out.is_dir():
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
-    damaged: list[str] = unrecorded_cases(out)  # runs whose case record is gone: not exported, and said so
     with contextlib.ExitStack() as locks:  # the results read and the directory written: no batch meanwhile
         locks.enter_context(output_lock(out, "export"))
         if dest is not None:  # a directory of its own: never another batch's (its metrics.parquet) or family's
             locks.enter_context(output_lock(dest, "export --dest"))
+        damaged: list[str] = unrecorded_cases(out)  # runs whose case record is gone: not exported, and said so
         paths = _export(out, dest, damaged)
     n_nc = sum(p.suffix == ".nc" for p in paths)
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")

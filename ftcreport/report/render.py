@@ -228,7 +228,9 @@ def _after_max(m: dict) -> float | None:
 
 
 def _record(out: Path, name: str) -> dict | None:
-    return read_json(out / name / "case.json")
+    """The case record, or None when missing or not a record (``report`` names it: store.unrecorded_cases)."""
+    rec = read_json(out / name / "case.json")
+    return rec if isinstance(rec, dict) else None
 
 
 def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases") -> Path | None:
@@ -690,7 +692,9 @@ def render_index(out: Path) -> Path:
     n_runs = n_ok = n_pass = n_fail = n_expected_stop = n_unexpected = 0
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
-        rec = _record(out, name) or {}
+        rec = _record(out, name)
+        if rec is None:  # not a case record: `report` names it (store.unrecorded_cases)
+            continue
         entry = {
             "name": name,
             "n": rec.get("n", "?"),
@@ -805,6 +809,8 @@ def _page_stamp(out: Path, name: str) -> str:
     metrics and time series, the templates and the package version."""
     h = hashlib.sha256(__version__.encode())
     rec = json.loads((out / name / "case.json").read_text())
+    if not isinstance(rec, dict):
+        raise ValueError(f"{out / name / 'case.json'}: not a case record")
     rec.pop("time", None)
     h.update(json.dumps(rec, sort_keys=True).encode())
     for s in stored_schemes(out, name):
@@ -836,6 +842,8 @@ def stale_pages(out: Path, force: bool = False) -> list[tuple[str, str | None]]:
     todo = []
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
+        if _record(out, name) is None:  # not a case record: no page (report names it)
+            continue
         stamp_path = out / name / "page.stamp"
         try:
             stamp = _page_stamp(out, name)

@@ -333,12 +333,14 @@ def metrics_table(out: Path) -> pd.DataFrame:
     """Every stored run's metrics under ``out``: one row per (case, scheme, phase), :data:`METRICS_DTYPES`."""
     import pandas as pd
 
-    from .store import stored_runs
+    from .store import read_json, stored_runs
 
     out = Path(out)
     rows: list[dict] = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
+        if not isinstance(read_json(rec), dict):  # not a case record: export names it (store.unrecorded_cases)
+            continue
         for s, run in stored_runs(out, name).items():  # a damaged run is a row with status error, not left out
             key = (run.record or {}).get("key") or ""
             rows += _phase_rows({"case": name, "scheme": s} | run.shown(), key)
@@ -415,7 +417,7 @@ def export(out: Path, dest: Path | None = None, damaged: list[str] | None = None
     its problem (``<file>: <why>``) is appended to ``damaged`` when given.
     """
     from ..errors import FtcError
-    from .store import stored_runs
+    from .store import read_json, stored_runs
 
     out = Path(out)
     dest = Path(dest) if dest is not None else out
@@ -424,6 +426,8 @@ def export(out: Path, dest: Path | None = None, damaged: list[str] | None = None
     written = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
+        if not isinstance(read_json(rec), dict):  # not a case record: named by the caller (unrecorded_cases)
+            continue
         for s, stored in stored_runs(out, name).items():
             run = read_run(out, name, s) if stored.sound else None
             if run is None:

@@ -259,3 +259,33 @@ def test_a_hand_edited_baseline_fails_naming_the_file_and_the_field(tmp_path, da
     assert res.exit_code == 1, res.output
     assert "a bug" not in res.output and "Traceback" not in res.output
     assert f"{path}: damaged: {words}" in res.output, res.output
+
+
+def test_a_baseline_whose_signal_band_is_gone_fails_naming_it(tmp_path):
+    """The review: a signal listed in baseline.json whose band signals.npz lacks (both files edited, its
+    hash updated) raised KeyError in the comparison."""
+    import hashlib
+    import io
+
+    import numpy as np
+
+    src, out, dest = tmp_path / "bl.toml", tmp_path / "r", tmp_path / "base"
+    _write(src)
+    data = tomllib.loads(src.read_text())
+    data["simulation"]["duration"], data["faults"][0]["time"] = 2.0, 1.0
+    src.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["baseline", "save", str(src), "--out", str(out), "--dest", str(dest), "-q"])
+    assert res.exit_code == 0, res.output
+    npz, path = dest / "bl" / "signals.npz", dest / "bl" / "baseline.json"
+    with np.load(npz) as z:
+        kept = {k: z[k] for k in z.files if k != "switching|torque[1r]|lo"}
+    buf = io.BytesIO()
+    np.savez(buf, **kept)
+    npz.write_bytes(buf.getvalue())
+    rec = json.loads(path.read_text())
+    rec["signals_sha256"] = hashlib.sha256(buf.getvalue()).hexdigest()
+    path.write_text(json.dumps(rec))
+    res = runner.invoke(app, ["check", str(src), "--out", str(out), "--baseline", str(dest), "-q"])
+    assert res.exit_code == 1, res.output
+    assert "a bug" not in res.output
+    assert f"{path}: damaged: schemes.switching.signals names 'torque[1r]', which {npz} has no band of" in res.output

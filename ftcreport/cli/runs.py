@@ -417,7 +417,7 @@ def _junit_target(path: Path) -> None:
                 head = f.read(512).lstrip()
         except OSError as exc:
             raise FtcError(f"--junit: {path}: cannot read ({exc.strerror})") from None
-        if head and not (head.startswith(b"<?xml") or head.startswith(b"<testsuite")):
+        if head and b"<testsuite" not in head:  # JUnit's root (testsuite or testsuites), after any declaration
             raise FtcError(f"--junit: {path} exists and is not a JUnit XML file: not overwritten")
 
 
@@ -466,11 +466,12 @@ def check(
 
             check_dest(baseline)  # a mistyped --baseline before anything runs
         res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
-    except FtcError as exc:  # stopped before judging: the JUnit file says so, never an older pass
+    except BaseException as exc:  # stopped before judging (bad input, Ctrl-C, a bug): the JUnit file says so
         if junit is not None:
             from ..studies.check import error_items
 
-            write_junit(junit, error_items({"ftcreport check": str(exc)}), time=_time.perf_counter() - wall0,
+            why = str(exc) if isinstance(exc, FtcError) else f"stopped before judging: {type(exc).__name__} {exc}"
+            write_junit(junit, error_items({"ftcreport check": why}), time=_time.perf_counter() - wall0,
                         timestamp=started)  # fmt: skip
         raise
     items = gate(out, res.cases, res.case_errors, res.not_stored)

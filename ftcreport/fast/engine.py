@@ -561,7 +561,8 @@ def _finish(Run, spec, plant, settings, nq, stream, si, log_parts, status, reaso
 def _reference_now(reference, t: np.ndarray, signals: dict[str, np.ndarray], sample_time: float) -> None:
     """``q_d`` and ``eta_d`` of the rows between samples set to the reference at the row's own time.
 
-    Sampled control logs the law's signals as held since the last sample, the reference among them;
+    Sampled control logs the law's signals as held since the last sample, the reference among them (the
+    law's own signals, z and eta_c, stay as the law held them);
     the tracking errors (metrics, requirements, pages) compare the chain now with the reference now,
     not with where the reference was at the last sample (a sawtooth of v (t - t_sample)).  Rows at a
     sample instant already hold it, exactly: they are left alone.
@@ -570,8 +571,13 @@ def _reference_now(reference, t: np.ndarray, signals: dict[str, np.ndarray], sam
         return
     k = t / sample_time
     between = np.abs(k - np.round(k)) > 1e-9 * np.maximum(1.0, np.abs(k))
+    from ..errors import FtcError
+
     for i in np.flatnonzero(between):
-        point = reference.at(float(t[i]))
+        try:
+            point = reference.at(float(t[i]))
+        except FtcError:  # infeasible between samples: the row keeps the law's held reference (the run says
+            continue  # where the reference fails when it reaches it)
         if "q_d" in signals:
             signals["q_d"][i] = point.q_d
         if "eta_d" in signals:

@@ -538,6 +538,15 @@ def _load(dest: Path, name: str) -> tuple[dict | None, dict[str, np.ndarray] | N
         return rec, None, f"{dest / name / 'signals.npz'} is not the file its baseline.json names (damaged or mixed)"
     with np.load(io.BytesIO(blob)) as data:
         arrays = {k: data[k] for k in data.files}
+    for s, old in rec["schemes"].items():  # every listed signal has its band (a name added by hand has not)
+        for sig in old.get("signals", []):
+            if f"{s}|edges" in arrays and not all(f"{s}|{sig}|{b}" in arrays for b in ("lo", "hi")):
+                return (
+                    None,
+                    None,
+                    f"{dest / name / 'baseline.json'}: damaged: schemes.{s}.signals names '{sig}', "
+                    f"which {dest / name / 'signals.npz'} has no band of (save the baseline again)",
+                )
     return rec, arrays, ""
 
 

@@ -144,13 +144,14 @@ def _inside_steps(t, y0, B, C, T, s):
     return (y0 - B) + C * s + B * np.exp(-s / T)
 
 
-@pytest.mark.parametrize("T", [0.44e-3, 20e-3])  # the currents' transient inside a 5 ms step; and slow
+@pytest.mark.parametrize("T", [0.44e-3, 20e-3, 1.0])  # fast inside a 5 ms step; slow; the quadratic branch
 def test_step_integrals_are_exact_on_the_fitted_shape(T):
     """The motor cases' torque inside a held-voltage step is a constant, a drift and the currents'
     transient (benchmarks/torque_metric_dt.py --fit); given its start, midpoint and end the integrals of
-    tau^2 and |tau omega| are exact (to the 16-point Gauss-Legendre quadrature's 1e-9 here; a step in
-    which the power changes sign has a kink the nodes do not resolve, to 1e-3 of that step's work), where
-    the trapezoid misses the transient by 10 % of each step's integral."""
+    tau^2 and |tau omega| are exact to the 16-point Gauss-Legendre quadrature (measured 2e-11 at
+    T = 0.44 ms, 6e-11 at 20 ms; asserted to 1e-7, the reference's own trapezoid on 200,001 points being
+    about 1e-10); a step in which the power changes sign has a kink the nodes do not resolve, to 1e-3 of
+    that step's work.  The trapezoid misses the fast transient by several % of a step's integral."""
     from ftcreport.evaluation.metrics import step_integrals
 
     rng = np.random.default_rng(1)
@@ -178,9 +179,14 @@ def test_step_integrals_are_exact_on_the_fitted_shape(T):
         sq, pw = step_integrals(t[k : k + 2], one, om[k : k + 2], np.stack([tau_mid[k], tau_mid[-1]]), T)
         np.testing.assert_allclose(sq, np.trapezoid(x * x, fine, axis=0), rtol=1e-7)
         assert pw == pytest.approx(np.trapezoid(np.sum(np.abs(x * w), axis=1), fine), rel=1e-7)
-    # without the midpoint: the trapezoid (what every method without an interpolant keeps)
+    # without the midpoint: the trapezoid (what every method without an interpolant keeps); it misses a fast
+    # transient that the fit integrates exactly (step 0 of each wheel)
+    x = _inside_steps(0, y0[0], B[0], C[0], T, fine[:, None])
+    exact0 = np.trapezoid(x * x, fine, axis=0)
     sq_t, _ = step_integrals(t[:2], np.stack([y0[0], end[0]]), om[:2], None, T)
     np.testing.assert_allclose(sq_t, 0.5 * h * (y0[0] ** 2 + end[0] ** 2))
+    if h > T:
+        assert np.max(np.abs(sq_t / exact0 - 1.0)) > 1e-3
 
 
 def test_a_held_torque_is_integrated_as_held():

@@ -258,6 +258,21 @@ def test_the_verdict_opens_with_the_failed_gate_items(tmp_path):
     assert "switching_match_fraction" not in gate and "settled" not in gate
 
 
+def test_a_shortened_run_says_its_gate_is_not_judged(tmp_path):
+    """The round-3 screenshots: after `run --duration` the page's verdict opened with the case's claims that
+    "do not hold (ftcreport run and check exit 1)", while `run` exited 0 and said they are not judged."""
+    data = _data([HOLDS, VIOLATED])
+    data["thresholds"] = {"switching": {"position_error_final": {"max": 1e-9}}}
+    src = tmp_path / "req.toml"
+    src.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["run", str(src), "--out", str(tmp_path / "r"), "--duration", "10"])
+    assert res.exit_code == 0, res.output
+    page = (tmp_path / "r" / "req" / "index.html").read_text()
+    verdict = page.split('<section id="verdict">', 1)[1].split("</section>", 1)[0]
+    assert 'id="verdict-gate"' not in verdict
+    assert "this run was shortened to 10 s (--duration), so they are not judged here" in verdict
+
+
 def test_cases_readme_says_run_exits_1_on_a_failed_window():
     """cases/README.md said that ``run`` prints the requirements and "does not change its exit code", while
     ``run`` exits 1 when a window is violated or not evaluated (test_check_run_junit_and_page).  The text is

@@ -372,6 +372,16 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
     claims = _claims(name, case, runs)
     verdict = _verdict(case, name, runs, analysis)
     gate = _gate_failures(name, case, runs, checks, claims)
+    gate_skipped = None
+    if gate and rec.get("duration_override") is not None:  # `run --duration`: the gate is not judged
+        gate, gate_skipped = (
+            None,
+            (
+                f"The case's thresholds, claims and requirement windows are stated for its own duration; this run "
+                f"was shortened to {rec['duration_override']:g} s (--duration), so they are not judged here "
+                "(ftcreport check judges them)."
+            ),
+        )
     base_verdict = None
     if verdict and rec.get("base") and (out / rec["base"]).is_dir():
         base_case = _stored_case(out, rec["base"], _record(out, rec["base"]) or {})
@@ -397,6 +407,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         nav_label=nav,
         verdict=verdict,
         gate=gate,
+        gate_skipped=gate_skipped,
         verdict_rows=_verdict_rows(verdict) if verdict else [],
         not_run=rec.get("not_run", {}),
         plugin_schemes=rec.get("plugin_schemes", {}),

@@ -232,6 +232,18 @@ def test_the_compared_metrics_are_names_a_case_may_tune():
     assert set(COMPARED_METRICS) <= set(BASELINE_METRIC_NAMES)
 
 
+def _saved_short_baseline(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """(case file, results, baseline directory): the baseline case shortened to 2 s, its baseline saved."""
+    src, out, dest = tmp_path / "bl.toml", tmp_path / "r", tmp_path / "base"
+    _write(src)
+    data = tomllib.loads(src.read_text())
+    data["simulation"]["duration"], data["faults"][0]["time"] = 2.0, 1.0
+    src.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["baseline", "save", str(src), "--out", str(out), "--dest", str(dest), "-q"])
+    assert res.exit_code == 0, res.output
+    return src, out, dest
+
+
 @pytest.mark.parametrize(
     ("damage", "words"),
     [
@@ -244,13 +256,7 @@ def test_the_compared_metrics_are_names_a_case_may_tune():
 def test_a_hand_edited_baseline_fails_naming_the_file_and_the_field(tmp_path, damage, words):
     """The round-3 gate attack: a baseline.json edited by hand (a scheme's table replaced by a string, its
     metrics or signals by null) crashed `check` (exit 3, AttributeError/TypeError)."""
-    src, out, dest = tmp_path / "bl.toml", tmp_path / "r", tmp_path / "base"
-    _write(src)
-    data = tomllib.loads(src.read_text())
-    data["simulation"]["duration"], data["faults"][0]["time"] = 2.0, 1.0
-    src.write_text(tomli_w.dumps(data))
-    res = runner.invoke(app, ["baseline", "save", str(src), "--out", str(out), "--dest", str(dest), "-q"])
-    assert res.exit_code == 0, res.output
+    src, out, dest = _saved_short_baseline(tmp_path)
     path = dest / "bl" / "baseline.json"
     rec = json.loads(path.read_text())
     damage(rec)
@@ -269,13 +275,7 @@ def test_a_baseline_whose_signal_band_is_gone_fails_naming_it(tmp_path):
 
     import numpy as np
 
-    src, out, dest = tmp_path / "bl.toml", tmp_path / "r", tmp_path / "base"
-    _write(src)
-    data = tomllib.loads(src.read_text())
-    data["simulation"]["duration"], data["faults"][0]["time"] = 2.0, 1.0
-    src.write_text(tomli_w.dumps(data))
-    res = runner.invoke(app, ["baseline", "save", str(src), "--out", str(out), "--dest", str(dest), "-q"])
-    assert res.exit_code == 0, res.output
+    src, out, dest = _saved_short_baseline(tmp_path)
     npz, path = dest / "bl" / "signals.npz", dest / "bl" / "baseline.json"
     with np.load(npz) as z:
         kept = {k: z[k] for k in z.files if k != "switching|torque[1r]|lo"}

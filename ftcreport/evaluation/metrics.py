@@ -317,12 +317,13 @@ def torque_metrics(
     (:func:`step_integrals`), for the RMS and the energy.
     """
     tt = np.arange(tau.shape[0], dtype=float) if t is None else t
-    rms_per_wheel = np.sqrt(time_mean(tt, np.square(tau)))
     inside = held or (tau_mid is not None and fast is not None)  # else the trapezoid, as time_mean has it
     inside = inside and t is not None and omega is not None and tt.size > 1 and tt[-1] > tt[0]
     if inside:
         sq, work = step_integrals(tt, tau, omega, tau_mid, fast, held)
         rms_per_wheel = np.sqrt(sq / (tt[-1] - tt[0]))
+    else:
+        rms_per_wheel = np.sqrt(time_mean(tt, np.square(tau)))
     sat = 0.0
     if u_limit is not None:
         sat = float(time_mean(tt, np.any(np.abs(u) >= u_limit * (1 - 1e-12), axis=1), "step"))

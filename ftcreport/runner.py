@@ -219,7 +219,9 @@ def current_time_constants(case: Case) -> np.ndarray:
     """Each wheel's armature-current time constant [s] (robot order, right wheel first): L_a / R_a with the
     static drive (the back-EMF of a held rotor), L_a / K_p with the PI drive (its closed current loop:
     1 / (2 pi f) with the gains of pole-zero cancellation).  The metrics' quadrature of each step's
-    transient reads it (evaluation.metrics.step_integrals); a motor fault that changes R_a is not in it."""
+    transient reads it (evaluation.metrics.step_integrals).  A motor fault that changes R_a is not in it:
+    measured on two_link_active_motors with R_a x4 (x10) on robot 1's wheels from 0.5 s, torque_rms at
+    dt = 5 ms stays within 5.5e-4 (3.7e-4) of dt/16, as on the healthy case (tests/test_torque_metric.py)."""
     n = case.robots.n
     motors, drives = case.actuators.params(n), case.actuators.drive_params(n)
     per_robot = [m.L_a / (d.kp if d.driver == "pi" else m.R_a) for m, d in zip(motors, drives, strict=True)]

@@ -145,10 +145,15 @@ def test_metrics_parquet_has_the_documented_dtypes(store, tmp_path):
         c: str(pd.Series([], dtype=t).dtype) for c, t in METRICS_DTYPES.items()
     }
     # one row per (case, scheme, phase): the phases of each run are those of its metrics.json
-    for (name, scheme), (_, _, m) in runs.items():
+    for (name, scheme), (case, _, m) in runs.items():
         rows = df[(df["case"] == name) & (df["scheme"] == scheme)].sort_values("phase")
         assert list(rows["phase"]) == list(range(len(m["phases"])))
         assert list(rows["phase_start"]) == [p["start"] for p in m["phases"]]
+        # whether the phase starts with a fault (the recovery and verdict read it; a fault at t = 0 makes
+        # the first phase one): a reader filtering the table by phase had only its index to go on
+        assert list(rows["phase_fault"]) == [p["fault"] for p in m["phases"]]
+        at_zero = any(f.time == 0.0 for f in case.faults)  # two_link_active: yes; three_link_fast: no
+        assert list(rows["phase_fault"]) == [at_zero] + [True] * (len(rows) - 1)
         assert rows["position_error_final"].iloc[0] == pytest.approx(m["position_error_final"], rel=0, abs=0)
     sw = df[(df["case"] == "three_link_fast") & (df["scheme"] == "switching")]
     assert len(sw) == 5  # four events: five phases

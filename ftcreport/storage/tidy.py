@@ -276,6 +276,7 @@ METRICS_DTYPES: dict[str, str] = {
     "phase": "Int32",  # 0 for the interval before the first event; <NA> for a run without phases
     "phase_start": "float64",  # [s]
     "phase_end": "float64",  # [s]
+    "phase_fault": "boolean",  # the phase starts with a fault event (the first one too for a fault at t = 0)
     "phase_position_error_max": "float64",  # [m]
     "phase_position_error_rms": "float64",  # [m]
     "phase_position_error_final": "float64",  # [m]

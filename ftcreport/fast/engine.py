@@ -570,18 +570,17 @@ def _reference_now(reference, t: np.ndarray, signals: dict[str, np.ndarray], sam
     if t.size == 0 or not any(k in signals for k in ("q_d", "eta_d")):
         return
     k = t / sample_time
-    between = np.abs(k - np.round(k)) > 1e-9 * np.maximum(1.0, np.abs(k))
-    from ..errors import FtcError
-
-    for i in np.flatnonzero(between):
-        try:
-            point = reference.at(float(t[i]))
-        except FtcError:  # infeasible between samples: the row keeps the law's held reference (the run says
-            continue  # where the reference fails when it reaches it)
-        if "q_d" in signals:
-            signals["q_d"][i] = point.q_d
-        if "eta_d" in signals:
-            signals["eta_d"][i] = point.eta_d
+    between = np.flatnonzero(np.abs(k - np.round(k)) > 1e-9 * np.maximum(1.0, np.abs(k)))
+    if between.size == 0:
+        return
+    # every row in one compiled call; where the reference is infeasible between samples the row keeps the
+    # law's held reference (the run says where the reference fails when it reaches it)
+    q_d, eta_d, ok = reference.rows(t[between])
+    rows = between[ok]
+    if "q_d" in signals:
+        signals["q_d"][rows] = q_d[ok]
+    if "eta_d" in signals:
+        signals["eta_d"][rows] = eta_d[ok]
 
 
 def _chunk_signals(spec: Spec, plant, nq: int, rows, bufs, costs: bool = True) -> dict[str, np.ndarray]:

@@ -342,6 +342,18 @@ class FlatReference:
         self._cache[t] = point
         return point
 
+    def rows(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q_d (k, n + 2), eta_d (k, 2), ok (k,)) at the instants t, in one compiled call: each row as a
+        first :meth:`at` at that instant gives it; ``ok`` False (the row NaN) where the reference is
+        infeasible (:meth:`at` says why)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        q_d = np.full((t.size, self.n + 2), np.nan)
+        eta_d = np.full((t.size, 2), np.nan)
+        ok = np.zeros(t.size, dtype=np.bool_)
+        if t.size:
+            _F().ref_rows(self._kernel_ref(), t, q_d, eta_d, ok)
+        return q_d, eta_d, ok
+
     def check(self, duration: float, dt: float = 0.05, t0: float = 0.0) -> None:
         """Raise ReferenceError if the reference is infeasible anywhere on [t0, t0 + duration]."""
         for t in np.arange(t0, t0 + duration + 0.5 * dt, dt):

@@ -211,6 +211,33 @@ def ref_point(R, jets, t, delta, info, q_d, eta_d, eta_d_dot, sc, work):
 
 
 @jit
+def ref_rows(R, ts, q_d, eta_d, ok):
+    """:func:`ref_point` at each of the instants ``ts`` from its own jets (delta = 0, as a first call of
+    ``FlatReference.at`` at that instant): rows of ``q_d`` (k, n + 2) and ``eta_d`` (k, 2); ``ok[i]`` False
+    where the reference is infeasible at ts[i] (the row is left as it was)."""
+    n = R.n
+    info = np.zeros(4)
+    eta_d_dot = np.empty(2)
+    sc = np.empty(4)
+    work = np.empty((n + 4, max(n, 3)))
+    qi = np.empty(n + 2)
+    ei = np.empty(2)
+    for i in range(ts.shape[0]):
+        info[:] = 0.0
+        jets = ref_jets(R, ts[i], info)
+        if info[0] != 0:
+            ok[i] = False
+            continue
+        ref_point(R, jets, ts[i], 0.0, info, qi, ei, eta_d_dot, sc, work)
+        if info[0] != 0:
+            ok[i] = False
+            continue
+        ok[i] = True
+        q_d[i] = qi
+        eta_d[i] = ei
+
+
+@jit
 def ref_side(Kp, R, C, t, psi, info):
     """Fill the cache for instant t and frame psi (a no-op when it already holds them)."""
     if C.f[2] == 1.0 and C.f[0] == t and C.f[1] == psi:

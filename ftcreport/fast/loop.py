@@ -368,8 +368,9 @@ def _plant_jacobian(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h):
 
 
 @jit
-def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
-    r"""One ETD2RK step (Cox & Matthews 2002, J. Comput. Phys. 176, (22); Hochbruck & Ostermann 2010, (5.8)).
+def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, mid):
+    r"""(x+, x(t + h / 2) if ``mid`` else x): one ETD2RK step (Cox & Matthews 2002, J. Comput. Phys. 176,
+    (22); Hochbruck & Ostermann 2010, (5.8)).
 
     x' = f(x) is split as L x + N(x), L linear: J, the Jacobian block of the rates of
     [eta, i_a] in [eta, i_a] (eta's columns by forward differences at x, 2 evaluations; the
@@ -382,31 +383,16 @@ def _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
 
     Second order for any L, stiff order 2 (Hochbruck & Ostermann, Table 5.2); exact when f is
     linear and L its Jacobian, so a current's transient after each held-voltage step is
-    integrated exactly however long the step: its torque impulse reaches eta in full.
+    integrated exactly however long the step: its torque impulse reaches eta in full.  With ``mid``
+    also its continuous extension at the midpoint (fast.integrators.etd2_dense), for the metric stream.
     """
     nq, nm = ctx[5], ctx[9]
     m = 2 + nm
     F = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
     if info[0] != 0:
-        return x
+        return x, x
     J = np.ascontiguousarray(F[nq : nq + m, :])
-    return _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J)
-
-
-@jit
-def _etd2_mid(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
-    """(x+, x(t + h / 2)): :func:`_etd2`'s step, the same operations (x+ bit-identical), and its
-    continuous extension at the midpoint (fast.integrators.etd2_dense) for the metric stream."""
-    nq, nm = ctx[5], ctx[9]
-    F = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
-    if info[0] != 0:
-        return x, x
-    J = np.ascontiguousarray(F[nq : nq + 2 + nm, :])
-    a, P2, p2 = etd2_first(J, diag, x, f0, h, nq)
-    f1 = _stage(P, ctx, t + h, a, sigma, ubar, fm, nz, info, u_h, v_h)
-    if info[0] != 0:
-        return x, x
-    return etd2_second(J, diag, x, a, f0, f1, P2, p2, h, nq), etd2_dense(J, diag, x, a, f0, f1, h, 0.5, nq)
+    return _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J, mid)
 
 
 @jit
@@ -417,14 +403,18 @@ def _mid_torque(ctx, x, sigma, ubar, fm, u_h, v_h):
 
 
 @jit
-def _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J):
-    """One ETD2RK step (:func:`_etd2`) with its linear block J given (the algebra in fast.integrators)."""
+def _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J, mid):
+    """(x+, x(t + h / 2) if ``mid`` else x): one ETD2RK step (:func:`_etd2`) with its linear block J given
+    (the algebra in fast.integrators)."""
     nq = ctx[5]
     a, P2, p2 = etd2_first(J, diag, x, f0, h, nq)
     f1 = _stage(P, ctx, t + h, a, sigma, ubar, fm, nz, info, u_h, v_h)
     if info[0] != 0:
-        return x
-    return etd2_second(J, diag, x, a, f0, f1, P2, p2, h, nq)
+        return x, x
+    xn = etd2_second(J, diag, x, a, f0, f1, P2, p2, h, nq)
+    if mid:
+        return xn, etd2_dense(J, diag, x, a, f0, f1, h, 0.5, nq)
+    return xn, x
 
 
 @jit
@@ -644,10 +634,7 @@ def run_steps(
             kk2 = ros2_second(DF, small, dinv, kk1, f2, empty_ft, h, nq)
             xn = x + 1.5 * h * kk1 + 0.5 * h * kk2
         if MOTORS and method == 2:  # the motor variant only (fast.engine.loop_for): others never compile ETD2
-            if mid:
-                xn, xm = _etd2_mid(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag)
-            else:
-                xn = _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag)
+            xn, xm = _etd2(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, mid)
             if info[0] != 0:
                 return x, k, li, AT_TRIAL
         kind = _step_jump(pp, x, xn, nq, lim, max_speed, max_position, growth[3], growth[4], info)
@@ -753,7 +740,7 @@ def _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, met
 def _linear_step(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft):
     """One ETD2 (method 5) or ROS2 (4) step with the linear part given."""
     if MOTORS and method == 5:
-        return _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J)
+        return _etd2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, J, False)[0]
     return _ros2_with(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, F, ft)
 
 

@@ -257,3 +257,77 @@ def test_each_limit_note_names_its_limit():
         "k_v max and velocity loop alone, k_v max: the case's own gain is unstable",
         "velocity loop alone, T_s max: stable at every sample time up to 10 s",
     ]
+
+
+def _mixed_result():
+    """An analysis result with a continuous-time scheme (nominal: s-plane poles, real-part sweep) beside a
+    sampled one (active_ukf, whose filter runs at dt: z-plane poles, spectral-radius sweep)."""
+    return {
+        "sample_time": None,
+        "k_v": {"nominal": 5.0, "active_ukf": 5.0},
+        "limits": {"nominal": {"k_v_max": None}, "active_ukf": {"k_v_max": 199.0}},
+        "phases": {
+            "nominal": [
+                {
+                    "t_start": 0.0,
+                    "t_end": 20.0,
+                    "discrete": False,
+                    "stability": "stable",
+                    "poles": [[-1.9, 1.3], [-1.9, -1.3], [-10.0, 0.0]],
+                }
+            ],
+            "active_ukf": [
+                {
+                    "t_start": 0.0,
+                    "t_end": 20.0,
+                    "discrete": True,
+                    "stability": "stable",
+                    "poles": [[0.98, 0.01], [0.98, -0.01], [0.5, 0.0]],
+                }
+            ],
+        },
+        "_curves": {
+            "nominal": {"k": [1.0, 5.0, 50.0], "max_re_k": [-0.1, -0.5, -2.0]},
+            "active_ukf": {"k": [1.0, 5.0, 50.0, 500.0], "rho_k": [0.99, 0.98, 0.9, 1.2]},
+        },
+    }
+
+
+def test_a_continuous_schemes_poles_are_drawn_on_the_s_plane_beside_a_sampled_ones_z_plane():
+    """The page audit (round 3): with the UKF (a discrete filter) among the runs the whole pole map became a
+    z-plane, and nominal's continuous poles (-1.9 +- 1.3j, -10: stable) sat far outside the unit circle under
+    'Re z'.  Each scheme's view has its own plane: the menu sets the axes and the boundary with the traces."""
+    from ftcreport.report.analysis_figs import pole_map_fig
+
+    fig = pole_map_fig(_mixed_result())
+    layout = fig["plotly"]["layout"]
+    buttons = {b["label"]: b for b in layout["updatemenus"][0]["buttons"]}
+    views = {s: b["args"][1] for s, b in buttons.items()}
+    assert views["nominal"]["xaxis.title.text"] == "Re s [1/s]"
+    assert views["active_ukf"]["xaxis.title.text"] == "Re z"
+    assert [s["type"] for s in views["nominal"]["shapes"]] == ["line"]  # the imaginary axis
+    assert [s["type"] for s in views["active_ukf"]["shapes"]] == ["circle"]  # the unit circle
+    # the first scheme's view is the one shown before any choice
+    assert layout["xaxis"]["title"]["text"] == "Re s [1/s]" and layout["shapes"] == views["nominal"]["shapes"]
+    assert "s-plane" in fig["caption"] and "z-plane" in fig["caption"]
+
+
+def test_a_spectral_radius_and_a_largest_real_part_never_share_one_axis():
+    """The page audit: the k_v sweep drew the UKF's spectral radius (about 1) on nominal's 'largest real part
+    [1/s]' axis, above its stability boundary at 0, and its limit's diamond at 0, off its own curve.  Each
+    measure has its own figure, boundary (0 or 1) and axis."""
+    from ftcreport.report.analysis_figs import sweep_figs
+
+    figs = sweep_figs(_mixed_result(), "k")
+    assert len(figs) == 2
+    by_axis = {f["plotly"]["layout"]["yaxis"]["title"]["text"]: f for f in figs}
+    assert set(by_axis) == {"largest real part [1/s]", "spectral radius"}
+    for title, f in by_axis.items():
+        names = {t["name"] for t in f["plotly"]["data"] if t["mode"] == "lines"}
+        assert names == ({"nominal"} if title.startswith("largest") else {"active_ukf"})
+        edge = f["plotly"]["layout"]["shapes"][0]["y0"]
+        assert edge == (0.0 if title.startswith("largest") else 1.0)
+        for t in f["plotly"]["data"]:
+            if t["mode"] == "markers" and t["marker"]["symbol"] == "diamond":
+                assert t["y"] == [edge]  # a limit sits on its own measure's boundary
+    assert len({f["id"] for f in figs}) == 2

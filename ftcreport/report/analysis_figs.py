@@ -28,7 +28,7 @@ from ..analysis.summary import measure_text, split_text
 from ..errors import FtcError
 from . import plots
 
-__all__ = ["analysis_section", "bode_fig", "limit_rows", "phase_rows", "pole_map_fig", "sweep_fig"]
+__all__ = ["analysis_section", "bode_fig", "limit_rows", "phase_rows", "pole_map_fig", "sweep_figs"]
 
 PHASE_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf", "#7f7f7f")
 
@@ -60,7 +60,7 @@ def analysis_section(case, names, series: dict, events: list[float]) -> dict | N
     figs = []
     if res.get("phases"):
         figs.append(pole_map_fig(res))
-        figs.extend(f for f in (sweep_fig(res, "T"), sweep_fig(res, "k")) if f is not None)
+        figs.extend([*sweep_figs(res, "T"), *sweep_figs(res, "k")])
         bode = bode_fig(res)
         if bode is not None:
             figs.append(bode)
@@ -194,12 +194,15 @@ def _figure(fig_id: str, caption: str, plotly: dict, svg: str) -> dict:
     return {"id": fig_id, "caption": caption, "plotly": plotly, "svg": svg}
 
 
-def _menu(labels: list[str], groups: list[list[int]], n_traces: int) -> list[dict]:
-    """A dropdown that shows one group of traces (one scheme) at a time."""
+def _menu(labels: list[str], groups: list[list[int]], n_traces: int, views: list[dict] | None = None) -> list[dict]:
+    """A dropdown that shows one group of traces (one scheme) at a time, with its own layout (``views``)."""
     buttons = []
-    for label, idx in zip(labels, groups, strict=True):
+    for k, (label, idx) in enumerate(zip(labels, groups, strict=True)):
         vis = [i in idx for i in range(n_traces)]
-        buttons.append({"label": label, "method": "update", "args": [{"visible": vis}]})
+        args: list[dict] = [{"visible": vis}]
+        if views is not None:
+            args.append(views[k])
+        buttons.append({"label": label, "method": "update", "args": args})
     return [{"buttons": buttons, "x": 0.0, "xanchor": "left", "y": 1.18, "yanchor": "top", "showactive": True}]
 
 
@@ -207,10 +210,38 @@ def _r(v: float, digits: int = 5) -> float | None:
     return float(f"{v:.{digits}g}") if v is not None and math.isfinite(v) else None
 
 
+def _scheme_discrete(res: dict, scheme: str) -> bool:
+    """Whether a scheme's loop was analysed in discrete time (its phases say; the case's sampling else)."""
+    phases = res["phases"].get(scheme) or []
+    if phases and "discrete" in phases[0]:
+        return bool(phases[0]["discrete"])
+    return bool(res.get("sampled"))
+
+
+def _plane(discrete: bool, poles) -> dict:
+    """The axes and stability boundary of one scheme's view: the z-plane with the unit circle, or the s-plane
+    with the imaginary axis (its slower half of the poles in view, where the phases differ)."""
+    if discrete:
+        shapes = [{"type": "circle", "xref": "x", "yref": "y", "x0": -1, "y0": -1, "x1": 1, "y1": 1,
+                   "line": {"color": "black", "width": 1, "dash": "dot"}}]  # fmt: skip
+        return {"xaxis.title.text": "Re z", "yaxis.title.text": "Im z", "shapes": shapes,
+                "xaxis.autorange": True, "yaxis.scaleanchor": "x", "yaxis.scaleratio": 1}  # fmt: skip
+    shapes = [{"type": "line", "xref": "x", "yref": "paper", "x0": 0, "x1": 0, "y0": 0, "y1": 1,
+               "line": {"color": "black", "width": 1, "dash": "dot"}}]  # fmt: skip
+    view = {"xaxis.title.text": "Re s [1/s]", "yaxis.title.text": "Im s [1/s]", "shapes": shapes,
+            "xaxis.autorange": True, "yaxis.scaleanchor": None}  # fmt: skip
+    re = np.abs([a for a, _b in poles])
+    if re.size:
+        x = 3.0 * float(np.percentile(re, 50))
+        view |= {"xaxis.autorange": False, "xaxis.range": [-x, 0.15 * x]}
+    return view
+
+
 def pole_map_fig(res: dict) -> dict:
-    """Poles of every phase's loop, one scheme at a time (dropdown), the phases in colour."""
-    discrete = bool(res.get("sampled")) or any(p[0].get("discrete") for p in res["phases"].values() if p)
-    traces, groups, labels = [], [], []
+    """Poles of every phase's loop, one scheme at a time (dropdown), the phases in colour; each scheme on its
+    own plane (z for a loop analysed in discrete time, s otherwise: the UKF's filter is sampled where the
+    other schemes of the case are continuous)."""
+    traces, groups, labels, views = [], [], [], []
     for scheme, phases in res["phases"].items():
         idx = []
         for i, p in enumerate(phases):
@@ -238,41 +269,38 @@ def pole_map_fig(res: dict) -> dict:
             )
         groups.append(idx)
         labels.append(scheme)
-    shapes = []
-    if discrete:
-        shapes.append({"type": "circle", "xref": "x", "yref": "y", "x0": -1, "y0": -1, "x1": 1, "y1": 1,
-                       "line": {"color": "black", "width": 1, "dash": "dot"}})  # fmt: skip
-    else:
-        shapes.append({"type": "line", "xref": "x", "yref": "paper", "x0": 0, "x1": 0, "y0": 0, "y1": 1,
-                       "line": {"color": "black", "width": 1, "dash": "dot"}})  # fmt: skip
+        views.append(_plane(_scheme_discrete(res, scheme), [pl for p in phases for pl in p.get("poles", [])]))
+    planes = {_scheme_discrete(res, s) for s in labels} or {bool(res.get("sampled"))}
+    first = views[0] if views else _plane(bool(res.get("sampled")), [])
     layout = {
         "height": 420,
         "margin": {"l": 60, "r": 20, "t": 60, "b": 50},
-        "xaxis": {"title": {"text": "Re z" if discrete else "Re s [1/s]"}, "zeroline": True},
-        "yaxis": {"title": {"text": "Im z" if discrete else "Im s [1/s]"}, "zeroline": True},
-        "shapes": shapes,
-        "updatemenus": _menu(labels, groups, len(traces)),
+        "xaxis": {"title": {"text": first["xaxis.title.text"]}, "zeroline": True},
+        "yaxis": {"title": {"text": first["yaxis.title.text"]}, "zeroline": True},
+        "shapes": first["shapes"],
+        "updatemenus": _menu(labels, groups, len(traces), views),
         "legend": {"orientation": "h", "y": -0.2},
     }
-    if discrete:
+    if first.get("yaxis.scaleanchor"):
         layout["yaxis"] |= {"scaleanchor": "x", "scaleratio": 1}
-    else:  # the slow poles, where the phases differ, fill the view; double-click shows the fast ones too
-        re = np.abs([a for ph in res["phases"].values() for p in ph for a, _b in p.get("poles", [])])
-        if re.size:
-            x = 3.0 * float(np.percentile(re, 50))
-            layout["xaxis"]["range"] = [-x, 0.15 * x]
-    where = "z-plane, unit circle dotted" if discrete else "s-plane, imaginary axis dotted"
+    if "xaxis.range" in first:
+        layout["xaxis"]["range"] = first["xaxis.range"]
+    where = " or ".join(
+        w for d, w in ((True, "z-plane, unit circle dotted"), (False, "s-plane, imaginary axis dotted")) if d in planes
+    )
+    if len(planes) > 1:
+        where += ": each scheme on its own, z for a loop analysed in discrete time"
     cap = (
         f"Closed-loop poles of each fault phase ({where}; at the phase's worst frozen instant), one scheme at a time "
         "(menu); hover for damping and time constant"
-        + ("." if discrete else "; the view shows the slower half of the poles, double-click for all.")
+        + ("; an s-plane view shows the slower half of the poles, double-click for all." if False in planes else ".")
     )
     if res.get("time_varying"):
         cap += " The loop is time-varying here: frozen-instant poles are evidence, not proof."
-    return _figure("analysis-poles", cap, {"data": traces, "layout": layout}, _pole_map_svg(res, discrete))
+    return _figure("analysis-poles", cap, {"data": traces, "layout": layout}, _pole_map_svg(res))
 
 
-def _pole_map_svg(res: dict, discrete: bool) -> str:
+def _pole_map_svg(res: dict) -> str:
     import matplotlib.pyplot as plt
 
     schemes = [s for s, p in res["phases"].items() if p]
@@ -285,7 +313,7 @@ def _pole_map_svg(res: dict, discrete: bool) -> str:
             if poles.size:
                 ax.plot(poles.real, poles.imag, "x", color=PHASE_COLORS[i % len(PHASE_COLORS)], ms=5,
                         label=f"{p['t_start']:g}-{p['t_end']:g} s")  # fmt: skip
-        if discrete:
+        if _scheme_discrete(res, scheme):
             th = np.linspace(0, 2 * np.pi, 200)
             ax.plot(np.cos(th), np.sin(th), "k:", lw=0.8)
             ax.set_aspect("equal", adjustable="datalim")
@@ -299,17 +327,34 @@ def _pole_map_svg(res: dict, discrete: bool) -> str:
     return plots._svg(fig)
 
 
-def sweep_fig(res: dict, which: str) -> dict | None:
-    """Spectral radius (or largest real part) against the sample time or k_v, per scheme, the case marked."""
+def sweep_figs(res: dict, which: str) -> list[dict]:
+    """Spectral radius (or largest real part) against the sample time or k_v, per scheme, the case marked:
+    one figure per measure, so that a sampled loop's spectral radius (stable below 1) and a continuous
+    loop's largest real part (stable below 0) never share an axis or a boundary."""
+    curves = res.get("_curves") or {}
+    kinds: dict[str, list[str]] = {}
+    for scheme, c in curves.items():
+        if c and which in c:
+            key = "rho_T" if which == "T" else ("rho_k" if "rho_k" in c else "max_re_k")
+            kinds.setdefault(key, []).append(scheme)
+    figs = []
+    for key, schemes in sorted(kinds.items(), key=lambda kv: kv[0] != "rho_k"):
+        fig_id = f"analysis-sweep-{which}" + ("" if not figs else "-continuous")
+        f = _sweep_fig(res, which, key, schemes, fig_id, mixed=len(kinds) > 1)
+        if f is not None:
+            figs.append(f)
+    return figs
+
+
+def _sweep_fig(res: dict, which: str, key: str, schemes: list[str], fig_id: str, mixed: bool) -> dict | None:
+    """:func:`sweep_figs`' figure of one measure (``key``: rho_T, rho_k or max_re_k) for ``schemes``."""
     curves = res.get("_curves") or {}
     T_case = res.get("sample_time")
     traces, marks = [], []
-    ylabel = None
+    ylabel = {"rho_T": "spectral radius", "rho_k": "spectral radius", "max_re_k": "largest real part [1/s]"}[key]
     for i, (scheme, c) in enumerate(curves.items()):
-        if not c or which not in c:
+        if scheme not in schemes:
             continue
-        key = "rho_T" if which == "T" else ("rho_k" if "rho_k" in c else "max_re_k")
-        ylabel = {"rho_T": "spectral radius", "rho_k": "spectral radius", "max_re_k": "largest real part [1/s]"}[key]
         x = np.asarray(c[which], dtype=float)
         y = np.asarray(c[key], dtype=float)
         color = plots.SCHEME_COLORS.get(scheme, PHASE_COLORS[i % len(PHASE_COLORS)])
@@ -329,14 +374,14 @@ def sweep_fig(res: dict, which: str) -> dict | None:
                                         f"{ylabel} {at:.4g}"})  # fmt: skip
     if not traces:
         return None
-    edge = 0.0 if ylabel and ylabel.startswith("largest") else 1.0
+    edge = 0.0 if key == "max_re_k" else 1.0
     shapes = [{"type": "line", "xref": "paper", "yref": "y", "x0": 0, "x1": 1, "y0": edge, "y1": edge,
                "line": {"color": "black", "width": 1, "dash": "dot"}}]  # fmt: skip
     case_x = None
     if which == "T" and T_case:
         case_x = T_case * 1e3
     elif which == "k":
-        ks = {v for v in res.get("k_v", {}).values()}
+        ks = {v for sc, v in res.get("k_v", {}).items() if sc in schemes}
         case_x = next(iter(ks)) if len(ks) == 1 else None
     if case_x is not None:
         shapes.append({"type": "line", "xref": "x", "yref": "paper", "x0": case_x, "x1": case_x, "y0": 0, "y1": 1,
@@ -360,10 +405,17 @@ def sweep_fig(res: dict, which: str) -> dict | None:
                "sample time; dotted: 1, grey line and open circles: the case's sample time, diamonds: the "
                "limits.")  # fmt: skip
     else:
+        if mixed and key == "rho_k":  # a discrete filter in a continuous case: its own period
+            periods = {(res["phases"].get(sc) or [{}])[0].get("sample_time") for sc in schemes} - {None}
+            where = f"at its period {min(periods) * 1e3:g} ms" if len(periods) == 1 else "in discrete time"
         cap = (f"{ylabel.capitalize()} of each scheme's loop against its velocity gain k_v {where}; dotted: the "
-               "stability boundary, grey line and open circles: the case's gain, diamonds: the limits.")  # fmt: skip
+               f"stability boundary ({edge:g}), grey line and open circles: the case's gain, diamonds: the "
+               "limits.")  # fmt: skip
+        if mixed:
+            cap += (" The schemes analysed in discrete time (spectral radius) and in continuous time (largest real "
+                    "part) are in separate figures.")  # fmt: skip
     spec = {"data": traces, "layout": layout}
-    return _figure(f"analysis-sweep-{which}", cap, spec, _sweep_svg(traces, shapes, layout))
+    return _figure(fig_id, cap, spec, _sweep_svg(traces, shapes, layout))
 
 
 def _sweep_svg(traces, shapes, layout) -> str:

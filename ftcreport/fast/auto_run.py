@@ -1,4 +1,4 @@
-"""Error-controlled runs (``method = "auto"``, ``dopri5``, ``ros2ec``, ``etd2ec``): the loop's ``run_auto``."""
+"""Error-controlled runs (``method = "auto"``, ``dopri5``, ``ros2ec``, ``etd2ec``, ``etd3ec``): ``run_auto``."""
 
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ if TYPE_CHECKING:
 
 # --------------------------------------------------------------------------- error-controlled runs
 #: the opt codes of fast.loop.run_auto's method (-1: auto picks at t0)
-_AUTO_CODES = {"auto": -1, "dopri5": 3, "ros2ec": 4, "etd2ec": 5}
-_CODE_NAMES = {3: "dopri5", 4: "ros2ec", 5: "etd2ec"}
+_AUTO_CODES = {"auto": -1, "dopri5": 3, "ros2ec": 4, "etd2ec": 5, "etd3ec": 6}
+_CODE_NAMES = {3: "dopri5", 4: "ros2ec", 5: "etd2ec", 6: "etd3ec"}
 
 
 def _dwell(controller) -> tuple[int, float]:
@@ -99,7 +99,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
                 reason = (
                     f"at t = {t_now:.6g} s the error-controlled run has taken {si} steps, the limit of "
                     f"ftcreport.infra.limits (MAX_STEPS, or its metric stream over MEMORY_BUDGET_BYTES; mean step "
-                    f"{(t_now - t0) / si:.3g} s): loosen simulation.rtol/atol, or name a stiff method (ros2ec, etd2ec)"
+                    f"{(t_now - t0) / si:.3g} s): loosen simulation.rtol/atol, or name a stiff method (ros2ec, etd3ec)"
                 )
                 break
             if float(ctl[0]) >= opt[5]:

@@ -408,7 +408,7 @@ class _Loop:
         self.nm = nm = motor_state_count(self.mo.R_a.shape[0], self.dr.kind)  # the currents and the drives' states
         self.npl = npl = nq + 2 + nm
         # ETD2 is compiled in the motor variant only (it needs no motors: with none its block is eta's)
-        motor_loop = nm > 0 or settings.method in ("etd2", "etd2ec")
+        motor_loop = nm > 0 or settings.method in ("etd2", "etd2ec", "etd3ec")
         self.loop = loop = loop_for(
             spec.law, spec.disc, motors=motor_loop, sampled=settings.sample_time is not None, terms=spec.terms
         )

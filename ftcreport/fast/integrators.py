@@ -30,6 +30,11 @@ Error-controlled methods, each with an embedded estimate of its local error:
   first-order solutions (x + h k1; ETD1, the first stage a) are no good estimate here: O(h^2), and for
   a stiff component with a slowly moving equilibrium O(h) (the step falls to 1 / k_v), where the
   second-order solution is accurate (fast.loop._attempt).
+* ``etd3ec``: ETD3RK (Cox & Matthews 2002) with an embedded ETD2 (:func:`etd3_solution`), on the same
+  linear block as etd2ec: two stages (t + h/2, t + h) and the block's two difference columns, 5
+  evaluations a step with f(x) against etd2ec's 7, third order where etd2ec is second; ``auto``'s
+  choice for the motors under sampled control, where every step ends at a sample (the fixed ETD2
+  takes one step per sample at 4 evaluations).
 
 Step-size control (Hairer, Norsett & Wanner I, section II.4, and II, section IV.2):
 
@@ -52,7 +57,7 @@ import numpy as np
 from ..jit.compiling import jit
 from ..jit.packed import _solve2
 from ..runs import AUTO_METHODS
-from .expo import phi12, phi12_scalar
+from .expo import phi12, phi12_scalar, phi123, phi123_scalar
 
 __all__ = [
     "AUTO_METHODS",
@@ -77,7 +82,7 @@ __all__ = [
 ]
 
 #: the methods' codes in the loop (fast.loop.run_steps, run_auto)
-METHOD_CODES = {"rk4": 0, "ros2": 1, "etd2": 2, "dopri5": 3, "ros2ec": 4, "etd2ec": 5}
+METHOD_CODES = {"rk4": 0, "ros2": 1, "etd2": 2, "dopri5": 3, "ros2ec": 4, "etd2ec": 5, "etd3ec": 6}
 
 # Dormand-Prince 5(4): c_i, a_ij, the fifth-order weights b and e = b - bhat (bhat: the fourth order)
 DP_C = np.array([0.0, 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0, 1.0, 1.0])
@@ -332,3 +337,83 @@ def etd2_second(J, diag, x, a, f0, f1, P2, p2, h, nq):
     xn = a + h * p2 * g
     xn[nq : nq + m] = a[nq : nq + m] + h * (P2 @ g[nq : nq + m])
     return xn
+
+
+# --------------------------------------------------------------------------- ETD3RK with an embedded ETD2
+@jit
+def _block_apply(Pm, pv, v, nq):
+    """phi(hL) v for L = the block J on v[nq : nq + m] and the diagonal elsewhere: Pm = phi(h J), pv = phi(h diag)."""
+    m = Pm.shape[0]
+    out = pv * v
+    out[nq : nq + m] = Pm @ v[nq : nq + m]
+    return out
+
+
+@jit
+def _residual(J, diag, x, y, fx, fy, nq):
+    """D(y) = f(y) - f(x) - L (y - x): the nonlinear part's change from x to y."""
+    m = J.shape[0]
+    g = fy - fx - diag * (y - x)
+    g[nq : nq + m] = fy[nq : nq + m] - fx[nq : nq + m] - J @ (y[nq : nq + m] - x[nq : nq + m])
+    return g
+
+
+@jit
+def etd3_phis(J, diag, h):
+    """The phi functions ETD3RK needs, of h L/2: (phi_1, phi_2) and of h L: (phi_1, phi_2, phi_3), each as a
+    matrix of the block h J and a vector of h diag: ``(Q1, Q2, q1, q2, P1, P2, P3, p1, p2, p3)`` (one scaling
+    and squaring gives both: fast.expo.phi123)."""
+    nx = diag.shape[0]
+    Q1, Q2, P1, P2, P3 = phi123(h * J)
+    q1, q2 = np.empty(nx), np.empty(nx)
+    p1, p2, p3 = np.empty(nx), np.empty(nx), np.empty(nx)
+    for i in range(nx):
+        q1[i], q2[i] = phi12_scalar(0.5 * h * diag[i])
+        p1[i], p2[i], p3[i] = phi123_scalar(h * diag[i])
+    return Q1, Q2, q1, q2, P1, P2, P3, p1, p2, p3
+
+
+@jit
+def etd3_half(Q1, q1, x, f0, h, nq):
+    r"""ETD3RK's first stage, at t + h/2: a = x + (h/2) phi_1(hL/2) f(x) (exponential Euler over half the step)."""
+    return x + 0.5 * h * _block_apply(Q1, q1, f0, nq)
+
+
+@jit
+def etd3_end(J, diag, x, a, f0, fa, P1, p1, h, nq):
+    r"""ETD3RK's second stage, at t + h: b = x + h phi_1(hL) (f(x) + 2 D(a)); returns (b, D(a))."""
+    Da = _residual(J, diag, x, a, f0, fa, nq)
+    return x + h * _block_apply(P1, p1, f0 + 2.0 * Da, nq), Da
+
+
+@jit
+def etd3_mid(x, f0, Db, Q1, Q2, q1, q2, h, nq):
+    r"""x(t + h/2) by ETD2's continuous extension through the stage b (:func:`etd2_dense` at theta = 1/2, its
+    phi functions of hL/2 given): x + (h/2) phi_1(hL/2) f(x) + (h/4) phi_2(hL/2) D(b)."""
+    return x + 0.5 * h * _block_apply(Q1, q1, f0, nq) + 0.25 * h * _block_apply(Q2, q2, Db, nq)
+
+
+@jit
+def etd3_solution(J, diag, x, b, f0, fb, Da, P1, P2, P3, p1, p2, p3, h, nq):
+    r"""(x+, err, D(b)): ETD3RK's third-order solution and its difference from an embedded second-order one.
+
+    ETD3RK (Cox & Matthews 2002, J. Comput. Phys. 176, (26); Hochbruck & Ostermann 2010, Acta Numerica 19,
+    Table 5.5, weights b_1 = phi_1 - 3 phi_2 + 4 phi_3, b_2 = 4 phi_2 - 8 phi_3, b_3 = 4 phi_3 - phi_2 on
+    the stages x, a (c = 1/2) and b (c = 1)), written with D(y) = f(y) - f(x) - L (y - x)::
+
+        x+  = x + h phi_1 f(x) + h (4 phi_2 - 8 phi_3) D(a) + h (4 phi_3 - phi_2) D(b)
+        x2+ = x + h phi_1 f(x) + h phi_2 D(b)          (ETD2RK with b as its stage at t + h)
+        err = x+ - x2+ = h (2 phi_2 - 4 phi_3) (2 D(a) - D(b))
+
+    x2+ is second order (b is accurate to O(h^3) itself), so err = O(h^3): the error of the second-order
+    solution, an upper estimate of the third-order one's (local extrapolation, as DOPRI5).  Both are
+    exact when f is affine and L its Jacobian (D = 0).  Unlike the embedded ETD2 with its stage at
+    t + h/2 (x + h phi_1 f + 2 h phi_2 D(a)), whose error on a stiff component stays O(h^2) whatever the
+    stiffness (9e-3 against 9e-6 on Prothero-Robinson, lambda = -1e4, h = 0.2), the weight
+    2 phi_2 - 4 phi_3 vanishes as hL -> -infinity: a stiff component's settled part adds no error.
+    """
+    Db = _residual(J, diag, x, b, f0, fb, nq)
+    base = x + h * _block_apply(P1, p1, f0, nq)
+    xn = base + h * (_block_apply(P2, p2, 4.0 * Da - Db, nq) + _block_apply(P3, p3, 4.0 * Db - 8.0 * Da, nq))
+    err = h * (_block_apply(P2, p2, 2.0 * (2.0 * Da - Db), nq) - _block_apply(P3, p3, 4.0 * (2.0 * Da - Db), nq))
+    return xn, err, Db

@@ -49,6 +49,11 @@ from ftcreport.fast.integrators import (
     etd2_dense,
     etd2_first,
     etd2_second,
+    etd3_end,
+    etd3_half,
+    etd3_mid,
+    etd3_phis,
+    etd3_solution,
     first_guess,
     power_step,
     ros2_first,
@@ -691,6 +696,8 @@ def _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, met
     the second-order solution is accurate at 5 ms.
     """
     nq, nm = ctx[5], ctx[9]
+    if MOTORS and method == 6:
+        return _etd3_attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag)
     if method == 3:
         K[0] = f0
         for s in range(1, 7):
@@ -734,6 +741,32 @@ def _attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag, met
     two = _linear_step(P, ctx, t + half, half, mid, fmid, sigma, ubar, fm, nz, info, u_h, v_h, diag, method, J, F, ft)
     ev += 1
     return two, (two - one) / 3.0, ev, mid
+
+
+@jit
+def _etd3_attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag):
+    """``etd3ec``'s trial step: ETD3RK with its embedded ETD2 (fast.integrators.etd3_solution) on the linear
+    block of ETD2 (:func:`_jacobian_columns` at x, 2 evaluations), 2 stages: 4 evaluations, and f(x)
+    (x+, err, evaluations, x(t + h / 2) by ETD2's continuous extension through the stage at t + h)."""
+    nq, nm = ctx[5], ctx[9]
+    G = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
+    ev = 2
+    if info[0] != 0:
+        return x, x, ev, x
+    J = np.ascontiguousarray(G[nq : nq + 2 + nm, :])
+    Q1, Q2, q1, q2, P1, P2, P3, p1, p2, p3 = etd3_phis(J, diag, h)
+    a = etd3_half(Q1, q1, x, f0, h, nq)
+    fa = _stage(P, ctx, t + 0.5 * h, a, sigma, ubar, fm, nz, info, u_h, v_h)
+    ev += 1
+    if info[0] != 0:
+        return x, x, ev, x
+    b, Da = etd3_end(J, diag, x, a, f0, fa, P1, p1, h, nq)
+    fb = _stage(P, ctx, t + h, b, sigma, ubar, fm, nz, info, u_h, v_h)
+    ev += 1
+    if info[0] != 0:
+        return x, x, ev, x
+    xn, err, Db = etd3_solution(J, diag, x, b, f0, fb, Da, P1, P2, P3, p1, p2, p3, h, nq)
+    return xn, err, ev, etd3_mid(x, f0, Db, Q1, Q2, q1, q2, h, nq)
 
 
 @jit
@@ -915,7 +948,7 @@ def run_auto(
                 if rho * h_max > STIFF_BOUND:
                     # ETD2 when the plant between samples is autonomous and linear in its currents (its
                     # ETD1 estimate then holds); ROS2 with the time derivative otherwise
-                    method = 5.0 if MOTORS and nm > 0 and sampled else 4.0
+                    method = 6.0 if MOTORS and nm > 0 and sampled else 4.0
             ctl[C_METHOD] = method
             h0 = min(first_guess(x, f0, rtol, atol), h_max)
             f1 = _stage(P, ctx, t + h0, x + h0 * f0, sigma, ubar, fm, nz, info, u_h, v_h)

@@ -804,3 +804,32 @@ def test_an_interrupted_force_batch_counts_only_the_runs_it_stored(tmp_path):
     assert newly_stored(out, todo, _records(out, todo)) == 0  # found on disk, not stored now
     assert newly_stored(out, todo, {("c", "nominal"): None}) == 1  # absent before: stored by this batch
     assert newly_stored(out, todo, {("c", "nominal"): b"an older record"}) == 1  # replaced by this batch
+
+
+def test_a_scheme_the_case_no_longer_runs_is_dropped_not_damaged_for_ever(tmp_path):
+    """The campaign attack (round 3): after narrowing [schemes] run and batching again, the runs of the
+    schemes dropped from the case stayed under OUT, each 'made from another content of the case' (the
+    case record is the new content's): the index said '3 runs: 1 completed, 2 stopped or failed
+    unexpectedly', and report and export exited 1 every time, telling the user to re-run batch, which
+    changed nothing.  Now batch removes them (they are of the earlier content and the case no longer
+    runs them) and says so; the page and the exports hold the case's own runs."""
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    three = {"run": ["nominal", "oracle", "switching"], "nominal": {"k_v": 5.0}, "oracle": {"k_v": 5.0},
+             "switching": {"k_v": 5.0}}  # fmt: skip
+    path = _write(cases, "c", schemes=three, faults=[{"time": 0.2, "wheel": "2l", "sigma": 0.0}])
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (out / "c").iterdir() if p.is_dir()) == ["nominal", "oracle", "switching"]
+    data = tomllib.loads(path.read_text())
+    data["schemes"] = {"run": ["nominal"], "nominal": {"k_v": 5.0}}
+    path.write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert "the stored runs of switching, oracle were removed: the case no longer runs them" in res.stderr, res.stderr
+    assert sorted(p.name for p in (out / "c").iterdir() if p.is_dir()) == ["nominal"]
+    for cmd in (["report", "--out", str(out)], ["export", "--out", str(out), "--dest", str(tmp_path / "e")]):
+        res = runner.invoke(app, cmd)
+        assert res.exit_code == 0, res.output
+        assert not _errors(res), res.stderr

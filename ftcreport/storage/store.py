@@ -342,6 +342,18 @@ def stored_schemes(out: Path, case_name: str) -> list[str]:
     return ordered_schemes(found)
 
 
+def remove_run(out: Path, case_name: str, scheme: str) -> None:
+    """Remove a stored run: its record first (so an interruption leaves files without a record, which
+    :func:`check_run` names), then its files, then its directory when nothing else is in it."""
+    d = Path(out) / case_name / scheme
+    check_inside(d / RECORD)
+    for name in (RECORD, *RUN_FILES):
+        with contextlib.suppress(FileNotFoundError):
+            (d / name).unlink()
+    with contextlib.suppress(OSError):
+        d.rmdir()
+
+
 def stored_runs(out: Path, case_name: str) -> dict[str, StoredRun]:
     """``{scheme: StoredRun}`` of every run stored for a case, each checked (:func:`check_run`) against the
     case record's content hash (``<case>/case.json``'s ``key``) when there is one."""

@@ -161,10 +161,14 @@ def base_name(path: Path, base_case: str) -> str:
         return base.stem
 
 
-def record_case(out: Path, case: Case, path: Path, duration: float | None = None, notes: Iterable[str] = ()) -> str:
+def record_case(
+    out: Path, case: Case, path: Path, duration: float | None = None, notes: Iterable[str] = (), on_note=None
+) -> str:
     """Store the case record and a copy of the case file (provenance); returns the case content hash.
 
-    ``notes``: warnings beside the case's own (the faults a ``--duration`` drops)."""
+    ``notes``: warnings beside the case's own (the faults a ``--duration`` drops).  The stored runs of schemes
+    the case no longer runs, made from an earlier content of it, are removed (:func:`_dropped_schemes`), said
+    on the case's page and through ``on_note``."""
     from ..evaluation.families import not_applicable
 
     key = case_hash(case, __version__)
@@ -190,8 +194,35 @@ def record_case(out: Path, case: Case, path: Path, duration: float | None = None
     }
     if case.base_case is not None:  # the page compares with the base's runs (issue 19 item 4)
         payload["base"] = base_name(Path(path), case.base_case)
+    dropped = _dropped_schemes(out, case.name, schemes, key)
+    if dropped:
+        line = (f"the stored runs of {', '.join(dropped)} were removed: the case no longer runs them, and they were "
+                "made from its earlier content")  # fmt: skip
+        payload["warnings"].append(line)
+        if on_note is not None:
+            on_note(f"{path}: {line}")
     _record(out, case.name, payload)
+    from ..storage.store import remove_run
+
+    for s in dropped:
+        remove_run(out, case.name, s)
     return key
+
+
+def _dropped_schemes(out: Path, case_name: str, schemes: list[str], key: str) -> list[str]:
+    """The schemes stored under ``out/<case>`` that the case no longer runs and whose runs were made from another
+    content of it (their record's case hash is not ``key``): nothing would ever run or show them again.  A run
+    whose record cannot be read is left, named as damaged, for the user to look at."""
+    from ..storage.store import read_json, stored_schemes
+
+    out_ = []
+    for s in stored_schemes(out, case_name):
+        if s in schemes:
+            continue
+        rec = read_json(Path(out) / case_name / s / "record.json")
+        if isinstance(rec, dict) and isinstance(rec.get("case_hash"), str) and rec["case_hash"] != key:
+            out_.append(s)
+    return out_
 
 
 def plugin_info(case: Case) -> dict[str, dict]:
@@ -567,7 +598,7 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
         loaded.append(case)
         for line in notes if show_progress else ():  # --quiet: on the case's page only
             _note(f"ftcreport: warning: {path}: {line}")
-        record_case(out, case, Path(path), duration, notes)
+        record_case(out, case, Path(path), duration, notes, on_note=lambda line: _note(f"ftcreport: note: {line}"))
         expected[case.name] = case
         schemes = configured_schemes(case)
         for s in schemes:

@@ -10,6 +10,7 @@ from ftcreport.evaluation.compare import (
     SPECS,
     compare_case,
     compare_metric,
+    fmt_best,
     fmt_relative,
     ratio,
     scoreboard,
@@ -278,3 +279,47 @@ def test_nominal_winning_at_the_torque_limit_is_explained_by_the_limit():
     v = compare_case("c", runs, fault_times=[20.0], facts={})
     (why,) = [s for s in v.sentences if s.startswith("Surprise")]
     assert "stays stable" not in why, why
+
+
+def test_tied_schemes_keep_their_own_values_and_rank_one_is_the_best_values_tolerance():
+    """Page audit item 1: "Smallest peak torque after the first fault: nominal (no FTC) and switching,
+    287 N m" while switching's own peak was 298 N m; "Active (UKF) and switching settle within the
+    recovery band in 2.89 s at worst" while switching took 3.02 s; and the oracle at 3.04 s ranked 1.,
+    more than 5 % and more than 0.1 s above the best 2.89 s.  A tie names the range of the tied
+    values, and the rank-1 group is the values within the tolerance of the best value."""
+    runs = {
+        "nominal": _run(peak=287.0),
+        "switching": _run(peak=298.0),
+        "adaptive": _run(peak=400.0),
+        "oracle": _run(peak=250.0),
+    }
+    v = compare_case("c", runs, fault_times=[20.0])
+    tq = v.metrics["torque_peak_after_fault"]
+    assert tq.winners == ["nominal", "switching"]
+    (line,) = [s for s in v.sentences if s.startswith("Smallest peak torque")]
+    assert "287-298 N m" in line and "switching, 287 N m" not in line, line
+    assert fmt_best(tq) == "287-298" and fmt_best(tq, "N m") == "287-298 N m"
+
+    runs = {
+        "active_ukf": _active(rec=2.89),
+        "switching": _run(rec=3.02),
+        "nominal": _run(rec=None),
+        "oracle": _run(rec=3.04),
+    }
+    v = compare_case("c", runs, fault_times=[20.0])
+    rec = v.metrics["recovery_time_max"]
+    assert sorted(rec.winners) == ["active_ukf", "switching"]
+    # 3.04 - 2.89 = 0.15 s: above 0.1 s and above 5 % of the best 2.89 s (0.1445 s): not tied, rank 2
+    assert {r.scheme: r.rank for r in rec.ranking} == {"active_ukf": 1, "switching": 1, "oracle": 2, "nominal": 4}
+    assert not tied(2.89, 3.04, rec.spec) and tied(2.89, 3.02, rec.spec)
+    text = " ".join(v.sentences)
+    assert "Active (UKF) and switching settle within the recovery band in 2.89-3.02 s at worst" in text, text
+    assert "in 2.89 s at worst" not in text
+
+    # the peak error sentence: one value per winner, never the best attributed to both
+    runs = {"switching": _run(after=0.100), "adaptive": _run(after=0.104), "oracle": _run(after=0.05)}
+    v = compare_case("c", runs, fault_times=[20.0])
+    assert "keep the smallest peak error (a tie), 0.1-0.104 m" in v.sentences[0], v.sentences[0]
+    # a single winner, or tied values that print alike, keep one number
+    one = compare_case("c", {"switching": _run(after=0.1), "nominal": _run(after=0.3)})
+    assert fmt_best(one.metrics["after_fault_error_max"], "m") == "0.1 m"

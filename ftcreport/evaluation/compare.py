@@ -12,15 +12,21 @@ Definitions (every headline metric is "lower is better"):
   ``recovery_time_max`` (``None`` in metrics.json, "never settles", ranks last), ``torque_peak``,
   ``energy``, and for the active schemes ``detection_delay_max`` (a missed change ranks last)
   and ``false_alarms``.
-* **Ties.**  Two values tie when ``|a - b| <= max(abs_tol, rel_tol * max(|a|, |b|))`` with the
+* **Ties.**  Two values tie when ``|a - b| <= max(abs_tol, rel_tol * min(|a|, |b|))`` with the
   metric's tolerances (:class:`MetricSpec`; 5 % relative, and an absolute floor such as 0.1 mm
-  for position errors, below which differences are numerical rather than physical).
+  for position errors, below which differences are numerical rather than physical).  The relative
+  part is taken of the better (smaller) value: 3.02 s ties with 2.89 s (0.13 s, under 5 % of
+  2.89 s) and 3.04 s does not (0.15 s, over 0.1 s and over 5 % of 2.89 s), though 0.15 s is under
+  5 % of 3.04 s.
 * **Ranking.**  Competition ranking: a scheme's rank is one plus the number of schemes whose
-  value is smaller beyond the tolerance.  A run that did not complete (``status`` other than
-  ``ok``) is not ranked on that case (its metrics cover only the simulated part); it is listed
-  as failed.  A scheme without the metric is listed as missing.
+  value is smaller beyond the tolerance; so rank 1 is the group within the tolerance of the best
+  value, each scheme compared with that value, never through another tied scheme.  A run that
+  did not complete (``status`` other than ``ok``) is not ranked on that case (its metrics cover
+  only the simulated part); it is listed as failed.  A scheme without the metric is listed as missing.
 * **Winner.**  The oracle knows the true faults: it is the bound, not a contestant.  Every other
-  ranked scheme (nominal included) competes; the winners are those tied with the best of them.
+  ranked scheme (nominal included) competes; the winners are those tied with the best of them
+  (each with the best value itself).  A sentence or a cell that names tied winners gives the range
+  of their own values (``fmt_best``: "287-298 N m"), never the best value for all of them.
 * **Regret against the oracle** = winner / oracle and **benefit against nominal** = nominal /
   winner, both ratios (regret 1.12: 12 % worse than the oracle; benefit 4: a quarter of
   nominal's value).  Values tied within the tolerance give the ratio 1 (flagged ``tie``).  A
@@ -54,6 +60,7 @@ __all__ = [
     "compare_metric",
     "contestant",
     "difference",
+    "fmt_best",
     "fmt_relative",
     "ratio",
     "scoreboard",
@@ -187,10 +194,15 @@ def _extract(key: str, m: Mapping) -> tuple[float | None, str]:
 
 # ---------------------------------------------------------------------- one metric, one case
 def tied(a: float, b: float, spec: MetricSpec) -> bool:
-    """Whether two values of a metric are equal within its tolerance (inf ties only with inf)."""
+    """Whether two values of a metric are equal within its tolerance (inf ties only with inf).
+
+    The relative tolerance is taken of the better (smaller) value, so a value ties with the best
+    when it is within 5 % of the best itself (module docstring, **Ties**).
+    """
     if math.isinf(a) or math.isinf(b):
         return a == b
-    return abs(a - b) <= max(spec.abs_tol, spec.rel_tol * max(abs(a), abs(b)))
+    # |a - b| <= max(abs_tol, rel_tol min(|a|, |b|))
+    return abs(a - b) <= max(spec.abs_tol, spec.rel_tol * min(abs(a), abs(b)))
 
 
 def ratio(num: float | None, den: float | None, spec: MetricSpec) -> tuple[float | None, bool]:
@@ -373,6 +385,21 @@ def fmt_value(x: float | None, unit: str = "") -> str:
     return f"{s} {unit}".strip() if unit else s
 
 
+def fmt_span(values: Sequence[float], unit: str = "") -> str:
+    """Values for a sentence: one value when they print alike (3 significant digits), else "lo-hi"."""
+    lo, hi = fmt_value(min(values)), fmt_value(max(values))
+    if lo == hi:
+        return fmt_value(min(values), unit)
+    return f"{lo}-{hi} {unit}".strip()
+
+
+def fmt_best(mv: MetricVerdict, unit: str = "") -> str:
+    """The winners' value: the best one for a single winner, the range of their own values for a tie
+    ("287-298 N m": never the best value attributed to every tied scheme)."""
+    values = [v for s in mv.winners if (v := mv.value(s)) is not None]
+    return fmt_span(values, unit) if values else fmt_value(mv.best, unit)
+
+
 def fmt_ratio(x: float | None, tie: bool = False) -> str:
     """A ratio for a page: 3 significant digits, '1 (tie)', 'n/a'; never 'inf' (ratio() gives none)."""
     if tie:
@@ -436,7 +463,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         tie = " (a tie)" if len(after.winners) > 1 else ""
         parts = [
             f"{when}, {w} keep{'s' if len(after.winners) == 1 else ''} the smallest peak error{tie}, "
-            f"{fmt_value(after.best, 'm')}"
+            f"{fmt_best(after, 'm')}"
         ]
         if after.oracle is not None:
             if after.regret_tie:
@@ -464,13 +491,13 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         settled = [r for r in rec.ranking if contestant(r.scheme) and not math.isinf(r.value)]
         never = [r.scheme for r in rec.ranking if contestant(r.scheme) and math.isinf(r.value)]
         if settled:
-            first = [r.scheme for r in settled if tied(r.value, settled[0].value, rec.spec)]
-            who, v0 = _names(first), settled[0].value
+            first = [r for r in settled if tied(r.value, settled[0].value, rec.spec)]
+            who, values = _names([r.scheme for r in first]), [r.value for r in first]
             verb = "s" if len(first) == 1 else ""
-            if v0 == 0.0:
+            if max(values) == 0.0:
                 bits.append(f"{who} never leave{verb} the recovery band")
             else:
-                bits.append(f"{who} settle{verb} within the recovery band in {fmt_value(v0, 's')} at worst")
+                bits.append(f"{who} settle{verb} within the recovery band in {fmt_span(values, 's')} at worst")
         for s in never:
             m = metrics.get(s, {})
             extra = ""
@@ -512,7 +539,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         whole = any(r.note.startswith("no fault") for r in tq.ranking)
         out.append(
             f"Smallest peak torque{' (no fault: whole run)' if whole else ' after the first fault'}: "
-            f"{_names(tq.winners)}, {fmt_value(tq.best, 'N m')}"
+            f"{_names(tq.winners)}, {fmt_best(tq, 'N m')}"
             + (f" (the oracle needs {fmt_value(tq.oracle, 'N m')})" if tq.oracle is not None else "")
             + "."
         )

@@ -613,7 +613,7 @@ def _verdict_rows(v) -> list[dict]:
                 "label": spec.label + (f" [{spec.unit}]" if spec.unit else ""),
                 "winners": ", ".join(mv.winners) or "none",
                 "tie": len(mv.winners) > 1,
-                "best": compare.fmt_value(mv.best),
+                "best": compare.fmt_best(mv),
                 "regret": compare.fmt_relative(mv, "regret"),
                 "benefit": compare.fmt_relative(mv, "benefit"),
                 "note": spec.note,
@@ -650,7 +650,7 @@ def oracle_notes(v, case, base_verdict=None) -> list[str]:
     def one(mv) -> str:
         u = mv.spec.unit
         return (
-            f"{mv.spec.label} ({_names(mv.winners)} {compare.fmt_value(mv.best, u)} against the oracle's "
+            f"{mv.spec.label} ({_names(mv.winners)} {compare.fmt_best(mv, u)} against the oracle's "
             f"{compare.fmt_value(mv.oracle, u)}, regret {compare.fmt_ratio(mv.regret)})"
         )
 

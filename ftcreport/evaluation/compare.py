@@ -35,6 +35,12 @@ Definitions (every headline metric is "lower is better"):
   denominator is numerical residue (an oracle's final error of 1e-9 m made "regret 5.8e6") and
   the verdict gives the absolute difference instead (``regret_diff``, ``benefit_diff``).  A value
   that is "never" (inf) has no ratio either.  So no ratio is ever inf or astronomically large.
+* **Nominal among the best** (the verdict's "Surprise" sentence, and the analysis's agreeing with
+  it): nominal is among the winners on each metric of tracking after the faults
+  (:data:`AFTER_FAULTS`: the largest error after the faults, the final error, the worst recovery
+  time).  A metric nobody wins (every contestant never settles) or that no run has does not count
+  against it; a tie on the peak error alone, with a final error over 60 times the winner's or no
+  recovery after a later fault, is no surprise and is not stated as one.
 """
 
 from __future__ import annotations
@@ -113,6 +119,8 @@ HEADLINE: tuple[MetricSpec, ...] = (
     MetricSpec("false_alarms", "false alarms", "", 0.0, 0.0, ACTIVE, note="whole run"),
 )
 SPECS = {s.key: s for s in HEADLINE}
+#: the headline metrics of tracking after the faults: nominal must be among their winners to be "among the best"
+AFTER_FAULTS = ("after_fault_error_max", "position_error_final", "recovery_time_max")
 
 
 @dataclass(frozen=True)
@@ -372,7 +380,15 @@ def _analysis_sentences(analysis: dict, verdicts, metrics, limit: str | None = N
     after = verdicts.get("after_fault_error_max")
     ranking = [r.scheme for r in after.ranking] if after else []
     stopped = [s for s, m in metrics.items() if m.get("status") != "ok"]
-    return analysis_sentences(analysis, ranking, list(after.winners) if after else [], stopped, limit)
+    # nominal "wins" (and the analysis agrees) only when among the best after the faults (module docstring)
+    winners = [s for s in (after.winners if after else []) if s != BASELINE or _nominal_among_best(verdicts)]
+    return analysis_sentences(analysis, ranking, winners, stopped, limit)
+
+
+def _nominal_among_best(verdicts: Mapping[str, MetricVerdict]) -> bool:
+    """Whether nominal is among the winners on every metric of :data:`AFTER_FAULTS` that has winners."""
+    won = [mv for k in AFTER_FAULTS if (mv := verdicts.get(k)) is not None and mv.winners]
+    return bool(won) and all(BASELINE in mv.winners for mv in won)
 
 
 def fmt_value(x: float | None, unit: str = "") -> str:
@@ -480,7 +496,7 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
             elif after.benefit_diff is not None:
                 parts.append(f"{fmt_value(after.benefit_diff, 'm')} smaller than nominal's")
         out.append(", ".join(parts) + ".")
-        if BASELINE in after.winners and not whole and any(contestant(s) for s in ok):
+        if BASELINE in after.winners and not whole and any(contestant(s) for s in ok) and _nominal_among_best(verdicts):
             out.append(_why_nominal(facts, after, metrics))
     if failed:
         stops = "; ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)

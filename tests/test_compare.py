@@ -11,6 +11,7 @@ from ftcreport.evaluation.compare import (
     compare_case,
     compare_metric,
     fmt_best,
+    fmt_ratio,
     fmt_relative,
     ratio,
     scoreboard,
@@ -252,7 +253,7 @@ def test_scoreboard_counts_wins_regret_and_unexpected_statuses():
     sb = scoreboard([a, b], ["nominal", "switching", "adaptive", "oracle"])
     key = "after_fault_error_max"
     assert sb.wins["switching"][key] == 1 and sb.wins["adaptive"][key] == 2 and sb.wins["nominal"][key] == 0
-    assert sb.contests[key] == 2
+    assert all(sb.contests[s][key] == 2 for s in ("nominal", "switching", "adaptive"))  # the stopped run took part
     assert sb.median_regret["adaptive"][key] == pytest.approx((2.0 + 2.0) / 2)
     assert sb.median_regret["nominal"][key] == pytest.approx((8.0 + 4.0) / 2)
     assert sb.median_regret["switching"][key] == pytest.approx(2.0)  # the failed run has no regret
@@ -359,3 +360,78 @@ def test_nominal_is_a_surprise_only_when_among_the_best_after_the_faults():
     v = compare_case("c", runs, fault_times=[20.0])
     assert v.metrics["recovery_time_max"].winners == []
     assert any(s.startswith("Surprise") for s in v.sentences), v.sentences
+
+
+def test_scoreboard_denominators_are_the_contests_a_scheme_took_part_in(tmp_path):
+    """Page audit item 3: the index showed "wins 0 / 5" for a scheme that ran in 2 of the 5 cases (the
+    denominator counted the cases with a winner, not the contests the scheme was in)."""
+    from ftcreport.report.render import write_page
+
+    key = "after_fault_error_max"
+    verdicts = [
+        compare_case(c, {"switching": _run(after=0.1), "nominal": _run(after=0.3), "oracle": _run(after=0.05)})
+        for c in "abc"
+    ] + [
+        compare_case(
+            c,
+            {
+                "switching": _run(after=0.1),
+                "adaptive": _run(after=0.2, status=status),
+                "nominal": _run(after=0.3),
+                "oracle": _run(after=0.05),
+            },
+        )
+        for c, status in (("d", "ok"), ("e", "diverged"))  # a run that stopped took part, and lost
+    ]
+    schemes = ["nominal", "switching", "adaptive", "oracle"]
+    sb = scoreboard(verdicts, schemes)
+    assert sb.wins["adaptive"][key] == 0 and sb.contests["adaptive"][key] == 2
+    assert sb.wins["switching"][key] == 5 and sb.contests["switching"][key] == 5
+    assert sb.contests["nominal"][key] == 5
+    page = write_page(
+        tmp_path / "index.html",
+        "index.html",
+        "",
+        board=sb,
+        specs=SPECS.values(),
+        fmt_ratio=fmt_ratio,
+        schemes=schemes,
+        cases=[],
+        plugins={},
+        claims=[],
+        batches=[],
+        other_pages=[],
+    ).read_text()
+    board = page.split('id="scoreboard"', 1)[1].split("</table>", 1)[0]
+    (row,) = [r for r in board.split("<tr>") if r.startswith('<td class="l">adaptive')]
+    assert "<td>0 / 2</td>" in row and "/ 5" not in row, row
+
+
+def test_a_detector_that_misses_the_faults_wins_no_false_alarm_contest():
+    """Page audit item 3: "wins: false alarms" went to active_ukf, which missed 10 of 10 faults: the fewest
+    false alarms from a detector that detects nothing is no win.  Only a detector that missed no change is
+    eligible; the others are ranked on their count, with the reason, but do not win."""
+    runs = {
+        "switching": _run(after=0.1),
+        "active": _active(delay=0.5, false=1),
+        "active_ukf": _active(missed=1, false=0),
+        "oracle": _run(after=0.05),
+    }
+    v = compare_case("c", runs, fault_times=[20.0])
+    fa = v.metrics["false_alarms"]
+    assert fa.winners == ["active"] and fa.best == 1.0
+    (ukf,) = [r for r in fa.ranking if r.scheme == "active_ukf"]
+    assert ukf.rank == 1 and ukf.value == 0.0 and "misses 1 of 1 changes" in ukf.note
+    # nobody detects every change: nobody wins the false alarms, and the scoreboard counts no contest
+    runs["active"] = _active(missed=1, false=1)
+    v2 = compare_case("c2", runs, fault_times=[20.0])
+    assert v2.metrics["false_alarms"].winners == []
+    sb = scoreboard([v, v2], ["active", "active_ukf", "oracle"])
+    assert sb.wins["active_ukf"]["false_alarms"] == 0 and sb.wins["active"]["false_alarms"] == 1
+    assert sb.contests["active"]["false_alarms"] == 1 and sb.contests["active_ukf"]["false_alarms"] == 1
+    # a run without a fault: nothing to miss, every detector is eligible
+    quiet = {
+        s: _active(false=f) | {"detection_events": [], "missed_detections": 0}
+        for s, f in (("active", 2), ("active_ukf", 0))
+    }
+    assert compare_case("c3", quiet).metrics["false_alarms"].winners == ["active_ukf"]

@@ -35,6 +35,13 @@ Definitions (every headline metric is "lower is better"):
   denominator is numerical residue (an oracle's final error of 1e-9 m made "regret 5.8e6") and
   the verdict gives the absolute difference instead (``regret_diff``, ``benefit_diff``).  A value
   that is "never" (inf) has no ratio either.  So no ratio is ever inf or astronomically large.
+* **False alarms are won by a detector that missed no change.**  The fewest false alarms from a
+  detector that misses faults is bought with insensitivity (active_ukf missing 10 of 10 changes
+  with 0 false alarms): such a run is ranked on its count, with the reason as its note, but only
+  the runs that missed no change (and whose detection was computed) are eligible to win.  "Missed
+  none" rather than "detected at least one": a detector that misses some changes is still less
+  sensitive than one that misses none, and a case without a fault (nothing to miss) leaves every
+  detector eligible.  With no eligible run the metric has no winner.
 * **Nominal among the best** (the verdict's "Surprise" sentence, and the analysis's agreeing with
   it): nominal is among the winners on each metric of tracking after the faults
   (:data:`AFTER_FAULTS`: the largest error after the faults, the final error, the worst recovery
@@ -267,8 +274,13 @@ class MetricVerdict:
         return ratio(self.value(scheme), self.oracle, self.spec)[0]
 
 
-def compare_metric(rows: Sequence[Row], spec: MetricSpec) -> MetricVerdict:
-    """Rank the schemes of one case on one metric (rows of that case and metric)."""
+def compare_metric(rows: Sequence[Row], spec: MetricSpec, ineligible: Mapping[str, str] | None = None) -> MetricVerdict:
+    """Rank the schemes of one case on one metric (rows of that case and metric).
+
+    ``ineligible``: ``{scheme: why}`` of schemes ranked on their value, ``why`` as their note, that
+    cannot win (a detector that missed a change on the false alarms: module docstring).
+    """
+    ineligible = dict(ineligible or {})
     done, failed, missing = [], [], []
     for r in rows:
         if r.status != "ok":
@@ -279,10 +291,15 @@ def compare_metric(rows: Sequence[Row], spec: MetricSpec) -> MetricVerdict:
             done.append(r)
     done.sort(key=lambda r: r.value)
     ranking = [
-        Ranked(r.scheme, r.value, 1 + sum(o.value < r.value and not tied(o.value, r.value, spec) for o in done), r.note)
+        Ranked(
+            r.scheme,
+            r.value,
+            1 + sum(o.value < r.value and not tied(o.value, r.value, spec) for o in done),
+            ineligible.get(r.scheme, r.note),
+        )
         for r in done
     ]
-    field_ = [r for r in ranking if r.scheme != BOUND]
+    field_ = [r for r in ranking if r.scheme != BOUND and r.scheme not in ineligible]
     best = field_[0].value if field_ else None
     # nobody wins when the best is "never" (every contestant never settles / misses a change)
     winners = [r.scheme for r in field_ if tied(r.value, best, spec)] if field_ and math.isfinite(best) else []
@@ -352,7 +369,9 @@ def compare_case(
     for spec in HEADLINE:
         mine = [r for r in rows if r.metric == spec.key]
         if mine:
-            verdicts[spec.key] = compare_metric(mine, spec)
+            verdicts[spec.key] = compare_metric(
+                mine, spec, _undetecting(metrics_by_scheme) if spec.key == "false_alarms" else None
+            )
     if isinstance(expected_status, Mapping):
         expected = {s: set(v) for s, v in expected_status.items()}
     else:
@@ -371,6 +390,19 @@ def compare_case(
     if facts.get("analysis"):
         sentences += _analysis_sentences(facts["analysis"], verdicts, metrics_by_scheme, facts.get("limit"))
     return CaseVerdict(case, list(metrics_by_scheme), verdicts, sentences, outside, failed)
+
+
+def _undetecting(metrics_by_scheme: Mapping[str, Mapping]) -> dict[str, str]:
+    """``{scheme: why}`` of the detectors that cannot win the false alarms: a missed change, or no
+    detection computed (module docstring)."""
+    out = {}
+    for s, m in metrics_by_scheme.items():
+        events = m.get("detection_events")
+        if events is None:
+            out[s] = "detection not computed: no false-alarm win"
+        elif m.get("missed_detections"):
+            out[s] = f"misses {m['missed_detections']} of {len(events)} changes: no false-alarm win"
+    return out
 
 
 def _analysis_sentences(analysis: dict, verdicts, metrics, limit: str | None = None) -> list[str]:
@@ -605,7 +637,7 @@ class Scoreboard:
     schemes: list[str]
     metrics: list[MetricSpec]
     wins: dict[str, dict[str, int]]  # scheme -> metric -> number of cases won (ties count for each)
-    contests: dict[str, int]  # metric -> number of cases with a winner
+    contests: dict[str, dict[str, int]]  # scheme -> metric -> cases with a winner the scheme took part in
     median_regret: dict[str, dict[str, float | None]]  # scheme -> metric -> median of scheme / oracle
     regret_counts: dict[str, dict[str, tuple[int, int]]]  # scheme -> metric -> (cases with a ratio, cases ranked)
     outside_expected: dict[str, int]  # scheme -> runs whose status is not in the case's expected_status
@@ -614,13 +646,18 @@ class Scoreboard:
 
 
 def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Scoreboard:
-    """Aggregate case verdicts (the index page's scoreboard)."""
+    """Aggregate case verdicts (the index page's scoreboard).
+
+    A scheme's wins on a metric are counted out of the contests it took part in: the cases where the
+    metric has a winner and the scheme's run is ranked on it or stopped (a run that did not complete
+    took part and lost).  A case it did not run in, or whose run lacks the metric, is no contest of it.
+    """
     wins = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
     regrets: dict[str, dict[str, list[float]]] = {s: {m.key: [] for m in HEADLINE} for s in schemes}
     ranked: dict[str, dict[str, int]] = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
     outside = dict.fromkeys(schemes, 0)
     runs = dict.fromkeys(schemes, 0)
-    contests = {m.key: 0 for m in HEADLINE}
+    contests = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
     cases = []
     for v in verdicts:
         for s in v.schemes:
@@ -633,7 +670,9 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
         for key, mv in v.metrics.items():
             row["winners"][key] = list(mv.winners)
             if mv.winners:
-                contests[key] += 1
+                for s in {r.scheme for r in mv.ranking} | {s for s, _ in mv.failed}:
+                    if s in contests:
+                        contests[s][key] += 1
             for s in mv.winners:
                 if s in wins:
                     wins[s][key] += 1

@@ -583,3 +583,43 @@ def test_pairwise_comparisons_are_a_matrix_and_distributions_ecdfs(failing_campa
     html = page.read_text()
     assert 'id="matrix-success"' in html and 'id="matrix-position_error_final"' in html
     assert "Empirical CDF" in html and "fraction of samples" in html
+
+
+# ---------------------------------------------------------------------- the adversarial tester's breaks
+@pytest.mark.parametrize(
+    ("success", "field", "reason"),
+    [
+        ({"position_eror_final": {"max": 0.05}}, "position_eror_final", "unknown metric (did you mean 'position_error"),
+        ({"engine": {"max": 1}}, "engine", "unknown metric (a nominal run writes t_end, "),
+        ({"phases": {"max": 1}}, "phases", "'phases' is not a number (a record)"),
+        ({"chi_hat_min": {"min": 0.1}}, "chi_hat_min", "'chi_hat_min' is not a metric of the nominal scheme"),
+        ({"position_error_final": {}}, "position_error_final", "give min, max or both"),
+    ],
+)
+def test_a_success_bound_on_no_numeric_metric_is_refused_at_validation(tmp_path, success, field, reason):
+    """A misspelt metric validated and then failed every sample; a non-numeric one crashed every sample
+    (TypeError); one that a scheme of the case never writes failed that scheme's every sample.  Now refused
+    by 'cases validate' as [thresholds] are: the file, the field, the reason."""
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+
+    data = _base_data()
+    data["campaign"]["success"] = success
+    case = tmp_path / "typo.toml"
+    case.write_text(tomli_w.dumps(data))
+    res = CliRunner().invoke(app, ["cases", "validate", str(case)])
+    assert res.exit_code == 2, res.output
+    assert f"{case}: campaign.success.{field}: {reason}" in res.stderr, res.stderr
+    with pytest.raises(CaseError, match=rf"campaign\.success\.{field}: "):
+        parse_case(data, "typo.toml")
+
+
+def test_a_success_bound_reads_an_entry_of_a_table_metric():
+    """Validation accepts ``metric.key`` (an entry of a table metric, as [thresholds] do): the verdict reads it."""
+    from ftcreport.studies.campaign import _success
+
+    m = {"status": "ok", "fault_estimation_errors_final": {"1r": 0.01, "1l": 0.3}}
+    assert _success(m, {"fault_estimation_errors_final.1r": {"max": 0.05}})
+    assert not _success(m, {"fault_estimation_errors_final.1l": {"max": 0.05}})
+    assert not _success(m, {"fault_estimation_errors_final.2r": {"max": 0.05}})  # absent: not a success

@@ -220,11 +220,10 @@ class Case(_Strict):
         for scheme, metrics in self.thresholds.items():
             if (why := _scheme_problem(scheme, run, known)) is not None:
                 raise _FieldError(f"thresholds.{scheme}", why)
-            for metric, bound in metrics.items():
-                if (why := metric_problem(scheme, metric)) is not None:
-                    raise _FieldError(f"thresholds.{scheme}.{metric}", why)
-                if bound.min is None and bound.max is None:
-                    raise _FieldError(f"thresholds.{scheme}.{metric}", "give min, max or both")
+            _check_bounds(f"thresholds.{scheme}", scheme, metrics)
+        if self.campaign is not None:  # a sample succeeds on every bound, for each scheme the campaign runs
+            for scheme in configured_schemes(self):
+                _check_bounds("campaign.success", scheme, self.campaign.success)
         return self
 
     # ------------------------------------------------------------------ derived
@@ -312,6 +311,17 @@ def _check_requirements(case: Case, run: list[str] | None, known: list[str]) -> 
             raise _FieldError(f"requirements[{i}].scheme", why)
         for key, why in r.problems(case.robots.n):
             raise _FieldError(f"requirements[{i}].{key}", why)
+
+
+def _check_bounds(field: str, scheme: str, bounds: dict[str, Bound]) -> None:
+    """Bounds on a run's metrics (``[thresholds.<scheme>]``, ``[campaign] success``): each names a number
+    ``scheme``'s run writes (:func:`metric_problem`) and gives min, max or both; else a FieldError at
+    ``field.<metric>``."""
+    for metric, bound in bounds.items():
+        if (why := metric_problem(scheme, metric)) is not None:
+            raise _FieldError(f"{field}.{metric}", why)
+        if bound.min is None and bound.max is None:
+            raise _FieldError(f"{field}.{metric}", "give min, max or both")
 
 
 def _scheme_problem(name: str, run: list[str] | None, known: list[str], more: str = "") -> str | None:

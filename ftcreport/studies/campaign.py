@@ -192,10 +192,13 @@ def _scalar_metrics(m: dict) -> dict:
 
 
 def _success(m: dict, criteria: dict) -> bool:
+    """The run completed and every bound of ``criteria`` holds (a name ``a.b``: entry b of table metric a)."""
     if m.get("status") != "ok":
         return False
     for metric, bound in criteria.items():
-        v = m.get(metric)
+        base, _, key = metric.partition(".")
+        v = m.get(base)
+        v = (v.get(key) if isinstance(v, dict) else None) if key else v
         if v is None or (isinstance(v, float) and not math.isfinite(v)):
             return False
         if bound.get("min") is not None and v < bound["min"]:

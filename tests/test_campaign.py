@@ -623,3 +623,30 @@ def test_a_success_bound_reads_an_entry_of_a_table_metric():
     assert _success(m, {"fault_estimation_errors_final.1r": {"max": 0.05}})
     assert not _success(m, {"fault_estimation_errors_final.1l": {"max": 0.05}})
     assert not _success(m, {"fault_estimation_errors_final.2r": {"max": 0.05}})  # absent: not a success
+
+
+@pytest.mark.parametrize(
+    ("schemes", "reason"),
+    [
+        ("nominal,nominal", "--schemes: 'nominal' is named twice"),
+        ("oracle, nominal ,oracle", "--schemes: 'oracle' is named twice"),
+        (",", "--schemes: names no scheme"),
+        ("", "--schemes: names no scheme"),
+    ],
+)
+def test_campaign_refuses_a_repeated_or_empty_scheme_list(tmp_path, schemes, reason):
+    """``--schemes nominal,nominal`` ran nominal twice per sample (its Wilson interval on twice the samples);
+    ``--schemes ,`` ran nothing and exited 0.  Now bad input: exit 2, one line, no output directory."""
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+
+    out = tmp_path / "out"
+    case = str(ROOT / "cases" / "two_link_campaign.toml")
+    res = CliRunner().invoke(
+        app, ["campaign", case, "-n", "1", "--in-process", "-q", "--out", str(out), "--schemes", schemes]
+    )
+    assert res.exit_code == 2, res.output
+    (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
+    assert reason in line, line
+    assert not out.exists()

@@ -210,14 +210,19 @@ def option_schemes(option: str, names: list[str], case: Case, among: list[str] |
     ``among``: the schemes the command can run (default: those the case configures).  A name that
     is no scheme at all is blamed on the option, with the known schemes and the closest one
     (``--scheme: got 'swiching'; known schemes: ...; did you mean 'switching'?``); a scheme the
-    case does not run says so with the reason of :func:`ftcreport.evaluation.families.not_applicable`.
+    case does not run says so with the reason of :func:`ftcreport.evaluation.families.not_applicable`;
+    no name at all (``--schemes ,``) or one named twice (a scheme run twice per sample) is refused too.
     Raises :class:`FtcError` (exit 2); returns ``names``.
     """
     from ..evaluation.families import not_applicable
 
     known = known_schemes()
     among = configured_schemes(case) if among is None else among
-    for name in names:
+    if not names:
+        raise FtcError(f"{option}: names no scheme; give one or more of {', '.join(among) or 'none'}, comma-separated")
+    for i, name in enumerate(names):
+        if name in names[:i]:
+            raise FtcError(f"{option}: '{name}' is named twice; name each scheme once")
         if name not in known:
             close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
             hint = f"; did you mean '{close[0]}'?" if close else ""

@@ -650,3 +650,39 @@ def test_campaign_refuses_a_repeated_or_empty_scheme_list(tmp_path, schemes, rea
     (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
     assert reason in line, line
     assert not out.exists()
+
+
+def _strict_case(path: Path, x: float) -> Path:
+    """The short campaign base with a success bound no run meets (every sample fails, so the campaign renders
+    its failing samples' pages) and the initial offset ``x``; written to ``path``."""
+    data = _base_data()
+    data["campaign"]["success"] = {"position_error_final": {"max": 1e-9}}
+    data["initial"]["x"] = x
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def test_force_with_another_case_content_leaves_no_stale_sample_page(tmp_path):
+    """``campaign --force`` with a changed case into the same --out kept the sample pages rendered from the
+    earlier content, and the new page linked them as current.  Now every linked page is the new content's."""
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+    from ftcreport.report.campaign import sample_name
+
+    out = tmp_path / "out"
+    args = ["-n", "2", "--in-process", "-q", "--schemes", "nominal", "--out", str(out)]
+    first = CliRunner().invoke(app, ["campaign", str(_strict_case(tmp_path / "c.toml", 0.2)), *args])
+    assert first.exit_code == 0, first.output
+    pages = out / "sample_pages"
+    old = {i: (pages / sample_name(i) / "nominal" / "metrics.json").read_text() for i in (0, 1)}
+    again = CliRunner().invoke(app, ["campaign", str(_strict_case(tmp_path / "c.toml", 0.5)), *args, "--force"])
+    assert again.exit_code == 0, again.output
+    rows = read_table(out / "results.csv")
+    html = (out / "index.html").read_text()
+    for i in (0, 1):
+        assert f'href="sample_pages/{sample_name(i)}/index.html"' in html
+        page = json.loads((pages / sample_name(i) / "nominal" / "metrics.json").read_text())
+        assert page != json.loads(old[i])
+        (row,) = [r for r in rows if r["sample"] == i]
+        assert page["position_error_final"] == pytest.approx(row["position_error_final"], rel=1e-9, abs=1e-12)

@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import FtcError
 from ..evaluation.compare import BOUND
 from ..storage.store import _jsonable, read_json, write_atomic
-from ..studies.campaign import COMPARED_METRICS, summarize
+from ..studies.campaign import COMPARED_METRICS, PAGES, summarize
 from . import plots
 from .render import figure, index_root, write_page
 
@@ -41,7 +41,6 @@ __all__ = [
 ]
 
 WORST_K = 3  # failing samples whose page the campaign renders (the others: ``ftcreport sample``)
-PAGES = "sample_pages"  # <campaign>/sample_pages/sample-00017/index.html
 LINESTYLES = ("-", "--", "-.", ":")
 #: hollow markers, largest first, for schemes whose ECDF lines coincide (drawn concentric, all visible)
 MARKERS = (("o", 10.0), ("s", 7.0), ("^", 5.0), ("D", 3.5), ("v", 2.5))

@@ -55,6 +55,7 @@ from ..model import pattern_is_compensable, wheel_names
 from ..storage.store import _jsonable, locked, write_atomic
 
 __all__ = [
+    "PAGES",
     "CampaignResult",
     "SampleSeeds",
     "campaign_hash",
@@ -73,6 +74,7 @@ __all__ = [
     "write_table",
 ]
 
+PAGES = "sample_pages"  # <campaign>/sample_pages/sample-00017/index.html (ftcreport.report.campaign)
 LEAD_COLUMNS = (
     "sample",
     "scheme",
@@ -527,13 +529,17 @@ def run_campaign(
         "base": json.loads(base.model_dump_json()),
     }
     meta_path = out / "campaign.json"
-    if meta_path.exists() and not force:
+    old: dict = {}
+    if meta_path.exists():
         try:
             old = json.loads(meta_path.read_text(encoding="utf-8"))
             old.get("seed")
         except (ValueError, AttributeError) as exc:
-            why = f"damaged ({str(exc)[:120]}); remove it to start over, or choose another --out"
-            raise FtcError(f"{meta_path}: {why}") from None
+            if not force:
+                why = f"damaged ({str(exc)[:120]}); remove it to start over, or choose another --out"
+                raise FtcError(f"{meta_path}: {why}") from None
+            old = {}
+    if meta_path.exists() and not force:
         if old.get("seed") != meta["seed"] or old.get("schemes") != schemes or old.get("base") != meta["base"]:
             raise FtcError(
                 f"{out}: holds a campaign with another seed, scheme list or base case; "
@@ -544,8 +550,10 @@ def run_campaign(
                 f"{meta_path}: campaign started by ftcreport {old.get('version') or '(unrecorded version)'}, "
                 f"this is {__version__}; choose another --out, or re-run its samples with --force"
             )
+    records, stale = load_records(out / "samples", expected, force)  # refused: nothing in out changed yet
+    if old.get("campaign") != chash:  # pages rendered from another content or settings: never linked as current
+        _remove_pages(out / PAGES)
     write_atomic(meta_path, json.dumps(meta, indent=1).encode())
-    records, stale = load_records(out / "samples", expected, force)
     todo = [i for i in range(samples) if i not in records]
     res = CampaignResult(out=out, table=out / "results.csv", requested=samples, skipped=samples - len(todo))
     res.rerun_stale = stale
@@ -587,6 +595,16 @@ def run_campaign(
     res.wall_time = time.perf_counter() - wall0
     _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
     return res
+
+
+def _remove_pages(pages: Path) -> None:
+    """Remove the sample pages under ``pages`` (a symbolic link there: the link, never what it names)."""
+    import shutil
+
+    if pages.is_symlink() or pages.is_file():
+        pages.unlink()
+    elif pages.is_dir():
+        shutil.rmtree(pages)
 
 
 def run_tasks(

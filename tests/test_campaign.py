@@ -686,3 +686,31 @@ def test_force_with_another_case_content_leaves_no_stale_sample_page(tmp_path):
         assert page != json.loads(old[i])
         (row,) = [r for r in rows if r["sample"] == i]
         assert page["position_error_final"] == pytest.approx(row["position_error_final"], rel=1e-9, abs=1e-12)
+
+
+def test_sample_refuses_a_changed_scheme_file(tmp_path):
+    """``sample OUT K`` re-simulated sample K with the scheme files on disk now, silently, where ``campaign``
+    refuses to resume from another base case content.  Now it refuses too (exit 2), naming the changed file."""
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+    from ftcreport.report.campaign import sample_name
+
+    plugin = tmp_path / "campaign_copy_scheme.py"
+    plugin.write_text(
+        (ROOT / "tests" / "data" / "copy_nominal_scheme.py").read_text().replace("copy_nominal", "campaign_copy")
+    )
+    data = _base_data()
+    data["plugins"] = [str(plugin)]
+    data["schemes"]["campaign_copy"] = {}
+    base = parse_case(data, "two_link_campaign_plugin")
+    out = tmp_path / "out"
+    run_campaign(base, 2, out, seed=3, schemes=["campaign_copy"], in_process=True, show_progress=False)
+    ok = CliRunner().invoke(app, ["sample", str(out), "0"])
+    assert ok.exit_code == 0, ok.output  # the content it ran: rendered
+    plugin.write_text(plugin.read_text() + "\n# the law changed since the campaign ran\n")
+    res = CliRunner().invoke(app, ["sample", str(out), "1"])
+    assert res.exit_code == 2, res.output
+    (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
+    assert line.startswith(f"ftcreport: error: {plugin}: changed since the campaign in {out} ran"), line
+    assert not (out / "sample_pages" / sample_name(1)).exists()

@@ -51,6 +51,7 @@ from .files import (  # noqa: F401 - re-exported
     load_case,
     overlay_text,
     plugin_digest,
+    plugin_digests,
     resolve_overlay,
 )
 from .messages import (  # noqa: F401 - re-exported

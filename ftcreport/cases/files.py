@@ -27,6 +27,17 @@ def plugin_digest(case: Case) -> str:
     return h.hexdigest()[:16]
 
 
+def plugin_digests(case: Case) -> dict[str, str]:
+    """Each scheme file's own content hash (16 hex digits), by its path: which file changed since a run."""
+    out = {}
+    for p in case.plugins:
+        try:
+            out[str(p)] = hashlib.sha256(read_input(p, "scheme file")).hexdigest()[:16]
+        except CaseError:
+            out[str(p)] = "unreadable"
+    return out
+
+
 def case_schema() -> dict[str, Any]:
     """The JSON Schema of a case file, generated from the models (descriptions, units, ranges).
 

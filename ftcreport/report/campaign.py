@@ -31,6 +31,7 @@ from .render import figure, index_root, write_page
 __all__ = [
     "PAGES",
     "WORST_K",
+    "check_sample_content",
     "check_sample_index",
     "coincide_note",
     "coinciding",
@@ -250,6 +251,28 @@ def check_sample_index(out: Path, index: int) -> int:
     return index
 
 
+def check_sample_content(out: Path, meta: dict, base) -> None:
+    """FtcError (exit 2) when ``base``, the campaign's base case parsed now, hashes otherwise than the campaign
+    recorded (``campaign.json``'s ``case_hash``): a scheme file changed since (named, from the files' own hashes
+    the campaign recorded), or what the package makes of the case.  A sample re-simulated from it would not be
+    the campaign's sample, as ``campaign`` refuses to resume from another base case content."""
+    from ..cases import plugin_digests
+    from ..studies.campaign import case_content_hash
+
+    recorded = meta.get("case_hash")
+    now = case_content_hash(base)
+    if recorded is None or now == recorded:
+        return
+    was, files = meta.get("plugin_files"), plugin_digests(base)
+    changed = [p for p, h in files.items() if h != was.get(p)] if isinstance(was, dict) else list(files)
+    where = ", ".join(changed) if changed else str(Path(out) / "campaign.json")
+    what = "changed" if changed else "reads otherwise (another ftcreport version?)"
+    raise FtcError(
+        f"{where}: {what} since the campaign in {out} ran (base case content hash {now}, the campaign's "
+        f"{recorded}): its samples would not be the campaign's; restore it, or re-run the campaign with --force"
+    )
+
+
 def render_sample(out: Path, index: int) -> Path:
     """Re-simulate sample ``index`` of the campaign in ``out`` and write its page, a case page (verdict,
     replay, figures) at ``<out>/sample_pages/sample-NNNNN/index.html``; returns its path.
@@ -269,6 +292,7 @@ def render_sample(out: Path, index: int) -> Path:
     if not isinstance(meta, dict) or "base" not in meta:
         raise FtcError(f"{out}: not a campaign directory (no campaign.json); run 'ftcreport campaign' first")
     base = parse_case(meta["base"], f"{out / 'campaign.json'}: base")
+    check_sample_content(out, meta, base)
     index = check_sample_index(out, index)
     variant = draw_variant(base, sample_seeds(int(meta["seed"]), index))
     name = sample_name(index)

@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..cases import Case, configured_schemes, ordered_schemes, parse_case, plugin_digest
+from ..cases import Case, configured_schemes, ordered_schemes, parse_case, plugin_digest, plugin_digests
 from ..errors import CaseError, FtcError
 from ..evaluation.stats import compare_metric, compare_success, wilson_interval
 from ..model import pattern_is_compensable, wheel_names
@@ -525,6 +525,7 @@ def run_campaign(
         "schemes": schemes,
         "version": __version__,
         "case_hash": expected["case_hash"],
+        "plugin_files": plugin_digests(base),  # which scheme file changed, when 'sample' finds the hash differs
         "campaign": chash,
         "base": json.loads(base.model_dump_json()),
     }

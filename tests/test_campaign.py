@@ -714,3 +714,35 @@ def test_sample_refuses_a_changed_scheme_file(tmp_path):
     (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
     assert line.startswith(f"ftcreport: error: {plugin}: changed since the campaign in {out} ran"), line
     assert not (out / "sample_pages" / sample_name(1)).exists()
+
+
+def test_resume_with_fewer_samples_reports_the_first_n_and_keeps_the_rest(tmp_path):
+    """A resume with a smaller --samples reported every stored sample (summary: 3 samples) while ``sample OUT 2``
+    refused ("ran samples 0 to 1").  Now the table, summary and page are the first n, as a fresh campaign of n;
+    the samples beyond stay stored (a larger --samples later reuses them) and the CLI says so."""
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+    from ftcreport.report.campaign import check_sample_index
+
+    case = tmp_path / "c.toml"
+    case.write_text(tomli_w.dumps(_base_data()))
+    out = tmp_path / "out"
+    args = ["campaign", str(case), "--in-process", "-q", "--schemes", "nominal", "--seed", "4", "--out", str(out)]
+    first = CliRunner().invoke(app, [*args, "-n", "3"])
+    assert first.exit_code == 0, first.output
+    fewer = CliRunner().invoke(app, [*args, "-n", "2"])
+    assert fewer.exit_code == 0, fewer.output
+    assert "0 samples run, 2 already done" in fewer.stdout and "1 stored sample beyond --samples 2" in fewer.stdout
+    assert sorted({r["sample"] for r in read_table(out / "results.csv")}) == [0, 1]
+    assert set(pd.read_parquet(out / "results.parquet")["sample"]) == {0, 1}
+    assert json.loads((out / "summary.json").read_text())["n_samples"] == 2
+    assert sorted(json.loads((out / "manifest.json").read_text())["seeds"]["samples"]) == ["0", "1"]
+    assert _record_path(out, 2).exists()  # kept: not lost, not shown
+    assert check_sample_index(out, 1) == 1
+    with pytest.raises(FtcError, match=r"ran samples 0 to 1 \(sample 2 is stored from a run with more samples"):
+        check_sample_index(out, 2)
+    more = CliRunner().invoke(app, [*args, "-n", "3"])
+    assert more.exit_code == 0, more.output
+    assert "0 samples run, 3 already done" in more.stdout
+    assert sorted({r["sample"] for r in read_table(out / "results.csv")}) == [0, 1, 2]

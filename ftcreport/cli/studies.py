@@ -122,7 +122,8 @@ def campaign(
     """Monte Carlo fault campaign: draw variants of CASE, run every scheme on Dask, write a table and report.
 
     Resumable: re-running with the same --out skips the samples already there; samples stored by
-    another package version or from another case content are refused (--force re-runs them).
+    another package version or from another case content are refused (--force re-runs them).  A smaller
+    --samples reports samples 0 to N-1 only, as a fresh campaign would; the others stay stored.
 
     Example: ftcreport campaign cases/two_link_campaign.toml --samples 200 --workers 2
     """
@@ -139,7 +140,8 @@ def campaign(
     with output_lock(out_dir, "campaign"):
         res = run_campaign(base, samples, out_dir, seed=seed, schemes=chosen, **dask)
         page = render_campaign(out_dir, read_table(res.table))
-    _done(res, "samples run", page)
+    kept = f" ({res.beyond} stored sample{'s' * (res.beyond > 1)} beyond --samples {samples}: kept, not reported)"
+    _done(res, "samples run", page, kept if res.beyond else "")
 
 
 @app.command()

@@ -247,6 +247,10 @@ def check_sample_index(out: Path, index: int) -> int:
         n = max(stored) + 1 if stored else 0
     if not 0 <= index < n:
         ran = f"samples 0 to {n - 1}" if n else "no sample"
+        if index >= n and (out / "samples" / f"{index:08d}.json").is_file():  # a larger run's, not reported
+            ran += (
+                f" (sample {index} is stored from a run with more samples: 'campaign --samples {index + 1}' reports it)"
+            )
         raise FtcError(f"sample {index}: not a sample of the campaign in {out}, which ran {ran}")
     return index
 

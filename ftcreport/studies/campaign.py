@@ -425,6 +425,7 @@ class CampaignResult:
     wall_time: float = 0.0
     rerun_stale: int = 0
     workers: dict = field(default_factory=dict)
+    beyond: int = 0  # stored samples of this campaign beyond ``requested``: kept, not reported
 
 
 def stale_reason(rec: dict, expected: dict) -> str | None:
@@ -506,7 +507,9 @@ def run_campaign(
     ``results.csv`` and ``results.parquet`` are rewritten (atomically) at most every
     ``table_every`` seconds while samples finish, and once at the end; the per-sample
     files are written at once.  Stored samples of another package version, case
-    content or campaign settings are refused, or with ``force`` run again.
+    content or campaign settings are refused, or with ``force`` run again.  The table,
+    summary and manifest hold samples ``0 .. samples - 1`` only, as a fresh campaign of
+    ``samples`` would: samples a larger run stored stay on disk (``res.beyond``), unreported.
     """
     if base.campaign is None:
         raise CaseError(f"{base.name}: no [campaign] table: add the distributions to draw from (cases/README.md)")
@@ -552,12 +555,15 @@ def run_campaign(
                 f"this is {__version__}; choose another --out, or re-run its samples with --force"
             )
     records, stale = load_records(out / "samples", expected, force)  # refused: nothing in out changed yet
+    # a campaign of n samples reports samples 0..n-1, whatever a larger run left here; those beyond stay stored
+    beyond = sum(i >= samples for i in records)
+    records = {i: r for i, r in records.items() if i < samples}
     if old.get("campaign") != chash:  # pages rendered from another content or settings: never linked as current
         _remove_pages(out / PAGES)
     write_atomic(meta_path, json.dumps(meta, indent=1).encode())
     todo = [i for i in range(samples) if i not in records]
     res = CampaignResult(out=out, table=out / "results.csv", requested=samples, skipped=samples - len(todo))
-    res.rerun_stale = stale
+    res.rerun_stale, res.beyond = stale, beyond
     base_json = base.model_dump_json()
     _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
     write_table(out, records.values())  # the stored samples' table (and pandas loaded before samples arrive)

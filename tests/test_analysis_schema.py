@@ -331,3 +331,76 @@ def test_a_spectral_radius_and_a_largest_real_part_never_share_one_axis():
             if t["mode"] == "markers" and t["marker"]["symbol"] == "diamond":
                 assert t["y"] == [edge]  # a limit sits on its own measure's boundary
     assert len({f["id"] for f in figs}) == 2
+
+
+def test_the_terminal_states_the_margins_as_the_page_does():
+    """The page audit: 'analyze' printed the case's setting over the limit ('T_s 5 ms = 3.65x ... stable below
+    1x') where the page gives the limit over the case's setting ('T_s max / case's 0.274', a factor above 1 is
+    the margin): the same margins as reciprocals under opposite conventions.  Both now give limit / case."""
+    from ftcreport.analysis.summary import text_summary
+
+    res = {
+        "case": "c",
+        "n_robots": 2,
+        "reference_kind": "circle",
+        "sampled": True,
+        "sample_time": 0.005,
+        "k_v": {"switching": 3000.0},
+        "limits": {"switching": {"sample_time_max": 1.37e-3, "k_v_max": 559.0}},
+    }
+    text = "\n".join(text_summary(res))
+    assert "T_s max / T_s 5 ms = 0.274" in text and "k_v max / k_v 3000 1/s = 0.186" in text, text
+    assert "a margin above 1" in text and "stable below 1x" not in text
+
+
+def test_a_limit_the_simulation_contradicts_shows_no_green_margin():
+    """The page audit: three_link_switching_pi showed 'T_s max / case's 40' in green beside the confirmation
+    in red 'at 180 ms limit cycle ... the simulation contradicts the prediction'.  A margin whose limit a
+    simulation contradicts is marked as such, not as a margin the case keeps."""
+    from jinja2 import Environment, FileSystemLoader
+
+    from ftcreport.report.analysis_figs import limit_rows
+
+    res = {
+        "sample_time": 0.005,
+        "k_v": {"switching": 5.0},
+        "limits": {"switching": {"sample_time_max": 0.2, "k_v_max": 400.0}},
+        "confirmation": {
+            "switching": {
+                "sample_time_max": {"agrees": False, "sentence": "predicted 200 ms; at 180 ms limit cycle"},
+                "k_v_max": {"agrees": True, "sentence": "predicted 400 1/s; at 360 bounded, at 440 diverged"},
+            }
+        },
+    }
+    row = limit_rows(res)[0]
+    assert row["T_contradicted"] is True and row["k_contradicted"] is False
+    env = Environment(loader=FileSystemLoader(str(ROOT / "templates")))
+    env.globals["fmt"] = lambda v: f"{v:.3g}"
+    html = env.get_template("_analysis.html").render(
+        analysis={
+            "limit_rows": [row],
+            "sampled": True,
+            "sample_time": 0.005,
+            "actuator_input": "torque",
+            "not_analyzed": {},
+        }
+    )
+    assert '<span class="fail">40 (contradicted)</span>' in html
+    assert '<span class="ok">80</span>' in html
+    # 'none' is "no finite limit" in the table's caption: a limit not searched (the UKF's) says so instead
+    ukf = {
+        "sample_time": 0.005,
+        "k_v": {"active_ukf": 5.0},
+        "limits": {"active_ukf": {"sample_time_max": None}},
+        "limit_notes": {"active_ukf": {"limits.sample_time_max": "not searched: the UKF's gain comes from ..."}},
+    }
+    html = env.get_template("_analysis.html").render(
+        analysis={
+            "limit_rows": limit_rows(ukf),
+            "sampled": True,
+            "sample_time": 0.005,
+            "actuator_input": "torque",
+            "not_analyzed": {},
+        }
+    )
+    assert "<td>not searched</td>" in html

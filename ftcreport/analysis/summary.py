@@ -62,14 +62,16 @@ def text_summary(res: dict) -> list[str]:
             f"k_v {fmt_limit(lim.get('k_v_max'), '1/s')} (velocity loop alone: "
             f"{fmt_limit(vl.get('sample_time_max'), 's')}, {fmt_limit(vl.get('k_v_max'), '1/s')})"
         )
-        factors = []
+        factors = []  # limit / the case's setting, as on the case page (report.analysis_figs.limit_rows)
         if res.get("sample_time") and lim.get("sample_time_max"):
-            factors.append(f"T_s {res['sample_time'] * 1e3:g} ms = {res['sample_time'] / lim['sample_time_max']:.3g}x")
+            T = res["sample_time"]
+            factors.append(f"T_s max / T_s {T * 1e3:g} ms = {lim['sample_time_max'] / T:.3g}")
         k_v = res.get("k_v", {}).get(scheme)
         if k_v and lim.get("k_v_max"):
-            factors.append(f"k_v {k_v:g} 1/s = {k_v / lim['k_v_max']:.3g}x")
+            factors.append(f"k_v max / k_v {k_v:g} 1/s = {lim['k_v_max'] / k_v:.3g}")
         if factors:
-            lines.append(f"      the case's own settings against these limits: {', '.join(factors)} (stable below 1x)")
+            lines.append(f"      margins: {', '.join(factors)} (a margin above 1 is kept; below 1 the case's own "
+                         "setting is beyond the limit)")  # fmt: skip
         for key, note in res.get("limit_notes", {}).get(scheme, {}).items():
             if key == "caveat":
                 lines.append(f"      every limit: {note}")

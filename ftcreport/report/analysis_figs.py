@@ -82,14 +82,20 @@ def limit_rows(res: dict) -> list[dict]:
         k_v = res.get("k_v", {}).get(scheme)
         vl = res.get("velocity_loop", {}).get(scheme, {})
         conf = res.get("confirmation", {}).get(scheme, {})
+        notes = res.get("limit_notes", {}).get(scheme, {})
         out.append(
             {
                 "scheme": scheme,
                 "T_max": lim.get("sample_time_max"),
+                # null for two reasons: no finite limit (the caption's 'none'), or not searched (the UKF's)
+                "T_not_searched": str(notes.get("limits.sample_time_max", "")).startswith("not searched"),
                 "T_factor": _factor(lim.get("sample_time_max"), T),
                 "k_v": k_v,
                 "k_max": lim.get("k_v_max"),
                 "k_factor": _factor(lim.get("k_v_max"), k_v),
+                # a limit a simulation contradicts gives no margin to rely on (the page marks it)
+                "T_contradicted": (conf.get("sample_time_max") or {}).get("agrees") is False,
+                "k_contradicted": (conf.get("k_v_max") or {}).get("agrees") is False,
                 "vl_T_max": vl.get("sample_time_max"),
                 "vl_k_max": vl.get("k_v_max"),
                 "notes": _limit_notes(res.get("limit_notes", {}).get(scheme, {})),

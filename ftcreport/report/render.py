@@ -17,7 +17,6 @@ import functools
 import hashlib
 import json
 import math
-import tomllib
 from importlib import resources
 from pathlib import Path
 
@@ -25,7 +24,7 @@ import jinja2
 import numpy as np
 
 from .. import __version__
-from ..cases import ordered_schemes, parse_case, with_duration
+from ..cases import ordered_schemes
 from ..errors import FtcError, printable
 from ..evaluation import compare
 from ..evaluation.claims import bound_text
@@ -256,18 +255,19 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
             simulated=rec.get("time", "-"),
             case_text=rec.get("source_text", ""),
         )
+    from ..storage.store import stored_case
+
     stored = out / name / "case.toml"
+    text = stored.read_text(encoding="utf-8")
     try:
-        text = stored.read_text(encoding="utf-8")
-        case = parse_case(tomllib.loads(text), rec.get("source", name))
-    except (FtcError, ValueError) as exc:  # the stored copy, not the user's file, is damaged
-        raise FtcError(
-            f"{stored}: the stored copy of {rec.get('source', name)} is damaged ({str(exc)[:200]}); "
-            "re-run 'ftcreport batch' or 'ftcreport run' on the case to store it again"
-        ) from None
-    case = case.model_copy(update={"name": name})
-    if rec.get("duration_override"):
-        case = with_duration(case, rec["duration_override"])
+        case = stored_case(out, name, rec)
+    except FtcError as exc:
+        if "changed after its runs" not in str(exc):
+            raise  # damaged: named, the report stops
+        # edited after its runs: the page says so and shows nothing of the edited file as the runs' (report
+        # and export name it and exit 1: store.edited_cases)
+        return write_page(page, "case.html", root, nav_label=nav, name=name, description=str(exc), n_phases=0,
+                          key=rec.get("key", "-"), simulated=rec.get("time", "-"), case_text="")  # fmt: skip
     runs, series = [], {}
     for s, m in stored_metrics(out, name).items():
         m = dict(m)
@@ -805,13 +805,13 @@ def other_pages(out: Path) -> list[dict]:
 
 
 def _stored_case(out: Path, name: str, rec: dict):
-    """The case as stored beside its runs (None when it cannot be read)."""
+    """The case as stored beside its runs (None when it cannot be read, or was changed after its runs:
+    storage.store.stored_case)."""
+    from ..storage.store import stored_case
+
     try:
-        case = parse_case(tomllib.loads((out / name / "case.toml").read_text()), rec.get("source", name))
-        if rec.get("duration_override"):
-            case = with_duration(case, rec["duration_override"])
-        return case
-    except (OSError, ValueError, FtcError):
+        return stored_case(out, name, rec)
+    except FtcError:
         return None
 
 

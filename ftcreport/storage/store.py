@@ -52,6 +52,7 @@ __all__ = [
     "check_run",
     "clean_partial",
     "confine",
+    "edited_cases",
     "kind_of",
     "load_metrics",
     "load_timeseries",
@@ -61,6 +62,7 @@ __all__ = [
     "read_json",
     "save_run",
     "set_write_guard",
+    "stored_case",
     "stored_metrics",
     "stored_runs",
     "stored_schemes",
@@ -360,6 +362,53 @@ def stored_runs(out: Path, case_name: str) -> dict[str, StoredRun]:
     rec = read_json(Path(out) / case_name / "case.json")
     case_hash = rec.get("key") if isinstance(rec, dict) and isinstance(rec.get("key"), str) else None
     return {s: check_run(out, case_name, s, case_hash=case_hash) for s in stored_schemes(out, case_name)}
+
+
+def stored_case(out: Path, name: str, rec: dict):
+    """The case as stored beside its runs (``<case>/case.toml``, with the record's ``--duration``), checked
+    against the content hash its runs were made from (``case.json``'s key, which holds the plug-in files'
+    contents too).  Raises :class:`FtcError` naming the file: unreadable, or changed after its runs (a hand
+    edit, a plug-in file edited since): a page or an export from it would show another case than the
+    one simulated."""
+    import tomllib
+
+    from .. import __version__
+    from ..cases import parse_case, with_duration
+    from ..cases.files import case_hash
+
+    path = Path(out) / name / "case.toml"
+    try:
+        case = parse_case(tomllib.loads(path.read_text(encoding="utf-8")), rec.get("source", name))
+    except (OSError, ValueError, FtcError) as exc:
+        raise FtcError(
+            f"{path}: the stored copy of {rec.get('source', name)} is damaged ({str(exc)[:200]}); re-run "
+            "'ftcreport batch' or 'ftcreport run' on the case to store it again"
+        ) from None
+    case = case.model_copy(update={"name": name})
+    if rec.get("duration_override"):
+        case = with_duration(case, rec["duration_override"])
+    key = rec.get("key")
+    if isinstance(key, str) and case_hash(case, __version__) != key:
+        raise FtcError(
+            f"{path}: changed after its runs (content hash {case_hash(case, __version__)}, the runs' {key}: the "
+            "file or one of its scheme files was edited): not shown as theirs; re-run 'ftcreport batch' on the case"
+        )
+    return case
+
+
+def edited_cases(out: Path) -> list[str]:
+    """A problem line per recorded case whose stored case file no longer is the one its runs were made
+    from (:func:`stored_case`)."""
+    problems = []
+    for rec_path in sorted(Path(out).glob("*/case.json")):
+        rec = read_json(rec_path)
+        if not isinstance(rec, dict) or rec.get("status") != "ok" or not (rec_path.parent / "case.toml").exists():
+            continue
+        try:
+            stored_case(out, rec_path.parent.name, rec)
+        except FtcError as exc:
+            problems.append(str(exc))
+    return problems
 
 
 def unrecorded_cases(out: Path) -> list[str]:

@@ -222,11 +222,9 @@ def write_netcdf(path: Path, run: Run) -> Path:
 
 def read_run(out: Path, case: str, scheme: str) -> Run | None:
     """A stored run (``<out>/<case>/<scheme>/``) as a :class:`Run` with its metadata, or None."""
-    import tomllib
-
-    from ..cases import parse_case
+    from ..errors import FtcError
     from ..sim import Run
-    from .store import load_metrics, load_timeseries
+    from .store import load_metrics, load_timeseries, read_json, stored_case
 
     out = Path(out)
     ts = load_timeseries(out, case, scheme)
@@ -247,9 +245,13 @@ def read_run(out: Path, case: str, scheme: str) -> Run | None:
         "case_hash": m.get("case_hash", ""),
     }
     toml = out / case / "case.toml"
+    rec = read_json(out / case / "case.json")
     if toml.exists():
         try:
-            c = parse_case(tomllib.loads(toml.read_text()), str(toml))
+            if not isinstance(rec, dict):
+                raise FtcError(f"{out / case / 'case.json'}: not a case record")
+            # the case its runs were made from, or none (export names an edited one: store.edited_cases)
+            c = stored_case(out, case, rec)
             meta["fault_schedule"] = [
                 {k: v for k, v in f.model_dump().items() if k not in ("motor", "value") or f.motor is not None}
                 for f in c.faults

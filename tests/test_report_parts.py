@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
+import pytest
 
 from ftcreport.model import Chain
 from ftcreport.model.faults import FaultEvent, FaultSchedule
@@ -147,3 +149,24 @@ def test_every_series_of_the_error_figure_has_its_own_colour():
     assert colors[-1] == SCHEME_COLORS["oracle"]
     for tr in fig["data"]:  # each heading trace in its position trace's colour
         assert tr["line"]["color"] == colors[names.index(tr["name"])]
+
+
+def test_a_near_zero_start_does_not_set_the_error_figures_log_scale():
+    """The page audit: a chain that starts on its reference has a position error of 1e-12 m at t = 0, and
+    the log axis ran from 1 pm to 0.1 m, the whole run (1 mm to 80 mm) squeezed into its top fifth.  The
+    axes now take their lower end from the errors after the start (from 1 s on), as the other figures do."""
+    chain = Chain.uniform(2)
+    ts = _series(chain, 3001)
+    err = 1e-3 + 0.08 * (ts["t"] / 30.0)  # 1 mm rising to 81 mm; zero at the very start
+    err[0] = 0.0
+    ts["q_d"] = ts["q"].copy()
+    ts["q_d"][:, 0] = ts["q"][:, 0] - err
+    ts["q_d"][:, 2:] = ts["q"][:, 2:] - 10.0 * err[:, None]
+    fig = errors_fig({"nominal": ts}, fault_phases(_schedule((10.0, "1l", 0.0, 0.0)), 30.0, WHEELS))
+    lay = fig["layout"]
+    lo, hi = lay["yaxis"]["range"]
+    # log10 of the errors from 1 s on (3.7 mm to 81 mm) with 0.15 decade of room: not 1 pm
+    assert lo == pytest.approx(math.log10(1e-3 + 0.08 / 30) - 0.15, abs=2e-3)
+    assert hi == pytest.approx(math.log10(0.081) + 0.15, abs=2e-3)
+    lo2 = lay["yaxis2"]["range"][0]  # the headings: ten times the position error, in rad
+    assert lo2 == pytest.approx(math.log10(10 * (1e-3 + 0.08 / 30)) - 0.15, abs=2e-3)

@@ -156,10 +156,14 @@ def errors_fig(series: dict[str, dict], phases: list[dict]) -> dict:
     (:func:`series_colors`)."""
     data = []
     colors = series_colors(list(series))
+    scale: dict[str, list[np.ndarray]] = {"pos": [], "head": []}  # the samples the axes are scaled on
     for scheme, ts in series.items():
         q, qd = ts["q"], ts["q_d"]
         pos = np.hypot(q[:, 0] - qd[:, 0], q[:, 1] - qd[:, 1])
         head = np.abs(wrap(q[:, 2:] - qd[:, 2:])).max(axis=1)
+        after = ts["t"] >= float(ts["t"][0]) + 1.0  # a chain starting on its reference: ~0 at t0
+        scale["pos"].append(pos[after])
+        scale["head"].append(head[after])
         t, p, h = decimate(ts["t"], np.maximum(pos, 1e-12), np.maximum(head, 1e-9))
         c = colors[scheme]
         data.append(_trace(t, _r(p), scheme, "%{y:.3g} m", legendgroup=scheme, line={"color": c, "width": 1.3}))
@@ -173,7 +177,23 @@ def errors_fig(series: dict[str, dict], phases: list[dict]) -> dict:
         yaxis={"type": "log", "title": {"text": "position error [m]"}, "domain": [0.53, 1]},
         yaxis2={"type": "log", "title": {"text": "max heading error [rad]"}, "domain": [0, 0.45]},
     )
+    for axis, key, floor in (("yaxis", "pos", 1e-12), ("yaxis2", "head", 1e-9)):
+        rng = _log_range(scale[key], floor)
+        if rng is not None:
+            lay[axis]["range"] = rng
     return {"data": data, "layout": lay}
+
+
+def _log_range(parts: list[np.ndarray], floor: float) -> list[float] | None:
+    """A log axis's range [log10 lo, log10 hi] over the samples from 1 s after the start: their least and
+    largest value (at least ``floor``) with a fifth of a decade of room; None without samples.  The error
+    at t0 of a chain that starts on its reference (round-off) no longer sets the lower end."""
+    v = np.concatenate([p for p in parts if p.size]) if any(p.size for p in parts) else np.zeros(0)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return None
+    lo, hi = max(float(v.min()), floor), max(float(v.max()), floor)
+    return [round(math.log10(lo) - 0.15, 3), round(math.log10(hi) + 0.15, 3)]
 
 
 def _window(t: np.ndarray, phases: list[dict], samples: int = 60) -> tuple[int, int]:

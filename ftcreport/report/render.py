@@ -255,12 +255,12 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
             simulated=rec.get("time", "-"),
             case_text=rec.get("source_text", ""),
         )
-    from ..storage.store import stored_case
+    from ..storage.store import load_stored_case
 
     stored = out / name / "case.toml"
     text = stored.read_text(encoding="utf-8")
     try:
-        case = stored_case(out, name, rec)
+        case = load_stored_case(out, name, rec)
     except FtcError as exc:
         if "changed after its runs" not in str(exc):
             raise  # damaged: named, the report stops
@@ -806,11 +806,11 @@ def other_pages(out: Path) -> list[dict]:
 
 def _stored_case(out: Path, name: str, rec: dict):
     """The case as stored beside its runs (None when it cannot be read, or was changed after its runs:
-    storage.store.stored_case)."""
-    from ..storage.store import stored_case
+    storage.store.load_stored_case)."""
+    from ..storage.store import load_stored_case
 
     try:
-        return stored_case(out, name, rec)
+        return load_stored_case(out, name, rec)
     except FtcError:
         return None
 

@@ -55,6 +55,7 @@ __all__ = [
     "edited_cases",
     "kind_of",
     "load_metrics",
+    "load_stored_case",
     "load_timeseries",
     "lock_fd",
     "locked",
@@ -62,7 +63,6 @@ __all__ = [
     "read_json",
     "save_run",
     "set_write_guard",
-    "stored_case",
     "stored_metrics",
     "stored_runs",
     "stored_schemes",
@@ -364,7 +364,7 @@ def stored_runs(out: Path, case_name: str) -> dict[str, StoredRun]:
     return {s: check_run(out, case_name, s, case_hash=case_hash) for s in stored_schemes(out, case_name)}
 
 
-def stored_case(out: Path, name: str, rec: dict):
+def load_stored_case(out: Path, name: str, rec: dict):
     """The case as stored beside its runs (``<case>/case.toml``, with the record's ``--duration``), checked
     against the content hash its runs were made from (``case.json``'s key, which holds the plug-in files'
     contents too).  Raises :class:`FtcError` naming the file: unreadable, or changed after its runs (a hand
@@ -398,14 +398,14 @@ def stored_case(out: Path, name: str, rec: dict):
 
 def edited_cases(out: Path) -> list[str]:
     """A problem line per recorded case whose stored case file no longer is the one its runs were made
-    from (:func:`stored_case`)."""
+    from (:func:`load_stored_case`)."""
     problems = []
     for rec_path in sorted(Path(out).glob("*/case.json")):
         rec = read_json(rec_path)
         if not isinstance(rec, dict) or rec.get("status") != "ok" or not (rec_path.parent / "case.toml").exists():
             continue
         try:
-            stored_case(out, rec_path.parent.name, rec)
+            load_stored_case(out, rec_path.parent.name, rec)
         except FtcError as exc:
             problems.append(str(exc))
     return problems

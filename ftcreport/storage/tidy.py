@@ -224,7 +224,7 @@ def read_run(out: Path, case: str, scheme: str) -> Run | None:
     """A stored run (``<out>/<case>/<scheme>/``) as a :class:`Run` with its metadata, or None."""
     from ..errors import FtcError
     from ..sim import Run
-    from .store import load_metrics, load_timeseries, read_json, stored_case
+    from .store import load_metrics, load_stored_case, load_timeseries, read_json
 
     out = Path(out)
     ts = load_timeseries(out, case, scheme)
@@ -251,7 +251,7 @@ def read_run(out: Path, case: str, scheme: str) -> Run | None:
             if not isinstance(rec, dict):
                 raise FtcError(f"{out / case / 'case.json'}: not a case record")
             # the case its runs were made from, or none (export names an edited one: store.edited_cases)
-            c = stored_case(out, case, rec)
+            c = load_stored_case(out, case, rec)
             meta["fault_schedule"] = [
                 {k: v for k, v in f.model_dump().items() if k not in ("motor", "value") or f.motor is not None}
                 for f in c.faults

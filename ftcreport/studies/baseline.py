@@ -65,7 +65,6 @@ import hashlib
 import io
 import json
 import math
-import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -80,8 +79,6 @@ from ..cases import (
     BASELINE_SIGNAL_FAMILIES,
     BaselineSpec,
     configured_schemes,
-    parse_case,
-    with_duration,
 )
 from ..evaluation.metrics import HEADLINE_METRICS
 from .check import GateItem
@@ -373,19 +370,14 @@ def _file_hash(path: Path) -> str:
 
 
 def stored_case(out: Path, name: str):
-    """(the case as stored beside its runs, its text, its record); raises FtcError when unreadable."""
-    from ..errors import FtcError
-    from ..storage.store import read_json
+    """(the case as stored beside its runs, its text, its record); raises FtcError when unreadable or changed
+    after its runs (storage.store.load_stored_case)."""
+    from ..storage.store import load_stored_case, read_json
 
-    rec = read_json(Path(out) / name / "case.json") or {}
-    try:
-        text = (Path(out) / name / "case.toml").read_text(encoding="utf-8")
-        case = parse_case(tomllib.loads(text), rec.get("source", name)).model_copy(update={"name": name})
-    except (OSError, ValueError, FtcError) as exc:
-        raise FtcError(f"{Path(out) / name / 'case.toml'}: cannot read the stored case ({str(exc)[:200]})") from None
-    if rec.get("duration_override"):
-        case = with_duration(case, rec["duration_override"])
-    return case, text, rec
+    rec = read_json(Path(out) / name / "case.json")
+    rec = rec if isinstance(rec, dict) else {}
+    case = load_stored_case(out, name, rec)  # damaged, or edited after its runs: FtcError naming the file
+    return case, (Path(out) / name / "case.toml").read_text(encoding="utf-8"), rec
 
 
 def _spec(case):

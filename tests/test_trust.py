@@ -857,3 +857,27 @@ def test_a_stored_case_file_edited_after_its_runs_is_named_not_shown_as_theirs(t
     page = (out / "c" / "index.html").read_text()
     assert "changed after its runs" in page
     assert "0.4 s" not in page  # the edited fault time is not shown as the runs'
+
+
+def test_a_deleted_run_directory_is_named_not_left_out_in_silence(tmp_path):
+    """The campaign attack (round 3): 'rm -rf OUT/c/oracle' and 'report' exited 0, the index said '1 run:
+    1 completed' and the page 'regret vs oracle n/a' without saying the oracle's run was gone; 'export'
+    exited 0 and dropped it from metrics.parquet.  (A single deleted file inside a run was named.)  The
+    case's manifest lists the runs its batch stored: one of them missing is named, exit 1."""
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    two = {"run": ["nominal", "oracle"], "nominal": {"k_v": 5.0}, "oracle": {"k_v": 5.0}}
+    _write(cases, "c", schemes=two, faults=[{"time": 0.2, "wheel": "2l", "sigma": 0.0}])
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    shutil.rmtree(out / "c" / "oracle")
+    for cmd in (["report", "--out", str(out)], ["export", "--out", str(out), "--dest", str(tmp_path / "e")]):
+        res = runner.invoke(app, cmd)
+        _no_crash(res)
+        assert res.exit_code == 1, res.output
+        assert any(str(out / "c" / "oracle") in e and "deleted" in e for e in _errors(res)), res.stderr
+    # batch stores it again, and the store is whole
+    res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0

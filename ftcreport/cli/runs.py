@@ -363,12 +363,13 @@ def report(
 
     if not out.is_dir():
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
-    from ..storage.store import edited_cases, output_lock, read_json, unrecorded_cases
+    from ..storage.store import deleted_runs, edited_cases, output_lock, read_json, unrecorded_cases
 
     with output_lock(out, "report"), _render_progress() as (notify, done):
         page = render_all(out, force=True, notify=notify, done=done)
         bad = unrecorded_cases(out)  # runs whose case record is gone: not shown, and said so
         bad += edited_cases(out)  # a stored case file edited after its runs: its page says so
+        bad += deleted_runs(out)  # a run directory deleted by hand
         for rec in sorted(out.glob("*/case.json")):
             if not isinstance(read_json(rec), dict) or read_json(rec).get("status") != "ok":
                 continue  # a rejected case file: its page says why (a damaged record: unrecorded_cases)

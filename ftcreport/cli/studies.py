@@ -200,7 +200,7 @@ def export(
 
     Example: ftcreport export --out reports
     """
-    from ..storage.store import edited_cases, output_lock, unrecorded_cases
+    from ..storage.store import deleted_runs, edited_cases, output_lock, unrecorded_cases
     from ..storage.tidy import export as _export
 
     if not out.is_dir():
@@ -211,6 +211,7 @@ def export(
             locks.enter_context(output_lock(dest, "export --dest"))
         damaged: list[str] = unrecorded_cases(out)  # runs whose case record is gone: not exported, and said so
         damaged += edited_cases(out)  # a stored case file edited after its runs: no fault schedule read from it
+        damaged += deleted_runs(out)  # a run directory deleted by hand: not in the exports
         paths = _export(out, dest, damaged)
     n_nc = sum(p.suffix == ".nc" for p in paths)
     typer.echo(f"{n_nc} netCDF file(s) and {paths[-1]} written")

@@ -52,6 +52,7 @@ __all__ = [
     "check_run",
     "clean_partial",
     "confine",
+    "deleted_runs",
     "edited_cases",
     "kind_of",
     "load_metrics",
@@ -394,6 +395,29 @@ def load_stored_case(out: Path, name: str, rec: dict):
             "file or one of its scheme files was edited): not shown as theirs; re-run 'ftcreport batch' on the case"
         )
     return case
+
+
+def deleted_runs(out: Path) -> list[str]:
+    """A problem line per run a case's ``manifest.json`` lists (the runs its last batch or run stored, for
+    the case content its record holds) whose directory is gone: a run deleted by hand would otherwise
+    drop out of the pages and the exports without a word."""
+    problems = []
+    for rec_path in sorted(Path(out).glob("*/case.json")):
+        rec, man = read_json(rec_path), read_json(rec_path.parent / "manifest.json")
+        if not isinstance(rec, dict) or not isinstance(man, dict) or rec.get("status") != "ok":
+            continue
+        name = rec_path.parent.name
+        if (man.get("cases") or {}).get(name) != rec.get("key") or not isinstance(man.get("runs"), list):
+            continue  # a manifest of another content of the case
+        for r in man["runs"]:
+            s = r.get("scheme") if isinstance(r, dict) else None
+            if isinstance(s, str) and s and check_run(out, name, s).absent:
+                problems.append(
+                    f"{Path(out) / name / s}: missing (the case's manifest.json lists its run, stored on "
+                    f"{str(man.get('created', '?'))[:10]}; its directory was deleted): not shown or exported; "
+                    "re-run 'ftcreport batch' on the case"
+                )
+    return problems
 
 
 def edited_cases(out: Path) -> list[str]:

@@ -187,3 +187,28 @@ def test_a_round2_law_still_runs_through_the_adapter_with_a_warning():
     for key in ("q", "eta", "u", "tau"):
         assert np.abs(run_r.signals[key] - run_n.signals[key]).max() == 0.0, key
     assert np.abs(run_r.signals["u0"][:, 0] - run_n.signals["u"][:, 0]).max() == 0.0
+
+
+def test_a_law_returning_nan_stops_the_run_naming_it_and_keeps_what_ran(tmp_path, monkeypatch):
+    """The campaign attack (round 3): a plug-in law writing out.u[1] = nan from t = 1 s ended 'error' with
+    "its compiled law ... raised LinAlgError: Array must not contain infs or NaNs" (the law raised nothing:
+    the plant's solve did, on its NaN torque), no time in the reason, t_end null and a log of 0 rows: the
+    first second was lost.  The loop checks the law's command as it returns: the stop names the scheme, the
+    wheel, the value and the time, and the run keeps its rows up to it."""
+    import ftcreport.fast.scheme_check as check
+
+    monkeypatch.setattr(check, "ensure_checked", lambda ctrl: None)  # the battery's t = 0 calls see no NaN
+    new = "    out.sig[2] = K\n    if step.t >= 1.0:\n        out.u[1] = np.nan\n"
+    path, _ = _variant(tmp_path, "sm_nan", "    out.sig[2] = K\n", new)
+    data = __import__("tomllib").loads(CASE.read_text())
+    data["plugins"] = [str(path)]
+    _run_only(data, {"run": ["sm_nan"], "k_v": 20.0})
+    run, m = run_scheme(with_duration(parse_case(data, str(CASE)), 3.0), "sm_nan")
+    assert m["status"] == "error", m
+    assert "scheme 'sm_nan'" in m["reason"] and "non-finite command" in m["reason"], m["reason"]
+    assert "out.u[1] (wheel 1l) = nan" in m["reason"] and "t = 1 s" in m["reason"], m["reason"]
+    assert "LinAlgError" not in m["reason"]
+    assert run.t_end == pytest.approx(1.0, abs=0.011)  # the first stage at or after 1 s (dt = 10 ms)
+    # the first second is kept: every step in the metric stream, every 10th in the log (log_every = 10)
+    assert run.t_stream.size >= 100 and run.t_stream[-1] == pytest.approx(1.0, abs=0.011)
+    assert run.t.size >= 10

@@ -67,6 +67,7 @@ from ftcreport.jit.packed import (
     AT_DISCRETE,
     AT_STATE,
     AT_TRIAL,
+    E_LAW_NONFINITE,
     E_LAW_WRITE,
     E_MIN_STEP,
     E_NONFINITE_DERIV,
@@ -161,9 +162,18 @@ def _law(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
     """
     Pp, io = P
     if LEGACY:
-        return _legacy_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
+        u, dx = _legacy_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
     else:
-        return _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
+        u, dx = _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
+    if info[0] == 0:  # a non-finite command stops here, named, before the plant's solve meets it
+        for j in range(u.shape[0]):
+            if not math.isfinite(u[j]):
+                info[0] = E_LAW_NONFINITE
+                info[1] = t
+                info[2] = j
+                info[3] = u[j]
+                break
+    return u, dx
 
 
 @jit

@@ -27,6 +27,7 @@ from ..jit.packed import (
     E_CHAINED_ART,
     E_CHAINED_THN,
     E_KAPPA,
+    E_LAW_NONFINITE,
     E_LAW_WRITE,
     E_NONFINITE_DERIV,
     E_NONFINITE_STATE,
@@ -96,6 +97,21 @@ def _message(info: np.ndarray, t: float, settings, ref: Ref, how: str = "") -> t
     return "error", f"compiled engine: unknown error code {code} at t = {t:.6g} s"
 
 
+def law_nonfinite_reason(spec: Spec | None, j: int, value: float, t: float) -> str:
+    """Why a run stopped when the scheme's law returned a non-finite command (E_LAW_NONFINITE): its inputs
+    were finite (the state is checked before), so the law computed it."""
+    from ..model import wheel_names
+
+    name = spec.controller.scheme.name if spec is not None else "?"
+    wheels = wheel_names(spec.controller.chain.n) if spec is not None else []
+    wheel = f" (wheel {wheels[j]})" if j < len(wheels) else ""
+    return (
+        f"scheme '{name}': its law returned a non-finite command out.u[{j}]{wheel} = {value} at t = {t:.6g} s from a "
+        "finite state (a division by zero or a NaN inside the law; 'ftcreport schemes check FILE' runs it with "
+        "bounds checks)"
+    )
+
+
 def _stop(
     info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: Ref, spec: Spec | None = None
 ) -> tuple[str, str, float]:
@@ -106,6 +122,8 @@ def _stop(
         from ..schemes.controller import write_reason
 
         return "error", write_reason(spec.controller, int(info[1]), float(info[2])), float(info[2])
+    if int(info[0]) == E_LAW_NONFINITE:
+        return "error", law_nonfinite_reason(spec, int(info[2]), float(info[3]), float(info[1])), float(info[1])
     how = _how(settings)
     if int(info[0]) == E_STEP_JUMP:
         from ..runs import step_jump_words

@@ -90,8 +90,9 @@ def _mm(A, B):
 
 
 @jit
-def phi12(Z):
-    """(phi_1(Z), phi_2(Z)) of a square matrix Z (module docstring: balance, scale, Taylor, double)."""
+def _scaled(Z, at_least):
+    """(d, X, s): Z balanced (D^-1 Z D, D = diag(d): :func:`balance`) and scaled by 2^-s, s the fewest halvings
+    (at least ``at_least``) that bring its 1-norm to 1/2 or below."""
     m = Z.shape[0]
     d = balance(Z)
     X = np.empty((m, m))
@@ -102,10 +103,18 @@ def phi12(Z):
             X[i, j] = Z[i, j] * d[j] / d[i]
             col += abs(X[i, j])
         norm = max(norm, col)
-    s = 0
-    if norm > 0.5:
+    s = at_least
+    if norm > 0.5 * 2.0**at_least:
         s = math.ceil(math.log2(norm / 0.5))
     X *= 0.5**s
+    return d, X, s
+
+
+@jit
+def phi12(Z):
+    """(phi_1(Z), phi_2(Z)) of a square matrix Z (module docstring: balance, scale, Taylor, double)."""
+    m = Z.shape[0]
+    d, X, s = _scaled(Z, 0)
     eye = np.eye(m)
     # phi_2(X) = sum_j X^j / (j + 2)!, by Horner from the highest term
     P2 = eye / math.gamma(TAYLOR_TERMS + 2.0)
@@ -145,19 +154,7 @@ def phi123(Z):
         phi_3(2X) = (e^X phi_3(X) + phi_1(X) / 2 + phi_2(X) + phi_3(X)) / 8
     """
     m = Z.shape[0]
-    d = balance(Z)
-    X = np.empty((m, m))
-    norm = 0.0
-    for j in range(m):
-        col = 0.0
-        for i in range(m):
-            X[i, j] = Z[i, j] * d[j] / d[i]
-            col += abs(X[i, j])
-        norm = max(norm, col)
-    s = 1
-    if norm > 1.0:
-        s = math.ceil(math.log2(norm / 0.5))
-    X *= 0.5**s
+    d, X, s = _scaled(Z, 1)
     eye = np.eye(m)
     # phi_3(X) = sum_j X^j / (j + 3)!, by Horner from the highest term
     P3 = eye / math.gamma(TAYLOR_TERMS + 3.0)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -170,3 +171,76 @@ def test_a_near_zero_start_does_not_set_the_error_figures_log_scale():
     assert hi == pytest.approx(math.log10(0.081) + 0.15, abs=2e-3)
     lo2 = lay["yaxis2"]["range"][0]  # the headings: ten times the position error, in rad
     assert lo2 == pytest.approx(math.log10(10 * (1e-3 + 0.08 / 30)) - 0.15, abs=2e-3)
+
+
+def _switching_run(**extra) -> dict:
+    """A stored switching run's metrics, the few entries the case page's checks read."""
+    return {"scheme": "switching", "status": "ok", "position_error_final": 2e-7, "phases": [], **extra}
+
+
+def _verify_dt(energy: tuple[float, float], torque_rms: tuple[float, float]) -> dict:
+    from ftcreport.runner import dt_sensitivity
+
+    full = {"status": "ok", "dt": 0.01, "energy": energy[0], "torque_rms": torque_rms[0], "position_error_max": 0.05}
+    half = {"status": "ok", "dt": 0.005, "energy": energy[1], "torque_rms": torque_rms[1], "position_error_max": 0.05}
+    return dt_sensitivity(full, half)
+
+
+def _page(**context) -> str:
+    from ftcreport.report.render import _env
+
+    return _env().get_template("case.html").render(name="c", n_phases=0, figures=[], not_run={}, warnings=[], **context)
+
+
+def test_the_step_check_of_run_verify_dt_is_on_the_case_page():
+    """The page audit: `run --scheme switching --verify-dt` stored verify_dt (energy and torque_rms moving
+    ~30 % between dt and dt/2: not converged, exit 1), README says it is shown on the page, and the page
+    did not show it.  The schemes table is now followed by each scheme's step check: which metrics moved,
+    from what to what and by how much, in the warning colour when not converged."""
+    from ftcreport.report.checks import step_checks
+
+    loose = _switching_run(verify_dt=_verify_dt((10.0, 13.0), (2.0, 2.5)))
+    firm = _switching_run(verify_dt=_verify_dt((10.0, 10.01), (2.0, 2.0)))
+    firm["scheme"] = "nominal"
+    rows = step_checks([loose, firm, _switching_run() | {"scheme": "oracle"}])  # the oracle: no --verify-dt
+    assert [r["scheme"] for r in rows] == ["switching", "nominal"]
+    assert rows[0]["converged"] is False and rows[1]["converged"] is True
+    assert rows[0]["moved"] == [
+        "energy 10 -> 13 J (+30.0% at the refined step)",
+        "torque_rms 2 -> 2.5 N m (+25.0% at the refined step)",
+    ]
+    assert "NOT converged" in rows[0]["text"] and "dt = 0.01 s vs 0.005 s" in rows[0]["text"]
+    assert "converged" in rows[1]["text"] and "energy 10 -> 10.01 J (+0.1% at the refined step)" in rows[1]["text"]
+    html = _page(runs=[loose, firm], step_checks=rows)
+    item = html[html.index('<li data-scheme="switching"') :].split("</li>")[0]
+    assert 'class="warn"' in item and "energy 10 -&gt; 13 J (+30.0% at the refined step)" in item
+    assert 'data-scheme="nominal" class="ok"' in html
+
+
+def test_a_claim_on_a_scheme_run_scheme_did_not_run_is_not_a_failure_on_the_page():
+    """The page audit: `run two_link_switching.toml --scheme switching` rendered a red banner giving as
+    exit 1's reason "claim single_law_insufficient ... not evaluated ... the nominal scheme was not run".
+    `run` judges only the items on the schemes it ran (README, exit codes; cli.runs._run_gate), so that
+    claim did not fail its gate.  The page now says "not judged (needs nominal, not run here)" in a
+    neutral note and badge; after a batch or check (every scheme to run) a missing run still fails it."""
+    from ftcreport.cases import load_case
+    from ftcreport.evaluation.claims import evaluate_claims
+    from ftcreport.report.render import _claims_shown, _gate_failures
+
+    case = load_case(Path(__file__).parent.parent / "cases" / "two_link_switching.toml")
+    runs = [_switching_run()]
+    claims = evaluate_claims(case.name, case.claims, {"switching": runs[0]})
+    gate = _gate_failures(case.name, case, runs, [], claims, {"switching"})
+    assert not any("single_law_insufficient" in line for line in gate["lines"])
+    why = "not judged (needs nominal, not run here)"
+    assert gate["not_judged"] == [f"claim single_law_insufficient (3.2.2, simulated in 3.2.3): {why}"]
+    shown = _claims_shown(case, claims, {"switching"})
+    html = _page(verdict={"sentences": []}, gate=gate, claims=shown, runs=runs)
+    note = html[html.index('id="verdict-not-judged"') :].split("</div>")[0]
+    assert "not judged (needs nominal, not run here)" in note and "ran switching only" in note
+    row = html[html.index('id="claim-single_law_insufficient"') :].split("</tr>")[0]
+    assert '<span class="badge none">not judged (needs nominal, not run here)</span>' in row
+    assert "expected" not in row
+    batch = _gate_failures(case.name, case, runs, [], claims, None)  # a batch: nominal's run is missing
+    assert any(line.startswith("claim single_law_insufficient") for line in batch["lines"])
+    assert batch["not_judged"] == []

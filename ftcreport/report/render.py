@@ -12,6 +12,7 @@ self-contained (inline CSS, SVG, a few lines of JS for sorting): they work offli
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import functools
 import hashlib
@@ -36,6 +37,7 @@ from ..storage.store import load_timeseries, read_json, stored_metrics, stored_s
 from ..studies.check import claim_item, evaluate, requirement_items, threshold_item
 from . import interactive, plots
 from .analysis_figs import analysis_section
+from .checks import not_judged, ran_here, step_checks
 from .plant import plant_block
 from .replay import replay_data
 
@@ -371,7 +373,9 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
     requirements = requirements_section(case, runs, series)
     claims = _claims(name, case, runs)
     verdict = _verdict(case, name, runs, analysis)
-    gate = _gate_failures(name, case, runs, checks, claims)
+    manifest = _manifest(out, name)
+    ran = ran_here(manifest)  # `run --scheme`: the items on other schemes are not judged (as run does)
+    gate = _gate_failures(name, case, runs, checks, claims, ran)
     gate_skipped = None
     if gate and rec.get("duration_override") is not None:  # `run --duration`: the gate is not judged
         gate, gate_skipped = (
@@ -423,7 +427,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         name=name,
         analysis=analysis,
         diagnosis=diagnosis,
-        claims=claims,
+        claims=_claims_shown(case, claims, ran),
         description=case.description,
         n=case.robots.n,
         reference=case.reference.kind,
@@ -445,7 +449,8 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         key=rec.get("key", "-"),
         simulated=rec.get("time", "-"),
         case_text=text,
-        manifest=_manifest(out, name),
+        manifest=manifest,
+        step_checks=step_checks(runs),
         base_cmp=base_cmp,
         plant=plant,
     )
@@ -546,32 +551,57 @@ def _manifest_stamp(out: Path, name: str) -> bytes:
         return b"-"
     keep = {k: v for k, v in m.items() if k not in ("created", "runs", "settings")}
     keep["runs"] = [{k: r.get(k) for k in ("scheme", "engine", "status", "key", "seed")} for r in m.get("runs", [])]
+    settings = m.get("settings") or {}
+    keep["ran"] = [settings.get("command"), settings.get("schemes")]  # `run --scheme`: what the page judges
     return json.dumps(keep, sort_keys=True).encode()
 
 
-def _gate_failures(name: str, case, runs: list[dict], checks: list, claims: list) -> dict | None:
+def _gate_failures(name: str, case, runs: list[dict], checks: list, claims: list, ran: set[str] | None = None):
     """The case's thresholds, claims and requirement windows that do not hold, for the verdict's opening.
 
-    The same gate items ``run`` and ``check`` judge (:mod:`ftcreport.studies.check`): ``{"n", "lines"}``
-    with the number of items judged and one line per failed item (which item, the scheme, the value
-    against the bound), or None when none is stated.
+    The same gate items ``run`` and ``check`` judge (:mod:`ftcreport.studies.check`): ``{"n", "lines",
+    "not_judged"}`` with the number of items judged, one line per failed item (which item, the scheme, the
+    value against the bound) and one per item not judged, or None when none is stated.  ``ran``: the
+    schemes of the ``ftcreport run`` that stored the page (:func:`ran_here`); an item reading another
+    scheme is not judged, as ``run`` does not judge it (README, exit codes).
     """
     metrics = {m["scheme"]: m for m in runs}
-    items = [threshold_item(r) for r in checks]
-    items += [claim_item(c, i) for i, c in enumerate(claims)]
-    items += requirement_items(name, case.requirements, metrics)
+    items = [(threshold_item(r), r) for r in checks]
+    items += [(claim_item(c, i, _relative_to(case, i)), None) for i, c in enumerate(claims)]
+    items += [(item, None) for item in requirement_items(name, case.requirements, metrics)]
     if not items:
         return None
-    lines = []
-    for r in (r for r in checks if not r.ok):
-        got = r.reason if r.actual is None else f"{r.actual:.4g} against {bound_text(r.min, r.max)}"
-        lines.append(f"threshold {r.scheme} / {r.metric}: {got}")
-    for item in items:
-        if not item.ok and item.kind == "claim":
+    lines, skipped, n = [], [], 0
+    for item, r in items:
+        why = not_judged(item.schemes, ran)
+        if why is not None:
+            skipped.append(f"{item.name if r is None else f'threshold {r.scheme} / {r.metric}'}: {why}")
+            continue
+        n += 1
+        if item.ok:
+            continue
+        if r is not None:
+            got = r.reason if r.actual is None else f"{r.actual:.4g} against {bound_text(r.min, r.max)}"
+            lines.append(f"threshold {r.scheme} / {r.metric}: {got}")
+        elif item.kind == "claim":
             lines.append(f"{item.name}: {item.message}")
-        elif not item.ok and item.kind == "requirement":
+        elif item.kind == "requirement":
             lines.append(f"requirement {item.name.replace(' / requirement ', ' / ', 1)}: {item.message}")
-    return {"n": len(items), "lines": lines}
+    return {"n": n, "lines": lines, "not_judged": skipped, "ran": sorted(ran or ())}
+
+
+def _relative_to(case, index: int) -> str | None:
+    """The other scheme claim ``index`` of the case reads (its ``relative_to``), or None."""
+    return getattr(case.claims[index], "relative_to", None) if index < len(case.claims) else None
+
+
+def _claims_shown(case, claims: list, ran: set[str] | None) -> list[dict]:
+    """The evaluated claims for the page's table, each with ``not_judged`` (:func:`not_judged`)."""
+    shown = []
+    for i, c in enumerate(claims):
+        schemes = [s for s in (c.scheme, _relative_to(case, i)) if s]
+        shown.append(dataclasses.asdict(c) | {"not_judged": not_judged(schemes, ran)})
+    return shown
 
 
 def _facts(case) -> dict:

@@ -189,7 +189,11 @@ def _verify_dt(energy: tuple[float, float], torque_rms: tuple[float, float]) -> 
 def _page(**context) -> str:
     from ftcreport.report.render import _env
 
-    return _env().get_template("case.html").render(name="c", n_phases=0, figures=[], not_run={}, warnings=[], **context)
+    return (
+        _env()
+        .get_template("case.html")
+        .render(**({"name": "c", "n_phases": 0, "figures": [], "not_run": {}, "warnings": []} | context))
+    )
 
 
 def test_the_step_check_of_run_verify_dt_is_on_the_case_page():
@@ -244,3 +248,37 @@ def test_a_claim_on_a_scheme_run_scheme_did_not_run_is_not_a_failure_on_the_page
     batch = _gate_failures(case.name, case, runs, [], claims, None)  # a batch: nominal's run is missing
     assert any(line.startswith("claim single_law_insufficient") for line in batch["lines"])
     assert batch["not_judged"] == []
+
+
+def test_the_recovery_band_is_stated_and_never_is_not_a_dash():
+    """The page audit: "settles within the recovery band" and "never settles" never gave the band as a number
+    (the case's recovery_band, 0.01 m by default), and the schemes table showed a recovery that never happens
+    as "-", the mark of "not measured".  The verdict's sentence, its recovery row, the schemes table's column
+    and the per-phase note now state the band; the table says "never" (sorted as the worst)."""
+    from ftcreport.evaluation import compare
+    from ftcreport.report.render import _verdict_rows
+
+    phases = [{"start": 0.0, "end": 10.0, "fault": False}, {"start": 10.0, "end": 20.0, "fault": True}]
+
+    def run(scheme: str, rec: float | None) -> dict:
+        return {"scheme": scheme, "status": "ok", "recovery_time_max": rec, "position_error_final": 1e-3,
+                "phases": [p | {"position_error_max": 0.02, "recovery_time": rec if p["fault"] else 0.0}
+                           for p in phases]}  # fmt: skip
+
+    runs = [run("switching", 2.5), run("nominal", None)]
+    v = compare.compare_case("c", {m["scheme"]: m for m in runs}, fault_times=[10.0], facts={"recovery_band": 0.01})
+    said = " ".join(v.sentences)
+    assert "Switching settles within the recovery band (position error <= 0.01 m) in 2.5 s at worst" in said
+    alone = {"switching": run("switching", None)}
+    never = compare.compare_case("c", alone, fault_times=[10.0], facts={"recovery_band": 0.02})
+    said = " ".join(never.sentences)
+    assert "Switching never settles within the recovery band (position error <= 0.02 m)" in said
+    row = next(r for r in _verdict_rows(v, 0.01) if r["key"] == "recovery_time_max")
+    assert "recovery band: position error <= 0.01 m" in row["note"]
+    html = _page(runs=runs, recovery_band=0.01, n_phases=2, phase_labels=["0-10", "10-20"])
+    table = html[html.index('id="schemes"') :].split("</table>")[0]
+    assert '<td class="rec-never" data-v="1e308">never</td>' in table and "band 0.01 m" in table
+    assert "<td>2.5</td>" in table
+    assert "position error &lt;= 0.01 m, <code>recovery_band</code>" in html
+    phase = html[html.index('id="phases"') :].split("</table>")[0]
+    assert phase.count("rec. never") == 1 and phase.count("rec. 2.5") == 1

@@ -361,7 +361,8 @@ def compare_case(
         torque), ``fractional`` (a gain strictly between 0 and 1), ``uncompensable`` (a phase with
         rank(Bbar sigma) < 2), ``analysis`` (the case's linearized analysis, ``ftcreport.analysis.analyze_case``:
         the verdict then cites it where a scheme loses or chatters, or nominal wins), ``limit`` (what bounds
-        the wheels' inputs, ``verdict_analysis.limit_words``; absent for ideal torques).
+        the wheels' inputs, ``verdict_analysis.limit_words``; absent for ideal torques), ``recovery_band``
+        (the case's band of the recovery time [m], stated where the sentences use it).
     """
     facts = dict(facts or {})
     rows = tidy(case, metrics_by_scheme)
@@ -536,6 +537,9 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
     rec = verdicts.get("recovery_time_max")
     if rec:
         bits = []
+        band = _num(facts.get("recovery_band"))
+        # the band as a number where a sentence first uses it: "settles within the band" says nothing else
+        the_band = "the recovery band" if band is None else f"the recovery band (position error <= {band:g} m)"
         settled = [r for r in rec.ranking if contestant(r.scheme) and not math.isinf(r.value)]
         never = [r.scheme for r in rec.ranking if contestant(r.scheme) and math.isinf(r.value)]
         if settled:
@@ -543,15 +547,16 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
             who, values = _names([r.scheme for r in first]), [r.value for r in first]
             verb = "s" if len(first) == 1 else ""
             if max(values) == 0.0:
-                bits.append(f"{who} never leave{verb} the recovery band")
+                bits.append(f"{who} never leave{verb} {the_band}")
             else:
-                bits.append(f"{who} settle{verb} within the recovery band in {fmt_span(values, 's')} at worst")
-        for s in never:
+                bits.append(f"{who} settle{verb} within {the_band} in {fmt_span(values, 's')} at worst")
+        for i, s in enumerate(never):
             m = metrics.get(s, {})
             extra = ""
             if _num(m.get("switching_match_fraction")) is not None:  # a switching scheme's detection metric
                 extra = f" (wrong model {100 * (1 - float(m['switching_match_fraction'])):.0f} % of the time)"
-            bits.append(f"{LABEL.get(s, s)} never settles{extra}")
+            where = f" within {the_band}" if not settled and i == 0 else ""
+            bits.append(f"{LABEL.get(s, s)} never settles{where}{extra}")
         if rec.oracle is not None and bits:
             o = rec.oracle
             bits.append(

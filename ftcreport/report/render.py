@@ -412,7 +412,8 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         verdict=verdict,
         gate=gate,
         gate_skipped=gate_skipped,
-        verdict_rows=_verdict_rows(verdict) if verdict else [],
+        verdict_rows=_verdict_rows(verdict, case.recovery_band) if verdict else [],
+        recovery_band=case.recovery_band,
         not_run=rec.get("not_run", {}),
         plugin_schemes=rec.get("plugin_schemes", {}),
         replay_json=_script_json(replay) if replay else None,
@@ -612,6 +613,7 @@ def _facts(case) -> dict:
         "uncompensable": bool(case.warnings()),
         "follower_only": bool(case.faults) and all(not f.wheel.strip().startswith("1") for f in case.faults),
         "limit": limit_words(case),
+        "recovery_band": case.recovery_band,
     }
 
 
@@ -625,8 +627,9 @@ def _verdict(case, name: str, runs: list[dict], analysis: dict | None = None):
     return compare.compare_case(name, by_scheme, expected, events, facts)
 
 
-def _verdict_rows(v) -> list[dict]:
-    """One row per headline metric: winners, their value, regret, benefit, the ranking in words."""
+def _verdict_rows(v, band: float | None = None) -> list[dict]:
+    """One row per headline metric: winners, their value, regret, benefit, the ranking in words
+    (``band``: the case's recovery band [m], stated under the recovery time)."""
     rows = []
     for spec in compare.HEADLINE:
         mv = v.metrics.get(spec.key)
@@ -646,7 +649,10 @@ def _verdict_rows(v) -> list[dict]:
                 "best": compare.fmt_best(mv),
                 "regret": compare.fmt_relative(mv, "regret"),
                 "benefit": compare.fmt_relative(mv, "benefit"),
-                "note": spec.note,
+                "note": spec.note
+                + (
+                    f"; recovery band: position error <= {band:g} m" if band and spec.key == "recovery_time_max" else ""
+                ),
                 "ranking": rank,
                 "unranked": "; ".join(extra),
                 "tolerance": f"{100 * spec.rel_tol:g} % or {spec.abs_tol:g}" if spec.rel_tol else "exact",

@@ -282,3 +282,48 @@ def test_the_recovery_band_is_stated_and_never_is_not_a_dash():
     assert "position error &lt;= 0.01 m, <code>recovery_band</code>" in html
     phase = html[html.index('id="phases"') :].split("</table>")[0]
     assert phase.count("rec. never") == 1 and phase.count("rec. 2.5") == 1
+
+
+def _decay_series(err) -> dict:
+    """A run whose position error (the first coordinate) is ``err(t)``, over 0-20 s."""
+    t = np.linspace(0.0, 20.0, 2001)
+    q = np.zeros((t.size, 4))
+    q_d = q.copy()
+    q_d[:, 0] = -err(t)
+    return {"t": t, "q": q, "q_d": q_d}
+
+
+def _analysis_text(res: dict) -> str:
+    from ftcreport.report.render import _env
+
+    analysis = {"pole_tables": True, "pole_groups": [], "actuator_input": "torque", "not_analyzed": {}} | res
+    html = _env().get_template("_analysis.html").render(analysis=analysis)
+    return " ".join(html[html.index('id="fitted-decay"') :].split("</p>")[0].split())
+
+
+def test_the_decay_fit_is_stated_once_and_not_for_an_error_that_does_not_decay():
+    """The page audit: the decay figure's caption said "fitted rate 0.09581 1/s over 2-20 s" and the text below it
+    "fitted rate 0.0958 1/s over 1.61-20 s" (one fit, two roundings of its window); and a run whose error
+    does not decay (a limit cycle at ~0.05 m) still got a "fitted rate ... against the predicted 0.155".  Caption
+    and text now share one phrase; an error that does not decrease over the window gets no rate."""
+    from ftcreport.report.analysis_figs import _classic_figures
+
+    decaying = _decay_series(lambda t: np.where(t < 1.61, 0.2, 0.09 * np.exp(-0.0958 * (t - 1.61))))
+    res = {"predicted_decay_rate": 0.155}
+    (fig,) = _classic_figures(res, {"nominal": decaying}, [20.0], 20.0)
+    words = "fitted rate 0.0958 1/s over 1.61-20 s"
+    assert res["fitted_decay"]["decays"] and words in fig["caption"]
+    assert res["fitted_decay"]["rate"] == pytest.approx(0.0958, rel=1e-3)  # the exact exponential
+    assert f"(nominal): {words}, against the predicted 0.155 1/s." in _analysis_text(res)
+    cycle = _decay_series(lambda t: 0.05 + 0.01 * np.sin(2.0 * t) + 0.03 * np.exp(-t))  # levels off at 5 cm
+    res = {"predicted_decay_rate": 0.155}
+    (fig,) = _classic_figures(res, {"nominal": cycle}, [20.0], 20.0)
+    no = "the error does not decay here (limit cycle or offset): no rate fitted"
+    assert no in fig["caption"] and "fitted rate" not in fig["caption"]
+    assert res["fitted_decay"]["rate"] is None and not res["fitted_decay"]["decays"]
+    text = _analysis_text(res)
+    assert no in text and "against the predicted" not in text
+    offset = _decay_series(lambda t: 0.02 + 0.0 * t)  # a constant offset: slope 0
+    res = {"predicted_decay_rate": 0.155}
+    _classic_figures(res, {"nominal": offset}, [20.0], 20.0)
+    assert not res["fitted_decay"]["decays"]

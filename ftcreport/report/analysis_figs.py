@@ -558,11 +558,18 @@ def _classic_figures(res: dict, series: dict, events: list[float], duration: flo
         fit = plots.fitted_decay_rate(series[scheme], t_end)
         res["fitted_decay"] = None
         if fit is not None:
-            fitted, ta, tb = fit
-            res["fitted_decay"] = {"scheme": scheme, "rate": fitted, "from": ta, "to": tb}
+            fitted, ta, tb, decays = fit
+            # one phrase for the caption and the text below the tables: the same window, the same value
+            words = (
+                f"fitted rate {fitted:.3g} 1/s over {ta:.3g}-{tb:.3g} s"
+                if decays
+                else f"over {ta:.3g}-{tb:.3g} s the error does not decay here (limit cycle or offset): no rate fitted"
+            )
+            res["fitted_decay"] = {"scheme": scheme, "rate": fitted if decays else None, "from": ta, "to": tb,
+                                   "decays": decays, "words": words}  # fmt: skip
             cap = (
-                f"Predicted envelope (rate {rate:.4g} 1/s) against the simulated error of the {scheme} run before "
-                f"the first fault (fitted rate {fitted:.4g} 1/s over {ta:.0f}-{tb:.0f} s)."
+                f"Predicted envelope (rate {rate:.3g} 1/s) against the simulated error of the {scheme} run before "
+                f"the first fault ({words})."
             )
             figs.append({"id": "decay", "svg": plots.decay_svg(series[scheme], rate, (ta, tb), scheme), "caption": cap})
     if res.get("sampled") or res.get("actuator_input", "torque") != "torque":

@@ -197,18 +197,29 @@ def _error_norm(ts: dict) -> np.ndarray:
     return np.linalg.norm(d, axis=1)
 
 
-def fitted_decay_rate(ts: dict, t_end: float, lo: float = 1e-7, hi: float = 1e-1) -> tuple[float, float, float] | None:
+def fitted_decay_rate(
+    ts: dict, t_end: float, lo: float = 1e-7, hi: float = 1e-1
+) -> tuple[float, float, float, bool] | None:
     """Least-squares slope of log |q - q_d| (headings wrapped) where lo < error < hi, before t_end.
 
-    Returns (rate [1/s], window start, window end), or None when the window is too short.
+    Returns (rate [1/s], window start, window end, decays), or None when the window is too short.
+    ``decays``: the error decreases over the window: the slope is negative and the error at its end (the
+    median of its last tenth, so an oscillation does not decide it) is below half that at its start and
+    below 0.8 of that at its middle; a limit cycle or an offset (the error levelling off) does not, and its
+    "rate" is no decay rate.
     """
     t = ts["t"]
     e = _error_norm(ts)
     k = (t < t_end) & (e > lo) & (e < hi)
     if k.sum() < 10 or t[k][-1] - t[k][0] < 1.0:
         return None
-    slope = np.polyfit(t[k], np.log(e[k]), 1)[0]
-    return float(-slope), float(t[k][0]), float(t[k][-1])
+    tk, ek = t[k], e[k]
+    slope = np.polyfit(tk, np.log(ek), 1)[0]
+    tenth = max(1, ek.size // 10)
+    mid = ek.size // 2
+    start, middle, end = (float(np.median(ek[i : i + tenth])) for i in (0, mid - tenth // 2, ek.size - tenth))
+    decays = bool(slope < 0.0 and end < 0.5 * start and end < 0.8 * middle)
+    return float(-slope), float(tk[0]), float(tk[-1]), decays
 
 
 def decay_svg(ts: dict, rate: float, window: tuple[float, float], scheme: str) -> str:

@@ -327,3 +327,31 @@ def test_the_decay_fit_is_stated_once_and_not_for_an_error_that_does_not_decay()
     res = {"predicted_decay_rate": 0.155}
     _classic_figures(res, {"nominal": offset}, [20.0], 20.0)
     assert not res["fitted_decay"]["decays"]
+
+
+def test_the_phase_crossover_marker_sits_on_the_wrapped_phase_curve():
+    """The page audit: the Bode plot's phase-crossover circle was drawn at -180 deg while the curve, wrapped,
+    was at +180 deg there, so the circle floated off the curve.  It is now drawn at the curve's own phase at
+    that frequency (a wrapped curve: the value beside the wrap, not a point inside the jump)."""
+    from ftcreport.report.analysis_figs import bode_fig
+
+    omega = np.logspace(-1, 2, 61)
+    unwrapped = -90.0 - 60.0 * np.log10(omega / 0.1)  # -180 deg at 0.1 * 10**1.5 = 3.16 rad/s
+    w180 = 0.1 * 10**1.5 * 1.08  # the crossover a little past the sample at 3.16 rad/s: beside +180 deg
+
+    def marker(phase: np.ndarray) -> tuple[float, float]:
+        b = {"input": "1r", "omega": omega.tolist(), "mag_db": (-20 * np.log10(omega)).tolist(),
+             "phase_deg": phase.tolist(), "phase_crossover": w180, "gain_margin_db": 6.0}  # fmt: skip
+        res = {"phases": {"switching": [{"t_start": 0.0, "t_end": 10.0, "margins": {"_bode": b}}]}}
+        fig = bode_fig(res)
+        (gm,) = [t for t in fig["plotly"]["data"] if t["mode"] == "markers" and t.get("xaxis") == "x2"]
+        curve = np.interp(np.log(w180), np.log(omega), phase)
+        return gm["y"][0], curve
+
+    wrapped = (unwrapped + 180.0) % 360.0 - 180.0  # numpy/python-control style: +180 just past -180
+    y, _ = marker(wrapped)
+    j = int(np.argmin(np.abs(np.log(omega) - np.log(w180))))
+    assert wrapped[j] > 170.0  # the curve is at +180 there
+    assert y == pytest.approx(wrapped[j], abs=0.06)  # on the curve (4 digits), not at -180
+    y, curve = marker(unwrapped)  # no wrap: the interpolated value, about -180
+    assert y == pytest.approx(curve, abs=0.06) and curve == pytest.approx(-180.0 - 60 * np.log10(1.08), abs=0.1)

@@ -473,8 +473,9 @@ def bode_fig(res: dict) -> dict | None:
                 if w:
                     val = b.get("phase_margin_deg") if text == "PM" else b.get("gain_margin_db")
                     idx.append(len(traces))
-                    y = 0.0 if text == "PM" else -180.0
-                    traces.append({"type": "scatter", "mode": "markers", "x": [_r(w)], "y": [y],
+                    # the phase crossover on the curve as drawn: its phase is wrapped, +180 deg where it wraps
+                    y = 0.0 if text == "PM" else _phase_at(b["omega"], b["phase_deg"], w)
+                    traces.append({"type": "scatter", "mode": "markers", "x": [_r(w)], "y": [_r(y, 4)],
                                    "xaxis": axis, "yaxis": "y" if axis == "x" else "y2", "showlegend": False,
                                    "marker": {"symbol": "circle-open", "size": 11, "color": color},
                                    "hovertext": f"{text} {val:.3g}" if val is not None else text,
@@ -501,9 +502,23 @@ def bode_fig(res: dict) -> dict | None:
     cap = (
         "Bode plot of L = -K (sI - A)^-1 B broken at the actuator input with the least stability margin, per fault "
         f"phase ({res.get('actuator_input', 'torque')} inputs{upto}); circles: the gain crossover (phase margin read "
-        "at 0 dB) and the phase crossover (gain margin at -180 deg)."
+        "at 0 dB) and the phase crossover (gain margin read where the phase crosses -180 deg, drawn on the curve: "
+        "+180 deg where the phase is wrapped)."
     )
     return _figure("analysis-bode", cap, {"data": traces, "layout": layout}, _bode_svg(res))
+
+
+def _phase_at(omega, phase_deg, w: float) -> float:
+    """The phase curve's own value at frequency ``w`` (log-frequency interpolation), as wrapped: at a wrap
+    between two samples (a jump over 180 deg) the nearer sample's value, not a point inside the jump."""
+    x, y = np.log(np.asarray(omega, dtype=float)), np.asarray(phase_deg, dtype=float)
+    lw = math.log(w)
+    if x.size < 2:
+        return float(y[0])
+    j = int(np.clip(np.searchsorted(x, lw), 1, x.size - 1))
+    if abs(y[j] - y[j - 1]) > 180.0:
+        return float(y[j] if abs(x[j] - lw) < abs(lw - x[j - 1]) else y[j - 1])
+    return float(np.interp(lw, x, y))
 
 
 def _hline(yref: str, y: float) -> dict:

@@ -469,3 +469,26 @@ def test_a_stop_signal_ends_report(reference, tmp_path):
     _, err = p.communicate(timeout=120)
     _assert_ended_cleanly(p, out, signal.SIGTERM, err, noun=None)
     assert not (out / "index.html").exists() or (out / "index.html").read_text().rstrip().endswith("</html>")
+
+
+def test_a_campaign_interrupted_while_its_cluster_starts_prints_one_line(tmp_path):
+    """SIGINT while the LocalCluster starts, checks versions or warms its workers up (before: ~30 lines of
+    traceback, "Future exception was never retrieved ... CommClosedError" or an atexit
+    "AssertionError: Status.init", before the one line).  Three moments after campaign.json appears."""
+    case = _short_campaign(tmp_path)
+    for k, delay in enumerate((0.8, 1.8, 3.0)):
+        out = tmp_path / f"c{k}"
+        p = subprocess.Popen(
+            [*CLI, "campaign", str(case), "-n", "400", "--schemes", "nominal", "-q", "--out", str(out)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
+        _wait_for(lambda out=out: (out / "campaign.json").exists(), p, timeout=60)
+        time.sleep(delay)
+        os.kill(p.pid, signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+        assert "Traceback" not in err and "Future exception" not in err, (delay, err)
+        assert p.returncode == 130, (delay, p.returncode, err)
+        _assert_ended_cleanly(p, out, signal.SIGINT, err, noun="sample")

@@ -34,6 +34,7 @@ from collections.abc import Iterable, Iterator
 __all__ = [
     "STOP_SIGNALS",
     "Interrupted",
+    "deferred",
     "die_with_parent",
     "exit_code",
     "handle_stop_signals",
@@ -78,6 +79,7 @@ def interrupt_of(exc: BaseException | None) -> KeyboardInterrupt | None:
 
 
 _shield: list[int] = [0]  # > 0: inside cleanup code (shielded()): a stop signal is not raised there
+_defer: list[int] = [0, 0]  # [depth of deferred(), the first stop signal met inside it (0: none)]
 
 #: Python that C code calls back into: llvmlite (its object cache hands LLVM a cached kernel's machine code)
 #: and numba's unpickling from compiled code.  An exception raised there is printed and dropped, and the C
@@ -95,6 +97,9 @@ def _on_stop_signal(signum, frame) -> None:
     code it is dropped: the cleanup is already stopping the command.
     """
     if _shield[0] > 0:
+        return
+    if _defer[0] > 0:
+        _defer[1] = _defer[1] or int(signum)
         return
     callbacks = {getattr(getattr(cb, "__func__", cb), "__code__", None) for cb in gc.callbacks}
     f, depth = frame, 0
@@ -121,6 +126,24 @@ def shielded() -> Iterator[None]:
         yield
     finally:
         _shield[0] -= 1
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """Inside: a stop signal is held, and raised (:class:`Interrupted`) as the block ends.
+
+    For a step that cannot be cut in the middle yet must not lose the signal: starting a Dask
+    LocalCluster, whose half-started object the caller never receives, so cannot close (its
+    atexit hook then failed on it: "AssertionError: Status.init").  Keep it bounded.
+    """
+    _defer[0] += 1
+    try:
+        yield
+    finally:
+        _defer[0] -= 1
+        if _defer[0] == 0 and _defer[1]:
+            signum, _defer[1] = _defer[1], 0
+            raise Interrupted(signum)
 
 
 @contextlib.contextmanager

@@ -32,7 +32,7 @@ from typing import Any
 from distributed import WorkerPlugin
 
 from ..errors import FtcError
-from ..infra.lifetime import interrupt_of, shielded
+from ..infra.lifetime import deferred, interrupt_of, shielded
 from ..infra.limits import worker_count
 from ..storage.manifest import NUMERIC_DEPENDENCIES
 
@@ -126,28 +126,32 @@ def execute(
         return info
     from dask.distributed import Client, LocalCluster, as_completed
 
-    cluster = None
-    if scheduler is None:
-        n, capped = worker_count(workers, len(tasks), "--workers", f"{noun} to run")
-        if capped is not None:
-            print(f"ftcreport: note: --workers {workers}: capped at {n} ({capped})", file=sys.stderr, flush=True)
-        cluster = LocalCluster(
-            n_workers=n,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-            # the scheduler's HTTP server (health, metrics) runs without a dashboard too: on a free port of
-            # the loopback, not 8787 (taken by another cluster: a warning line in the command's output)
-            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-        )
-        client = Client(cluster)
-    else:
-        try:
-            client = Client(scheduler, timeout=30)
-        except (OSError, TimeoutError) as exc:
-            raise FtcError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+    cluster = client = None
     try:
+        # a stop signal while the cluster starts is raised once it is up: a half-started LocalCluster
+        # never reaches this code, so it could not be closed (distributed's atexit hook failed on it)
+        with deferred():
+            if scheduler is None:
+                n, capped = worker_count(workers, len(tasks), "--workers", f"{noun} to run")
+                if capped is not None:
+                    note = f"ftcreport: note: --workers {workers}: capped at {n} ({capped})"
+                    print(note, file=sys.stderr, flush=True)
+                cluster = LocalCluster(
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    host="127.0.0.1",
+                    dashboard_address=None,
+                    # the scheduler's HTTP server (health, metrics) runs without a dashboard too: on a free port of
+                    # the loopback, not 8787 (taken by another cluster: a warning line in the command's output)
+                    scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                )
+                client = Client(cluster)
+            else:
+                try:
+                    client = Client(scheduler, timeout=30)
+                except (OSError, TimeoutError) as exc:
+                    raise FtcError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
         info["workers"] = check_versions(client)
         client.register_plugin(WarmUp(quiet=cluster is not None), name=WarmUp.name)
         futures = {client.submit(func, *args, key=keys[i], retries=retries, pure=False): i for i, args in tasks.items()}
@@ -161,11 +165,27 @@ def execute(
                 fail(i, f"{type(exc).__name__}: {exc}")
             tick()
     except KeyboardInterrupt:  # a stop signal: the command's one message says it; Dask's shutdown is not news
-        logging.getLogger("distributed").setLevel(logging.CRITICAL)
+        _silence_shutdown(client)
         raise
     finally:
         with shielded():  # the local workers are closed (and waited for) before the lock is released
-            client.close()
+            if client is not None:
+                client.close()
             if cluster is not None:
                 cluster.close(timeout=CLOSE_TIMEOUT_S)
     return info
+
+
+def _silence_shutdown(client) -> None:
+    """Dask's shutdown after a stop signal prints nothing: its loggers and its event loop's unhandled errors.
+
+    A call the signal cut short (``get_versions``, ``register_plugin``: the scheduler's broadcast to
+    the workers) goes on in the client's event loop; closing the cluster under it fails its comm, and
+    asyncio logged "Future exception was never retrieved ... CommClosedError" with a traceback when
+    the future was collected, possibly after the command's last line.  For the interrupted path only.
+    """
+    for name in ("distributed", "asyncio", "tornado"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    loop = getattr(getattr(client, "loop", None), "asyncio_loop", None)
+    if loop is not None:
+        loop.set_exception_handler(lambda loop, context: None)

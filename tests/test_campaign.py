@@ -746,3 +746,50 @@ def test_resume_with_fewer_samples_reports_the_first_n_and_keeps_the_rest(tmp_pa
     assert more.exit_code == 0, more.output
     assert "0 samples run, 3 already done" in more.stdout
     assert sorted({r["sample"] for r in read_table(out / "results.csv")}) == [0, 1, 2]
+
+
+def test_nothing_left_to_run_starts_no_cluster(base, tmp_path, monkeypatch, capsys):
+    """All samples stored: before, a re-run started a LocalCluster anyway and printed "--workers 2: capped
+    at 1 (the number of samples to run)" with 0 to run.  Now it reports from what is stored."""
+    import dask.distributed
+
+    out = tmp_path / "c"
+    run_campaign(base, 2, out, schemes=["nominal"], in_process=True, show_progress=False)
+    capsys.readouterr()
+
+    def no_cluster(*a, **k):
+        raise AssertionError("a cluster was started with nothing to run")
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", no_cluster)
+    monkeypatch.setattr(dask.distributed, "Client", no_cluster)
+    res = run_campaign(base, 2, out, schemes=["nominal"], workers=2, show_progress=False)
+    assert (res.skipped, res.completed, res.failed) == (2, [], {})
+    assert "capped" not in capsys.readouterr().err
+    assert len(read_table(res.table)) == 2
+
+
+def test_an_interrupt_counts_the_samples_stored_before_this_run(base, tmp_path, monkeypatch):
+    """The interrupt message counts what is stored, not only what this run finished: before, a re-run
+    stopped with every sample stored said "interrupted before any sample finished; nothing was stored"."""
+    from ftcreport.errors import interrupted_message
+    from ftcreport.infra.lifetime import Interrupted
+    from ftcreport.studies import campaign as mod
+
+    out = tmp_path / "c"
+    run_campaign(base, 2, out, schemes=["nominal"], in_process=True, show_progress=False)
+
+    def stop(_):
+        raise Interrupted(signal.SIGINT)
+
+    with pytest.raises(KeyboardInterrupt) as got:  # one more sample finishes, then the signal
+        run_campaign(base, 4, out, schemes=["nominal"], in_process=True, show_progress=False, on_sample=stop)
+    resume = "; 3 finished samples are stored, re-run the same command to resume"
+    assert interrupted_message(got.value) == "interrupted" + resume
+
+    def stop_table(*a, **k):
+        raise Interrupted(signal.SIGTERM)
+
+    monkeypatch.setattr(mod, "write_table", stop_table)  # stopped before any sample runs: the 3 stored count
+    with pytest.raises(KeyboardInterrupt) as got:
+        run_campaign(base, 3, out, schemes=["nominal"], in_process=True, show_progress=False)
+    assert interrupted_message(got.value) == "interrupted by SIGTERM" + resume

@@ -128,6 +128,7 @@ def campaign(
     Example: ftcreport campaign cases/two_link_campaign.toml --samples 200 --workers 2
     """
     from ..cases import load_case
+    from ..errors import note_stored
     from ..report.campaign import render_campaign
     from ..storage.store import output_lock
     from ..studies.campaign import read_table, run_campaign, select_schemes
@@ -139,7 +140,11 @@ def campaign(
     dask = _dask(scheduler, workers, in_process, quiet, force)  # and a malformed --scheduler
     with output_lock(out_dir, "campaign"):
         res = run_campaign(base, samples, out_dir, seed=seed, schemes=chosen, **dask)
-        page = render_campaign(out_dir, read_table(res.table))
+        try:
+            page = render_campaign(out_dir, read_table(res.table))
+        except KeyboardInterrupt as exc:  # the interrupt message counts the stored samples here too
+            note_stored(exc, res.skipped + len(res.completed), "sample")
+            raise
     kept = f" ({res.beyond} stored sample{'s' * (res.beyond > 1)} beyond --samples {samples}: kept, not reported)"
     _done(res, "samples run", page, kept if res.beyond else "")
 

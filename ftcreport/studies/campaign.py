@@ -558,49 +558,50 @@ def run_campaign(
     # a campaign of n samples reports samples 0..n-1, whatever a larger run left here; those beyond stay stored
     beyond = sum(i >= samples for i in records)
     records = {i: r for i, r in records.items() if i < samples}
-    if old.get("campaign") != chash:  # pages rendered from another content or settings: never linked as current
-        _remove_pages(out / PAGES)
-    write_atomic(meta_path, json.dumps(meta, indent=1).encode())
-    todo = [i for i in range(samples) if i not in records]
-    res = CampaignResult(out=out, table=out / "results.csv", requested=samples, skipped=samples - len(todo))
-    res.rerun_stale, res.beyond = stale, beyond
-    base_json = base.model_dump_json()
-    _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
-    write_table(out, records.values())  # the stored samples' table (and pandas loaded before samples arrive)
-    wall0 = time.perf_counter()
+    with _noting_stored(lambda: len(records), "sample"):  # an interrupt from here counts what is stored
+        if old.get("campaign") != chash:  # pages rendered from another content or settings: never linked as current
+            _remove_pages(out / PAGES)
+        write_atomic(meta_path, json.dumps(meta, indent=1).encode())
+        todo = [i for i in range(samples) if i not in records]
+        res = CampaignResult(out=out, table=out / "results.csv", requested=samples, skipped=samples - len(todo))
+        res.rerun_stale, res.beyond = stale, beyond
+        base_json = base.model_dump_json()
+        _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
+        write_table(out, records.values())  # the stored samples' table (and pandas loaded before samples arrive)
+        wall0 = time.perf_counter()
 
-    last_table = [0.0]
+        last_table = [0.0]
 
-    def stored(rec: dict) -> None:
-        # the table is a view of the sample files: refreshed at most every table_every seconds
-        if time.perf_counter() - last_table[0] >= table_every:
-            write_table(out, records.values())
-            last_table[0] = time.perf_counter()
-        if on_sample is not None:
-            on_sample(rec["sample"])
+        def stored(rec: dict) -> None:
+            # the table is a view of the sample files: refreshed at most every table_every seconds
+            if time.perf_counter() - last_table[0] >= table_every:
+                write_table(out, records.values())
+                last_table[0] = time.perf_counter()
+            if on_sample is not None:
+                on_sample(rec["sample"])
 
-    run_tasks(
-        run_sample,
-        {i: (base_json, i, int(seed), schemes) for i in todo},
-        "campaign",
-        expected,
-        out / "samples",
-        "sample",
-        8,
-        records,
-        res,
-        show_progress,
-        on_store=stored,
-        scheduler=scheduler,
-        workers=workers,
-        in_process=in_process,
-        retries=retries,
-    )
-    write_table(out, records.values())
-    if res.failed:
-        write_atomic(out / "failed.json", json.dumps(res.failed, indent=1).encode())
-    res.wall_time = time.perf_counter() - wall0
-    _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
+        run_tasks(
+            run_sample,
+            {i: (base_json, i, int(seed), schemes) for i in todo},
+            "campaign",
+            expected,
+            out / "samples",
+            "sample",
+            8,
+            records,
+            res,
+            show_progress,
+            on_store=stored,
+            scheduler=scheduler,
+            workers=workers,
+            in_process=in_process,
+            retries=retries,
+        )
+        write_table(out, records.values())
+        if res.failed:
+            write_atomic(out / "failed.json", json.dumps(res.failed, indent=1).encode())
+        res.wall_time = time.perf_counter() - wall0
+        _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
     return res
 
 
@@ -649,7 +650,7 @@ def run_tasks(
         if on_store is not None:
             on_store(rec)
 
-    with _progress(show_progress, len(args), kind) as bar, _noting_stored(res, what):
+    with _progress(show_progress, len(args), kind) as bar, _noting_stored(lambda: len(records), what):
         info = execute(
             func,
             args,
@@ -664,14 +665,15 @@ def run_tasks(
 
 
 @contextlib.contextmanager
-def _noting_stored(res: CampaignResult, noun: str):
-    """An interrupt inside says how many finished tasks were stored (the CLI's interrupt message)."""
+def _noting_stored(count: Callable[[], int], noun: str):
+    """An interrupt inside says how many finished tasks are stored, ``count()``: this run's and the ones
+    an earlier run stored (the CLI's interrupt message)."""
     try:
         yield
     except KeyboardInterrupt as exc:
         from ..errors import note_stored
 
-        note_stored(exc, len(res.completed), noun)
+        note_stored(exc, count(), noun)
         raise
 
 

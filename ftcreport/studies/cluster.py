@@ -111,9 +111,12 @@ def execute(
     ``scheduler``: address of an existing Dask scheduler; otherwise a LocalCluster of ``workers``
     processes on 127.0.0.1 (or this process when ``in_process``), at most the number of tasks and the
     cores (as ``batch --jobs``; a note on stderr names the cap and ``noun``, what the tasks are).
-    Returns what the cluster reported: ``{"workers": {address: versions}}`` (empty in-process).
+    Returns what the cluster reported: ``{"workers": {address: versions}}`` (empty in-process, or with
+    no task: then no cluster is started).
     """
     info: dict[str, Any] = {"workers": {}}
+    if not tasks:  # nothing left to run (all stored): no cluster started, no worker note
+        return info
     if in_process:
         for i, args in tasks.items():
             try:

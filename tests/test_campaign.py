@@ -793,3 +793,41 @@ def test_an_interrupt_counts_the_samples_stored_before_this_run(base, tmp_path, 
     with pytest.raises(KeyboardInterrupt) as got:
         run_campaign(base, 3, out, schemes=["nominal"], in_process=True, show_progress=False)
     assert interrupted_message(got.value) == "interrupted by SIGTERM" + resume
+
+
+def _kept_base_fault_case(tmp_path: Path, fault_time: list[float]) -> Path:
+    """The example campaign keeping a base fault on wheel 1r at 10 s, drawing one fault on 1r only."""
+    data = tomllib.loads((ROOT / "cases" / "two_link_campaign.toml").read_text())
+    data["faults"] = [{"time": 10.0, "wheel": "1r", "sigma": 0.5}]
+    data["campaign"] |= {"keep_base_faults": True, "wheels": ["1r"], "fault_time": fault_time, "faults": [1, 1]}
+    path = tmp_path / "kept.toml"
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def test_a_drawn_fault_that_must_coincide_with_a_kept_one_is_refused_at_validation(tmp_path):
+    """keep_base_faults with a base fault on 1r at 10 s, wheels ["1r"], fault_time [10, 10]: before, it
+    validated and every sample failed with "a second event on wheel 1r at t = 10.0"."""
+    from ftcreport.cases import load_case
+
+    path = _kept_base_fault_case(tmp_path, [10.0, 10.0])
+    with pytest.raises(CaseError) as got:
+        load_case(path)
+    msg = str(got.value)
+    assert str(path) in msg and "campaign.fault_time" in msg, msg
+    assert "1r" in msg and "keep_base_faults" in msg and "faults[0]" in msg, msg
+
+
+def test_a_drawn_fault_never_coincides_with_a_kept_one(tmp_path):
+    """A range where half the drawn times (to the ms) land on the kept fault's 10 s: the draw takes another
+    time instead of making a variant that cannot run (before: CaseError, "a second event on wheel 1r")."""
+    from ftcreport.cases import load_case
+
+    base = load_case(_kept_base_fault_case(tmp_path, [9.999, 10.001]))
+    times = []
+    for i in range(30):
+        v = draw_variant(base, sample_seeds(0, i))
+        on_1r = sorted(f.time for f in v.faults if f.wheel == "1r")
+        assert len(on_1r) == 2 and on_1r[0] != on_1r[1], on_1r
+        times += on_1r
+    assert {9.999, 10.001} <= set(times)

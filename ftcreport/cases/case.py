@@ -168,7 +168,7 @@ class Case(_Strict):
                     "campaign.fault_time",
                     f"upper bound must be before the end of the run ({self.simulation.duration} s)",
                 )
-            _check_campaign_draws(self.campaign, n, keeps=bool(self.faults))
+            _check_campaign_draws(self.campaign, n, kept=self.faults)
         run = self.schemes.run
         if run is not None and not run:
             raise _FieldError(
@@ -365,10 +365,13 @@ def _numbers(names: list[str]) -> list[str]:
     return [k for k in names if METRICS[k].kind == "number"]
 
 
-def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
+def _check_campaign_draws(spec: CampaignSpec, n: int, kept: list[Fault]) -> None:
     """The faults a campaign draws exist: its wheels are wheels of the chain, each listed once, at least
     as many as the faults it draws per sample (each on a distinct wheel), and it draws a fault at all, one
-    that changes a wheel (a sigma below 1 or a friction), unless the case keeps faults of its own."""
+    that changes a wheel (a sigma below 1 or a friction), unless the case keeps faults of its own
+    (``kept``, the case's faults).  A drawn fault can avoid a kept one on its wheel at its time
+    (:func:`ftcreport.studies.campaign.draw_variant` draws the time again), unless fault_time is one instant."""
+    keeps = bool(kept)
     lo, hi = spec.faults
     if spec.wheels == "any":
         wheels, which = wheel_names(n), f"the {2 * n} wheels of the {n}-robot chain"
@@ -401,6 +404,8 @@ def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
             f"[{lo}, {hi}] draws no fault and keeps none of the case's (keep_base_faults): every sample would be "
             "fault-free and 'succeed'; give an upper bound of 1 or more",
         )
+    if spec.keep_base_faults and hi > 0:
+        _check_kept_coincidence(spec, n, kept, wheels)
     # a drawn fault is effective when its sigma is below 1 (drawn from [sigma lo, hi]: below 1 unless lo = 1)
     # or it adds a friction (drawn with friction_probability, ubar from [ubar lo, hi]: nonzero unless both 0)
     friction = spec.friction_probability > 0.0 and spec.ubar != (0.0, 0.0)
@@ -412,6 +417,26 @@ def _check_campaign_draws(spec: CampaignSpec, n: int, keeps: bool) -> None:
             f"drawn ({why}): every draw leaves every wheel healthy, so every sample would be fault-free and "
             "'succeed'; give sigma a lower bound below 1, or a friction_probability above 0 with a nonzero ubar",
         )
+
+
+def _check_kept_coincidence(spec: CampaignSpec, n: int, kept: list[Fault], wheels: list[str]) -> None:
+    """fault_time one instant (to the ms the draw rounds to) where a kept fault sits on a wheel that can be
+    drawn: such a draw is a second event on that wheel at that time, and its sample cannot run."""
+    import numpy as np
+
+    t_lo, t_hi = (float(np.round(t, 3)) for t in spec.fault_time)  # the draw's rounding
+    if t_lo != t_hi:
+        return
+    drawable = {wheel_index(w, n) for w in wheels}
+    for i, f in enumerate(kept):
+        if f.time == t_lo and wheel_index(f.wheel, n) in drawable:
+            raise _FieldError(
+                "campaign.fault_time",
+                f"[{spec.fault_time[0]:g}, {spec.fault_time[1]:g}] draws every fault at t = {t_lo:g} s, where "
+                f"faults[{i}] on wheel {f.wheel} is kept (keep_base_faults): a fault drawn on {f.wheel} would be a "
+                f"second event on that wheel at that time and its sample could not run; widen fault_time, "
+                f"or leave {f.wheel} out of campaign.wheels",
+            )
 
 
 def _check_motor_fault(i: int, f: Fault, has_actuators: bool) -> None:

@@ -51,7 +51,7 @@ from .. import __version__
 from ..cases import Case, configured_schemes, ordered_schemes, parse_case, plugin_digest, plugin_digests
 from ..errors import CaseError, FtcError
 from ..evaluation.stats import compare_metric, compare_success, wilson_interval
-from ..model import pattern_is_compensable, wheel_names
+from ..model import pattern_is_compensable, wheel_index, wheel_names
 from ..storage.store import _jsonable, locked, write_atomic
 
 __all__ = [
@@ -74,6 +74,9 @@ __all__ = [
     "write_table",
 ]
 
+#: times drawn for one fault before a sample is refused: a drawn time that meets a kept fault on its wheel is
+#: drawn again (:func:`draw_variant`); validation refuses the one-instant fault_time where it always would
+MAX_REDRAWS = 1000
 PAGES = "sample_pages"  # <campaign>/sample_pages/sample-00017/index.html (ftcreport.report.campaign)
 LEAD_COLUMNS = (
     "sample",
@@ -159,8 +162,21 @@ def draw_variant(base: Case, seeds: SampleSeeds) -> Case:
     chosen = rng.choice(len(wheels), size=k, replace=False)
     t_lo, t_hi = spec.fault_time
     faults = [] if not spec.keep_base_faults else list(data["faults"])
+    # a kept event on the drawn wheel at the drawn time (to the ms) would make a variant that cannot run
+    # (a second event on that wheel at that time): the time is drawn again (validation refuses a
+    # fault_time of one instant where that is certain); samples without the coincidence draw as before
+    taken = {(f["time"], wheel_index(f["wheel"], n)) for f in faults}
     for j in chosen:
         t = float(np.round(rng.uniform(t_lo, t_hi), 3))
+        for _ in range(MAX_REDRAWS):
+            if (t, wheel_index(wheels[j], n)) not in taken:
+                break
+            t = float(np.round(rng.uniform(t_lo, t_hi), 3))
+        else:
+            raise CaseError(
+                f"{base.name}: campaign.fault_time [{t_lo:g}, {t_hi:g}]: every time drawn on wheel {wheels[j]} "
+                "meets a kept fault there (keep_base_faults); widen fault_time"
+            )
         sigma = float(rng.uniform(*spec.sigma))
         ubar = float(rng.uniform(*spec.ubar)) if rng.random() < spec.friction_probability else 0.0
         faults.append({"time": t, "wheel": wheels[j], "sigma": sigma, "ubar": ubar})

@@ -46,9 +46,15 @@ MARGINS = {
         },
     ]
 }
+#: the keys README's table of a phase documents: on every phase, null where they are not computed
+DOCUMENTED = ["t_worst", "pole_table", "internal_modes", "frozen_disagree", "states"]
+STABILITY = ["stable", "marginal", "unstable", "inconclusive", "not computed"]
 PHASE = {
     "type": "object",
-    "required": ["t_start", "t_end", "pattern_true", "pattern_applied", "discrete", "poles", "stable", "margins"],
+    "required": [
+        *["t_start", "t_end", "pattern_true", "pattern_applied", "discrete", "poles", "stable", "margins"],
+        *DOCUMENTED,
+    ],
     "properties": {
         "t_start": NUM,
         "t_end": NUM,
@@ -59,10 +65,20 @@ PHASE = {
         "spectral_radius": NUM_OR_NULL,
         "max_real_part": NUM_OR_NULL,
         "stable": {"type": ["boolean", "null"]},
-        "stability": {"enum": ["stable", "marginal", "unstable", "inconclusive", "not computed"]},
-        "margins": MARGINS,
+        "stability": {"enum": STABILITY},
+        "margins": {"anyOf": [MARGINS, {"type": "null"}]},
     },
     "oneOf": [{"required": ["spectral_radius"]}, {"required": ["max_real_part"]}],
+    # not computed: the reason in note, the documented keys null (README: the phase keys)
+    "if": {"properties": {"stability": {"const": "not computed"}}},
+    "then": {
+        "required": ["note"],
+        "properties": {
+            "note": {"type": "string", "minLength": 1},
+            **{k: {"type": "null"} for k in [*DOCUMENTED, "margins"]},
+        },
+    },
+    "else": {"properties": {"margins": MARGINS}},
 }
 LIMITS = {
     "type": "object",
@@ -404,3 +420,39 @@ def test_a_limit_the_simulation_contradicts_shows_no_green_margin():
         }
     )
     assert "<td>not searched</td>" in html
+
+
+def test_a_phase_a_raising_plugin_law_leaves_not_computed_is_documented(tmp_path):
+    """A plug-in law that raises at every frozen instant of a phase (not at the scheme check's t = 0 and
+    1.3 s): its phases said stability "not computed", a value README did not document, and lacked the
+    documented keys t_worst, pole_table, internal_modes, frozen_disagree and states."""
+    import tomllib
+
+    import tomli_w
+
+    text = (ROOT / "examples" / "schemes" / "sliding_mode.py").read_text()
+    line = "    out.u[:] = law_for_pattern(terms.MB, v, P.healthy)\n"
+    assert line in text
+    plugin = tmp_path / "raising.py"
+    raising = '    if step.t > 2.0:\n        raise ValueError("plug-in law failed")\n'
+    assert text.count('name="sliding_mode"') == 1
+    # a name of its own: the example may be registered in this process already (one name, one law)
+    plugin.write_text(text.replace(line, raising + line).replace('name="sliding_mode"', 'name="raising_law"'))
+    data = tomllib.loads((ROOT / "cases" / "two_link_sliding_mode.toml").read_text())
+    data["plugins"] = [str(plugin)]
+    data["schemes"]["raising_law"] = data["schemes"].pop("sliding_mode")
+    data["thresholds"].pop("sliding_mode", None)
+    data["schemes"]["run"] = ["raising_law"]
+    data["simulation"]["duration"] = 40.0
+    path = tmp_path / "raising.toml"
+    path.write_text(tomli_w.dumps(data))
+    got = CliRunner().invoke(app, ["analyze", str(path), "--json"])
+    assert got.exit_code == 0, got.output
+    res = json.loads(got.stdout)
+    jsonschema.validate(res, SCHEMA)
+    phases = res["phases"]["raising_law"]
+    assert phases and all(p["stability"] == "not computed" for p in phases), phases
+    assert all(p["note"] == "plug-in law failed" for p in phases)
+    row = _readme_row("stable")  # README names the value and where its reason is
+    assert all(f'"{v}"' in row for v in STABILITY), row
+    assert "`note`" in row, row

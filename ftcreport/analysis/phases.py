@@ -251,9 +251,10 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
             {"t": r["t"], key: r.get("measure"), **({"error": r["error"]} if "error" in r else {})} for r in rows
         ]
         entry["frozen"] = len(rows) > 1
-        if not good:
-            entry |= {"pattern_applied": None, "applied_from": applied_from, "poles": [], key: None,
-                      "stable": None, "stability": "not computed", "margins": None,
+        if not good:  # no frozen instant linearized (a plug-in law that raises): the documented keys null
+            entry |= {"pattern_applied": None, "applied_from": applied_from, "t_worst": None, "poles": [],
+                      "pole_table": None, key: None, "internal_modes": None, "stable": None,
+                      "stability": "not computed", "frozen_disagree": None, "states": None, "margins": None,
                       "note": rows[0]["error"] if rows else "no instant"}  # fmt: skip
             out_phases.append(entry)
             continue
@@ -308,7 +309,9 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
     result = {"phases": out_phases, "discrete": bool(discrete), "sample_time": period, "k_v": loop.k_v}
     if limits:
         # at the first phase's worst frozen instant (the limits' searches cost tens of linearizations each)
-        t_lim = out_phases[0].get("t_worst", times[phases[0]][0])
+        t_lim = out_phases[0]["t_worst"]
+        if t_lim is None:  # a phase not computed: its first frozen instant (the limits say why they are null)
+            t_lim = times[phases[0]][0]
         result |= scheme_limits(case, scheme, built, loop, [t_lim], psis, period, delay)
         split = out_phases[0].get("frozen_disagree")
         if split:  # the limits are those of one frozen instant that the phase's others contradict: say so

@@ -259,8 +259,6 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         )
     from ..storage.store import load_stored_case
 
-    stored = out / name / "case.toml"
-    text = stored.read_text(encoding="utf-8")
     try:
         case = load_stored_case(out, name, rec)
     except FtcError as exc:
@@ -270,6 +268,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         # and export name it and exit 1: store.edited_cases)
         return write_page(page, "case.html", root, nav_label=nav, name=name, description=str(exc), n_phases=0,
                           key=rec.get("key", "-"), simulated=rec.get("time", "-"), case_text="")  # fmt: skip
+    text = (out / name / "case.toml").read_text(encoding="utf-8")  # read by load_stored_case just now
     runs, series = [], {}
     for s, m in stored_metrics(out, name).items():
         m = dict(m)

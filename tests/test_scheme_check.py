@@ -212,3 +212,31 @@ def test_a_law_returning_nan_stops_the_run_naming_it_and_keeps_what_ran(tmp_path
     # the first second is kept: every step in the metric stream, every 10th in the log (log_every = 10)
     assert run.t_stream.size >= 100 and run.t_stream[-1] == pytest.approx(1.0, abs=0.011)
     assert run.t.size >= 10
+
+
+def test_a_law_returning_nan_is_named_alike_under_an_error_controlled_step(tmp_path, monkeypatch):
+    """The review: the stop code of a non-finite command was worded by the fixed step's path only; an
+    error-controlled run (auto, dopri5) said 'compiled engine: unknown error code 18'."""
+    import ftcreport.fast.scheme_check as check
+
+    monkeypatch.setattr(check, "ensure_checked", lambda ctrl: None)
+    new = "    out.sig[2] = K\n    if step.t >= 1.0:\n        out.u[1] = np.nan\n"
+    path, _ = _variant(tmp_path, "sm_nan_auto", "    out.sig[2] = K\n", new)
+    data = __import__("tomllib").loads(CASE.read_text())
+    data["plugins"] = [str(path)]
+    data["simulation"]["method"] = "dopri5"
+    _run_only(data, {"run": ["sm_nan_auto"], "k_v": 20.0})
+    _, m = run_scheme(with_duration(parse_case(data, str(CASE)), 2.0), "sm_nan_auto")
+    assert m["status"] == "error", m
+    assert "unknown error code" not in m["reason"] and "non-finite command out.u[1]" in m["reason"], m["reason"]
+
+
+def test_the_scheme_check_names_a_non_finite_command(tmp_path):
+    """The review: the battery's law calls go through the loop's law, whose non-finite check now stops with
+    its own code; the check said 'law: stopped the run (error code 18) at a regular state' where it named
+    the output ('out.u[1] is nan ... the outputs must be finite')."""
+    new = "    out.sig[2] = K\n    out.u[1] = np.nan\n"
+    path, _ = _variant(tmp_path, "sm_nan_check", "    out.sig[2] = K\n", new)
+    res = runner.invoke(app, ["schemes", "check", str(path)])
+    assert res.exit_code == 2, res.output
+    assert "out.u[1] is nan" in res.output and "error code" not in res.output, res.output

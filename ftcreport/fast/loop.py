@@ -165,7 +165,7 @@ def _law(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
         u, dx = _legacy_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
     else:
         u, dx = _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
-    if info[0] == 0:  # a non-finite command stops here, named, before the plant's solve meets it
+    if info[0] == 0 and _all_finite(q, eta, xc):  # a non-finite command from a finite state stops here, named
         for j in range(u.shape[0]):
             if not math.isfinite(u[j]):
                 info[0] = E_LAW_NONFINITE
@@ -174,6 +174,17 @@ def _law(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
                 info[3] = u[j]
                 break
     return u, dx
+
+
+@jit
+def _all_finite(q, eta, xc):
+    """Whether the law's inputs are finite (a trial stage of a diverging step may not be: its NaN command is
+    then the step's, which the step detectors name)."""
+    for v in (q, eta, xc):
+        for i in range(v.shape[0]):
+            if not math.isfinite(v[i]):
+                return False
+    return True
 
 
 @jit
@@ -863,7 +874,7 @@ def run_auto(
     At the first step of ``method`` auto (opt[O_METHOD] < 0) the loop's spectral radius rho at
     (t0, x0) decides: stiff when rho h_max > STIFF_BOUND = 3 x 3.3, three times DOPRI5's stability
     boundary on the real axis (stability, not accuracy, would hold the explicit method below a third
-    of its longest step): then ETD2 (etd2ec) for sampled motors, ROS2 (ros2ec) otherwise; else DOPRI5.
+    of its longest step): then ETD3RK (etd3ec) for sampled motors, ROS2 (ros2ec) otherwise; else DOPRI5.
 
     Logs every accepted step into the chunk buffers (``rows`` of them; the engine keeps the stream
     and the decimated log); returns when the buffers are full, past opt[O_TCHUNK], at the end
@@ -956,8 +967,8 @@ def run_auto(
                 ctl[C_RHO] = rho
                 method = 3.0
                 if rho * h_max > STIFF_BOUND:
-                    # ETD2 when the plant between samples is autonomous and linear in its currents (its
-                    # ETD1 estimate then holds); ROS2 with the time derivative otherwise
+                    # ETD3RK with its embedded ETD2 when the plant between samples is autonomous (held
+                    # voltages); ROS2 with the time derivative otherwise
                     method = 6.0 if MOTORS and nm > 0 and sampled else 4.0
             ctl[C_METHOD] = method
             h0 = min(first_guess(x, f0, rtol, atol), h_max)

@@ -596,6 +596,13 @@ def _one_state(call: _Call, sc: Scheme, ctrl, state, head, law, disc, label) -> 
     lw = _where(law)
     if int(info[0]) == _E_LAW_WRITE:
         return Finding(False, f"{lw}: {write_reason(ctrl, int(info[1]), float(info[2]))} ({at})")
+    if int(info[0]) == _E_LAW_NONFINITE:  # the loop's own check of the command (fast.loop._law)
+        j = int(info[2])
+        return Finding(
+            False,
+            f"{lw}: {head}: law: out.u[{j}] is {float(info[3])} ({at}): the outputs must be finite on healthy "
+            "and faulty patterns",
+        )
     if info[0] != 0:
         return Finding(
             False, f"{lw}: {head}: law: stopped the run (error code {int(info[0])}) at a regular state ({at})"
@@ -646,6 +653,7 @@ def _one_state(call: _Call, sc: Scheme, ctrl, state, head, law, disc, label) -> 
 
 
 _E_LAW_WRITE = 16  # jit.packed.E_LAW_WRITE (not imported: numba is loaded only when a check runs)
+_E_LAW_NONFINITE = 18  # jit.packed.E_LAW_NONFINITE
 
 
 # ---------------------------------------------------------------------------------------- a plug-in's first run

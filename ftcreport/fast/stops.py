@@ -64,6 +64,8 @@ def _message(info: np.ndarray, t: float, settings, ref: Ref, how: str = "") -> t
     a, b, c = (float(v) for v in info[1:4])
     if code == E_STATE_SINGULAR:
         return "singular", articulation_reason(int(a), b, settings.singularity_margin)
+    if code == E_LAW_NONFINITE:
+        return "error", law_nonfinite_reason(None, int(b), c, a)
     if code in (E_NONFINITE_STATE, E_NONFINITE_DERIV):
         reason = nonfinite_reason("state" if code == E_NONFINITE_STATE else "control or derivative", a)
         return "diverged", with_step(reason, how)
@@ -102,11 +104,11 @@ def law_nonfinite_reason(spec: Spec | None, j: int, value: float, t: float) -> s
     were finite (the state is checked before), so the law computed it."""
     from ..model import wheel_names
 
-    name = spec.controller.scheme.name if spec is not None else "?"
+    who = f"scheme '{spec.controller.scheme.name}'" if spec is not None else "the scheme"
     wheels = wheel_names(spec.controller.chain.n) if spec is not None else []
     wheel = f" (wheel {wheels[j]})" if j < len(wheels) else ""
     return (
-        f"scheme '{name}': its law returned a non-finite command out.u[{j}]{wheel} = {value} at t = {t:.6g} s from a "
+        f"{who}: its law returned a non-finite command out.u[{j}]{wheel} = {value} at t = {t:.6g} s from a "
         "finite state (a division by zero or a NaN inside the law; 'ftcreport schemes check FILE' runs it with "
         "bounds checks)"
     )

@@ -881,3 +881,36 @@ def test_a_deleted_run_directory_is_named_not_left_out_in_silence(tmp_path):
     res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"])
     assert res.exit_code == 0, res.output
     assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0
+
+
+def test_the_stored_case_checks_hold_across_versions_environment_failures_and_interrupted_removals(
+    tmp_path, monkeypatch
+):
+    """The review of this session's checks: (a) a case stored by another package version read as 'changed
+    after its runs' (the key hashes the version: the check hashed with the current one); (b) a run the
+    environment failed (in the manifest, never stored) read as 'deleted'; (c) a dropped scheme's files left
+    without their record (an interrupted removal or store) were never removed, 'damaged' for ever."""
+    import ftcreport
+    from ftcreport.storage import store
+
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    two = {"run": ["nominal", "oracle"], "nominal": {"k_v": 5.0}, "oracle": {"k_v": 5.0}}
+    path = _write(cases, "c", schemes=two, faults=[{"time": 0.2, "wheel": "2l", "sigma": 0.0}])
+    out = tmp_path / "out"
+    assert runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"]).exit_code == 0
+    monkeypatch.setattr(ftcreport, "__version__", "99.0.0")  # (a) read by a later version
+    assert store.edited_cases(out) == []
+    monkeypatch.undo()
+    man = json.loads((out / "c" / "manifest.json").read_text())  # (b) a run the environment failed
+    man["runs"].append({"case": "c", "scheme": "switching", "key": None, "not_stored": "MemoryError"})
+    (out / "c" / "manifest.json").write_text(json.dumps(man))
+    assert store.deleted_runs(out) == []
+    data = tomllib.loads(path.read_text())  # (c) oracle dropped, its record gone, its files left
+    data["schemes"] = {"run": ["nominal"], "nominal": {"k_v": 5.0}}
+    path.write_text(tomli_w.dumps(data))
+    (out / "c" / "oracle" / "record.json").unlink()
+    res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert not (out / "c" / "oracle").exists()
+    assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0

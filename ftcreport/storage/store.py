@@ -346,11 +346,12 @@ def stored_schemes(out: Path, case_name: str) -> list[str]:
 
 
 def remove_run(out: Path, case_name: str, scheme: str) -> None:
-    """Remove a stored run: its record first (so an interruption leaves files without a record, which
-    :func:`check_run` names), then its files, then its directory when nothing else is in it."""
+    """Remove a stored run: its files first, its record last (an interruption leaves the record, of the
+    earlier content, which the next batch removes again: studies.batch._dropped_schemes), then its
+    directory when nothing else is in it."""
     d = Path(out) / case_name / scheme
     check_inside(d / RECORD)
-    for name in (RECORD, *RUN_FILES):
+    for name in (*RUN_FILES, RECORD):
         with contextlib.suppress(FileNotFoundError):
             (d / name).unlink()
     with contextlib.suppress(OSError):
@@ -389,9 +390,12 @@ def load_stored_case(out: Path, name: str, rec: dict):
     if rec.get("duration_override"):
         case = with_duration(case, rec["duration_override"])
     key = rec.get("key")
-    if isinstance(key, str) and case_hash(case, __version__) != key:
+    # the key was made by the version that stored the case (another version's runs are named as such by
+    # check_run): the content is compared, not the package
+    version = rec.get("package_version") if isinstance(rec.get("package_version"), str) else __version__
+    if isinstance(key, str) and case_hash(case, version) != key:
         raise FtcError(
-            f"{path}: changed after its runs (content hash {case_hash(case, __version__)}, the runs' {key}: the "
+            f"{path}: changed after its runs (content hash {case_hash(case, version)}, the runs' {key}: the "
             "file or one of its scheme files was edited): not shown as theirs; re-run 'ftcreport batch' on the case"
         )
     return case
@@ -411,7 +415,10 @@ def deleted_runs(out: Path) -> list[str]:
             continue  # a manifest of another content of the case
         for r in man["runs"]:
             s = r.get("scheme") if isinstance(r, dict) else None
-            if isinstance(s, str) and s and check_run(out, name, s).absent:
+            if not isinstance(s, str) or not s or r.get("not_stored") or not r.get("key"):
+                continue  # a run the environment failed was never stored (batch._run_record)
+            d = Path(out) / name / s
+            if not any((d / f).exists() for f in (RECORD, *RUN_FILES)):
                 problems.append(
                     f"{Path(out) / name / s}: missing (the case's manifest.json lists its run, stored on "
                     f"{str(man.get('created', '?'))[:10]}; its directory was deleted): not shown or exported; "

@@ -181,6 +181,7 @@ def record_case(
         "source": str(path),
         "status": "ok",
         "key": key,
+        "package_version": __version__,  # the key's version: a stored case is checked against it (load_stored_case)
         "schemes": schemes,
         "n": case.robots.n,
         "reference": case.reference.kind,
@@ -211,16 +212,20 @@ def record_case(
 
 def _dropped_schemes(out: Path, case_name: str, schemes: list[str], key: str) -> list[str]:
     """The schemes stored under ``out/<case>`` that the case no longer runs and whose runs were made from another
-    content of it (their record's case hash is not ``key``): nothing would ever run or show them again.  A run
-    whose record cannot be read is left, named as damaged, for the user to look at."""
+    content of it (their record's case hash is not ``key``), or left without a record (an interrupted store or
+    removal): nothing would ever run or show them again.  A run whose record exists but cannot be read is
+    left, named as damaged, for the user to look at."""
     from ..storage.store import read_json, stored_schemes
 
     out_ = []
     for s in stored_schemes(out, case_name):
         if s in schemes:
             continue
-        rec = read_json(Path(out) / case_name / s / "record.json")
-        if isinstance(rec, dict) and isinstance(rec.get("case_hash"), str) and rec["case_hash"] != key:
+        d = Path(out) / case_name / s
+        rec = read_json(d / "record.json")
+        earlier = isinstance(rec, dict) and isinstance(rec.get("case_hash"), str) and rec["case_hash"] != key
+        orphan = not (d / "record.json").exists()  # files without a record: an interrupted store or removal
+        if earlier or orphan:
             out_.append(s)
     return out_
 

@@ -98,8 +98,8 @@ def _on_stop_signal(signum, frame) -> None:
     """
     if _shield[0] > 0:
         return
-    if _defer[0] > 0:
-        _defer[1] = _defer[1] or int(signum)
+    if _defer[0] > 0 and not _defer[1]:  # the first is held; a second one stops at once
+        _defer[1] = int(signum)
         return
     callbacks = {getattr(getattr(cb, "__func__", cb), "__code__", None) for cb in gc.callbacks}
     f, depth = frame, 0

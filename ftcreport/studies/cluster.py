@@ -24,6 +24,7 @@ and hands each result to ``store`` as it finishes.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import sys
 from collections.abc import Callable, Mapping
@@ -131,9 +132,10 @@ def execute(
 
     cluster = client = None
     try:
-        # a stop signal while the cluster starts is raised once it is up: a half-started LocalCluster
-        # never reaches this code, so it could not be closed (distributed's atexit hook failed on it)
-        with deferred():
+        # a stop signal while the local cluster starts is raised once it is up: a half-started LocalCluster
+        # never reaches this code, so it could not be closed (distributed's atexit hook failed on it); a
+        # connection to a --scheduler is not held so (a second signal goes through in any case)
+        with deferred() if scheduler is None else contextlib.nullcontext():
             if scheduler is None:
                 n, capped = worker_count(workers, len(tasks), "--workers", f"{noun} to run")
                 if capped is not None:

@@ -364,6 +364,15 @@ def integrator_words(metrics: dict) -> str:
     )
 
 
+def step_change_over(row: dict, rtol: float, atol: float) -> bool:
+    """Whether one metric's row of :func:`dt_sensitivity` moved beyond the step check's tolerance: ``atol +
+    rtol * max(|a|, |b|)``, or null in one run (the rule the run's verdict and the case page both read)."""
+    if row.get("abs_change") is None:
+        return True
+    scale = max(abs(float(row["dt"])), abs(float(row["dt_half"])))
+    return float(row["abs_change"]) > atol + rtol * scale
+
+
 def dt_sensitivity(full: dict, half: dict, rtol: float = 0.01, atol: float = 1e-6) -> dict:
     """Change of the headline metrics from dt to dt/2 (an error-controlled run: also from rtol, atol to a tenth).
 
@@ -389,7 +398,7 @@ def dt_sensitivity(full: dict, half: dict, rtol: float = 0.01, atol: float = 1e-
         scale = max(abs(float(a)), abs(float(b)))
         rel = d / scale if scale > 0 else 0.0
         rows[k] = {"dt": a, "dt_half": b, "abs_change": d, "rel_change": rel}
-        if d > atol + rtol * scale:
+        if step_change_over(rows[k], rtol, atol):
             ok = False
         if rel > worst_rel and d > atol:
             worst, worst_rel = k, rel

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from ..evaluation.metrics import METRICS
+from ..runner import step_change_over
 
 __all__ = ["not_judged", "ran_here", "step_checks"]
 
@@ -29,7 +30,7 @@ def step_checks(runs: list[dict]) -> list[dict]:
             continue
         rows = v.get("metrics") or {}
         rtol, atol = v.get("rtol", 0.01), v.get("atol", 1e-6)
-        over = [k for k, r in rows.items() if _over(r, rtol, atol)]
+        over = [k for k, r in rows.items() if step_change_over(r, rtol, atol)]
         by_size = sorted(rows, key=lambda k: -_rel(rows[k]))
         moved = [_moved(k, rows[k]) for k in sorted(over, key=lambda k: -_rel(rows[k]))]
         converged, empty = bool(v.get("converged")), bool(v.get("empty"))
@@ -77,14 +78,6 @@ def not_judged(schemes: Iterable[str], ran: set[str] | None) -> str | None:
 def _rel(r: dict) -> float:
     rel = r.get("rel_change")
     return float("inf") if rel is None else float(rel)
-
-
-def _over(r: dict, rtol: float, atol: float) -> bool:
-    """Whether a metric's change is over the step check's tolerance (a value null in one run is)."""
-    if r.get("abs_change") is None:
-        return True
-    scale = max(abs(float(r["dt"])), abs(float(r["dt_half"])))
-    return float(r["abs_change"]) > atol + rtol * scale
 
 
 def _moved(key: str, r: dict) -> str:

@@ -165,9 +165,10 @@ def _law(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
         u, dx = _legacy_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
     else:
         u, dx = _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig)
-    if info[0] == 0 and _all_finite(q, eta, xc):  # a non-finite command from a finite state stops here, named
+    if info[0] == 0:  # a non-finite command from a finite state stops here, named
         for j in range(u.shape[0]):
-            if not math.isfinite(u[j]):
+            # the inputs (xc: up to tens of thousands of adaptive weights) are scanned only for a bad command
+            if not math.isfinite(u[j]) and _all_finite(q, eta, xc):
                 info[0] = E_LAW_NONFINITE
                 info[1] = t
                 info[2] = j

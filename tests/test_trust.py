@@ -914,3 +914,27 @@ def test_the_stored_case_checks_hold_across_versions_environment_failures_and_in
     assert res.exit_code == 0, res.output
     assert not (out / "c" / "oracle").exists()
     assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0
+
+
+# ---------------------------------------------------------- the index after --duration (session 11)
+def test_index_does_not_judge_the_gate_of_a_shortened_run(tmp_path):
+    """After ``run --duration`` the case page says its thresholds and claims are not judged (they are stated for
+    the case's own duration); the index counted the same thresholds as violated and the claims as off."""
+    import re
+
+    case = ROOT / "cases" / "two_link_active.toml"
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(case), "--out", str(out), "--duration", "1", "--scheme", "active", "-q"])
+    assert res.exit_code == 0, res.output
+    page = (out / "two_link_active" / "index.html").read_text()
+    assert "so they are not judged here" in page
+    counts = re.search(r'<p id="counts">(.*?)</p>', (out / "index.html").read_text(), re.S).group(1)
+    text = " ".join(re.sub(r"<[^>]+>", " ", counts).split())
+    assert "0 violated" in text and "0 hold" in text, text
+    # the active scheme's thresholds and the case's claims, counted apart and named as not judged
+    raw = tomllib.loads(case.read_text())
+    n_thresholds, n_claims = len(raw["thresholds"]["active"]), len(raw["claims"])
+    assert n_thresholds >= 2 and n_claims >= 2
+    assert f"{n_thresholds} not judged (--duration)" in text, text
+    assert f"thesis claims: 0 judged, {n_claims} not judged (--duration)" in text, text
+    assert "0 with an outcome other than the case expects" in text, text

@@ -736,6 +736,7 @@ def render_index(out: Path) -> Path:
     claims: list = []
     plugins: dict[str, dict] = {}  # plug-in schemes' family, description, reference (batch.plugin_info)
     n_runs = n_ok = n_pass = n_fail = n_expected_stop = n_unexpected = 0
+    n_unjudged = claims_unjudged = 0  # a shortened run's gate (`run --duration`): its case page does not judge it
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
         rec = _record(out, name)
@@ -752,12 +753,19 @@ def render_index(out: Path) -> Path:
         n_runs += len(metrics)
         n_ok += sum(m.get("status") == "ok" for m in metrics.values())
         checks = evaluate(name, rec.get("thresholds", {}), metrics) if rec.get("thresholds") else []
+        shortened = rec.get("duration_override") is not None
         for s, m in metrics.items():
             mine = [c for c in checks if c.scheme == s]
             failed = sum(not c.ok for c in mine)
-            n_pass += len(mine) - failed
-            n_fail += failed
-            entry["runs"][s] = {**m, "after_max": _after_max(m), "checks_total": len(mine), "checks_failed": failed}
+            if shortened:  # stated for the case's own duration, as the case page says: neither held nor violated
+                n_unjudged += len(mine)
+            else:
+                n_pass += len(mine) - failed
+                n_fail += failed
+            entry["runs"][s] = {
+                **m, "after_max": _after_max(m), "checks_total": len(mine), "checks_failed": failed,
+                "checks_unjudged": shortened,
+            }  # fmt: skip
         entry["not_run"] = rec.get("not_run", {})
         plugins |= rec.get("plugin_schemes", {})
         case = _stored_case(out, name, rec) if (out / name / "case.toml").exists() else None
@@ -774,7 +782,9 @@ def render_index(out: Path) -> Path:
                     entry["runs"][s]["expected_stop"] = s not in outside
             n_unexpected += len(outside)
             n_expected_stop += sum(m.get("status") != "ok" and s not in outside for s, m in metrics.items())
-        if case is not None and case.claims:
+        if case is not None and case.claims and shortened:
+            claims_unjudged += len(case.claims)
+        elif case is not None and case.claims:
             claims += _claims(name, case, [m | {"scheme": s} for s, m in metrics.items()])
         cases.append(entry)
     board = compare.scoreboard(verdicts, ordered_schemes(s for c in cases for s in c["runs"]))
@@ -802,6 +812,8 @@ def render_index(out: Path) -> Path:
         n_unexpected=n_unexpected,
         n_pass=n_pass,
         n_fail=n_fail,
+        n_unjudged=n_unjudged,
+        claims_unjudged=claims_unjudged,
         plugins=plugins,
         claims=claims,
         claim_outcomes=outcomes,

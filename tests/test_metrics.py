@@ -199,3 +199,23 @@ def test_a_held_torque_is_integrated_as_held():
     sq, pw = step_integrals(t, tau, om, held=True)
     assert sq[0] == pytest.approx(0.01 * (1 + 9 + 4))
     assert pw == pytest.approx(0.01 * (1 * 1 + 3 * 0.5 * (1 + 1) + 2 * 1))
+
+
+def test_a_threshold_on_a_table_entry_reads_that_entry():
+    """``metric.key`` (an entry of a table metric) is accepted by the case's validation, as for a claim; check
+    read the dotted name as a metric of its own and failed it as "metric absent" whatever the run held."""
+    from ftcreport.cases.case import metric_problem
+    from ftcreport.studies.check import evaluate
+
+    name = "fault_estimation_errors_final.rho"
+    assert metric_problem("active", name) is None  # the case file may state it
+    m = {"status": "ok", "fault_estimation_errors_final": {"rho": 0.02, "ubar": 0.3}}
+    (r,) = evaluate("c", {"active": {name: {"max": 0.05}}}, {"active": m})
+    assert r.ok and r.actual == 0.02, r
+    (r,) = evaluate("c", {"active": {name: {"max": 0.01}}}, {"active": m})
+    assert not r.ok and r.actual == 0.02 and r.reason == "0.02 > max 0.01"
+    (r,) = evaluate("c", {"active": {"fault_estimation_errors_final.ubar": {"max": 1.0}}}, {"active": m})
+    assert r.ok and r.actual == 0.3
+    # an entry the run does not hold is absent, named with its key
+    (r,) = evaluate("c", {"active": {"fault_estimation_errors_final.tau": {"max": 1.0}}}, {"active": m})
+    assert not r.ok and r.reason == "metric absent"

@@ -201,10 +201,15 @@ def evaluate(case_name: str, thresholds: dict, metrics_by_scheme: dict[str, dict
                 why = f"run {m.get('status')}: {m.get('reason', '')}".strip()
                 out.append(ThresholdResult(case_name, scheme, metric, lo, hi, None, False, why))
                 continue
-            val = m.get(metric)
+            base, _, key = metric.partition(".")  # ``metric.key``: an entry of a table metric
+            val = m.get(base)
+            present = base in m
+            if key:
+                present = isinstance(val, dict) and key in val
+                val = val.get(key) if present else None
             if not isinstance(val, int | float) or isinstance(val, bool):
                 why = "metric absent"
-                if metric in m and val is None:  # computed, and null for a reason the run stored
+                if present and val is None:  # computed, and null for a reason the run stored
                     why = f"null: {(m.get('null_reasons') or {}).get(metric, 'not defined for this run')}"
                 out.append(ThresholdResult(case_name, scheme, metric, lo, hi, None, False, why))
                 continue

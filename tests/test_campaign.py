@@ -831,3 +831,30 @@ def test_a_drawn_fault_never_coincides_with_a_kept_one(tmp_path):
         assert len(on_1r) == 2 and on_1r[0] != on_1r[1], on_1r
         times += on_1r
     assert {9.999, 10.001} <= set(times)
+
+
+def test_sample_refuses_a_campaign_another_package_version_computed(failing_campaign, tmp_path):
+    """``sample`` re-simulates a sample with the code installed now; a campaign another ftcreport version
+    computed (its case content unchanged) got a page whose numbers need not be the campaign's table's, where
+    ``campaign`` refuses to resume such records.  Now it refuses (exit 2), naming both versions."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from ftcreport import __version__
+    from ftcreport.cli import app
+
+    src, _ = failing_campaign
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    meta = json.loads((out / "campaign.json").read_text())
+    assert meta["version"] == __version__
+    meta["version"] = "0.0.1"
+    (out / "campaign.json").write_text(json.dumps(meta))
+    before = sorted(p.name for p in (out / "sample_pages").iterdir())
+    res = CliRunner().invoke(app, ["sample", str(out), "2"])
+    assert res.exit_code == 2, res.output
+    (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
+    assert f"{out / 'campaign.json'}: " in line and "0.0.1" in line and __version__ in line, line
+    assert "--force" in line, line
+    assert sorted(p.name for p in (out / "sample_pages").iterdir()) == before  # nothing rendered

@@ -256,13 +256,21 @@ def check_sample_index(out: Path, index: int) -> int:
 
 
 def check_sample_content(out: Path, meta: dict, base) -> None:
-    """FtcError (exit 2) when ``base``, the campaign's base case parsed now, hashes otherwise than the campaign
+    """FtcError (exit 2) when another ftcreport version computed the campaign (``campaign.json``'s ``version``),
+    or when ``base``, the campaign's base case parsed now, hashes otherwise than the campaign
     recorded (``campaign.json``'s ``case_hash``): a scheme file changed since (named, from the files' own hashes
     the campaign recorded), or what the package makes of the case.  A sample re-simulated from it would not be
     the campaign's sample, as ``campaign`` refuses to resume from another base case content."""
+    from .. import __version__
     from ..cases import plugin_digests
     from ..studies.campaign import case_content_hash
 
+    version = meta.get("version")
+    if version is not None and version != __version__:  # the case may read alike, the code that runs it does not
+        raise FtcError(
+            f"{Path(out) / 'campaign.json'}: the campaign was computed by ftcreport {version}, this is {__version__}: "
+            "a sample re-simulated now need not be the campaign's; re-run the campaign with --force"
+        )
     recorded = meta.get("case_hash")
     now = case_content_hash(base)
     if recorded is None or now == recorded:

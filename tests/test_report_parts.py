@@ -355,3 +355,37 @@ def test_the_phase_crossover_marker_sits_on_the_wrapped_phase_curve():
     assert y == pytest.approx(wrapped[j], abs=0.06)  # on the curve (4 digits), not at -180
     y, curve = marker(unwrapped)  # no wrap: the interpolated value, about -180
     assert y == pytest.approx(curve, abs=0.06) and curve == pytest.approx(-180.0 - 60 * np.log10(1.08), abs=0.1)
+
+
+def _captured_figure(monkeypatch, draw):
+    """The matplotlib figure a plots.*_svg function builds (drawn, so its artists have their extents)."""
+    from ftcreport.report import plots
+
+    figs = []
+    monkeypatch.setattr(plots, "_svg", lambda fig: figs.append(fig) or "<svg/>")
+    draw()
+    fig = figs[0]
+    fig.canvas.draw()
+    return fig
+
+
+def test_the_u_tau_legend_hides_no_data(monkeypatch):
+    """The page audit: on the motor case pages the legend of the u/tau figure sat inside each robot's panel,
+    upper right, over the start-up saturation at the limit.  Each panel's legend is now outside its axes."""
+    from ftcreport.report import plots
+
+    t = np.linspace(0.0, 5.0, 1001)
+    u = np.column_stack([5.0 * np.exp(-t), -3.0 * np.exp(-t), 4.0 * np.cos(t), 5.0 * np.ones_like(t)])
+    ts = {"t": t, "u": u, "tau": 0.9 * u}
+    sched = _schedule((0.0, "2l", 0.5, 0.0))
+    shading = fault_phases(sched, 5.0, ["1r", "1l", "2r", "2l"])
+    fig = _captured_figure(
+        monkeypatch, lambda: plots.control_torque_svg(ts, ["1r", "1l", "2r", "2l"], shading, "active", 5.0)
+    )
+    panels = [ax for ax in fig.axes if ax.get_legend() is not None]
+    assert len(panels) == 2
+    for ax, robot in zip(panels, (1, 2), strict=True):
+        box, leg = ax.get_window_extent(), ax.get_legend().get_window_extent()
+        assert leg.x0 >= box.x1, (leg, box)  # right of the plot area: over no data
+        texts = {x.get_text() for x in ax.get_legend().get_texts()}
+        assert {f"tau {robot}r", f"u {robot}r", f"tau {robot}l", f"u {robot}l"} <= texts

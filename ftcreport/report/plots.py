@@ -313,7 +313,8 @@ def control_torque_svg(ts: dict, wheels: list[str], phases: list[dict], scheme: 
         ax.set_ylim(-lim, lim)
         ax.set_ylabel(f"robot {i + 1} [N m]")
         _shade_phases(ax, phases)
-        ax.legend(loc="upper right", ncol=4, fontsize=6)
+        # right of the panel, not in it: inside, it sat over the start-up transient at the limit
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=6, frameon=False)
     axes[-1, 0].set_xlabel("t [s]")
     sat = "" if u_limit is None else f"; dash-dot: the {u_limit:g} N m limit"
     axes[0, 0].set_title(f"{scheme}: control u (dashed) and applied torque tau (solid){sat}")

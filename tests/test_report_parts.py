@@ -389,3 +389,32 @@ def test_the_u_tau_legend_hides_no_data(monkeypatch):
         assert leg.x0 >= box.x1, (leg, box)  # right of the plot area: over no data
         texts = {x.get_text() for x in ax.get_legend().get_texts()}
         assert {f"tau {robot}r", f"u {robot}r", f"tau {robot}l", f"u {robot}l"} <= texts
+
+
+def _adaptive_series(n_models: int = 10, nw: int = 4, k: int = 501) -> tuple[dict, list[list[int]]]:
+    """An adaptive run's logged estimates: weights per model and wheel, friction estimate per wheel."""
+    t = np.linspace(0.0, 5.0, k)
+    patterns = [[int(x) for x in f"{(2**nw - 1) - i:0{nw}b}"] for i in range(n_models)]  # 1111, 1110, 1101, ...
+    chi = np.repeat(np.linspace(0.0, 1.0, n_models)[None, :, None], k, axis=0) * np.ones((k, n_models, nw))
+    ts = {"t": t, "chi_hat": chi, "uf_hat": 0.1 * np.sin(t)[:, None] * np.ones(nw), "ubar": np.zeros((k, nw))}
+    return ts, patterns
+
+
+def test_a_colour_means_one_thing_in_the_adaptive_figure():
+    """The page audit: the adaptive figure drew the model weights in plotly's default colours and the friction
+    estimate of each wheel in a hue of its own, so model 3 and wheel 1r were both red, model 2 and wheel 1l both
+    green: one colour, two quantities.  Every weight and every wheel now has its own colour; a wheel's estimate
+    and its truth (dashed) share the wheel's."""
+    from ftcreport.report.interactive import estimates_fig
+
+    ts, patterns = _adaptive_series()
+    wheels = ["1r", "1l", "2r", "2l"]
+    fig = estimates_fig(ts, "adaptive", wheels, [], patterns)
+    models = [d for d in fig["data"] if d["name"].startswith("model ")]
+    estimates = [d for d in fig["data"] if d.get("legendgroup") in wheels and d.get("showlegend", True)]
+    truths = [d for d in fig["data"] if d["name"].startswith("true ")]
+    assert len(models) == 10 and len(estimates) == 4 and len(truths) == 4
+    colours = [d["line"].get("color") for d in models + estimates]
+    assert None not in colours and len(set(colours)) == len(colours)  # 14 series, 14 colours
+    for est, true in zip(estimates, truths, strict=True):
+        assert true["line"]["color"] == est["line"]["color"] and true["line"]["dash"] == "dash"

@@ -459,16 +459,24 @@ def estimates_fig(ts: dict, scheme: str, wheels: list[str], phases: list[dict], 
     """
     t_end = float(ts["t"][-1])
     data = []
+    m = len(wheels)
+    # a colour means one thing: a wheel (its estimates and truths) in both panels of the active figure
+    wheel_colors = {w: f"hsl({int(360 * j / max(1, m))},65%,42%)" for j, w in enumerate(wheels)}
     if "rho_hat" in ts:
         top, bottom = ("rho_hat", "sigma", "gain"), ("ubar_hat", "ubar", "friction [N m]")
     elif "chi_hat" in ts and patterns is not None:
         chi = np.asarray(ts["chi_hat"], float)
         pats = np.asarray(patterns, float)
         show = range(min(pats.shape[0], 12))
+        # the adaptive figure's two panels draw different quantities (a model's weight, a wheel's friction
+        # estimate): every model and every wheel its own colour (plotly's default colours for the models
+        # repeated the wheels' hues: model 3 and wheel 1r both red)
+        colors = series_colors([f"model {k}" for k in show] + [f"wheel {w}" for w in wheels])
+        wheel_colors = {w: colors[f"wheel {w}"] for w in wheels}
         w = [chi[:, k, pats[k] > 0].mean(axis=1) for k in show]
         t, *cols = decimate(ts["t"], *w)
         for k, c in zip(show, cols, strict=True):
-            data.append(_trace(t, _r(c), f"model {k}", "%{y:.3g}", line={"width": 1}))
+            data.append(_trace(t, _r(c), f"model {k}", "%{y:.3g}", line={"width": 1, "color": colors[f"model {k}"]}))
         top, bottom = None, ("uf_hat", "ubar", "friction [N m]")
     else:
         return None
@@ -482,7 +490,7 @@ def estimates_fig(ts: dict, scheme: str, wheels: list[str], phases: list[dict], 
         )
         m = est.shape[1]
         for j, w in enumerate(wheels):
-            color = f"hsl({int(360 * j / max(1, m))},65%,42%)"
+            color = wheel_colors[w]
             line = {"width": 1.1, "color": color}
             data.append(_trace(t, _r(cols[j]), f"{key} {w}", "%{y:.3g}", legendgroup=w, yaxis=axis, line=line))
             dashed = {"width": 1, "dash": "dash", "color": color}

@@ -418,3 +418,20 @@ def test_a_colour_means_one_thing_in_the_adaptive_figure():
     assert None not in colours and len(set(colours)) == len(colours)  # 14 series, 14 colours
     for est, true in zip(estimates, truths, strict=True):
         assert true["line"]["color"] == est["line"]["color"] and true["line"]["dash"] == "dash"
+
+
+def test_the_friction_estimate_has_one_name_on_the_page():
+    """The page audit: a case page named the friction estimate ubar_hat in the active schemes' figures and
+    uf_hat in the adaptive one (the logged array's name), both against the same true ubar.  The README and the
+    rest of the pages say ubar_hat; every figure now does."""
+    from ftcreport.report.interactive import estimates_fig
+
+    ts, patterns = _adaptive_series(n_models=3, nw=2)
+    adaptive = estimates_fig(ts, "adaptive", ["1r", "1l"], [], patterns)
+    k = ts["t"].size
+    active_ts = {"t": ts["t"], "rho_hat": np.ones((k, 2)), "sigma": np.ones((k, 2))}
+    active = estimates_fig(active_ts | {"ubar_hat": ts["uf_hat"], "ubar": ts["ubar"]}, "active", ["1r", "1l"], [])
+    names = {f: [d["name"] for d in fig["data"]] for f, fig in (("adaptive", adaptive), ("active", active))}
+    assert [n for n in names["adaptive"] if not n.startswith(("model", "true"))] == ["ubar_hat 1r", "ubar_hat 1l"]
+    assert {"ubar_hat 1r", "ubar_hat 1l"} <= set(names["active"])
+    assert not any("uf_hat" in json.dumps(fig) for fig in (adaptive, active))

@@ -454,8 +454,9 @@ def estimates_fig(ts: dict, scheme: str, wheels: list[str], phases: list[dict], 
     """Estimates of one scheme against the truth (dashed).
 
     Active schemes: rho_hat and ubar_hat per wheel against sigma and ubar.  Adaptive schemes: the
-    weights chihat_(k) (mean over the wheels each model drives) and uhat_f against ubar (control
-    variables, not a diagnosis: ERRATA P2).
+    weights chihat_(k) (mean over the wheels each model drives) and the friction estimate (logged as
+    uf_hat) against ubar (control variables, not a diagnosis: ERRATA P2).  Either friction estimate is
+    named ubar_hat in the figure, as in the README and the rest of the pages.
     """
     t_end = float(ts["t"][-1])
     data = []
@@ -492,7 +493,8 @@ def estimates_fig(ts: dict, scheme: str, wheels: list[str], phases: list[dict], 
         for j, w in enumerate(wheels):
             color = wheel_colors[w]
             line = {"width": 1.1, "color": color}
-            data.append(_trace(t, _r(cols[j]), f"{key} {w}", "%{y:.3g}", legendgroup=w, yaxis=axis, line=line))
+            name = f"{'ubar_hat' if key == 'uf_hat' else key} {w}"  # one name for the friction estimate
+            data.append(_trace(t, _r(cols[j]), name, "%{y:.3g}", legendgroup=w, yaxis=axis, line=line))
             dashed = {"width": 1, "dash": "dash", "color": color}
             hidden = {"legendgroup": w, "showlegend": False, "yaxis": axis, "line": dashed}
             data.append(_trace(t, _r(cols[m + j]), f"true {w}", "true %{y:.3g}", **hidden))

@@ -332,8 +332,8 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
             if spec is None:
                 continue
             cap = (
-                f"{est}: weights and friction estimate against the true ubar (dashed); they are control variables "
-                "of the adaptive law, not a fault diagnosis (ERRATA P2)."
+                f"{est}: weights and friction estimate ubar_hat against the true ubar (dashed); they are control "
+                "variables of the adaptive law, not a fault diagnosis (ERRATA P2)."
                 if "chi_hat" in series[est]
                 else f"{est}: estimated gains and frictions against the truth (dashed). Individual parameters are "
                 "weakly identifiable in steady tracking; the combined effect Mbar1^-1 Bbar (diag(rho) u + ubar) is "

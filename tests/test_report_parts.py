@@ -435,3 +435,18 @@ def test_the_friction_estimate_has_one_name_on_the_page():
     assert [n for n in names["adaptive"] if not n.startswith(("model", "true"))] == ["ubar_hat 1r", "ubar_hat 1l"]
     assert {"ubar_hat 1r", "ubar_hat 1l"} <= set(names["active"])
     assert not any("uf_hat" in json.dumps(fig) for fig in (adaptive, active))
+
+
+def test_the_provenance_case_file_wraps_inside_its_box():
+    """The page audit: the provenance's copy of the case file (a <pre>) kept its lines whole on screen, so a
+    claim's words or the resolved [schemes] table ran thousands of pixels past the page's 1100 px column (cut at
+    the box's edge, behind a scroll bar at its foot).  On screen as in print it now wraps inside its box."""
+    import re
+
+    html = _page(case_text='words = "' + "their effect on the system dynamic " * 40 + '"\n')
+    assert '<pre class="case-file">words = &#34;their effect' in html
+    screen = html[html.index("<style>") : html.index("@media print")]
+    rule = re.search(r"\npre[^{]*\{([^}]*)\}", screen).group(1)
+    decl = dict(d.split(":", 1) for d in (x.strip() for x in rule.split(";")) if d)
+    assert decl["white-space"].strip() == "pre-wrap" and decl["overflow-wrap"].strip() == "anywhere"
+    assert decl["max-width"].strip() == "100%" and decl["box-sizing"].strip() == "border-box"

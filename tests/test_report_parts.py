@@ -450,3 +450,31 @@ def test_the_provenance_case_file_wraps_inside_its_box():
     decl = dict(d.split(":", 1) for d in (x.strip() for x in rule.split(";")) if d)
     assert decl["white-space"].strip() == "pre-wrap" and decl["overflow-wrap"].strip() == "anywhere"
     assert decl["max-width"].strip() == "100%" and decl["box-sizing"].strip() == "border-box"
+
+
+def test_a_claims_note_on_a_shortened_run_says_what_that_run_shows():
+    """The page audit: after `batch cases/motors --duration 5` the claims table of two_link_active_motors
+    printed the case file's note, "Measured 0.147 m (ideal plant 0.062 m): the Farza observer's estimates
+    drift ...", written for the full 70 s run, beside the 5 s run's value and a red "expected reproduced",
+    while the verdict said the claims are not judged on a shortened run.  The note now says it was written
+    for the full run and what the shortened run does not show, and the claim is marked not judged."""
+    from ftcreport.cases import load_case, with_duration
+    from ftcreport.evaluation.claims import evaluate_claims
+    from ftcreport.report.render import _claims_shown
+
+    full = load_case(Path(__file__).parent.parent / "cases" / "motors" / "two_link_active_motors.toml")
+    case = with_duration(full, 5.0)
+    run = {"scheme": "active", "status": "ok", "position_error_final": 0.774}
+    claims = evaluate_claims(case.name, case.claims, {"active": run, "active_ukf": run | {"scheme": "active_ukf"}})
+    shown = _claims_shown(case, claims, None, shortened=(5.0, full.simulation.duration))
+    html = _page(claims=shown, runs=[run])
+    row = html[html.index('id="claim-motor_dynamics_negligible"') :].split("</tr>")[0]
+    assert "Measured 0.147 m (ideal plant 0.062 m)" in row  # the case's note, kept
+    assert (
+        "Written for the full 70 s run. This run was shortened to 5 s (--duration): the value above is at 5 s, "
+        "so it does not show what the note describes, and the claim is not judged here"
+    ) in row
+    assert '<span class="badge none">not judged (run shortened to 5 s of 70 s)</span>' in row
+    assert "expected reproduced" not in row
+    unshortened = _claims_shown(full, claims, None)
+    assert unshortened[0]["note"].startswith("Measured 0.147 m") and unshortened[0]["not_judged"] is None

@@ -385,6 +385,9 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
                 "(ftcreport check judges them)."
             ),
         )
+    shortened = None  # `--duration`: the claims' notes are written for the case's own duration
+    if rec.get("duration_override") is not None:
+        shortened = (float(rec["duration_override"]), _full_duration(text, rec.get("source", name)))
     base_verdict = None
     if verdict and rec.get("base") and (out / rec["base"]).is_dir():
         base_case = _stored_case(out, rec["base"], _record(out, rec["base"]) or {})
@@ -427,7 +430,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         name=name,
         analysis=analysis,
         diagnosis=diagnosis,
-        claims=_claims_shown(case, claims, ran),
+        claims=_claims_shown(case, claims, ran, shortened),
         description=case.description,
         n=case.robots.n,
         reference=case.reference.kind,
@@ -595,13 +598,43 @@ def _relative_to(case, index: int) -> str | None:
     return getattr(case.claims[index], "relative_to", None) if index < len(case.claims) else None
 
 
-def _claims_shown(case, claims: list, ran: set[str] | None) -> list[dict]:
-    """The evaluated claims for the page's table, each with ``not_judged`` (:func:`not_judged`)."""
+def _claims_shown(
+    case, claims: list, ran: set[str] | None, shortened: tuple[float, float | None] | None = None
+) -> list[dict]:
+    """The evaluated claims for the page's table, each with ``not_judged`` (:func:`not_judged`).
+
+    ``shortened``: (the run's duration, the case's own or None) of a run shortened by ``--duration``: a
+    claim's note is written for the case's own duration, so each claim gets ``duration_note`` saying so and
+    what the shortened run does not show, and is not judged (as the verdict's gate)."""
     shown = []
     for i, c in enumerate(claims):
         schemes = [s for s in (c.scheme, _relative_to(case, i)) if s]
-        shown.append(dataclasses.asdict(c) | {"not_judged": not_judged(schemes, ran)})
+        row = dataclasses.asdict(c) | {"not_judged": not_judged(schemes, ran), "duration_note": None}
+        if shortened is not None:
+            d, full = shortened
+            of = f" of {full:g} s" if full is not None else ""
+            row["not_judged"] = row["not_judged"] or f"not judged (run shortened to {d:g} s{of})"
+            whole = f"the full {full:g} s run" if full is not None else "the case's full duration"
+            row["duration_note"] = (
+                f"{'Written for ' + whole + '. ' if c.note else ''}This run was shortened to {d:g} s (--duration): "
+                f"the value above is at {d:g} s, so it does not show what "
+                f"{'the note describes' if c.note else 'the claim is about over ' + whole}, and the claim is not "
+                "judged here (ftcreport check judges it on the full run)."
+            )
+        shown.append(row)
     return shown
+
+
+def _full_duration(text: str, source: str) -> float | None:
+    """The duration of a stored case file as written (before ``--duration``), or None if it does not parse."""
+    import tomllib
+
+    from ..cases import parse_case
+
+    try:
+        return float(parse_case(tomllib.loads(text), source).simulation.duration)
+    except (ValueError, FtcError):
+        return None
 
 
 def _facts(case) -> dict:

@@ -478,3 +478,39 @@ def test_a_claims_note_on_a_shortened_run_says_what_that_run_shows():
     assert "expected reproduced" not in row
     unshortened = _claims_shown(full, claims, None)
     assert unshortened[0]["note"].startswith("Measured 0.147 m") and unshortened[0]["not_judged"] is None
+
+
+def test_no_base_case_ratio_over_a_base_run_that_did_not_converge(tmp_path, monkeypatch):
+    """The page audit: "Against the base case" divided this case's energy by the base run's although that run's
+    step check (``run --verify-dt``, runner.dt_sensitivity: converged when every headline metric moves by at most
+    1 % from dt to dt/2) did not converge: the ratio's denominator is the step's error as much as the scheme's.
+    A ratio over a base run that did not converge is now withheld, the cell saying why and what moved; over a
+    numerator that did not converge it is shown with that caveat."""
+    from ftcreport.report import render
+
+    (tmp_path / "base").mkdir()
+    loose = _switching_run(energy=10.0, torque_peak_after_fault=4.0, verify_dt=_verify_dt((10.0, 13.0), (2.0, 2.5)))
+    firm = _switching_run(energy=10.0, torque_peak_after_fault=4.0, verify_dt=_verify_dt((10.0, 10.01), (2.0, 2.0)))
+    base = {"switching": loose, "nominal": firm | {"scheme": "nominal"}}
+    monkeypatch.setattr(render, "stored_metrics", lambda out, name: base)
+    this = [
+        _switching_run(energy=20.0, torque_peak_after_fault=5.0),
+        _switching_run(energy=20.0, torque_peak_after_fault=5.0, verify_dt=loose["verify_dt"]) | {"scheme": "nominal"},
+    ]
+    cmp = render.motor_comparison(tmp_path, "base", this)
+    rows = {r["scheme"]: r for r in cmp["rows"]}
+    energy = [k for k, *_ in render.BASE_METRICS].index("energy")
+    cell = rows["switching"]["cells"][energy]
+    assert cell["ratio"] is None and cell["relative"] == "withheld"
+    assert "base run's step check did not converge" in rows["switching"]["caveat"]
+    assert "energy 10 -> 13 J (+30.0% at the refined step)" in rows["switching"]["caveat"]
+    assert rows["nominal"]["cells"][energy]["ratio"] == pytest.approx(2.0)  # a converged denominator
+    assert "this run's step check did not converge" in rows["nominal"]["caveat"]
+    html = _page(base_cmp=cmp, runs=this)
+    table = html[html.index('id="base-compare"') :].split("</table>")[0]
+    switching = table[table.index('<td class="l">switching</td>') :].split("</tr>")[0]
+    assert "<b>2</b>" not in switching and "<td>10<br>20<br><b>withheld</b></td>" in switching
+    assert "Ratio withheld: the base run&#39;s step check did not converge" in switching
+    assert "energy 10 -&gt; 13 J (+30.0% at the refined step)" in switching
+    nominal = table[table.index('<td class="l">nominal</td>') :].split("</tr>")[0]
+    assert "<b>2</b>" in nominal and "this run&#39;s step check did not converge" in nominal

@@ -484,6 +484,9 @@ def motor_comparison(out: Path, base: str, runs: list[dict]) -> dict:
         if b is None:
             continue
         b = dict(b) | {"after_max": _after_max(b)}
+        # a run whose step check (run --verify-dt: runner.dt_sensitivity) did not converge: its metrics are the
+        # step's error as much as the scheme's; no ratio over such a denominator, a caveat over a numerator
+        loose = {side: _not_converged(run | {"scheme": m["scheme"]}) for side, run in (("base", b), ("this", m))}
         cells = []
         for key, _label, unit, spec_key in BASE_METRICS:
             x, y = m.get(key), b.get(key)
@@ -491,10 +494,37 @@ def motor_comparison(out: Path, base: str, runs: list[dict]) -> dict:
             spec = compare.SPECS[spec_key]
             r, tie = compare.ratio(x, y, spec)  # None when the base is below the metric's resolution floor
             d = compare.difference(x, y) if r is None and not tie else None
+            if loose["base"] is not None:
+                r, tie, d = None, False, None
             rel = compare.fmt_ratio(r, tie) if r is not None or tie else (f"{d:+.3g} {unit}" if d is not None else "-")
+            if loose["base"] is not None and x is not None and y is not None:
+                rel = "withheld"
             cells.append({"base": y, "this": x, "ratio": r, "relative": rel, "difference": d is not None})
-        rows.append({"scheme": m["scheme"], "status": m["status"], "base_status": b.get("status"), "cells": cells})
+        caveat = " ".join(
+            f"{'Ratio withheld: the base' if side == 'base' else 'Caveat: this'} run's step check did not converge "
+            f"({why})."
+            for side, why in loose.items()
+            if why is not None
+        )
+        rows.append(
+            {
+                "scheme": m["scheme"],
+                "status": m["status"],
+                "base_status": b.get("status"),
+                "cells": cells,
+                "caveat": caveat or None,
+            }
+        )
     return {"base": base, "rows": rows, "metrics": BASE_METRICS, "missing": None if rows else "no scheme in common"}
+
+
+def _not_converged(m: dict) -> str | None:
+    """What moved in a run's step check (``run --verify-dt``) that did not converge, or None: no check, or it
+    converged (runner.dt_sensitivity decides; report.checks.step_checks words it)."""
+    check = step_checks([m])
+    if not check or check[0]["converged"]:
+        return None
+    return "; ".join(check[0]["moved"]) or check[0]["text"]
 
 
 def _thesis_figures(case, series: dict, names: list[str], shading: list[dict]) -> list[dict]:

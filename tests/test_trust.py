@@ -938,3 +938,18 @@ def test_index_does_not_judge_the_gate_of_a_shortened_run(tmp_path):
     assert f"{n_thresholds} not judged (--duration)" in text, text
     assert f"thesis claims: 0 judged, {n_claims} not judged (--duration)" in text, text
     assert "0 with an outcome other than the case expects" in text, text
+
+
+# ---------------------------------------------------------- the cache key and a fixed step's tolerances (session 11)
+def test_a_fixed_steps_tolerances_are_part_of_its_cache_key():
+    """A fixed-step run that stops re-checks its last stretch with the error-controlled twin at the case's
+    rtol/atol/min_step (fast.recheck) and labels the stop from it (step_unstable or diverged): they decide a
+    stored status.  The cache key left them out for fixed steps, so a changed rtol served the old label."""
+    from ftcreport.cases import case_hash, load_case
+
+    case = load_case(ROOT / "cases" / "three_link_eight_faults.toml")
+    assert case.simulation.method == "rk4"
+    sim = case.simulation
+    for field, value in (("rtol", sim.rtol * 10), ("atol", sim.atol * 10), ("min_step", 1e-9)):
+        other = case.model_copy(update={"simulation": sim.model_copy(update={field: value})})
+        assert case_hash(other, "v") != case_hash(case, "v"), field

@@ -9,7 +9,6 @@ from typing import Any
 
 from ..errors import CaseError
 from ..infra.inputs import input_problem, read_input
-from ..runs import AUTO_METHODS
 from .case import Case
 from .parse import parse_case
 
@@ -246,8 +245,8 @@ def case_hash(case: Case, version: str) -> str:
         exclude["actuators"] = True
     if case.base_case is None:  # the overlay field (issue 19 item 4): older cases keep their hashes
         exclude["base_case"] = True
-    if case.simulation.method not in AUTO_METHODS:  # the tolerances (issue 36) change only error-controlled runs
-        exclude["simulation"] = {"rtol", "atol", "min_step"}
+    # the tolerances (issue 36) are content for a fixed step too: a stopped fixed-step run is re-checked by its
+    # error-controlled twin at them, which labels the stop (fast.recheck: step_unstable or diverged)
     plain = {i: {"motor", "value"} for i, f in enumerate(case.faults) if f.motor is None and f.value is None}
     if plain:
         exclude["faults"] = plain

@@ -953,3 +953,70 @@ def test_a_fixed_steps_tolerances_are_part_of_its_cache_key():
     for field, value in (("rtol", sim.rtol * 10), ("atol", sim.atol * 10), ("min_step", 1e-9)):
         other = case.model_copy(update={"simulation": sim.model_copy(update={field: value})})
         assert case_hash(other, "v") != case_hash(case, "v"), field
+
+
+# ------------------------------------------------ the index: requirement windows, the stored case (session 11)
+def _short_switching_case(dest: Path) -> Path:
+    """cases/two_link_switching.toml over 8 s (faults at 2..6 s), its thresholds loose and its requirement
+    windows tight (1e-6 m): every window is violated, every threshold holds."""
+    s = (ROOT / "cases" / "two_link_switching.toml").read_text()
+    s = s[: s.find("[[claims]]")]
+    for a, b in (
+        ("time = 20.0", "time = 2.0"), ("time = 50.0", "time = 4.0"), ("time = 80.0", "time = 5.0"),
+        ("time = 110.0", "time = 6.0"), ("duration = 140.0", "duration = 8.0"),
+        ("position_error_final = { max = 1e-6 }", "position_error_final = { max = 1.0 }"),
+        ("switching_match_fraction = { min = 0.99 }", "switching_match_fraction = { min = 0.5 }"),
+        ("start = { after_fault = 5.0 }", "start = { after_fault = 0.2 }"), ("max = 0.01", "max = 1e-6"),
+    ):  # fmt: skip
+        assert a in s, a
+        s = s.replace(a, b)
+    dest.mkdir(parents=True, exist_ok=True)
+    (dest / "req.toml").write_text(s)
+    return dest
+
+
+def _counts(index: Path) -> str:
+    import re
+
+    counts = re.search(r'<p id="counts">(.*?)</p>', index.read_text(), re.S).group(1)
+    return re.sub(r"\s+([,;.])", r"\1", " ".join(re.sub(r"<[^>]+>", " ", counts).split()))
+
+
+@pytest.fixture(scope="module")
+def violated_windows(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("windows")
+    cases = _short_switching_case(tmp / "c")
+    out = tmp / "out"
+    res = runner.invoke(app, ["check", str(cases), "--out", str(out), "-q"])
+    assert res.exit_code == 1, res.output  # the windows fail the gate
+    return out, res.output
+
+
+def test_the_index_counts_requirement_windows_as_check_does(violated_windows):
+    """check failed every requirement window (exit 1) while the index said every run ok, its thresholds held,
+    and never named a requirement."""
+    import re
+
+    out, output = violated_windows
+    m = re.search(r"(\d+)/(\d+) requirement windows hold", output)
+    assert m and int(m.group(1)) == 0 and int(m.group(2)) > 0, output
+    n = int(m.group(2))
+    text = _counts(out / "index.html")
+    assert f"thresholds: 2 hold, 0 violated; requirement windows: 0 hold, {n} violated or not evaluated;" in text, text
+    page = (out / "index.html").read_text()
+    assert re.search(r'class="badge fail"[^>]*>0/\d+ requirement windows<', page), page
+
+
+def test_the_index_reads_thresholds_from_the_stored_case_not_its_record(violated_windows, tmp_path):
+    """case.json's copy of the thresholds is no sealed file: emptied by hand, the index stopped counting them
+    (report exit 0) while the case page, which reads the hash-checked case.toml, still listed them."""
+    out = tmp_path / "out"
+    shutil.copytree(violated_windows[0], out)
+    before = _counts(out / "index.html")
+    assert "thresholds: 2 hold, 0 violated" in before, before
+    rec = json.loads((out / "req" / "case.json").read_text())
+    assert rec["thresholds"]
+    (out / "req" / "case.json").write_text(json.dumps(rec | {"thresholds": {}, "requirements": []}))
+    res = runner.invoke(app, ["report", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert _counts(out / "index.html") == before

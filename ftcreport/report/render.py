@@ -799,6 +799,7 @@ def render_index(out: Path) -> Path:
     claims: list = []
     plugins: dict[str, dict] = {}  # plug-in schemes' family, description, reference (batch.plugin_info)
     n_runs = n_ok = n_pass = n_fail = n_expected_stop = n_unexpected = 0
+    n_req_pass = n_req_fail = n_req_unjudged = 0  # requirement windows
     n_unjudged = claims_unjudged = 0  # a shortened run's gate (`run --duration`): its case page does not judge it
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
@@ -815,23 +816,32 @@ def render_index(out: Path) -> Path:
         metrics = stored_metrics(out, name)
         n_runs += len(metrics)
         n_ok += sum(m.get("status") == "ok" for m in metrics.values())
-        checks = evaluate(name, rec.get("thresholds", {}), metrics) if rec.get("thresholds") else []
+        # the gate's items from the stored case file (its content hash checked against its runs'), not from
+        # case.json's copy, which nothing seals: as the case page and check read them
+        case = _stored_case(out, name, rec) if (out / name / "case.toml").exists() else None
+        thresholds = case.thresholds if case is not None else rec.get("thresholds") or {}
+        checks = evaluate(name, thresholds, metrics) if thresholds else []
+        windows = requirement_items(name, case.requirements, metrics) if case is not None else []
         shortened = rec.get("duration_override") is not None
         for s, m in metrics.items():
             mine = [c for c in checks if c.scheme == s]
             failed = sum(not c.ok for c in mine)
+            reqs = [w for w in windows if w.schemes == (s,)]
+            reqs_failed = sum(not w.ok for w in reqs)
             if shortened:  # stated for the case's own duration, as the case page says: neither held nor violated
                 n_unjudged += len(mine)
+                n_req_unjudged += len(reqs)
             else:
                 n_pass += len(mine) - failed
                 n_fail += failed
+                n_req_pass += len(reqs) - reqs_failed
+                n_req_fail += reqs_failed
             entry["runs"][s] = {
                 **m, "after_max": _after_max(m), "checks_total": len(mine), "checks_failed": failed,
-                "checks_unjudged": shortened,
+                "checks_unjudged": shortened, "windows_total": len(reqs), "windows_failed": reqs_failed,
             }  # fmt: skip
         entry["not_run"] = rec.get("not_run", {})
         plugins |= rec.get("plugin_schemes", {})
-        case = _stored_case(out, name, rec) if (out / name / "case.toml").exists() else None
         if metrics:
             if case is not None:
                 v = _verdict(case, name, [metrics[s] | {"scheme": s} for s in metrics])
@@ -875,6 +885,9 @@ def render_index(out: Path) -> Path:
         n_unexpected=n_unexpected,
         n_pass=n_pass,
         n_fail=n_fail,
+        n_req_pass=n_req_pass,
+        n_req_fail=n_req_fail,
+        n_req_unjudged=n_req_unjudged,
         n_unjudged=n_unjudged,
         claims_unjudged=claims_unjudged,
         plugins=plugins,

@@ -858,3 +858,63 @@ def test_sample_refuses_a_campaign_another_package_version_computed(failing_camp
     assert f"{out / 'campaign.json'}: " in line and "0.0.1" in line and __version__ in line, line
     assert "--force" in line, line
     assert sorted(p.name for p in (out / "sample_pages").iterdir()) == before  # nothing rendered
+
+
+def _without_times(rec: dict) -> list[dict]:
+    return [{k: v for k, v in r.items() if k not in ("wall_time", "compile_time")} for r in rec["rows"]]
+
+
+@pytest.fixture(scope="module")
+def stored_pair(base, tmp_path_factory):
+    """A campaign of 2 samples (nominal), kept pristine: a test copies it and damages the copy."""
+    out = tmp_path_factory.mktemp("stored_pair") / "out"
+    res = run_campaign(base, 2, out, seed=2, schemes=["nominal"], in_process=True, show_progress=False)
+    assert not res.failed
+    return out
+
+
+def _damaged_copy(stored_pair: Path, tmp_path: Path, damage) -> tuple[Path, dict]:
+    """A copy of ``stored_pair`` whose sample 1 is ``damage``d (the file rewritten as an editor would); its
+    record as it was."""
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(stored_pair, out)
+    p = _record_path(out, 1)
+    rec = json.loads(p.read_text())
+    d = json.loads(p.read_text())
+    damage(d)
+    p.write_text(json.dumps(d))
+    return out, rec
+
+
+@pytest.mark.parametrize(
+    ("damage", "field"),
+    [
+        (lambda d: d.pop("rows"), "rows: missing"),
+        (lambda d: d.__setitem__("rows", 5), "rows: the number 5, not a list"),
+        (lambda d: d.__setitem__("rows", [5]), "rows[0]: the number 5, not a table"),
+        (lambda d: d.__setitem__("rows", []), "rows: empty"),
+        (lambda d: d["rows"][0].pop("success"), "rows[0].success: missing"),
+        (lambda d: d["rows"][0].__setitem__("success", "no"), "rows[0].success: the text 'no', not a boolean"),
+        (lambda d: d["rows"][0].__setitem__("position_error_final", "abc"), "rows[0].position_error_final: the text"),
+        (lambda d: d.__setitem__("sample", "1"), "sample: the text '1', not an integer"),
+        (lambda d: [d.update(sample=0), *(r.update(sample=0) for r in d["rows"])], "sample: 0, the file's name says 1"),
+    ],
+)
+def test_a_malformed_sample_record_is_not_done_and_runs_again(base, stored_pair, tmp_path, capsys, damage, field):
+    """A sample file with a damaged "rows" (missing, not a list, a list of numbers) made the re-run crash as a
+    bug (exit 3, KeyError: 'rows' / TypeError), and an ill-typed field ("success": "no") was taken as it was
+    (counted as a success, the parquet's typed columns turned to text).  A malformed record is not a result:
+    it counts as not done, runs again, and one line on stderr names the file and the field."""
+    out, rec = _damaged_copy(stored_pair, tmp_path, damage)
+    capsys.readouterr()
+    res = run_campaign(base, 2, out, seed=2, schemes=["nominal"], in_process=True, show_progress=False)
+    assert (res.skipped, res.completed, res.failed, res.rerun_stale) == (1, [1], {}, 0)
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"ftcreport: note: {_record_path(out, 1)}: {field}"), lines[0]
+    assert "runs again" in lines[0], lines[0]
+    assert _without_times(json.loads(_record_path(out, 1).read_text())) == _without_times(rec)
+    table = pd.read_parquet(out / "results.parquet")
+    assert str(table["success"].dtype) == "boolean" and str(table["position_error_final"].dtype) == "float64"

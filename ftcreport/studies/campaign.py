@@ -444,6 +444,118 @@ class CampaignResult:
     beyond: int = 0  # stored samples of this campaign beyond ``requested``: kept, not reported
 
 
+#: The types a stored value may have (JSON's: a boolean is no number, null is None)
+NUMBER = (int, float)
+SCALAR = (str, int, float, bool, type(None))
+_TYPE_WORDS = {
+    bool: "a boolean",
+    int: "an integer",
+    float: "a number",
+    str: "a text",
+    list: "a list",
+    dict: "a table",
+    type(None): "null",
+}
+
+
+def _typed(value: object, allowed: tuple[type, ...]) -> bool:
+    """``isinstance(value, allowed)``, where a boolean is only a boolean (JSON's true is not the number 1)."""
+    return bool in allowed if isinstance(value, bool) else isinstance(value, allowed)
+
+
+def _described(value: object) -> str:
+    if value is None or isinstance(value, bool):
+        return json.dumps(value)
+    if isinstance(value, int | float):
+        return f"the number {value!r}"
+    if isinstance(value, str):
+        return f"the text {value[:40]!r}"
+    return _TYPE_WORDS.get(type(value), type(value).__name__)
+
+
+def _field_problem(name: str, table: dict, allowed: tuple[type, ...]) -> str | None:
+    if name not in table:
+        return f"{name}: missing"
+    if not _typed(table[name], allowed):
+        kinds = [t for t in allowed if not (t is int and float in allowed)]  # an integer is a number
+        words = " or ".join(_TYPE_WORDS[t] for t in kinds)
+        return f"{name}: {_described(table[name])}, not {words}"
+    return None
+
+
+def record_problem(
+    rec: object,
+    fields: dict[str, tuple[type, ...]],
+    row_fields: dict[str, tuple[type, ...]] | None = None,
+    row_other: Callable[[str], tuple[type, ...]] = lambda name: SCALAR,
+) -> str | None:
+    """The first field of a stored record that is missing or of another type, as ``field: why``; None when
+    the record is well formed.  ``fields``: the record's fields and their types; ``row_fields``: those of
+    every entry of its ``rows`` (a non-empty list of tables), whose other entries have the types
+    ``row_other(name)``."""
+    if not isinstance(rec, dict):
+        return f"not a record: {_described(rec)}"
+    for name, allowed in fields.items():
+        if (why := _field_problem(name, rec, allowed)) is not None:
+            return why
+    if row_fields is None:
+        return None
+    if (why := _field_problem("rows", rec, (list,))) is not None:
+        return why
+    if not rec["rows"]:
+        return "rows: empty"
+    for j, row in enumerate(rec["rows"]):
+        if not isinstance(row, dict):
+            return f"rows[{j}]: {_described(row)}, not a table"
+        for name in [*row_fields, *(k for k in row if k not in row_fields)]:
+            allowed = row_fields.get(name) or row_other(name)
+            if (why := _field_problem(name, row, allowed)) is not None:
+                return f"rows[{j}].{why}"
+    return None
+
+
+#: A stored sample's fields (:func:`run_sample`) and those of each of its rows; a row's other entries are
+#: metrics: a number (or null) where :data:`ftcreport.evaluation.metrics.METRICS` says so, else one value
+SAMPLE_FIELDS: dict[str, tuple[type, ...]] = {  # its identity (version, case_hash, campaign): stale_reason's
+    "sample": (int,),
+    "campaign_seed": (int,),
+    "draw_seed": (int,),
+    "noise_seed": (int,),
+    "faults": (list,),
+}
+ROW_FIELDS: dict[str, tuple[type, ...]] = {
+    "sample": (int,),
+    "scheme": (str,),
+    "draw_seed": (int,),
+    "noise_seed": (int,),
+    "version": (str,),
+    "status": (str,),
+    "success": (bool,),
+    "faulted_wheels": (str,),
+    "failed_wheels": (str,),
+    "compensable": (bool,),
+    "n_faults": (int,),
+}
+
+
+def metric_types(name: str) -> tuple[type, ...]:
+    """The types a row's metric ``name`` may have: a number or null for a numeric metric, else one value."""
+    from ..evaluation.metrics import METRICS
+
+    m = METRICS.get(name)
+    return (*NUMBER, type(None)) if m is not None and m.kind == "number" else SCALAR
+
+
+def sample_problem(rec: object) -> str | None:
+    """What is malformed in a stored sample record (``field: why``), or None."""
+    why = record_problem(rec, SAMPLE_FIELDS, ROW_FIELDS, metric_types)
+    if why is None:
+        for j, row in enumerate(rec["rows"]):
+            if row["sample"] != rec["sample"]:
+                return f"rows[{j}].sample: {row['sample']}, the record's sample is {rec['sample']}"
+    return why
+
+
 def stale_reason(rec: dict, expected: dict) -> str | None:
     """Why a stored record cannot join this run (another version, case content or settings), or None."""
     if rec.get("version") is None:
@@ -472,23 +584,38 @@ def select_schemes(base: Case, schemes: list[str] | None) -> list[str]:
     return configured_schemes(base) if schemes is None else option_schemes("--schemes", list(schemes), base)
 
 
-def load_records(folder: Path, expected: dict, force: bool, what: str = "sample") -> tuple[dict[int, dict], int]:
+def load_records(
+    folder: Path,
+    expected: dict,
+    force: bool,
+    what: str = "sample",
+    check: Callable[[object], str | None] | None = None,
+) -> tuple[dict[int, dict], int]:
     """Stored records under ``folder`` that belong to this run; refuses stale ones unless ``force``.
 
     With ``force`` the stale files are deleted (their tasks run again); returns (records, stale count).
-    A corrupt or partial file counts as not done.
+    A corrupt, partial or malformed file (its index ``what`` is not its file's, or ``check(rec)`` names
+    a field of a record of this run) counts as not done: a note on stderr names the file and the field,
+    and its task runs again.
     """
     got: dict[int, dict] = {}
     stale = 0
     for p in sorted(folder.glob("*.json")):
         try:
-            rec = json.loads(p.read_text())
-            index = int(rec[what])
-        except (OSError, ValueError, KeyError, TypeError):
+            rec = json.loads(p.read_bytes())
+        except (OSError, ValueError) as exc:
+            _not_done(p, f"unreadable ({str(exc)[:120]})", what)
             continue
+        if (why := _index_problem(p, rec, what)) is not None:
+            _not_done(p, why, what)
+            continue
+        index = rec[what]
         why = stale_reason(rec, expected)
-        if why is None:
-            got[index] = rec
+        if why is None:  # this run's, by what it says it is: its content is checked
+            if (why := check(rec) if check is not None else None) is not None:
+                _not_done(p, why, what)
+            else:
+                got[index] = rec
             continue
         if not force:
             raise FtcError(
@@ -498,6 +625,25 @@ def load_records(folder: Path, expected: dict, force: bool, what: str = "sample"
         p.unlink(missing_ok=True)
         stale += 1
     return got, stale
+
+
+def _index_problem(p: Path, rec: object, what: str) -> str | None:
+    """A record whose index is not a non-negative integer, or not its file's (a copied file), is malformed."""
+    if not isinstance(rec, dict):
+        return f"not a record: {_described(rec)}"
+    if (why := _field_problem(what, rec, (int,))) is not None:
+        return why
+    if rec[what] < 0:
+        return f"{what}: {rec[what]}, not an index"
+    if p.stem.isdigit() and int(p.stem) != rec[what]:
+        return f"{what}: {rec[what]}, the file's name says {int(p.stem)}"
+    return None
+
+
+def _not_done(p: Path, why: str, what: str) -> None:
+    from .batch import _note
+
+    _note(f"ftcreport: note: {p}: {why}; not a stored result: the {what} counts as not done and runs again")
 
 
 @locked("campaign")
@@ -570,7 +716,9 @@ def run_campaign(
                 f"{meta_path}: campaign started by ftcreport {old.get('version') or '(unrecorded version)'}, "
                 f"this is {__version__}; choose another --out, or re-run its samples with --force"
             )
-    records, stale = load_records(out / "samples", expected, force)  # refused: nothing in out changed yet
+    records, stale = load_records(
+        out / "samples", expected, force, check=sample_problem
+    )  # refused: nothing in out changed yet
     # a campaign of n samples reports samples 0..n-1, whatever a larger run left here; those beyond stay stored
     beyond = sum(i >= samples for i in records)
     records = {i: r for i, r in records.items() if i < samples}

@@ -918,3 +918,38 @@ def test_a_malformed_sample_record_is_not_done_and_runs_again(base, stored_pair,
     assert _without_times(json.loads(_record_path(out, 1).read_text())) == _without_times(rec)
     table = pd.read_parquet(out / "results.parquet")
     assert str(table["success"].dtype) == "boolean" and str(table["position_error_final"].dtype) == "float64"
+
+
+def _flip_success(d: dict) -> None:
+    for r in d["rows"]:
+        r["success"] = not r["success"]
+        r["position_error_final"] = 0.001
+
+
+def test_a_sample_record_edited_by_hand_is_not_a_result(base, stored_pair, tmp_path, capsys):
+    """A stored sample whose success flag and final error were edited by hand (the file well formed) was taken
+    as it was: the table and summary counted it.  Every sample record is sealed with the SHA-256 of its content;
+    one whose seal does not match is not a result: it runs again, and a note on stderr names the file."""
+    out, rec = _damaged_copy(stored_pair, tmp_path, _flip_success)
+    assert isinstance(rec.get("sha256"), str) and len(rec["sha256"]) == 64
+    want = summarize(read_table(stored_pair / "results.csv"))["schemes"]["nominal"]["successes"]
+    capsys.readouterr()
+    res = run_campaign(base, 2, out, seed=2, schemes=["nominal"], in_process=True, show_progress=False)
+    assert (res.skipped, res.completed, res.failed, res.rerun_stale) == (1, [1], {}, 0)
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"ftcreport: note: {_record_path(out, 1)}: hash mismatch"), lines[0]
+    assert _without_times(json.loads(_record_path(out, 1).read_text())) == _without_times(rec)
+    assert summarize(read_table(res.table))["schemes"]["nominal"]["successes"] == want
+
+
+def test_an_unsealed_sample_record_is_refused_and_force_runs_it_again(base, stored_pair, tmp_path):
+    """A record without a seal (written before records were sealed, or its seal removed to pass an edit off
+    as such a record) is never taken as a result: like a record of another version it is refused, and
+    --force runs it again."""
+    out, rec = _damaged_copy(stored_pair, tmp_path, lambda d: [d.pop("sha256", None), _flip_success(d)])
+    with pytest.raises(FtcError, match=r"00000001.json: carries no seal \(sha256\)"):
+        run_campaign(base, 2, out, seed=2, schemes=["nominal"], in_process=True, show_progress=False)
+    res = run_campaign(base, 2, out, seed=2, schemes=["nominal"], in_process=True, show_progress=False, force=True)
+    assert (res.skipped, res.completed, res.rerun_stale) == (1, [1], 1)
+    assert _without_times(json.loads(_record_path(out, 1).read_text())) == _without_times(rec)

@@ -21,9 +21,11 @@ Reproducible and resumable: sample ``i``'s seeds come from
 draw of the variant, one for the sensor noise (independent streams, 63 bits
 each), so a sample is the same wherever and whenever it runs.  Every finished
 sample is written atomically to its own file, carrying the package version and
-the campaign hash computed where it ran; a re-run skips the samples already
-there and refuses samples of another version or another case content (``force``
-re-runs them).  A worker that dies loses only
+the campaign hash computed where it ran, sealed with the SHA-256 of its content;
+a re-run skips the samples already there and refuses samples of another version
+or another case content, or without a seal (``force`` re-runs them).  A file
+that is unreadable, malformed or no longer matches its seal (edited by hand) is
+no result: a note names it and the sample runs again.  A worker that dies loses only
 its in-flight samples, which the scheduler resubmits (``retries``).  The table
 ``results.csv`` is rewritten atomically from the sample files, so an
 interruption never leaves it half-written.
@@ -52,7 +54,7 @@ from ..cases import Case, configured_schemes, ordered_schemes, parse_case, plugi
 from ..errors import CaseError, FtcError
 from ..evaluation.stats import compare_metric, compare_success, wilson_interval
 from ..model import pattern_is_compensable, wheel_index, wheel_names
-from ..storage.store import _jsonable, locked, write_atomic
+from ..storage.store import _jsonable, _seal, locked, write_atomic
 
 __all__ = [
     "PAGES",
@@ -610,9 +612,10 @@ def load_records(
             _not_done(p, why, what)
             continue
         index = rec[what]
-        why = stale_reason(rec, expected)
-        if why is None:  # this run's, by what it says it is: its content is checked
-            if (why := check(rec) if check is not None else None) is not None:
+        why = stale_reason(rec, expected) or _unsealed(rec)
+        if why is None:  # this run's, by what it says it is: its content is checked, then its seal
+            why = (check(rec) if check is not None else None) or _seal_problem(rec)
+            if why is not None:
                 _not_done(p, why, what)
             else:
                 got[index] = rec
@@ -638,6 +641,27 @@ def _index_problem(p: Path, rec: object, what: str) -> str | None:
     if p.stem.isdigit() and int(p.stem) != rec[what]:
         return f"{what}: {rec[what]}, the file's name says {int(p.stem)}"
     return None
+
+
+def seal(rec: dict) -> dict:
+    """``rec`` as stored: JSON values, sealed with the SHA-256 of its content (``sha256``), as the case-result
+    store seals a run's record (:func:`ftcreport.storage.store.save_run`): an edited record no longer matches."""
+    body = _jsonable({k: v for k, v in rec.items() if k != "sha256"})
+    return body | {"sha256": _seal(body)}
+
+
+def _unsealed(rec: dict) -> str | None:
+    """A record without a seal is refused as stale (never taken as a result: dropping the seal must not pass
+    an edit off as an old record); --force runs it again."""
+    if isinstance(rec.get("sha256"), str):
+        return None
+    return "carries no seal (sha256): written before ftcreport sealed its records, or the seal was removed"
+
+
+def _seal_problem(rec: dict) -> str | None:
+    if _seal({k: v for k, v in rec.items() if k != "sha256"}) == rec["sha256"]:
+        return None
+    return "hash mismatch (its content differs from the SHA-256 it was sealed with: changed after the run)"
 
 
 def _not_done(p: Path, why: str, what: str) -> None:
@@ -798,7 +822,8 @@ def run_tasks(
     Task keys come from ``kind`` and the run hash ``expected["campaign"]`` (:func:`task_key`).  A result
     must belong to this run (:func:`stale_reason` against ``expected``); it is written atomically at once
     to ``folder/<rec[what]>.json`` (the index with ``width`` digits), entered in ``records`` and
-    ``res.completed``, then handed to ``on_store``; a failed task's message goes to ``res.failed``.
+    ``res.completed``, then handed to ``on_store``, sealed (:func:`seal`: :func:`load_records` takes no
+    record whose content no longer matches); a failed task's message goes to ``res.failed``.
     ``cluster``: the keywords of :func:`ftcreport.studies.cluster.execute` (scheduler, workers, in_process, retries).
     """
     from .cluster import execute
@@ -808,7 +833,8 @@ def run_tasks(
         if why is not None:  # never store a result that is not this run's (a foreign key, a stale worker)
             raise ValueError(f"result {why}")
         index = rec[what]
-        write_atomic(folder / f"{index:0{width}d}.json", json.dumps(_jsonable(rec)).encode())
+        rec = seal(rec)
+        write_atomic(folder / f"{index:0{width}d}.json", json.dumps(rec).encode())
         records[index] = rec
         res.completed.append(index)
         if on_store is not None:

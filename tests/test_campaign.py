@@ -953,3 +953,32 @@ def test_an_unsealed_sample_record_is_refused_and_force_runs_it_again(base, stor
     res = run_campaign(base, 2, out, seed=2, schemes=["nominal"], in_process=True, show_progress=False, force=True)
     assert (res.skipped, res.completed, res.rerun_stale) == (1, [1], 1)
     assert _without_times(json.loads(_record_path(out, 1).read_text())) == _without_times(rec)
+
+
+def test_resume_refuses_samples_another_code_or_numeric_library_computed(base, stored_pair, tmp_path, monkeypatch):
+    """Resume keyed a stored sample on the package version only: after a change of the package's code (a fixed
+    success rule, a metric) or of a numeric library, every stored sample was served as current, unlike the
+    case-result cache (batch.run_key: code digest and numeric versions).  Now such samples are refused as
+    stale, naming what changed, and --force runs them again."""
+    import shutil
+
+    from ftcreport.storage import code_digest, manifest
+
+    out = tmp_path / "out"
+    shutil.copytree(stored_pair, out)
+    run = dict(base=base, samples=2, out=out, seed=2, schemes=["nominal"], in_process=True, show_progress=False)
+    real = code_digest.code_digest()
+    monkeypatch.setattr(code_digest, "DIGEST", "0123456789abcdef")  # a source file of the package changed
+    with pytest.raises(FtcError, match=rf"00000000.json: was computed by other code .*{real}.*0123456789abcdef"):
+        run_campaign(**run)
+    monkeypatch.setattr(code_digest, "DIGEST", real)
+    versions = manifest.numeric_versions()
+    monkeypatch.setattr(manifest, "numeric_versions", lambda: versions | {"numpy": "0.0.1"})
+    with pytest.raises(FtcError, match=rf"00000000.json: was computed with numpy {versions['numpy']}, now 0.0.1"):
+        run_campaign(**run)
+    res = run_campaign(**run, force=True)
+    assert (res.rerun_stale, sorted(res.completed)) == (2, [0, 1])
+    assert json.loads(_record_path(out, 0).read_text())["versions"]["numpy"] == "0.0.1"
+    monkeypatch.undo()
+    with pytest.raises(FtcError, match=r"was computed with numpy 0.0.1, now "):
+        run_campaign(**run)

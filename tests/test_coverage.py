@@ -176,3 +176,13 @@ def test_coverage_links_only_to_an_index_that_exists(tmp_path):
     nested = _coverage_dir(tmp_path / "reports" / "coverage" / "hand", ["loss"])
     (tmp_path / "reports" / "index.html").write_text("<html></html>")
     assert '<a href="../../index.html">all cases</a>' in render_coverage(nested).read_text()
+
+
+def test_coverage_refuses_items_another_code_computed(oracle_map, monkeypatch):
+    """Resume keyed a stored item on the package version only; a change of the package's code is stale too."""
+    from ftcreport.storage import code_digest
+
+    base, out, _ = oracle_map
+    monkeypatch.setattr(code_digest, "DIGEST", "0123456789abcdef")
+    with pytest.raises(FtcError, match=r"000000.json: was computed by other code"):
+        run_coverage(base, out, schemes=["oracle"], kinds=("loss", "pair"), in_process=True, show_progress=False)

@@ -97,7 +97,7 @@ def _active_campaign() -> dict:
     return data
 
 
-def test_fdi_on_noisy_campaign_samples(tmp_path):
+def test_fdi_on_noisy_campaign_samples(tmp_path, monkeypatch):
     base = parse_case(_active_campaign(), "fdi_short")
     sweep = {"thresholds": (0.1, 10.0), "dwells": (1.0,), "cusum_h": (5.0, 1e9), "cusum_drift": (1.0,)}
     res = run_fdi(base, 3, tmp_path, seed=2, in_process=True, show_progress=False, sweep=sweep)
@@ -124,6 +124,13 @@ def test_fdi_on_noisy_campaign_samples(tmp_path):
     again = run_fdi(base, 3, tmp_path, seed=2, in_process=True, show_progress=False, sweep=sweep)
     assert json.dumps(again["schemes_results"]) == json.dumps(res["schemes_results"])
     assert not math.isnan(json.loads((tmp_path / "fdi.json").read_text())["schemes_results"]["active"]["skip"])
+    # traces another code of the package computed are stale, as a campaign's samples (the version alone was not)
+    from ftcreport.errors import FtcError
+    from ftcreport.storage import code_digest
+
+    monkeypatch.setattr(code_digest, "DIGEST", "0123456789abcdef")
+    with pytest.raises(FtcError, match=r"00000000.json: was computed by other code"):
+        run_fdi(base, 3, tmp_path, seed=2, in_process=True, show_progress=False, sweep=sweep)
 
 
 def test_recommended_operating_point_rule():

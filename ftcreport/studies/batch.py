@@ -250,20 +250,28 @@ def plugin_info(case: Case) -> dict[str, dict]:
     return out
 
 
+def code_identity() -> dict:
+    """What besides the case makes a result, as this process runs it: the package's own code
+    (:mod:`ftcreport.storage.code_digest`, ``code``) and the versions of the package and of the dependencies
+    that can change numbers (:func:`ftcreport.storage.manifest.numeric_versions`, ``versions``).  Part of the
+    result cache key (:func:`run_key`) and of a campaign's, coverage's or FDI run's records
+    (:func:`ftcreport.studies.campaign.run_hash`)."""
+    from ..storage import code_digest, manifest
+
+    return {"code": code_digest.code_digest(), "versions": manifest.numeric_versions()}
+
+
 def run_key(case: Case, scheme: str) -> str:
     """Result cache key of one scheme of a case: case content, package version, the package's own code
     (:mod:`ftcreport.storage.code_digest`), scheme, engine and the dependency versions that can change
-    numbers (:func:`ftcreport.storage.manifest.numeric_versions`)."""
+    numbers (:func:`ftcreport.storage.manifest.numeric_versions`): :func:`code_identity`."""
     from ..runner import expected_engine
-    from ..storage import code_digest
-    from ..storage.manifest import numeric_versions
 
     blob = {
         "case": case_hash(case, __version__),
-        "code": code_digest.code_digest(),
         "scheme": scheme,
         "engine": expected_engine(scheme),
-        "versions": numeric_versions(),
+        **code_identity(),
     }
     return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:16]
 

@@ -123,10 +123,27 @@ def case_content_hash(base: Case) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def run_hash(kind: str, content: dict, version: str = __version__) -> str:
-    """Hash (20 hex digits) of a run's whole content: base case, schemes, settings, package version."""
-    blob = json.dumps({"kind": kind, "content": content, "version": version}, sort_keys=True, default=str)
-    return hashlib.sha256(blob.encode()).hexdigest()[:20]
+def run_hash(kind: str, content: dict, version: str = __version__, code: dict | None = None) -> str:
+    """Hash (20 hex digits) of a run's whole content: base case, schemes, settings, package version, and the
+    package's code and numeric libraries (``code``, by default this process's :func:`identity`)."""
+    code = identity() if code is None else code
+    blob = {"kind": kind, "content": content, "version": version, **code}
+    return hashlib.sha256(json.dumps(blob, sort_keys=True, default=str).encode()).hexdigest()[:20]
+
+
+def identity() -> dict:
+    """What computes a record here, besides the package version: the package's code digest (``code``) and the
+    numeric libraries' versions (``versions``), as the case-result cache key has them
+    (:func:`ftcreport.studies.batch.code_identity`).  Every stored record carries its process's."""
+    from .batch import code_identity
+
+    return code_identity()
+
+
+def expected_identity(case_hash: str, rhash: str) -> dict:
+    """What a stored record of the run ``rhash`` on a base case of content ``case_hash`` must say it is
+    (:func:`stale_reason`): this package version, code and numeric libraries."""
+    return {"version": __version__, **identity(), "case_hash": case_hash, "campaign": rhash}
 
 
 def task_key(kind: str, rhash: str, index: int) -> str:
@@ -138,10 +155,13 @@ def task_key(kind: str, rhash: str, index: int) -> str:
     return f"ftcreport-{kind}-{rhash}-{int(index)}"
 
 
-def campaign_hash(base: Case, schemes: list[str], seed: int, version: str = __version__) -> str:
-    """The campaign's identity: base case content, schemes, seed and package version (task keys, records)."""
+def campaign_hash(
+    base: Case, schemes: list[str], seed: int, version: str = __version__, code: dict | None = None
+) -> str:
+    """The campaign's identity: base case content, schemes, seed, package version, code and numeric libraries
+    (task keys, records)."""
     content = {"case": case_content_hash(base), "schemes": list(schemes), "seed": int(seed)}
-    return run_hash("campaign", content, version)
+    return run_hash("campaign", content, version, code)
 
 
 def draw_variant(base: Case, seeds: SampleSeeds) -> Case:
@@ -267,6 +287,7 @@ def run_sample(base_json: str, index: int, campaign_seed: int, schemes: list[str
     return {
         "sample": int(index),
         "version": __version__,
+        **identity(),
         "case_hash": case_content_hash(base),
         "campaign": campaign_hash(base, schemes, campaign_seed),
         "campaign_seed": int(campaign_seed),
@@ -559,11 +580,24 @@ def sample_problem(rec: object) -> str | None:
 
 
 def stale_reason(rec: dict, expected: dict) -> str | None:
-    """Why a stored record cannot join this run (another version, case content or settings), or None."""
+    """Why a stored record cannot join this run (another version, code of the package, numeric library, case
+    content or settings), or None."""
     if rec.get("version") is None:
         return "records no package version (written before versions were recorded)"
     if rec["version"] != expected["version"]:
         return f"was computed by ftcreport {rec['version']}, this is {expected['version']}"
+    if "code" in expected:  # the package's own sources: a fix (or a bug) in a law, a metric, the success rule
+        if rec.get("code") is None:
+            return "records no code digest (written before ftcreport recorded the code that computed a result)"
+        if rec["code"] != expected["code"]:
+            return (
+                f"was computed by other code of ftcreport {rec['version']} (code digest {rec['code']}, now "
+                f"{expected['code']}: a source file of the package changed)"
+            )
+    if "versions" in expected and rec.get("versions") != expected["versions"]:
+        was = rec.get("versions") if isinstance(rec.get("versions"), dict) else {}
+        moved = [f"{k} {was.get(k)}, now {v}" for k, v in expected["versions"].items() if was.get(k) != v]
+        return f"was computed with {'; '.join(moved) or 'other numeric libraries'}"
     if "case_hash" in expected and rec.get("case_hash") != expected["case_hash"]:
         return f"comes from another base case content (hash {rec.get('case_hash')}, now {expected['case_hash']})"
     if rec.get("campaign") != expected["campaign"]:
@@ -707,12 +741,14 @@ def run_campaign(
     out = Path(out)
     (out / "samples").mkdir(parents=True, exist_ok=True)
     chash = campaign_hash(base, schemes, seed)
-    expected = {"version": __version__, "case_hash": case_content_hash(base), "campaign": chash}
+    expected = expected_identity(case_content_hash(base), chash)
     meta = {
         "case": base.name,
         "seed": int(seed),
         "schemes": schemes,
         "version": __version__,
+        "code": expected["code"],
+        "versions": expected["versions"],
         "case_hash": expected["case_hash"],
         "plugin_files": plugin_digests(base),  # which scheme file changed, when 'sample' finds the hash differs
         "campaign": chash,

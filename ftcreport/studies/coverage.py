@@ -43,6 +43,8 @@ from .campaign import (
     _scalar_metrics,
     _success,
     case_content_hash,
+    expected_identity,
+    identity,
     load_records,
     run_hash,
     run_tasks,
@@ -230,6 +232,7 @@ def run_item(base_json: str, index: int, fault: dict, onset: float, schemes: lis
     return {
         "item": int(index),
         "version": __version__,
+        **identity(),
         "case_hash": case_content_hash(base),
         "campaign": rhash,
         "fault": asdict(f),
@@ -342,7 +345,7 @@ def run_coverage(
     settings = {"schemes": schemes, "sigmas": list(sigmas), "friction": friction, "kinds": list(kinds), "times": times}
     chash = case_content_hash(base)
     rhash = run_hash("coverage", {"case": chash, **settings})
-    expected = {"version": __version__, "case_hash": chash, "campaign": rhash}
+    expected = expected_identity(chash, rhash)
     records, stale = load_records(out / "items", expected, force, what="item")
     todo = [i for i in range(len(items)) if i not in records]
     res = CoverageResult(

@@ -150,7 +150,7 @@ def fdi_traces(base_json: str, index: int, campaign_seed: int, scheme: str, cali
     from ..model import wheel_names
     from ..runner import build, make_controller
     from ..sim import simulate
-    from .campaign import campaign_hash, case_content_hash, draw_variant, sample_seeds
+    from .campaign import campaign_hash, case_content_hash, draw_variant, identity, sample_seeds
 
     base = parse_case(json.loads(base_json), "fdi base")
     seeds = sample_seeds(campaign_seed, index)
@@ -182,6 +182,7 @@ def fdi_traces(base_json: str, index: int, campaign_seed: int, scheme: str, cali
         "sample": int(index),
         "scheme": scheme,
         "version": __version__,
+        **identity(),
         "case_hash": case_content_hash(base),
         "campaign": campaign_hash(base, [scheme], campaign_seed),
         "status": run.status,
@@ -325,7 +326,7 @@ def run_fdi(
 
     from ..storage.manifest import build_manifest, write_manifest
     from ..storage.store import _jsonable, write_atomic
-    from .campaign import CampaignResult, case_content_hash, load_records, run_hash, run_tasks
+    from .campaign import CampaignResult, case_content_hash, expected_identity, load_records, run_hash, run_tasks
 
     if base.campaign is None:
         raise FtcError(f"{base.name}: no [campaign] table: the FDI evaluation draws campaign samples")
@@ -346,7 +347,7 @@ def run_fdi(
     chash = case_content_hash(base)
     settings = {"schemes": schemes, "seed": int(seed), "calibration": list(calibration)}
     rhash = run_hash("fdi", {"case": chash, **settings})
-    expected = {"version": __version__, "case_hash": chash, "campaign": rhash}
+    expected = expected_identity(chash, rhash)
     records, stale = load_records(out / "traces", expected, force, what="task")
     tasks = {i * len(schemes) + j: (i, s) for i in range(samples) for j, s in enumerate(schemes)}
     todo = [k for k in tasks if k not in records]

@@ -982,3 +982,25 @@ def test_resume_refuses_samples_another_code_or_numeric_library_computed(base, s
     monkeypatch.undo()
     with pytest.raises(FtcError, match=r"was computed with numpy 0.0.1, now "):
         run_campaign(**run)
+
+
+def test_sample_refuses_a_campaign_another_code_computed(failing_campaign, tmp_path, monkeypatch):
+    """``sample`` re-simulates a sample with the code installed now; after a change of the package's code the
+    page need not show the campaign's sample, where ``campaign`` refuses to resume.  Now it refuses too."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+    from ftcreport.storage import code_digest
+
+    src, _ = failing_campaign
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    before = sorted(p.name for p in (out / "sample_pages").iterdir())
+    monkeypatch.setattr(code_digest, "DIGEST", "0123456789abcdef")
+    res = CliRunner().invoke(app, ["sample", str(out), "2"])
+    assert res.exit_code == 2, res.output
+    (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
+    assert f"{out / 'campaign.json'}: " in line and "other code" in line and "0123456789abcdef" in line, line
+    assert sorted(p.name for p in (out / "sample_pages").iterdir()) == before  # nothing rendered

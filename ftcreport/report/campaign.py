@@ -257,18 +257,33 @@ def check_sample_index(out: Path, index: int) -> int:
 
 def check_sample_content(out: Path, meta: dict, base) -> None:
     """FtcError (exit 2) when another ftcreport version computed the campaign (``campaign.json``'s ``version``),
-    or when ``base``, the campaign's base case parsed now, hashes otherwise than the campaign
-    recorded (``campaign.json``'s ``case_hash``): a scheme file changed since (named, from the files' own hashes
-    the campaign recorded), or what the package makes of the case.  A sample re-simulated from it would not be
+    other code of the package or other numeric libraries (its ``code`` and ``versions``, when recorded), or
+    when ``base``, the campaign's base case parsed now, hashes otherwise than the campaign recorded
+    (``campaign.json``'s ``case_hash``): a scheme file changed since (named, from the files' own hashes the
+    campaign recorded), or what the package makes of the case.  A sample re-simulated from it would not be
     the campaign's sample, as ``campaign`` refuses to resume from another base case content."""
     from .. import __version__
     from ..cases import plugin_digests
-    from ..studies.campaign import case_content_hash
+    from ..studies.campaign import case_content_hash, identity
 
     version = meta.get("version")
     if version is not None and version != __version__:  # the case may read alike, the code that runs it does not
         raise FtcError(
             f"{Path(out) / 'campaign.json'}: the campaign was computed by ftcreport {version}, this is {__version__}: "
+            "a sample re-simulated now need not be the campaign's; re-run the campaign with --force"
+        )
+    made, here = {k: meta.get(k) for k in ("code", "versions")}, identity()
+    if made["code"] is not None and made["code"] != here["code"]:  # a source file of the package changed since
+        raise FtcError(
+            f"{Path(out) / 'campaign.json'}: the campaign was computed by other code of ftcreport {version} (code "
+            f"digest {made['code']}, now {here['code']}): a sample re-simulated now need not be the campaign's; "
+            "re-run the campaign with --force"
+        )
+    if isinstance(made["versions"], dict) and made["versions"] != here["versions"]:
+        was = made["versions"]
+        moved = [f"{k} {was.get(k)}, now {v}" for k, v in here["versions"].items() if was.get(k) != v]
+        raise FtcError(
+            f"{Path(out) / 'campaign.json'}: the campaign was computed with {'; '.join(moved) or 'other libraries'}: "
             "a sample re-simulated now need not be the campaign's; re-run the campaign with --force"
         )
     recorded = meta.get("case_hash")

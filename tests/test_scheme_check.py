@@ -240,3 +240,39 @@ def test_the_scheme_check_names_a_non_finite_command(tmp_path):
     res = runner.invoke(app, ["schemes", "check", str(path)])
     assert res.exit_code == 2, res.output
     assert "out.u[1] is nan" in res.output and "error code" not in res.output, res.output
+
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+def test_a_non_finite_signal_stops_the_run_naming_it_and_keeps_what_ran(tmp_path, monkeypatch, method):
+    """The attack (round 3, s11 break 3): a law whose declared signal became NaN (or inf) after t = 1 s passed the
+    battery (t = 0 and 1.3 s) and its run was stored as ok with NaN and inf in timeseries.npz.  The loop checks
+    the logged signals as it checks the command: the stop names out.sig[j], the signal's declared name, the
+    value and the time, and the run keeps its rows up to it."""
+    import ftcreport.fast.scheme_check as check
+
+    monkeypatch.setattr(check, "ensure_checked", lambda ctrl: None)
+    stem = f"sm_sig_nan_{method}"
+    new = "    out.sig[2] = K\n    if step.t >= 1.0:\n        out.sig[2] = np.nan\n        out.sig[1] = np.inf\n"
+    path, _ = _variant(tmp_path, stem, "    out.sig[2] = K\n", new)
+    data = __import__("tomllib").loads(CASE.read_text())
+    data["plugins"] = [str(path)]
+    data["simulation"]["method"] = method
+    _run_only(data, {"run": [stem], "k_v": 20.0})
+    run, m = run_scheme(with_duration(parse_case(data, str(CASE)), 3.0), stem)
+    assert m["status"] == "error", m
+    assert f"scheme '{stem}'" in m["reason"] and "non-finite signal" in m["reason"], m["reason"]
+    assert "out.sig[1] (s[1]) = inf" in m["reason"], m["reason"]
+    t_stop = float(re.search(r"at t = ([0-9.]+) s", m["reason"]).group(1))
+    assert 1.0 <= t_stop < 1.05 and run.t_end == pytest.approx(t_stop, abs=0.011), (t_stop, run.t_end)
+    assert run.t_stream.size >= 10 and run.t_stream[-1] < 1.0 + 1e-9
+    assert np.isfinite(run.signals["K"]).all() and np.isfinite(run.signals["s"]).all()
+
+
+def test_the_scheme_check_names_a_non_finite_signal(tmp_path):
+    """The loop's own check of a plug-in's logged signals stops with its own code: the battery still names the
+    output and the signal ('out.sig[2] (K) is nan'), not an error code."""
+    new = "    out.sig[2] = K\n    out.sig[2] = np.nan\n"
+    path, _ = _variant(tmp_path, "sm_nan_sig_check", "    out.sig[2] = K\n", new)
+    res = runner.invoke(app, ["schemes", "check", str(path)])
+    assert res.exit_code == 2, res.output
+    assert "out.sig[2] (K) is nan" in res.output and "error code" not in res.output, res.output

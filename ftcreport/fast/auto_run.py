@@ -8,9 +8,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..jit.packed import AT_STATE, AT_TRIAL, E_LAW_NONFINITE, E_LAW_WRITE, E_MIN_STEP, E_STEP_JUMP
+from ..jit.packed import AT_STATE, AT_TRIAL, E_LAW_NONFINITE, E_LAW_SIGNAL, E_LAW_WRITE, E_MIN_STEP, E_STEP_JUMP
 from .engine import _FIRST_CALLS, _READY, NAN, _collect, _compile_time, _finish, _Loop, _timing_mark
-from .stops import _how, _in_singular_set, _message, _stop, law_nonfinite_reason
+from .stops import _how, _in_singular_set, _message, _stop, law_nonfinite_reason, law_signal_reason
 
 if TYPE_CHECKING:
     from .engine import Spec
@@ -181,6 +181,8 @@ def _auto_cause(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> 
         return "error", write_reason(spec.controller, int(info[1]), float(info[2]))
     if int(info[0]) == E_LAW_NONFINITE:  # the law's command, from a finite state
         return "error", law_nonfinite_reason(spec, int(info[2]), float(info[3]), float(info[1]))
+    if int(info[0]) == E_LAW_SIGNAL:  # a plug-in's logged signal, from a finite state
+        return "error", law_signal_reason(spec, int(info[2]), float(info[3]), float(info[1]))
     if int(info[0]) != E_MIN_STEP:
         status, reason = _message(info, t, settings, spec.ref, how)
         if status == "step_unstable":  # a stop of the fixed-step detectors' kind: the error control followed it

@@ -248,7 +248,13 @@ def loop_for(law, disc, motors: bool = True, sampled: bool = True, terms: int = 
 BINDING = "LAW, DISC = no_law, no_discrete  # LOOP-BINDING"
 TERMS_LINE = "TERMS_MODE = 0  # LOOP-TERMS"
 LEGACY_LINE = "LEGACY = False  # LOOP-LEGACY"
+PLUGIN_LINE = "PLUGIN = False  # LOOP-PLUGIN"
 VARIANT = "MOTORS, SAMPLED = True, True  # LOOP-VARIANT"
+
+
+def is_plugin(fn) -> bool:
+    """Whether a compiled law (or discrete update) is a plug-in's: defined outside ftcreport's own package."""
+    return not getattr(fn, "py_func", fn).__module__.startswith("ftcreport.")
 
 
 def _load_loop(law, disc, motors: bool, sampled: bool, terms: int = 0, checked: bool = False):
@@ -261,7 +267,7 @@ def _load_loop(law, disc, motors: bool, sampled: bool, terms: int = 0, checked: 
     from . import loop as template
 
     text = Path(template.__file__).read_text()
-    for line in (BINDING, TERMS_LINE, LEGACY_LINE, VARIANT):
+    for line in (BINDING, TERMS_LINE, LEGACY_LINE, PLUGIN_LINE, VARIANT):
         if line not in text:
             raise RuntimeError(f"ftcreport/fast/loop.py: the line {line!r} is missing")
     # the text carries a hash of the law's and discrete update's files and of every compiled source of
@@ -284,6 +290,7 @@ def _load_loop(law, disc, motors: bool, sampled: bool, terms: int = 0, checked: 
 
     text = text.replace(TERMS_LINE, f"TERMS_MODE = {int(terms)}")
     text = text.replace(LEGACY_LINE, f"LEGACY = {legacy(law)}")
+    text = text.replace(PLUGIN_LINE, f"PLUGIN = {is_plugin(law)}")
     variant = f"MOTORS, SAMPLED = {motors}, {sampled}"
     if checked:  # every function of the module compiled with bounds checks, not cached
         variant += "\nfrom ftcreport.fast.scheme_check import checked_jit as jit  # noqa: E402"

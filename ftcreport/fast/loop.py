@@ -68,6 +68,7 @@ from ftcreport.jit.packed import (
     AT_STATE,
     AT_TRIAL,
     E_LAW_NONFINITE,
+    E_LAW_SIGNAL,
     E_LAW_WRITE,
     E_MIN_STEP,
     E_NONFINITE_DERIV,
@@ -98,6 +99,9 @@ LAW, DISC = no_law, no_discrete  # LOOP-BINDING
 LEGACY = False  # LOOP-LEGACY
 #: how the matched terms reach the law (schemes.api.TERMS_MODES; fast.engine.loop_for writes the scheme's)
 TERMS_MODE = 0  # LOOP-TERMS
+#: a plug-in's law (not ftcreport's own): its logged signals are checked finite (E_LAW_SIGNAL); the built-in
+#: laws' loops do not compile the check
+PLUGIN = False  # LOOP-PLUGIN
 # the loop's variant (fast.engine.loop_for writes the case's): numba prunes the branches these close
 # before typing, so a loop without motors or sampled control never compiles their kernels
 MOTORS, SAMPLED = True, True  # LOOP-VARIANT
@@ -158,7 +162,8 @@ def _law(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
     buffers (``P[1]``) of exactly the declared sizes; the guard cells after them are checked after
     the call (E_LAW_WRITE: info[1] = 0 u, 1 dx, 2 sig; info[2] = t).  When ``sig`` is not empty the
     step is logged: the kinematic signals (of the law's own evaluation, else the engine's at the
-    measured state) and then the law's.
+    measured state) and then the law's, which a plug-in's must be finite (E_LAW_SIGNAL: info[1] = t,
+    info[2] = the index into out.sig, info[3] = the value).
     """
     Pp, io = P
     if LEGACY:
@@ -221,6 +226,14 @@ def _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
             info[2] = t
             return u.copy(), dx
     if sig.shape[0] > 0:
+        if PLUGIN:  # a logged step: a non-finite signal from finite inputs stops here, named (not stored as ok)
+            for j in range(ns):
+                if not math.isfinite(s[j]) and _all_finite(q, eta, xc):
+                    info[0] = E_LAW_SIGNAL
+                    info[1] = t
+                    info[2] = j
+                    info[3] = s[j]
+                    return u.copy(), dx
         k = sig.shape[0] - ns
         if TERMS_MODE == 2:
             sig[:k] = np.nan

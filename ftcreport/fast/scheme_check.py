@@ -603,14 +603,21 @@ def _one_state(call: _Call, sc: Scheme, ctrl, state, head, law, disc, label) -> 
             f"{lw}: {head}: law: out.u[{j}] is {float(info[3])} ({at}): the outputs must be finite on healthy "
             "and faulty patterns",
         )
+    widths = ctrl.widths
+    names = [n for n, w in widths.items() for _ in range(w)]
+    if int(info[0]) == _E_LAW_SIGNAL:  # the loop's own check of a logged signal (fast.loop._contract_law)
+        j = int(info[2])
+        return Finding(
+            False,
+            f"{lw}: {head}: law: out.sig[{j}] ({names[j]}) is {float(info[3])} ({at}): the outputs must be finite "
+            "on healthy and faulty patterns",
+        )
     if info[0] != 0:
         return Finding(
             False, f"{lw}: {head}: law: stopped the run (error code {int(info[0])}) at a regular state ({at})"
         )
     if not (np.array_equal(q, q0) and np.array_equal(eta, eta0) and np.array_equal(xc, xc0)):
         return Finding(False, f"{lw}: {head}: law: changed its inputs (step.q, step.eta): a law only reads them ({at})")
-    widths = ctrl.widths
-    names = [n for n, w in widths.items() for _ in range(w)]
     unwritten = sorted({names[i] for i in range(len(names)) if sig[i] == _SENTINEL})
     if unwritten:
         return Finding(
@@ -654,6 +661,7 @@ def _one_state(call: _Call, sc: Scheme, ctrl, state, head, law, disc, label) -> 
 
 _E_LAW_WRITE = 16  # jit.packed.E_LAW_WRITE (not imported: numba is loaded only when a check runs)
 _E_LAW_NONFINITE = 18  # jit.packed.E_LAW_NONFINITE
+_E_LAW_SIGNAL = 19  # jit.packed.E_LAW_SIGNAL
 
 
 # ---------------------------------------------------------------------------------------- a plug-in's first run

@@ -28,6 +28,7 @@ from ..jit.packed import (
     E_CHAINED_THN,
     E_KAPPA,
     E_LAW_NONFINITE,
+    E_LAW_SIGNAL,
     E_LAW_WRITE,
     E_NONFINITE_DERIV,
     E_NONFINITE_STATE,
@@ -66,6 +67,8 @@ def _message(info: np.ndarray, t: float, settings, ref: Ref, how: str = "") -> t
         return "singular", articulation_reason(int(a), b, settings.singularity_margin)
     if code == E_LAW_NONFINITE:
         return "error", law_nonfinite_reason(None, int(b), c, a)
+    if code == E_LAW_SIGNAL:
+        return "error", law_signal_reason(None, int(b), c, a)
     if code in (E_NONFINITE_STATE, E_NONFINITE_DERIV):
         reason = nonfinite_reason("state" if code == E_NONFINITE_STATE else "control or derivative", a)
         return "diverged", with_step(reason, how)
@@ -114,6 +117,22 @@ def law_nonfinite_reason(spec: Spec | None, j: int, value: float, t: float) -> s
     )
 
 
+def law_signal_reason(spec: Spec | None, j: int, value: float, t: float) -> str:
+    """Why a run stopped when a plug-in's law wrote a non-finite value into a declared signal (E_LAW_SIGNAL) at a
+    logged step, from a finite state: the signal's index into out.sig and its declared name."""
+    who = f"scheme '{spec.controller.scheme.name}'" if spec is not None else "the scheme"
+    names = []
+    if spec is not None:
+        for name, width in spec.controller.widths.items():
+            names += [name] if width == 1 else [f"{name}[{i}]" for i in range(width)]
+    named = f" ({names[j]})" if j < len(names) else ""
+    return (
+        f"{who}: its law wrote a non-finite signal out.sig[{j}]{named} = {value} at t = {t:.6g} s from a finite "
+        "state (a division by zero or a NaN inside the law); the run keeps its rows before it ('ftcreport schemes "
+        "check FILE' tests the signals at a few states only)"
+    )
+
+
 def _stop(
     info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: Ref, spec: Spec | None = None
 ) -> tuple[str, str, float]:
@@ -126,6 +145,8 @@ def _stop(
         return "error", write_reason(spec.controller, int(info[1]), float(info[2])), float(info[2])
     if int(info[0]) == E_LAW_NONFINITE:
         return "error", law_nonfinite_reason(spec, int(info[2]), float(info[3]), float(info[1])), float(info[1])
+    if int(info[0]) == E_LAW_SIGNAL:
+        return "error", law_signal_reason(spec, int(info[2]), float(info[3]), float(info[1])), float(info[1])
     how = _how(settings)
     if int(info[0]) == E_STEP_JUMP:
         from ..runs import step_jump_words

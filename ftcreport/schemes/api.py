@@ -42,7 +42,9 @@ the law (and the discrete update's state after every update): a write up to
 :data:`N_GUARD` cells past a declared width stops the run with an error naming the scheme and the
 buffer (``status = "error"``), never ``ok``.  A write further out is not caught by the guards: it
 is caught by ``ftcreport schemes check`` and by a plug-in's first run, which run the law compiled
-with numba's ``boundscheck=True`` (an out-of-bounds index, read or write, raises there).
+with numba's ``boundscheck=True`` (an out-of-bounds index, read or write, raises there).  A plug-in's
+declared signals are checked finite at every logged step: a NaN or inf there, from a finite state,
+stops the run with an error naming ``out.sig[j]``, the signal, the value and the time.
 """
 
 from __future__ import annotations

@@ -218,6 +218,33 @@ def test_the_case_hash_follows_the_scheme_file_not_its_path(tmp_path):
     assert case_hash(moved, "v") != case_hash(case, "v")  # a changed law invalidates cached results
 
 
+def test_the_case_hash_follows_the_modules_the_scheme_file_imports(tmp_path):
+    """The attack (round 3, s11 break 4): a scheme file importing a helper module beside it (a gain) was served
+    from the result cache after the helper changed: the digest hashed the scheme file's bytes only."""
+    from ftcreport.cases import plugin_digest, plugin_digests
+
+    (tmp_path / "smhelper_s11.py").write_text("GAIN = 1.0\n")
+    text = EXAMPLE.read_text().replace('name="sliding_mode"', 'name="sm_helper_s11"')
+    head = "import os, sys\nsys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))\n"
+    head += "from smhelper_s11 import GAIN\n\n"
+    text = text.replace("from ftcreport import schemes\n", head + "from ftcreport import schemes\n", 1)
+    assert "from smhelper_s11 import GAIN" in text
+    (tmp_path / "sm_helper_s11.py").write_text(text)
+
+    def plug(d):
+        d["plugins"] = [str(tmp_path / "sm_helper_s11.py")]
+        d["schemes"] = {"run": ["sm_helper_s11"], "k_v": 20.0}
+        d["thresholds"] = {}
+
+    case = _case(plug, duration=2.0)
+    before, files = case_hash(case, "v"), plugin_digests(case)
+    assert plugin_digest(case)
+    assert str(tmp_path / "smhelper_s11.py") in files  # which file changed: the helper is listed
+    (tmp_path / "smhelper_s11.py").write_text("GAIN = 0.0\n")
+    assert case_hash(case, "v") != before  # a changed helper invalidates cached results
+    assert plugin_digests(case) != files
+
+
 def test_a_scheme_in_run_without_a_table_gets_its_defaults():
     def only(d):
         d["schemes"] = {"run": ["nominal", "sliding_mode"], "k_v": 20.0}

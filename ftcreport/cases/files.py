@@ -14,7 +14,14 @@ from .parse import parse_case
 
 
 def plugin_digest(case: Case) -> str:
-    """Hash of the contents of the case's scheme files ('' when it has none): a changed law is a changed case."""
+    """Hash of the contents of the case's scheme files and of the user modules they import ('' when it has no
+    scheme file): a changed law, or a changed helper module it imports, is a changed case.
+
+    The imported modules are those :func:`ftcreport.schemes.registry.plugin_imports` records when the file
+    is loaded (the case's parse loads it): the user's own modules (outside the Python installation,
+    site-packages and ftcreport) imported at the file's import, named by its globals.  Not covered: a
+    module imported later, inside a function (``pack``, the law), and data files a module reads.
+    """
     if not case.plugins:
         return ""
     h = hashlib.sha256()
@@ -23,18 +30,36 @@ def plugin_digest(case: Case) -> str:
             h.update(Path(p).name.encode() + b"\0" + read_input(p, "scheme file"))
         except CaseError:
             h.update(f"{p}: unreadable".encode())
+        for dep in _imports(p):
+            h.update(b"\0import\0" + dep.name.encode() + b"\0" + _read_dep(dep))
     return h.hexdigest()[:16]
 
 
 def plugin_digests(case: Case) -> dict[str, str]:
-    """Each scheme file's own content hash (16 hex digits), by its path: which file changed since a run."""
+    """Each scheme file's own content hash (16 hex digits), by its path, and each user module it imports
+    (:func:`plugin_digest`), by its path: which file changed since a run."""
     out = {}
     for p in case.plugins:
         try:
             out[str(p)] = hashlib.sha256(read_input(p, "scheme file")).hexdigest()[:16]
         except CaseError:
             out[str(p)] = "unreadable"
+        for dep in _imports(p):
+            out.setdefault(str(dep), hashlib.sha256(_read_dep(dep)).hexdigest()[:16])
     return out
+
+
+def _imports(path) -> tuple[Path, ...]:
+    from ..schemes.registry import plugin_imports
+
+    return plugin_imports(path)
+
+
+def _read_dep(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError:
+        return b"unreadable"
 
 
 def case_schema() -> dict[str, Any]:

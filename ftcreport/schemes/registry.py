@@ -23,7 +23,7 @@ from pathlib import Path
 from ..errors import ModelError
 from .api import TERMS_MODES, Scheme
 
-__all__ = ["built_in", "get", "load_plugin", "register", "registered", "resolve"]
+__all__ = ["built_in", "get", "load_plugin", "plugin_imports", "register", "registered", "resolve"]
 
 #: The package of the built-in schemes' files (each registers its schemes when imported).  The registry
 #: imports them by name, as it imports a plug-in by path: the registry sits below the laws they run.
@@ -198,6 +198,86 @@ def resolve(fn):
     return getattr(importlib.import_module(mod), name)
 
 
+_IMPORTS: dict[str, tuple[Path, ...]] = {}  # a loaded scheme file (resolved) -> the user modules it imports
+
+
+def plugin_imports(path: str | Path) -> tuple[Path, ...]:
+    """The files of the user's own modules a scheme file imported when it was loaded in this process
+    (:func:`load_plugin`), sorted; () for a file not loaded here.
+
+    A user module is one whose file lies outside the Python installation (the standard library),
+    site-packages and ftcreport's own package: a helper module beside the scheme file, a package of the
+    user's project (an editable install too).  They are the modules newly imported while the file was
+    executed, and the modules the file's (and those modules') globals name, followed transitively (a
+    helper another scheme file imported first).  The result cache hashes them with the scheme file
+    (``ftcreport.cases.plugin_digest``), so editing a helper re-runs its results.
+
+    Not seen: a module imported later, inside a function (``pack`` or the law's first call), and data
+    files a module reads (a table loaded with ``np.load``): a change there is not a changed case.
+    """
+    return _IMPORTS.get(str(Path(path).resolve()), ())
+
+
+def _system_roots() -> tuple[Path, ...]:
+    """Where the interpreter's own and the installed packages' modules live (not the user's code)."""
+    import site
+    import sysconfig
+
+    roots = {sys.prefix, sys.base_prefix, sys.exec_prefix, getattr(sys, "base_exec_prefix", sys.prefix)}
+    roots |= {v for k, v in sysconfig.get_paths().items() if k in ("stdlib", "platstdlib", "purelib", "platlib")}
+    roots |= set(getattr(site, "getsitepackages", list)())
+    user_site = getattr(site, "getusersitepackages", lambda: None)()
+    if user_site:
+        roots.add(user_site)
+    roots.add(str(Path(__file__).resolve().parents[1]))  # ftcreport itself: the code digest covers it
+    return tuple(Path(r).resolve() for r in roots if r)
+
+
+def _module_file(module) -> Path | None:
+    f = getattr(module, "__file__", None)
+    if not isinstance(f, str) or not f.endswith(".py"):
+        return None  # a built-in or an extension module: not the user's source
+    try:
+        return Path(f).resolve()
+    except OSError:
+        return None
+
+
+def _user_imports(module, new: set[str], own: Path) -> tuple[Path, ...]:
+    """:func:`plugin_imports` of the scheme file ``own`` just executed as ``module``; ``new``: the names
+    of the modules imported meanwhile."""
+    roots = _system_roots()
+
+    def user(m) -> Path | None:
+        f = _module_file(m)
+        name = getattr(m, "__name__", "") or ""
+        if f is None or f == own or name.startswith(("ftcreport_loop_", "ftcreport.")) or name == "ftcreport":
+            return None
+        return None if any(f.is_relative_to(r) for r in roots) else f
+
+    found: dict[Path, object] = {}
+    todo = [sys.modules[n] for n in new if n in sys.modules] + [module]
+    seen: set[int] = set()
+    while todo:
+        m = todo.pop()
+        if id(m) in seen:
+            continue
+        seen.add(id(m))
+        f = user(m)
+        if f is not None:
+            found[f] = m
+        if m is not module and f is None:
+            continue  # a system module's globals are not followed
+        for v in list(vars(m).values()):
+            if isinstance(v, type(sys)):
+                todo.append(v)
+            else:
+                owner = getattr(v, "__module__", None)
+                if isinstance(owner, str) and owner in sys.modules:
+                    todo.append(sys.modules[owner])
+    return tuple(sorted(found))
+
+
 def load_plugin(path: str | Path) -> None:
     """Import a scheme file (it registers its schemes when imported); idempotent per file."""
     from ..infra.inputs import input_problem
@@ -222,6 +302,7 @@ def load_plugin(path: str | Path) -> None:
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     before = dict(_REGISTRY)
+    modules_before = set(sys.modules)
     try:
         spec.loader.exec_module(module)
     except SystemExit as exc:  # not an Exception; the half-imported module must not stay loaded either
@@ -238,3 +319,4 @@ def load_plugin(path: str | Path) -> None:
         raise ModelError(
             f"{path}: registers no scheme (a scheme file calls ftcreport.schemes.register(Scheme(...)) when imported)"
         )
+    _IMPORTS[str(p)] = _user_imports(module, set(sys.modules) - modules_before, p)

@@ -134,20 +134,20 @@ def test_a_law_writing_past_its_declared_signal_is_an_error_naming_the_scheme_an
     assert mn["status"] == "ok"
 
 
-def test_the_guard_cells_catch_a_write_past_the_signals_in_a_real_run(tmp_path, monkeypatch):
-    """Without the first run's check (e.g. a record of an earlier version), the guard cells after out.sig stop
-    the run at the first call: status error naming the scheme and the signal it wrote past."""
+def test_a_write_past_the_signals_in_a_real_run_stops_it_at_the_first_call(tmp_path, monkeypatch):
+    """Without the first run's check (e.g. a record of an earlier version), the bounds-checked law stops the run
+    at the first call: status error naming the scheme, the output and index, and the declared signals."""
     import ftcreport.fast.scheme_check as check
 
     monkeypatch.setattr(check, "ensure_checked", lambda ctrl: None)
     case = _overrun_case(tmp_path, "sm_past_guard", "4")  # two cells past the three declared values
     _, m = run_scheme(case, "sm_past_guard")
     assert m["status"] == "error", m
-    assert "scheme 'sm_past_guard'" in m["reason"] and "past 'K'" in m["reason"] and "s (2), K (1)" in m["reason"]
-    assert "t = 0 s" in m["reason"]  # the first call of the law
+    assert "scheme 'sm_past_guard'" in m["reason"] and "out.sig[4]: index 4 is out of bounds" in m["reason"]
+    assert "s (2), K (1)" in m["reason"] and "t = 0 s" in m["reason"], m["reason"]  # the first call of the law
 
 
-def test_the_guards_catch_a_write_past_the_state_rates(tmp_path, monkeypatch):
+def test_a_write_past_the_state_rates_stops_the_run(tmp_path, monkeypatch):
     import ftcreport.fast.scheme_check as check
 
     monkeypatch.setattr(check, "ensure_checked", lambda ctrl: None)
@@ -156,7 +156,7 @@ def test_the_guards_catch_a_write_past_the_state_rates(tmp_path, monkeypatch):
     data["plugins"] = [str(path)]
     _run_only(data, {"run": ["sm_past_dx"], "k_v": 20.0})
     _, m = run_scheme(with_duration(parse_case(data, str(CASE)), 1.0), "sm_past_dx")
-    assert m["status"] == "error" and "wrote past out.dx (0 state rates" in m["reason"], m
+    assert m["status"] == "error" and "out.dx[0]: index 0 is out of bounds" in m["reason"], m
 
 
 # ------------------------------------------------------------------ registration errors, the round-2 form
@@ -276,3 +276,32 @@ def test_the_scheme_check_names_a_non_finite_signal(tmp_path):
     res = runner.invoke(app, ["schemes", "check", str(path)])
     assert res.exit_code == 2, res.output
     assert "out.sig[2] (K) is nan" in res.output and "error code" not in res.output, res.output
+
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+def test_a_write_far_past_a_signal_late_in_the_run_stops_it_naming_output_index_and_time(tmp_path, method):
+    """The attack (round 3, s11 break 2): a law writing out.sig[16] (5 cells past the guard cells) only after the
+    battery's states (t = 0 and 1.3 s) passed every check and the run reported ok (or, at out.sig[11], corrupted
+    the heap: SIGSEGV after storing ok).  Every plug-in function is compiled with numba's boundscheck: the
+    write raises inside the loop, which stops the run as an error naming the output, the index, the time and
+    the line; the rows before it are kept and the process goes on."""
+    new = "    out.sig[2] = K\n    if step.t > 1.5:\n        out.sig[16] = 7.0e3\n"
+    stem = f"sm_late_oob_{method}"
+    path, line = _variant(tmp_path, stem, "    out.sig[2] = K\n", new)
+    data = __import__("tomllib").loads(CASE.read_text())
+    data["plugins"] = [str(path)]
+    data["simulation"]["method"] = method
+    _run_only(data, {"run": ["nominal", stem], "k_v": 20.0})
+    case = with_duration(parse_case(data, str(CASE)), 3.0)
+    run, m = run_scheme(case, stem)
+    assert m["status"] == "error" and run.status == "error", m
+    reason = m["reason"]
+    assert f"scheme '{stem}'" in reason and "out.sig[16]" in reason, reason
+    assert "index 16 is out of bounds" in reason and "size 3" in reason, reason
+    assert f"{stem}.py:{line}" in reason, reason
+    t_stop = float(re.search(r"at t = ([0-9.]+) s", reason).group(1))  # a trial stage of the step from 1.5 s
+    # t_end: the stage's time (fixed step), the last accepted state's (error-controlled: fast.auto_run)
+    assert 1.5 <= t_stop <= 1.52 and t_stop - 0.02 <= run.t_end <= t_stop + 1e-9, (t_stop, run.t_end)
+    assert run.t_stream.size >= 100 and run.t_stream[-1] <= t_stop
+    _, mn = run_scheme(case, "nominal")  # the process is fine: the next run works
+    assert mn["status"] == "ok"

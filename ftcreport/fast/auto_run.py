@@ -8,9 +8,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..jit.packed import AT_STATE, AT_TRIAL, E_LAW_NONFINITE, E_LAW_SIGNAL, E_LAW_WRITE, E_MIN_STEP, E_STEP_JUMP
+from ..jit.packed import (
+    AT_STATE,
+    AT_TRIAL,
+    E_LAW_NONFINITE,
+    E_LAW_RAISED,
+    E_LAW_SIGNAL,
+    E_LAW_WRITE,
+    E_MIN_STEP,
+    E_STEP_JUMP,
+)
 from .engine import _FIRST_CALLS, _READY, NAN, _collect, _compile_time, _finish, _Loop, _timing_mark
-from .stops import _how, _in_singular_set, _message, _stop, law_nonfinite_reason, law_signal_reason
+from .stops import _how, _in_singular_set, _message, _stop, law_nonfinite_reason, law_raised_reason, law_signal_reason
 
 if TYPE_CHECKING:
     from .engine import Spec
@@ -65,7 +74,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     wall0 = _time.perf_counter()
     first_s, calls = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if L.info[0] != 0:
-        status, reason, _ = _stop(L.info, AT_STATE, t0, t0, settings, spec.ref, spec)
+        status, reason, _ = _stop(L.info, AT_STATE, t0, t0, settings, spec.ref, spec, L.P[1])
     chunk = 0
     with np.errstate(all="ignore"):
         while status == "ok":
@@ -175,6 +184,8 @@ def _auto_cause(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> 
     used = _CODE_NAMES.get(int(ctl[8]), settings.method)
     how = _how(settings, used)
     t = float(ctl[0])
+    if int(info[0]) == E_LAW_RAISED:  # a plug-in's law raised (numba's boundscheck, ...)
+        return "error", law_raised_reason(spec, info, L.P[1])
     if int(info[0]) == E_LAW_WRITE:  # the scheme wrote past its buffers (the loop's guard cells)
         from ..schemes.controller import write_reason
 

@@ -115,11 +115,13 @@ def _no_discrete(law):
 
 
 def law_buffers(spec: Spec) -> tuple:
-    """The buffers a law writes (the loop's ``P[1]``): ``(k_v, u, dx, sig, x, fresh)``.
+    """The buffers a law writes (the loop's ``P[1]``): ``(k_v, u, dx, sig, x, fresh, rec)``.
 
     u (2n), dx and x (the scheme's own states), sig (its declared signals), each followed by
     ``N_GUARD`` cells holding ``GUARD``, which the loop checks after every call of the law (and of
-    the discrete update, for x); ``fresh`` flags a kinematic evaluation by the law itself.
+    the discrete update, for x); ``fresh`` flags a kinematic evaluation by the law itself; ``rec``: the
+    inputs of a plug-in's call that raised (fast.loop._raised: which, t, q, eta, xc, sigma, ubar, w, MB, g,
+    eta_e).
     """
     c = spec.controller
 
@@ -130,7 +132,8 @@ def law_buffers(spec: Spec) -> tuple:
 
     n_own_sig = spec.n_sig - spec.n_kin_sig
     nw, n = c.chain.n_wheels, c.n_own
-    return (float(c.k_v), guarded(nw), guarded(n), guarded(n_own_sig), guarded(n), np.zeros(1))
+    rec = np.zeros(2 + c.chain.n_q + 2 + int(c.n_states) + 2 * nw + 2 + 2 * nw + 2 + 2)
+    return (float(c.k_v), guarded(nw), guarded(n), guarded(n_own_sig), guarded(n), np.zeros(1), rec)
 
 
 def _law_input(spec: Spec, bufs: tuple) -> tuple:
@@ -248,13 +251,15 @@ def loop_for(law, disc, motors: bool = True, sampled: bool = True, terms: int = 
 BINDING = "LAW, DISC = no_law, no_discrete  # LOOP-BINDING"
 TERMS_LINE = "TERMS_MODE = 0  # LOOP-TERMS"
 LEGACY_LINE = "LEGACY = False  # LOOP-LEGACY"
-PLUGIN_LINE = "PLUGIN = False  # LOOP-PLUGIN"
+PLUGIN_LINE = "PLUGIN, CATCH = False, False  # LOOP-PLUGIN"
 VARIANT = "MOTORS, SAMPLED = True, True  # LOOP-VARIANT"
 
 
 def is_plugin(fn) -> bool:
     """Whether a compiled law (or discrete update) is a plug-in's: defined outside ftcreport's own package."""
-    return not getattr(fn, "py_func", fn).__module__.startswith("ftcreport.")
+    from ..jit.compiling import own_module
+
+    return not own_module(getattr(fn, "py_func", fn).__module__)
 
 
 def _load_loop(law, disc, motors: bool, sampled: bool, terms: int = 0, checked: bool = False):
@@ -290,7 +295,7 @@ def _load_loop(law, disc, motors: bool, sampled: bool, terms: int = 0, checked: 
 
     text = text.replace(TERMS_LINE, f"TERMS_MODE = {int(terms)}")
     text = text.replace(LEGACY_LINE, f"LEGACY = {legacy(law)}")
-    text = text.replace(PLUGIN_LINE, f"PLUGIN = {is_plugin(law)}")
+    text = text.replace(PLUGIN_LINE, f"PLUGIN, CATCH = {is_plugin(law)}, {is_plugin(law) and not checked}")
     variant = f"MOTORS, SAMPLED = {motors}, {sampled}"
     if checked:  # every function of the module compiled with bounds checks, not cached
         variant += "\nfrom ftcreport.fast.scheme_check import checked_jit as jit  # noqa: E402"
@@ -341,8 +346,9 @@ _READY: set = set()  # the loops' entry points compiled or loaded in this proces
 
 @contextlib.contextmanager
 def _law_errors(spec: Spec) -> Iterator[None]:
-    """A plug-in law that raises inside the compiled loop (numba's shape checks on a slice assignment, a
-    bounds-checked compile) is the scheme's error, naming it (:class:`~ftcreport.errors.ModelError`)."""
+    """A plug-in law that raises inside the compiled loop uncaught (the round-2 form's: a law of the contract
+    that raises stops the run as E_LAW_RAISED, fast.loop._raised) is the scheme's error, naming it
+    (:class:`~ftcreport.errors.ModelError`)."""
     try:
         yield
     except (ValueError, IndexError, ZeroDivisionError, AssertionError, TypeError) as exc:

@@ -68,6 +68,7 @@ from ftcreport.jit.packed import (
     AT_STATE,
     AT_TRIAL,
     E_LAW_NONFINITE,
+    E_LAW_RAISED,
     E_LAW_SIGNAL,
     E_LAW_WRITE,
     E_MIN_STEP,
@@ -99,9 +100,11 @@ LAW, DISC = no_law, no_discrete  # LOOP-BINDING
 LEGACY = False  # LOOP-LEGACY
 #: how the matched terms reach the law (schemes.api.TERMS_MODES; fast.engine.loop_for writes the scheme's)
 TERMS_MODE = 0  # LOOP-TERMS
-#: a plug-in's law (not ftcreport's own): its logged signals are checked finite (E_LAW_SIGNAL); the built-in
-#: laws' loops do not compile the check
-PLUGIN = False  # LOOP-PLUGIN
+#: a plug-in's law (not ftcreport's own): its logged signals are checked finite (E_LAW_SIGNAL), and (CATCH, a
+#: real run's loop) an exception it raises (numba's boundscheck, which compiles every plug-in function:
+#: jit.compiling.jit) stops the run as E_LAW_RAISED with its inputs recorded; the built-in laws' loops do not
+#: compile either, 'schemes check's bounds-checked loop lets the exception through (it names the line)
+PLUGIN, CATCH = False, False  # LOOP-PLUGIN
 # the loop's variant (fast.engine.loop_for writes the case's): numba prunes the branches these close
 # before typing, so a loop without motors or sampled control never compiles their kernels
 MOTORS, SAMPLED = True, True  # LOOP-VARIANT
@@ -196,7 +199,7 @@ def _all_finite(q, eta, xc):
 @jit
 def _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
     """:func:`_law` for a law of the scheme API's contract."""
-    k_v, ub, db, sb, _xb, fresh = io
+    k_v, ub, db, sb, _xb, fresh, rec = io
     nw = ub.shape[0] - N_GUARD
     no = db.shape[0] - N_GUARD
     ns = sb.shape[0] - N_GUARD
@@ -216,7 +219,15 @@ def _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
     else:
         z = np.zeros(2)
         terms = Terms(z, np.zeros((2, nw)), z, z)
-    LAW(Pp, step, terms, readonly(xc[nk:]), Out(u, dx, s))
+    if CATCH:
+        try:
+            LAW(Pp, step, terms, readonly(xc[nk:]), Out(u, dx, s))
+        except Exception:  # numba catches no narrower class; Python runs the call again to name it
+            _raised(rec, info, 0, t, q, eta, xc, st, ut)
+            _record_terms(rec, q.shape[0] + 4 + xc.shape[0] + 2 * nw, terms.w, terms.MB, terms.g, terms.eta_e)
+            return u.copy(), dx
+    else:
+        LAW(Pp, step, terms, readonly(xc[nk:]), Out(u, dx, s))
     if info[0] != 0:
         return u.copy(), dx
     for which, buf, n in ((0, ub, nw), (1, db, no), (2, sb, ns)):
@@ -245,6 +256,38 @@ def _contract_law(Pp, io, Kp, R, C, pc, t, q, eta, xc, st, ut, info, sig):
             KSIG(sig, Kp, C)
         sig[k:] = s
     return u.copy(), dx
+
+
+@jit
+def _raised(rec, info, which, t, q, eta, xc, st, ut):
+    """A plug-in's law (``which`` 0) or discrete update (1) raised at t: E_LAW_RAISED, and its inputs in ``rec``
+    (the law buffers' last, fast.engine.law_buffers: which, t, q, eta, xc, sigma, ubar, then the law's terms),
+    from which Python runs it again to name the exception, the output, the index and the line
+    (fast.stops.law_raised_reason)."""
+    info[0] = E_LAW_RAISED
+    info[1] = which
+    info[2] = t
+    info[3] = 0.0
+    rec[0] = which
+    rec[1] = t
+    k = 2
+    for v in (q, eta, xc, st, ut):
+        n = v.shape[0]
+        rec[k : k + n] = v
+        k += n
+
+
+@jit
+def _record_terms(rec, k, w, MB, g, eta_e):
+    """The law's terms after its inputs in ``rec`` (:func:`_raised`), from index k: w, MB by rows, g, eta_e."""
+    rec[k : k + 2] = w
+    k += 2
+    for i in range(MB.shape[0]):
+        for j in range(MB.shape[1]):
+            rec[k] = MB[i, j]
+            k += 1
+    rec[k : k + 2] = g
+    rec[k + 2 : k + 4] = eta_e
 
 
 @jit
@@ -287,7 +330,14 @@ def _disc(P, Kp, R, C, pc, t, q, eta, xc, st, ut, info):
         nk = xc.shape[0] - no
         x = xb[:no]
         x[:] = xc[nk:]
-        DISC(Pp, Step(t, q, eta, st, ut, pc, info, (Kp, R, C, xc[:nk], fresh)), x)
+        if CATCH:
+            try:
+                DISC(Pp, Step(t, q, eta, st, ut, pc, info, (Kp, R, C, xc[:nk], fresh)), x)
+            except Exception:  # as in _contract_law
+                _raised(io[6], info, 1, t, q, eta, xc, st, ut)
+                return
+        else:
+            DISC(Pp, Step(t, q, eta, st, ut, pc, info, (Kp, R, C, xc[:nk], fresh)), x)
         if not guards_intact(xb, no):
             info[0] = E_LAW_WRITE
             info[1] = 3
@@ -1013,6 +1063,9 @@ def run_auto(
             ctl[C_EVALS] += ev
             r = math.inf
             cause = 0
+            if PLUGIN and (info[0] == E_LAW_RAISED or info[0] == E_LAW_WRITE):  # the law's fault: no shorter step
+                ctl[C_T] = t
+                return x, li, AT_TRIAL
             if info[0] != 0:
                 cause = 1
             else:

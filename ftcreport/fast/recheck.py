@@ -99,7 +99,7 @@ def _recheck(L: _Loop, grid, fidx, checkpoints, k_stop: int) -> dict:
         out["growth"] = float(tau[b] / tau[a])
     if L.info[0] != 0:
         t_state, t_next = float(fine[k_last]), float(fine[min(k_last + 1, n_fine - 1)])
-        st, why, t_end = _stop(L.info, where, t_state, t_next, fine_settings, L.spec.ref, L.spec)
+        st, why, t_end = _stop(L.info, where, t_state, t_next, fine_settings, L.spec.ref, L.spec, L.P[1])
         if _in_singular_set(L.info, where, L.x, t_state, fine_settings, L.spec):  # the state at the set's edge
             st, why = "singular", _message(L.info, t_state, fine_settings, L.spec.ref)[1]
         out |= {"status": st, "reason": why, "t_end": t_end, "where": int(where)}

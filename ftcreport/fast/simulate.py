@@ -58,7 +58,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     wall0 = _time.perf_counter()
     first_s, chunks = 0.0, 0  # the first chunk's call (with the loop's compile or load when it is new here)
     if L.info[0] != 0:  # the first command failed (at t0, before any step)
-        status, reason, t_end = _stop(L.info, AT_STATE, t_end, t_end, settings, spec.ref, spec)
+        status, reason, t_end = _stop(L.info, AT_STATE, t_end, t_end, settings, spec.ref, spec, L.P[1])
     with np.errstate(all="ignore"):
         while status == "ok":
             k1 = min(k + chunk - 1, n_steps)
@@ -82,6 +82,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
                     settings,
                     spec.ref,
                     spec,
+                    L.P[1],
                 )
                 if status in ("step_unstable", "diverged"):  # does a smaller step remove the stop? (36 item 4)
                     code = int(L.info[0])

@@ -28,6 +28,7 @@ from ..jit.packed import (
     E_CHAINED_THN,
     E_KAPPA,
     E_LAW_NONFINITE,
+    E_LAW_RAISED,
     E_LAW_SIGNAL,
     E_LAW_WRITE,
     E_NONFINITE_DERIV,
@@ -69,6 +70,8 @@ def _message(info: np.ndarray, t: float, settings, ref: Ref, how: str = "") -> t
         return "error", law_nonfinite_reason(None, int(b), c, a)
     if code == E_LAW_SIGNAL:
         return "error", law_signal_reason(None, int(b), c, a)
+    if code == E_LAW_RAISED:
+        return "error", law_raised_reason(None, info)
     if code in (E_NONFINITE_STATE, E_NONFINITE_DERIV):
         reason = nonfinite_reason("state" if code == E_NONFINITE_STATE else "control or derivative", a)
         return "diverged", with_step(reason, how)
@@ -133,12 +136,142 @@ def law_signal_reason(spec: Spec | None, j: int, value: float, t: float) -> str:
     )
 
 
+def law_raised_reason(spec: Spec | None, info: np.ndarray, bufs: tuple | None = None) -> str:
+    """Why a run stopped when a plug-in's law or discrete update raised inside the loop (E_LAW_RAISED): numba's
+    ``boundscheck`` (an index out of bounds, read or write: every plug-in function is compiled with it) or
+    another exception numba raises (a shape mismatch).  The compiled code cannot say which array, index or
+    line: the call is run again in Python on the inputs the loop recorded (``bufs``, the law buffers, their
+    ``rec``), where numpy names the index and the size, and the output (:class:`_Named`) and line are found."""
+    which = "discrete update" if int(info[1]) == 1 else "law"
+    t = float(info[2])
+    who = f"scheme '{spec.controller.scheme.name}'" if spec is not None else "the scheme"
+    found = None
+    if spec is not None and bufs is not None and len(bufs) > 6:
+        try:
+            found = _rerun(spec, bufs[6])
+        except Exception:  # the reason is still given, without the detail
+            found = None
+    sizes = ""
+    if spec is not None:
+        c = spec.controller
+        declared = ", ".join(f"{k} ({v})" for k, v in c.widths.items()) or "none declared"
+        n_sig = sum(c.widths.values())
+        sizes = f": out.u[0:{c.chain.n_wheels}], out.dx[0:{c.n_own}], out.sig[0:{n_sig}] ({declared})"
+    if found is not None:
+        kind, detail, line = found
+        at = f" ({line})" if line else ""
+        what = f"its {which} raised {kind} at t = {t:.6g} s{at}: {detail}"
+    else:
+        what = (
+            f"its {which} raised inside the compiled loop at t = {t:.6g} s (numba's boundscheck: an index out of "
+            "bounds, or a shape mismatch)"
+        )
+    return (
+        f"{who}: {what}; a law reads and writes only its own x and the declared sizes{sizes} (the run stops "
+        "there, its rows before kept; 'ftcreport schemes check FILE' names the line)"
+    )
+
+
+class _Named(np.ndarray):
+    """An output array of a law run again in Python (:func:`_rerun`): an IndexError names it (``out.sig[16]``)."""
+
+    def __array_finalize__(self, obj) -> None:
+        self.label = getattr(obj, "label", "")
+
+    def __setitem__(self, key, value) -> None:
+        try:
+            super().__setitem__(key, value)
+        except IndexError as exc:
+            raise IndexError(f"{self.label}[{_index(key)}]: {exc}") from None
+
+    def __getitem__(self, key):
+        try:
+            return super().__getitem__(key)
+        except IndexError as exc:
+            raise IndexError(f"{self.label}[{_index(key)}]: {exc}") from None
+
+
+def _index(key) -> str:
+    if isinstance(key, tuple):
+        return ", ".join(_index(k) for k in key)
+    if isinstance(key, slice):
+        return ":".join("" if v is None else str(v) for v in (key.start, key.stop)) + (
+            f":{key.step}" if key.step is not None else ""
+        )
+    return str(key)
+
+
+def _named(n: int, label: str) -> _Named:
+    out = np.zeros(n).view(_Named)
+    out.label = label
+    return out
+
+
+def _rerun(spec: Spec, rec: np.ndarray) -> tuple[str, str, str | None] | None:
+    """(exception class, message, ``file:line`` in the user's code) of the law or discrete update run again in
+    Python on the inputs ``rec`` the loop recorded (fast.loop._raised); None when it raises nothing here."""
+    import traceback
+    from pathlib import Path
+
+    from ..jit.packed import new_cache
+    from ..jit.refs import to_ref
+    from ..schemes.api import Out, Step, Terms
+    from ..schemes.registry import _system_roots
+
+    c = spec.controller
+    nq, nx, nw, nk = c.chain.n_q, int(c.n_states), c.chain.n_wheels, int(c.kin.n_states)
+    rec = np.array(rec, dtype=float)
+    which, t = int(rec[0]), float(rec[1])
+    parts, k = [], 2
+    for n in (nq, 2, nx, nw, nw, 2, 2 * nw, 2, 2):
+        parts.append(rec[k : k + n].copy())
+        k += n
+    q, eta, xc, st, ut, w, MB, g, ee = parts
+    info = np.zeros(4)
+    kin = (to_ref(spec.kin), to_ref(spec.ref), to_ref(new_cache(c.chain.n)), xc[:nk].copy(), np.zeros(1))
+    step = Step(t, q, eta, st, ut, to_ref(spec.chain), info, kin)
+    n_sig = spec.n_sig - spec.n_kin_sig
+    try:
+        if which == 0:
+            x = xc[nk:].copy()
+            x.setflags(write=False)
+            out = Out(_named(nw, "out.u"), _named(c.n_own, "out.dx"), _named(n_sig, "out.sig"))
+            spec.law.py_func(spec.P, step, Terms(w, MB.reshape(2, nw), g, ee), x, out)
+        else:
+            spec.disc.py_func(spec.P, step, _named(c.n_own, "x"))
+    except Exception as exc:  # whatever the law raises is what the user is told
+        package = Path(__file__).resolve().parents[1]
+        roots = _system_roots()
+        line = None
+        for frame in reversed(traceback.extract_tb(exc.__traceback__)):
+            f = Path(frame.filename).resolve()
+            if (
+                f != Path(__file__).resolve()
+                and not f.is_relative_to(package)
+                and not any(f.is_relative_to(r) for r in roots)
+            ):
+                line = f"{frame.filename}:{frame.lineno}"
+                break
+        return type(exc).__name__, str(exc).strip().splitlines()[0] if str(exc).strip() else "", line
+    return None
+
+
 def _stop(
-    info: np.ndarray, where: int, t_state: float, t_next: float, settings, ref: Ref, spec: Spec | None = None
+    info: np.ndarray,
+    where: int,
+    t_state: float,
+    t_next: float,
+    settings,
+    ref: Ref,
+    spec: Spec | None = None,
+    bufs: tuple | None = None,
 ) -> tuple[str, str, float]:
     """(status, reason, t_end) of a fixed-step stop: a failed trial stage is a step problem, not a singularity
-    (until the re-check says otherwise, :func:`_relabel`); a scheme that wrote past its buffers is an error
-    naming the scheme and the buffer (ftcreport.schemes.api)."""
+    (until the re-check says otherwise, :func:`_relabel`); a scheme that wrote past its buffers, or whose law
+    raised (``bufs``: its law buffers, :func:`law_raised_reason`), is an error naming the scheme and the
+    buffer (ftcreport.schemes.api)."""
+    if int(info[0]) == E_LAW_RAISED:
+        return "error", law_raised_reason(spec, info, bufs), float(info[2])
     if int(info[0]) == E_LAW_WRITE and spec is not None:
         from ..schemes.controller import write_reason
 

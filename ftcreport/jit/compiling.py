@@ -390,19 +390,31 @@ class KernelDispatcher(registry.CPUDispatcher):
 def jit(fn: Callable | None = None, *, cache: bool = True, **options):
     """numba's ``njit`` for ftcreport's kernels: ``cache=True, nogil=True, error_model="numpy"`` by default.
 
-    ``@jit`` or ``@jit(cache=False, error_model="python", ...)``; the options are numba's ``jit`` options."""
+    ``@jit`` or ``@jit(cache=False, error_model="python", ...)``; the options are numba's ``jit`` options.
+    A function defined outside ftcreport's own modules (a plug-in scheme's law and its helpers, through
+    ``schemes.jit``) is always compiled with numba's ``boundscheck=True``: an index out of bounds, read or
+    write, raises IndexError instead of reaching memory past the array (the loop turns it into the run's
+    error, fast.loop._contract_law); ftcreport's kernels and generated loops keep numba's default."""
     targetoptions = {"nogil": True, "error_model": "numpy", **options, "nopython": True}
     targetoptions.setdefault("boundscheck", None)
 
     def wrap(py_func):
         if numba.config.DISABLE_JIT:
             return py_func
-        disp = KernelDispatcher(py_func, targetoptions=dict(targetoptions))
+        opts = dict(targetoptions)
+        if not own_module(getattr(py_func, "__module__", None) or ""):
+            opts["boundscheck"] = True
+        disp = KernelDispatcher(py_func, targetoptions=opts)
         if cache:
             disp.enable_caching()
         return disp
 
     return wrap if fn is None else wrap(fn)
+
+
+def own_module(name: str) -> bool:
+    """Whether a module is ftcreport's own code: the package, or a loop module it generates (fast.engine)."""
+    return name == "ftcreport" or name.startswith(("ftcreport.", "ftcreport_loop_"))
 
 
 # --------------------------------------------------------------------------- the cache

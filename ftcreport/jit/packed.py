@@ -37,6 +37,7 @@ E_STEP_JUMP = 14  # info: kind, before, after (_step_jump: non-finite new state 
 E_LAW_WRITE = 16  # info: the buffer a scheme wrote past (0 u, 1 dx, 2 sig, 3 its state in the discrete update), t
 E_LAW_NONFINITE = 18  # info: t, the wheel index, the value (a law's command not finite from finite inputs)
 E_LAW_SIGNAL = 19  # info: t, the signal index, the value (a plug-in's logged signal not finite from finite inputs)
+E_LAW_RAISED = 20  # info: 0 the law, 1 the discrete update, t (a plug-in's raised: an index out of bounds, ...)
 E_MIN_STEP = 17  # info: t, the step that fell below the minimum (error-controlled methods, fast.loop.run_auto)
 
 #: the UKF step's statuses (observers/ukf_compiled.py's ``ukf_step``; E_UKF's info carries one)

@@ -37,12 +37,14 @@ filter.  ``schemes.terms_at(step, eta, k_v)`` gives it (and a law that needs the
 the measured velocity, e.g. at an estimate) the terms at another velocity.
 
 **What cannot happen.** A law cannot write its state (a typing error at compile time, naming the
-line).  Each of ``out``'s views is followed by guard cells the engine checks after every call of
-the law (and the discrete update's state after every update): a write up to
-:data:`N_GUARD` cells past a declared width stops the run with an error naming the scheme and the
-buffer (``status = "error"``), never ``ok``.  A write further out is not caught by the guards: it
-is caught by ``ftcreport schemes check`` and by a plug-in's first run, which run the law compiled
-with numba's ``boundscheck=True`` (an out-of-bounds index, read or write, raises there).  A plug-in's
+line).  Every function a plug-in compiles with ``schemes.jit`` is compiled with numba's
+``boundscheck=True`` (ftcreport.jit.compiling.jit): an out-of-bounds index, read or write, raises
+inside the loop, which stops the run (``status = "error"``, never ``ok``) naming the scheme, the
+output, the index, the time and the line (fast.loop._raised, fast.stops.law_raised_reason).  Each of
+``out``'s views is also followed by guard cells the engine checks after every call of the law (and
+the discrete update's state after every update): a write up to :data:`N_GUARD` cells past a
+declared width by a law compiled without bounds checks (a built-in's) stops the
+run with an error naming the scheme and the buffer.  A plug-in's
 declared signals are checked finite at every logged step: a NaN or inf there, from a finite state,
 stops the run with an error naming ``out.sig[j]``, the signal, the value and the time.
 """

@@ -375,8 +375,18 @@ class SchemeLoop:
             np.ascontiguousarray(st, dtype=float), np.ascontiguousarray(ut, dtype=float), info, _EMPTY,
         )  # fmt: skip
         if info[0] != 0:
-            raise ModelError(f"scheme {self.scheme}: the law stops at t = {t:g} s (error code {int(info[0])})")
+            raise ModelError(self._stopped("law", t, info))
         return np.asarray(u, dtype=float)
+
+    def _stopped(self, what: str, t: float, info: np.ndarray) -> str:
+        """Why the scheme's law or discrete update stopped at t: a plug-in's that raised (E_LAW_RAISED: the
+        loop caught it; run again in Python, it is named with its line, as a run's reason names it)."""
+        from ..fast.stops import law_raised_reason
+        from ..jit.packed import E_LAW_RAISED
+
+        if int(info[0]) == E_LAW_RAISED:
+            return law_raised_reason(self.spec, info, self._bufs)
+        return f"scheme {self.scheme}: the {what} stops at t = {t:g} s (error code {int(info[0])})"
 
     def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
         """The scheme's discrete update at t (a copy of xc updated)."""
@@ -386,7 +396,7 @@ class SchemeLoop:
         spec = self.spec
         self._loop.first_discrete((spec.P, self._bufs), spec.kin, spec.ref, spec.chain, float(t), q, eta, out, info)
         if info[0] != 0:
-            raise ModelError(f"scheme {self.scheme}: the discrete update stops at t = {t:g} s (code {int(info[0])})")
+            raise ModelError(self._stopped("discrete update", t, info))
         return out
 
     def controller(self, t: float, xp: np.ndarray, y: np.ndarray, xc: np.ndarray, fz: Faults):

@@ -514,3 +514,15 @@ def test_no_base_case_ratio_over_a_base_run_that_did_not_converge(tmp_path, monk
     assert "energy 10 -&gt; 13 J (+30.0% at the refined step)" in switching
     nominal = table[table.index('<td class="l">nominal</td>') :].split("</tr>")[0]
     assert "<b>2</b>" in nominal and "this run&#39;s step check did not converge" in nominal
+
+
+def test_the_estimates_figure_has_its_time_axis_under_the_lower_panel():
+    """The session-11 look at the adaptive figure: its x axis was anchored to the upper panel, so its ticks and
+    "t [s]" sat between the two panels, over the friction panel's top.  It is anchored to the lower one."""
+    from ftcreport.report.interactive import estimates_fig
+
+    ts, patterns = _adaptive_series(n_models=3, nw=2)
+    fig = estimates_fig(ts, "adaptive", ["1r", "1l"], [], patterns)
+    lay = fig["layout"]
+    lower = min(("yaxis", "yaxis2"), key=lambda a: lay[a]["domain"][0])
+    assert lower == "yaxis2" and lay["xaxis"].get("anchor") == "y2", lay["xaxis"]

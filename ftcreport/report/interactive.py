@@ -515,4 +515,5 @@ def estimates_fig(ts: dict, scheme: str, wheels: list[str], phases: list[dict], 
         yaxis={"title": {"text": top_title}, "domain": [0.53, 1], "range": lo_hi},
         yaxis2={"title": {"text": "friction [N m]"}, "domain": [0, 0.45], "range": [f_lo, f_hi]},
     )
+    lay["xaxis"]["anchor"] = "y2"  # the time axis under the lower panel, not between the two
     return {"data": data, "layout": lay}

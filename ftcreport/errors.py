@@ -19,6 +19,7 @@ __all__ = [
     "ModelError",
     "RunEnvironmentError",
     "SingularityError",
+    "StoredCaseChangedError",
     "UncompensableError",
     "articulation_reason",
     "bound_reason",
@@ -84,6 +85,11 @@ class ReferenceError(FtcError, ValueError):
 
 
 # --------------------------------------------------------------------------- the case's own error, or not
+class StoredCaseChangedError(FtcError):
+    """A stored case file that no longer hashes as the content its runs were made from (edited since, or
+    hashed otherwise by other code: storage.store.load_stored_case): its page says so instead of showing it."""
+
+
 class RunEnvironmentError(FtcError):
     """A run that failed because of where it ran, not because of its case: never stored as its result.
 

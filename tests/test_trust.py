@@ -1020,3 +1020,35 @@ def test_the_index_reads_thresholds_from_the_stored_case_not_its_record(violated
     res = runner.invoke(app, ["report", "--out", str(out)])
     assert res.exit_code == 0, res.output
     assert _counts(out / "index.html") == before
+
+
+def test_a_stored_case_hashed_otherwise_by_other_code_is_not_called_edited(tmp_path, monkeypatch):
+    """Session 11: when a change of ftcreport's code changed how a case's content is hashed (a fixed step's rtol
+    joined the key), 'report' on results stored before told the user their untouched case.toml "was edited".
+    The case record carries the code digest that stored it; a mismatch under other code says so."""
+    import ftcreport.cases.files as files
+
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    _write(cases, "c", faults=[{"time": 0.2, "wheel": "2l", "sigma": 0.0}])
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    rec_path = out / "c" / "case.json"
+    rec = json.loads(rec_path.read_text())
+    assert isinstance(rec.get("code"), str) and rec["code"]
+    hashed = files.case_hash
+
+    def otherwise(case, version):  # this code hashes the untouched file otherwise than the code that stored it
+        return "0123456789abcdef" if case.name == "c" else hashed(case, version)
+
+    monkeypatch.setattr(files, "case_hash", otherwise)
+    stored = out / "c" / "case.toml"
+    for code, words in ((rec["code"], "changed after its runs"), ("fedcba9876543210", "stored by other code")):
+        rec_path.write_text(json.dumps(rec | {"code": code}))
+        res = runner.invoke(app, ["report", "--out", str(out)])
+        assert res.exit_code == 1, res.output
+        lines = [e for e in _errors(res) if str(stored) in e]
+        assert lines and words in lines[0], res.stderr
+        assert "re-run 'ftcreport batch' on the case" in lines[0]
+    assert "fedcba9876543210" in lines[0] and "was edited" not in lines[0], lines[0]

@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import __version__
 from ..cases import ordered_schemes
-from ..errors import FtcError, printable
+from ..errors import FtcError, StoredCaseChangedError, printable
 from ..evaluation import compare
 from ..evaluation.claims import bound_text
 from ..evaluation.metrics import fault_phases
@@ -261,11 +261,9 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
 
     try:
         case = load_stored_case(out, name, rec)
-    except FtcError as exc:
-        if "changed after its runs" not in str(exc):
-            raise  # damaged: named, the report stops
-        # edited after its runs: the page says so and shows nothing of the edited file as the runs' (report
-        # and export name it and exit 1: store.edited_cases)
+    except StoredCaseChangedError as exc:  # (damaged: FtcError, named, the report stops)
+        # edited after its runs, or hashed otherwise by other code: the page says so and shows nothing of the
+        # stored file as the runs' (report and export name it and exit 1: store.edited_cases)
         return write_page(page, "case.html", root, nav_label=nav, name=name, description=str(exc), n_phases=0,
                           key=rec.get("key", "-"), simulated=rec.get("time", "-"), case_text="")  # fmt: skip
     text = (out / name / "case.toml").read_text(encoding="utf-8")  # read by load_stored_case just now

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..errors import FtcError
+from ..errors import FtcError, StoredCaseChangedError
 from ..infra.atomic import TMP_SUFFIX, replace_file
 from ..infra.lifetime import shielded
 from ..sim import Run
@@ -393,9 +393,19 @@ def load_stored_case(out: Path, name: str, rec: dict):
     # the key was made by the version that stored the case (another version's runs are named as such by
     # check_run): the content is compared, not the package
     version = rec.get("package_version") if isinstance(rec.get("package_version"), str) else __version__
-    if isinstance(key, str) and case_hash(case, version) != key:
-        raise FtcError(
-            f"{path}: changed after its runs (content hash {case_hash(case, version)}, the runs' {key}: the "
+    if isinstance(key, str) and (now := case_hash(case, version)) != key:
+        from .code_digest import code_digest
+
+        stored_by, here = rec.get("code"), code_digest()
+        if stored_by != here:  # the same file may hash otherwise under other code (a field joined the content)
+            raise StoredCaseChangedError(
+                f"{path}: its content hash is {now}, its runs' {key}, and they were stored by other code of "
+                f"ftcreport (code digest {stored_by or 'not recorded'}, now {here}), which may hash a case "
+                "otherwise (or the file, or one of its scheme files, changed since): not shown as theirs; re-run "
+                "'ftcreport batch' on the case"
+            )
+        raise StoredCaseChangedError(
+            f"{path}: changed after its runs (content hash {now}, the runs' {key}: the "
             "file or one of its scheme files was edited): not shown as theirs; re-run 'ftcreport batch' on the case"
         )
     return case

@@ -182,6 +182,7 @@ def record_case(
         "status": "ok",
         "key": key,
         "package_version": __version__,  # the key's version: a stored case is checked against it (load_stored_case)
+        "code": code_identity()["code"],  # the code that hashed it: another's may hash the same file otherwise
         "schemes": schemes,
         "n": case.robots.n,
         "reference": case.reference.kind,

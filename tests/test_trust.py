@@ -835,18 +835,24 @@ def test_a_scheme_the_case_no_longer_runs_is_dropped_not_damaged_for_ever(tmp_pa
         assert not _errors(res), res.stderr
 
 
-def test_a_stored_case_file_edited_after_its_runs_is_named_not_shown_as_theirs(tmp_path):
-    """The campaign attack (round 3): after a hand edit of the stored <case>/case.toml (a fault moved from
-    0.2 s to 0.4 s), 'report' and 'export' exited 0 and the page's verdict and phase tables, and the netCDF
-    fault schedule, read the edited file while the runs had the fault at 0.2 s.  The stored copy is
-    checked against the content hash the runs were made from (case.json's key; a plug-in file's edit
-    changes it too): a mismatch is named, the page says so instead of showing another case, exit 1."""
+def _batch_one_fault(tmp_path: Path) -> Path:
+    """A batch of one case "c" (a wheel lost at 0.2 s) into ``tmp_path / "out"``, which it returns."""
     cases = tmp_path / "cases"
     cases.mkdir()
     _write(cases, "c", faults=[{"time": 0.2, "wheel": "2l", "sigma": 0.0}])
     out = tmp_path / "out"
     res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"])
     assert res.exit_code == 0, res.output
+    return out
+
+
+def test_a_stored_case_file_edited_after_its_runs_is_named_not_shown_as_theirs(tmp_path):
+    """The campaign attack (round 3): after a hand edit of the stored <case>/case.toml (a fault moved from
+    0.2 s to 0.4 s), 'report' and 'export' exited 0 and the page's verdict and phase tables, and the netCDF
+    fault schedule, read the edited file while the runs had the fault at 0.2 s.  The stored copy is
+    checked against the content hash the runs were made from (case.json's key; a plug-in file's edit
+    changes it too): a mismatch is named, the page says so instead of showing another case, exit 1."""
+    out = _batch_one_fault(tmp_path)
     stored = out / "c" / "case.toml"
     stored.write_text(stored.read_text().replace("time = 0.2", "time = 0.4"))
     for cmd in (["report", "--out", str(out)], ["export", "--out", str(out), "--dest", str(tmp_path / "e")]):
@@ -1028,12 +1034,7 @@ def test_a_stored_case_hashed_otherwise_by_other_code_is_not_called_edited(tmp_p
     The case record carries the code digest that stored it; a mismatch under other code says so."""
     import ftcreport.cases.files as files
 
-    cases = tmp_path / "cases"
-    cases.mkdir()
-    _write(cases, "c", faults=[{"time": 0.2, "wheel": "2l", "sigma": 0.0}])
-    out = tmp_path / "out"
-    res = runner.invoke(app, ["batch", str(cases), "--out", str(out), "-q", "--jobs", "1"])
-    assert res.exit_code == 0, res.output
+    out = _batch_one_fault(tmp_path)
     rec_path = out / "c" / "case.json"
     rec = json.loads(rec_path.read_text())
     assert isinstance(rec.get("code"), str) and rec["code"]

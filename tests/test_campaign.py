@@ -157,13 +157,17 @@ def test_resume_refuses_another_version_or_case_content(base, tmp_path):
 
 
 class _FakeClient:
-    def __init__(self, worker_version):
+    def __init__(self, worker_version, worker_code=None):
         self.worker_version = worker_version
+        self.worker_code = worker_code
 
     def get_versions(self, check, packages):
         mine = {"python": "3.11.7", **{p: "1.0" for p in packages}}
         theirs = dict(mine, ftcreport=self.worker_version)
         return {"client": {"packages": mine}, "workers": {"tcp://10.0.0.2:4000": {"packages": theirs}}}
+
+    def run(self, func):  # Client.run: the function on every worker, {address: result}
+        return {"tcp://10.0.0.2:4000": func() if self.worker_code is None else self.worker_code}
 
 
 def test_worker_versions_are_checked():
@@ -172,6 +176,16 @@ def test_worker_versions_are_checked():
         check_versions(_FakeClient("0.9"))
     with pytest.raises(FtcError, match="ftcreport missing"):
         check_versions(_FakeClient(None))
+
+
+def test_worker_code_is_checked():
+    """A worker with the same package version but other code (an edited checkout on a --scheduler's
+    machine) would compute samples that the records label with this process's code digest."""
+    from ftcreport.storage.code_digest import code_digest
+
+    assert check_versions(_FakeClient("1.0"))["tcp://10.0.0.2:4000"]["code"] == code_digest()
+    with pytest.raises(FtcError, match=r"worker tcp://10.0.0.2:4000: its ftcreport code differs .*0123456789abcdef"):
+        check_versions(_FakeClient("1.0", worker_code="0123456789abcdef"))
 
 
 @pytest.mark.slow

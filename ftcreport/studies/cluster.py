@@ -12,8 +12,9 @@ the base case content, the schemes, the settings and the package version
 Before submitting, :func:`check_versions` compares the versions the workers
 report through Dask's own version report (``Client.get_versions``, which also
 warns on Dask's own mismatches) with the client's, for the package and every
-dependency that can change a simulated number; a mismatch is refused.  A
-worker plugin (:class:`WarmUp`) loads the compiled kernels once per worker
+dependency that can change a simulated number, and the package's source digest
+each worker computes (``Client.run``: the same version can be an edited checkout); a
+mismatch is refused.  A worker plugin (:class:`WarmUp`) loads the compiled kernels once per worker
 (``ftcreport.sim.warm_up``), so no sample pays the numba load.
 
 :func:`execute` runs ``func(*args)`` for every index, in this process or on a
@@ -37,7 +38,7 @@ from ..infra.lifetime import deferred, interrupt_of, shielded
 from ..infra.limits import worker_count
 from ..storage.manifest import NUMERIC_DEPENDENCIES
 
-__all__ = ["CHECKED_PACKAGES", "WarmUp", "check_versions", "execute"]
+__all__ = ["CHECKED_PACKAGES", "WarmUp", "check_versions", "execute", "worker_code"]
 
 #: seconds a LocalCluster is given to close its workers (then its processes end with this one:
 #: each worker process exits when the pipe to its parent closes, distributed.process)
@@ -72,10 +73,12 @@ class WarmUp(WorkerPlugin):
 
 
 def check_versions(client) -> dict[str, dict[str, str | None]]:
-    """Refuse workers whose Python, package or numeric-dependency versions differ from the client's.
+    """Refuse workers whose Python, package or numeric-dependency versions, or package sources, differ from the
+    client's.
 
     Uses Dask's version report (``Client.get_versions(check=True, packages=...)``: it warns itself
-    on Dask's own mismatches); returns ``{worker address: {package: version}}``.
+    on Dask's own mismatches), then each worker's source digest (``Client.run`` of :func:`worker_code`);
+    returns ``{worker address: {package: version, "code": digest}}``.
     """
     got = client.get_versions(check=True, packages=list(CHECKED_PACKAGES))
     mine = got["client"]["packages"]
@@ -90,7 +93,25 @@ def check_versions(client) -> dict[str, dict[str, str | None]]:
                 f"worker {addr}: versions differ from this client's: {', '.join(bad)}; "
                 "install the same versions on every worker (results of two versions must not mix)"
             )
+    # the same version can be other code (an edited checkout on another machine): the records name this
+    # process's code digest (studies.batch.code_identity), so every worker must run the same sources
+    mine_code = worker_code()
+    for addr, code in sorted(client.run(worker_code).items()):
+        if code != mine_code:
+            raise FtcError(
+                f"worker {addr}: its ftcreport code differs from this client's (source digest {code}, client: "
+                f"{mine_code}); install the same checkout on every worker (results of two codes must not mix)"
+            )
+        if addr in out:
+            out[addr]["code"] = code
     return out
+
+
+def worker_code() -> str:
+    """The package's source digest in the process that calls it (run on each worker by ``Client.run``)."""
+    from ..storage.code_digest import code_digest
+
+    return code_digest()
 
 
 def execute(

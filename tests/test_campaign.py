@@ -1018,3 +1018,34 @@ def test_sample_refuses_a_campaign_another_code_computed(failing_campaign, tmp_p
     (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("ftcreport: error:")]
     assert f"{out / 'campaign.json'}: " in line and "other code" in line and "0123456789abcdef" in line, line
     assert sorted(p.name for p in (out / "sample_pages").iterdir()) == before  # nothing rendered
+
+
+def test_sample_renders_the_campaign_page_from_the_sealed_records_not_an_edited_table(tmp_path):
+    """``sample OUT K`` re-rendered the campaign's page and summary from ``results.csv`` as it found it: an
+    edited table (every nominal run a success, a smaller final error) reached summary.json and the page.
+    The table is a view of the sealed sample records; the page is now rendered from those (and the table
+    rewritten from them)."""
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+
+    case = tmp_path / "c.toml"
+    data = _base_data()
+    data["campaign"]["success"] = {"position_error_final": {"max": 1e-9}}  # no run meets it: all fail
+    case.write_text(tomli_w.dumps(data))
+    out = tmp_path / "out"
+    args = ["campaign", str(case), "--in-process", "-q", "--schemes", "nominal", "--seed", "2", "--out", str(out)]
+    first = CliRunner().invoke(app, [*args, "-n", "2"])
+    assert first.exit_code == 0, first.output
+    honest = json.loads((out / "summary.json").read_text())["schemes"]["nominal"]
+    assert honest["successes"] == 0
+    table = (out / "results.csv").read_text()
+    lines = table.splitlines()
+    cols = lines[0].split(",")
+    at = cols.index("success")
+    edited = [lines[0]] + [",".join("True" if j == at else c for j, c in enumerate(ln.split(","))) for ln in lines[1:]]
+    (out / "results.csv").write_text("\n".join(edited) + "\n")
+    res = CliRunner().invoke(app, ["sample", str(out), "0"])
+    assert res.exit_code == 0, res.output
+    assert json.loads((out / "summary.json").read_text())["schemes"]["nominal"]["successes"] == 0
+    assert (out / "results.csv").read_text() == table  # the view rewritten from the records

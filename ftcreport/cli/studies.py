@@ -161,7 +161,7 @@ def sample(
     """
     from ..report.campaign import check_sample_index, render_campaign, render_sample
     from ..storage.store import output_lock
-    from ..studies.campaign import read_table
+    from ..studies.campaign import read_table, stored_table
 
     if not (campaign_dir / "campaign.json").is_file():
         raise FtcError(f"{campaign_dir}: not a campaign directory (no campaign.json); run 'ftcreport campaign' first")
@@ -173,7 +173,8 @@ def sample(
                 page = render_sample(campaign_dir, i)
             typer.echo(f"sample {i}: {page}")
         if (campaign_dir / "results.csv").exists():  # the campaign's page links the new pages
-            render_campaign(campaign_dir, read_table(campaign_dir / "results.csv"), worst=0)
+            # from the sealed records, not the table as found (an edited view would reach the page)
+            render_campaign(campaign_dir, read_table(stored_table(campaign_dir)), worst=0)
 
 
 def _done(res, runs: str, page: Path, detail: str = "") -> None:

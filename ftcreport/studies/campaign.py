@@ -69,6 +69,7 @@ __all__ = [
     "run_hash",
     "run_sample",
     "sample_seeds",
+    "stored_table",
     "summarize",
     "task_key",
     "wilson_interval",
@@ -626,13 +627,14 @@ def load_records(
     force: bool,
     what: str = "sample",
     check: Callable[[object], str | None] | None = None,
+    then: str = "runs again",
 ) -> tuple[dict[int, dict], int]:
     """Stored records under ``folder`` that belong to this run; refuses stale ones unless ``force``.
 
     With ``force`` the stale files are deleted (their tasks run again); returns (records, stale count).
     A corrupt, partial or malformed file (its index ``what`` is not its file's, or ``check(rec)`` names
     a field of a record of this run) counts as not done: a note on stderr names the file and the field,
-    and its task runs again.
+    and its task runs again (``then``: what the note says happens to it).
     """
     got: dict[int, dict] = {}
     stale = 0
@@ -640,17 +642,17 @@ def load_records(
         try:
             rec = json.loads(p.read_bytes())
         except (OSError, ValueError) as exc:
-            _not_done(p, f"unreadable ({str(exc)[:120]})", what)
+            _not_done(p, f"unreadable ({str(exc)[:120]})", what, then)
             continue
         if (why := _index_problem(p, rec, what)) is not None:
-            _not_done(p, why, what)
+            _not_done(p, why, what, then)
             continue
         index = rec[what]
         why = stale_reason(rec, expected) or _unsealed(rec)
         if why is None:  # this run's, by what it says it is: its content is checked, then its seal
             why = (check(rec) if check is not None else None) or _seal_problem(rec)
             if why is not None:
-                _not_done(p, why, what)
+                _not_done(p, why, what, then)
             else:
                 got[index] = rec
             continue
@@ -698,10 +700,10 @@ def _seal_problem(rec: dict) -> str | None:
     return "hash mismatch (its content differs from the SHA-256 it was sealed with: changed after the run)"
 
 
-def _not_done(p: Path, why: str, what: str) -> None:
+def _not_done(p: Path, why: str, what: str, then: str = "runs again") -> None:
     from .batch import _note
 
-    _note(f"ftcreport: note: {p}: {why}; not a stored result: the {what} counts as not done and runs again")
+    _note(f"ftcreport: note: {p}: {why}; not a stored result: the {what} counts as not done and {then}")
 
 
 @locked("campaign")
@@ -827,6 +829,33 @@ def run_campaign(
         res.wall_time = time.perf_counter() - wall0
         _write_manifest(out, base, expected, seed, schemes, samples, records, res, scheduler, workers, in_process)
     return res
+
+
+def stored_table(out: Path) -> Path:
+    """Rewrite the table of the campaign in ``out`` from its sealed sample records (the first ``--samples`` of
+    its manifest, as :func:`run_campaign` reports them) and return its path: the table is a view of the
+    records, and a page rendered after the campaign (``ftcreport sample``) must not read an edited view.
+
+    A record that is not this campaign's (another version, code or content), or no longer matches its seal,
+    is left out with a note, as a campaign counts it as not done.
+    """
+    out = Path(out)
+    meta = json.loads((out / "campaign.json").read_text(encoding="utf-8"))
+    expected = expected_identity(str(meta.get("case_hash")), str(meta.get("campaign")))
+    records, _ = load_records(out / "samples", expected, False, check=sample_problem, then="left out of the table")
+    settings = (_read_json(out / "manifest.json") or {}).get("settings")
+    n = settings.get("samples") if isinstance(settings, dict) else None
+    if isinstance(n, int) and not isinstance(n, bool):
+        records = {i: r for i, r in records.items() if i < n}
+    return write_table(out, records.values())
+
+
+def _read_json(path: Path) -> dict | None:
+    try:
+        got = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return got if isinstance(got, dict) else None
 
 
 def _remove_pages(pages: Path) -> None:

@@ -289,3 +289,29 @@ def test_a_baseline_whose_signal_band_is_gone_fails_naming_it(tmp_path):
     assert res.exit_code == 1, res.output
     assert "a bug" not in res.output
     assert f"{path}: damaged: schemes.switching.signals names 'torque[1r]', which {npz} has no band of" in res.output
+
+
+def test_a_baseline_case_whose_file_left_the_checked_directory_fails_and_a_subset_is_noted(tmp_path):
+    """The round-3 attack: with two cases saved from a directory and one file then deleted, `check DIR
+    --baseline B` said "1/1 runs match the baseline" (exit 0) without a word of the other: a scheme missing
+    from a case failed, a whole case missing passed.  A baseline case whose file lay in a directory (or was a
+    file) this check reads, and is not checked now, fails; one outside the inputs (a check of a subset) is
+    named in a note and does not fail."""
+    cases, out, dest = tmp_path / "cases", tmp_path / "r", tmp_path / "base"
+    cases.mkdir()
+    for name in ("a", "b"):
+        _write(cases / f"{name}.toml")
+        data = tomllib.loads((cases / f"{name}.toml").read_text())
+        data["name"] = name
+        data["simulation"]["duration"], data["faults"][0]["time"] = 2.0, 1.0
+        (cases / f"{name}.toml").write_text(tomli_w.dumps(data))
+    res = runner.invoke(app, ["baseline", "save", str(cases), "--out", str(out), "--dest", str(dest), "-q"])
+    assert res.exit_code == 0, res.output
+    # a subset: only a.toml is checked; b is outside the inputs, named but not failed
+    res = runner.invoke(app, ["check", str(cases / "a.toml"), "--out", str(out), "--baseline", str(dest)])
+    assert res.exit_code == 0, res.output
+    assert "1 case of the baseline not among this check's inputs (not compared): b" in res.output
+    (cases / "b.toml").unlink()
+    res = runner.invoke(app, ["check", str(cases), "--out", str(out), "--baseline", str(dest)])
+    assert res.exit_code == 1, res.output
+    assert f"b / baseline missing: b is in the baseline (its file {cases / 'b.toml'}) but not checked now" in res.output

@@ -1053,3 +1053,61 @@ def test_a_stored_case_hashed_otherwise_by_other_code_is_not_called_edited(tmp_p
         assert lines and words in lines[0], res.stderr
         assert "re-run 'ftcreport batch' on the case" in lines[0]
     assert "fedcba9876543210" in lines[0] and "was edited" not in lines[0], lines[0]
+
+
+def _lock_is_held(out: Path) -> bool:
+    """Whether another process finds ``out``'s lock taken (it tries the lock as a `run` would)."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys, pathlib\n"
+        "from ftcreport.storage.store import OutputBusyError, output_lock\n"
+        "try:\n"
+        "    with output_lock(pathlib.Path(sys.argv[1]), 'run'):\n"
+        "        pass\n"
+        "except OutputBusyError:\n"
+        "    sys.exit(7)\n"
+    )
+    got = subprocess.run([sys.executable, "-c", probe, str(out)], check=False, capture_output=True, text=True)
+    assert got.returncode in (0, 7), got.stderr  # free, or taken: nothing else
+    return got.returncode == 7
+
+
+@pytest.mark.parametrize("command", ["check", "baseline"])
+def test_check_and_baseline_save_hold_the_lock_while_they_judge(tmp_path, monkeypatch, command):
+    """The round-3 attack: `check` ran the batch under --out's lock, then judged the stored runs (gate,
+    baseline, JUnit) with the lock released: another process's `run` of a same-named case could store its
+    run in between, and a case whose threshold fails passed (exit 0).  `baseline save` read OUT likewise.
+    The lock is now held from the batch to the last file written: another process finds it taken."""
+    import ftcreport.studies.batch as batch
+
+    path, out = _write(tmp_path, "c"), tmp_path / "r"
+    seen = []
+    real = batch.run_batch
+
+    def then_probe(*args, **kwargs):
+        res = real(*args, **kwargs)
+        seen.append(_lock_is_held(out))
+        return res
+
+    monkeypatch.setattr(batch, "run_batch", then_probe)
+    if command == "check":
+        res = runner.invoke(app, ["check", str(path), "--out", str(out)])
+    else:
+        res = runner.invoke(app, ["baseline", "save", str(path), "--out", str(out), "--dest", str(tmp_path / "b")])
+    assert res.exit_code == 0, res.output
+    assert seen == [True]
+
+
+def test_check_never_writes_its_junit_over_a_result_its_batch_just_stored(tmp_path):
+    """The round-3 attack: on a fresh --out, `--junit OUT/c/nominal/record.json` passed the test for an
+    existing non-JUnit file (there was none yet); the batch stored the run there and the JUnit XML replaced
+    it (check exit 0, then `report` exit 1).  The target is tested again before writing."""
+    path, out = _write(tmp_path, "c"), tmp_path / "r"
+    record = out / "c" / "nominal" / "record.json"
+    res = runner.invoke(app, ["check", str(path), "--out", str(out), "--junit", str(record)])
+    assert res.exit_code == 2, res.output
+    assert f"--junit: {record} exists and is not a JUnit XML file: not overwritten" in res.output
+    assert json.loads(record.read_text())["status"] == "ok"
+    assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0

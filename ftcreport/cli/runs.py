@@ -408,6 +408,15 @@ def _render_progress():
         yield (lambda k: bar.update(task, total=k)), (lambda name: bar.update(task, advance=1, page=name))
 
 
+def _junit_writable(path: Path) -> bool:
+    """Whether --junit may be written now (:func:`_junit_target` holds), for the error report of a stopped check."""
+    try:
+        _junit_target(path)
+    except FtcError:
+        return False
+    return True
+
+
 def _junit_target(path: Path) -> None:
     """Refuse a --junit path that is a directory, or an existing file that is not a JUnit report (a stored
     result, a case file): check writes there, and must not destroy what it judges."""
@@ -454,7 +463,7 @@ def check(
     import time as _time
 
     from ..report.junit import write_junit
-    from ..storage.store import read_json
+    from ..storage.store import output_lock, read_json
     from ..studies.batch import run_batch
     from ..studies.check import exit_code, gate, summary, ungated
 
@@ -462,39 +471,44 @@ def check(
         _junit_target(junit)
     started = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     wall0 = _time.perf_counter()
-    try:
-        if baseline is not None:
-            from ..studies.baseline import check_dest
-
-            check_dest(baseline)  # a mistyped --baseline before anything runs
-        res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
-    except BaseException as exc:  # stopped before judging (bad input, Ctrl-C, a bug): the JUnit file says so
-        if junit is not None:
-            from ..studies.check import error_items
-
-            why = str(exc) if isinstance(exc, FtcError) else f"stopped before judging: {type(exc).__name__} {exc}"
-            write_junit(junit, error_items({"ftcreport check": why}), time=_time.perf_counter() - wall0,
-                        timestamp=started)  # fmt: skip
-        raise
-    items = gate(out, res.cases, res.case_errors, res.not_stored)
-    baseline_page = None
+    inputs = cases or [Path("cases")]
+    outside: list[str] = []
     if baseline is not None:
-        from ..report.baseline_page import render_baseline
-        from ..storage.store import output_lock
-        from ..studies.baseline import baseline_items
+        from ..studies.baseline import check_dest
 
-        found, comparisons = baseline_items(out, res.cases, baseline)
-        items += found
-        with output_lock(out, "check"):
+        check_dest(baseline)  # a mistyped --baseline before anything runs
+    # one hold of --out's lock from the batch to the last file written: judged in between, the stored runs
+    # could be another process's (a `run` of a same-named case), and a failing case would pass
+    with output_lock(out, "check"):
+        try:
+            res = run_batch(inputs, out, jobs, show_progress=not quiet)
+        except BaseException as exc:  # stopped before judging (bad input, Ctrl-C, a bug): the JUnit file says so
+            if junit is not None and _junit_writable(junit):
+                from ..studies.check import error_items
+
+                why = str(exc) if isinstance(exc, FtcError) else f"stopped before judging: {type(exc).__name__} {exc}"
+                write_junit(junit, error_items({"ftcreport check": why}), time=_time.perf_counter() - wall0,
+                            timestamp=started)  # fmt: skip
+            raise
+        items = gate(out, res.cases, res.case_errors, res.not_stored)
+        baseline_page = None
+        if baseline is not None:
+            from ..report.baseline_page import render_baseline
+            from ..studies.baseline import absent_items, baseline_items
+
+            found, comparisons = baseline_items(out, res.cases, baseline)
+            gone, outside = absent_items(baseline, res.cases, res.case_errors, inputs)
+            items += found + gone
             baseline_page = render_baseline(out, baseline, comparisons)
-    if junit is not None:
-        write_junit(
-            junit,
-            items,
-            properties=read_json(out / "manifest.json"),
-            time=_time.perf_counter() - wall0,
-            timestamp=started,
-        )
+        if junit is not None:
+            _junit_target(junit)  # again: the batch may have stored a result at that path since
+            write_junit(
+                junit,
+                items,
+                properties=read_json(out / "manifest.json"),
+                time=_time.perf_counter() - wall0,
+                timestamp=started,
+            )
     for item in items:
         if not item.error and (not item.ok or not quiet):
             for line in item.terminal_lines():
@@ -505,6 +519,12 @@ def check(
         typer.echo(line)
     for line in ungated(items):
         typer.echo(printable(line))
+    if outside:
+        n = len(outside)
+        typer.echo(
+            printable(f"{n} case{'s' * (n > 1)} of the baseline not among this check's inputs (not compared): "
+                      + ", ".join(outside))
+        )  # fmt: skip
     if baseline_page is not None:
         typer.echo(f"baseline comparison: {baseline_page}")
     if (code := exit_code(items)) != 0:
@@ -538,9 +558,11 @@ def baseline_save(
 
     if dest.exists() and not dest.is_dir():
         raise FtcError(f"{dest}: --dest: exists and is not a directory")
-    res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
-    with output_lock(dest, "baseline save"):
-        refused = save_baseline(out, res.cases, dest)
+    # --out's lock from the batch to the last run read: no other process stores a run in between
+    with output_lock(out, "batch"):
+        res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
+        with output_lock(dest, "baseline save"):
+            refused = save_baseline(out, res.cases, dest)
     for name, why in refused:
         typer.echo(f"ftcreport: error: {name}: not saved: {why}", err=True)
     for msg in res.case_errors.values():

@@ -701,6 +701,48 @@ def baseline_items(out: Path, names: Iterable[str], dest: Path) -> tuple[list[Ga
     return [i for c in comparisons for i in gate_items(c)], comparisons
 
 
+def absent_items(
+    dest: Path, names: Iterable[str], errors: Mapping[str, str], inputs: Iterable[Path]
+) -> tuple[list[GateItem], list[str]]:
+    """The baseline's cases that this check does not compare: (a failing gate item for each whose case file
+    lay among the check's inputs, a directory holding it or the file itself, and is not checked now: its file
+    deleted, moved or renamed as another case; the names of the others, outside the inputs: a check of a
+    subset, named in a note).  A case whose file is still there but cannot be read is already an error of the
+    batch (``errors``, by file) and is not counted twice.
+
+    A missing scheme fails the comparison (:func:`compare_case`); a missing case must too, or deleting a
+    regression's case file would pass the gate.
+    """
+    from ..storage.store import read_json
+
+    index = read_json(Path(dest) / "baseline.json")
+    saved = index.get("cases") if isinstance(index, dict) else None
+    if not isinstance(saved, dict):
+        return [], []
+    now = set(names)
+    roots = [Path(p).resolve() for p in inputs]
+    failed = {Path(p).resolve() for p in errors}
+    items, outside = [], []
+    for name in sorted(saved):
+        if name in now:
+            continue
+        rec = read_json(Path(dest) / name / "baseline.json")
+        source = rec.get("source") if isinstance(rec, dict) else None
+        where = Path(source).resolve() if isinstance(source, str) and source else None
+        if where is None or not any(where == r or where.is_relative_to(r) for r in roots):
+            outside.append(name)
+            continue
+        if where in failed:
+            continue
+        why = "deleted or moved" if not where.exists() else "now holds another case"
+        msg = (
+            f"baseline missing: {name} is in the baseline (its file {source}) but not checked now: the file is "
+            f"{why}; save the baseline again if the case was retired on purpose"
+        )
+        items.append(_item(name, "*", False, msg, (f"{name} / {msg}",)))
+    return items, outside
+
+
 def check_dest(dest: Path) -> None:
     """Refuse a --baseline directory that holds no baseline at all (a mistyped path: exit 2)."""
     from ..errors import FtcError

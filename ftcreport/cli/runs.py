@@ -408,13 +408,21 @@ def _render_progress():
         yield (lambda k: bar.update(task, total=k)), (lambda name: bar.update(task, advance=1, page=name))
 
 
-def _junit_writable(path: Path) -> bool:
-    """Whether --junit may be written now (:func:`_junit_target` holds), for the error report of a stopped check."""
+def _junit_stopped(junit: Path | None, exc: BaseException, seconds: float, started: str) -> None:
+    """A check stopped before judging (bad input, --out busy, Ctrl-C, a bug): its JUnit file says so (a CI
+    step that publishes it regardless of the exit code must not show the last run's green), unless the path
+    now holds a file that is not JUnit (never overwritten)."""
+    if junit is None:
+        return
     try:
-        _junit_target(path)
+        _junit_target(junit)
     except FtcError:
-        return False
-    return True
+        return
+    from ..report.junit import write_junit
+    from ..studies.check import error_items
+
+    why = str(exc) if isinstance(exc, FtcError) else f"stopped before judging: {type(exc).__name__} {exc}"
+    write_junit(junit, error_items({"ftcreport check": why}), time=seconds, timestamp=started)
 
 
 def _junit_target(path: Path) -> None:
@@ -479,16 +487,17 @@ def check(
         check_dest(baseline)  # a mistyped --baseline before anything runs
     # one hold of --out's lock from the batch to the last file written: judged in between, the stored runs
     # could be another process's (a `run` of a same-named case), and a failing case would pass
-    with output_lock(out, "check"):
+    held = contextlib.ExitStack()
+    try:
+        held.enter_context(output_lock(out, "check"))  # --out busy: the JUnit file says so too
+    except BaseException as exc:
+        _junit_stopped(junit, exc, _time.perf_counter() - wall0, started)
+        raise
+    with held:  # left after the last file written
         try:
             res = run_batch(inputs, out, jobs, show_progress=not quiet)
         except BaseException as exc:  # stopped before judging (bad input, Ctrl-C, a bug): the JUnit file says so
-            if junit is not None and _junit_writable(junit):
-                from ..studies.check import error_items
-
-                why = str(exc) if isinstance(exc, FtcError) else f"stopped before judging: {type(exc).__name__} {exc}"
-                write_junit(junit, error_items({"ftcreport check": why}), time=_time.perf_counter() - wall0,
-                            timestamp=started)  # fmt: skip
+            _junit_stopped(junit, exc, _time.perf_counter() - wall0, started)
             raise
         items = gate(out, res.cases, res.case_errors, res.not_stored)
         baseline_page = None

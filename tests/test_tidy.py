@@ -277,3 +277,53 @@ def test_run_command_writes_the_case_manifest(tmp_path):
         }
     ]
     assert m["ftcreport"]["version"] == ftcreport.__version__
+
+
+def _stored_synthetic(out: Path, scheme: str, offset: float) -> tuple[Path, str]:
+    """A one-second run of two_link_uncompensable stored under ``out`` as batch stores it, its arrays shifted by
+    ``offset`` (two contents of the case give two trajectories); returns its directory and case hash."""
+    from ftcreport.sim import Run
+
+    path = CASES / "two_link_uncompensable.toml"
+    case = with_duration(load_case(path), 1.0)
+    chash = record_case(out, case, path, 1.0)
+    t = np.linspace(0.0, 1.0, 11)
+    run = Run(t=t, signals={"q": np.full((11, 4), offset)}, t_end=1.0, meta={"case": case.name, "scheme": scheme})
+    m = {"case": case.name, "scheme": scheme, "status": "ok", "case_hash": chash}
+    return save_run(out, case.name, scheme, run, m, run_key(case, scheme)), chash
+
+
+def test_a_run_stored_again_or_removed_leaves_no_netcdf_of_the_run_before(tmp_path):
+    """export's timeseries.nc beside a run is of that run: a batch storing the run again (the case edited) or
+    removing it (a scheme dropped) left it there, with the old case hash, status and trajectory."""
+    from ftcreport.storage.store import remove_run
+    from ftcreport.storage.tidy import export
+
+    out = tmp_path / "r"
+    d, _ = _stored_synthetic(out, "nominal", 0.0)
+    export(out)
+    assert (d / "timeseries.nc").exists()
+    _stored_synthetic(out, "nominal", 1.0)  # stored again: the netCDF of the run before goes with it
+    assert not (d / "timeseries.nc").exists(), "timeseries.nc of the previous run left beside the new one"
+    export(out)
+    with xr.open_dataset(d / "timeseries.nc", engine="h5netcdf") as ds:
+        np.testing.assert_array_equal(ds["q"].values, np.full((11, 4), 1.0))
+    remove_run(out, d.parent.name, "nominal")  # removed: nothing of it stays, its directory neither
+    assert not d.exists()
+
+
+def test_export_removes_the_netcdf_of_a_run_it_skips(tmp_path):
+    """A damaged run gets no netCDF: the one an earlier export wrote for it (beside it or in --dest) was left,
+    still saying status ok."""
+    from ftcreport.storage.tidy import export
+
+    out, dest = tmp_path / "r", tmp_path / "x"
+    d, _ = _stored_synthetic(out, "nominal", 0.0)
+    export(out)
+    export(out, dest)
+    (d / "metrics.json").write_text((d / "metrics.json").read_text().replace('"ok"', '"error"'))
+    for where in (None, dest):
+        damaged: list[str] = []
+        export(out, where, damaged)
+        assert damaged and "metrics.json: " in damaged[0]
+        assert not ((where or out) / d.parent.name / "nominal" / "timeseries.nc").exists(), where

@@ -43,6 +43,8 @@ from ..infra.lifetime import shielded
 from ..sim import Run
 
 __all__ = [
+    "DERIVED_FILES",
+    "NETCDF",
     "RECORD",
     "RUN_FILES",
     "OutputBusyError",
@@ -110,6 +112,11 @@ def write_json(path: Path, obj: Any) -> None:
 
 RECORD = "record.json"  # a run's record (written last)
 RUN_FILES = ("metrics.json", "timeseries.npz")  # a run's files, each in its record with its size and hash
+NETCDF = "timeseries.nc"  # export's netCDF of a run, beside it (ftcreport.storage.tidy.export)
+#: Files other commands make from a run in its directory: not in its record, but of the run they were made
+#: from (its case hash, status and trajectory inside), so they go when that run is stored again or removed:
+#: a later run's directory never holds an export of the one before it.
+DERIVED_FILES = (NETCDF,)
 RECORD_FORMAT = 1
 
 
@@ -137,6 +144,8 @@ def save_run(
     check_inside(d / RECORD)  # a case folder linked out of --out is refused, not written (nor its record removed)
     (d / RECORD).unlink(missing_ok=True)  # the directory is incomplete until the new record is written
     (d / "key").unlink(missing_ok=True)  # the record's predecessor (ftcreport before issue 34)
+    for name in DERIVED_FILES:  # made from the run before: export makes them again from this one
+        (d / name).unlink(missing_ok=True)
     buf = io.BytesIO()
     arrays = {"t": run.t, **{k: v for k, v in run.signals.items()}}
     np.savez_compressed(buf, **arrays)
@@ -346,12 +355,12 @@ def stored_schemes(out: Path, case_name: str) -> list[str]:
 
 
 def remove_run(out: Path, case_name: str, scheme: str) -> None:
-    """Remove a stored run: its files first, its record last (an interruption leaves the record, of the
-    earlier content, which the next batch removes again: studies.batch._dropped_schemes), then its
-    directory when nothing else is in it."""
+    """Remove a stored run: the files made from it (:data:`DERIVED_FILES`) and its files first, its record
+    last (an interruption leaves the record, of the earlier content, which the next batch removes again:
+    studies.batch._dropped_schemes), then its directory when nothing else is in it."""
     d = Path(out) / case_name / scheme
     check_inside(d / RECORD)
-    for name in (*RUN_FILES, RECORD):
+    for name in (*DERIVED_FILES, *RUN_FILES, RECORD):
         with contextlib.suppress(FileNotFoundError):
             (d / name).unlink()
     with contextlib.suppress(OSError):

@@ -417,10 +417,11 @@ def export(out: Path, dest: Path | None = None, damaged: list[str] | None = None
 
     ``dest`` defaults to ``out`` (the files go beside the JSON and ``.npz``).  A damaged stored run
     (:func:`ftcreport.storage.store.check_run`) gets no netCDF and is a row with status ``error`` in the table;
-    its problem (``<file>: <why>``) is appended to ``damaged`` when given.
+    its problem (``<file>: <why>``) is appended to ``damaged`` when given.  The netCDF an earlier export wrote
+    for it is removed: it would stand in ``dest`` as the run's, status ok, while the run is not exported.
     """
     from ..errors import FtcError
-    from .store import read_json, stored_runs
+    from .store import NETCDF, check_inside, read_json, stored_runs
 
     out = Path(out)
     dest = Path(dest) if dest is not None else out
@@ -433,10 +434,13 @@ def export(out: Path, dest: Path | None = None, damaged: list[str] | None = None
             continue
         for s, stored in stored_runs(out, name).items():
             run = read_run(out, name, s) if stored.sound else None
+            nc = dest / name / s / NETCDF
             if run is None:
                 if not stored.sound and damaged is not None:
                     damaged.append(stored.problem)
+                check_inside(nc)  # as a write: never through a link out of the directory
+                nc.unlink(missing_ok=True)
                 continue
-            written.append(write_netcdf(dest / name / s / "timeseries.nc", run))
+            written.append(write_netcdf(nc, run))
     written.append(write_metrics_parquet(out, dest / "metrics.parquet"))
     return written

@@ -147,6 +147,54 @@ def test_coverage_cli_errors_are_one_line(tmp_path):
     assert "Traceback" not in r.output
 
 
+def _refused(out: Path, *args: str) -> str:
+    """The one line a bad coverage option gives (exit 2), checked to leave no output directory behind; runs are
+    confined to one scheme at one onset, so an option wrongly accepted costs seconds, not a map."""
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+
+    case = str(ROOT / "cases" / "two_link_campaign.toml")
+    fast = ["--times", "5", "--schemes", "nominal", "--in-process", "-q", "--out", str(out)]
+    r = CliRunner().invoke(app, ["coverage", case, *fast, *args])  # the last --times wins
+    assert r.exit_code == 2, (args, r.exit_code, r.output)
+    assert len(r.output.strip().splitlines()) == 1 and r.output.startswith("ftcreport: error: "), r.output
+    assert not out.exists(), f"{args}: {out} made before the option was refused"
+    return r.output.strip()
+
+
+def test_coverage_kinds_and_sigmas_that_name_nothing_are_refused(tmp_path):
+    """--kinds "," (or "") ran a map of zero fault runs and exited 0, where campaign --schemes "," is refused;
+    --sigmas "," silently dropped the partial losses --kinds asks for."""
+    for kinds in (",", "", " , "):
+        line = _refused(tmp_path / "k", "--kinds", kinds)
+        assert "--kinds: names no fault kind; give one or more of loss, pair, partial, friction" in line
+    line = _refused(tmp_path / "s", "--kinds", "partial", "--sigmas", ",")
+    assert "--sigmas: names no gain for the partial losses; give one or more in (0, 1)" in line
+    assert fault_set(2, sigmas=(), kinds=("loss",))  # no partial loss asked: no gain needed
+    with pytest.raises(FtcError, match="--kinds: names no fault kind"):
+        fault_set(2, kinds=())
+
+
+def test_coverage_friction_is_a_finite_nonzero_torque_of_the_case_range(tmp_path):
+    """--friction nan, inf or -1e300 was taken: every friction run failed as a CaseError (faults[0].ubar), kept
+    in failed.json only, and the command exited 1 with nothing on stderr."""
+    for value in ("nan", "inf", "-inf", "-1e300", "10000.5", "0"):
+        line = _refused(tmp_path / "f", "--kinds", "friction", "--friction", value)
+        assert "--friction: " in line and "[-10000, 10000] N m (a fault's ubar)" in line, line
+    assert "a friction of 0 N m changes no wheel" in _refused(tmp_path / "f", "--kinds", "friction", "--friction", "0")
+    assert "--friction: " in _refused(tmp_path / "f", "--kinds", "loss", "--friction", "nan")  # unused, still bad
+    assert [f.ubar for f in fault_set(1, friction=-2.0, kinds=("friction",))] == [-2.0, -2.0]  # negative: allowed
+
+
+def test_coverage_times_and_sigmas_refuse_nan_inf_and_negatives(tmp_path):
+    """--times and --sigmas are refused out of range whatever the number (nan compares false to every bound)."""
+    for value in ("nan", "inf", "-1", "-1e300"):
+        assert "--times: onset times must lie in [0, 30) s" in _refused(tmp_path / "t", "--times", value)
+        assert "--sigmas: partial losses need 0 < sigma < 1" in _refused(tmp_path / "s", "--sigmas", value)
+    assert "--times: " in _refused(tmp_path / "t", "--times", ",")
+
+
 def _coverage_dir(out: Path, kinds: list[str]) -> Path:
     """A coverage directory with its metadata and an empty summary (the page's header and links only)."""
     out.mkdir(parents=True, exist_ok=True)

@@ -236,7 +236,9 @@ def coverage(
     ] = None,
     schemes: Annotated[str | None, typer.Option(help="Comma-separated schemes (default: all in the case).")] = None,
     sigmas: Annotated[str, typer.Option(help="Partial-loss gains, comma-separated, in (0, 1).")] = "0.25,0.5",
-    friction: Annotated[float, typer.Option(help="Friction of the friction faults \\[N m].")] = 0.5,
+    friction: Annotated[
+        float, typer.Option(help="Friction of the friction faults \\[N m]: nonzero, in [-10000, 10000].")
+    ] = 0.5,
     kinds: Annotated[str, typer.Option(help="Fault kinds: loss,pair,partial,friction.")] = "loss,pair,partial,friction",
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
@@ -255,7 +257,8 @@ def coverage(
     from ..cases import load_case
     from ..report.coverage import render_coverage
     from ..storage.store import output_lock
-    from ..studies.coverage import run_coverage
+    from ..studies.campaign import select_schemes
+    from ..studies.coverage import plan_coverage, run_coverage
 
     base = load_case(case)
     out_dir = out or Path("reports") / "coverage" / base.name
@@ -266,7 +269,10 @@ def coverage(
         "friction": friction,
         "kinds": tuple(_names(kinds) or ()),
     }
-    dask = _dask(scheduler, workers, in_process, quiet, force)  # a malformed --scheduler before out_dir is made
+    # every option before out_dir is made (as campaign): a bad one is exit 2, one line, and nothing written
+    select_schemes(base, options["schemes"])
+    plan_coverage(base, options["times"], options["sigmas"], friction, options["kinds"])
+    dask = _dask(scheduler, workers, in_process, quiet, force)  # and a malformed --scheduler
     with output_lock(out_dir, "coverage"):  # a second coverage into out_dir is refused, naming this one
         res = run_coverage(base, out_dir, **options, **dask)
         page = render_coverage(out_dir)

@@ -58,6 +58,7 @@ __all__ = [
     "CoverageResult",
     "fault_set",
     "onset_times",
+    "plan_coverage",
     "predicted_compensable",
     "run_coverage",
     "run_item",
@@ -111,12 +112,21 @@ class CoverageFault:
 def fault_set(
     n: int, sigmas: tuple[float, ...] = (0.25, 0.5), friction: float = 0.5, kinds: tuple[str, ...] = FAULT_KINDS
 ) -> list[CoverageFault]:
-    """Single losses, pairs of losses, partial losses (``sigmas``) and a friction per wheel."""
+    """Single losses, pairs of losses, partial losses (``sigmas``) and a friction per wheel.
+
+    Each setting is checked here, blamed on its option, so that a map is never of nothing (no kind, or
+    partial losses without a gain: zero runs and exit 0) nor of faults no case may hold (a friction the
+    case schema refuses: every run a CaseError, the command's error on no line of its own)."""
     bad = [k for k in kinds if k not in FAULT_KINDS]
     if bad:
         raise FtcError(f"--kinds: unknown {bad} (choose from {', '.join(FAULT_KINDS)})")
+    if not kinds:
+        raise FtcError(f"--kinds: names no fault kind; give one or more of {', '.join(FAULT_KINDS)}, comma-separated")
     if any(not 0.0 < s < 1.0 for s in sigmas):
         raise FtcError(f"--sigmas: partial losses need 0 < sigma < 1, got {list(sigmas)}")
+    if "partial" in kinds and not sigmas:
+        raise FtcError("--sigmas: names no gain for the partial losses; give one or more in (0, 1), comma-separated")
+    _check_friction(friction, "friction" in kinds)
     w = wheel_names(n)
     out: list[CoverageFault] = []
     if "loss" in kinds:
@@ -128,6 +138,48 @@ def fault_set(
     if "friction" in kinds:
         out += [CoverageFault("friction", (x,), 1.0, float(friction)) for x in w]
     return out
+
+
+def _friction_range() -> tuple[float, float]:
+    """The range of a case fault's friction ``ubar`` [N m], read from the case schema (``cases.tables.Fault``),
+    so that ``--friction`` accepts what a case file does and no more."""
+    from ..cases.tables import Fault
+
+    bounds = {type(m).__name__: m for m in Fault.model_fields["ubar"].metadata}
+    return float(bounds["Ge"].ge), float(bounds["Le"].le)
+
+
+def _check_friction(friction: float, used: bool) -> None:
+    """``--friction``: a finite torque in the case schema's range (a NaN or inf one is no fault a case holds);
+    nonzero when friction faults are run (sigma 1 with ubar 0 changes no wheel: every scheme would 'survive'
+    it).  A bad value is refused even when unused: it is stored in the map's settings and hash."""
+    lo, hi = _friction_range()
+    if not (math.isfinite(friction) and lo <= friction <= hi):
+        raise FtcError(
+            f"--friction: must be a finite torque in [{lo:g}, {hi:g}] N m (a fault's ubar), got {friction:g}"
+        )
+    if used and friction == 0.0:
+        raise FtcError(
+            f"--friction: a friction of 0 N m changes no wheel; give a nonzero torque in [{lo:g}, {hi:g}] N m "
+            "(a fault's ubar)"
+        )
+
+
+def plan_coverage(
+    base: Case,
+    times: list[float] | None = None,
+    sigmas: tuple[float, ...] = (0.25, 0.5),
+    friction: float = 0.5,
+    kinds: tuple[str, ...] = FAULT_KINDS,
+    onsets: int = 3,
+) -> tuple[list[float], list[CoverageFault]]:
+    """The onset times and the fault set of a map, every option checked (FtcError naming it): the command
+    calls it before it makes the output directory, :func:`run_coverage` again (the API's callers too)."""
+    T = base.simulation.duration
+    times = onset_times(base, onsets) if times is None else [float(t) for t in times]
+    if not times or any(not 0.0 <= t < T for t in times):
+        raise FtcError(f"--times: onset times must lie in [0, {T:g}) s (the case's duration), got {times}")
+    return times, fault_set(base.robots.n, tuple(sigmas), friction, tuple(kinds))
 
 
 def predicted_compensable(n: int, fault: CoverageFault) -> bool:
@@ -334,11 +386,7 @@ def run_coverage(
     ``manifest.json``; the page is :func:`ftcreport.report.coverage.render_coverage`.
     """
     schemes = select_schemes(base, schemes)
-    T = base.simulation.duration
-    times = onset_times(base, onsets) if times is None else [float(t) for t in times]
-    if not times or any(not 0.0 <= t < T for t in times):
-        raise FtcError(f"--times: onset times must lie in [0, {T:g}) s (the case's duration), got {times}")
-    faults = fault_set(base.robots.n, tuple(sigmas), friction, tuple(kinds))
+    times, faults = plan_coverage(base, times, sigmas, friction, kinds, onsets)
     items = [(f, t) for f in faults for t in times]
     out = Path(out)
     (out / "items").mkdir(parents=True, exist_ok=True)

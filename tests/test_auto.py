@@ -9,6 +9,7 @@ tests/test_auto_twins.py.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -66,14 +67,19 @@ def test_the_stiff_thesis_case_picks_the_stiff_method():
 def test_motors_under_sampled_control_pick_etd3():
     """The DC-motor cases (200 Hz control, held voltages): the currents' R_a / L_a = 2,267 /s makes the plant
     stiff at dt = 5 ms; between samples it is autonomous, so auto takes the exponential ETD3RK with its
-    embedded ETD2 (etd3ec), every step lands on a sample instant, and a step costs 5 rate evaluations
-    (f(x), the linear block's two difference columns, two stages; etd2ec's step doubling took 7)."""
+    embedded ETD2 (etd3ec), every step lands on a sample instant, and a step costs 3 rate evaluations
+    (f(x), two stages; etd2ec's step doubling took 7), and 2 more (the linear block's two difference columns)
+    when its block is taken: at the first step, every JAC_REUSE accepted steps, and after a rejection."""
+    from ftcreport.fast.loop import JAC_REUSE
+
     run, m = _run("motors/two_link_switching_motors", "switching", duration=0.5, method="auto")
     assert run.status == "ok", run.reason
     g = m["integrator"]
     assert g["method"] == "etd3ec"
-    # a rejected trial reuses f(x): 4; the start: f(t0), 20 power iterations, the starting step's trial stage
-    assert g["evaluations"] == 5 * g["accepted"] + 4 * g["rejected"] + 1 + 20 + 1
+    # a rejected trial reuses f(x); the start: f(t0), 20 power iterations, the starting step's trial stage
+    assert g["evaluations"] == 3 * g["accepted"] + 2 * g["rejected"] + 2 * g["linear_blocks"] + 1 + 20 + 1
+    assert math.ceil(g["accepted"] / JAC_REUSE) <= g["linear_blocks"]
+    assert g["linear_blocks"] <= math.ceil(g["accepted"] / JAC_REUSE) + g["rejected"] + 1
     samples = np.round(np.arange(0.0, 0.5 + 1e-12, 0.005), 12)
     t = run.t_stream
     # every sample instant is a step boundary (to round-off of t0 + j T_s)

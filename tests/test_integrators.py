@@ -219,6 +219,37 @@ def test_etd3ec_is_third_order_and_its_estimate_second_order_on_a_nonlinear_prob
     assert all(s > 10 * e for s, e in zip(ests, errs, strict=True))
 
 
+def test_etd3ec_on_a_stale_linear_block_keeps_an_estimate_that_bounds_its_error():
+    """The loop takes etd3ec's block columns in eta again only every JAC_REUSE steps (fast.loop._etd3_attempt):
+    between, L is stale.  On a motor-like pair (wheel speed and a stiff current, R / L_a = 3750 /s, from its
+    quasi-static current) with the speed's column 20 % off (the back-EMF coupling included), the estimate is
+    the exact block's to 2 % and stays above the solution's error by 100x or more at every h (measured
+    229-1052x): a stale block cannot pass a step the estimate would refuse.  The solution's order falls from
+    4.8 towards 2.5 as h shrinks (the stale stiff coupling is in N), which the O(h^3) estimate covers."""
+    R, La, kb, km, b, c, Jm, v = 0.3, 8e-5, 0.03, 0.03, 1e-4, 0.02, 5e-3, 12.0
+
+    def f(t, x):
+        w, i = x
+        return np.array([(km * i - b * w - c * math.sin(w)) / Jm, (v - R * i - kb * w) / La])
+
+    def jac(t, x):
+        w, _ = x
+        return np.array([[(-b - c * math.cos(w)) / Jm, km / Jm], [-kb / La, -R / La]])
+
+    x0 = np.array([5.0, (v - kb * 5.0) / R])
+    exact = jac(0.0, x0)
+    stale = exact.copy()
+    stale[:, 0] *= 1.2
+    for h in (0.004, 0.002, 0.001, 0.0005):
+        ref, _, _ = _integrate("dopri5", f, None, x0, 0.0, h, 1e-13, 1e-15)
+        xn, est, _ = _attempt("etd3ec", f, lambda t, x: stale, 0.0, x0, h)
+        _, est_exact, _ = _attempt("etd3ec", f, lambda t, x: exact, 0.0, x0, h)
+        scale = 1.0 + np.abs(ref)
+        err, bound = np.max(np.abs(xn - ref) / scale), np.max(np.abs(est) / scale)
+        assert bound == pytest.approx(np.max(np.abs(est_exact) / scale), rel=0.02)
+        assert bound > 100.0 * err, (h, err, bound)
+
+
 def test_etd3ec_is_exact_on_an_affine_problem_and_quiet_on_a_settled_stiff_one():
     """With L the Jacobian of an affine f, D = 0: the step is the exact flow and the estimate round-off.  On
     Prothero-Robinson (lambda = -1e4, y = cos t) at h = 0.2, 2000 / |lambda|, the estimate is 9e-6 and the

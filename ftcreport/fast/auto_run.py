@@ -63,7 +63,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     row_bytes = 8 * (L.nc + spec.n_sig + 5 * L.nw + 2 * (L.nq + 2) + L.nm + 1)
     rows = max(64, min(math.ceil(duration / settings.dt / 100) * 4 + 8, (32 << 20) // row_bytes))
     L.buffers(rows)
-    opt, ctl = _auto_arrays(spec, settings, t0, t_end, t0, clock, _AUTO_CODES[settings.method])
+    opt, ctl = _auto_arrays(spec, settings, t0, t_end, t0, clock, _AUTO_CODES[settings.method], L.nm)
     stream: dict[str, np.ndarray] = {}
     log_parts: list[list[np.ndarray]] = []
     si = 0
@@ -132,6 +132,8 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
             # steps taken at min_step with the error over the tolerance (a discontinuity: fast.loop.run_auto)
             "forced_steps": int(ctl[15]),
             "first_forced_at": float(ctl[16]) if ctl[15] else None,
+            # etd3ec: how often its linear block's difference columns were taken (fast.loop._etd3_attempt)
+            "linear_blocks": int(ctl[19]),
         },
         "compile_time": _compile_time(compile0, wall, first_s, calls, steps_new),
     }
@@ -139,9 +141,9 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
                    meta, progress)  # fmt: skip
 
 
-def _auto_arrays(spec: Spec, settings, t_start: float, t_end: float, t0: float, clock: float, method: int):
+def _auto_arrays(spec: Spec, settings, t_start: float, t_end: float, t0: float, clock: float, method: int, nm: int):
     """fast.loop.run_auto's ``opt`` (settings) and ``ctl`` (state) for a run from t_start to t_end (the
-    noise and UKF clock ``clock`` ticking from t0; ``method`` -1: auto picks)."""
+    noise and UKF clock ``clock`` ticking from t0; ``method`` -1: auto picks; ``nm`` the motor states)."""
     slot, T_min = _dwell(spec.controller)
     opt = np.array(
         [
@@ -149,8 +151,10 @@ def _auto_arrays(spec: Spec, settings, t_start: float, t_end: float, t0: float, 
             T_min, float(method), 1.0 if spec.start else 0.0,
         ]
     )  # fmt: skip
-    ctl = np.zeros(18)
+    # fast.loop's C_ entries, then etd3ec's linear block (fast.loop.C_JAGE, C_JTAKEN, C_JCOLS: (2 + nm) x 2)
+    ctl = np.zeros(20 + 2 * (2 + nm))
     ctl[0] = t_start  # t
+    ctl[18] = -1.0  # etd3ec's linear block: not taken yet
     ctl[7] = -math.inf  # the chained frame's next re-anchoring: none located yet
     ctl[8] = -1.0  # the method: not chosen yet
     ctl[9] = NAN  # the spectral radius: not estimated (a named method)

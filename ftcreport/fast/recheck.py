@@ -139,7 +139,7 @@ def _controlled_recheck(L: _Loop, grid, checkpoints, k_stop: int, k_to: int) -> 
     if noise.shape[0] > 1:  # tick j of the clock holds the draw of the coarse step it falls in
         ticks = t0 + settings.dt * np.arange(math.floor((t_to - t0) / settings.dt + 1e-9) + 2)
         noise = np.ascontiguousarray(noise[np.clip(np.searchsorted(grid, ticks, side="right") - 1, 0, None)])
-    opt, ctl = _auto_arrays(L.spec, fine_settings, t_from, t_to, t0, clock, _AUTO_CODES[method])
+    opt, ctl = _auto_arrays(L.spec, fine_settings, t_from, t_to, t0, clock, _AUTO_CODES[method], L.nm)
     opt[5] = t_to  # one chunk
     L.restore(saved)
     L.info[:] = 0.0

@@ -64,6 +64,17 @@ def test_the_stiff_thesis_case_picks_the_stiff_method():
     assert m3["integrator"]["spectral_radius"] * 0.01 < 3.3
 
 
+def test_etd3ec_under_continuous_control_takes_its_block_at_every_trial():
+    """Its block's eta columns are reused only under sampled control: under continuous control they hold the
+    law's -k_v (k4 = 3000 here), a stiff diagonal whose staleness the estimate would not see (docs/ENGINE.md,
+    etd3ec).  Named etd3ec on the motor case with the law running continuously: a block per trial."""
+    run, m = _run("motors/two_link_switching_motors", "switching", duration=0.05, method="etd3ec", sample_time=None)
+    assert run.status == "ok", run.reason
+    g = m["integrator"]
+    assert g["method"] == "etd3ec" and g["accepted"] > 10
+    assert g["linear_blocks"] == g["accepted"] + g["rejected"]
+
+
 def test_motors_under_sampled_control_pick_etd3():
     """The DC-motor cases (200 Hz control, held voltages): the currents' R_a / L_a = 2,267 /s makes the plant
     stiff at dt = 5 ms; between samples it is autonomous, so auto takes the exponential ETD3RK with its

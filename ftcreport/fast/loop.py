@@ -840,8 +840,9 @@ def _etd3_attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag
     block of ETD2, 2 stages (2 evaluations) and f(x): (x+, err, evaluations, x(t + h / 2) by ETD2's continuous
     extension through the stage at t + h).
 
-    The block's eta columns (2 evaluations, :func:`_jacobian_columns`) are kept in ``ctl`` and used again for
-    up to JAC_REUSE accepted steps (its motor columns, exact and free, are taken at x every step).  Any L
+    The block's eta columns (2 evaluations, :func:`_jacobian_columns`) are kept in ``ctl`` and, under sampled
+    control (auto's case for this method), used again for up to JAC_REUSE accepted steps (its motor columns,
+    exact and free, are taken at x every step).  Any L
     splits f exactly (N = f - L x; exponential Runge-Kutta methods, unlike exponential Rosenbrock ones, do not
     need the exact Jacobian: Hochbruck & Ostermann 2010, "Exponential integrators", Acta Numerica 19): the
     step stays consistent, and its estimate is the embedded ETD2's error with this L.  A stale stiff entry
@@ -857,7 +858,12 @@ def _etd3_attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag
     m = 2 + nm
     ev = 0
     J = np.empty((m, m))
-    if ctl[C_JAGE] < 0.0 or ctl[C_JAGE] >= JAC_REUSE:
+    # reused under sampled control only: the law is held there, so eta's columns carry the plant's own mild
+    # terms and the back-EMF's coupling, while every stiff diagonal (the currents, a PI drive's states) is in
+    # the exact motor columns; under continuous control eta's columns hold the law's -k_v, a stiff diagonal
+    # whose staleness the estimate does not see (docs/ENGINE.md: Prothero-Robinson with L = 0.9 lambda)
+    held = SAMPLED and u_h.shape[0] > 0
+    if not held or ctl[C_JAGE] < 0.0 or ctl[C_JAGE] >= JAC_REUSE:
         G = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
         ev = 2
         if info[0] != 0:

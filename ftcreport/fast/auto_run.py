@@ -151,8 +151,8 @@ def _auto_arrays(spec: Spec, settings, t_start: float, t_end: float, t0: float, 
             T_min, float(method), 1.0 if spec.start else 0.0,
         ]
     )  # fmt: skip
-    # fast.loop's C_ entries, then etd3ec's linear block (fast.loop.C_JAGE, C_JTAKEN, C_JCOLS: (2 + nm) x 2)
-    ctl = np.zeros(20 + 2 * (2 + nm))
+    # fast.loop's C_ entries, then etd3ec's linear block (fast.loop.C_JAGE, C_JTAKEN, C_JCOLS: (2 + nm) squared)
+    ctl = np.zeros(20 + (2 + nm) ** 2)
     ctl[0] = t_start  # t
     ctl[18] = -1.0  # etd3ec's linear block: not taken yet
     ctl[7] = -math.inf  # the chained frame's next re-anchoring: none located yet

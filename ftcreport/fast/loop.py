@@ -756,8 +756,8 @@ O_RTOL, O_ATOL, O_HMAX, O_HMIN, O_TEND, O_TCHUNK, O_CLOCK, O_T0, O_DWELL, O_TMIN
 C_T, C_H, C_RPREV, C_ACCEPTED, C_REJECTED, C_EVALS, C_SEG, C_REANCHOR, C_METHOD, C_RHO, C_CAUSE = range(11)
 C_FORCED, C_FORCED_T, C_STREAK = 15, 16, 17  # steps taken at min_step over the tolerance, the first's t, in a row
 #: etd3ec's linear block: accepted steps since its eta columns were taken (-1: take them at the next trial),
-#: how many times they were taken, then the columns, (2 + nm) x 2 row by row (fast.auto_run._auto_arrays
-#: sizes ctl for them)
+#: how many times they were taken, then the block as taken, (2 + nm) x (2 + nm) row by row
+#: (fast.auto_run._auto_arrays sizes ctl for it)
 C_JAGE, C_JTAKEN, C_JCOLS = 18, 19, 20
 #: etd3ec takes the eta columns of its linear block again after this many accepted steps (_etd3_attempt)
 JAC_REUSE = 10
@@ -871,15 +871,27 @@ def _etd3_attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag
         J[:, :] = G[nq : nq + m, :]
         ctl[C_JTAKEN] += 1.0
         for i in range(m):
-            ctl[C_JCOLS + 2 * i] = J[i, 0]
-            ctl[C_JCOLS + 2 * i + 1] = J[i, 1]
+            for j in range(m):
+                ctl[C_JCOLS + m * i + j] = J[i, j]
         ctl[C_JAGE] = 0.0
     else:
         for i in range(m):
-            J[i, 0] = ctl[C_JCOLS + 2 * i]
-            J[i, 1] = ctl[C_JCOLS + 2 * i + 1]
+            for j in range(m):
+                J[i, j] = ctl[C_JCOLS + m * i + j]
         if nm > 0:
-            J[:, 2:] = _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)
+            # the motor columns at x; their rows of the motor states hold every stiff entry (the currents'
+            # -R_a / L_a, a PI drive's gains as its saturation switches them): when those are the kept
+            # block's exactly (the static driver: constant within a fault segment), the whole kept block
+            # serves, its eta rows' torque coupling (which moves with q) as stale as its eta columns, and the
+            # phi functions of the last step are taken again; else the motor columns at x
+            Mc = _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)
+            same = True
+            for i in range(2, m):
+                for j in range(nm):
+                    if Mc[i, j] != J[i, 2 + j]:
+                        same = False
+            if not same:
+                J[:, 2:] = Mc
     Q1, Q2, q1, q2, P1, P2, P3, p1, p2, p3 = _etd3_phis_of(J, diag, h, PH)
     a = etd3_half(Q1, q1, x, f0, h, nq)
     fa = _stage(P, ctx, t + 0.5 * h, a, sigma, ubar, fm, nz, info, u_h, v_h)

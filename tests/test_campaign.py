@@ -322,6 +322,80 @@ def test_report_rates_come_from_the_table(tmp_path):
     assert json.loads((tmp_path / "summary.json").read_text())["schemes"]["oracle"]["successes"] == 3
 
 
+def _stopped_rows() -> list[dict]:
+    """Two schemes on 8 samples (the newuser12 W1 campaign, made by hand): adaptive recovers 1 s sooner than
+    active on every sample, except that adaptive's run of sample 6 stopped at 0.1 s (step_unstable, before
+    its faults) with the truncated run's metrics in its row (final error 0.2418 m, recovery time 0 s), and
+    active's run of sample 3 diverged at 12 s (with a recovery time 1.0 s and a final error 5 m)."""
+    rows = []
+    for i in range(8):
+        wheels = "1r+2l" if i >= 6 else "1r"
+        act = _row(i, "active", True, wheels, 0.30, 2.0 + 0.5 * i) | {"position_error_final": 0.01, "t_end": 20.0}
+        ada = _row(i, "adaptive", True, wheels, 0.25, 1.0 + 0.5 * i) | {"position_error_final": 0.005, "t_end": 20.0}
+        if i == 3:
+            act |= {"status": "diverged", "success": False, "t_end": 12.0, "position_error_final": 5.0}
+            act |= {"recovery_time_max": 1.0, "position_error_max": 9.0}
+        if i == 6:
+            ada |= {"status": "step_unstable", "success": False, "t_end": 0.1, "position_error_final": 0.2418}
+            ada |= {"recovery_time_max": 0.0, "position_error_max": 0.2418}
+        rows += [act, ada]
+    return rows
+
+
+def test_a_run_stopped_early_enters_no_distribution_or_comparison(tmp_path):
+    """newuser12 W1: adaptive's run of sample 6 stopped at 0.1 s (step_unstable), yet its truncated metrics
+    counted it as recovered in 0 s in the recovery CDF and in the paired recovery-time comparison, and its
+    fault pattern was charged with an integrator failure; the page never said step_unstable.  A run whose
+    status is not ok now counts as a failure and nowhere else: it is counted by status per scheme, shown
+    with its status and t_end among the failing samples, and charged to its fault pattern only when the
+    loop stopped it (diverged, singular), not the step (step_unstable) or the program (error)."""
+    from ftcreport.report.campaign import failing_samples
+
+    rows = _stopped_rows()
+    s = summarize(rows)
+    ada, act = s["schemes"]["adaptive"], s["schemes"]["active"]
+    # still failures in the success rate: 7 of 8 each
+    assert (ada["successes"], ada["n"], act["successes"], act["n"]) == (7, 8, 7, 8)
+    assert ada["stopped"] == {"step_unstable": 1} and act["stopped"] == {"diverged": 1}
+    assert ada["completed"] == act["completed"] == 7
+    # the distributions hold the 7 completed runs: no 0 s recovery, no truncated max error
+    assert sorted(ada["recovery_times"]) == [1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.5]
+    assert sorted(act["recovery_times"]) == [2.0, 2.5, 3.0, 4.0, 4.5, 5.0, 5.5]
+    assert ada["recovery_never"] == act["recovery_never"] == 0
+    assert ada["max_errors"] == [0.25] * 7 and act["max_errors"] == [0.30] * 7
+    # the paired comparisons treat the stopped runs as missing: samples 3 and 6 drop out of every metric,
+    # leaving 6 pairs whose recovery differences are all exactly -1 s (with them: 8 pairs, mean -1.125 s)
+    by = {c["metric"]: c for c in s["comparisons"] if {c["a"], c["b"]} == {"adaptive", "active"}}
+    rec = by["recovery_time_max"]
+    assert (rec["a"], rec["n"]) == ("adaptive", 6)
+    assert rec["mean"] == pytest.approx(-1.0, abs=1e-12) and rec["low"] == rec["high"] == pytest.approx(-1.0)
+    assert by["position_error_final"]["n"] == by["position_error_max"]["n"] == 6
+    assert by["position_error_final"]["mean"] == pytest.approx(0.005 - 0.01, abs=1e-12)
+    # worst patterns: active's divergence is the loop's and charged to 1r (1 of its 6 samples); adaptive's
+    # numerical stop is not charged to 1r+2l, where it has no other failure
+    assert act["worst_patterns"] == [{"faulted_wheels": "1r", "failures": 1, "samples": 6}]
+    assert ada["worst_patterns"] == []
+    # failing samples: the failed scheme's status and t_end, no final error from a truncated run
+    fail = {e["sample"]: e for e in failing_samples(rows)}
+    assert sorted(fail) == [3, 6]
+    assert fail[6]["stopped"] == {"adaptive": {"status": "step_unstable", "t_end": 0.1}}
+    assert fail[6]["errors"]["adaptive"] is None and fail[6]["max_error"] == pytest.approx(0.01)
+    assert fail[3]["stopped"] == {"active": {"status": "diverged", "t_end": 12.0}}
+    # the page says it
+    records = {}
+    for r in rows:
+        records.setdefault(r["sample"], {"sample": r["sample"], "rows": []})["rows"].append(r)
+    write_table(tmp_path, records.values())
+    (tmp_path / "campaign.json").write_text(json.dumps({"case": "hand", "seed": 0, "base": {}}))
+    html = render_campaign(tmp_path, read_table(tmp_path / "results.csv")).read_text()
+    rates = html.split('id="rates"', 1)[1].split("</table>", 1)[0]
+    ada_row = rates.split('<td class="l">adaptive</td>', 1)[1].split("</tr>", 1)[0]
+    assert "1 (step_unstable 1)" in ada_row
+    table = html.split('id="failing-samples"', 1)[1].split("</table>", 1)[0]
+    assert "step_unstable at 0.1 s" in table and "diverged at 12 s" in table and "0.242" not in table
+    assert "adaptive (7/7; 1 stopped)" in html.split('id="fig-recovery"', 1)[1]
+
+
 def _hand_campaign(out: Path) -> Path:
     """A campaign page from a hand-made table: switching and oracle have the same max errors on every sample
     (the initial offset sets them), their final errors differ 100-fold; nominal has its own max errors."""

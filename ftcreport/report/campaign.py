@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import FtcError
 from ..evaluation.compare import BOUND
 from ..storage.store import _jsonable, read_json, write_atomic
-from ..studies.campaign import COMPARED_METRICS, PAGES, summarize
+from ..studies.campaign import COMPARED_METRICS, PAGES, completed, summarize
 from . import plots
 from .render import figure, index_root, write_page
 
@@ -103,7 +103,7 @@ def coincide_note(summary: dict, rows: list[dict], key: str, log: bool, what: st
         )
         fin = {}
         for s in g:
-            v = [r.get("position_error_final") for r in rows if r.get("scheme") == s]
+            v = [r.get("position_error_final") for r in rows if r.get("scheme") == s and completed(r)]
             v = [float(x) for x in v if isinstance(x, int | float) and math.isfinite(x)]
             if v:
                 fin[s] = float(np.median(v))
@@ -117,22 +117,26 @@ def coincide_note(summary: dict, rows: list[dict], key: str, log: bool, what: st
 def _ecdf_svg(summary: dict, key: str, label: str, log: bool, never: str | None = None) -> str:
     """Empirical CDFs of a per-sample value, one step line per scheme (its own line style and width); the
     schemes whose lines coincide (:func:`coinciding`) carry concentric hollow markers and say so in the
-    legend.  The fraction of a scheme's samples without a value (e.g. never recovered) is where its line
-    ends below 1."""
+    legend.  The fraction of a scheme's completed runs without a value (e.g. never recovered) is where its line
+    ends below 1; the runs that stopped early are no sample of the distribution (their metrics cover a
+    truncated horizon: :func:`ftcreport.studies.campaign.completed`), so they are counted in the legend, not
+    in the fraction."""
     fig, ax = plt.subplots(figsize=(6.4, 2.8))
     same = {s: g for g in coinciding(summary, key, log) for s in g}
     for i, (s, e) in enumerate(summary["schemes"].items()):
         d = _samples(e, key, log)
-        n = max(int(e.get("n") or 0), d.size, 1)
+        n = max(int(e.get("completed", e.get("n")) or 0), d.size, 1)
         if not d.size:
             continue
         y = np.arange(1, d.size + 1) / n
         style: dict = {}
-        label_s = f"{s} ({d.size}/{n})"
+        stops = sum((e.get("stopped") or {}).values())
+        tail = f"; {stops} stopped" if stops else ""
+        label_s = f"{s} ({d.size}/{n}{tail})"
         if s in same:
             j = same[s].index(s)
             style = {"marker": MARKERS[j % len(MARKERS)][0], "ms": MARKERS[j % len(MARKERS)][1], "mfc": "none"}
-            label_s = f"{s} ({d.size}/{n}; coincides with {_names([x for x in same[s] if x != s])})"
+            label_s = f"{s} ({d.size}/{n}{tail}; coincides with {_names([x for x in same[s] if x != s])})"
         ax.step(
             np.r_[d[0], d],
             np.r_[0.0, y],
@@ -203,7 +207,10 @@ def failing_samples(rows: list[dict]) -> list[dict]:
     """Samples where some scheme other than the oracle did not succeed, worst first: most schemes
     failing, then the largest final position error (the success criterion's metric; the whole run's
     maximum is the initial offset's on most samples).  Each: ``sample``, ``faulted_wheels``, ``failed``
-    (the schemes), ``max_error`` (the largest final error over the schemes) and ``errors`` per scheme."""
+    (the schemes), ``max_error`` (the largest final error over the schemes), ``errors`` per scheme and
+    ``stopped``: the ``status`` and ``t_end`` of each failed scheme whose run stopped early.  A stopped run
+    has no final error (None): its error at the stop is no final error of the horizon
+    (:func:`ftcreport.studies.campaign.completed`)."""
     by: dict[int, list[dict]] = {}
     for r in rows:
         by.setdefault(int(r["sample"]), []).append(r)
@@ -212,7 +219,12 @@ def failing_samples(rows: list[dict]) -> list[dict]:
         failed = [r["scheme"] for r in rs if not r.get("success") and r["scheme"] != BOUND]
         if not failed:
             continue
-        errs = {r["scheme"]: r.get("position_error_final") for r in rs}
+        errs = {r["scheme"]: r.get("position_error_final") if completed(r) else None for r in rs}
+        stopped = {
+            r["scheme"]: {"status": r.get("status"), "t_end": r.get("t_end")}
+            for r in rs
+            if r["scheme"] in failed and not completed(r)
+        }
         finite = [v for v in errs.values() if isinstance(v, int | float) and math.isfinite(v)]
         out.append(
             {
@@ -221,6 +233,7 @@ def failing_samples(rows: list[dict]) -> list[dict]:
                 "failed": failed,
                 "max_error": max(finite) if finite else math.inf,
                 "errors": errs,
+                "stopped": stopped,
             }
         )
     out.sort(key=lambda e: (-len(e["failed"]), -e["max_error"]))
@@ -377,16 +390,18 @@ def render_campaign(out: Path, rows: list[dict], worst: int = WORST_K) -> Path:
             figure(
                 "max-error",
                 "Empirical CDF of the maximum position error per sample over the whole run, the initial offset "
-                "included (log scale): the fraction of samples at or below each value, one line per scheme "
-                "(further left is better)." + coincide_note(summary, rows, "max_errors", True, "max errors"),
+                "included (log scale): the fraction of the runs that completed at or below each value, one "
+                "line per scheme (further left is better; the runs that stopped early are left out)."
+                + coincide_note(summary, rows, "max_errors", True, "max errors"),
                 svg=_ecdf_svg(summary, "max_errors", "max position error [m]", True),
             ),
             figure(
                 "recovery",
-                "Empirical CDF of the recovery time (defined under the rates table) over all samples: a "
-                "scheme's line ends at the fraction of samples that recovered (legend: recovered / samples)."
+                "Empirical CDF of the recovery time (defined under the rates table) over the runs that "
+                "completed: a scheme's line ends at the fraction of them that recovered (legend: recovered / "
+                "completed runs, and the runs that stopped early, which are left out)."
                 + coincide_note(summary, rows, "recovery_times", False, "recovery times"),
-                svg=_ecdf_svg(summary, "recovery_times", "recovery time max [s]", False, "recovered / samples"),
+                svg=_ecdf_svg(summary, "recovery_times", "recovery time max [s]", False, "recovered / completed"),
             ),
         ]
     return write_page(

@@ -54,6 +54,7 @@ from ..cases import Case, configured_schemes, ordered_schemes, parse_case, plugi
 from ..errors import CaseError, FtcError
 from ..evaluation.stats import compare_metric, compare_success, wilson_interval
 from ..model import pattern_is_compensable, wheel_index, wheel_names
+from ..runs import STATUS_DIVERGED, STATUS_OK, STATUS_SINGULAR
 from ..storage.store import _jsonable, _seal, locked, write_atomic
 
 __all__ = [
@@ -63,6 +64,7 @@ __all__ = [
     "campaign_hash",
     "case_content_hash",
     "comparisons",
+    "completed",
     "draw_variant",
     "read_table",
     "run_campaign",
@@ -388,12 +390,33 @@ COMPARED_METRICS: dict[str, str] = {
 }
 
 
+#: Stops the closed loop causes (the state left the domain or reached a law's singular set, a smaller step
+#: included): a failure of the scheme under the sample's faults, charged to its fault pattern.  The other
+#: stops are not: ``step_unstable`` is the integrator's (the step, not the loop: a smaller step passes it)
+#: and ``error`` the program's; neither says how the law copes with the pattern.
+LOOP_STOPS = (STATUS_DIVERGED, STATUS_SINGULAR)
+
+
+def completed(row: dict) -> bool:
+    """The run reached the end of the horizon (status ok).  A run that stopped early (step_unstable, diverged,
+    singular, error) has metrics over a truncated horizon (a final error at the stop, a recovery time of the
+    faults before it, or 0 s with no fault reached): it is a failure, and its metrics are no sample of any
+    distribution or paired comparison."""
+    return row.get("status") == STATUS_OK
+
+
+def _value(row: dict, metric: str) -> float | None:
+    """A row's number for ``metric``, None when missing or when the run stopped early (:func:`completed`)."""
+    v = row.get(metric)
+    return v if completed(row) and isinstance(v, int | float) and not isinstance(v, bool) else None
+
+
 def comparisons(rows: list[dict], schemes: list[str]) -> list[dict]:
     """Paired comparisons of every pair of schemes on the samples both ran (ftcreport.evaluation.stats).
 
-    Success: exact McNemar.  Each metric of :data:`COMPARED_METRICS`: bootstrap CI of the
-    mean per-sample difference on the samples where both values exist (a recovery time
-    exists when the scheme recovered).
+    Success: exact McNemar (a stopped run is a failure).  Each metric of :data:`COMPARED_METRICS`:
+    bootstrap CI of the mean per-sample difference on the samples where both values exist (a recovery
+    time exists when the scheme recovered; no value exists for a run that stopped early, :func:`completed`).
     """
     by = {s: {r["sample"]: r for r in rows if r["scheme"] == s} for s in schemes}
     out = []
@@ -405,14 +428,18 @@ def comparisons(rows: list[dict], schemes: list[str]) -> list[dict]:
             ra, rb = [by[a][i] for i in common], [by[b][i] for i in common]
             out.append(compare_success(a, b, [bool(r["success"]) for r in ra], [bool(r["success"]) for r in rb]))
             for m, unit in COMPARED_METRICS.items():
-                va = [r.get(m) if isinstance(r.get(m), int | float) else None for r in ra]
-                vb = [r.get(m) if isinstance(r.get(m), int | float) else None for r in rb]
+                va = [_value(r, m) for r in ra]
+                vb = [_value(r, m) for r in rb]
                 out.append(compare_metric(a, b, m, va, vb, unit))
     return out
 
 
 def summarize(rows: list[dict]) -> dict:
-    """Success rates with Wilson intervals, distributions, worst patterns, paired comparisons between schemes."""
+    """Success rates with Wilson intervals, distributions, worst patterns, paired comparisons between schemes.
+
+    A run that stopped early counts as a failure in the rates and nowhere else (:func:`completed`): the
+    distributions hold the ``completed`` runs, ``stopped`` counts the others by status, and a scheme's
+    fault pattern is charged with a stop only when the loop caused it (:data:`LOOP_STOPS`)."""
     schemes = ordered_schemes(r["scheme"] for r in rows)
     by = {s: [r for r in rows if r["scheme"] == s] for s in schemes}
     out: dict = {"n_samples": len({r["sample"] for r in rows}), "schemes": {}}
@@ -422,19 +449,27 @@ def summarize(rows: list[dict]) -> dict:
         k = sum(bool(r["success"]) for r in rs)
         lo, hi = wilson_interval(k, len(rs))
         pats: dict[str, list[int]] = {}
+        stopped: dict[str, int] = {}
         for r in rs:
+            if not completed(r):
+                stopped[str(r.get("status"))] = stopped.get(str(r.get("status")), 0) + 1
+                if r.get("status") not in LOOP_STOPS:  # the step's or the program's: says nothing of the pattern
+                    continue
             fail_ok = pats.setdefault(str(r["faulted_wheels"]), [0, 0])
             fail_ok[0] += 0 if r["success"] else 1
             fail_ok[1] += 1
         worst = sorted(pats.items(), key=lambda kv: (-kv[1][0], -kv[1][0] / kv[1][1], kv[0]))[:5]
-        rec = [r.get("recovery_time_max") for r in rs]
-        err = [r.get("position_error_max") for r in rs]
+        done = [r for r in rs if completed(r)]
+        rec = [r.get("recovery_time_max") for r in done]
+        err = [r.get("position_error_max") for r in done]
         entry = {
             "n": len(rs),
             "successes": k,
             "rate": k / len(rs) if rs else None,
             "wilson_low": lo,
             "wilson_high": hi,
+            "completed": len(done),
+            "stopped": dict(sorted(stopped.items())),
             "recovery_times": [float(v) for v in rec if isinstance(v, int | float)],
             "recovery_never": sum(not isinstance(v, int | float) for v in rec),
             "max_errors": [float(v) for v in err if isinstance(v, int | float)],

@@ -396,6 +396,32 @@ def test_a_run_stopped_early_enters_no_distribution_or_comparison(tmp_path):
     assert "adaptive (7/7; 1 stopped)" in html.split('id="fig-recovery"', 1)[1]
 
 
+def test_a_comparison_on_too_few_pairs_is_shown_as_not_judged(tmp_path):
+    """newuser12 W2: a matrix cell on 2 pairs was coloured as a win.  On 3 pairs whose recovery differences are
+    all -1 s (adaptive recovers 1 s sooner; the old rule: a CI [-1, -1], 'adaptive better'), the cell now says
+    not judged, and the page says how many pairs a verdict needs (6 at 95 %: 2^(1 - 6) <= 0.05)."""
+    from ftcreport.report.campaign import comparison_matrices
+
+    rows = [r for r in _stopped_rows() if r["sample"] < 3]
+    s = summarize(rows)
+    assert s["min_pairs"] == 6
+    (mx,) = [m for m in comparison_matrices(s) if m["metric"] == "recovery_time_max"]
+    (row,) = [r for r in mx["rows"] if r["scheme"] == "adaptive"]
+    cell = row["cells"][mx["schemes"].index("active")]
+    assert (cell["text"], cell["cls"]) == ("not judged", "nj")
+    assert cell["short"] == "-1 (3 pairs)"  # the mean difference adaptive - active, as exact as the rows
+    records = {}
+    for r in rows:
+        records.setdefault(r["sample"], {"sample": r["sample"], "rows": []})["rows"].append(r)
+    write_table(tmp_path, records.values())
+    (tmp_path / "campaign.json").write_text(json.dumps({"case": "hand", "seed": 0, "base": {}}))
+    html = render_campaign(tmp_path, read_table(tmp_path / "results.csv")).read_text()
+    matrix = html.split('id="matrix-recovery_time_max"', 1)[1].split("</table>", 1)[0]
+    assert 'class="nj"' in matrix and "better" not in matrix
+    assert "adaptive vs active on recovery_time_max: too few paired samples (3; a verdict needs 6)" in html
+    assert "at least 6 pairs" in html
+
+
 def _hand_campaign(out: Path) -> Path:
     """A campaign page from a hand-made table: switching and oracle have the same max errors on every sample
     (the initial offset sets them), their final errors differ 100-fold; nominal has its own max errors."""
@@ -663,9 +689,10 @@ def test_pairwise_comparisons_are_a_matrix_and_distributions_ecdfs(failing_campa
     fin = mats[1]
     (row_nominal,) = [r for r in fin["rows"] if r["scheme"] == "nominal"]
     (row_oracle,) = [r for r in fin["rows"] if r["scheme"] == "oracle"]
-    # the same comparison seen from both sides: mirrored classes, opposite mean differences
+    # the same comparison seen from both sides: one sentence, opposite mean differences; on 3 pairs no verdict
+    # (a metric verdict needs min_pairs = 6 at 95 %; newuser12 W2)
     a, b = row_nominal["cells"][1], row_oracle["cells"][0]
-    assert {a["cls"], b["cls"]} in ({"win", "loss"}, {"ns"}) and a["title"] == b["title"]
+    assert a["cls"] == b["cls"] == "nj" and a["title"] == b["title"] and "(3 pairs)" in a["short"]
     mean_a, mean_b = (float(c["short"].split()[0]) for c in (a, b))
     assert mean_a == pytest.approx(-mean_b)
     html = page.read_text()

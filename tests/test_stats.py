@@ -6,12 +6,14 @@ import math
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from ftcreport.evaluation.stats import (
     bootstrap_mean_ci,
     compare_metric,
     compare_success,
     mcnemar_exact,
+    min_pairs,
     wilson_interval,
 )
 
@@ -65,8 +67,11 @@ def test_compare_metric_pairs_and_sentence():
     assert c["n"] == 6  # the pairs where both values exist
     assert c["mean"] == pytest.approx(np.mean([-0.4, -0.4, -0.4, -0.4, -0.4, -0.4]), abs=1e-12)
     assert c["significant"] and c["text"].startswith("switching beats nominal on position_error_max")
+    c = compare_metric("a", "b", "m", [1.0, 2.0, 3.0, 4.0, 5.0, 6.0], [2.0, 1.0, 4.0, 3.0, 6.0, 5.0])
+    assert c["judged"] and not c["significant"] and "no significant difference" in c["text"]
+    # on 4 pairs no outcome could be significant (min_pairs): no verdict, not "no significant difference"
     c = compare_metric("a", "b", "m", [1.0, 2.0, 3.0, 4.0], [2.0, 1.0, 4.0, 3.0])
-    assert not c["significant"] and "no significant difference" in c["text"]
+    assert not c["significant"] and "too few paired samples (4; a verdict needs 6)" in c["text"]
 
 
 def test_wilson_is_scipys():
@@ -76,3 +81,38 @@ def test_wilson_is_scipys():
     assert wilson_interval(0, 0) == (0.0, 1.0)
     lo, hi = wilson_interval(10, 10)
     assert hi == 1.0 and lo == pytest.approx(10 / (10 + 1.959963984540054**2), rel=1e-9)
+
+
+def test_min_pairs_is_the_smallest_n_a_unanimous_sign_test_passes():
+    """newuser12 W2: under no difference, n pairs all of one sign (and so a percentile CI excluding 0) come with
+    probability 2^(1 - n), the exact two-sided sign test's p for a unanimous sign; the smallest n with
+    2^(1 - n) <= 1 - confidence is the fewest pairs on which any verdict can be justified."""
+    assert min_pairs(0.95) == 6  # 2^-5 = 0.031 <= 0.05 < 2^-4 = 0.0625
+    assert min_pairs(0.99) == 8  # 2^-7 = 0.0078 <= 0.01 < 2^-6 = 0.0156
+    assert min_pairs(0.90) == 5  # 2^-4 = 0.0625 <= 0.10 < 2^-3 = 0.125
+    for c in (0.90, 0.95, 0.99):  # scipy's exact sign test agrees on both sides of the threshold
+        n = min_pairs(c)
+        assert stats.binomtest(n, n, 0.5).pvalue <= 1 - c < stats.binomtest(n - 1, n - 1, 0.5).pvalue
+
+
+def test_a_metric_comparison_on_fewer_pairs_than_a_verdict_needs_is_not_judged():
+    """newuser12 W2: 'adaptive beats active on recovery_time_max (... 95 % CI [-5.93, -0.6]; bootstrap,
+    2 pairs)': on 2 pairs the percentile interval is the range of the two differences, and excludes 0
+    whenever they share a sign (probability 1/2 under no difference).  Below min_pairs(confidence) there
+    is no verdict, whatever the interval."""
+    c = compare_metric("adaptive", "active", "recovery_time_max", [0.0, 2.0], [5.93, 2.6], "s")
+    assert (c["n"], c["min_pairs"], c["significant"], c["judged"]) == (2, 6, False, False)
+    assert c["mean"] == pytest.approx((-5.93 - 0.6) / 2, abs=1e-12)
+    assert c["text"].startswith(
+        "adaptive vs active on recovery_time_max: too few paired samples (2; a verdict needs 6)"
+    )
+    # 5 unanimous pairs (sign-test p = 1/16 > 0.05): still no verdict; 6 (p = 1/32): a verdict
+    five = compare_metric("a", "b", "m", [1.0, 2.0, 3.0, 4.0, 5.0], [2.0, 4.0, 6.0, 8.0, 10.0])
+    assert not five["significant"] and not five["judged"] and "a verdict needs 6" in five["text"]
+    six = compare_metric("a", "b", "m", [1.0, 2.0, 3.0, 4.0, 5.0, 6.0], [2.0, 4.0, 6.0, 8.0, 10.0, 12.0])
+    assert six["judged"] and six["significant"] and six["text"].startswith("a beats b on m")
+    assert six["mean"] == pytest.approx(-3.5, abs=1e-12)
+    # the threshold follows the confidence: at 90 % five unanimous pairs are judged
+    assert compare_metric("a", "b", "m", [1.0, 2.0, 3.0, 4.0, 5.0], [2.0, 4.0, 6.0, 8.0, 10.0], confidence=0.9)[
+        "significant"
+    ]

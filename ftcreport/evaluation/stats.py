@@ -9,7 +9,11 @@ Every scheme of a campaign runs on the same samples, so comparisons are *paired*
 * a continuous metric (error, recovery time): the per-sample difference A - B and a
   bootstrap confidence interval of its mean (``scipy.stats.bootstrap``, percentile
   method, a fixed generator so that a report is reproducible).  The difference is
-  called significant when the interval excludes 0.
+  called significant when the interval excludes 0, and only on at least
+  :func:`min_pairs` pairs: with n pairs all of one sign the percentile interval
+  excludes 0, which under no difference happens with probability 2^(1 - n) (0.5 at
+  n = 2), so below the n at which even a unanimous sign passes the exact two-sided
+  sign test at the comparison's level there is no verdict ("too few paired samples").
 * a success rate alone: the Wilson score interval
   (``scipy.stats.binomtest(k, n).proportion_ci(method="wilson")``).
 
@@ -25,7 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import stats
 
-__all__ = ["bootstrap_mean_ci", "compare_metric", "compare_success", "mcnemar_exact", "wilson_interval"]
+__all__ = ["bootstrap_mean_ci", "compare_metric", "compare_success", "mcnemar_exact", "min_pairs", "wilson_interval"]
 
 
 def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -54,6 +58,21 @@ def mcnemar_exact(a: Sequence[bool], b: Sequence[bool]) -> dict:
     k = a_only + b_only
     p = 1.0 if k == 0 else float(stats.binomtest(a_only, k, 0.5).pvalue)
     return {"n": int(a.size), "a_only": a_only, "b_only": b_only, "p": p}
+
+
+def min_pairs(confidence: float = 0.95) -> int:
+    """The fewest pairs on which a paired comparison at ``confidence`` can give a verdict: the smallest n with
+    2^(1 - n) <= 1 - confidence (6 at 95 %).
+
+    Why: 2^(1 - n) is the exact two-sided sign test's p-value for n differences all of one sign, the
+    strongest evidence n pairs can hold; a bootstrap (percentile) interval excludes 0 whenever the signs
+    agree, so on fewer pairs it would call a difference significant that the data cannot support."""
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence: must lie in (0, 1), got {confidence}")
+    n = 1
+    while 2.0 ** (1 - n) > 1.0 - confidence:
+        n += 1
+    return n
 
 
 def bootstrap_mean_ci(d: Sequence[float], confidence: float = 0.95, n_resamples: int = 9999, seed: int = 0) -> dict:
@@ -123,19 +142,28 @@ def compare_metric(
     unit: str = "",
     confidence: float = 0.95,
 ) -> dict:
-    """Paired comparison of a lower-is-better metric: bootstrap CI of mean(A - B) on the pairs where both exist."""
+    """Paired comparison of a lower-is-better metric: bootstrap CI of mean(A - B) on the pairs where both exist.
+
+    No verdict (``judged`` False, not significant) on fewer than :func:`min_pairs` pairs, whatever the
+    interval: the record keeps ``n``, ``mean`` and ``min_pairs``, and no interval (on so few pairs it is
+    little more than the range of the differences)."""
     pairs = [
         (float(x), float(y))
         for x, y in zip(a, b, strict=True)
         if x is not None and y is not None and math.isfinite(float(x)) and math.isfinite(float(y))
     ]
     d = [x - y for x, y in pairs]
-    ci = bootstrap_mean_ci(d, confidence)
-    sig = ci["low"] is not None and (ci["low"] > 0 or ci["high"] < 0)
+    need = min_pairs(confidence)
+    judged = len(d) >= need
+    ci = bootstrap_mean_ci(d, confidence) if judged else {"n": len(d), "mean": float(np.mean(d)) if d else None}
+    ci = {"low": None, "high": None} | ci | {"judged": judged, "min_pairs": need}
+    sig = judged and (ci["low"] > 0 or ci["high"] < 0)
     u = f" {unit}" if unit else ""
     level = f"{100 * confidence:.0f} %"
-    if ci["low"] is None:
-        text = f"{name_a} vs {name_b} on {metric}: too few paired samples ({ci['n']})"
+    if not judged:
+        text = f"{name_a} vs {name_b} on {metric}: too few paired samples ({ci['n']}; a verdict needs {need})"
+        if ci["mean"] is not None:
+            text += f", mean difference {_fmt(ci['mean'])}{u} ({name_a} - {name_b})"
     else:
         span = f"mean difference {_fmt(ci['mean'])}{u}, {level} CI [{_fmt(ci['low'])}, {_fmt(ci['high'])}]"
         why = f"({name_a} - {name_b}: {span}; bootstrap, {ci['n']} pairs)"

@@ -163,8 +163,10 @@ def comparison_matrices(summary: dict) -> list[dict]:
     """The paired comparisons as one scheme x scheme matrix per metric.
 
     A cell (row A, column B): ``A`` when A beats B significantly, ``B`` when B beats A, ``n.s.``
-    otherwise, with the numbers (McNemar's p, or the mean difference and its 95 % CI) in ``title`` for
-    hover and ``short`` in the cell; ``cls`` colors it (win, loss, ns).
+    otherwise, ``not judged`` for a metric on fewer pairs than a verdict needs
+    (:func:`ftcreport.evaluation.stats.min_pairs`), with the numbers (McNemar's p, or the mean difference
+    and its 95 % CI) in ``title`` for hover and ``short`` in the cell; ``cls`` colors it (win, loss, ns,
+    nj: not judged).
     """
     comps = summary.get("comparisons") or []
     schemes = list(summary["schemes"])
@@ -191,9 +193,11 @@ def _cell(c: dict, flip: bool) -> dict:
         short = f"{mine}:{theirs}, p {c['p']:.2g}"
         row_wins = mine > theirs
     else:
-        if c.get("low") is None:
-            return {"text": "-", "cls": "ns", "short": f"{c.get('n', 0)} pairs", "title": c["text"]}
         sign = -1.0 if flip else 1.0
+        if not c.get("judged", c.get("low") is not None):  # too few pairs: the mean shown, no verdict
+            pairs = f"{c.get('n', 0)} pair{'' if c.get('n') == 1 else 's'}"
+            short = pairs if c.get("mean") is None else f"{sign * c['mean']:+.2g} ({pairs})"
+            return {"text": "not judged", "cls": "nj", "short": short, "title": c["text"]}
         mean, lo, hi = sign * c["mean"], *sorted((sign * c["low"], sign * c["high"]))
         short = f"{mean:+.2g} [{lo:+.2g}, {hi:+.2g}]"
         row_wins = hi < 0  # lower is better: the row's value is smaller

@@ -52,7 +52,7 @@ import numpy as np
 from .. import __version__
 from ..cases import Case, configured_schemes, ordered_schemes, parse_case, plugin_digest, plugin_digests
 from ..errors import CaseError, FtcError
-from ..evaluation.stats import compare_metric, compare_success, wilson_interval
+from ..evaluation.stats import compare_metric, compare_success, min_pairs, wilson_interval
 from ..model import pattern_is_compensable, wheel_index, wheel_names
 from ..runs import STATUS_DIVERGED, STATUS_OK, STATUS_SINGULAR
 from ..storage.store import _jsonable, _seal, locked, write_atomic
@@ -390,6 +390,9 @@ COMPARED_METRICS: dict[str, str] = {
 }
 
 
+#: The paired metric comparisons' confidence level; below ``min_pairs(CONFIDENCE)`` pairs they give no verdict.
+CONFIDENCE = 0.95
+
 #: Stops the closed loop causes (the state left the domain or reached a law's singular set, a smaller step
 #: included): a failure of the scheme under the sample's faults, charged to its fault pattern.  The other
 #: stops are not: ``step_unstable`` is the integrator's (the step, not the loop: a smaller step passes it)
@@ -430,7 +433,7 @@ def comparisons(rows: list[dict], schemes: list[str]) -> list[dict]:
             for m, unit in COMPARED_METRICS.items():
                 va = [_value(r, m) for r in ra]
                 vb = [_value(r, m) for r in rb]
-                out.append(compare_metric(a, b, m, va, vb, unit))
+                out.append(compare_metric(a, b, m, va, vb, unit, CONFIDENCE))
     return out
 
 
@@ -485,6 +488,7 @@ def summarize(rows: list[dict]) -> dict:
                 }
         out["schemes"][s] = entry
     out["comparisons"] = comparisons(rows, schemes)
+    out["min_pairs"] = min_pairs(CONFIDENCE)  # the page says how many pairs a metric verdict needs
     return out
 
 

@@ -491,3 +491,36 @@ def test_batch_workers_leave_ctrl_c_to_the_batch_process():
     with _Pool(max_workers=1, mp_context=mp.get_context("spawn")) as pool:
         assert pool.submit(signal.getsignal, signal.SIGINT).result(timeout=120) == signal.SIG_IGN
     assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_index_of_a_fault_free_case_shows_fault_metrics_not_applicable(tmp_path):
+    """W3 (newuser12): the index of a batch of two_link_campaign (no [[faults]]) gave every scheme
+    "wins: max error after faults 1 / 1" and "wins: worst recovery time 1 / 1", and named winners of
+    "max error after faults" while its matrix showed "-" for it.  Without a fault these metrics do not
+    apply: the scoreboard, the winners and the matrix all say n/a with the reason, and nobody wins them."""
+    data = tomllib.loads((CASES / "two_link_campaign.toml").read_text())
+    assert "faults" not in data
+    data["schemes"]["run"] = ["nominal", "switching", "oracle"]
+    data.pop("campaign", None)
+    (tmp_path / "calm.toml").write_text(tomli_w.dumps(data))
+    out = tmp_path / "r"
+    run_batch([tmp_path / "calm.toml"], out, jobs=1, duration=15.0, show_progress=False, render=False)
+    from ftcreport.report.render import render_index
+
+    html = render_index(out).read_text()
+    board = html[html.index('id="scoreboard"') : html.index("</table>", html.index('id="scoreboard"'))]
+    rows = {r.split("</td>")[0]: r for r in board.split('<tr><td class="l">')[1:]}
+    for s in ("nominal", "switching"):
+        cells = [re.sub(r"<[^>]+>", "", c) for c in re.findall(r"<td[^>]*>(.*?)</td>", rows[s])]
+        # HEADLINE's order: after faults, final error, recovery, peak torque after the fault, energy...
+        assert cells[0] == cells[2] == cells[3] == "n/a (no fault)", (s, cells)
+        assert cells[1] in ("0 / 1", "1 / 1"), (s, cells)  # the final error is still contested
+    winners = html[html.index('id="cases"') : html.index("</table>", html.index('id="cases"'))]
+    cells = re.findall(r'<td class="l">(.*?)</td>', winners)
+    na = '<span class="muted" title="not applicable: no fault in the run">n/a (no fault)</span>'
+    # case, then the seven metrics in HEADLINE's order, then the verdict
+    assert cells[1] == cells[3] == cells[4] == na, cells  # detection delay: no active scheme ran
+    assert "nominal" not in cells[1] and "never leave" not in cells[8]
+    assert cells[8].startswith("With no fault in the run, the fault-response metrics do not apply; ")
+    matrix = html[html.index('id="matrix"') :]
+    assert matrix.count(na) == 3  # max after faults of nominal, switching and the oracle

@@ -9,7 +9,6 @@ import pytest
 from ftcreport.evaluation.compare import (
     SPECS,
     compare_case,
-    compare_metric,
     fmt_best,
     fmt_ratio,
     fmt_relative,
@@ -201,7 +200,7 @@ def test_peak_torque_is_ranked_after_the_first_fault():
     no_fault = _run(peak=30.0, torque_peak_after_fault=None)
     no_fault["phases"] = no_fault["phases"][:1]
     (row,) = [r for r in tidy("c", {"nominal": no_fault}) if r.metric == "torque_peak_after_fault"]
-    assert row.value == 30.0 and row.note == "no fault: whole run, start-up included"
+    assert row.value is None and row.note == "not applicable: no fault in the run"
     old = _run()
     del old["torque_peak_after_fault"]  # stored before the metric existed
     (row,) = [r for r in tidy("c", {"nominal": old}) if r.metric == "torque_peak_after_fault"]
@@ -220,15 +219,56 @@ def test_nominal_beating_every_ftc_scheme_is_flagged():
     assert any(s.startswith("Surprise") and "friction" in s for s in v.sentences)
 
 
-def test_no_fault_uses_the_whole_run():
-    m = _run()
-    m["phases"] = [{"start": 0.0, "end": 30.0, "position_error_max": 0.25}]
-    (row,) = [r for r in tidy("c", {"nominal": m}) if r.metric == "after_fault_error_max"]
-    assert row.value == 0.25 and row.note == "no fault: whole run"
-    v = compare_case("c", {"nominal": m, "switching": m | {}})
-    assert v.sentences[0].startswith("With no fault in the run") and not any("Surprise" in x for x in v.sentences)
-    mv = compare_metric([row], SPECS["after_fault_error_max"])
-    assert mv.winners == ["nominal"] and mv.oracle is None and mv.regret is None
+def _fault_free(final: float, entered: float | None) -> dict:
+    """A run of a case without a fault: one phase from 0 to 30 s, 0.283 m off at the start (the initial
+    offset), entering the 0.01 m band at ``entered`` (None: never), as metrics.json stores it (its
+    ``recovery_time_max`` is 0.0 over no fault phase; ``torque_peak_after_fault`` None)."""
+    m = _run(final=final, rec=0.0, peak=35.9, torque_peak_after_fault=None)
+    m["position_error_max"] = 0.283
+    m["phases"] = [{"start": 0.0, "end": 30.0, "fault": False, "position_error_max": 0.283, "recovery_time": entered}]
+    return m
+
+
+def test_no_fault_has_no_fault_response_metric():
+    """W3 (newuser12): a case with no [[faults]] gave every scheme a win on "max error after faults" (the
+    whole run's 0.283 m initial offset, a tie) and on "worst recovery time" (0 s over no fault phase), and
+    its verdict said they "never leave the recovery band" though they start 0.283 m off.  With no fault the
+    metrics of the response to a fault do not apply: no winner, no tie, no contest, the reason given."""
+    runs = {
+        "nominal": _fault_free(0.00053, 12.0),
+        "switching": _fault_free(0.00053, 12.0),
+        "adaptive": _fault_free(0.00101, 14.5),
+        "oracle": _fault_free(0.00053, 12.0),
+    } | {s: _fault_free(0.0002, 9.0) | {"detection_events": [], "false_alarms": 0} for s in ("active", "active_ukf")}
+    (row,) = [r for r in tidy("c", {"nominal": runs["nominal"]}) if r.metric == "after_fault_error_max"]
+    assert row.value is None and row.note == "not applicable: no fault in the run"
+    v = compare_case("c", runs, facts={"recovery_band": 0.01})
+    for key in ("after_fault_error_max", "recovery_time_max", "torque_peak_after_fault", "detection_delay_max"):
+        mv = v.metrics[key]
+        assert mv.winners == [] and mv.ranking == [] and mv.regret is None, key
+        assert mv.not_applicable == "not applicable: no fault in the run", key
+    final = v.metrics["position_error_final"]
+    assert final.winners == ["active", "active_ukf"] and final.not_applicable == ""
+    board = scoreboard([v], ["nominal", "switching", "adaptive", "active", "active_ukf", "oracle"])
+    for s in ("nominal", "switching", "adaptive", "active", "active_ukf"):
+        assert board.wins[s]["after_fault_error_max"] == board.contests[s]["after_fault_error_max"] == 0
+        assert board.wins[s]["recovery_time_max"] == board.contests[s]["recovery_time_max"] == 0
+        assert board.not_applicable[s]["after_fault_error_max"] == 1
+        assert board.not_applicable[s]["torque_peak_after_fault"] == 1
+    assert board.wins["active"]["position_error_final"] == 1 and board.contests["adaptive"]["position_error_final"] == 1
+    assert board.not_applicable["nominal"]["position_error_final"] == 0
+    assert board.cases[0]["not_applicable"]["recovery_time_max"] == "not applicable: no fault in the run"
+    text = " ".join(v.sentences)
+    assert "never leave" not in text and "peak error" not in text
+    assert v.sentences[0].startswith("With no fault in the run, the fault-response metrics do not apply; ")
+    assert "active (Farza) and active (UKF) keep the smallest final error (a tie), 0.0002 m" in v.sentences[0]
+    # the band is entered after the start-up transient: at 9 s by the best, 14.5 s by the last, the oracle at 12 s
+    assert (
+        "Active (Farza) and active (UKF) enter the recovery band (position error <= 0.01 m) after the start-up "
+        "transient, at 9 s, and stay in it; adaptive, the last, at 14.5 s; the oracle at 12 s." in v.sentences
+    ), v.sentences
+    late = compare_case("c", runs | {"adaptive": _fault_free(0.02, None)}, facts={"recovery_band": 0.01})
+    assert "; adaptive never enters it; the oracle at 12 s." in " ".join(late.sentences)
 
 
 def test_scoreboard_counts_wins_regret_and_unexpected_statuses():

@@ -7,11 +7,16 @@ Input is a tidy table of metrics, one :class:`Row` per (case, scheme, metric), b
 Definitions (every headline metric is "lower is better"):
 
 * **Headline metrics** (:data:`HEADLINE`): the largest position error after the first fault
-  (the largest ``phases[k].position_error_max`` over the phases that start with a fault; the
-  whole run's ``position_error_max`` when the run has no fault), ``position_error_final``,
-  ``recovery_time_max`` (``None`` in metrics.json, "never settles", ranks last), ``torque_peak``,
-  ``energy``, and for the active schemes ``detection_delay_max`` (a missed change ranks last)
-  and ``false_alarms``.
+  (the largest ``phases[k].position_error_max`` over the phases that start with a fault),
+  ``position_error_final``, ``recovery_time_max`` (``None`` in metrics.json, "never settles", ranks
+  last), ``torque_peak_after_fault``, ``energy``, and for the active schemes ``detection_delay_max``
+  (a missed change ranks last) and ``false_alarms``.
+* **Not applicable.**  A run without a fault has no response to a fault: the metrics of
+  :data:`FAULT_RESPONSE` are :data:`NOT_APPLICABLE` for it (the reason as its note), not its whole
+  run's values.  The whole run's peak error is the initial offset, equal for every scheme, and
+  metrics.json's ``recovery_time_max`` of 0 s is a maximum over no fault phase: ranked, they made
+  every scheme a winner of a contest that did not take place.  A metric not applicable to every run
+  of a case has no winner, no tie and no contest there (:attr:`MetricVerdict.not_applicable`).
 * **Ties.**  Two values tie when ``|a - b| <= max(abs_tol, rel_tol * min(|a|, |b|))`` with the
   metric's tolerances (:class:`MetricSpec`; 5 % relative, and an absolute floor such as 0.1 mm
   for position errors, below which differences are numerical rather than physical).  The relative
@@ -63,7 +68,9 @@ from .metrics import fault_phases
 __all__ = [
     "ACTIVE",
     "CONTESTANTS",
+    "FAULT_RESPONSE",
     "HEADLINE",
+    "NOT_APPLICABLE",
     "CaseVerdict",
     "MetricSpec",
     "MetricVerdict",
@@ -73,6 +80,7 @@ __all__ = [
     "compare_metric",
     "contestant",
     "difference",
+    "fault_free",
     "fmt_best",
     "fmt_relative",
     "ratio",
@@ -126,6 +134,10 @@ HEADLINE: tuple[MetricSpec, ...] = (
     MetricSpec("false_alarms", "false alarms", "", 0.0, 0.0, ACTIVE, note="whole run"),
 )
 SPECS = {s.key: s for s in HEADLINE}
+#: the headline metrics of the response to a fault: not applicable to a run without one (module docstring)
+FAULT_RESPONSE = ("after_fault_error_max", "recovery_time_max", "torque_peak_after_fault", "detection_delay_max")
+#: the note of a metric of :data:`FAULT_RESPONSE` for a run without a fault
+NOT_APPLICABLE = "not applicable: no fault in the run"
 #: the headline metrics of tracking after the faults: nominal must be among their winners to be "among the best"
 AFTER_FAULTS = ("after_fault_error_max", "position_error_final", "recovery_time_max")
 
@@ -169,14 +181,20 @@ def tidy(case: str, metrics_by_scheme: Mapping[str, Mapping]) -> list[Row]:
     return rows
 
 
+def fault_free(m: Mapping) -> bool:
+    """Whether a run's phases hold no fault (a run stored without phases cannot tell: False)."""
+    phases = m.get("phases")
+    return bool(phases) and not fault_phases(phases)
+
+
 def _extract(key: str, m: Mapping) -> tuple[float | None, str]:
+    if key in FAULT_RESPONSE and fault_free(m):
+        return None, NOT_APPLICABLE
     if key == "after_fault_error_max":
         phases = m.get("phases")
         if not phases:
             return _num(m.get("position_error_max")), "" if "position_error_max" in m else "not computed"
         faulty = fault_phases(phases)
-        if not faulty:
-            return _num(phases[0].get("position_error_max")), "no fault: whole run"
         vals = [_num(p.get("position_error_max")) for p in faulty]
         vals = [v for v in vals if v is not None]
         return (max(vals), "") if vals else (None, "no sample after the faults")
@@ -184,8 +202,6 @@ def _extract(key: str, m: Mapping) -> tuple[float | None, str]:
         if key not in m:
             return None, "not computed (stored before this metric existed: re-run with --force)"
         v = _num(m[key])
-        if v is None and not fault_phases(m.get("phases") or []) and _num(m.get("torque_peak")) is not None:
-            return _num(m["torque_peak"]), "no fault: whole run, start-up included"
         return (v, "") if v is not None else (None, "no sample after the first fault")
     if key == "recovery_time_max":
         if key not in m:
@@ -197,7 +213,7 @@ def _extract(key: str, m: Mapping) -> tuple[float | None, str]:
         if events is None:
             return None, "not computed"
         if not events:
-            return None, "no fault to detect"
+            return None, NOT_APPLICABLE
         if m.get("missed_detections"):
             return math.inf, f"misses {m['missed_detections']} of {len(events)} changes"
         v = _num(m.get(key))
@@ -265,6 +281,7 @@ class MetricVerdict:
     missing: list[tuple[str, str]] = field(default_factory=list)  # (scheme, why)
     regret_diff: float | None = None  # best - oracle, when the oracle is below the floor
     benefit_diff: float | None = None  # nominal - best, when the best is below the floor
+    not_applicable: str = ""  # why no run has the metric, when it applies to none (NOT_APPLICABLE)
 
     def value(self, scheme: str) -> float | None:
         return next((r.value for r in self.ranking if r.scheme == scheme), None)
@@ -322,6 +339,8 @@ def compare_metric(rows: Sequence[Row], spec: MetricSpec, ineligible: Mapping[st
         missing,
         None if regret is not None or regret_tie else difference(best, oracle),
         None if benefit is not None or benefit_tie else difference(nominal, best),
+        # no contest at all (module docstring): no completed run has the metric, for the one reason
+        NOT_APPLICABLE if not done and missing and all(why == NOT_APPLICABLE for _, why in missing) else "",
     )
 
 
@@ -411,6 +430,8 @@ def _analysis_sentences(analysis: dict, verdicts, metrics, limit: str | None = N
     from .verdict_analysis import analysis_sentences
 
     after = verdicts.get("after_fault_error_max")
+    if after and after.not_applicable:  # no fault: the schemes as the final error ranks them
+        after = verdicts.get("position_error_final")
     ranking = [r.scheme for r in after.ranking] if after else []
     stopped = [s for s, m in metrics.items() if m.get("status") != "ok"]
     # nominal "wins" (and the analysis agrees) only when among the best after the faults (module docstring)
@@ -502,40 +523,28 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         )
         return out
     after = verdicts.get("after_fault_error_max")
+    final = verdicts.get("position_error_final")
+    if after and after.not_applicable and final and final.winners:
+        # no fault: the peak error is the initial offset, alike for every scheme; the final error still ranks
+        out.append(
+            "With no fault in the run, the fault-response metrics do not apply; "
+            + ", ".join(_smallest(final, "the smallest final error"))
+            + "."
+        )
     if after and after.winners:
-        whole = any(r.note == "no fault: whole run" for r in after.ranking)
-        if whole or not fault_times:
-            when = "With no fault in the run" if whole else "After the faults"
-        else:
-            when = f"After the faults at {_times(fault_times)}"
-        w = _names(after.winners)
-        tie = " (a tie)" if len(after.winners) > 1 else ""
-        parts = [
-            f"{when}, {w} keep{'s' if len(after.winners) == 1 else ''} the smallest peak error{tie}, "
-            f"{fmt_best(after, 'm')}"
-        ]
-        if after.oracle is not None:
-            if after.regret_tie:
-                parts.append("matching the oracle within the tolerance")
-            elif after.regret is not None:
-                parts.append(f"{fmt_ratio(after.regret)} times the oracle's {fmt_value(after.oracle, 'm')}")
-            elif after.regret_diff is not None:
-                parts.append(f"{fmt_value(after.regret_diff, 'm')} above the oracle's {fmt_value(after.oracle, 'm')}")
-        if after.nominal is not None and BASELINE not in after.winners:
-            if after.benefit_tie:
-                parts.append("no better than nominal")
-            elif after.benefit is not None:
-                parts.append(f"{fmt_ratio(after.benefit)} times smaller than nominal's")
-            elif after.benefit_diff is not None:
-                parts.append(f"{fmt_value(after.benefit_diff, 'm')} smaller than nominal's")
-        out.append(", ".join(parts) + ".")
-        if BASELINE in after.winners and not whole and any(contestant(s) for s in ok) and _nominal_among_best(verdicts):
+        when = f"After the faults at {_times(fault_times)}" if fault_times else "After the faults"
+        out.append(", ".join(_smallest(after, "the smallest peak error", when)) + ".")
+        if BASELINE in after.winners and any(contestant(s) for s in ok) and _nominal_among_best(verdicts):
             out.append(_why_nominal(facts, after, metrics))
     if failed:
         stops = "; ".join(f"{LABEL.get(s, s)} {st} at {fmt_value(t)} s" for s, st, t in failed)
         out.append(f"Not ranked, the run stopped: {stops}.")
     rec = verdicts.get("recovery_time_max")
-    if rec:
+    if rec and rec.not_applicable:
+        line = _startup_band(metrics, facts)
+        if line:
+            out.append(line)
+    elif rec:
         bits = []
         band = _num(facts.get("recovery_band"))
         # the band as a number where a sentence first uses it: "settles within the band" says nothing else
@@ -589,14 +598,76 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
         if bits:
             out.append(_cap("; ".join(bits)) + ".")
     elif (tq := verdicts.get("torque_peak_after_fault")) and tq.winners:
-        whole = any(r.note.startswith("no fault") for r in tq.ranking)
         out.append(
-            f"Smallest peak torque{' (no fault: whole run)' if whole else ' after the first fault'}: "
+            "Smallest peak torque after the first fault: "
             f"{_names(tq.winners)}, {fmt_best(tq, 'N m')}"
             + (f" (the oracle needs {fmt_value(tq.oracle, 'N m')})" if tq.oracle is not None else "")
             + "."
         )
     return out[:4]
+
+
+def _smallest(mv: MetricVerdict, what: str, when: str = "") -> list[str]:
+    """The parts of a sentence naming the winners of ``mv`` on a position error (``what``: "the smallest
+    peak error") with their value, against the oracle and nominal (the caller joins them with ", ")."""
+    tie = " (a tie)" if len(mv.winners) > 1 else ""
+    lead = f"{when}, " if when else ""
+    verb = "s" if len(mv.winners) == 1 else ""
+    parts = [f"{lead}{_names(mv.winners)} keep{verb} {what}{tie}, {fmt_best(mv, 'm')}"]
+    if mv.oracle is not None:
+        if mv.regret_tie:
+            parts.append("matching the oracle within the tolerance")
+        elif mv.regret is not None:
+            parts.append(f"{fmt_ratio(mv.regret)} times the oracle's {fmt_value(mv.oracle, 'm')}")
+        elif mv.regret_diff is not None:
+            parts.append(f"{fmt_value(mv.regret_diff, 'm')} above the oracle's {fmt_value(mv.oracle, 'm')}")
+    if mv.nominal is not None and BASELINE not in mv.winners:
+        if mv.benefit_tie:
+            parts.append("no better than nominal")
+        elif mv.benefit is not None:
+            parts.append(f"{fmt_ratio(mv.benefit)} times smaller than nominal's")
+        elif mv.benefit_diff is not None:
+            parts.append(f"{fmt_value(mv.benefit_diff, 'm')} smaller than nominal's")
+    return parts
+
+
+def _startup_band(metrics: Mapping[str, Mapping], facts: Mapping) -> str:
+    """When the runs of a case without a fault enter the recovery band (their one phase's
+    ``recovery_time``), for the verdict.  Such a run starts off the reference, so its error is outside
+    the band until the start-up transient decays: "never leaves the band" (read from metrics.json's
+    ``recovery_time_max`` of 0 s, a maximum over no fault phase) was false.  '' when no contestant's
+    run has the time."""
+    band = _num(facts.get("recovery_band"))
+    the_band = "the recovery band" if band is None else f"the recovery band (position error <= {band:g} m)"
+
+    def entered(m: Mapping) -> tuple[bool, float | None]:  # (known, when: None = never)
+        phases = m.get("phases") or []
+        if m.get("status") != "ok" or len(phases) != 1 or "recovery_time" not in phases[0]:
+            return False, None
+        return True, _num(phases[0]["recovery_time"])
+
+    times = {s: e[1] for s, m in metrics.items() if contestant(s) and (e := entered(m))[0]}
+    settled = sorted((t, s) for s, t in times.items() if t is not None)
+    never = [s for s, t in times.items() if t is None]
+    spec = SPECS["recovery_time_max"]
+    bits = []
+    if settled:
+        first = [(t, s) for t, s in settled if tied(t, settled[0][0], spec)]
+        last = [(t, s) for t, s in settled if tied(t, settled[-1][0], spec) and (t, s) not in first]
+        verb = "s" if len(first) == 1 else ""
+        bits.append(
+            f"{_names([s for _, s in first])} enter{verb} {the_band} after the start-up transient, at "
+            f"{fmt_span([t for t, _ in first], 's')}, and stay{verb} in it"
+        )
+        if last:
+            bits.append(f"{_names([s for _, s in last])}, the last, at {fmt_span([t for t, _ in last], 's')}")
+    for i, s in enumerate(never):
+        bits.append(f"{LABEL.get(s, s)} never enters {'it' if settled or i else the_band}")
+    if not bits:
+        return ""
+    if BOUND in metrics and (e := entered(metrics[BOUND]))[0]:
+        bits.append("the oracle never enters it" if e[1] is None else f"the oracle at {fmt_value(e[1], 's')}")
+    return _cap("; ".join(bits)) + "."
 
 
 #: a scheme at its torque limit this fraction of the run or more has its tracking set by the limit
@@ -647,7 +718,9 @@ class Scoreboard:
     regret_counts: dict[str, dict[str, tuple[int, int]]]  # scheme -> metric -> (cases with a ratio, cases ranked)
     outside_expected: dict[str, int]  # scheme -> runs whose status is not in the case's expected_status
     runs: dict[str, int]  # scheme -> runs
-    cases: list[dict]  # one row per case: name, winners per metric, outside expected
+    cases: list[dict]  # one row per case: name, winners per metric, not applicable (why) per metric, outside expected
+    # scheme -> metric -> cases where the metric does not apply to the scheme's run (no contest: no fault)
+    not_applicable: dict[str, dict[str, int]] = field(default_factory=dict)
 
 
 def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Scoreboard:
@@ -655,7 +728,9 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
 
     A scheme's wins on a metric are counted out of the contests it took part in: the cases where the
     metric has a winner and the scheme's run is ranked on it or stopped (a run that did not complete
-    took part and lost).  A case it did not run in, or whose run lacks the metric, is no contest of it.
+    took part and lost).  A case it did not run in, or whose run lacks the metric, is no contest of it;
+    nor is a case where the metric does not apply (no fault: module docstring), counted apart so the page
+    says "n/a" with the reason rather than "0 / 0".
     """
     wins = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
     regrets: dict[str, dict[str, list[float]]] = {s: {m.key: [] for m in HEADLINE} for s in schemes}
@@ -663,6 +738,7 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
     outside = dict.fromkeys(schemes, 0)
     runs = dict.fromkeys(schemes, 0)
     contests = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
+    not_applicable = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
     cases = []
     for v in verdicts:
         for s in v.schemes:
@@ -671,9 +747,14 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
         for s, _ in v.outside_expected:
             if s in outside:
                 outside[s] += 1
-        row = {"case": v.case, "winners": {}, "outside_expected": list(v.outside_expected)}
+        row = {"case": v.case, "winners": {}, "not_applicable": {}, "outside_expected": list(v.outside_expected)}
         for key, mv in v.metrics.items():
             row["winners"][key] = list(mv.winners)
+            if mv.not_applicable:
+                row["not_applicable"][key] = mv.not_applicable
+                for s, why in mv.missing:
+                    if s in not_applicable and why == mv.not_applicable:
+                        not_applicable[s][key] += 1
             if mv.winners:
                 for s in {r.scheme for r in mv.ranking} | {s for s, _ in mv.failed}:
                     if s in contests:
@@ -690,4 +771,6 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
         cases.append(row)
     med = {s: {k: (statistics.median(v) if v else None) for k, v in d.items()} for s, d in regrets.items()}
     counts = {s: {k: (len(v), ranked[s][k]) for k, v in d.items()} for s, d in regrets.items()}
-    return Scoreboard(list(schemes), list(HEADLINE), wins, contests, med, counts, outside, runs, cases)
+    return Scoreboard(
+        list(schemes), list(HEADLINE), wins, contests, med, counts, outside, runs, cases, not_applicable=not_applicable
+    )

@@ -228,6 +228,12 @@ def _after_max(m: dict) -> float | None:
     return max(vals) if vals else None
 
 
+def _after_na(m: dict) -> str:
+    """Why a run has no "max error after faults" when it applies to no fault ('' otherwise): the page
+    says "n/a" with it, as the verdict does (compare.NOT_APPLICABLE), rather than a bare "-"."""
+    return compare.NOT_APPLICABLE if compare.fault_free(m) else ""
+
+
 def _record(out: Path, name: str) -> dict | None:
     """The case record, or None when missing or not a record (``report`` names it: store.unrecorded_cases)."""
     rec = read_json(out / name / "case.json")
@@ -271,6 +277,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
     for s, m in stored_metrics(out, name).items():
         m = dict(m)
         m["after_max"] = _after_max(m)
+        m["after_na"] = _after_na(m)
         sm = m.get("singularity_margin_min")
         m["margin_deg"] = None if sm is None else math.degrees(sm)
         runs.append(m)
@@ -700,11 +707,13 @@ def _verdict_rows(v, band: float | None = None) -> list[dict]:
             for r in mv.ranking
         )
         extra = [f"{s}: {st}" for s, st in mv.failed] + [f"{s}: {why}" for s, why in mv.missing]
+        if mv.not_applicable:  # one reason for every run: said once, as the winner's cell
+            extra = [f"{s}: {st}" for s, st in mv.failed]
         rows.append(
             {
                 "key": spec.key,
                 "label": spec.label + (f" [{spec.unit}]" if spec.unit else ""),
-                "winners": ", ".join(mv.winners) or "none",
+                "winners": f"n/a ({mv.not_applicable})" if mv.not_applicable else ", ".join(mv.winners) or "none",
                 "tie": len(mv.winners) > 1,
                 "best": compare.fmt_best(mv),
                 "regret": compare.fmt_relative(mv, "regret"),
@@ -835,8 +844,9 @@ def render_index(out: Path) -> Path:
                 n_req_pass += len(reqs) - reqs_failed
                 n_req_fail += reqs_failed
             entry["runs"][s] = {
-                **m, "after_max": _after_max(m), "checks_total": len(mine), "checks_failed": failed,
-                "checks_unjudged": shortened, "windows_total": len(reqs), "windows_failed": reqs_failed,
+                **m, "after_max": _after_max(m), "after_na": _after_na(m), "checks_total": len(mine),
+                "checks_failed": failed, "checks_unjudged": shortened, "windows_total": len(reqs),
+                "windows_failed": reqs_failed,
             }  # fmt: skip
         entry["not_run"] = rec.get("not_run", {})
         plugins |= rec.get("plugin_schemes", {})
@@ -874,6 +884,7 @@ def render_index(out: Path) -> Path:
         batches=batch.get("batches", []) if isinstance(batch, dict) else [],
         cases=cases,
         board=board,
+        not_applicable=compare.NOT_APPLICABLE,
         specs=compare.HEADLINE,
         fmt_ratio=compare.fmt_ratio,
         schemes=ordered_schemes(s for c in cases for s in (*c["runs"], *c.get("not_run", {}))),

@@ -327,3 +327,40 @@ def test_export_removes_the_netcdf_of_a_run_it_skips(tmp_path):
         export(out, where, damaged)
         assert damaged and "metrics.json: " in damaged[0]
         assert not ((where or out) / d.parent.name / "nominal" / "timeseries.nc").exists(), where
+
+
+@pytest.mark.parametrize(
+    ("drive", "states"),
+    [({}, ()), ({"driver": "pi"}, ("z",)), ({"driver": "pi", "drive_rate": 200.0}, ("z", "v_held"))],
+    ids=["static", "pi", "pi_sampled"],
+)
+def test_netcdf_of_a_motor_case_has_currents_per_wheel_in_amperes(tmp_path, drive, states):
+    """W4 (newuser12): on two_link_switching_motors the export's ``i_a`` had dims ('time', 'i_a_dim1') and
+    units 'unknown', and ``xc`` only the units 'mixed', though the README promises units in each
+    variable's attributes and a ``wheel`` dimension.  The currents lie along ``wheel`` in A; a PI drive's
+    states (its integral part z, and the sampled PI's held voltage, both in V) along ``drive_state``, each
+    column named and tied to its wheel; ``xc`` says why its units are mixed."""
+    data = tomllib.loads((CASES / "motors" / "two_link_switching_motors.toml").read_text())
+    data["base_case"] = str((CASES / "two_link_switching.toml").resolve())
+    data["actuators"] = data.get("actuators", {}) | drive
+    path = tmp_path / "motors.toml"
+    path.write_text(tomli_w.dumps(data))
+    run, _ = run_scheme(with_duration(load_case(path), 0.1), "switching")
+    with xr.open_dataset(write_netcdf(tmp_path / "run.nc", run), engine="h5netcdf") as ds:
+        ds = ds.load()
+    wheels = ["1r", "1l", "2r", "2l"]
+    assert ds["i_a"].dims == ("time", "wheel") and list(ds["wheel"].values) == wheels
+    assert ds["i_a"].attrs["units"] == "A" and "armature current" in ds["i_a"].attrs["long_name"]
+    np.testing.assert_array_equal(ds["i_a"].values, run["i_a"])
+    assert np.abs(ds["i_a"].values).max() > 0.1  # a real current [A], not an empty column
+    if not states:
+        assert "z_drive" not in ds and "drive_state" not in ds.dims
+    else:
+        assert ds["z_drive"].dims == ("time", "drive_state") and ds["z_drive"].attrs["units"] == "V"
+        assert list(ds["drive_state"].values) == [f"{s}_{w}" for s in states for w in wheels]
+        assert list(ds["wheel_of_drive_state"].values) == wheels * len(states)
+        np.testing.assert_array_equal(ds["z_drive"].values, run["z_drive"])
+    assert ds["xc"].attrs["units"] == "mixed"
+    assert "controller" in ds["xc"].attrs["long_name"] and "units" in ds["xc"].attrs["description"]
+    assert not [k for k, v in ds.variables.items() if v.attrs.get("units") == "unknown"]
+    assert not [d for d in ds.dims if "_dim" in d]

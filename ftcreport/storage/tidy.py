@@ -6,6 +6,9 @@ A :class:`~ftcreport.sim.Run` becomes an ``xarray.Dataset`` with named dimension
 * ``coordinate`` (``x, y, theta_n, ..., theta_1``: the order of q),
 * ``velocity`` (``v_n, omega_1``: the order of eta),
 * ``wheel`` (``1r, 1l, ..., nr, nl``) with the auxiliary coordinate ``robot_of_wheel``,
+* ``drive_state`` (a case with PI drives: ``z_1r, ..., z_nl``, the PI's integral part per wheel, then
+  for a sampled PI ``v_held_1r, ..., v_held_nl``, its held voltage; both in V, the motor states after
+  the currents ``i_a`` of ``model.drive_compiled``) with the auxiliary coordinate ``wheel_of_drive_state``,
 * ``robot`` (1..n, leader first) for the derived ``heading``,
 * ``parameter`` (the estimated gains and frictions of an active scheme),
 * ``pattern`` (the models of the switching and adaptive schemes),
@@ -82,8 +85,19 @@ UNITS: dict[str, tuple[tuple[str, ...], str, str]] = {
     "cost_best": ((), "(m/s)^2", "least switching cost of the bank (banks too large to log every cost)"),
     "chi_hat": (("pattern", "wheel"), "1", "adaptive weights"),
     "z": (("chained",), "chained-form coordinates", "chained-form coordinates of the kinematic controller"),
-    "xc": (("controller_state",), "mixed", "controller state"),
+    "xc": (("controller_state",), "mixed", "controller state: the control law's internal states"),
+    "i_a": (("wheel",), "A", "armature current of each wheel's motor"),
+    "tau_mid": (("wheel",), "N m", "applied torque at each step's midpoint (the energy's quadrature with motors)"),
+    "z_drive": (("drive_state",), "V", "the PI drives' states: integral part z per wheel, then a sampled PI's held v"),
 }
+#: what a variable's units attribute cannot say (its ``description``)
+DESCRIPTIONS = {
+    "xc": "the scheme's own states (observer, adaptation, switching cost filters...) side by side, each in its "
+    "own units, so the column units are mixed; the ones a report reads are logged again by name with their "
+    "units (rho_hat, ubar_hat, chi_hat, cost, ...)",
+}
+#: the motor states a PI drive adds after the currents, in this order per wheel (model.drive_compiled)
+DRIVE_STATES = ("z", "v_held")
 
 
 def _labels(n: int) -> dict[str, list[str]]:
@@ -124,12 +138,19 @@ def run_dataset(run: Run) -> xr.Dataset:
             dims = generic  # a signal whose width differs from the shared dimension
         sizes.update(zip(dims, arr.shape[1:], strict=True))
         attrs = {"units": known[1], "long_name": known[2]} if known is not None else {"units": "unknown"}
+        if name in DESCRIPTIONS:
+            attrs["description"] = DESCRIPTIONS[name]
         data_vars[name] = (("time", *dims), arr, attrs)
     for dim, labs in labels.items():
         if sizes.get(dim) == len(labs):
             coords[dim] = (dim, labs)
     if "wheel" in coords:
         coords["robot_of_wheel"] = ("wheel", np.repeat(np.arange(1, n + 1), 2), {"long_name": "robot of the wheel"})
+    k = sizes.get("drive_state", 0) // max(len(labels.get("wheel", [])), 1)
+    if 0 < k <= len(DRIVE_STATES) and sizes["drive_state"] == k * len(labels["wheel"]):
+        # each wheel's states in the drives' order: z of every wheel, then the sampled PI's held voltage
+        coords["drive_state"] = ("drive_state", [f"{d}_{w}" for d in DRIVE_STATES[:k] for w in labels["wheel"]])
+        coords["wheel_of_drive_state"] = ("drive_state", labels["wheel"] * k, {"long_name": "wheel of the drive state"})
     if "coordinate" in coords:
         units = ["m", "m"] + ["rad"] * n
         coords["coordinate_unit"] = ("coordinate", units)

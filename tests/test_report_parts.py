@@ -526,3 +526,21 @@ def test_the_estimates_figure_has_its_time_axis_under_the_lower_panel():
     lay = fig["layout"]
     lower = min(("yaxis", "yaxis2"), key=lambda a: lay[a]["domain"][0])
     assert lower == "yaxis2" and lay["xaxis"].get("anchor") == "y2", lay["xaxis"]
+
+
+def test_the_errors_figure_has_its_time_axis_under_the_lower_panel_with_room_for_its_title():
+    """Session 12's new user: the tracking-errors figure's time axis sat between its two panels (the heading
+    panel without time ticks), and in every two-panel time figure "t [s]" was drawn over the tick labels (the
+    title kept inside the fixed bottom margin, the legend below it).  The axis is under the lower panel, and
+    its margin grows to hold the title below the ticks (plotly's automargin, with a standoff)."""
+    from ftcreport.report.interactive import errors_fig, estimates_fig
+
+    t = np.linspace(0.0, 10.0, 50)
+    q = np.zeros((50, 4))
+    series = {"nominal": {"t": t, "q": q, "q_d": q + 0.1}}
+    ts, patterns = _adaptive_series(n_models=3, nw=2)
+    for fig in (errors_fig(series, []), estimates_fig(ts, "adaptive", ["1r", "1l"], [], patterns)):
+        lay = fig["layout"]
+        lower = min(("yaxis", "yaxis2"), key=lambda a: lay[a]["domain"][0])
+        assert lower == "yaxis2" and lay["xaxis"].get("anchor") == "y2", lay["xaxis"]
+        assert lay["xaxis"]["automargin"] is True and lay["xaxis"]["title"]["standoff"] > 0

@@ -134,7 +134,9 @@ def _layout(title: str, phases: list[dict], t_end: float, height: int = 360, **e
         "height": height + 50,
         "margin": {"l": 60, "r": 20, "t": 40, "b": 100},
         "hovermode": "x unified",
-        "xaxis": {"title": {"text": "t [s]"}, "range": [0, t_end]},
+        # automargin: the margin grows to hold the title below the tick labels (else plotly keeps the title
+        # inside the fixed margin, and with the legend below it the title sat on the tick labels)
+        "xaxis": {"title": {"text": "t [s]", "standoff": 6}, "automargin": True, "range": [0, t_end]},
         "shapes": _phases(phases, t_end),
         "legend": {"orientation": "h", "y": 0, "yref": "container", "yanchor": "bottom"},
     }
@@ -181,6 +183,7 @@ def errors_fig(series: dict[str, dict], phases: list[dict]) -> dict:
         rng = _log_range(scale[key], floor)
         if rng is not None:
             lay[axis]["range"] = rng
+    lay["xaxis"]["anchor"] = "y2"  # the time axis under the lower panel, not between the two
     return {"data": data, "layout": lay}
 
 

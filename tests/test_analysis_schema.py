@@ -420,6 +420,24 @@ def test_a_limit_the_simulation_contradicts_shows_no_green_margin():
         }
     )
     assert "<td>not searched</td>" in html
+    # a null limit of a loop with no finite one reads so, not "none" (session 12's new user read "largest
+    # stable k_v: none" as "no gain is stable")
+    free = {"sample_time": 0.005, "k_v": {"nominal": 5.0}, "limits": {"nominal": {"sample_time_max": None,
+            "k_v_max": None}}, "limit_notes": {}}  # fmt: skip
+    html = env.get_template("_analysis.html").render(
+        analysis={
+            "limit_rows": limit_rows(free),
+            "sampled": True,
+            "sample_time": 0.005,
+            "actuator_input": "torque",
+            "not_analyzed": {},
+        }
+    )
+    row = html[html.index('data-scheme="nominal"') :].split("</tr>")[0]
+    assert ">none<" not in row and row.count("no finite limit") >= 2, row
+    from ftcreport.analysis.summary import fmt_limit
+
+    assert fmt_limit(None, "s") == "no finite limit" and fmt_limit(None, "1/s") == "no finite limit"
 
 
 def test_a_phase_a_raising_plugin_law_leaves_not_computed_is_documented(tmp_path):

@@ -28,9 +28,17 @@ def pattern_text(p) -> str:
 
 
 def fmt_limit(value, unit: str) -> str:
-    if value is None:
-        return "none"
+    if value is None:  # null: no finite limit (stable up to 10 s or 1e7 1/s); "none" read as "no stable gain"
+        return "no finite limit"
     return f"{value * 1e3:.4g} ms" if unit == "s" else f"{value:.4g} 1/s"
+
+
+def _limit(table: dict, notes: dict, where: str, key: str, unit: str) -> str:
+    """A limit as :func:`fmt_limit` writes it, but "not searched" for a null one its note says was not searched
+    (the UKF's sample time): that null is no "no finite limit"."""
+    if table.get(key) is None and str(notes.get(f"{where}.{key}", "")).startswith("not searched"):
+        return "not searched"
+    return fmt_limit(table.get(key), unit)
 
 
 def _worst_margin(m: dict | None) -> str:
@@ -57,10 +65,12 @@ def text_summary(res: dict) -> list[str]:
         lines.append("  the loop is time-varying along this reference: frozen-instant poles are evidence, not proof")
     for scheme, lim in res.get("limits", {}).items():
         vl = res.get("velocity_loop", {}).get(scheme, {})
+        notes = res.get("limit_notes", {}).get(scheme, {})
         lines.append(
-            f"  {scheme}: largest stable sample time {fmt_limit(lim.get('sample_time_max'), 's')}, largest stable "
-            f"k_v {fmt_limit(lim.get('k_v_max'), '1/s')} (velocity loop alone: "
-            f"{fmt_limit(vl.get('sample_time_max'), 's')}, {fmt_limit(vl.get('k_v_max'), '1/s')})"
+            f"  {scheme}: largest stable sample time {_limit(lim, notes, 'limits', 'sample_time_max', 's')}, "
+            f"largest stable k_v {_limit(lim, notes, 'limits', 'k_v_max', '1/s')} (velocity loop alone: "
+            f"{_limit(vl, notes, 'velocity_loop', 'sample_time_max', 's')}, "
+            f"{_limit(vl, notes, 'velocity_loop', 'k_v_max', '1/s')})"
         )
         factors = []  # limit / the case's setting, as on the case page (report.analysis_figs.limit_rows)
         if res.get("sample_time") and lim.get("sample_time_max"):

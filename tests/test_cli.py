@@ -57,6 +57,20 @@ def test_report_without_results_is_one_line(tmp_path):
     assert res.exit_code == 2 and "no stored results" in res.output
 
 
+def test_report_says_what_it_renders_when_piped_and_its_help_what_it_runs(tmp_path):
+    """Session 12's new user: `report` (piped) printed nothing for 40-60 s while its help said "no simulation",
+    yet a motor page re-runs the analysis's short confirmation simulations.  It now says what it renders, as
+    `batch` does, and its help says what runs."""
+    out = tmp_path / "r"
+    case = Path(__file__).resolve().parents[1] / "cases" / "two_link_sliding_mode.toml"
+    res = runner.invoke(app, ["run", str(case), "--scheme", "nominal", "--duration", "2", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["report", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "rendering 1 case page(s)" in res.stderr
+    assert "no simulation)" not in runner.invoke(app, ["report", "--help"]).output
+
+
 def test_patterns_command():
     res = runner.invoke(app, ["patterns", "3"])
     assert res.exit_code == 0

@@ -350,7 +350,8 @@ def _table(rows: list[dict]) -> str:
 def report(
     out: Annotated[Path, typer.Option(help="Output directory holding stored results.")] = Path("reports"),
 ) -> None:
-    """Re-render every HTML page from stored results (no simulation).
+    """Re-render every HTML page from stored results: no case is simulated again, but a page whose case is
+    sampled or has motors re-runs its analysis's short confirmation simulations (a few seconds each).
 
     A stored run that is damaged (its record does not match its files) is shown as such and named here;
     a run that ended in a status its case counts as a failure is named too.  Exit 0 when every stored run
@@ -392,8 +393,10 @@ def _render_progress():
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     console = Console(stderr=True)
-    if not console.is_terminal:
-        yield None, None
+    if not console.is_terminal:  # piped: one line, as batch says it (a minute of silence reads as a hang)
+        from ..studies.batch import _render_notice
+
+        yield (lambda k: _render_notice(k) if k else None), None
         return
     cols = (
         TextColumn("rendering pages"),

@@ -475,3 +475,22 @@ def test_a_phase_a_raising_plugin_law_leaves_not_computed_is_documented(tmp_path
     row = _readme_row("stable")  # README names the value and where its reason is
     assert all(f'"{v}"' in row for v in STABILITY), row
     assert "`note`" in row, row
+
+
+def test_the_classic_keys_say_which_plant_they_are_of():
+    """Session 12's new user: on the sampled motor case, `analyze --json` put the ideal continuous plant's
+    closed_loop_poles, pole_tables and nominal_velocity_loop (stable, phase margin 90 deg) beside phases that
+    are all unstable, with no word of which loop each describes.  ``classic_model`` says it, in the JSON, the
+    text and the README's key table."""
+    from ftcreport.analysis.case import classic_model
+    from ftcreport.analysis.summary import text_summary
+
+    motor = classic_model(load_case(ROOT / "cases" / "motors" / "two_link_switching_motors.toml"))
+    assert motor.startswith("the ideal plant in continuous time") and "motors" in motor and "sampling" in motor
+    plain = classic_model(load_case(ROOT / "cases" / "two_link_switching.toml"))
+    assert plain.startswith("the case's own loop")
+    assert "classic_model" in _readme_row("classic_model")
+    worst = [{"compensable_rule": True, "pattern": [1, 0], "gramian_min_eig": 1e-6}]
+    res = {"case": "c", "n_robots": 2, "reference_kind": "unicycle", "classic_model": motor, "controllability": worst}
+    lines = text_summary(res)
+    assert any("ideal plant in continuous time" in ln for ln in lines), lines

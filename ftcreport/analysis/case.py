@@ -21,7 +21,31 @@ from .closed_loop import Plant
 from .confirm import confirm_limit, needs_confirmation
 from .phases import analyze_scheme, case_frames
 
-__all__ = ["analyze_case"]
+__all__ = ["analyze_case", "classic_model"]
+
+
+def classic_model(case) -> str:
+    """Which loop the case-wide analyses of :mod:`.classic` describe (``closed_loop_poles``, ``pole_tables``,
+    ``predicted_decay_rate``, ``chained``, ``frozen_time``, ``controllability``, ``nominal_velocity_loop``,
+    ``observer``), in words: they model torque inputs in continuous time, so on a case that samples its
+    control, delays its measurements or has motors they are of the ideal plant, not of the loop the case
+    runs (that one is in ``phases`` and ``limits``)."""
+    sim = case.simulation
+    left = [
+        what
+        for what, here in (
+            ("sampling", sim.sample_time is not None),
+            ("measurement delay", bool(sim.measurement_delay)),
+            ("motors", case.actuators is not None),
+        )
+        if here
+    ]
+    if not left:
+        return "the case's own loop (continuous time, torque inputs)"
+    return (
+        f"the ideal plant in continuous time (torque inputs, without the case's {', '.join(left)}): not the loop "
+        "the case runs, which 'phases' and 'limits' analyse"
+    )
 
 
 def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: bool = True,
@@ -46,6 +70,7 @@ def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: b
 
     t0 = time.perf_counter()
     out = classic_analyses(case)
+    out["classic_model"] = classic_model(case)
     built = build(case)
     out["sampled"] = case.simulation.sample_time is not None
     out["sample_time"] = case.simulation.sample_time

@@ -102,7 +102,9 @@ def text_summary(res: dict) -> list[str]:
         lines.append(f"  {scheme}: not analysed: {why}")
     worst = [r for r in res.get("controllability", []) if r["compensable_rule"]][-3:]
     if worst:
-        lines.append("  least well conditioned compensable patterns (Gramian min eigenvalue):")
+        of = res.get("classic_model", "")
+        of = f", of {of.split(':')[0]}" if of.startswith("the ideal plant") else ""
+        lines.append(f"  least well conditioned compensable patterns (Gramian min eigenvalue{of}):")
         for r in worst:
             lines.append(f"    {r['pattern']}: {r['gramian_min_eig']:.3g}")
     return lines

@@ -194,7 +194,7 @@ def test_a_loop_without_a_drive_limit_is_not_said_to_chatter_at_it():
     drive's limit": a limit exists only with [actuators] or [plant] saturation.  The sentence says what holds
     for the case: ideal torques, or held by the saturation (continuous), or chatter at it (sampled)."""
     from ftcreport import compare
-    from ftcreport.evaluation.verdict_analysis import limit_words
+    from ftcreport.evaluation.verdict_analysis import limit_words, verdict_sentence
 
     analysis = {
         "k_v": {"adaptive": 3000.0, "nominal": 3000.0},
@@ -212,7 +212,15 @@ def test_a_loop_without_a_drive_limit_is_not_said_to_chatter_at_it():
     text = " ".join(compare.compare_case("c", runs, {"ok"}, [20.0], {"analysis": analysis}).sentences)
     assert "predicts adaptive's loop unstable in the phase 20-30 s (max Re 0.4672 1/s)" in text
     assert "drive's limit" not in text and "chatter" not in text
-    assert "the case applies ideal torques, with no drive limit or saturation" in text
+    # ideal torques: the predicted growth over the phase, against the run (session 12's new user: "the case
+    # applies ideal torques" explained nothing); exp(0.4672 x 10) = 107, e-folding 1 / 0.4672 = 2.14 s
+    assert "though the linearization grows by a factor 107 over the phase's 10 s (e-folding in 2.14 s)" in text
+    assert "the linearization and the run disagree here" in text
+    # a slow one (the UKF's spectral radius 1 + 4.8e-6 per 20 ms over 180 s: a factor 1.04, e-folding 4,167 s)
+    slow = {"sample_time": 0.02, "k_v": {"adaptive": 3000.0},
+            "phases": {"adaptive": [_phase(220, 400, "unstable", 1 + 4.8e-6)]}}  # fmt: skip
+    line = verdict_sentence("adaptive", slow, "chatters")
+    assert "its predicted growth is slow, a factor 1.04 over the phase's 180 s (e-folding in 4,167 s)" in line, line
     facts = {"analysis": analysis, "limit": "the saturation at 50 N m"}
     text = " ".join(compare.compare_case("c", runs, {"ok"}, [20.0], facts).sentences)
     assert "its run completed, the wheels' inputs held by the saturation at 50 N m." in text

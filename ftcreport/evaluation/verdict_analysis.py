@@ -11,7 +11,16 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["MAX_SENTENCES", "analysis_sentences", "limit_words", "measure_text", "phase_measure", "verdict_sentence"]
+__all__ = [
+    "MAX_SENTENCES",
+    "SLOW_GROWTH",
+    "analysis_sentences",
+    "growth",
+    "limit_words",
+    "measure_text",
+    "phase_measure",
+    "verdict_sentence",
+]
 
 #: at most this many sentences of the analysis in a verdict
 MAX_SENTENCES = 3
@@ -78,7 +87,7 @@ def verdict_sentence(scheme: str, analysis: dict, why: str, limit: str | None = 
         k_v = analysis.get("k_v", {}).get(scheme)
         if kmax and k_v and k_v > kmax:
             text += f"; k_v = {k_v:g} 1/s is beyond its largest stable {kmax:.3g} 1/s"
-        return text + ")" + (_completed(limit, bool(p.get("discrete"))) if why == "chatters" else ".")
+        return text + ")" + (_completed(limit, p, analysis) if why == "chatters" else ".")
     if why == "loses" and not unsure:
         slow = max(done, key=lambda p: p.get("spectral_radius") or p.get("max_real_part") or -math.inf)
         return (
@@ -88,14 +97,55 @@ def verdict_sentence(scheme: str, analysis: dict, why: str, limit: str | None = 
     return None
 
 
-def _completed(limit: str | None, discrete: bool) -> str:
+#: a predicted growth below this factor over its phase is "too slow to show in the run" (less than doubling)
+SLOW_GROWTH = 2.0
+
+
+def growth(p: dict, T: float | None) -> tuple[float, float] | None:
+    """(the factor by which the phase's unstable mode grows over the phase, its e-folding time [s]) from the
+    spectral radius rho per sample T (rate ln(rho) / T) or the largest real part; None when not growing."""
+    if p.get("discrete"):
+        rho = p.get("spectral_radius")
+        if not rho or rho <= 1.0 or not T:
+            return None
+        rate = math.log(rho) / T
+    else:
+        rate = p.get("max_real_part")
+        if rate is None or rate <= 0.0:
+            return None
+    span = max(float(p["t_end"]) - float(p["t_start"]), 0.0)
+    return math.exp(min(rate * span, 700.0)), 1.0 / rate
+
+
+def _seconds(v: float) -> str:
+    return f"{v:,.0f}" if v >= 1000 else f"{v:.3g}"
+
+
+def _completed(limit: str | None, p: dict, analysis: dict) -> str:
     """Why a loop predicted unstable completed its run, true of the case at hand: a sampled loop with a
-    limit chatters at it, a continuous one is held by it; with ideal torques nothing bounds the wheels."""
-    if limit is None:
-        return ": its run completed all the same; the case applies ideal torques, with no drive limit or saturation."
-    if discrete:
-        return f": the wheels chatter at {limit}."
-    return f": its run completed, the wheels' inputs held by {limit}."
+    limit chatters at it, a continuous one is held by it.  With ideal torques nothing bounds the wheels, so
+    the sentence gives the predicted growth over the phase and its e-folding time (session 12's new user:
+    "the case applies ideal torques" explained nothing): below SLOW_GROWTH it is too slow to show in the
+    run; above it the run and the frozen linearization disagree, which the sentence says."""
+    discrete = bool(p.get("discrete"))
+    if limit is not None:
+        if discrete:
+            return f": the wheels chatter at {limit}."
+        return f": its run completed, the wheels' inputs held by {limit}."
+    g = growth(p, (p.get("sample_time") or analysis.get("sample_time")) if discrete else None)
+    if g is None:
+        return ": its run completed all the same (ideal torques: no drive limit or saturation bounds it)."
+    factor, efold = g
+    span = float(p["t_end"]) - float(p["t_start"])
+    by = f"a factor {factor:.3g} over the phase's {span:g} s (e-folding in {_seconds(efold)} s)"
+    if factor < SLOW_GROWTH:
+        return f": its predicted growth is slow, {by}, too little to show in the run."
+    caveat = (
+        "frozen-instant poles are evidence, not proof, on this time-varying loop"
+        if analysis.get("time_varying")
+        else "the linearization and the run disagree here"
+    )
+    return f": its run completed all the same, though the linearization grows by {by}; {caveat}."
 
 
 def limit_words(case) -> str | None:

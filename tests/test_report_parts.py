@@ -544,3 +544,26 @@ def test_the_errors_figure_has_its_time_axis_under_the_lower_panel_with_room_for
         lower = min(("yaxis", "yaxis2"), key=lambda a: lay[a]["domain"][0])
         assert lower == "yaxis2" and lay["xaxis"].get("anchor") == "y2", lay["xaxis"]
         assert lay["xaxis"]["automargin"] is True and lay["xaxis"]["title"]["standoff"] > 0
+
+
+def test_a_metric_from_the_first_fault_on_says_so_when_that_fault_acts_at_the_start():
+    """Session 12's new user: on three_link_active (every fault at t = 0) the page said "the peak torque is
+    ranked from the first fault on, so the start-up transient does not decide it", and the start-up decided
+    it.  A metric taken from the first fault on says, under its name, that it includes the start-up when the
+    first fault acts at 0 s; the caption no longer claims it never does."""
+    from ftcreport.evaluation import compare
+    from ftcreport.report.render import _verdict_rows
+
+    runs = {
+        s: {"status": "ok", "position_error_final": e, "torque_peak_after_fault": 2.0 + e,
+            "phases": [{"t_start": 0.0, "t_end": 10.0, "position_error_max": e, "sigma": [1.0, 0.5]}]}
+        for s, e in (("nominal", 0.01), ("adaptive", 0.05))
+    }  # fmt: skip
+    verdict = compare.compare_case("c", runs, {"ok"}, [0.0], {})
+    notes = {r["key"]: r["note"] for r in _verdict_rows(verdict, 0.01, first_fault=0.0)}
+    for key in ("after_fault_error_max", "torque_peak_after_fault"):
+        assert "the first fault acts at 0 s: the start-up transient included" in notes[key], notes[key]
+    later = {r["key"]: r["note"] for r in _verdict_rows(verdict, 0.01, first_fault=5.0)}
+    assert "start-up transient included" not in later["torque_peak_after_fault"]
+    html = (Path(__file__).resolve().parents[1] / "templates" / "case.html").read_text()
+    assert "so the start-up transient does not decide it)" not in html

@@ -419,7 +419,9 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         verdict=verdict,
         gate=gate,
         gate_skipped=gate_skipped,
-        verdict_rows=_verdict_rows(verdict, case.recovery_band) if verdict else [],
+        verdict_rows=_verdict_rows(verdict, case.recovery_band, min((float(f.time) for f in case.faults), default=None))
+        if verdict
+        else [],
         recovery_band=case.recovery_band,
         not_run=rec.get("not_run", {}),
         plugin_schemes=rec.get("plugin_schemes", {}),
@@ -694,10 +696,16 @@ def _verdict(case, name: str, runs: list[dict], analysis: dict | None = None):
     return compare.compare_case(name, by_scheme, expected, events, facts)
 
 
-def _verdict_rows(v, band: float | None = None) -> list[dict]:
+#: a metric taken "from the first fault on" includes the start-up transient when that fault acts at the start
+FROM_FIRST_FAULT = "from the first fault on"
+
+
+def _verdict_rows(v, band: float | None = None, first_fault: float | None = None) -> list[dict]:
     """One row per headline metric: winners, their value, regret, benefit, the ranking in words
-    (``band``: the case's recovery band [m], stated under the recovery time)."""
+    (``band``: the case's recovery band [m], stated under the recovery time; ``first_fault``: the first
+    fault's time [s], under a metric taken from it on when it is 0: the start-up is in it then)."""
     rows = []
+    at_start = first_fault is not None and first_fault <= 0.0
     for spec in compare.HEADLINE:
         mv = v.metrics.get(spec.key)
         if mv is None:
@@ -719,8 +727,11 @@ def _verdict_rows(v, band: float | None = None) -> list[dict]:
                 "regret": compare.fmt_relative(mv, "regret"),
                 "benefit": compare.fmt_relative(mv, "benefit"),
                 "note": spec.note
+                + (f"; recovery band: position error <= {band:g} m" if band and spec.key == "recovery_time_max" else "")
                 + (
-                    f"; recovery band: position error <= {band:g} m" if band and spec.key == "recovery_time_max" else ""
+                    "; the first fault acts at 0 s: the start-up transient included"
+                    if at_start and spec.note.startswith(FROM_FIRST_FAULT)
+                    else ""
                 ),
                 "ranking": rank,
                 "unranked": "; ".join(extra),

@@ -1111,3 +1111,22 @@ def test_check_never_writes_its_junit_over_a_result_its_batch_just_stored(tmp_pa
     assert f"--junit: {record} exists and is not a JUnit XML file: not overwritten" in res.output
     assert json.loads(record.read_text())["status"] == "ok"
     assert runner.invoke(app, ["report", "--out", str(out)]).exit_code == 0
+
+
+def test_a_case_stored_from_another_file_is_named_when_replaced(tmp_path):
+    """Session 12's new user: `check mod/` with a copy of a case (same name, another file, another gain) replaced
+    the runs `batch mycases/` had stored under that name without a word.  The batch says which file the
+    stored runs came from and which replaces them."""
+    one, two = tmp_path / "one", tmp_path / "two"
+    one.mkdir()
+    two.mkdir()
+    first, second = _write(one, "c"), _write(two, "c")
+    out = tmp_path / "r"
+    res = runner.invoke(app, ["batch", str(first), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["batch", str(first), "--out", str(out)])  # the same file again: no note
+    assert "came from" not in res.stderr
+    res = runner.invoke(app, ["batch", str(second), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert f"ftcreport: note: case c: the results stored in {out / 'c'} came from {first}; {second} has the same " \
+           "case name and replaces them" in res.stderr.replace("\n", " ")  # fmt: skip

@@ -161,6 +161,25 @@ def base_name(path: Path, base_case: str) -> str:
         return base.stem
 
 
+def _another_source(out: Path, name: str, path: Path, on_note) -> None:
+    """Say so when the case stored under ``name`` came from another file than ``path``: results are stored by
+    case name, so a copy of a case (another directory, another gain) replaces the runs of the original, which
+    the index then shows no more (session 12's new user: no word of it)."""
+    from ..storage.store import read_json
+
+    rec = read_json(out / name / "case.json") if (out / name / "case.json").is_file() else None
+    old = rec.get("source") if isinstance(rec, dict) else None
+    if not isinstance(old, str) or not old or on_note is None:
+        return
+    try:
+        same = Path(old).resolve() == Path(path).resolve()
+    except OSError:
+        same = False
+    if not same:
+        on_note(f"case {name}: the results stored in {out / name} came from {old}; {path} has the same case name "
+                "and replaces them")  # fmt: skip
+
+
 def record_case(
     out: Path, case: Case, path: Path, duration: float | None = None, notes: Iterable[str] = (), on_note=None
 ) -> str:
@@ -172,6 +191,7 @@ def record_case(
     from ..evaluation.families import not_applicable
 
     key = case_hash(case, __version__)
+    _another_source(out, case.name, path, on_note)
     # an overlay (base_case) is stored resolved, so the copy parses on its own
     resolved = overlay_text(path) if case.base_case is not None else None
     write_atomic(out / case.name / "case.toml", read_input(path) if resolved is None else resolved.encode())

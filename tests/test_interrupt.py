@@ -327,7 +327,8 @@ def _assert_ended_cleanly(p: subprocess.Popen, out: Path, sig: int, err: str, no
     import re
 
     assert p.returncode == 128 + sig, (p.returncode, err)
-    lines = err.strip().splitlines()
+    # the pages' progress line (piped: 'rendering N case page(s) ...', said before the work) is not part of it
+    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("rendering ")]
     assert len(lines) == 1 and "Traceback" not in err, err
     how = "interrupted" if sig == signal.SIGINT else f"interrupted by {signal.Signals(sig).name}"
     stored = (

@@ -33,7 +33,9 @@ def _one_error_line(res, code: int, *needles: str) -> str:
     err = res.stderr
     assert res.exit_code == code, (res.exit_code, res.output)
     assert "Traceback" not in res.output
-    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith(("warning: ", "ftcreport: warning: "))]
+    # warnings and the progress line of the pages (piped: 'rendering N case page(s) ...') are not errors
+    skip = ("warning: ", "ftcreport: warning: ", "rendering ")
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith(skip)]
     assert len(lines) == 1, err
     assert lines[0].startswith("ftcreport: error: "), lines[0]
     for n in needles:

@@ -382,18 +382,23 @@ def test_a_run_stopped_early_enters_no_distribution_or_comparison(tmp_path):
     assert fail[6]["errors"]["adaptive"] is None and fail[6]["max_error"] == pytest.approx(0.01)
     assert fail[3]["stopped"] == {"active": {"status": "diverged", "t_end": 12.0}}
     # the page says it
-    records = {}
-    for r in rows:
-        records.setdefault(r["sample"], {"sample": r["sample"], "rows": []})["rows"].append(r)
-    write_table(tmp_path, records.values())
-    (tmp_path / "campaign.json").write_text(json.dumps({"case": "hand", "seed": 0, "base": {}}))
-    html = render_campaign(tmp_path, read_table(tmp_path / "results.csv")).read_text()
+    html = _render_hand(tmp_path, rows)
     rates = html.split('id="rates"', 1)[1].split("</table>", 1)[0]
     ada_row = rates.split('<td class="l">adaptive</td>', 1)[1].split("</tr>", 1)[0]
     assert "1 (step_unstable 1)" in ada_row
     table = html.split('id="failing-samples"', 1)[1].split("</table>", 1)[0]
     assert "step_unstable at 0.1 s" in table and "diverged at 12 s" in table and "0.242" not in table
     assert "adaptive (7/7; 1 stopped)" in html.split('id="fig-recovery"', 1)[1]
+
+
+def _render_hand(out: Path, rows: list[dict]) -> str:
+    """The campaign page of hand-made rows (their table written as a campaign writes it), as HTML."""
+    records: dict = {}
+    for r in rows:
+        records.setdefault(r["sample"], {"sample": r["sample"], "rows": []})["rows"].append(r)
+    write_table(out, records.values())
+    (out / "campaign.json").write_text(json.dumps({"case": "hand", "seed": 0, "base": {}}))
+    return render_campaign(out, read_table(out / "results.csv")).read_text()
 
 
 def test_a_comparison_on_too_few_pairs_is_shown_as_not_judged(tmp_path):
@@ -410,12 +415,7 @@ def test_a_comparison_on_too_few_pairs_is_shown_as_not_judged(tmp_path):
     cell = row["cells"][mx["schemes"].index("active")]
     assert (cell["text"], cell["cls"]) == ("not judged", "nj")
     assert cell["short"] == "-1 (3 pairs)"  # the mean difference adaptive - active, as exact as the rows
-    records = {}
-    for r in rows:
-        records.setdefault(r["sample"], {"sample": r["sample"], "rows": []})["rows"].append(r)
-    write_table(tmp_path, records.values())
-    (tmp_path / "campaign.json").write_text(json.dumps({"case": "hand", "seed": 0, "base": {}}))
-    html = render_campaign(tmp_path, read_table(tmp_path / "results.csv")).read_text()
+    html = _render_hand(tmp_path, rows)
     matrix = html.split('id="matrix-recovery_time_max"', 1)[1].split("</table>", 1)[0]
     assert 'class="nj"' in matrix and "better" not in matrix
     assert "adaptive vs active on recovery_time_max: too few paired samples (3; a verdict needs 6)" in html

@@ -80,7 +80,8 @@ def test_motors_under_sampled_control_pick_etd3():
     stiff at dt = 5 ms; between samples it is autonomous, so auto takes the exponential ETD3RK with its
     embedded ETD2 (etd3ec), every step lands on a sample instant, and a step costs 3 rate evaluations
     (f(x), two stages; etd2ec's step doubling took 7), and 2 more (the linear block's two difference columns)
-    when its block is taken: at the first step, every JAC_REUSE accepted steps, and after a rejection."""
+    when its block is taken: at the first step, every JAC_REUSE accepted steps, and after a rejection (and
+    when the torque coupling drifts by COUPLING_DRIFT: not within these 0.5 s)."""
     from ftcreport.fast.loop import JAC_REUSE
 
     run, m = _run("motors/two_link_switching_motors", "switching", duration=0.5, method="auto")

@@ -761,6 +761,11 @@ C_FORCED, C_FORCED_T, C_STREAK = 15, 16, 17  # steps taken at min_step over the 
 C_JAGE, C_JTAKEN, C_JCOLS = 18, 19, 20
 #: etd3ec takes the eta columns of its linear block again after this many accepted steps (_etd3_attempt)
 JAC_REUSE = 10
+#: ... or sooner, when the torque coupling (its eta rows of the motor columns, exact at every step) has moved
+#: by more than this fraction of its size since: a single-step study (session 12) with the torque and
+#: back-EMF couplings forming a stiff speed mode kept the estimate 4-9x above the error at 5 % stale and
+#: brought it down to the error itself at 20 %; 1 % keeps the staleness well inside the safe side
+COUPLING_DRIFT = 0.01
 #: this many steps in a row at min_step with the error over the tolerance stop the run (E_MIN_STEP)
 FORCED_STREAK = 100
 #: stiffness: the real stability boundary of DOPRI5 (R(z) = 1 at z = -3.31 on the negative axis)
@@ -847,13 +852,15 @@ def _etd3_attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag
     "Exponential integrators", Acta Numerica 19): the step stays consistent, and its estimate is the embedded
     ETD2's error with this L.  A stale stiff entry
     (the back-EMF's coupling through the chain's geometry, which moves with q) puts a stiff term in N and
-    lowers the solution's order as h shrinks; the estimate still bounds its error by two orders of magnitude
-    (tests/test_integrators.py, with the speed's column 20 % off), so a stale block cannot pass a step the
-    estimate would refuse.  A rejected step takes fresh columns (run_auto sets ctl[C_JAGE] to -1), as does a
-    new fault segment.  Measured (benchmarks/accuracy.py, the motor cases at rtol = 1e-2; README, "Accuracy
-    against cost"): errors as small as with the block taken at every step (1.0e-7 m against 2.5e-7 m on
-    three_link_adaptive_motors), at 3.2 evaluations a step against 5, and 0.45-0.82x the fixed ETD2's wall
-    time against 1.08-1.17x.
+    lowers the solution's order as h shrinks.  On a slow speed mode the estimate still bounds the error by
+    two orders of magnitude with the speed's column 20 % off (tests/test_integrators.py); where the torque
+    and back-EMF couplings form a stiff speed mode (strong motors) a single-step study (session 12) kept it
+    4-9x above the error at 5 % stale and brought it down to the error itself at 20 %.  So the block is
+    taken again as soon as the torque coupling, exact at every step, has moved by COUPLING_DRIFT (1 %), as
+    well as after a rejected step (run_auto sets ctl[C_JAGE] to -1) and at a new fault segment.  Measured
+    (benchmarks/accuracy.py, the motor cases at rtol = 1e-2; README, "Accuracy against cost"): errors as
+    small as with the block taken at every step (1.0e-7 m against 2.5e-7 m on three_link_adaptive_motors),
+    at 3.2 evaluations a step against 5, and 0.45-0.83x the fixed ETD2's wall time against 1.08-1.17x.
     """
     nq, nm = ctx[5], ctx[9]
     m = 2 + nm
@@ -864,7 +871,36 @@ def _etd3_attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag
     # the exact motor columns; under continuous control eta's columns hold the law's -k_v, a stiff diagonal
     # whose staleness the estimate does not see (docs/ENGINE.md: Prothero-Robinson with L = 0.9 lambda)
     held = SAMPLED and u_h.shape[0] > 0
-    if not held or ctl[C_JAGE] < 0.0 or ctl[C_JAGE] >= JAC_REUSE:
+    fresh = not held or ctl[C_JAGE] < 0.0 or ctl[C_JAGE] >= JAC_REUSE
+    if not fresh:
+        for i in range(m):
+            for j in range(m):
+                J[i, j] = ctl[C_JCOLS + m * i + j]
+        if nm > 0:
+            # the motor columns at x; their rows of the motor states hold every stiff entry (the currents'
+            # -R_a / L_a, a PI drive's gains as its saturation switches them): when those are the kept
+            # block's exactly (the static driver: constant within a fault segment), the whole kept block
+            # serves, its eta rows' torque coupling (which moves with q) as stale as its eta columns, and the
+            # phi functions of the last step are taken again; else the motor columns at x.  The torque
+            # coupling at x (free, in the motor columns) measures how far the geometry has moved: beyond
+            # COUPLING_DRIFT of it the whole block is taken again (with the back-EMF's coupling in eta's
+            # columns, it can make a stiff speed mode whose staleness the estimate would not see)
+            Mc = _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)
+            same = True
+            for i in range(2, m):
+                for j in range(nm):
+                    if Mc[i, j] != J[i, 2 + j]:
+                        same = False
+            drift, size = 0.0, 0.0
+            for i in range(2):
+                for j in range(nm):
+                    drift = max(drift, abs(Mc[i, j] - J[i, 2 + j]))
+                    size = max(size, abs(Mc[i, j]))
+            if drift > COUPLING_DRIFT * size:
+                fresh = True
+            elif not same:
+                J[:, 2:] = Mc
+    if fresh:
         G = _jacobian_columns(P, ctx, t, x, f0, sigma, ubar, fm, nz, info, u_h, v_h)
         ev = 2
         if info[0] != 0:
@@ -875,24 +911,6 @@ def _etd3_attempt(P, ctx, t, h, x, f0, sigma, ubar, fm, nz, info, u_h, v_h, diag
             for j in range(m):
                 ctl[C_JCOLS + m * i + j] = J[i, j]
         ctl[C_JAGE] = 0.0
-    else:
-        for i in range(m):
-            for j in range(m):
-                J[i, j] = ctl[C_JCOLS + m * i + j]
-        if nm > 0:
-            # the motor columns at x; their rows of the motor states hold every stiff entry (the currents'
-            # -R_a / L_a, a PI drive's gains as its saturation switches them): when those are the kept
-            # block's exactly (the static driver: constant within a fault segment), the whole kept block
-            # serves, its eta rows' torque coupling (which moves with q) as stale as its eta columns, and the
-            # phi functions of the last step are taken again; else the motor columns at x
-            Mc = _motor_columns(P, ctx, t, x, sigma, ubar, fm, nz, info, u_h, v_h)
-            same = True
-            for i in range(2, m):
-                for j in range(nm):
-                    if Mc[i, j] != J[i, 2 + j]:
-                        same = False
-            if not same:
-                J[:, 2:] = Mc
     Q1, Q2, q1, q2, P1, P2, P3, p1, p2, p3 = _etd3_phis_of(J, diag, h, PH)
     a = etd3_half(Q1, q1, x, f0, h, nq)
     fa = _stage(P, ctx, t + 0.5 * h, a, sigma, ubar, fm, nz, info, u_h, v_h)

@@ -475,3 +475,27 @@ def test_a_detector_that_misses_the_faults_wins_no_false_alarm_contest():
         for s, f in (("active", 2), ("active_ukf", 0))
     }
     assert compare_case("c3", quiet).metrics["false_alarms"].winners == ["active_ukf"]
+
+
+def test_the_verdict_says_when_switching_rarely_identified_the_fault():
+    """Session 12's new user: on three_link_active switching switched 10,011 times and matched the true
+    pattern 0 % of the time, on the motor case it assumed both rear wheels failed for 95 % of a healthy
+    phase, and no verdict said so: comparing switching, adaptive and active FTC needs it.  Below half the
+    run on the true pattern's model, the verdict says how often, how often its model assumed at least the
+    true failures, how many switches, and the case's reason where it knows one."""
+    from ftcreport.evaluation import compare
+
+    def run(exact, effective, switches):
+        phase = {"t_start": 0.0, "t_end": 10.0, "position_error_max": 0.1, "sigma": [1.0, 0.5]}
+        fractions = {"switching_exact_match_fraction": exact, "switching_match_fraction": effective}
+        return {"status": "ok", "position_error_final": 0.01, "switch_count": switches, **fractions, "phases": [phase]}
+
+    others = {"nominal": {"status": "ok", "position_error_final": 0.02}}
+    v = compare.compare_case("c", {**others, "switching": run(0.0, 0.9992, 10011)}, {"ok"}, [0.0], {"fractional": True})
+    line = next(s for s in v.sentences if s.startswith("Switching"))
+    assert line == (
+        "Switching ran on the true pattern's model 0 % of the time (on a model assuming at least the true "
+        "failures 99.9 %), with 10011 switches: the partial gain losses lie between its 0/1 models."
+    ), line
+    v = compare.compare_case("c", {**others, "switching": run(0.88, 0.99, 3)}, {"ok"}, [0.0], {})
+    assert not any(s.startswith("Switching") for s in v.sentences)

@@ -407,9 +407,50 @@ def compare_case(
         if m.get("status") != "ok"
     ]
     sentences = _sentences(verdicts, metrics_by_scheme, list(fault_times), facts, failed)
+    if (line := _identification(metrics_by_scheme.get("switching"), facts)) is not None:
+        sentences.append(line)
     if facts.get("analysis"):
         sentences += _analysis_sentences(facts["analysis"], verdicts, metrics_by_scheme, facts.get("limit"))
     return CaseVerdict(case, list(metrics_by_scheme), verdicts, sentences, outside, failed)
+
+
+#: switching on the true pattern's model less than this fraction of the run is said in the verdict
+IDENTIFIED = 0.5
+
+
+def _identification(m: Mapping | None, facts: Mapping) -> str | None:
+    """The verdict's sentence on switching's identification, when its run held the true pattern's model less
+    than :data:`IDENTIFIED` of the time (the comparison of the families reads how each copes with the fault:
+    switching's is which model it selects), or None.  Its exact and effective match fractions (a model that
+    assumes at least the true failures) and its switch count, from metrics.json, and the case's reason where
+    ``facts`` gives one (partial losses between its 0/1 models, a friction it has no term for)."""
+    if not m or m.get("status") != "ok":
+        return None
+    exact, effective = _num(m.get("switching_exact_match_fraction")), _num(m.get("switching_match_fraction"))
+    if exact is None or exact >= IDENTIFIED:
+        return None
+    line = f"Switching ran on the true pattern's model {_percent(exact)} of the time"
+    if effective is not None:
+        line += f" (on a model assuming at least the true failures {_percent(effective)})"
+    if (n := _num(m.get("switch_count"))) is not None:
+        line += f", with {n:.0f} switches"
+    why = []
+    if facts.get("fractional"):
+        why.append("the partial gain losses lie between its 0/1 models")
+    if facts.get("friction"):
+        why.append("a friction torque biases its models, which have no friction term")
+    return line + (": " + "; ".join(why) if why else "") + "."
+
+
+def _percent(f: float) -> str:
+    """A fraction as a percentage: 3 significant digits below 100 %, never rounded up to 100 % or down to 0 %."""
+    p = 100.0 * f
+    if p == 0.0 or p == 100.0:
+        return f"{p:.0f} %"
+    text = f"{p:.3g}"
+    if float(text) >= 100.0:
+        text = "99.9"
+    return f"{text} %"
 
 
 def _undetecting(metrics_by_scheme: Mapping[str, Mapping]) -> dict[str, str]:

@@ -55,7 +55,7 @@ from ..errors import CaseError, FtcError
 from ..evaluation.stats import compare_metric, compare_success, min_pairs, wilson_interval
 from ..model import pattern_is_compensable, wheel_index, wheel_names
 from ..runs import STATUS_DIVERGED, STATUS_OK, STATUS_SINGULAR
-from ..storage.store import _jsonable, _seal, locked, write_atomic
+from ..storage.store import _jsonable, _seal, locked, read_json, write_atomic
 
 __all__ = [
     "PAGES",
@@ -882,19 +882,12 @@ def stored_table(out: Path) -> Path:
     meta = json.loads((out / "campaign.json").read_text(encoding="utf-8"))
     expected = expected_identity(str(meta.get("case_hash")), str(meta.get("campaign")))
     records, _ = load_records(out / "samples", expected, False, check=sample_problem, then="left out of the table")
-    settings = (_read_json(out / "manifest.json") or {}).get("settings")
+    manifest = read_json(out / "manifest.json")
+    settings = manifest.get("settings") if isinstance(manifest, dict) else None
     n = settings.get("samples") if isinstance(settings, dict) else None
     if isinstance(n, int) and not isinstance(n, bool):
         records = {i: r for i, r in records.items() if i < n}
     return write_table(out, records.values())
-
-
-def _read_json(path: Path) -> dict | None:
-    try:
-        got = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return got if isinstance(got, dict) else None
 
 
 def _remove_pages(pages: Path) -> None:

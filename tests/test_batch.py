@@ -524,3 +524,25 @@ def test_index_of_a_fault_free_case_shows_fault_metrics_not_applicable(tmp_path)
     assert cells[8].startswith("With no fault in the run, the fault-response metrics do not apply; ")
     matrix = html[html.index('id="matrix"') :]
     assert matrix.count(na) == 3  # max after faults of nominal, switching and the oracle
+
+
+def test_a_directory_s_subdirectories_are_named_not_silently_skipped(tmp_path):
+    """``batch DIR`` reads DIR's own case files; case files in its subdirectories (cases/motors/ beside
+    cases/) are not run, and the batch says so, naming them and how to run them (session 12's new user:
+    ``batch mycases`` left ``mycases/motors/`` out without a word)."""
+    from ftcreport.studies.batch import discover
+
+    (tmp_path / "motors" / "deep").mkdir(parents=True)
+    for rel in ("a.toml", "motors/b.toml", "motors/c.toml", "motors/deep/d.toml"):
+        (tmp_path / rel).write_text("")
+    (tmp_path / "empty").mkdir()
+    notes: list[str] = []
+    found = discover([tmp_path], on_note=notes.append)
+    assert found == [tmp_path / "a.toml"]
+    assert len(notes) == 1, notes
+    assert "3 case files in subdirectories" in notes[0]
+    assert "motors/: 2" in notes[0] and "motors/deep/: 1" in notes[0]
+    assert "empty" not in notes[0]
+    notes.clear()
+    assert discover([tmp_path / "motors" / "deep"], on_note=notes.append) == [tmp_path / "motors/deep/d.toml"]
+    assert notes == []  # nothing below it

@@ -47,7 +47,8 @@ import queue as _queue
 import signal
 import sys
 import threading
-from collections.abc import Iterable
+from collections import Counter
+from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -136,13 +137,27 @@ def peak_rss_mb() -> float | None:
     return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0
 
 
-def discover(paths: Iterable[Path]) -> list[Path]:
-    """Case files: directories are searched for ``*.toml`` (sorted), files taken as given."""
+def discover(paths: Iterable[Path], on_note: Callable[[str], None] | None = None) -> list[Path]:
+    """Case files: directories are searched for ``*.toml`` (sorted), files taken as given.
+
+    A directory's subdirectories are not searched (``cases/motors/`` is a set of its own, slower cases); when
+    they hold ``*.toml`` files, ``on_note`` gets one line naming them and how to run them, so that none is
+    left out without a word.
+    """
     out: list[Path] = []
     for p in paths:
         p = Path(p)
         if p.is_dir():
             out.extend(sorted(p.glob("*.toml")))
+            if on_note is not None:
+                deeper = Counter(f.parent for f in p.rglob("*.toml") if f.parent != p)
+                if deeper:
+                    where = ", ".join(f"{d.relative_to(p).as_posix()}/: {k}" for d, k in sorted(deeper.items()))
+                    first = min(deeper)
+                    on_note(
+                        f"{p}: {sum(deeper.values())} case files in subdirectories are not run ({where}): a "
+                        f"directory's own *.toml files are; to run the others, name their directory too ({first})"
+                    )
         else:
             out.append(p)
     return out
@@ -609,7 +624,7 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
     expected: dict[str, Case] = {}  # case name -> the case (its expected_for(scheme): statuses that are not failures)
     loaded: list[Case] = []
     taken: dict[str, str] = {}  # lower-case case name -> the file that has it
-    for path in discover(paths):
+    for path in discover(paths, on_note=(lambda line: _note(f"ftcreport: note: {line}")) if show_progress else None):
         notes = []
         try:
             case = load_case(path)

@@ -502,3 +502,34 @@ def test_the_classic_keys_say_which_plant_they_are_of():
     res = {"case": "c", "n_robots": 2, "reference_kind": "unicycle", "classic_model": motor, "controllability": worst}
     lines = text_summary(res)
     assert any("ideal plant in continuous time" in ln for ln in lines), lines
+
+
+def test_a_verdict_among_loops_all_predicted_unstable_says_so_first():
+    """two_link_switching_motors (session 12's new user, M4): every loop chatters at the voltage limit, yet the
+    verdict opened with a ranking of the chatter amplitudes and the analysis's sentence came after it.  When the
+    analysis predicts every completed scheme's loop unstable in some phase, the ranking is among chattering
+    loops: the analysis's sentence leads; when one loop is stable, the ranking leads as before."""
+    from ftcreport import compare
+
+    unstable = [_phase(0, 20, "unstable", 10.7), _phase(20, 50, "unstable", 10.7)]
+    analysis = {
+        "sample_time": 0.005,
+        "k_v": {s: 3000.0 for s in ("nominal", "switching", "adaptive")},
+        "limits": {s: {"sample_time_max": 1.37e-3, "k_v_max": 559.0} for s in ("nominal", "switching", "adaptive")},
+        "phases": {s: unstable for s in ("nominal", "switching", "adaptive")},
+    }
+    runs = {
+        s: {"status": "ok", "position_error_final": e, "phases": [{"position_error_max": e}, {"position_error_max": e}]}
+        for s, e in (("nominal", 0.01), ("switching", 0.05), ("adaptive", 0.08))
+    }
+    facts = {"analysis": analysis, "limit": "the drive's voltage limit"}
+    first = compare.compare_case("c", runs, {"ok"}, [20.0], facts).sentences
+    assert first[0].startswith("The analysis predicts the loops of "), first
+    assert "chatter" in first[0]
+    assert any("nominal" in s and "analysis" not in s for s in first[1:])  # the ranking follows
+    # one stable loop: the comparison's own sentences lead
+    analysis["phases"] = dict(
+        analysis["phases"], adaptive=[_phase(0, 20, "stable", 0.9), _phase(20, 50, "stable", 0.9)]
+    )
+    again = compare.compare_case("c", runs, {"ok"}, [20.0], facts).sentences
+    assert "analysis" not in again[0], again

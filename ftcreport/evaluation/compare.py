@@ -412,7 +412,13 @@ def compare_case(
     if line is not None and not any("switching never settles" in s.lower() for s in sentences):
         sentences.append(line)
     if facts.get("analysis"):
-        sentences += _analysis_sentences(facts["analysis"], verdicts, metrics_by_scheme, facts.get("limit"))
+        from .verdict_analysis import every_loop_unstable
+
+        cited = _analysis_sentences(facts["analysis"], verdicts, metrics_by_scheme, facts.get("limit"))
+        # every completed loop predicted unstable (two_link_switching_motors: all chatter at the voltage limit):
+        # the ranking is among chattering loops, and the reader is told that first (session 12's new user, M4)
+        done = [s for s, m in metrics_by_scheme.items() if m.get("status") == "ok"]
+        sentences = cited + sentences if done and every_loop_unstable(facts["analysis"], done) else sentences + cited
     return CaseVerdict(case, list(metrics_by_scheme), verdicts, sentences, outside, failed)
 
 

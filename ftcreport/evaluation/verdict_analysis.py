@@ -15,6 +15,7 @@ __all__ = [
     "MAX_SENTENCES",
     "SLOW_GROWTH",
     "analysis_sentences",
+    "every_loop_unstable",
     "growth",
     "limit_words",
     "measure_text",
@@ -154,6 +155,13 @@ def limit_words(case) -> str | None:
         return "the drive's voltage limit"
     sat = getattr(getattr(case, "plant", None), "saturation", None)
     return None if sat is None else f"the saturation at {sat:g} N m"
+
+
+def every_loop_unstable(analysis: dict, schemes: list[str]) -> bool:
+    """Whether the analysis predicts each of ``schemes``' loops unstable in some fault phase (a scheme it did not
+    analyse counts as not predicted unstable)."""
+    phases = (analysis or {}).get("phases") or {}
+    return all(any(p.get("stability") == "unstable" for p in phases.get(s) or []) for s in schemes)
 
 
 def analysis_sentences(

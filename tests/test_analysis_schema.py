@@ -230,7 +230,7 @@ def test_a_loop_without_a_drive_limit_is_not_said_to_chatter_at_it():
 
 def test_schemes_the_analysis_says_the_same_of_share_one_sentence():
     """two_link_switching_motors: all three loops unstable in every phase with the same radius and limits read
-    as one sentence ("in every fault phase", the worst one named), not three near-copies; a scheme with another
+    as one sentence ("in every fault phase", the largest radius), not three near-copies; a scheme with another
     radius keeps its own."""
     from ftcreport.analysis.summary import analysis_sentences
 
@@ -244,10 +244,21 @@ def test_schemes_the_analysis_says_the_same_of_share_one_sentence():
     analysis["phases"]["other"] = [_phase(0, 20, "stable", 0.9), _phase(20, 50, "unstable", 2.5)]
     out = analysis_sentences(analysis, list(names), ["switching"], [])
     assert out[0].startswith("The analysis predicts the loops of switching, oracle and nominal unstable in every "
-                             "fault phase (worst 0-20 s, spectral radius 10.66; the case's sample time 5 ms is "
+                             "fault phase (spectral radius up to 10.66; the case's sample time 5 ms is "
                              "beyond their limit 1.37 ms")  # fmt: skip
     assert out[1].startswith("The analysis predicts other's loop unstable in the phase 20-50 s (spectral radius 2.5;")
     assert len(out) == 2
+    # no sentence is split on which phase round-off made the largest (the motor page read two sentences, "worst
+    # 80-110 s" and "worst 0-20 s", for radii equal to the digits shown)
+    analysis["phases"] = {s: [_phase(0, 20, "unstable", 10.6601 + k * 1e-6), _phase(20, 50, "unstable", 10.6602)]
+                          for k, s in enumerate(names)}  # fmt: skip
+    out = analysis_sentences(analysis, list(names), ["switching"], [])
+    assert len(out) == 1 and "worst" not in out[0], out
+    assert out[0].startswith(
+        "The analysis predicts the loops of switching, oracle, nominal and other unstable in every fault phase "
+        "(spectral radius up to 10.66; the case's sample time 5 ms is beyond their limit 1.37 ms; k_v = 3000 1/s is "
+        "beyond their largest stable 559 1/s)"
+    ), out
 
 
 def test_the_page_section_from_a_case_without_runs():

@@ -39,12 +39,14 @@ def measure_text(v: float | None, discrete: bool) -> str:
     return f"{v:.4g}"
 
 
-def phase_measure(p: dict) -> str:
-    """A fault phase's measure: its spectral radius (sampled loop) or its largest real part."""
+def phase_measure(p: dict, up_to: bool = False) -> str:
+    """A fault phase's measure: its spectral radius (sampled loop) or its largest real part; ``up_to``: the
+    largest of several phases' ("spectral radius up to 10.66")."""
+    more = " up to" if up_to else ""
     if p.get("discrete"):
-        return f"spectral radius {measure_text(p.get('spectral_radius'), True)}"
+        return f"spectral radius{more} {measure_text(p.get('spectral_radius'), True)}"
     v = p.get("max_real_part")
-    return "max Re -" if v is None else f"max Re {v:.4g} 1/s"
+    return "max Re -" if v is None else f"max Re{more} {v:.4g} 1/s"
 
 
 def verdict_sentence(scheme: str, analysis: dict, why: str, limit: str | None = None) -> str | None:
@@ -79,8 +81,10 @@ def verdict_sentence(scheme: str, analysis: dict, why: str, limit: str | None = 
     if bad:
         p = max(bad, key=lambda p: p.get("spectral_radius") or p.get("max_real_part") or 0.0)
         every = len(done) > 1 and all(q["stability"] == p["stability"] for q in done)
-        where = f"in every fault phase (worst {span(p)}, " if every else f"in the phase {span(p)} ("
-        text = f"The analysis predicts {scheme}'s loop {p['stability']} {where}{phase_measure(p)}"
+        # in every phase: the largest measure, not which phase has it (the schemes of one verdict that differ
+        # only in that read as one sentence; round-off picked the phase when the radii agree to the digits shown)
+        where = "in every fault phase (" if every else f"in the phase {span(p)} ("
+        text = f"The analysis predicts {scheme}'s loop {p['stability']} {where}{phase_measure(p, every)}"
         T, tmax = analysis.get("sample_time"), lim.get("sample_time_max")
         if p.get("discrete") and T and tmax and tmax < T:
             text += f"; its sample time {T * 1e3:g} ms is beyond its limit {tmax * 1e3:.3g} ms"

@@ -294,3 +294,12 @@ def test_export_never_overwrites_another_commands_directory(tmp_path):
     _one_line(res, 2, f"{dest}: --out: holds the results of another kind of command (an export")
     assert _files(dest) == kept
     assert _cli("export", "--out", str(a)).returncode == 0  # beside the results: still the batch's own
+
+
+def test_python_dash_m_ftcreport_is_the_command_line():
+    """``python -m ftcreport`` runs the command line, as ``python -m ftcreport.cli`` and the ``ftcreport`` script
+    do (session 13: it printed "No module named ftcreport.__main__", a dead end for a user without the script on
+    PATH)."""
+    r = subprocess.run([sys.executable, "-m", "ftcreport", "--help"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "batch" in r.stdout and "check" in r.stdout

@@ -1150,3 +1150,25 @@ def test_sample_renders_the_campaign_page_from_the_sealed_records_not_an_edited_
     assert res.exit_code == 0, res.output
     assert json.loads((out / "summary.json").read_text())["schemes"]["nominal"]["successes"] == 0
     assert (out / "results.csv").read_text() == table  # the view rewritten from the records
+
+
+def test_a_stopped_run_s_metrics_are_not_in_the_table(tmp_path):
+    """A run that stopped early has metrics over [0, t_end] only: in results.csv and .parquet they would read as
+    the run's (a mean over the column mixes 12 s of a diverging run with 60 s runs), so its metric cells are
+    empty there; what it is and where it stopped (status, reason, t_end, the sample's columns) stay, and the
+    sealed sample records keep every number (session 12's left-alone list)."""
+    ok = _row(0, "nominal", True, "1r", 0.1, 2.0) | {"t_end": 60.0, "energy": 5.0, "reason": ""}
+    stopped = _row(0, "oracle", False, "1r", 0.02, 1.0) | {
+        "status": "diverged", "t_end": 12.5, "energy": 1.5, "reason": "the speed bound", "dt": 0.01,
+    }  # fmt: skip
+    record = {"sample": 0, "rows": [ok, dict(stopped)]}
+    write_table(tmp_path, [record])
+    table = {r["scheme"]: r for r in read_table(tmp_path / "results.csv")}
+    assert table["nominal"]["position_error_max"] == 0.1 and table["nominal"]["energy"] == 5.0
+    row = table["oracle"]
+    assert row["position_error_max"] is None and row["recovery_time_max"] is None and row["energy"] is None
+    assert (row["status"], row["t_end"], row["reason"], row["dt"]) == ("diverged", 12.5, "the speed bound", 0.01)
+    assert (row["success"], row["faulted_wheels"], row["sample"]) == (False, "1r", 0)
+    pq = pd.read_parquet(tmp_path / "results.parquet").set_index("scheme")
+    assert pd.isna(pq.loc["oracle", "energy"]) and pq.loc["nominal", "energy"] == 5.0
+    assert record["rows"][1]["energy"] == 1.5  # the record is not changed

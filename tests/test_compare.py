@@ -513,3 +513,38 @@ def test_the_verdict_says_when_switching_rarely_identified_the_fault():
     v = compare.compare_case("c", {**settles, "switching": never}, {"ok"}, [0.0], {"recovery_band": 0.01})
     assert any("witching never settles" in s for s in v.sentences), v.sentences
     assert not any(s.startswith("Switching ran") for s in v.sentences), v.sentences
+
+
+def test_peaks_after_the_faults_that_are_the_start_up_s_residual_are_said_to_be():
+    """five_link_cascade (session 12's new user, M1): its first fault strikes at 15 s, while the start-up's error
+    is still decaying (0.005-0.007 m, inside the band); the peak after the faults is that residual (active 0.00491
+    m after 0.00497 m at 15 s), so "keeps the smallest peak error" ranked the start-up, not the faults.  When
+    every run's error at the first fault is at least 90 % of its peak after the faults, the verdict says so; above
+    the band, it says the start-up has not settled; a fault that raises the error says neither."""
+    from ftcreport.evaluation.compare import startup_at_first_fault
+
+    def runs(at, peak):
+        return {
+            s: {"status": "ok", "position_error_final": 0.001, "phases": [
+                {"start": 0.0, "end": 15.0, "fault": False, "position_error_final": a, "position_error_max": 0.3},
+                {"start": 15.0, "end": 40.0, "fault": True, "position_error_final": 0.001, "position_error_max": p}]}
+            for s, a, p in zip(("nominal", "active", "oracle"), at, peak, strict=True)
+        }  # fmt: skip
+
+    residual = runs((0.0065, 0.00497, 0.0065), (0.0065, 0.00491, 0.0066))
+    got = startup_at_first_fault(residual, 0.01)
+    assert got == {"t": 15.0, "error": 0.0065, "above_band": False, "decides": True}
+    text = " ".join(compare_case("c", residual, {"ok"}, [15.0], {"recovery_band": 0.01}).sentences)
+    assert ("Those peaks are what the start-up left at the first fault (15 s: up to 0.0065 m, at least 90 % of each "
+            "run's peak after it), not the faults' effect.") in text, text  # fmt: skip
+    late = runs((0.05, 0.04, 0.05), (0.3, 0.2, 0.1))  # above the band, the faults' own peaks larger
+    assert startup_at_first_fault(late, 0.01) == {"t": 15.0, "error": 0.05, "above_band": True, "decides": False}
+    text = " ".join(compare_case("c", late, {"ok"}, [15.0], {"recovery_band": 0.01}).sentences)
+    assert ("The start-up has not settled at the first fault (15 s: position error up to 0.05 m, above the 0.01 m "
+            "band): the peaks after the faults include its decay.") in text, text  # fmt: skip
+    settled = runs((0.002, 0.003, 0.002), (0.2, 0.1, 0.05))
+    assert startup_at_first_fault(settled, 0.01) is None
+    text = " ".join(compare_case("c", settled, {"ok"}, [15.0], {"recovery_band": 0.01}).sentences)
+    assert "start-up" not in text
+    tiny = runs((5e-5, 5e-5, 5e-5), (5e-5, 5e-5, 5e-5))  # below the metric's resolution (1e-4 m): a tie anyway
+    assert startup_at_first_fault(tiny, 0.01) is None

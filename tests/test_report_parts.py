@@ -567,3 +567,32 @@ def test_a_metric_from_the_first_fault_on_says_so_when_that_fault_acts_at_the_st
     assert "start-up transient included" not in later["torque_peak_after_fault"]
     html = (Path(__file__).resolve().parents[1] / "templates" / "case.html").read_text()
     assert "so the start-up transient does not decide it)" not in html
+
+
+def test_a_metric_from_the_first_fault_on_says_when_the_start_up_has_not_settled_by_then():
+    """Session 12's new user (M1): five_link_cascade's first fault (15 s) strikes before the start-up transient
+    has decayed into the band, so the "max error after faults" ranks that decay.  The runs' error at the first
+    fault (the end of the phase before it) above the recovery band is said under each metric taken from the
+    first fault on; within the band, nothing is said."""
+    from ftcreport.evaluation import compare
+    from ftcreport.report.render import _verdict_rows, unsettled_at_first_fault
+
+    def runs(before):
+        return {
+            s: {"status": "ok", "position_error_final": e, "torque_peak_after_fault": 2.0 + e, "phases": [
+                {"start": 0.0, "end": 15.0, "fault": False, "position_error_final": b, "position_error_max": 0.3},
+                {"start": 15.0, "end": 40.0, "fault": True, "position_error_final": e, "position_error_max": e}]}
+            for s, e, b in (("nominal", 0.01, before), ("adaptive", 0.05, before / 2), ("active", 0.02, None))
+        }  # fmt: skip
+
+    late = runs(0.052)
+    assert unsettled_at_first_fault(list(late.values()), 15.0, 0.01) == (0.052, 15.0)
+    verdict = compare.compare_case("c", late, {"ok"}, [15.0], {})
+    notes = {r["key"]: r["note"] for r in _verdict_rows(verdict, 0.01, 15.0, (0.052, 15.0))}
+    said = "the start-up has not settled at the first fault (position error up to 0.052 m at 15 s, band 0.01 m)"
+    for key in ("after_fault_error_max", "torque_peak_after_fault"):
+        assert said in notes[key], notes[key]
+    assert said not in notes["position_error_final"]
+    assert unsettled_at_first_fault(list(runs(0.008).values()), 15.0, 0.01) is None
+    assert unsettled_at_first_fault(list(late.values()), 0.0, 0.01) is None  # at 0 s: the note above says it
+    assert unsettled_at_first_fault(list(late.values()), None, 0.01) is None

@@ -570,6 +570,57 @@ def _times(ts: Sequence[float]) -> str:
     return (s[0] if len(s) == 1 else ", ".join(s[:-1]) + " and " + s[-1]) + " s"
 
 
+#: a run whose error at the first fault is at least this share of its peak after the faults has that peak from
+#: the start-up's residual, not from the faults (:func:`startup_at_first_fault`)
+RESIDUAL_SHARE = 0.9
+
+
+def startup_at_first_fault(metrics: Mapping[str, Mapping], band: float | None) -> dict | None:
+    """What the start-up left at the first fault, when it matters to the metrics taken from that fault on:
+    ``{"t", "error", "above_band", "decides"}`` or None.
+
+    ``error``: the largest position error [m] of the completed runs at the first fault ``t`` [s] (the final
+    error of the phase before it); ``above_band``: above the recovery ``band``, the start-up has not settled;
+    ``decides``: every run's error there is at least :data:`RESIDUAL_SHARE` of its peak after the faults, so
+    that peak is the start-up's residual, not the faults' effect (five_link_cascade: 0.005-0.007 m at 15 s).
+    None when neither holds, when the first fault acts at the start (no phase before it), or when the error
+    at the fault is below the peak error's resolution (its tie floor).
+    """
+    at, peaks, t = [], [], None
+    for m in metrics.values():
+        phases = m.get("phases") or []
+        if m.get("status") != "ok" or len(phases) < 2 or phases[0].get("fault") or not fault_phases(phases):
+            continue
+        e0, peak = _num(phases[0].get("position_error_final")), _extract("after_fault_error_max", m)[0]
+        if e0 is None or peak is None:
+            continue
+        at.append(e0)
+        peaks.append(peak)
+        t = _num(phases[0].get("end"))
+    if not at or t is None or max(at) <= SPECS["after_fault_error_max"].floor:
+        return None
+    above = band is not None and max(at) > band
+    decides = all(e >= RESIDUAL_SHARE * p for e, p in zip(at, peaks, strict=True))
+    return {"t": t, "error": max(at), "above_band": above, "decides": decides} if above or decides else None
+
+
+def _startup_sentence(metrics, facts) -> str | None:
+    """The verdict's sentence on :func:`startup_at_first_fault`, or None."""
+    band = _num(facts.get("recovery_band"))
+    got = startup_at_first_fault(metrics, band)
+    if got is None:
+        return None
+    if got["decides"]:
+        return (
+            f"Those peaks are what the start-up left at the first fault ({got['t']:g} s: up to {got['error']:.3g} m, "
+            f"at least {100 * RESIDUAL_SHARE:g} % of each run's peak after it), not the faults' effect."
+        )
+    return (
+        f"The start-up has not settled at the first fault ({got['t']:g} s: position error up to {got['error']:.3g} m,"
+        f" above the {band:g} m band): the peaks after the faults include its decay."
+    )
+
+
 def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
     out = []
     ok = [s for s, m in metrics.items() if m.get("status") == "ok"]
@@ -594,6 +645,9 @@ def _sentences(verdicts, metrics, fault_times, facts, failed) -> list[str]:
     if after and after.winners:
         when = f"After the faults at {_times(fault_times)}" if fault_times else "After the faults"
         out.append(", ".join(_smallest(after, "the smallest peak error", when)) + ".")
+        line = _startup_sentence(metrics, facts)
+        if line:
+            out.append(line)
         if BASELINE in after.winners and any(contestant(s) for s in ok) and _nominal_among_best(verdicts):
             out.append(_why_nominal(facts, after, metrics))
     if failed:

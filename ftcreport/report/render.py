@@ -411,6 +411,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
             series, build_plant_chain(case), faults, list(names), {m["scheme"]: m["status"] for m in runs}
         )
     plant = plant_block(case, runs, series, out, rec.get("base"))  # templates/_plant.html (issue 36)
+    first = min((float(f.time) for f in case.faults), default=None)
     return write_page(
         page,
         "case.html",
@@ -419,7 +420,9 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         verdict=verdict,
         gate=gate,
         gate_skipped=gate_skipped,
-        verdict_rows=_verdict_rows(verdict, case.recovery_band, min((float(f.time) for f in case.faults), default=None))
+        verdict_rows=_verdict_rows(
+            verdict, case.recovery_band, first, unsettled_at_first_fault(runs, first, case.recovery_band)
+        )
         if verdict
         else [],
         recovery_band=case.recovery_band,
@@ -700,12 +703,31 @@ def _verdict(case, name: str, runs: list[dict], analysis: dict | None = None):
 FROM_FIRST_FAULT = "from the first fault on"
 
 
-def _verdict_rows(v, band: float | None = None, first_fault: float | None = None) -> list[dict]:
+def unsettled_at_first_fault(runs: list[dict], first_fault: float | None, band: float | None):
+    """(the largest position error [m] of the runs at the first fault, its time [s]) when it is above the
+    recovery band (``compare.startup_at_first_fault``): a metric taken from the first fault on then includes the
+    start-up's decay; else None (also for a first fault at 0 s, which :func:`_verdict_rows` says otherwise)."""
+    if first_fault is None or first_fault <= 0.0:
+        return None
+    got = compare.startup_at_first_fault({str(i): m for i, m in enumerate(runs)}, band)
+    return (got["error"], got["t"]) if got and got["above_band"] else None
+
+
+def _verdict_rows(
+    v, band: float | None = None, first_fault: float | None = None, unsettled: tuple[float, float] | None = None
+) -> list[dict]:
     """One row per headline metric: winners, their value, regret, benefit, the ranking in words
     (``band``: the case's recovery band [m], stated under the recovery time; ``first_fault``: the first
-    fault's time [s], under a metric taken from it on when it is 0: the start-up is in it then)."""
+    fault's time [s], under a metric taken from it on when it is 0: the start-up is in it then; ``unsettled``:
+    :func:`unsettled_at_first_fault`, said under such a metric: the start-up's decay is in it)."""
     rows = []
     at_start = first_fault is not None and first_fault <= 0.0
+    decay = (
+        f"; the start-up has not settled at the first fault (position error up to {unsettled[0]:.3g} m at "
+        f"{unsettled[1]:g} s, band {band:g} m): its decay included"
+        if unsettled and band
+        else ""
+    )
     for spec in compare.HEADLINE:
         mv = v.metrics.get(spec.key)
         if mv is None:
@@ -732,7 +754,8 @@ def _verdict_rows(v, band: float | None = None, first_fault: float | None = None
                     "; the first fault acts at 0 s: the start-up transient included"
                     if at_start and spec.note.startswith(FROM_FIRST_FAULT)
                     else ""
-                ),
+                )
+                + (decay if spec.note.startswith(FROM_FIRST_FAULT) else ""),
                 "ranking": rank,
                 "unranked": "; ".join(extra),
                 "tolerance": f"{100 * spec.rel_tol:g} % or {spec.abs_tol:g}" if spec.rel_tol else "exact",

@@ -117,6 +117,13 @@ def _base() -> dict:
             "not used by an 'eight' reference (used by: circle, line, sinusoid)",
         ),
         (lambda c: c["kinematic"].update(k1=10.0), "kinematic.k1", "not used by a 'chained' kinematic law"),
+        # session 13's attack: a loss and its repair 1e-13 s apart made a phase shorter than the requirements'
+        # edge slack (1 ns): a window ran past the next event, two windows judged the same steps
+        (
+            lambda c: c["faults"][1].update(time=20.0 + 1e-13),
+            "faults[1].time",
+            "s after event 0 (t = 20.0 s): distinct event times must be at least 1e-09 s apart",
+        ),
         # ... a sampling period or a measurement delay longer than the run was accepted
         (
             lambda c: c["simulation"].update(duration=5.0, sample_time=6.0),
@@ -414,3 +421,14 @@ def test_an_overlay_that_changes_a_kind_takes_that_table_whole(tmp_path):
     (tmp_path / "k.toml").write_text(f'base_case = "{CASES / "two_link_active.toml"}"\n[kinematic]\nk1 = 3.0\n')
     same = load_case(tmp_path / "k.toml")
     assert same.kinematic.k1 == 3.0 and same.kinematic.k2 == base.kinematic.k2  # merged key by key
+
+
+def test_events_are_resolved_as_finely_as_requirement_windows_take_their_edges():
+    """A phase shorter than the windows' edge slack is refused (faults[i].time), so the two must agree."""
+    from ftcreport.cases.case import EVENT_RESOLUTION
+    from ftcreport.evaluation.requirements import EDGE_SLACK
+
+    assert EVENT_RESOLUTION == EDGE_SLACK
+    data = _base()
+    data["faults"][1]["time"] = 20.0 + 2 * EDGE_SLACK  # just beyond it: a phase of its own, accepted
+    parse_case(data, "cases/x.toml")

@@ -27,6 +27,10 @@ from .scheme_tables import (
 from .tables import Actuators, Fault, Initial, Plant, Reference, Robots, Simulation
 from .thresholds import BaselineSpec, Bound, CampaignSpec, Claim, Requirement, Status
 
+#: [s] two fault events at distinct times closer than this are refused: the requirements' windows take a sample
+#: this close to an edge as on it (evaluation.requirements.EDGE_SLACK), so a phase this short is no phase
+EVENT_RESOLUTION = 1e-9
+
 
 class Case(_Strict):
     """A validated case (cases/README.md documents every field; its tables are generated from these models)."""
@@ -124,6 +128,14 @@ class Case(_Strict):
             if f.time >= self.simulation.duration:
                 raise _FieldError(
                     f"faults[{i}].time", f"{f.time} s is not before the end of the run ({self.simulation.duration} s)"
+                )
+        for i in range(1, len(self.faults)):
+            t0, t = self.faults[i - 1].time, self.faults[i].time
+            if 0.0 < t - t0 < EVENT_RESOLUTION:
+                raise _FieldError(
+                    f"faults[{i}].time",
+                    f"{t!r} s is {t - t0:.2g} s after event {i - 1} (t = {t0!r} s): distinct event times must be at "
+                    f"least {EVENT_RESOLUTION:g} s apart (give both the same time, or separate them)",
                 )
         for i, f in enumerate(self.faults):
             _check_motor_fault(i, f, self.actuators is not None)

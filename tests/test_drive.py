@@ -540,3 +540,30 @@ def test_the_analysis_linearizes_the_pi_drive_with_its_poles_at_the_bandwidth_an
     # the static driver of the same case: the currents only, the voltage as input
     static = Plant(build(_case({}, 5e-3, "etd2")))
     assert (static.nm, static.input_name) == (nw, "voltage")
+
+
+def test_per_robot_current_loops_are_shown_per_robot(tmp_path):
+    """Session 13's attack: with ``current_bandwidth = [5000, 0.5]`` the case page gave the leader's time
+    constant alone (0.0318 ms; robot 2's is 318 ms) and the analysis said "a PI current loop at 5000 Hz".
+    Both now give every robot's value when they differ (leader first), and one value when they agree."""
+    from ftcreport.analysis.case import _drive_words
+    from ftcreport.cases import load_case
+    from ftcreport.report.plant import _motor_rows
+    from ftcreport.runner import build
+
+    path = ROOT / "cases" / "motors" / "three_link_switching_pi.toml"
+    varied = tmp_path / "pi.toml"
+    varied.write_text(
+        path.read_text()
+        .replace('"../three_link_switching.toml"', f'"{ROOT / "cases" / "three_link_switching.toml"}"')
+        .replace("current_bandwidth = 1000.0", "current_bandwidth = [5000.0, 0.5, 0.5]")
+    )
+    case = load_case(varied)
+    _, drive = _motor_rows(case)
+    assert drive["loop"]["bandwidth"] == "5000, 0.5, 0.5"
+    assert drive["loop"]["tau_ms"] == "0.03183, 318.3, 318.3"  # 1 / (2 pi f)
+    words = _drive_words(build(case).plant)
+    assert "a PI current loop at 5000, 0.5, 0.5 Hz (robots 1, 2, 3)" in words, words
+    same = load_case(path)
+    assert _motor_rows(same)[1]["loop"]["tau_ms"] == "0.1592"
+    assert "a PI current loop at 1000 Hz (its integral" in _drive_words(build(same).plant)

@@ -131,7 +131,12 @@ def _drive_words(plant) -> str | None:
     first = drives[0] if isinstance(drives, list | tuple) and drives else drives
     if not drives or getattr(first, "driver", "static") == "static":
         return "the static driver (voltage from the drive's model of the motor)"
-    words = f"a PI current loop at {first.current_bandwidth:g} Hz (its integral parts are states of the loop)"
+    each = [d.current_bandwidth for d in drives] if isinstance(drives, list | tuple) else [first.current_bandwidth]
+    if len(set(each)) == 1:
+        at = f"{each[0]:g} Hz"
+    else:  # the robots' own, leader first (the leader's alone misstated the others': 5000 Hz for 0.5 Hz)
+        at = f"{', '.join(f'{b:g}' for b in each)} Hz (robots {', '.join(str(i + 1) for i in range(len(each)))})"
+    words = f"a PI current loop at {at} (its integral parts are states of the loop)"
     if first.drive_rate:
         words += f", sampled at {first.drive_rate:g} Hz in the run and analysed as continuous"
     return words

@@ -86,7 +86,6 @@ def _motor_rows(case: Case) -> tuple[list[dict], dict]:
         )
         loop = None
     else:
-        tau = 1.0 / (2.0 * math.pi * d.current_bandwidth)
         kind = (
             "PI current loop, conditional-integration anti-windup at the supply"
             + (f", sampled at {d.drive_rate:g} Hz (voltage held)" if d.drive_rate else ", continuous")
@@ -94,7 +93,7 @@ def _motor_rows(case: Case) -> tuple[list[dict], dict]:
         )
         loop = {
             "bandwidth": _per_robot([x.current_bandwidth for x in drives]),
-            "tau_ms": f"{tau * 1e3:.3g}",
+            "tau_ms": _per_robot([1e3 / (2.0 * math.pi * x.current_bandwidth) for x in drives]),
             "kp": _per_robot([x.kp for x in drives]),
             "ki": _per_robot([x.ki for x in drives]),
             "gains": "given" if d.current_kp is not None or d.current_ki is not None else "pole-zero cancellation",

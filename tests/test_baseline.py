@@ -315,3 +315,26 @@ def test_a_baseline_case_whose_file_left_the_checked_directory_fails_and_a_subse
     res = runner.invoke(app, ["check", str(cases), "--out", str(out), "--baseline", str(dest)])
     assert res.exit_code == 1, res.output
     assert f"b / baseline missing: b is in the baseline (its file {cases / 'b.toml'}) but not checked now" in res.output
+
+
+def test_a_dest_that_is_the_results_directory_or_inside_it_is_refused_naming_dest(tmp_path):
+    """Session 13's attack: ``baseline save --dest rep --out rep`` wrote baseline.json, <case>/baseline.json and
+    signals.npz into the results tree (exit 0: the re-entrant lock skipped the directory's kind check), and
+    ``--dest rep/<case>/<scheme>`` (baseline or export) wrote into a stored run's folder.  Both are refused
+    before anything runs or is written, naming --dest; a results directory given as --dest with another --out
+    is refused naming --dest too (it named --out), also before the batch runs."""
+    src, out, _ = _saved_short_baseline(tmp_path)
+    before = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if ".ftcreport.lock" not in p.name)
+    for bad in (out, out / "bl" / "switching", out / "bl"):
+        res = runner.invoke(app, ["baseline", "save", str(src), "--out", str(out), "--dest", str(bad), "-q"])
+        assert res.exit_code == 2, (bad, res.output)
+        assert f"{bad}: --dest: is " in res.output and "--out" in res.output, res.output
+        res = runner.invoke(app, ["export", "--out", str(out), "--dest", str(bad)])
+        assert res.exit_code == 2, (bad, res.output)
+        assert f"{bad}: --dest: " in res.output, res.output
+    after = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if ".ftcreport.lock" not in p.name)
+    assert after == before
+    other = tmp_path / "r2"
+    res = runner.invoke(app, ["baseline", "save", str(src), "--out", str(other), "--dest", str(out), "-q"])
+    assert res.exit_code == 2 and f"{out}: --dest: holds the results of another kind" in res.output, res.output
+    assert not other.exists()  # refused before the batch ran

@@ -97,6 +97,20 @@ def test_demo_bad_parameter_is_one_line():
     assert "dt" in res.output and "Traceback" not in res.output
 
 
+@pytest.mark.parametrize(
+    ("value", "words"),
+    [("100", "100 s is not before --duration (2 s)"), ("2", "2 s is not before --duration (2 s)"),
+     ("nan", "must be a finite time at or after 0 s"), ("-1", "must be a finite time at or after 0 s")],
+)  # fmt: skip
+def test_demo_fault_time_outside_the_run_is_refused_naming_it(value, words):
+    """Session 13's attack: ``demo --duration 2 --fault-time 100`` ran, printed "wheel 2l lost at 100.0 s" and
+    the "before" error twice at 2 s (exit 0); ``--fault-time nan`` failed naming "event 0" of a schedule the
+    user never wrote.  The fault must be at or after 0 s and before the end, named as --fault-time."""
+    res = runner.invoke(app, ["demo", "--robots", "2", "--duration", "2", "--fault-time", value])
+    assert res.exit_code == 2, res.output
+    assert f"--fault-time: {words}" in res.output and "Traceback" not in res.output, res.output
+
+
 def test_run_command_writes_results(tmp_path):
     import json
 

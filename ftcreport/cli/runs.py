@@ -62,6 +62,10 @@ def demo(
 
     if not 2 <= robots <= 12:
         raise FtcError(f"--robots: must be between 2 and 12, got {robots}")
+    if not (math.isfinite(fault_time) and fault_time >= 0.0):
+        raise FtcError(f"demo: --fault-time: must be a finite time at or after 0 s, got {fault_time:g}")
+    if math.isfinite(duration) and fault_time >= duration:
+        raise FtcError(f"demo: --fault-time: {fault_time:g} s is not before --duration ({duration:g} s)")
     if (problem := budget_problem(robots, duration, dt, 1)) is not None:
         opt = "--dt" if problem[0] == "simulation.dt" else "--duration"  # demo logs every step
         raise FtcError(f"demo: {opt}: {problem[1]}")
@@ -564,17 +568,18 @@ def baseline_save(
 
     Example: ftcreport baseline save cases/ --dest baselines/main
     """
-    from ..storage.store import output_lock
+    from ..storage.store import check_apart, output_lock
     from ..studies.baseline import save_baseline
     from ..studies.batch import run_batch
 
     if dest.exists() and not dest.is_dir():
         raise FtcError(f"{dest}: --dest: exists and is not a directory")
-    # --out's lock from the batch to the last run read: no other process stores a run in between
-    with output_lock(out, "batch"):
+    check_apart(dest, out)  # never into the results tree (or a run's folder): refused before anything runs
+    # --dest claimed before the batch runs (a results directory there is refused at once); --out's lock from
+    # the batch to the last run read: no other process stores a run in between
+    with output_lock(dest, "baseline save", "--dest"), output_lock(out, "batch"):
         res = run_batch(cases or [Path("cases")], out, jobs, show_progress=not quiet)
-        with output_lock(dest, "baseline save"):
-            refused = save_baseline(out, res.cases, dest)
+        refused = save_baseline(out, res.cases, dest)
     for name, why in refused:
         typer.echo(f"ftcreport: error: {name}: not saved: {why}", err=True)
     for msg in res.case_errors.values():

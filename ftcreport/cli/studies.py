@@ -206,15 +206,17 @@ def export(
 
     Example: ftcreport export --out reports
     """
-    from ..storage.store import deleted_runs, edited_cases, output_lock, unrecorded_cases
+    from ..storage.store import check_apart, deleted_runs, edited_cases, output_lock, unrecorded_cases
     from ..storage.tidy import export as _export
 
     if not out.is_dir():
         raise FtcError(f"{out}: no stored results (run 'ftcreport batch' first)")
+    if dest is not None:  # never into the results tree (a stored run's folder): refused before anything is written
+        check_apart(dest, out)
     with contextlib.ExitStack() as locks:  # the results read and the directory written: no batch meanwhile
         locks.enter_context(output_lock(out, "export"))
         if dest is not None:  # a directory of its own: never another batch's (its metrics.parquet) or family's
-            locks.enter_context(output_lock(dest, "export --dest"))
+            locks.enter_context(output_lock(dest, "export --dest", "--dest"))
         damaged: list[str] = unrecorded_cases(out)  # runs whose case record is gone: not exported, and said so
         damaged += edited_cases(out)  # a stored case file edited after its runs: no fault schedule read from it
         damaged += deleted_runs(out)  # a run directory deleted by hand: not in the exports

@@ -544,8 +544,22 @@ _HOMES = {
 _held: dict[str, list] = {}  # resolved directory -> [lock file descriptor, depth] (re-entrant in one process)
 
 
+def check_apart(dest: Path, out: Path, option: str = "--dest") -> None:
+    """Refuse a directory to write (``dest``, a baseline's or an export's) that is the results directory ``out``
+    or inside it (OutputError): its files would land in the results tree, or in a stored run's folder.  Checked
+    before anything runs: the lock of ``out`` is re-entrant, so a ``dest`` equal to it would skip the check of
+    the directory's kind (:func:`output_lock`)."""
+    d, o = Path(dest).resolve(), Path(out).resolve()
+    if d == o or o in d.parents:
+        where = "is --out itself" if d == o else "is inside --out"
+        raise OutputError(
+            f"{dest}: {option}: {where} ({out}, the stored results it reads): its files would be mixed into "
+            f"the results tree; choose a directory outside it"
+        )
+
+
 @contextlib.contextmanager
-def output_lock(out: Path, command: str):
+def output_lock(out: Path, command: str, option: str = "--out"):
     """Hold the exclusive lock of an output directory (``<out>/.ftcreport.lock``, ``flock``).
 
     Two processes never write to the same directory at once: the second one fails at
@@ -573,13 +587,13 @@ def output_lock(out: Path, command: str):
             _held[key][1] -= 1
         return
     created = not out.exists()
-    fd = _acquire(out)
+    fd = _acquire(out, option)
     roots = _confine(out)
     try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"ftcreport {command} (pid {os.getpid()})".encode(), 0)
         _held[key] = [fd, 1]
-        _claim(out, KINDS.get(command, command), command)
+        _claim(out, KINDS.get(command, command), command, option)
         clean_partial(out)
         yield
     finally:
@@ -607,7 +621,7 @@ def _release(out: Path, key: str, fd: int, roots: list[str], created: bool) -> N
             out.rmdir()  # only when empty
 
 
-def _acquire(out: Path) -> int:
+def _acquire(out: Path, option: str = "--out") -> int:
     """Open ``out``'s lock file and take its lock (non-blocking); its descriptor, or OutputBusyError.
 
     A holder that created ``out`` and wrote nothing removes the lock file before it releases it: a
@@ -635,7 +649,7 @@ def _acquire(out: Path) -> int:
             holder = holder or "another process"
             os.close(fd)
             raise OutputBusyError(
-                f"{out}: --out: in use by {holder}; wait for it to finish or choose another --out "
+                f"{out}: {option}: in use by {holder}; wait for it to finish or choose another {option} "
                 "(one ftcreport process writes to an output directory at a time)"
             ) from None
         try:
@@ -717,8 +731,9 @@ def _link_target(path: Path) -> str:
         return "?"
 
 
-def _claim(out: Path, kind: str, command: str) -> None:
-    """Mark ``out`` as holding ``kind`` results, or refuse when it holds another family's (OutputError)."""
+def _claim(out: Path, kind: str, command: str, option: str = "--out") -> None:
+    """Mark ``out`` as holding ``kind`` results, or refuse when it holds another family's (OutputError);
+    ``option``: the command's option that named ``out``."""
     marker = out / KIND_NAME
     mine = _marker(out)
     held = (mine or _legacy_kind(out)) if not _untouched(out) else None  # an empty directory is anyone's
@@ -728,11 +743,11 @@ def _claim(out: Path, kind: str, command: str) -> None:
         if kind == "export":
             option, files, home = "--dest", "metrics.parquet and netCDF files", "an empty directory, or no --dest"
         else:
-            option, files, home = "--out", "index.html and manifest.json", _HOMES.get(kind, "reports")
+            files, home = "files", _HOMES.get(kind)
         raise OutputError(
             f"{out}: {option}: holds the results of another kind of command ({_describe(held)}); ftcreport "
-            f"{command.split()[0]} writes {_describe(kind)}, which would overwrite its {files}: "
-            f"choose another {option} (the default is {home})"
+            f"{command.split()[0]} writes {_describe(kind)}, which would overwrite or mix with its {files}: "
+            f"choose another {option}" + (f" (the default is {home})" if home else "")
         )
     if mine != kind:
         write_atomic(marker, f"{kind}\n".encode())

@@ -447,6 +447,60 @@ def test_scoreboard_denominators_are_the_contests_a_scheme_took_part_in(tmp_path
     assert "<td>0 / 2</td>" in row and "/ 5" not in row, row
 
 
+def _board_cells(sb, schemes: list[str], tmp_path) -> dict[str, list[str]]:
+    """The index page's scoreboard rendered from ``sb``: its cells' text per scheme row."""
+    import re
+
+    from ftcreport.report.render import write_page
+
+    page = write_page(
+        tmp_path / "index.html",
+        "index.html",
+        "",
+        board=sb,
+        specs=SPECS.values(),
+        fmt_ratio=fmt_ratio,
+        schemes=schemes,
+        cases=[],
+        plugins={},
+        claims=[],
+        batches=[],
+        other_pages=[],
+    ).read_text()
+    board = page.split('id="scoreboard"', 1)[1].split("</table>", 1)[0]
+    rows = {r.split("</td>")[0]: r for r in board.split('<tr><td class="l">')[1:]}
+    return {s: [re.sub(r"<[^>]+>", "", c) for c in re.findall(r"<td[^>]*>(.*?)</td>", rows[s])] for s in rows}
+
+
+def test_the_scoreboard_says_detection_metrics_do_not_apply_to_a_scheme_without_a_detector(tmp_path):
+    """The index's scoreboard showed "0 / 0" wins of the worst detection delay and of the false alarms for
+    nominal, switching, adaptive: schemes without a fault detector, which read as a zero score.  They say
+    "n/a: no detector" (the metric does not apply); a scheme with a detector keeps its count."""
+    runs = {
+        "nominal": _run(after=0.3),
+        "switching": _run(after=0.1),
+        "adaptive": _run(after=0.2),
+        "active": _active(delay=0.5, false=1, after=0.15),
+        "oracle": _run(after=0.05),
+    }
+    schemes = list(runs)
+    sb = scoreboard([compare_case("c", runs, fault_times=[20.0])], schemes)
+    for s in ("nominal", "switching", "adaptive"):
+        assert sb.inapplicable[s] == {"detection_delay_max": "no detector", "false_alarms": "no detector"}, s
+    assert sb.inapplicable["active"] == {}
+    cells = _board_cells(sb, schemes, tmp_path)
+    keys = list(SPECS)
+    delay, alarms = keys.index("detection_delay_max"), keys.index("false_alarms")  # cells after the name
+    for s in ("nominal", "switching", "adaptive"):
+        assert cells[s][delay] == cells[s][alarms] == "n/a: no detector", (s, cells[s])
+        assert "0 / 0" not in cells[s], (s, cells[s])
+    assert cells["active"][delay] == "1 / 1" and cells["active"][alarms] == "1 / 1", cells["active"]
+    # a plug-in: "no detector" when its family is not the active one; otherwise its detections are not compared
+    sb = scoreboard([], ["sliding_mode", "my_detector"], {"sliding_mode": "passive", "my_detector": "active"})
+    assert sb.inapplicable["sliding_mode"]["false_alarms"] == "no detector"
+    assert sb.inapplicable["my_detector"]["false_alarms"] == "not compared for a plug-in"
+
+
 def test_a_detector_that_misses_the_faults_wins_no_false_alarm_contest():
     """Page audit item 3: "wins: false alarms" went to active_ukf, which missed 10 of 10 faults: the fewest
     false alarms from a detector that detects nothing is no win.  Only a detector that missed no change is

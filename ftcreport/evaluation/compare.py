@@ -71,6 +71,8 @@ __all__ = [
     "FAULT_RESPONSE",
     "HEADLINE",
     "NOT_APPLICABLE",
+    "NOT_COMPARED",
+    "NO_DETECTOR",
     "CaseVerdict",
     "MetricSpec",
     "MetricVerdict",
@@ -114,6 +116,7 @@ class MetricSpec:
     abs_tol: float
     only: tuple[str, ...] | None = None  # schemes the metric exists for (None: every scheme)
     note: str = ""  # what the metric covers (start-up included or not), for the pages
+    only_why: str = ""  # why the metric does not apply to a built-in scheme outside ``only`` ("no detector")
 
     @property
     def floor(self) -> float:
@@ -121,6 +124,11 @@ class MetricSpec:
         any non-zero count).  Below it differences are numerical rather than physical (module docstring)."""
         return self.abs_tol
 
+
+#: why the detection metrics do not apply to a built-in scheme outside the active family (the scoreboard's "n/a")
+NO_DETECTOR = "no detector"
+#: why they do not apply to a plug-in scheme: only the built-in active schemes' detections are compared
+NOT_COMPARED = "not compared for a plug-in"
 
 HEADLINE: tuple[MetricSpec, ...] = (
     MetricSpec("after_fault_error_max", "max error after faults", "m", 0.05, 1e-4, note="from the first fault on"),
@@ -130,8 +138,10 @@ HEADLINE: tuple[MetricSpec, ...] = (
         "torque_peak_after_fault", "peak torque after the first fault", "N m", 0.05, 0.1, note="from the first fault on"
     ),
     MetricSpec("energy", "energy", "J", 0.05, 0.1, note="whole run, start-up included"),
-    MetricSpec("detection_delay_max", "worst detection delay", "s", 0.05, 0.1, ACTIVE, note="every fault"),
-    MetricSpec("false_alarms", "false alarms", "", 0.0, 0.0, ACTIVE, note="whole run"),
+    MetricSpec(
+        "detection_delay_max", "worst detection delay", "s", 0.05, 0.1, ACTIVE, note="every fault", only_why=NO_DETECTOR
+    ),
+    MetricSpec("false_alarms", "false alarms", "", 0.0, 0.0, ACTIVE, note="whole run", only_why=NO_DETECTOR),
 )
 SPECS = {s.key: s for s in HEADLINE}
 #: the headline metrics of the response to a fault: not applicable to a run without one (module docstring)
@@ -835,16 +845,24 @@ class Scoreboard:
     cases: list[dict]  # one row per case: name, winners per metric, not applicable (why) per metric, outside expected
     # scheme -> metric -> cases where the metric does not apply to the scheme's run (no contest: no fault)
     not_applicable: dict[str, dict[str, int]] = field(default_factory=dict)
+    # scheme -> metric -> why the metric does not apply to the scheme at all, in any case ("no detector")
+    inapplicable: dict[str, dict[str, str]] = field(default_factory=dict)
 
 
-def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Scoreboard:
+def scoreboard(
+    verdicts: Sequence[CaseVerdict], schemes: Sequence[str], families: Mapping[str, str] | None = None
+) -> Scoreboard:
     """Aggregate case verdicts (the index page's scoreboard).
 
     A scheme's wins on a metric are counted out of the contests it took part in: the cases where the
     metric has a winner and the scheme's run is ranked on it or stopped (a run that did not complete
     took part and lost).  A case it did not run in, or whose run lacks the metric, is no contest of it;
     nor is a case where the metric does not apply (no fault: module docstring), counted apart so the page
-    says "n/a" with the reason rather than "0 / 0".
+    says "n/a" with the reason rather than "0 / 0".  A metric that exists only for some schemes
+    (:attr:`MetricSpec.only`: the detection delay and the false alarms, of a fault detector) does not apply
+    to the others at all: ``inapplicable`` gives why, so the page says "n/a: no detector", not a zero score:
+    :data:`NO_DETECTOR` for a built-in scheme and for a plug-in whose family (``families``: plug-in name ->
+    family) is not the detectors' ("active"), :data:`NOT_COMPARED` for another plug-in.
     """
     wins = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
     regrets: dict[str, dict[str, list[float]]] = {s: {m.key: [] for m in HEADLINE} for s in schemes}
@@ -853,6 +871,13 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
     runs = dict.fromkeys(schemes, 0)
     contests = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
     not_applicable = {s: {m.key: 0 for m in HEADLINE} for s in schemes}
+    families = dict(families or {})
+
+    def why(s: str, m: MetricSpec) -> str:
+        detector = s not in LABEL and families.get(s, "active") == "active"  # a plug-in that may have one
+        return NOT_COMPARED if detector else m.only_why
+
+    inapplicable = {s: {m.key: why(s, m) for m in HEADLINE if m.only is not None and s not in m.only} for s in schemes}
     cases = []
     for v in verdicts:
         for s in v.schemes:
@@ -886,5 +911,15 @@ def scoreboard(verdicts: Sequence[CaseVerdict], schemes: Sequence[str]) -> Score
     med = {s: {k: (statistics.median(v) if v else None) for k, v in d.items()} for s, d in regrets.items()}
     counts = {s: {k: (len(v), ranked[s][k]) for k, v in d.items()} for s, d in regrets.items()}
     return Scoreboard(
-        list(schemes), list(HEADLINE), wins, contests, med, counts, outside, runs, cases, not_applicable=not_applicable
+        list(schemes),
+        list(HEADLINE),
+        wins,
+        contests,
+        med,
+        counts,
+        outside,
+        runs,
+        cases,
+        not_applicable=not_applicable,
+        inapplicable=inapplicable,
     )

@@ -902,7 +902,8 @@ def render_index(out: Path) -> Path:
         elif case is not None and case.claims:
             claims += _claims(name, case, [m | {"scheme": s} for s, m in metrics.items()])
         cases.append(entry)
-    board = compare.scoreboard(verdicts, ordered_schemes(s for c in cases for s in c["runs"]))
+    families = {s: p["family"] for s, p in plugins.items() if isinstance(p, dict) and p.get("family")}
+    board = compare.scoreboard(verdicts, ordered_schemes(s for c in cases for s in c["runs"]), families)
     batch = read_json(out / "manifest.json")  # the merged manifest of the batches into this directory
     memory = batch.get("memory") if isinstance(batch, dict) and batch.get("kind") == "batch" else None
     outcomes = {

@@ -211,6 +211,33 @@ def test_save_then_check_passes_and_a_changed_gain_fails_naming_metric_delta_and
     assert "inputs changed since the baseline (2 field(s))" in res.output  # k_v and the [baseline] table
 
 
+def test_the_index_links_the_baseline_page_only_while_it_compares_the_stored_runs(tmp_path):
+    """A baseline.html left by an earlier `check --baseline` stayed linked from the index after a later batch
+    re-ran its runs (the page compared runs no longer stored), and the first check's index did not link the
+    page it wrote (rendered before it).  The index links it while every run it compared is still the stored
+    one (the run record's seal), and otherwise names it as written for earlier results, without a link."""
+    import re
+
+    src, out, dest = tmp_path / "bl.toml", tmp_path / "r", tmp_path / "base"
+    _write(src)
+    res = runner.invoke(app, ["baseline", "save", str(src), "--out", str(out), "--dest", str(dest), "-q"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["check", str(src), "--out", str(out), "--baseline", str(dest), "-q"])
+    assert res.exit_code == 0, res.output
+    pages = (out / "index.html").read_text().split('id="other-pages"', 1)
+    assert len(pages) == 2 and 'href="baseline.html"' in pages[1], "the index does not link the baseline page"
+
+    _write(src, k_v=2000.0)  # another run of the case: the page compared the one before it
+    res = runner.invoke(app, ["batch", str(src), "--out", str(out), "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert (out / "baseline.html").exists()  # the page stays (a reader's file), unlinked
+    index = (out / "index.html").read_text()
+    assert 'href="baseline.html"' not in index
+    row = index.split('id="other-pages"', 1)[1].split("</table>", 1)[0]
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", row))
+    assert "baseline.html" in text and "written for earlier results" in text, text
+
+
 def test_a_missing_baseline_fails_and_a_missing_directory_is_bad_input(tmp_path):
     src, out = tmp_path / "bl.toml", tmp_path / "r"
     _write(src)

@@ -516,6 +516,9 @@ def check(
             gone, outside = absent_items(baseline, res.cases, res.case_errors, inputs)
             items += found + gone
             baseline_page = render_baseline(out, baseline, comparisons)
+            from ..report.render import render_index
+
+            render_index(out)  # the batch rendered it before this page was written: it links the page now
         if junit is not None:
             _junit_target(junit)  # again: the batch may have stored a result at that path since
             write_junit(

@@ -46,6 +46,8 @@ GENERATED_NAMES: dict[str, str] = {
     "metrics.parquet": "every run's metrics, one row per phase (batch, export)",
     "metrics.parquet.stamp": "the table's hash and its inputs' digest: redone when either differs (batch, export)",
     "junit.xml": "the usual place of check --junit",
+    "baseline.html": "the comparison with a baseline (check --baseline)",
+    "baseline.html.stamp": "the seals of the runs baseline.html compares: linked from the index while they hold",
     "assets": "files the pages share",
     "campaigns": "campaign's pages and tables (reports/campaigns/<case>)",
     "coverage": "coverage's pages and tables (reports/coverage/<case>)",

@@ -5,10 +5,14 @@ fields of the case changed since it was saved, the metrics with their deltas and
 each signal outside its band a figure as the Simulation Data Inspector draws a comparison: the
 baseline's tolerance band, its envelope and the new run above, their difference against the
 tolerance below, opening on the intervals that differ.
+
+The index links the page only while it compares the runs stored in OUT (:func:`stale_reason`): it records
+their seals beside it, in :data:`STAMP`.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +21,11 @@ from . import interactive
 from .plots import SCHEME_COLORS
 from .render import write_page
 
-__all__ = ["MAX_BASELINE_FIGURES", "render_baseline"]
+__all__ = ["MAX_BASELINE_FIGURES", "PAGE", "STAMP", "compared_runs", "render_baseline", "stale_reason"]
+
+#: the baseline page under OUT, and beside it the seals of the runs it compared (:func:`stale_reason`)
+PAGE = "baseline.html"
+STAMP = "baseline.html.stamp"
 
 MAX_BASELINE_FIGURES = 40  # per baseline page; the tables name every difference
 #: signals drawn on a log axis when their positive values span more than LOG_DECADES decades
@@ -172,10 +180,53 @@ def _scale_from(ts) -> float | None:
     return None if t is None or t.size < 2 else float(t[0]) + 1.0
 
 
+def _seal(out: Path, case: str, scheme: str) -> str | None:
+    """The seal (SHA-256) of the run record stored in ``OUT/<case>/<scheme>``, None when there is none."""
+    from ..storage.store import RECORD, read_json
+
+    rec = read_json(Path(out) / case / scheme / RECORD)
+    seal = rec.get("sha256") if isinstance(rec, dict) else None
+    return seal if isinstance(seal, str) else None
+
+
+def compared_runs(out: Path, comparisons: list) -> dict[str, str | None]:
+    """``{"case/scheme": seal}`` of every run the comparisons cover (:func:`_seal`; None: no run stored)."""
+    return {f"{c.case}/{sc.scheme}": _seal(out, c.case, sc.scheme) for c in comparisons for sc in c.schemes}
+
+
+def stale_reason(out: Path) -> str | None:
+    """Why ``OUT/baseline.html`` is not a comparison of the results now stored in OUT (None: it is).
+
+    The rule: the page belongs to the current results while every run it compared is still the run
+    stored in OUT, i.e. the seal of each run's record (``record.json``'s SHA-256, over the run's cache key
+    and the SHA-256 of its metrics and time series) equals the one :func:`render_baseline` kept in
+    :data:`STAMP` when it wrote the page.  A run made again with another result (a changed case, code or
+    library) has another seal; a run made again identically keeps it, and the page still says the
+    same.  Runs added since (other cases) leave it current: the page names the cases it compared.  A page
+    without a readable stamp (written by an ftcreport before stamps, or the stamp removed) cannot be tied
+    to any runs: stale.  A stale page is not deleted (it is the reader's file, e.g. a comparison kept to
+    read); the index names it, unlinked, and says to run ``check --baseline`` again.
+    """
+    from ..storage.store import read_json
+
+    out = Path(out)
+    stamp = read_json(out / STAMP)
+    runs = stamp.get("runs") if isinstance(stamp, dict) else None
+    if not isinstance(runs, dict):
+        return f"no {STAMP} beside it names the runs it compared"
+    for run, seal in runs.items():
+        case, _, scheme = str(run).partition("/")
+        now = _seal(out, case, scheme)
+        if now != seal:
+            return f"{case} / {scheme} " + ("is no longer stored" if now is None else "was made again since")
+    return None
+
+
 def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:
-    """Write ``OUT/baseline.html``: every case x scheme against the baseline in ``dest``."""
+    """Write ``OUT/baseline.html``: every case x scheme against the baseline in ``dest``, and beside it
+    :data:`STAMP`, the seals of the runs it compares (:func:`stale_reason`)."""
     from ..model.faults import wheel_names
-    from ..storage.store import load_timeseries, read_json
+    from ..storage.store import load_timeseries, read_json, write_atomic
     from ..studies.baseline import key_signals
 
     out = Path(out)
@@ -235,8 +286,9 @@ def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:
         cases.append(entry)
     n_diff = sum(len(s.drawn) for c in comparisons for s in c.schemes)
     index = read_json(Path(dest) / "baseline.json") or {}
-    return write_page(
-        out / "baseline.html",
+    (out / STAMP).unlink(missing_ok=True)  # no stamp of earlier runs beside a page being rewritten
+    page = write_page(
+        out / PAGE,
         "baseline.html",
         "",
         dest=str(dest),
@@ -249,3 +301,6 @@ def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:
         max_figures=MAX_BASELINE_FIGURES,
         plotly_inline=interactive.inline_plotly() if figures else None,
     )
+    stamp = {"dest": str(dest), "runs": compared_runs(out, comparisons)}
+    write_atomic(out / STAMP, json.dumps(stamp, indent=1, sort_keys=True).encode())
+    return page

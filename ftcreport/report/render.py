@@ -949,7 +949,11 @@ PAGE_KINDS = {"campaigns": "campaign", "coverage": "coverage", "fdi": "FDI", "ba
 def other_pages(out: Path) -> list[dict]:
     """Every HTML page under ``out`` that is not a case page or the index, found in the directory (a
     campaign's, a coverage map's, an FDI evaluation's, a baseline comparison's...): ``href``, ``kind``,
-    ``title`` (from its ``<title>``), ``modified``.  A campaign's per-sample pages are linked from its page."""
+    ``title`` (from its ``<title>``), ``modified``.  A campaign's per-sample pages are linked from its page.
+    ``OUT/baseline.html`` compares runs: when they are no longer the stored ones it is listed with ``stale``
+    (why) and not linked (:func:`ftcreport.report.baseline_page.stale_reason`)."""
+    from .baseline_page import PAGE, stale_reason
+
     out = Path(out)
     cases = {p.parent for p in out.glob("*/case.json")}
     pages = []
@@ -967,7 +971,12 @@ def other_pages(out: Path) -> list[dict]:
         title = title.removeprefix("ftcreport").lstrip(" :")
         kind = PAGE_KINDS.get(rel.parts[0], rel.parts[0] if len(rel.parts) > 1 else "page")
         stamp = _dt.datetime.fromtimestamp(page.stat().st_mtime, _dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
-        pages.append({"href": rel.as_posix(), "kind": kind, "title": title, "modified": stamp})
+        entry = {"href": rel.as_posix(), "kind": kind, "title": title, "modified": stamp}
+        if rel.as_posix() == PAGE:
+            entry["kind"] = "baseline"
+            if (why := stale_reason(out)) is not None:
+                entry["stale"] = why
+        pages.append(entry)
     return pages
 
 

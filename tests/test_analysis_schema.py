@@ -284,12 +284,12 @@ def test_each_limit_note_names_its_limit():
 
     notes = {
         "limits.sample_time_max": "",
-        "limits.k_v_max": "the case's own gain is unstable",
+        "limits.k_v_max": "the loop is unstable at the case's own gain",
         "velocity_loop.sample_time_max": "stable at every sample time up to 10 s",
-        "velocity_loop.k_v_max": "the case's own gain is unstable",
+        "velocity_loop.k_v_max": "the loop is unstable at the case's own gain",
     }
     assert _limit_notes(notes) == [
-        "k_v max and velocity loop alone, k_v max: the case's own gain is unstable",
+        "k_v max and velocity loop alone, k_v max: the loop is unstable at the case's own gain",
         "velocity loop alone, T_s max: stable at every sample time up to 10 s",
     ]
 
@@ -385,7 +385,37 @@ def test_the_terminal_states_the_margins_as_the_page_does():
     }
     text = "\n".join(text_summary(res))
     assert "T_s max / T_s 5 ms = 0.274" in text and "k_v max / k_v 3000 1/s = 0.186" in text, text
-    assert "a margin above 1" in text and "stable below 1x" not in text
+    assert "a factor above 1 is room the case keeps" in text and "stable below 1x" not in text
+
+
+def test_the_terminal_says_the_loop_is_unstable_and_names_margin_factors():
+    """'analyze' printed "k_v_max: the case's own gain is unstable" (a loop is unstable, not a gain) and
+    "margins: T_s max / T_s 5 ms = 0.274, ..." for the limit / case factors, beside the phases' gain and
+    phase margins (GM, PM) a few lines below.  The note says the loop is unstable at the case's own gain,
+    and the factors are "margin factors (limit / case value)"; the JSON keys are unchanged."""
+    from ftcreport.analysis.limits import largest_gain
+    from ftcreport.analysis.summary import text_summary
+
+    lim = largest_gain(lambda k: k - 559.0, 3000.0)  # stable below 559 1/s: the case's 3000 1/s is beyond it
+    assert lim["value"] == pytest.approx(559.0, rel=1e-3)
+    assert lim["note"] == "the loop is unstable at the case's own gain"
+    res = {
+        "case": "c",
+        "n_robots": 2,
+        "reference_kind": "circle",
+        "sampled": True,
+        "sample_time": 0.005,
+        "k_v": {"switching": 3000.0},
+        "limits": {"switching": {"sample_time_max": 1.37e-3, "k_v_max": lim["value"]}},
+        "limit_notes": {"switching": {"limits.k_v_max": lim["note"]}},
+    }
+    lines = text_summary(res)
+    text = "\n".join(lines)
+    assert "own gain is unstable" not in text and "margins:" not in text, text
+    assert "      k_v_max: the loop is unstable at the case's own gain" in lines, text
+    (factors,) = [ln for ln in lines if "T_s max / T_s 5 ms" in ln]
+    assert factors.startswith("      margin factors (limit / case value): T_s max / T_s 5 ms = 0.274, "), factors
+    assert "k_v max / k_v 3000 1/s = 0.186" in factors, factors
 
 
 def test_a_limit_the_simulation_contradicts_shows_no_green_margin():

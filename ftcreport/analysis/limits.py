@@ -6,8 +6,8 @@ Per scheme, with the healthy pattern and the case's gains (issue 37 item 3):
   (:mod:`.sampled`: the plant's ZOH, the case's measurement delay in samples, the command held) is
   stable, i.e. every T below it is stable: the first T at which the spectral radius reaches 1;
 * ``k_v_max``: the largest velocity gain at the case's sample time (the continuous loop when the case
-  is not sampled) such that every gain between the case's and it is stable; when the case's own gain is
-  unstable, the largest stable gain below it.
+  is not sampled) such that every gain between the case's and it is stable; when the loop is unstable at
+  the case's own gain, the largest stable gain below it.
 
 On a time-varying loop along a periodic reference (the sinusoid, the eight; the chained law on a
 circle), the sample-time limit of a loop the case samples is that of the loop over one period of
@@ -145,7 +145,7 @@ def largest_gain(margin_at: Callable[[float], float], k_v: float) -> dict:
     pair = _bracket(margin_at, k_v, k_lo)
     if pair is None:
         return {"value": None, "note": f"unstable at every gain down to {k_lo:g} 1/s"}
-    return {"value": boundary(margin_at, *pair), "note": "the case's own gain is unstable"}
+    return {"value": boundary(margin_at, *pair), "note": "the loop is unstable at the case's own gain"}
 
 
 def gain_family(blocks_at: Callable[[float], Blocks], k_v: float) -> Callable[[float], Blocks]:

@@ -72,7 +72,9 @@ def text_summary(res: dict) -> list[str]:
             f"{_limit(vl, notes, 'velocity_loop', 'sample_time_max', 's')}, "
             f"{_limit(vl, notes, 'velocity_loop', 'k_v_max', '1/s')})"
         )
-        factors = []  # limit / the case's setting, as on the case page (report.analysis_figs.limit_rows)
+        # limit / the case's setting, as on the case page (report.analysis_figs.limit_rows): "margin factors",
+        # not "margins", which the phases' lines below use for the gain and phase margins (GM, PM)
+        factors = []
         if res.get("sample_time") and lim.get("sample_time_max"):
             T = res["sample_time"]
             factors.append(f"T_s max / T_s {T * 1e3:g} ms = {lim['sample_time_max'] / T:.3g}")
@@ -80,8 +82,8 @@ def text_summary(res: dict) -> list[str]:
         if k_v and lim.get("k_v_max"):
             factors.append(f"k_v max / k_v {k_v:g} 1/s = {lim['k_v_max'] / k_v:.3g}")
         if factors:
-            lines.append(f"      margins: {', '.join(factors)} (a margin above 1 is kept; below 1 the case's own "
-                         "setting is beyond the limit)")  # fmt: skip
+            lines.append(f"      margin factors (limit / case value): {', '.join(factors)} (a factor above 1 is "
+                         "room the case keeps; below 1 the case's own setting is beyond the limit)")  # fmt: skip
         for key, note in res.get("limit_notes", {}).get(scheme, {}).items():
             if key == "caveat":
                 lines.append(f"      every limit: {note}")

@@ -401,6 +401,35 @@ def _render_hand(out: Path, rows: list[dict]) -> str:
     return render_campaign(out, read_table(out / "results.csv")).read_text()
 
 
+def test_the_campaign_page_says_which_band_recovered_means_where_it_uses_the_word(tmp_path):
+    """'Recovered' has two definitions: on a campaign page a run settles in the case's recovery_band (0.01 m),
+    on a coverage page it meets the success criteria (a final error within 0.05 m).  The campaign page defined
+    its own in one paragraph, but the rates table's 'never recovered', the paired comparisons and the recovery
+    figure used the word bare.  Each now names the band and where it comes from, and the definition says what a
+    coverage page means by the word instead.  The numbers are unchanged."""
+    import re
+
+    rows = [_row(i, s, True, "1r", 0.1, 1.0 + i) for i in range(3) for s in ("nominal", "switching", "oracle")]
+    records: dict = {}
+    for r in rows:
+        records.setdefault(r["sample"], {"sample": r["sample"], "rows": []})["rows"].append(r)
+    write_table(tmp_path, records.values())
+    base = {"recovery_band": 0.01, "campaign": {"success": {"position_error_final": {"min": None, "max": 0.05}}}}
+    (tmp_path / "campaign.json").write_text(json.dumps({"case": "hand", "seed": 0, "base": base}))
+    html = render_campaign(tmp_path, read_table(tmp_path / "results.csv")).read_text()
+    text = lambda h: re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", h))  # noqa: E731
+    head = html.split('id="rates"', 1)[1].split("</thead>", 1)[0]
+    (th,) = [c for c in re.findall(r"<th[^>]*>.*?</th>", head, re.S) if "never recovered" in c]
+    assert "0.01 m" in text(th) and "recovery_band" in th, th  # the band on the column, its source in its title
+    definition = text(html.split('id="recovery-definition"', 1)[1].split("</p>", 1)[0])
+    assert "recovery_band" in definition and "0.01 m" in definition, definition
+    assert "coverage page" in definition and "success" in definition, definition
+    paired = text(html.split("Is the difference real?", 1)[1].split("</p>", 1)[0])
+    assert "both recovered into the 0.01 m band" in paired, paired
+    fig = text(html.split('id="fig-recovery"', 1)[1].split("</figcaption>", 1)[0])
+    assert "recovered into the 0.01 m recovery band" in fig, fig
+
+
 def test_a_comparison_on_too_few_pairs_is_shown_as_not_judged(tmp_path):
     """newuser12 W2: a matrix cell on 2 pairs was coloured as a win.  On 3 pairs whose recovery differences are
     all -1 s (adaptive recovers 1 s sooner; the old rule: a CI [-1, -1], 'adaptive better'), the cell now says

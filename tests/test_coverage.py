@@ -218,6 +218,33 @@ def test_the_header_lists_only_the_kinds_run(tmp_path):
     assert "pairs" not in head
 
 
+def test_the_coverage_page_says_which_band_recovered_means_where_it_uses_the_word(tmp_path):
+    """'Recovered' has two definitions: on a coverage page a run meets the success criteria (a final error within
+    0.05 m), on a campaign page it settles in the case's tighter recovery_band (0.01 m).  The coverage page's
+    columns 'onsets recovered' and 'recovered although uncompensable' and its maps used the word bare, and its
+    definition did not say where the criteria come from.  The headers carry the criteria and their source, the
+    definition names the source and what a campaign page means by the word instead.  Numbers unchanged."""
+    import html as markup
+    import re
+
+    text = lambda h: markup.unescape(re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", h)))  # noqa: E731
+    out = _coverage_dir(tmp_path / "d", ["loss"])  # no [campaign] success in the case: the default criteria
+    html = render_coverage(out).read_text()
+    heads = re.findall(r"<th[^>]*>.*?</th>", html, re.S)
+    for word in ("onsets recovered", "recovered although uncompensable"):
+        (th,) = [h for h in heads if word in h]
+        assert "position_error_final" in th and "0.05" in th and "the default" in th, th
+    definition = text(html.split('id="recovery-definition"', 1)[1].split("</p>", 1)[0])
+    assert "the default (the case has no [campaign] success)" in definition, definition
+    assert "campaign page" in definition and "recovery_band, 0.01 m" in definition, definition
+    meta = json.loads((out / "coverage.json").read_text())
+    base = {"recovery_band": 0.02, "campaign": {"success": {"position_error_final": {"min": None, "max": 0.1}}}}
+    (out / "coverage.json").write_text(json.dumps(meta | {"base": base}))
+    html = render_coverage(out).read_text()
+    definition = text(html.split('id="recovery-definition"', 1)[1].split("</p>", 1)[0])
+    assert "the case's [campaign] success" in definition and "recovery_band, 0.02 m" in definition, definition
+
+
 def test_coverage_links_only_to_an_index_that_exists(tmp_path):
     """Issue 35 item 7: 'all cases' pointed at ../../index.html, broken under a custom --out."""
     assert "../../index.html" not in render_coverage(_coverage_dir(tmp_path / "x", ["loss"])).read_text()

@@ -387,6 +387,8 @@ def render_campaign(out: Path, rows: list[dict], worst: int = WORST_K) -> Path:
     for e in failing:
         page = out / PAGES / sample_name(e["sample"]) / "index.html"
         e["href"] = page.relative_to(out).as_posix() if page.exists() else None
+    band = (meta.get("base") or {}).get("recovery_band")
+    into_band = f"into the {band:g} m recovery band" if isinstance(band, int | float) else "into the recovery band"
     figures = []
     if rows:
         figures = [
@@ -402,8 +404,8 @@ def render_campaign(out: Path, rows: list[dict], worst: int = WORST_K) -> Path:
             figure(
                 "recovery",
                 "Empirical CDF of the recovery time (defined under the rates table) over the runs that "
-                "completed: a scheme's line ends at the fraction of them that recovered (legend: recovered / "
-                "completed runs, and the runs that stopped early, which are left out)."
+                f"completed: a scheme's line ends at the fraction of them that recovered {into_band} (legend: "
+                "recovered / completed runs, and the runs that stopped early, which are left out)."
                 + coincide_note(summary, rows, "recovery_times", False, "recovery times"),
                 svg=_ecdf_svg(summary, "recovery_times", "recovery time max [s]", False, "recovered / completed"),
             ),
@@ -422,5 +424,5 @@ def render_campaign(out: Path, rows: list[dict], worst: int = WORST_K) -> Path:
         schemes=list(summary["schemes"]),
         out_dir=str(out),
         worst=worst,
-        band=(meta.get("base") or {}).get("recovery_band"),
+        band=band,
     )

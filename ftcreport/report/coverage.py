@@ -112,10 +112,30 @@ def map_tables(grids: dict, key: str, xlabels: list[str]) -> list[dict]:
     return tables
 
 
+def criteria_text(criteria: dict) -> str:
+    """The success criteria in one line: 'position_error_final <= 0.05' (what "recovered" means on the page)."""
+    bits = []
+    for m, b in criteria.items():
+        if (b or {}).get("min") is not None:
+            bits.append(f"{m} \u2265 {b['min']:g}")
+        if (b or {}).get("max") is not None:
+            bits.append(f"{m} \u2264 {b['max']:g}")
+    return ", ".join(bits) or "none"
+
+
 def render_coverage(out: Path) -> Path:
-    """Write ``index.html`` of a coverage directory from its ``summary.json`` and ``coverage.json``."""
+    """Write ``index.html`` of a coverage directory from its ``summary.json`` and ``coverage.json``.
+
+    "Recovered" here is the case's success criteria (its ``[campaign] success``, else
+    :data:`~ftcreport.studies.coverage.DEFAULT_CRITERIA`); a campaign page's "never recovered" is the case's
+    ``recovery_band`` instead.  The page names the criteria, where they come from and the other meaning
+    wherever it uses the word (``criteria_words``, ``criteria_from``, ``band``)."""
     out = Path(out)
     meta = json.loads((out / "coverage.json").read_text())
+    base = meta.get("base") or {}
+    stated = (base.get("campaign") or {}).get("success")
+    criteria = stated or DEFAULT_CRITERIA
+    words = criteria_text(criteria)
     summary = json.loads((out / "summary.json").read_text())
     grids = coverage_grids(summary, int(meta["n"]))
     maps = []
@@ -124,7 +144,8 @@ def render_coverage(out: Path) -> Path:
             {
                 "id": "single",
                 "caption": "Single-wheel faults (wheels x fault kinds): the rule's prediction (X uncompensable) beside "
-                "the fraction of onset times each scheme recovered from (green 1, red 0; hover a cell: its fault).",
+                f"the fraction of onset times each scheme recovered from (met {words}; green 1, red 0; hover a "
+                "cell: its fault).",
                 "tables": map_tables(grids, "single", grids["columns"]),
             }
         )
@@ -132,13 +153,13 @@ def render_coverage(out: Path) -> Path:
         maps.append(
             {
                 "id": "pairs",
-                "caption": "Pairs of wheel losses (wheel x wheel): prediction and fraction of onsets recovered.",
+                "caption": "Pairs of wheel losses (wheel x wheel): prediction and fraction of onsets recovered "
+                f"(met {words}).",
                 "tables": map_tables(grids, "pairs", grids["wheels"]),
             }
         )
-    base = meta.get("base") or {}
-    criteria = ((base.get("campaign") or {}).get("success")) or DEFAULT_CRITERIA
-    bound = recovery_bound(criteria, base.get("recovery_band", 0.01))
+    band = base.get("recovery_band", 0.01)
+    bound = recovery_bound(criteria, band)
     return write_page(
         out / "index.html",
         "coverage.html",
@@ -148,5 +169,8 @@ def render_coverage(out: Path) -> Path:
         summary=summary,
         maps=maps,
         criteria=criteria,
+        criteria_words=words,
+        criteria_from="the case's [campaign] success" if stated else "the default (the case has no [campaign] success)",
+        band=band,
         bound=bound,
     )

@@ -596,3 +596,13 @@ def test_a_metric_from_the_first_fault_on_says_when_the_start_up_has_not_settled
     assert unsettled_at_first_fault(list(runs(0.008).values()), 15.0, 0.01) is None
     assert unsettled_at_first_fault(list(late.values()), 0.0, 0.01) is None  # at 0 s: the note above says it
     assert unsettled_at_first_fault(list(late.values()), None, 0.01) is None
+
+
+def test_page_numbers_between_1000_and_a_million_are_written_out():
+    """The case page's analysis table read k_v "3e+03" (three significant digits in exponent form); a number from
+    1,000 to a million reads as the whole number, others keep three significant digits."""
+    from ftcreport.report.render import _fmt
+
+    assert [_fmt(v) for v in (3000.0, 12345.6, -2500.0, 999.94, 2.5, 0.000123, 1.5e7, 559)] == [
+        "3000", "12346", "-2500", "1000", "2.5", "0.000123", "1.5e+07", "559",
+    ]  # fmt: skip

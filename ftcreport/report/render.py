@@ -65,7 +65,9 @@ def _fmt(x) -> str:
     if isinstance(x, float) and not math.isfinite(x):
         return "-"
     if isinstance(x, int | float):
-        return f"{x:.3g}"
+        text = f"{x:.3g}"
+        # 1,000 up to a million as the whole number: "3e+03" read as a code, not as a gain of 3000
+        return f"{x:.0f}" if "e+" in text and abs(x) < 999_999.5 else text
     return str(x)
 
 

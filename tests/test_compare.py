@@ -602,3 +602,29 @@ def test_peaks_after_the_faults_that_are_the_start_up_s_residual_are_said_to_be(
     assert "start-up" not in text
     tiny = runs((5e-5, 5e-5, 5e-5), (5e-5, 5e-5, 5e-5))  # below the metric's resolution (1e-4 m): a tie anyway
     assert startup_at_first_fault(tiny, 0.01) is None
+
+
+def test_the_scoreboard_s_median_regret_leaves_out_an_oracle_below_the_floor():
+    """Session 13's audit: five_link_cascade's index read a median regret "1 (1 of 1)" on the final error, the
+    recovery time and the peak torque, where the oracle's value (1.46e-8 m, 0 s, 0.0619 N m) is below the
+    metric's floor: the case page's "1 (tie)" (both under the floor) entered the median, though the index says
+    it covers only cases whose oracle value is above the floor.  Such a case is no ratio: "0 of 1"."""
+    from ftcreport.evaluation.compare import scoreboard
+
+    def metrics(final, oracle_final):
+        return {
+            "nominal": {"status": "ok", "position_error_final": final},
+            "oracle": {"status": "ok", "position_error_final": oracle_final},
+        }
+
+    under = compare_case("a", metrics(2.28e-5, 1.46e-8), {"ok"}, [])
+    over = compare_case("b", metrics(0.02, 0.01), {"ok"}, [])
+    board = scoreboard([under], ["nominal", "oracle"])
+    assert board.median_regret["nominal"]["position_error_final"] is None
+    assert board.regret_counts["nominal"]["position_error_final"] == (0, 1)
+    board = scoreboard([under, over], ["nominal", "oracle"])
+    assert board.median_regret["nominal"]["position_error_final"] == pytest.approx(2.0)
+    assert board.regret_counts["nominal"]["position_error_final"] == (1, 2)
+    tie_above = compare_case("c", metrics(0.0101, 0.01), {"ok"}, [])  # a tie above the floor is a ratio: 1
+    board = scoreboard([tie_above], ["nominal", "oracle"])
+    assert board.median_regret["nominal"]["position_error_final"] == 1.0

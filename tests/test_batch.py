@@ -546,3 +546,75 @@ def test_a_directory_s_subdirectories_are_named_not_silently_skipped(tmp_path):
     notes.clear()
     assert discover([tmp_path / "motors" / "deep"], on_note=notes.append) == [tmp_path / "motors/deep/d.toml"]
     assert notes == []  # nothing below it
+
+
+_SMALL = """description = "small"
+[robots]
+n = 2
+d = 1.0
+[reference]
+kind = "circle"
+radius = 5.0
+speed = 0.5
+[initial]
+x = 0.2
+[[faults]]
+time = 1.0
+wheel = "1l"
+[kinematic]
+kind = "two_link"
+k1 = 10.0
+k2 = 2.0
+k3 = 0.5
+[schemes]
+run = ["nominal", "oracle"]
+[schemes.nominal]
+k_v = 5.0
+[schemes.oracle]
+k_v = 5.0
+[simulation]
+dt = 0.01
+duration = 2.0
+log_every = 5
+[thresholds.oracle]
+position_error_final = { max = 0.5 }
+"""
+
+
+def test_the_index_leaves_out_the_old_runs_of_a_case_whose_file_the_last_batch_rejected(tmp_path):
+    """Attack 13 break 04: after a batch of two cases, one case file made invalid (k_v = -5) and batched
+    again (exit 2), the index still read "2 case(s), 4 run(s): 4 completed ...; thresholds: 2 hold", with
+    the rejected case's old "ok 1/1 thresholds" badge and a winners row.  Its stored runs are of an earlier
+    version of the file: the headline, thresholds and winners leave them out, its rows say so, and they
+    stay stored and reachable from its page."""
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    for name in ("alpha", "beta"):
+        (cases / f"{name}.toml").write_text(_SMALL)
+    out = tmp_path / "rep"
+    args = ["batch", str(cases), "--out", str(out), "--jobs", "1", "-q"]
+    assert runner.invoke(app, args).exit_code == 0
+    (cases / "alpha.toml").write_text(_SMALL.replace("k_v = 5.0", "k_v = -5.0"))
+    res = runner.invoke(app, args)
+    assert res.exit_code == 2 and "alpha.toml" in res.output, res.output
+    html = (out / "index.html").read_text()
+    counts = re.sub(
+        r"\s+",
+        " ",
+        re.sub(r"<[^>]+>", "", html[html.index('id="counts"') : html.index("</p>", html.index('id="counts"'))]),
+    )
+    assert "2 run(s): 2 completed" in counts and "thresholds: 1 hold" in counts, counts
+    assert "1 case file(s) rejected by the last batch" in counts and "2 stored run(s) of earlier" in counts, counts
+    stale = "case file rejected by the last batch that read it: its stored runs are from an earlier version of the file"
+    winners = html[html.index('id="cases"') : html.index("</table>", html.index('id="cases"'))]
+    alpha = next(r for r in winners.split("<tr>") if 'href="alpha/index.html"' in r)
+    assert stale in alpha and "nominal" not in alpha and "oracle" not in alpha, alpha
+    matrix = html[html.index('id="matrix"') :]
+    row = next(r for r in matrix.split("<tr>") if 'href="alpha/index.html"' in r)
+    assert "thresholds" not in row and stale in row and row.count(">stale<") == 2, row
+    board = html[html.index('id="scoreboard"') : html.index("</table>", html.index('id="scoreboard"'))]
+    assert "<td>1</td>" in board and "<td>2</td>" not in board  # runs per scheme: beta's only
+    # never deleted: the old runs are stored and linked from the case's page
+    assert (out / "alpha" / "oracle" / "metrics.json").is_file()
+    page = (out / "alpha" / "index.html").read_text()
+    assert stale in page and 'href="oracle/metrics.json"' in page and 'href="nominal/timeseries.npz"' in page

@@ -236,10 +236,39 @@ def _after_na(m: dict) -> str:
     return compare.NOT_APPLICABLE if compare.fault_free(m) else ""
 
 
+def _run_files(out: Path, name: str, scheme: str) -> list[str]:
+    """The files of a stored run, relative to its case page (``<scheme>/<file>``), by name."""
+    folder = out / name / scheme
+    return sorted(f"{scheme}/{f.name}" for f in folder.iterdir() if f.is_file()) if folder.is_dir() else []
+
+
 def _record(out: Path, name: str) -> dict | None:
     """The case record, or None when missing or not a record (``report`` names it: store.unrecorded_cases)."""
     rec = read_json(out / name / "case.json")
     return rec if isinstance(rec, dict) else None
+
+
+#: What the index and the case page say of a case whose record is a rejection (``case.json``'s status
+#: ``error``) while runs of an earlier version of its file are still stored beside it (:func:`stale_runs`).
+STALE_RUNS = (
+    "case file rejected by the last batch that read it: its stored runs are from an earlier version of the file"
+)
+
+
+def stale_runs(out: Path, name: str, rec: dict) -> dict[str, dict]:
+    """The runs stored under a case whose current file was rejected: ``{scheme: metrics}``, or ``{}``.
+
+    The rule: a batch that rejects a case file overwrites the case's record (``case.json``) with the
+    rejection (status ``error``: studies.batch._record_error) and leaves its stored runs alone (results are
+    never deleted).  So a record whose status is ``error`` means the last batch that read the file rejected
+    it, and any runs stored beside that record were made from an earlier version of the file: they are
+    *stale*.  The index leaves them out of its headline counts, thresholds, claims, scoreboard and winners
+    and lists them marked :data:`STALE_RUNS`; the case page links their files.  A later batch that accepts
+    the file writes a valid record again, and the runs count again (re-run when the file changed: their key).
+    """
+    if rec.get("status") != "error":
+        return {}
+    return stored_metrics(out, name)
 
 
 def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases") -> Path | None:
@@ -253,6 +282,7 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
         return None
     page = out / name / "index.html"
     if rec.get("status") == "error" or not (out / name / "case.toml").exists():
+        old = stale_runs(out, name, rec)
         return write_page(
             page,
             "case.html",
@@ -264,6 +294,9 @@ def render_case(out: Path, name: str, root: str = "../", nav: str = "all cases")
             key=rec.get("key", "-"),
             simulated=rec.get("time", "-"),
             case_text=rec.get("source_text", ""),
+            stale_runs={s: m | {"files": _run_files(out, name, s)} for s, m in old.items()},
+            stale_note=STALE_RUNS,
+            stale_copy=(out / name / "case.toml").is_file(),
         )
     from ..storage.store import load_stored_case
 
@@ -835,7 +868,11 @@ def _script_json(obj) -> str:
 
 def render_index(out: Path) -> Path:
     """Render ``<out>/index.html`` from every case record under ``out``, with links to every other
-    page there (campaign, coverage, FDI, baseline pages: :func:`other_pages`)."""
+    page there (campaign, coverage, FDI, baseline pages: :func:`other_pages`).
+
+    A case whose file the last batch that read it rejected keeps its row, but the runs stored beside it
+    are of an earlier version of that file (:func:`stale_runs`): they are listed marked stale, and left out
+    of the headline counts, the thresholds, the claims, the scoreboard and the winners."""
     out = Path(out)
     cases = []
     verdicts = []
@@ -844,6 +881,7 @@ def render_index(out: Path) -> Path:
     n_runs = n_ok = n_pass = n_fail = n_expected_stop = n_unexpected = 0
     n_req_pass = n_req_fail = n_req_unjudged = 0  # requirement windows
     n_unjudged = claims_unjudged = 0  # a shortened run's gate (`run --duration`): its case page does not judge it
+    n_rejected = n_stale = 0  # case files the last batch rejected; runs stored of their earlier versions
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
         rec = _record(out, name)
@@ -856,6 +894,15 @@ def render_index(out: Path) -> Path:
             "error": rec.get("error") if rec.get("status") == "error" else None,
             "runs": {},
         }
+        if entry["error"] is not None:  # its runs, if any, are of an earlier version of the file: not counted
+            old = stale_runs(out, name, rec)
+            entry["stale_runs"] = {
+                s: m | {"after_max": _after_max(m), "after_na": _after_na(m)} for s, m in old.items()
+            }
+            n_rejected += 1
+            n_stale += len(old)
+            cases.append(entry | {"not_run": {}})
+            continue
         metrics = stored_metrics(out, name)
         n_runs += len(metrics)
         n_ok += sum(m.get("status") == "ok" for m in metrics.values())
@@ -924,7 +971,9 @@ def render_index(out: Path) -> Path:
         not_applicable=compare.NOT_APPLICABLE,
         specs=compare.HEADLINE,
         fmt_ratio=compare.fmt_ratio,
-        schemes=ordered_schemes(s for c in cases for s in (*c["runs"], *c.get("not_run", {}))),
+        schemes=ordered_schemes(
+            s for c in cases for s in (*c["runs"], *c.get("not_run", {}), *c.get("stale_runs", {}))
+        ),
         n_runs=n_runs,
         n_ok=n_ok,
         n_expected_stop=n_expected_stop,
@@ -936,6 +985,9 @@ def render_index(out: Path) -> Path:
         n_req_unjudged=n_req_unjudged,
         n_unjudged=n_unjudged,
         claims_unjudged=claims_unjudged,
+        n_rejected=n_rejected,
+        n_stale=n_stale,
+        stale_note=STALE_RUNS,
         plugins=plugins,
         claims=claims,
         claim_outcomes=outcomes,

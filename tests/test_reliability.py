@@ -208,6 +208,39 @@ def test_os_errors_while_writing_are_one_line(tmp_path, monkeypatch, err, text):
     _one_error_line(res, 2, "x.json", text)
 
 
+def test_an_os_error_of_an_atomic_write_names_the_file_written(tmp_path, monkeypatch):
+    """A write, flush or sync of the temporary file, or its rename, fails: the error names the target."""
+    import ftcreport.infra.atomic as atomic
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(atomic.os, "fsync", full)
+    with pytest.raises(OSError) as got:
+        atomic.replace_file(tmp_path / "d" / "x.json", b"{}")
+    assert got.value.errno == errno.ENOSPC and got.value.filename == str(tmp_path / "d" / "x.json")
+    assert list((tmp_path / "d").iterdir()) == []  # the temporary file is gone
+
+
+def test_a_full_disk_under_cases_new_names_the_file(tmp_path, monkeypatch):
+    """``cases new`` writes its file through a descriptor: a full disk's error named no file ("<output>")."""
+    real_fdopen = os.fdopen
+
+    def full(fd, *a, **k):
+        fh = real_fdopen(fd, *a, **k)
+
+        def write(text: str) -> int:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        fh.write = write
+        return fh
+
+    monkeypatch.setattr(os, "fdopen", full)
+    res = runner.invoke(app, ["cases", "new", "mine", "--dir", str(tmp_path / "d")])
+    _one_error_line(res, 2, f"{tmp_path / 'd' / 'mine.toml'}: no space left on the device")
+    assert not (tmp_path / "d" / "mine.toml").exists()
+
+
 def test_name_too_long_out_directory_is_one_line(tmp_path):
     p = _case(tmp_path)
     res = runner.invoke(app, ["run", str(p), "--out", str(tmp_path / ("o" * 300)), "--duration", "0.2"])

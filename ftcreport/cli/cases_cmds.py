@@ -78,8 +78,10 @@ def cases_new(
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(TEMPLATE)
-    except BaseException:
+    except BaseException as exc:
         path.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.filename is None:  # a write to the descriptor (ENOSPC) names no file
+            exc.filename = str(path)
         raise
     load_case(path)  # the template itself is valid
     typer.echo(f"wrote {path}")

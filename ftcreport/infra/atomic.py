@@ -22,22 +22,36 @@ def replace_file(path: Path, data: bytes, before_rename: Callable[[str], None] |
     """Write bytes to ``path`` atomically (temporary file + rename), creating its directory.
 
     ``before_rename(tmp)``: called with the temporary file's name once it holds the data, before the rename.
+
+    An OS error of the write (through the file's descriptor: a full disk raises ENOSPC with no file name) or
+    of the rename (which names the temporary file) is raised naming ``path``, the file being written.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)
     try:
-        os.fchmod(fd, 0o666 & ~_umask())  # what open() would give, not mkstemp's 0600
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        if before_rename is not None:
-            before_rename(tmp)
-        os.replace(tmp, path)
+        try:
+            os.fchmod(fd, 0o666 & ~_umask())  # what open() would give, not mkstemp's 0600
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            if before_rename is not None:
+                before_rename(tmp)
+            os.replace(tmp, path)
+        except OSError as exc:
+            _name(exc, path, tmp)
+            raise
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _name(exc: OSError, path: Path, tmp: str) -> None:
+    """Make ``exc`` name ``path`` when it names no file or only the temporary one (in place: its type, errno
+    and traceback stay).  An error naming another file (a guard's, say) keeps its name."""
+    if exc.filename is None or exc.filename == tmp:
+        exc.filename, exc.filename2 = str(path), None
 
 
 def _umask() -> int:

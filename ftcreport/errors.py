@@ -37,6 +37,7 @@ __all__ = [
     "reference_speed_reason",
     "step_growth_reason",
     "step_words",
+    "stored_note",
     "trial_stage_reason",
     "two_link_reason",
     "vanishes_reason",
@@ -154,7 +155,8 @@ def printable(text: object, keep: str = "") -> str:
 
 # --------------------------------------------------------------------------- interrupts
 def note_stored(exc: BaseException, count: int, noun: str = "run") -> None:
-    """Tell the CLI's interrupt message how many finished ``noun``s the command stored before ``exc``.
+    """Tell the CLI's interrupt message (or an OS error's line: :func:`stored_note`) how many finished
+    ``noun``s the command stored before ``exc``.
 
     The innermost note wins (the code that stored them knows best); see :func:`interrupted_message`.
     """
@@ -175,8 +177,23 @@ def interrupted_message(exc: BaseException) -> str:
     count, noun = stored
     if count == 0:
         return f"{how} before any {noun} finished; nothing was stored"
+    return f"{how}; {_stored_words(count, noun)}"
+
+
+def _stored_words(count: int, noun: str) -> str:
     them = f"1 finished {noun} is" if count == 1 else f"{count} finished {noun}s are"
-    return f"{how}; {them} stored, re-run the same command to resume"
+    return f"{them} stored, re-run the same command to resume"
+
+
+def stored_note(exc: BaseException) -> str:
+    """What a command that failed on ``exc`` (an OS error: a full disk...) had stored before it, as the end of
+    its one line (``"; 2 finished runs are stored, re-run the same command to resume"``), or ``""`` when the
+    command noted nothing (:func:`note_stored`)."""
+    stored = getattr(exc, "ftc_stored", None)
+    if stored is None:
+        return ""
+    count, noun = stored
+    return f"; no {noun} was stored before it" if count == 0 else f"; {_stored_words(count, noun)}"
 
 
 # --------------------------------------------------------------------------- reasons

@@ -208,6 +208,29 @@ def test_os_errors_while_writing_are_one_line(tmp_path, monkeypatch, err, text):
     _one_error_line(res, 2, "x.json", text)
 
 
+def test_a_full_disk_during_a_batch_names_the_file_and_the_runs_stored(tmp_path, monkeypatch):
+    """Attack 13 break 03: a batch that filled its disk said "ftcreport: error: <output>: no space left on
+    the device": the write through a file descriptor raised ENOSPC without a file name.  The line names
+    the file being written and says how many runs the batch stored before it."""
+    import ftcreport.infra.atomic as atomic
+
+    out = tmp_path / "o"
+    real_fsync = os.fsync
+
+    def full_once_stored(fd: int) -> None:  # the disk fills after the run is stored (in the worker)
+        if (out / "c" / "nominal" / "record.json").exists():
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # no file name: a write to a descriptor
+        real_fsync(fd)
+
+    monkeypatch.setattr(atomic.os, "fsync", full_once_stored)
+    p = _case(tmp_path)
+    res = runner.invoke(app, ["batch", str(p), "--out", str(out), "--duration", "0.2", "--jobs", "1", "-q"])
+    stored = len(list(out.glob("c/*/record.json")))  # every configured scheme's run, stored by the workers
+    assert stored > 1
+    line = _one_error_line(res, 2, "no space left on the device", f"; {stored} finished runs are stored")
+    assert "<output>" not in line and f"{out / 'c' / 'manifest.json'}: no space" in line, line
+
+
 def test_an_os_error_of_an_atomic_write_names_the_file_written(tmp_path, monkeypatch):
     """A write, flush or sync of the temporary file, or its rename, fails: the error names the target."""
     import ftcreport.infra.atomic as atomic

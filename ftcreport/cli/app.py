@@ -140,7 +140,9 @@ def _classify(exc: BaseException) -> tuple[str, int]:
             errno.EACCES: "permission denied",
             errno.EPERM: "operation not permitted",
         }.get(exc.errno, exc.strerror or type(exc).__name__)
-        return f"{where}: {why}", 2
+        from ..errors import stored_note
+
+        return f"{where}: {why}{stored_note(exc)}", 2
     if isinstance(exc, MemoryError):
         return "<run>: out of memory (see the limits in cases/README.md)", 1
     if isinstance(exc, ArithmeticError | FloatingPointError):

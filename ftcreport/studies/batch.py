@@ -609,7 +609,7 @@ def run_batch(
     try:
         with output_lock(out, "batch"):
             return _run_batch(paths, out, jobs, force, duration, show_progress, render, res)
-    except KeyboardInterrupt as exc:  # the CLI's interrupt message says how many runs are stored
+    except (KeyboardInterrupt, OSError) as exc:  # the CLI's message (a full disk's too) says how many runs are stored
         note_stored(exc, res.stored)
         raise
 

@@ -618,3 +618,36 @@ def test_the_index_leaves_out_the_old_runs_of_a_case_whose_file_the_last_batch_r
     assert (out / "alpha" / "oracle" / "metrics.json").is_file()
     page = (out / "alpha" / "index.html").read_text()
     assert stale in page and 'href="oracle/metrics.json"' in page and 'href="nominal/timeseries.npz"' in page
+
+
+def test_a_rejected_case_file_marks_the_runs_it_stored_under_its_name_field_stale(tmp_path):
+    """A case file with a ``name`` field stores its runs under that name; rejected, its record goes under the
+    file's stem: the runs under its name stayed counted on the index as current.  The rejection is recorded
+    under every case stored from that file, so those runs are stale too."""
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    (cases / "alpha.toml").write_text('name = "foo"\n' + _SMALL)
+    (cases / "beta.toml").write_text(_SMALL)
+    out = tmp_path / "rep"
+    args = ["batch", str(cases), "--out", str(out), "--jobs", "1", "-q"]
+    assert runner.invoke(app, args).exit_code == 0
+    assert (out / "foo" / "oracle" / "metrics.json").is_file()
+    (cases / "alpha.toml").write_text('name = "foo"\n' + _SMALL.replace("k_v = 5.0", "k_v = -5.0"))
+    assert runner.invoke(app, args).exit_code == 2
+    for name in ("alpha", "foo"):
+        rec = json.loads((out / name / "case.json").read_text())
+        assert rec["status"] == "error" and "alpha.toml" in rec["error"], (name, rec)
+    html = (out / "index.html").read_text()
+    counts = re.sub(
+        r"\s+",
+        " ",
+        re.sub(r"<[^>]+>", "", html[html.index('id="counts"') : html.index("</p>", html.index('id="counts"'))]),
+    )
+    assert "2 run(s): 2 completed" in counts and "thresholds: 1 hold" in counts, counts
+    assert "1 case file(s) rejected" in counts and "(2 stored run(s)" in counts, counts  # one file, two records
+    assert (out / "foo" / "oracle" / "metrics.json").is_file()  # kept: linked from foo's page
+    assert 'href="oracle/metrics.json"' in (out / "foo" / "index.html").read_text()
+    # accepted again: its runs are current again (re-run only if the file changed)
+    (cases / "alpha.toml").write_text('name = "foo"\n' + _SMALL)
+    assert runner.invoke(app, args).exit_code == 0
+    assert json.loads((out / "foo" / "case.json").read_text())["status"] == "ok"

@@ -259,7 +259,8 @@ def stale_runs(out: Path, name: str, rec: dict) -> dict[str, dict]:
     """The runs stored under a case whose current file was rejected: ``{scheme: metrics}``, or ``{}``.
 
     The rule: a batch that rejects a case file overwrites the case's record (``case.json``) with the
-    rejection (status ``error``: studies.batch._record_error) and leaves its stored runs alone (results are
+    rejection (status ``error``: studies.batch._record_error; under the file's stem and under every case
+    stored from that file, as its ``name`` field named it) and leaves its stored runs alone (results are
     never deleted).  So a record whose status is ``error`` means the last batch that read the file rejected
     it, and any runs stored beside that record were made from an earlier version of the file: they are
     *stale*.  The index leaves them out of its headline counts, thresholds, claims, scoreboard and winners
@@ -881,7 +882,8 @@ def render_index(out: Path) -> Path:
     n_runs = n_ok = n_pass = n_fail = n_expected_stop = n_unexpected = 0
     n_req_pass = n_req_fail = n_req_unjudged = 0  # requirement windows
     n_unjudged = claims_unjudged = 0  # a shortened run's gate (`run --duration`): its case page does not judge it
-    n_rejected = n_stale = 0  # case files the last batch rejected; runs stored of their earlier versions
+    rejected: set[str] = set()  # case files the last batch that read them rejected (their records' source)
+    n_stale = 0  # runs stored of their earlier versions
     for rec_path in sorted(out.glob("*/case.json")):
         name = rec_path.parent.name
         rec = _record(out, name)
@@ -899,7 +901,7 @@ def render_index(out: Path) -> Path:
             entry["stale_runs"] = {
                 s: m | {"after_max": _after_max(m), "after_na": _after_na(m)} for s, m in old.items()
             }
-            n_rejected += 1
+            rejected.add(str(rec.get("source", name)))
             n_stale += len(old)
             cases.append(entry | {"not_run": {}})
             continue
@@ -985,7 +987,7 @@ def render_index(out: Path) -> Path:
         n_req_unjudged=n_req_unjudged,
         n_unjudged=n_unjudged,
         claims_unjudged=claims_unjudged,
-        n_rejected=n_rejected,
+        n_rejected=len(rejected),
         n_stale=n_stale,
         stale_note=STALE_RUNS,
         plugins=plugins,

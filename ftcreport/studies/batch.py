@@ -488,9 +488,42 @@ def _record_error(out: Path, path: Path, error: str, avoid: Iterable[str] = ()) 
     text = raw.decode("utf-8", errors="replace")
     record = {"source": str(path), "status": "error", "error": error, "source_text": text}
     try:
-        _record(out, error_record_name(path, avoid), record)
+        written = error_record_name(path, avoid)
+        _record(out, written, record)
     except OutputError:  # its stem is a folder linked out of --out: the record goes under a hash of the path
-        _record(out, error_record_name(path, (*avoid, Path(path).stem.lower())), record)
+        written = error_record_name(path, (*avoid, Path(path).stem.lower()))
+        _record(out, written, record)
+    for name in _stored_from(out, path):  # a case stored from this file under its `name` field: its runs are stale
+        if name != written and name.lower() not in set(avoid):
+            with contextlib.suppress(OutputError):  # a folder linked out of --out: not this report's
+                _record(out, name, record)
+
+
+def _stored_from(out: Path, path: Path) -> list[str]:
+    """The cases stored under ``out`` whose record names ``path`` as their source (compared resolved, as
+    :func:`_another_source` does): a file with a ``name`` field stores its runs under that name, not its stem.
+
+    A rejected file's record is written under each of them too (:func:`_record_error`): the index counts the
+    runs stored beside a rejection as stale (ftcreport.report.render.stale_runs), never as the file's current
+    results; they stay stored, and a batch that accepts the file again writes its record again."""
+    from ..storage.store import read_json
+
+    try:
+        target = Path(path).resolve()
+    except OSError:
+        return []
+    found = []
+    for rec_path in sorted(Path(out).glob("*/case.json")):
+        rec = read_json(rec_path)
+        source = rec.get("source") if isinstance(rec, dict) else None
+        if not isinstance(source, str) or not source:
+            continue
+        try:
+            if Path(source).resolve() == target:
+                found.append(rec_path.parent.name)
+        except (OSError, ValueError):
+            continue
+    return found
 
 
 #: a batch worker's progress queue (set by :func:`_init_worker`; None outside a batch's workers)

@@ -18,14 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from . import interactive
+from .baseline_stamp import PAGE, STAMP, compared_runs
 from .plots import SCHEME_COLORS
 from .render import write_page
 
-__all__ = ["MAX_BASELINE_FIGURES", "PAGE", "STAMP", "compared_runs", "render_baseline", "stale_reason"]
+__all__ = ["MAX_BASELINE_FIGURES", "render_baseline"]
 
-#: the baseline page under OUT, and beside it the seals of the runs it compared (:func:`stale_reason`)
-PAGE = "baseline.html"
-STAMP = "baseline.html.stamp"
 
 MAX_BASELINE_FIGURES = 40  # per baseline page; the tables name every difference
 #: signals drawn on a log axis when their positive values span more than LOG_DECADES decades
@@ -178,48 +176,6 @@ def _scale_from(ts) -> float | None:
     differ, which may end soon after a fault: a failed wheel's zero torque would set the axis)."""
     t = None if ts is None else np.asarray(ts.get("t"), float)
     return None if t is None or t.size < 2 else float(t[0]) + 1.0
-
-
-def _seal(out: Path, case: str, scheme: str) -> str | None:
-    """The seal (SHA-256) of the run record stored in ``OUT/<case>/<scheme>``, None when there is none."""
-    from ..storage.store import RECORD, read_json
-
-    rec = read_json(Path(out) / case / scheme / RECORD)
-    seal = rec.get("sha256") if isinstance(rec, dict) else None
-    return seal if isinstance(seal, str) else None
-
-
-def compared_runs(out: Path, comparisons: list) -> dict[str, str | None]:
-    """``{"case/scheme": seal}`` of every run the comparisons cover (:func:`_seal`; None: no run stored)."""
-    return {f"{c.case}/{sc.scheme}": _seal(out, c.case, sc.scheme) for c in comparisons for sc in c.schemes}
-
-
-def stale_reason(out: Path) -> str | None:
-    """Why ``OUT/baseline.html`` is not a comparison of the results now stored in OUT (None: it is).
-
-    The rule: the page belongs to the current results while every run it compared is still the run
-    stored in OUT, i.e. the seal of each run's record (``record.json``'s SHA-256, over the run's cache key
-    and the SHA-256 of its metrics and time series) equals the one :func:`render_baseline` kept in
-    :data:`STAMP` when it wrote the page.  A run made again with another result (a changed case, code or
-    library) has another seal; a run made again identically keeps it, and the page still says the
-    same.  Runs added since (other cases) leave it current: the page names the cases it compared.  A page
-    without a readable stamp (written by an ftcreport before stamps, or the stamp removed) cannot be tied
-    to any runs: stale.  A stale page is not deleted (it is the reader's file, e.g. a comparison kept to
-    read); the index names it, unlinked, and says to run ``check --baseline`` again.
-    """
-    from ..storage.store import read_json
-
-    out = Path(out)
-    stamp = read_json(out / STAMP)
-    runs = stamp.get("runs") if isinstance(stamp, dict) else None
-    if not isinstance(runs, dict):
-        return f"no {STAMP} beside it names the runs it compared"
-    for run, seal in runs.items():
-        case, _, scheme = str(run).partition("/")
-        now = _seal(out, case, scheme)
-        if now != seal:
-            return f"{case} / {scheme} " + ("is no longer stored" if now is None else "was made again since")
-    return None
 
 
 def render_baseline(out: Path, dest: Path, comparisons: list) -> Path:

@@ -1007,8 +1007,8 @@ def other_pages(out: Path) -> list[dict]:
     campaign's, a coverage map's, an FDI evaluation's, a baseline comparison's...): ``href``, ``kind``,
     ``title`` (from its ``<title>``), ``modified``.  A campaign's per-sample pages are linked from its page.
     ``OUT/baseline.html`` compares runs: when they are no longer the stored ones it is listed with ``stale``
-    (why) and not linked (:func:`ftcreport.report.baseline_page.stale_reason`)."""
-    from .baseline_page import PAGE, stale_reason
+    (why) and not linked (:func:`ftcreport.report.baseline_stamp.stale_reason`)."""
+    from .baseline_stamp import PAGE, stale_reason
 
     out = Path(out)
     cases = {p.parent for p in out.glob("*/case.json")}

@@ -651,3 +651,18 @@ def test_a_rejected_case_file_marks_the_runs_it_stored_under_its_name_field_stal
     (cases / "alpha.toml").write_text('name = "foo"\n' + _SMALL)
     assert runner.invoke(app, args).exit_code == 0
     assert json.loads((out / "foo" / "case.json").read_text())["status"] == "ok"
+
+
+def test_the_winners_table_says_why_a_detector_metric_has_no_winner(tmp_path):
+    """Session 13's page review: in "Winners per case", a case run without a fault detector (nominal and the
+    oracle only) read a bare "n/a" under the detection delay and the false alarms, as if something had failed;
+    it now says that no detector ran there."""
+    case = tmp_path / "small.toml"
+    case.write_text(_SMALL)
+    out = tmp_path / "rep"
+    assert runner.invoke(app, ["batch", str(case), "--out", str(out), "--jobs", "1", "-q"]).exit_code == 0
+    html = (out / "index.html").read_text()
+    winners = html[html.index('id="cases"') : html.index("</table>", html.index('id="cases"'))]
+    row = next(r for r in winners.split("<tr>") if 'href="small/index.html"' in r)
+    assert row.count(">n/a: no detector run</span>") == 2, row
+    assert ">n/a</span>" not in row, row

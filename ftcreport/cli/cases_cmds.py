@@ -63,6 +63,7 @@ def cases_new(
     import os
 
     from ..cases import TEMPLATE, load_case
+    from ..infra.atomic import name_os_error
     from ..infra.limits import name_problem
 
     if (why := name_problem(name)) is not None:
@@ -80,8 +81,8 @@ def cases_new(
             fh.write(TEMPLATE)
     except BaseException as exc:
         path.unlink(missing_ok=True)
-        if isinstance(exc, OSError) and exc.filename is None:  # a write to the descriptor (ENOSPC) names no file
-            exc.filename = str(path)
+        if isinstance(exc, OSError):  # a write to the descriptor (ENOSPC) names no file
+            name_os_error(exc, path)
         raise
     load_case(path)  # the template itself is valid
     typer.echo(f"wrote {path}")

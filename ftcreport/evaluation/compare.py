@@ -64,6 +64,7 @@ from dataclasses import dataclass, field
 
 from ..schemes import built_in
 from .metrics import fault_phases
+from .verdict_analysis import analysis_sentences, every_loop_unstable
 
 __all__ = [
     "ACTIVE",
@@ -422,8 +423,6 @@ def compare_case(
     if line is not None and not any("switching never settles" in s.lower() for s in sentences):
         sentences.append(line)
     if facts.get("analysis"):
-        from .verdict_analysis import every_loop_unstable
-
         cited = _analysis_sentences(facts["analysis"], verdicts, metrics_by_scheme, facts.get("limit"))
         # every completed loop predicted unstable (two_link_switching_motors: all chatter at the voltage limit):
         # the ranking is among chattering loops, and the reader is told that first (session 12's new user, M4)
@@ -497,8 +496,6 @@ def _undetecting(metrics_by_scheme: Mapping[str, Mapping]) -> dict[str, str]:
 
 def _analysis_sentences(analysis: dict, verdicts, metrics, limit: str | None = None) -> list[str]:
     """The linearized analysis cited where a scheme loses or chatters, or nominal wins (issue 37 item 7)."""
-    from .verdict_analysis import analysis_sentences
-
     after = verdicts.get("after_fault_error_max")
     if after and after.not_applicable:  # no fault: the schemes as the final error ranks them
         after = verdicts.get("position_error_final")

@@ -13,7 +13,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["TMP_SUFFIX", "replace_file"]
+__all__ = ["TMP_SUFFIX", "name_os_error", "replace_file"]
 
 TMP_SUFFIX = ".partial"  # a temporary file of replace_file; only a killed process leaves one behind
 
@@ -40,17 +40,18 @@ def replace_file(path: Path, data: bytes, before_rename: Callable[[str], None] |
                 before_rename(tmp)
             os.replace(tmp, path)
         except OSError as exc:
-            _name(exc, path, tmp)
+            name_os_error(exc, path, tmp)
             raise
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
 
 
-def _name(exc: OSError, path: Path, tmp: str) -> None:
-    """Make ``exc`` name ``path`` when it names no file or only the temporary one (in place: its type, errno
-    and traceback stay).  An error naming another file (a guard's, say) keeps its name."""
-    if exc.filename is None or exc.filename == tmp:
+def name_os_error(exc: OSError, path: Path, tmp: str | None = None) -> None:
+    """Make ``exc`` name ``path`` when it names no file (a write through a descriptor: a full disk's ENOSPC) or
+    only the temporary file ``tmp`` (in place: its type, errno and traceback stay).  An error naming another
+    file (a guard's, say) keeps its name."""
+    if exc.filename is None or (tmp is not None and exc.filename == tmp):
         exc.filename, exc.filename2 = str(path), None
 
 

@@ -186,13 +186,17 @@ def _another_source(out: Path, name: str, path: Path, on_note) -> None:
     old = rec.get("source") if isinstance(rec, dict) else None
     if not isinstance(old, str) or not old or on_note is None:
         return
-    try:
-        same = Path(old).resolve() == Path(path).resolve()
-    except OSError:
-        same = False
-    if not same:
+    if not _same_file(old, path):
         on_note(f"case {name}: the results stored in {out / name} came from {old}; {path} has the same case name "
                 "and replaces them")  # fmt: skip
+
+
+def _same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name the same file (compared resolved; False when either cannot be resolved)."""
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except (OSError, ValueError):
+        return False
 
 
 def record_case(
@@ -508,21 +512,12 @@ def _stored_from(out: Path, path: Path) -> list[str]:
     results; they stay stored, and a batch that accepts the file again writes its record again."""
     from ..storage.store import read_json
 
-    try:
-        target = Path(path).resolve()
-    except OSError:
-        return []
     found = []
     for rec_path in sorted(Path(out).glob("*/case.json")):
         rec = read_json(rec_path)
         source = rec.get("source") if isinstance(rec, dict) else None
-        if not isinstance(source, str) or not source:
-            continue
-        try:
-            if Path(source).resolve() == target:
-                found.append(rec_path.parent.name)
-        except (OSError, ValueError):
-            continue
+        if isinstance(source, str) and source and _same_file(source, path):
+            found.append(rec_path.parent.name)
     return found
 
 

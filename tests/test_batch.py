@@ -581,6 +581,12 @@ position_error_final = { max = 0.5 }
 """
 
 
+def _index_counts(html: str) -> str:
+    """The index's headline counts (its ``#counts`` paragraph) as text, whitespace collapsed."""
+    start = html.index('id="counts"')
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", html[start : html.index("</p>", start)]))
+
+
 def test_the_index_leaves_out_the_old_runs_of_a_case_whose_file_the_last_batch_rejected(tmp_path):
     """Attack 13 break 04: after a batch of two cases, one case file made invalid (k_v = -5) and batched
     again (exit 2), the index still read "2 case(s), 4 run(s): 4 completed ...; thresholds: 2 hold", with
@@ -598,11 +604,7 @@ def test_the_index_leaves_out_the_old_runs_of_a_case_whose_file_the_last_batch_r
     res = runner.invoke(app, args)
     assert res.exit_code == 2 and "alpha.toml" in res.output, res.output
     html = (out / "index.html").read_text()
-    counts = re.sub(
-        r"\s+",
-        " ",
-        re.sub(r"<[^>]+>", "", html[html.index('id="counts"') : html.index("</p>", html.index('id="counts"'))]),
-    )
+    counts = _index_counts(html)
     assert "2 run(s): 2 completed" in counts and "thresholds: 1 hold" in counts, counts
     assert "1 case file(s) rejected by the last batch" in counts and "2 stored run(s) of earlier" in counts, counts
     stale = "case file rejected by the last batch that read it: its stored runs are from an earlier version of the file"
@@ -638,11 +640,7 @@ def test_a_rejected_case_file_marks_the_runs_it_stored_under_its_name_field_stal
         rec = json.loads((out / name / "case.json").read_text())
         assert rec["status"] == "error" and "alpha.toml" in rec["error"], (name, rec)
     html = (out / "index.html").read_text()
-    counts = re.sub(
-        r"\s+",
-        " ",
-        re.sub(r"<[^>]+>", "", html[html.index('id="counts"') : html.index("</p>", html.index('id="counts"'))]),
-    )
+    counts = _index_counts(html)
     assert "2 run(s): 2 completed" in counts and "thresholds: 1 hold" in counts, counts
     assert "1 case file(s) rejected" in counts and "(2 stored run(s)" in counts, counts  # one file, two records
     assert (out / "foo" / "oracle" / "metrics.json").is_file()  # kept: linked from foo's page

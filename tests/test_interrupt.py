@@ -395,12 +395,10 @@ def _short_campaign(d: Path) -> Path:
     return p
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
-def test_a_stop_signal_ends_a_campaign_and_its_dask_workers(tmp_path, sig):
-    """A campaign on its own LocalCluster (2 worker processes): SIGTERM stops it cleanly (before: no message,
-    exit -15, the lock's holder text left); SIGKILL of the client alone ends the workers too."""
-    out = tmp_path / "c"
-    args = [*CLI, "campaign", str(_short_campaign(tmp_path)), "-n", "40", "--schemes", "nominal,oracle", "-q"]
+def _campaign_with_a_sample(tmp_path: Path, out: Path, schemes: str) -> subprocess.Popen:
+    """A 40-sample campaign of ``schemes`` on its own LocalCluster (2 workers, its own session), once it has
+    stored a sample (its workers are up)."""
+    args = [*CLI, "campaign", str(_short_campaign(tmp_path)), "-n", "40", "--schemes", schemes, "-q"]
     p = subprocess.Popen(
         [*args, "--workers", "2", "--out", str(out)],
         stdout=subprocess.PIPE,
@@ -409,6 +407,15 @@ def test_a_stop_signal_ends_a_campaign_and_its_dask_workers(tmp_path, sig):
         start_new_session=True,
     )
     _wait_for(lambda: any((out / "samples").glob("*.json")), p)
+    return p
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_a_stop_signal_ends_a_campaign_and_its_dask_workers(tmp_path, sig):
+    """A campaign on its own LocalCluster (2 worker processes): SIGTERM stops it cleanly (before: no message,
+    exit -15, the lock's holder text left); SIGKILL of the client alone ends the workers too."""
+    out = tmp_path / "c"
+    p = _campaign_with_a_sample(tmp_path, out, "nominal,oracle")
     os.kill(p.pid, sig)
     _, err = p.communicate(timeout=120)
     if sig == signal.SIGKILL:
@@ -478,15 +485,7 @@ def test_a_ctrl_c_to_the_whole_process_group_prints_no_worker_traceback(tmp_path
     test above signals the command alone).  Once the workers are up (a sample stored), the command's one line
     is all: the workers ignore SIGINT, and the command closes them."""
     out = tmp_path / "c"
-    args = [*CLI, "campaign", str(_short_campaign(tmp_path)), "-n", "40", "--schemes", "nominal", "-q"]
-    p = subprocess.Popen(
-        [*args, "--workers", "2", "--out", str(out)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
-    _wait_for(lambda: any((out / "samples").glob("*.json")), p)
+    p = _campaign_with_a_sample(tmp_path, out, "nominal")
     os.killpg(p.pid, signal.SIGINT)  # the session's process group: as a terminal's Ctrl-C
     _, err = p.communicate(timeout=120)
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err

@@ -21,7 +21,7 @@ STATUS_STEP_UNSTABLE = "step_unstable"
 
 #: the integrators: fixed step, and error-controlled (ftcreport.fast.integrators; "auto" picks one at t0)
 FIXED_METHODS = ("rk4", "ros2", "etd2")
-AUTO_METHODS = ("auto", "dopri5", "ros2ec", "etd2ec", "etd3ec")
+AUTO_METHODS = ("auto", "dopri5", "ros2ec", "etd2ec", "etd3ec", "ros34pw2")
 METHODS = FIXED_METHODS + AUTO_METHODS
 
 #: step-growth detector (see the module docstring); the compiled engine takes the same values

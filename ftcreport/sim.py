@@ -14,8 +14,8 @@ loop in Python (issue 17: each equation exists once): a new law is written as a 
 "Write your own scheme").  The controller's continuous state ``xc`` is stepped with the plant's.
 
 Integrators (:attr:`SimSettings.method`; the error-controlled ones, ``"auto"``, ``"dopri5"``,
-``"ros2ec"``, ``"etd2ec"``, ``"etd3ec"``, are in :mod:`ftcreport.fast.integrators`): fixed-step classical RK4
-(``"rk4"``, the default), or
+``"ros2ec"``, ``"etd2ec"``, ``"etd3ec"``, ``"ros34pw2"``, are in :mod:`ftcreport.fast.integrators`): fixed-step
+classical RK4 (``"rk4"``, the default), or
 the two-stage Rosenbrock W-method ROS2 (``"ros2"``, Verwer, Spee, Blom, Hundsdorfer 1999) for
 stiff velocity loops, with gamma = 1 + 1/sqrt(2)::
 
@@ -128,8 +128,10 @@ class SimSettings:
         one step per control sample, fast.loop._etd2).  Error-controlled (fast.integrators):
         ``"dopri5"`` (Dormand-Prince 5(4), non-stiff), ``"ros2ec"`` (ROS2, stiff loops), ``"etd2ec"``
         (ETD2, motors under sampled control), both with step doubling's estimate, ``"etd3ec"`` (ETD3RK
-        with an embedded ETD2, motors under sampled control), or ``"auto"``: dopri5, ros2ec or etd3ec
-        picked at t0 from the loop's spectral radius (fast.loop.run_auto).  With these ``dt``
+        with an embedded ETD2, motors under sampled control), ``"ros34pw2"`` (the Rosenbrock W-method
+        ROS34PW2 of Rang & Angermann 2005: third order, an embedded second order, L-stable; stiff loops),
+        or ``"auto"``: dopri5, ros34pw2 or etd3ec picked at t0 from the loop's spectral radius
+        (fast.loop.run_auto).  With these ``dt``
         is the longest step, and the clock of the sensor noise and of a discrete-time filter (the
         UKF): steps land on its multiples when the plant is noisy or the scheme has one.
     rtol, atol : float

@@ -53,11 +53,11 @@ def test_the_four_link_chain_that_stops_at_a_fixed_step_runs_with_auto():
 
 def test_the_stiff_thesis_case_picks_the_stiff_method():
     """Thesis 3.2.3 (two_link_switching, k4 = 3000): the loop's spectral radius is k4 (times RKC's safety
-    1.2), so rho dt = 18 > 3 x 3.3: auto takes ROS2 (ros2ec); a k_v = 5 chain stays explicit."""
+    1.2), so rho dt = 18 > 3 x 3.3: auto takes the Rosenbrock W-method ROS34PW2; a k_v = 5 chain stays explicit."""
     run, m = _run("two_link_switching", "switching", duration=1.0, method="auto")
     assert run.status == "ok", run.reason
     g = m["integrator"]
-    assert g["method"] == "ros2ec"
+    assert g["method"] == "ros34pw2"
     assert g["spectral_radius"] == pytest.approx(1.2 * 3000.0, rel=0.05)
     _, m3 = _run("three_link_switching", "switching", duration=1.0, method="auto")
     assert m3["integrator"]["method"] == "dopri5"

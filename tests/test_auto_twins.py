@@ -50,7 +50,7 @@ TWINS = {
     "two_link_campaign": "nominal",
     "two_link_intermittent": "switching",
     "two_link_sliding_mode": "sliding_mode",  # a plug-in scheme's loop
-    "two_link_switching": "switching",  # k4 = 3000: auto picks ros2ec
+    "two_link_switching": "switching",  # k4 = 3000: auto picks ros34pw2
     "two_link_uncompensable": "oracle",
     "motors/three_link_adaptive_motors": "adaptive",  # DC motors, 200 Hz control: etd3ec
     "motors/three_link_switching_motors": "switching",

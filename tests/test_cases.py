@@ -327,7 +327,7 @@ def test_a_literal_typo_in_a_file():
         parse_case(data, "cases/x.toml")
     assert str(info.value) == (
         "cases/x.toml: simulation.method: got 'rk5'; expected one of 'rk4', 'ros2', 'etd2', 'auto', 'dopri5', "
-        "'ros2ec', 'etd2ec', 'etd3ec' (did you mean 'rk4'?)"
+        "'ros2ec', 'etd2ec', 'etd3ec', 'ros34pw2' (did you mean 'rk4'?)"
     )
 
 

@@ -38,6 +38,9 @@ def _attempt(method, f, jac, t, x, h):
             K[s] = f(t + I.DP_C[s] * h, I.erk_stage_point(x, K, s, h, I.DP_A))
         xn, err = I.erk_solution(x, K, h, I.DP_B, I.DP_E)
         return xn, err, 7
+    if method == "ros34pw2":  # as fast.loop._rosw_attempt, W = jac (any W: a W-method), f_t by a difference
+        dt = 1e-7 * max(1.0, abs(t))
+        return (*_rosw(f, jac(t, x), (f(t + dt, x) - f0) / dt, t, x, f0, h), 4)
     J = jac(t, x)
     if method == "etd3ec":  # ETD3RK and its embedded ETD2, as fast.loop._etd3_attempt
         zero = np.zeros(x.size)
@@ -58,13 +61,25 @@ def _attempt(method, f, jac, t, x, h):
     return two, (two - one) / 3.0, 5
 
 
+def _rosw(f, W, ft, t, x, f0, h):
+    """(x+, err) of one ROS34PW2 step with the matrix W and the time derivative ft (fast.integrators)."""
+    zero = np.zeros(x.size)
+    DF, small, dinv = I.w_factor(W, zero, I.ROSW_GAMMA * h, 0)
+    K = np.zeros((4, x.size))
+    for i in range(4):
+        fi = f0 if i == 0 else f(t + I.ROSW_C[i] * h, I.rosw_stage_point(x, K, i))
+        K[i] = I.rosw_stage(W, zero, DF, small, dinv, K, i, fi, ft, h, 0)
+    return I.rosw_solution(x, K)
+
+
 def _integrate(method, f, jac, x0, t0, t1, rtol, atol, h_max=np.inf):
     """Error-controlled integration from t0 to t1 (the loop's controller); returns (x, accepted, rejected)."""
     k_err, beta = (5.0, 0.04) if method == "dopri5" else (3.0, 0.0)
     x, t = np.array(x0, dtype=float), t0
     f0 = f(t, x)
     h0 = I.first_guess(x, f0, rtol, atol)
-    h = min(I.starting_step(x, f0, f(t + h0, x + h0 * f0), h0, 5.0 if method == "dopri5" else 2.0, rtol, atol), h_max)
+    order = {"dopri5": 5.0, "ros34pw2": 3.0}.get(method, 2.0)
+    h = min(I.starting_step(x, f0, f(t + h0, x + h0 * f0), h0, order, rtol, atol), h_max)
     r_prev, acc, rej = 0.0, 0, 0
     while t < t1:
         rejected = False
@@ -271,6 +286,73 @@ def test_etd3ec_is_exact_on_an_affine_problem_and_quiet_on_a_settled_stiff_one()
     xn, err, _ = _attempt("etd3ec", _prothero, _prothero_jac, t0, np.array([math.cos(t0)]), 0.2)
     assert abs(xn[0] - math.cos(t0 + 0.2)) < 1e-6  # measured 1.4e-7
     assert abs(err[0]) < 1e-4  # measured 9.2e-6
+
+
+def _nonautonomous(t, x):
+    """A nonlinear, non-autonomous pair (the rates read t, as a law reads its reference)."""
+    return np.array([x[1] * math.cos(t) + 0.3 * x[0] ** 2, -math.sin(x[0]) - 0.5 * x[1] + t * x[0] * x[1]])
+
+
+def _nonautonomous_jac(t, x):
+    return np.array([[0.6 * x[0], math.cos(t)], [-math.cos(x[0]) + t * x[1], -0.5 + t * x[0]]])
+
+
+@pytest.mark.parametrize("which", ["jacobian", "random", "zero"])
+def test_ros34pw2_is_third_order_for_any_w_and_its_estimate_second_order(which):
+    """ROS34PW2 is a W-method: its local error is O(h^4) and its embedded solution's O(h^3) whatever the
+    matrix W (Rang & Angermann 2005): with the exact Jacobian, a random matrix, and W = 0 (then an explicit
+    Runge-Kutta method).  That is what lets the loop's W hold only the plant's columns (the controller's
+    states are treated explicitly) and makes its order independent of the accuracy of the difference
+    columns.  Measured per halving of h from 0.1: 2^3.97-2^4.13 (solution), 2^2.99-2^3.11 (estimate)."""
+    from scipy.integrate import solve_ivp
+
+    t0, x0 = 0.3, np.array([0.4, -0.7])
+    W = {"jacobian": _nonautonomous_jac(t0, x0), "random": np.random.default_rng(1).standard_normal((2, 2)),
+         "zero": np.zeros((2, 2))}[which]  # fmt: skip
+    f0 = _nonautonomous(t0, x0)
+    ft = np.array([-x0[1] * math.sin(t0), x0[0] * x0[1]])  # d f / d t at (t0, x0), exact
+    errs, ests = [], []
+    for h in (0.1, 0.05, 0.025, 0.0125):
+        exact = solve_ivp(_nonautonomous, (t0, t0 + h), x0, method="DOP853", rtol=1e-13, atol=1e-15).y[:, -1]
+        xn, err = _rosw(_nonautonomous, W, ft, t0, x0, f0, h)
+        errs.append(np.max(np.abs(xn - exact)))
+        ests.append(np.max(np.abs(xn - err - exact)))  # the embedded solution x+ - err
+    for (e1, e2), (s1, s2) in zip(itertools.pairwise(errs), itertools.pairwise(ests), strict=True):
+        assert math.log2(e1 / e2) == pytest.approx(4.0, abs=0.2)
+        assert math.log2(s1 / s2) == pytest.approx(3.0, abs=0.2)
+
+
+def test_ros34pw2_is_l_stable_and_stiffly_accurate():
+    """With W the Jacobian, on y' = lambda y: R(z) = 1 + z b^T (I - z B)^-1 1, B = alpha + gamma (its diagonal
+    gamma).  |R| <= 1 on the imaginary axis and in the left half-plane (A-stable), R(z) -> 0 as z -> -infinity
+    (L-stable: a settled stiff velocity loop stays settled at any step), and b is the last row of B (stiffly
+    accurate: the solution is the last stage's point).  The embedded solution is A-stable with R(-inf) = -0.478:
+    the estimate does not vanish on a stiff mode that is not settled."""
+    B = I.ROSW_ALPHA + I.ROSW_GAMMA_IJ + I.ROSW_GAMMA * np.eye(4)
+
+    def R(z, b=I.ROSW_B):
+        return 1.0 + z * b @ np.linalg.solve(np.eye(4) - z * B, np.ones(4))
+
+    assert abs(R(-1e8)) < 1e-7
+    assert R(-1e8, I.ROSW_BHAT) == pytest.approx(-0.4783, abs=1e-3)
+    assert max(abs(R(1j * y)) for y in np.logspace(-3, 6, 500)) <= 1.0 + 1e-12
+    grid = [complex(-x, y) for x in np.logspace(-3, 5, 40) for y in np.linspace(-1e4, 1e4, 41)]
+    assert max(abs(R(z)) for z in grid) <= 1.0
+    np.testing.assert_allclose(I.ROSW_B, B[3], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(I.ROSW_C, [0.0, 0.87173304301691801, 0.73157995778885238, 1.0], atol=1e-15)
+
+
+def test_ros34pw2_takes_long_steps_on_a_stiff_problem_and_meets_its_tolerance():
+    """Prothero-Robinson with lambda = -1e4 over 10 s: stability does not hold the step (L-stable), accuracy does;
+    third order takes fewer steps than ros2ec's second order at the same tolerance (measured 175 against 1,974 at
+    rtol 1e-6, 43 against 197 at 1e-4), and the error follows the tolerance (2.7e-10 and 1.6e-7)."""
+    x, acc, _ = _integrate("ros34pw2", _prothero, _prothero_jac, [1.0], 0.0, 10.0, 1e-6, 1e-8)
+    assert abs(x[0] - math.cos(10.0)) < 1e-5
+    _, acc_ros2, _ = _integrate("ros2ec", _prothero, _prothero_jac, [1.0], 0.0, 10.0, 1e-6, 1e-8)
+    assert acc < 0.5 * acc_ros2
+    x4, acc4, _ = _integrate("ros34pw2", _prothero, _prothero_jac, [1.0], 0.0, 10.0, 1e-4, 1e-6)
+    assert abs(x4[0] - math.cos(10.0)) < 1e-3
+    assert acc4 < acc
 
 
 @pytest.mark.parametrize("rtol", [1e-4, 1e-6, 1e-8, 1e-10])

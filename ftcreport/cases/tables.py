@@ -322,13 +322,14 @@ class Simulation(_Strict):
         "s",
     )
     duration: _num(None, 1e6, gt=0) = _f(..., "simulated time", "s")
-    method: Literal["rk4", "ros2", "etd2", "auto", "dopri5", "ros2ec", "etd2ec", "etd3ec"] = _f(
+    method: Literal["rk4", "ros2", "etd2", "auto", "dopri5", "ros2ec", "etd2ec", "etd3ec", "ros34pw2"] = _f(
         "rk4",
         "fixed step: RK4; the stiff-capable Rosenbrock W-method ROS2 (for k_v in the thousands); the exponential"
         " ETD2RK, exact on the motors' currents (DC-motor cases: one step per control sample). Error-controlled"
         " (rtol, atol): dopri5 (Dormand-Prince 5(4), non-stiff), ros2ec (ROS2, stiff loops), etd2ec (ETD2, motors"
         " under sampled control), both with step doubling's estimate; etd3ec (ETD3RK with an embedded ETD2, motors"
-        " under sampled control: 5 evaluations a step against etd2ec's 7); or auto: dopri5, ros2ec or etd3ec,"
+        " under sampled control: 5 evaluations a step against etd2ec's 7); ros34pw2 (the Rosenbrock W-method"
+        " ROS34PW2, third order with an embedded second order, stiff loops); or auto: dopri5, ros34pw2 or etd3ec,"
         " picked from the loop's linearization at t0",
         "-",
     )

@@ -27,8 +27,8 @@ if TYPE_CHECKING:
 
 # --------------------------------------------------------------------------- error-controlled runs
 #: the opt codes of fast.loop.run_auto's method (-1: auto picks at t0)
-_AUTO_CODES = {"auto": -1, "dopri5": 3, "ros2ec": 4, "etd2ec": 5, "etd3ec": 6}
-_CODE_NAMES = {3: "dopri5", 4: "ros2ec", 5: "etd2ec", 6: "etd3ec"}
+_AUTO_CODES = {"auto": -1, "dopri5": 3, "ros2ec": 4, "etd2ec": 5, "etd3ec": 6, "ros34pw2": 7}
+_CODE_NAMES = {3: "dopri5", 4: "ros2ec", 5: "etd2ec", 6: "etd3ec", 7: "ros34pw2"}
 
 
 def _dwell(controller) -> tuple[int, float]:
@@ -108,7 +108,8 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
                 reason = (
                     f"at t = {t_now:.6g} s the error-controlled run has taken {si} steps, the limit of "
                     f"ftcreport.infra.limits (MAX_STEPS, or its metric stream over MEMORY_BUDGET_BYTES; mean step "
-                    f"{(t_now - t0) / si:.3g} s): loosen simulation.rtol/atol, or name a stiff method (ros2ec, etd3ec)"
+                    f"{(t_now - t0) / si:.3g} s): loosen simulation.rtol/atol, or name a stiff method "
+                    "(ros34pw2, etd3ec)"
                 )
                 break
             if float(ctl[0]) >= opt[5]:

@@ -67,6 +67,13 @@ __all__ = [
     "DP_E",
     "METHOD_CODES",
     "ROS2_GAMMA",
+    "ROSW_ALPHA",
+    "ROSW_B",
+    "ROSW_BHAT",
+    "ROSW_C",
+    "ROSW_GAMMA",
+    "ROSW_GAMMA_IJ",
+    "ROSW_GT",
     "erk_solution",
     "erk_stage_point",
     "error_ratio",
@@ -76,13 +83,19 @@ __all__ = [
     "power_step",
     "ros2_first",
     "ros2_second",
+    "rosw_solution",
+    "rosw_stage",
+    "rosw_stage_point",
     "solve_small",
     "starting_step",
     "step_factor",
+    "w_apply",
+    "w_factor",
+    "w_solve",
 ]
 
 #: the methods' codes in the loop (fast.loop.run_steps, run_auto)
-METHOD_CODES = {"rk4": 0, "ros2": 1, "etd2": 2, "dopri5": 3, "ros2ec": 4, "etd2ec": 5, "etd3ec": 6}
+METHOD_CODES = {"rk4": 0, "ros2": 1, "etd2": 2, "dopri5": 3, "ros2ec": 4, "etd2ec": 5, "etd3ec": 6, "ros34pw2": 7}
 
 # Dormand-Prince 5(4): c_i, a_ij, the fifth-order weights b and e = b - bhat (bhat: the fourth order)
 DP_C = np.array([0.0, 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0, 1.0, 1.0])
@@ -281,6 +294,111 @@ def ros2_second(DF, small, dinv, k1, f2, ft, h, first):
     gh = ROS2_GAMMA * h
     rd = dinv * (f2 - 2.0 * k1 - gh * ft)
     return rd + gh * (DF @ solve_small(small, rd[first : first + m]))
+
+
+# --------------------------------------------------------------------------- ROS34PW2 (Rosenbrock W, 3(2))
+# Rang & Angermann (2005), "New Rosenbrock W-methods of order 3 for partial differential algebraic equations
+# of index 1", BIT Numer. Math. 45, 761-787, Table 4.1 (ROS34PW2): four stages, third order for any W (a
+# W-method), the embedded second-order solution from the same stages, L-stable (R(inf) = 0) and stiffly
+# accurate (b = the last row of alpha + gamma).  In the formulation of Hairer & Wanner II, (IV.7.4), with
+# the rates' time derivative f_t of the non-autonomous form:
+#     (I - gamma h A) k_i = h f(t + alpha_i h, x + sum_j<i alpha_ij k_j) + h A sum_j<i gamma_ij k_j + gamma_i h^2 f_t,
+#     x+ = x + sum_i b_i k_i,   err = sum_i (b_i - bhat_i) k_i  (O(h^3)),
+# alpha_i = sum_j alpha_ij, gamma_i = gamma + sum_j<i gamma_ij.  tests/test_integrators.py checks the orders
+# (3 and 2, with the exact Jacobian, a random W and W = 0), A- and L-stability and the stiff accuracy.
+ROSW_GAMMA = 4.3586652150845900e-01
+ROSW_ALPHA = np.array(
+    [
+        [0.0, 0.0, 0.0, 0.0],
+        [8.7173304301691801e-01, 0.0, 0.0, 0.0],
+        [8.4457060015369423e-01, -1.1299064236484185e-01, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0],
+    ]
+)
+#: gamma_ij below the diagonal (the diagonal is ROSW_GAMMA)
+ROSW_GAMMA_IJ = np.array(
+    [
+        [0.0, 0.0, 0.0, 0.0],
+        [-8.7173304301691801e-01, 0.0, 0.0, 0.0],
+        [-9.0338057013044082e-01, 5.4180672388095326e-02, 0.0, 0.0],
+        [2.4212380706095346e-01, -1.2232505839045147e00, 5.4526025533510214e-01, 0.0],
+    ]
+)
+ROSW_B = np.array([2.4212380706095346e-01, -1.2232505839045147e00, 1.5452602553351020e00, 4.3586652150845900e-01])
+ROSW_BHAT = np.array([3.7810903145819369e-01, -9.6042292212423178e-02, 0.5, 2.1793326075422950e-01])
+#: the stages' time offsets alpha_i and the coefficients gamma_i of f_t
+ROSW_C = ROSW_ALPHA.sum(axis=1)
+ROSW_GT = ROSW_GAMMA + ROSW_GAMMA_IJ.sum(axis=1)
+
+
+@jit
+def w_factor(F, diag, gh, first):
+    r"""(I - gh A) for A = F E^T + diag(diag), ready for :func:`w_solve`: (D^-1 F, the m x m matrix, D^-1).
+
+    F (nx, m): the columns of x[first : first + m]; D = I - gh diag(diag) (the controller's exact linear
+    filters); Sherman-Morrison-Woodbury as in :func:`ros2_first`: the m x m matrix is I - gh E^T D^-1 F.
+    """
+    nx, m = F.shape
+    dinv = 1.0 / (1.0 - gh * diag)
+    DF = np.empty((nx, m))
+    for i in range(nx):
+        for j in range(m):
+            DF[i, j] = dinv[i] * F[i, j]
+    small = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            small[i, j] = (1.0 if i == j else 0.0) - gh * DF[first + i, j]
+    return DF, small, dinv
+
+
+@jit
+def w_solve(DF, small, dinv, r, gh, first):
+    r"""(I - gh A)^-1 r from :func:`w_factor`'s pieces: D^-1 r + gh D^-1 F (I - gh E^T D^-1 F)^-1 E^T D^-1 r."""
+    m = small.shape[0]
+    rd = dinv * r
+    return rd + gh * (DF @ solve_small(small, rd[first : first + m]))
+
+
+@jit
+def w_apply(F, diag, v, first):
+    """A v = F v[first : first + m] + diag * v."""
+    m = F.shape[1]
+    return F @ v[first : first + m] + diag * v
+
+
+@jit
+def rosw_stage_point(x, K, i):
+    """x + sum_j<i alpha_ij k_j: where ROS34PW2's stage i (0-based) evaluates the rates (K: (4, nx))."""
+    y = x.copy()
+    for j in range(i):
+        a = ROSW_ALPHA[i, j]
+        if a != 0.0:
+            y += a * K[j]
+    return y
+
+
+@jit
+def rosw_stage(F, diag, DF, small, dinv, K, i, fi, ft, h, first):
+    r"""ROS34PW2's k_i from the rates ``fi`` at its stage point (:func:`rosw_stage_point`):
+    (I - gamma h A) k_i = h f_i + h A sum_j<i gamma_ij k_j + gamma_i h^2 f_t."""
+    r = h * fi + (ROSW_GT[i] * h * h) * ft
+    if i > 0:
+        v = np.zeros(fi.shape[0])
+        for j in range(i):
+            v += ROSW_GAMMA_IJ[i, j] * K[j]
+        r += h * w_apply(F, diag, v, first)
+    return w_solve(DF, small, dinv, r, ROSW_GAMMA * h, first)
+
+
+@jit
+def rosw_solution(x, K):
+    """(x+, err): x+ = x + sum_i b_i k_i, err = sum_i (b_i - bhat_i) k_i (the embedded second order's difference)."""
+    xn = x.copy()
+    err = np.zeros(x.shape[0])
+    for i in range(4):
+        xn += ROSW_B[i] * K[i]
+        err += (ROSW_B[i] - ROSW_BHAT[i]) * K[i]
+    return xn, err
 
 
 # --------------------------------------------------------------------------- exponential (ETD2RK)

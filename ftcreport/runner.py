@@ -67,6 +67,7 @@ class Built:
             noise_q=[nz.position, nz.position] + [nz.heading] * n,
             noise_eta=[nz.velocity, nz.velocity],
             seed=nz.seed,
+            noise_period=nz.sample_time,
             motors=case.motor_params(),
             drive=case.drive_params(),
         )
@@ -294,7 +295,8 @@ def explain_nulls(metrics: dict) -> dict:
 
 def halve_dt(case: Case, source: str = "") -> Case:
     """The case ``run --verify-dt`` compares with: at half the step, logged every 2 * log_every steps (a
-    fixed step: the same instants).  An error-controlled method also runs at a tenth of rtol and atol:
+    fixed step: the same instants), the sensor's noise on the clock it had (dt: the same draws).  An
+    error-controlled method also runs at a tenth of rtol and atol:
     its longest step halved too, since a run whose every step is capped at dt (a sampled loop's steps
     land on every sample; or dt binds) takes the same steps at any tolerance.
 
@@ -309,6 +311,10 @@ def halve_dt(case: Case, source: str = "") -> Case:
     if sim.method in AUTO_METHODS:
         update |= {"rtol": sim.rtol / 10, "atol": sim.atol / 10}
     half = case.model_copy(update={"simulation": sim.model_copy(update=update)})
+    noise = case.plant.noise
+    if noise.sample_time is None:  # the sensor keeps its clock (dt's): the same draws, held over two steps
+        plant = case.plant.model_copy(update={"noise": noise.model_copy(update={"sample_time": sim.dt})})
+        half = half.model_copy(update={"plant": plant})
     if sim.method in AUTO_METHODS and sim.min_step >= sim.dt / 2:  # as Simulation's validator asks of dt
         raise CaseError(
             f"{source or case.name}: --verify-dt: at dt/2, simulation.min_step: {sim.min_step:g} s is not below the "

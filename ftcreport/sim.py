@@ -209,12 +209,16 @@ class Plant:
         before the fault model: tau = sigma sat(u) + ubar.
     noise_q : (n + 2,) array_like, optional
         Standard deviations of the measurement noise on q [m, m, rad, ...]: the
-        controller sees q + noise, drawn once per step (a sampled sensor held
-        over the step), seeded.
+        controller sees q + noise, drawn once per sensor sample (``noise_period``)
+        and held in between, seeded.
     noise_eta : (2,) array_like, optional
         Standard deviations of the noise on the measured eta [m/s, rad/s].
     seed : int
         Seed of the noise generator (runs are reproducible).
+    noise_period : float, optional
+        The sensor's sample period [s]: draw j holds on [t0 + j T, t0 + (j + 1) T), whatever the
+        integration step (a fixed step must divide it; an error-controlled one lands on every tick).
+        None: the run's ``dt``.
     motors : MotorParams or sequence of MotorParams, optional
         A DC motor per wheel (one set per robot, leader first), thesis (2.26)-(2.29): the command
         becomes armature voltages (the driver's static inversion, ftcreport.model.motor_compiled) and the
@@ -235,6 +239,7 @@ class Plant:
         seed: int = 0,
         motors=None,
         drive=None,
+        noise_period: float | None = None,
     ):
         self.chain = chain
         self.motors = motors
@@ -252,6 +257,9 @@ class Plant:
         self.noise_std = np.concatenate((nq, ne))
         self.noisy = bool(np.any(self.noise_std > 0))
         self.seed = int(seed)
+        if noise_period is not None and not (math.isfinite(noise_period) and noise_period > 0):
+            raise ModelError(f"noise_period: must be a positive time [s], got {noise_period}")
+        self.noise_period = None if noise_period is None else float(noise_period)
 
 
 def time_grid(t0: float, duration: float, dt: float, breakpoints=()) -> np.ndarray:
@@ -333,6 +341,14 @@ def simulate(
             f"controller: {type(controller).__name__} has no compiled counterpart; a new law runs as a scheme "
             "(ftcreport.schemes, README 'Write your own scheme')"
         )
+    T = plant.noise_period
+    if T is not None and settings.method not in AUTO_METHODS:
+        ratio = T / settings.dt
+        if not (ratio >= 1 - 1e-9 and abs(ratio - round(ratio)) <= 1e-9 * ratio):
+            raise ModelError(
+                f"noise_period: {T:g} s is not a whole number of steps dt = {settings.dt:g} s (a fixed step holds "
+                "one draw; an error-controlled method lands on every draw)"
+            )
     if settings.method in AUTO_METHODS:  # error-controlled: the steps are the controller's (no grid)
         run = simulate_compiled(spec, plant, q0, eta0, settings, None, None, progress)
     else:

@@ -13,6 +13,7 @@ from ..infra.limits import name_problem
 from ..model import FaultEvent, FaultSchedule, wheel_index, wheel_names
 from ..model.actuators import DriveParams, MotorParams
 from ..model.faults import motor_row
+from ..runs import AUTO_METHODS
 from ..schemes.budget import budget_problem
 from ..schemes.fields import _f, _FieldError, _num, _Strict, did_you_mean
 from .scheme_tables import (
@@ -24,7 +25,7 @@ from .scheme_tables import (
     configured_schemes,
     known_schemes,
 )
-from .tables import Actuators, Fault, Initial, Plant, Reference, Robots, Simulation
+from .tables import Actuators, Fault, Initial, Noise, Plant, Reference, Robots, Simulation
 from .thresholds import BaselineSpec, Bound, CampaignSpec, Claim, Requirement, Status
 
 #: [s] two fault events at distinct times closer than this are refused: the requirements' windows take a sample
@@ -162,6 +163,7 @@ class Case(_Strict):
             raise _FieldError("kinematic.c_chain", f"{len(self.kinematic.c_chain)} gains given, {n} needed")
         if self.simulation.dt > self.simulation.duration:
             raise _FieldError("simulation.dt", "longer than the duration")
+        _check_noise_clock(self.plant.noise, self.simulation)
         for sname in configured_schemes(self):  # each scheme's own checks of its table against the case
             hook = _scheme_hook(sname, "validate")
             if hook is not None:
@@ -297,6 +299,25 @@ class Case(_Strict):
                 f"until {end:g} s ({why}); tracking is expected to be lost"
             )
         return out
+
+
+def _check_noise_clock(noise: Noise, sim: Simulation) -> None:
+    """The sensor's sample period (``[plant.noise] sample_time``) against the step: a fixed step must divide it
+    (each step holds one draw: a tick inside a step would fall between two steps' draws); an error-controlled
+    step lands on its ticks."""
+    T = noise.sample_time
+    if T is None:
+        return
+    if sim.duration < T:
+        raise _FieldError("plant.noise.sample_time", f"{T:g} s is longer than the run ({sim.duration:g} s)")
+    if sim.method not in AUTO_METHODS:
+        ratio = T / sim.dt
+        if not (ratio >= 1 - 1e-9 and abs(ratio - round(ratio)) <= 1e-9 * ratio):
+            raise _FieldError(
+                "plant.noise.sample_time",
+                f"{T:g} s is not a whole number of steps dt = {sim.dt:g} s: a fixed step holds one draw "
+                "(make it a multiple of dt, or use an error-controlled method, which lands on every draw)",
+            )
 
 
 def _check_drive_rate(act: Actuators, sim: Simulation) -> None:
@@ -541,6 +562,10 @@ def _check_budget(case: Case, schemes: list[str] | None = None) -> None:
         cfg = getattr(case.schemes, scheme)
         pats = getattr(cfg, "patterns", "all")
         models = None if pats == "all" else len(pats)
-        problem = budget_problem(case.robots.n, s.duration, s.dt, s.log_every, scheme, models)
+        # an error-controlled run lands on every tick of the sensor's clock: its steps are at most that long
+        T = case.plant.noise.sample_time
+        dt = min(s.dt, T) if (T is not None and s.method in AUTO_METHODS) else s.dt
+        problem = budget_problem(case.robots.n, s.duration, dt, s.log_every, scheme, models)
         if problem is not None:
-            raise _FieldError(*problem)
+            field, why = problem
+            raise _FieldError("plant.noise.sample_time" if dt < s.dt and field == "simulation.dt" else field, why)

@@ -411,11 +411,17 @@ class Simulation(_Strict):
 
 
 class Noise(_Strict):
-    """Measurement noise (standard deviations) the controllers see, drawn once per step, seeded."""
+    """Measurement noise (standard deviations) the controllers see: one draw per sensor sample, held, seeded."""
 
     position: Std = _f(0.0, "on x and y", "m")
     heading: Std = _f(0.0, "on every theta", "rad")
     velocity: Std = _f(0.0, "on v_n and omega_1", "m/s, rad/s")
+    sample_time: _num(1e-9, 1e6, gt=0) | None = _f(
+        None,
+        "the sensor's sample period: one draw per period, held in between, whatever the integration step "
+        "(a fixed step must divide it); default simulation.dt",
+        "s",
+    )
     # 63 bits: campaigns give each sample a SeedSequence child of 63 bits (ftcreport.studies.campaign.sample_seeds)
     seed: Int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**63 - 1)
 

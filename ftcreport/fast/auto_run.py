@@ -18,7 +18,18 @@ from ..jit.packed import (
     E_MIN_STEP,
     E_STEP_JUMP,
 )
-from .engine import _FIRST_CALLS, _READY, NAN, _collect, _compile_time, _finish, _Loop, _timing_mark
+from .engine import (
+    _FIRST_CALLS,
+    _READY,
+    NAN,
+    _collect,
+    _compile_time,
+    _finish,
+    _Loop,
+    _timing_mark,
+    n_noise_ticks,
+    noise_clock,
+)
 from .stops import _how, _in_singular_set, _message, _stop, law_nonfinite_reason, law_raised_reason, law_signal_reason
 
 if TYPE_CHECKING:
@@ -53,10 +64,9 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     t_end = t0 + duration
     times = np.array(sorted(set(float(v) for v in plant.faults.times)), dtype=float)
     events = times[(times > t0) & (times < t_end)]
-    clock = float(settings.dt) if (plant.noisy or spec.start) else NAN  # noise draws and the UKF tick at dt
-    n_ticks = math.floor(duration / settings.dt + 1e-9) + 2
+    clock = noise_clock(plant, settings) if plant.noisy else NAN  # the sensor's draws (the UKF ticks at dt)
     compile0 = _FIRST_CALLS[0]  # compile_time below
-    L = _Loop(spec, plant, q0, eta0, settings, np.concatenate(([t0], events)), n_ticks)
+    L = _Loop(spec, plant, q0, eta0, settings, np.concatenate(([t0], events)), n_noise_ticks(plant, settings))
     steps_new = L.loop.run_auto not in _READY
     nq = L.nq
     # the chunk buffers: about 4x the steps of 1 % of the run at the longest step, at most 32 MB
@@ -144,12 +154,13 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
 
 def _auto_arrays(spec: Spec, settings, t_start: float, t_end: float, t0: float, clock: float, method: int, nm: int):
     """fast.loop.run_auto's ``opt`` (settings) and ``ctl`` (state) for a run from t_start to t_end (the
-    noise and UKF clock ``clock`` ticking from t0; ``method`` -1: auto picks; ``nm`` the motor states)."""
+    sensor's clock ``clock`` (nan: no noise) and a discrete-time filter's (the UKF: dt) ticking from t0;
+    ``method`` -1: auto picks; ``nm`` the motor states)."""
     slot, T_min = _dwell(spec.controller)
     opt = np.array(
         [
             settings.rtol, settings.atol, settings.dt, settings.min_step, t_end, t_start, clock, t0, float(slot),
-            T_min, float(method), 1.0 if spec.start else 0.0,
+            T_min, float(method), float(settings.dt) if spec.start else 0.0,
         ]
     )  # fmt: skip
     # fast.loop's C_ entries, then etd3ec's linear block (fast.loop.C_JAGE, C_JTAKEN, C_JCOLS: (2 + nm) squared)

@@ -384,6 +384,21 @@ def _timing_mark(event: str) -> None:
 _MARKED: set = set()
 
 
+def noise_clock(plant, settings) -> float:
+    """The sensor's sample period: the plant's ``noise_period``, else the run's dt (one draw per step)."""
+    return float(settings.dt) if plant.noise_period is None else plant.noise_period
+
+
+def noise_ticks(plant, settings, t0: float, times: np.ndarray) -> np.ndarray:
+    """The tick of the sensor's clock each instant of ``times`` falls in (its draw), floor((t - t0) / T)."""
+    return np.floor((np.asarray(times, dtype=float) - t0) / noise_clock(plant, settings) + 1e-9).astype(np.int64)
+
+
+def n_noise_ticks(plant, settings) -> int:
+    """How many draws a run takes: the ticks of its clock over the duration, and one past the end."""
+    return math.floor(float(settings.duration) / noise_clock(plant, settings) + 1e-9) + 2
+
+
 class _Loop:
     """The arrays one run's loop reads and carries across its chunks (both step modes and the re-check)."""
 
@@ -399,12 +414,14 @@ class _Loop:
         table = [plant.faults.at(float(t)) for t in starts]
         self.fsig = np.array([np.asarray(s, float) for s, _ in table]).reshape(-1, nw)
         self.fubar = np.array([np.asarray(u, float) for _, u in table]).reshape(-1, nw)
-        # one draw per step (fixed) or per tick of the clock dt (error-controlled), in order (seeded)
+        # one draw per tick of the sensor's clock (noise_clock), in order (seeded); a fixed step reads the draw of
+        # the tick it starts in (step_noise)
         if plant.noisy:
             rng = np.random.default_rng(plant.seed)
             self.noise = rng.standard_normal((n_noise, nq + 2)) * plant.noise_std
         else:
             self.noise = np.zeros((1, nq + 2))
+        self.step_noise = self.noise  # a fixed-step run's draw of each step (fast.simulate)
         # DC motors: their currents and drive states follow eta in the state, their fault tables follow
         # the segments
         if plant.motors is not None:

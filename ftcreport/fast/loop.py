@@ -1044,7 +1044,11 @@ def _next_event(events, seg, t, opt, hold_t, sampled, x, npl, ctl):
     if SAMPLED and sampled and hold_t[0] > t:
         t_ev = min(t_ev, hold_t[0])
     clock = opt[O_CLOCK]
-    if not math.isnan(clock):
+    if not math.isnan(clock):  # the sensor's next draw
+        j = math.floor((t - opt[O_T0]) / clock + 1e-9) + 1.0
+        t_ev = min(t_ev, opt[O_T0] + j * clock)
+    clock = opt[O_CLOCK_DISC]
+    if clock > 0.0:  # a discrete-time filter's next tick (the UKF at dt)
         j = math.floor((t - opt[O_T0]) / clock + 1e-9) + 1.0
         t_ev = min(t_ev, opt[O_T0] + j * clock)
     if opt[O_DWELL] >= 0.0:
@@ -1276,7 +1280,7 @@ def run_auto(
         if not (SAMPLED and sampled):
             on_clock = True
             if opt[O_CLOCK_DISC] > 0.0:  # a discrete-time filter (the UKF) runs on its clock only
-                tick = (t_new - opt[O_T0]) / opt[O_CLOCK]
+                tick = (t_new - opt[O_T0]) / opt[O_CLOCK_DISC]
                 on_clock = abs(tick - round(tick)) <= 1e-9 * max(1.0, tick) or t_new >= opt[O_TEND]
             if on_clock:
                 xcn = xn[npl:]

@@ -10,7 +10,7 @@ import numpy as np
 from ..errors import step_words
 from ..jit.packed import AT_TRIAL, E_STEP_GROWTH
 from .auto_run import _AUTO_CODES, _auto_arrays, _auto_stop
-from .engine import NAN
+from .engine import NAN, noise_clock
 from .integrators import METHOD_CODES
 from .stops import _SINGULAR_CODES, _in_singular_set, _message, _stop
 
@@ -72,7 +72,7 @@ def _recheck(L: _Loop, grid, fidx, checkpoints, k_stop: int) -> dict:
     if k0 > 0:  # the step before the checkpoint: a fault at k0 resets the windings as in the coarse run
         fine, owner, first = np.concatenate(([grid[k0 - 1]], fine)), np.concatenate(([k0 - 1], owner)), 1
     fine_fidx = np.ascontiguousarray(fidx[owner])
-    noise = L.noise
+    noise = L.step_noise
     if noise.shape[0] > 1:
         noise = np.ascontiguousarray(noise[owner])
     L.restore(saved)
@@ -134,11 +134,8 @@ def _controlled_recheck(L: _Loop, grid, checkpoints, k_stop: int, k_to: int) -> 
     seg_all = np.unique(np.searchsorted(times, grid, side="right"))
     rows_of = np.searchsorted(seg_all, np.searchsorted(times, np.concatenate(([t_from], events)), side="right"))
     t0 = float(grid[0])
-    clock = float(settings.dt) if (L.plant.noisy or L.spec.start) else NAN
-    noise = L.noise
-    if noise.shape[0] > 1:  # tick j of the clock holds the draw of the coarse step it falls in
-        ticks = t0 + settings.dt * np.arange(math.floor((t_to - t0) / settings.dt + 1e-9) + 2)
-        noise = np.ascontiguousarray(noise[np.clip(np.searchsorted(grid, ticks, side="right") - 1, 0, None)])
+    # the sensor's draws by tick, as the coarse steps read them (each step lies inside one tick)
+    clock = noise_clock(L.plant, settings) if L.plant.noisy else NAN
     opt, ctl = _auto_arrays(L.spec, fine_settings, t_from, t_to, t0, clock, _AUTO_CODES[method], L.nm)
     opt[5] = t_to  # one chunk
     L.restore(saved)
@@ -148,7 +145,7 @@ def _controlled_recheck(L: _Loop, grid, checkpoints, k_stop: int, k_to: int) -> 
     t_rows: list[np.ndarray] = []
     tau_rows: list[np.ndarray] = []
     while True:
-        li, where = L.auto_steps(events, L.fsig[rows_of], L.fubar[rows_of], L.fmot[rows_of], noise, opt, ctl, 256)
+        li, where = L.auto_steps(events, L.fsig[rows_of], L.fubar[rows_of], L.fmot[rows_of], L.noise, opt, ctl, 256)
         t_rows.append(L.lt[:li].copy())
         tau_rows.append(np.max(np.abs(L.ltau[:li]), axis=1) if li else np.zeros(0))
         if L.info[0] != 0 or li == 0 or L.lt[li - 1] >= t_to or ctl[3] > 1_000_000:

@@ -9,7 +9,17 @@ import numpy as np
 
 from ..jit.packed import AT_STATE
 from .auto_run import _simulate_auto
-from .engine import _FIRST_CALLS, _READY, _collect, _compile_time, _finish, _Loop, _timing_mark
+from .engine import (
+    _FIRST_CALLS,
+    _READY,
+    _collect,
+    _compile_time,
+    _finish,
+    _Loop,
+    _timing_mark,
+    n_noise_ticks,
+    noise_ticks,
+)
 from .integrators import METHOD_CODES
 from .recheck import _controlled_recheck, _keep_checkpoints, _recheck, _relabel
 from .stops import _stop
@@ -36,7 +46,10 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     firsts = np.unique(seg, return_index=True)[1]
     fidx = np.searchsorted(np.unique(seg), seg).astype(np.int64)
     compile0 = _FIRST_CALLS[0]  # compile_time below
-    L = _Loop(spec, plant, q0, eta0, settings, grid[firsts], n_steps + 1)
+    L = _Loop(spec, plant, q0, eta0, settings, grid[firsts], n_noise_ticks(plant, settings))
+    if plant.noisy:  # each step holds the draw of the sensor's tick it starts in (its clock divides dt's grid)
+        ticks = np.minimum(noise_ticks(plant, settings, float(grid[0]), grid), L.noise.shape[0] - 1)
+        L.step_noise = np.ascontiguousarray(L.noise[ticks])
     steps_new = L.loop.run_steps not in _READY
     nq = L.nq
     # The kernels log every step of a chunk (about 1 % of the run) into chunk buffers; after each chunk
@@ -65,7 +78,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
             if k == 0:
                 _timing_mark("loop_call")
             checkpoints = _keep_checkpoints(checkpoints, k, L)
-            k_last, li, where = L.steps(grid, fidx, L.noise, method, k, k1, every_step)
+            k_last, li, where = L.steps(grid, fidx, L.step_noise, method, k, k1, every_step)
             if k == 0:
                 _timing_mark("first_chunk")
                 first_s = _time.perf_counter() - wall0

@@ -1,0 +1,120 @@
+"""The sensor's own clock (``[plant.noise] sample_time``): the noise a run sees does not depend on its step.
+
+Before, the engine drew one sample of sensor noise per integration step: refining dt drew a new noise
+realisation, so ``run --verify-dt`` on a noisy case (three_link_active) compared two different noises, and
+benchmarks/accuracy.py found no equal-accuracy line for it (RK4 at dt/2 and dt/4 landed 6.5e-5 and 1.35e-4 m
+from the run at dt).  Now draw j holds on [t0 + j T, t0 + (j + 1) T) for the sensor's period T (default the
+case's dt, so the shipped numbers do not move), whatever the step.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ftcreport.cases import load_case, parse_case
+from ftcreport.errors import CaseError
+from ftcreport.runner import halve_dt, run_scheme
+
+CASES = Path(__file__).resolve().parents[1] / "cases"
+
+
+def _active(duration: float = 5.0, **sim):
+    case = load_case(CASES / "three_link_active.toml")
+    return case.model_copy(update={"simulation": case.simulation.model_copy(update={"duration": duration, **sim})})
+
+
+def _with_period(case, T: float | None):
+    noise = case.plant.noise.model_copy(update={"sample_time": T})
+    return case.model_copy(update={"plant": case.plant.model_copy(update={"noise": noise})})
+
+
+def _xy_at(run, t: float) -> np.ndarray:
+    i = int(np.searchsorted(run.t_stream, t - 1e-9))
+    assert abs(run.t_stream[i] - t) < 1e-9
+    return run.stream["q"][i, :2]
+
+
+def test_the_default_period_is_dt_and_moves_no_number():
+    """sample_time = dt written out gives the run of the case as shipped, bit for bit."""
+    case = _active(2.0)
+    a, ma = run_scheme(case, "nominal")
+    b, mb = run_scheme(_with_period(case, case.simulation.dt), "nominal")
+    assert np.array_equal(a.stream["q"], b.stream["q"]) and np.array_equal(a.stream["u"], b.stream["u"])
+    assert ma["position_error_max"] == mb["position_error_max"]
+
+
+def test_refining_the_step_keeps_the_draws_and_converges_at_the_method_order():
+    """halve_dt (``run --verify-dt``) keeps the sensor on its clock: the measurement noise at the instants both
+    runs share is the same, and RK4's differences dt -> dt/2 -> dt/4 shrink by 2^4 (measured 6.0e-10 and
+    3.6e-11 m: 16.6x).  Before, they were 6.5e-5 and 1.35e-4 m: the difference of two noise realisations."""
+    case = _active(5.0, log_every=1)
+    runs = [run_scheme(c, "nominal")[0] for c in (case, halve_dt(case), halve_dt(halve_dt(case)))]
+    xs = [_xy_at(r, 5.0) for r in runs]
+    d1, d2 = np.max(np.abs(xs[0] - xs[1])), np.max(np.abs(xs[1] - xs[2]))
+    assert d1 < 1e-8
+    assert 10.0 < d1 / d2 < 25.0
+    # the noise itself: q_meas - q at every instant of the coarse run, read from the finer run's log
+    coarse, fine = runs[0], runs[1]
+    j = np.searchsorted(fine.t, coarse.t - 1e-12)
+    np.testing.assert_allclose(fine.t[j], coarse.t, atol=1e-12)
+    n_coarse = coarse.signals["q_meas"] - coarse.signals["q"]
+    n_fine = fine.signals["q_meas"][j] - fine.signals["q"][j]
+    np.testing.assert_allclose(n_fine, n_coarse, rtol=0, atol=1e-15)
+
+
+def test_a_slower_sensor_holds_each_draw_over_its_period():
+    """sample_time = 4 dt: the noise changes only at the sensor's ticks, every fourth step."""
+    case = _with_period(_active(1.0, log_every=1), 0.08)
+    run, _ = run_scheme(case, "nominal")
+    noise = run.signals["q_meas"] - run.signals["q"]
+    changes = np.flatnonzero(np.any(np.abs(np.diff(noise, axis=0)) > 1e-9, axis=1)) + 1  # draws of 1e-3, not round-off
+    np.testing.assert_allclose(run.t[changes], 0.08 * np.arange(1, changes.size + 1), atol=1e-9)
+    assert changes.size == 12  # ticks at 0.08 ... 0.96 s in a 1 s run
+
+
+def test_an_error_controlled_run_lands_on_every_tick_and_agrees_with_the_fixed_step():
+    """dopri5 with its longest step 10 dt lands on every draw (0.02 s) and ends where RK4 at dt/4 ends, within the
+    tolerance's reach (measured 3e-12 m at rtol 1e-9)."""
+    case = _with_period(_active(2.0), 0.02)
+    fine, _ = run_scheme(halve_dt(halve_dt(case)), "nominal")
+    sim = case.simulation.model_copy(update={"method": "dopri5", "dt": 0.2, "rtol": 1e-9, "atol": 1e-11})
+    auto = case.model_copy(update={"simulation": sim})
+    run, _ = run_scheme(auto, "nominal")
+    ticks = 0.02 * np.arange(1, 100)
+    assert np.all(np.min(np.abs(run.t_stream[:, None] - ticks[None, :]), axis=0) < 1e-9)
+    assert np.max(np.abs(_xy_at(run, 2.0) - _xy_at(fine, 2.0))) < 1e-9
+
+
+def _raw() -> dict:
+    return tomllib.loads((CASES / "three_link_active.toml").read_text())
+
+
+@pytest.mark.parametrize(
+    ("noise", "sim", "why"),
+    [
+        ({"sample_time": 0.03}, {}, "0.03 s is not a whole number of steps dt = 0.02 s"),
+        ({"sample_time": 0.01}, {}, "0.01 s is not a whole number of steps dt = 0.02 s"),
+        ({"sample_time": 500.0}, {}, "longer than the run (400 s)"),
+        ({"sample_time": -1.0}, {}, "must be >= 1e-09, got -1.0"),
+        ({"sample_time": 1e-7}, {"method": "auto"}, "exceeds the limit"),
+    ],
+)
+def test_a_sensor_clock_the_step_cannot_hold_is_refused_naming_the_field(noise, sim, why):
+    raw = _raw()
+    raw["plant"]["noise"].update(noise)
+    raw["simulation"].update(sim)
+    with pytest.raises(CaseError) as info:
+        parse_case(raw, "cases/x.toml")
+    assert "cases/x.toml: plant.noise.sample_time: " in str(info.value)
+    assert why in str(info.value)
+
+
+def test_an_error_controlled_method_accepts_any_period():
+    raw = _raw()
+    raw["plant"]["noise"]["sample_time"] = 0.03
+    raw["simulation"]["method"] = "auto"
+    assert parse_case(raw, "cases/x.toml").plant.noise.sample_time == 0.03

@@ -38,7 +38,7 @@ CASES = Path(__file__).resolve().parents[1] / "cases"
 TWINS = {
     "five_link_cascade": "switching",
     "four_link_eight_step": "oracle",
-    "three_link_active": "active",  # sensor noise: the steps land on the noise clock dt
+    "three_link_active": "active",  # sensor noise: the steps land on the sensor's clock (dt)
     "three_link_adaptive": "adaptive",
     "three_link_circle_faults": "switching",
     "three_link_eight_faults": "nominal",

@@ -116,7 +116,7 @@ def _controlled_recheck(L: _Loop, grid, checkpoints, k_stop: int, k_to: int) -> 
     Returns ``{"method", "from", "to", "status", "reason", "t_end", "min_step_taken", "growth"}``: status
     "ok" when it passes the stop; ``growth`` the ratio of max |tau| over the growth detector's window
     (the stop and the GROWTH_STEPS steps of dt before it).  Faults, samples and dwell ends fall where
-    they fell; the noise of each coarse step is held over it (the clock dt).
+    they fell; the sensor's draws are those of its clock, as the coarse steps read them.
     """
     import dataclasses
 

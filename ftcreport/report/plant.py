@@ -175,7 +175,7 @@ def _idealizations(case: Case) -> list[dict]:
             "aspect": "sensors",
             "includes": (
                 f"q and eta with white noise (std {nz.position:g} m, {nz.heading:g} rad, {nz.velocity:g} m/s), "
-                "drawn once per step"
+                f"one draw every {nz.sample_time if nz.sample_time is not None else sim.dt:g} s, held in between"
                 if noisy
                 else "the controllers read q and eta exactly"
             )

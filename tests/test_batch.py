@@ -664,3 +664,28 @@ def test_the_winners_table_says_why_a_detector_metric_has_no_winner(tmp_path):
     row = next(r for r in winners.split("<tr>") if 'href="small/index.html"' in r)
     assert row.count(">n/a: no detector run</span>") == 2, row
     assert ">n/a</span>" not in row, row
+
+
+def test_metrics_parquet_marks_the_runs_of_a_rejected_case_file_stale(tmp_path):
+    """Session 13's left-alone list: after a case file is rejected, metrics.parquet (and export's copy) still
+    listed its earlier runs with nothing to tell them from current ones, though the index leaves them out.
+    Its ``stale`` column is True on exactly those rows (the record's status is error), False elsewhere."""
+    import pandas as pd
+
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    for name in ("alpha", "beta"):
+        (cases / f"{name}.toml").write_text(_SMALL)
+    out = tmp_path / "rep"
+    args = ["batch", str(cases), "--out", str(out), "--jobs", "1", "-q"]
+    assert runner.invoke(app, args).exit_code == 0
+    df = pd.read_parquet(out / "metrics.parquet")
+    assert not df["stale"].any()
+    (cases / "alpha.toml").write_text(_SMALL.replace("k_v = 5.0", "k_v = -5.0"))
+    assert runner.invoke(app, args).exit_code == 2
+    df = pd.read_parquet(out / "metrics.parquet")
+    assert set(df.loc[df["stale"], "case"]) == {"alpha"} and set(df.loc[~df["stale"], "case"]) == {"beta"}
+    assert sorted(df.loc[df["stale"], "scheme"].unique()) == ["nominal", "oracle"]
+    assert runner.invoke(app, ["export", "--out", str(out), "--dest", str(tmp_path / "ex")]).exit_code == 0
+    ex = pd.read_parquet(tmp_path / "ex" / "metrics.parquet")
+    assert set(ex.loc[ex["stale"], "case"]) == {"alpha"}

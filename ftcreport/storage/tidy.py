@@ -307,6 +307,9 @@ METRICS_DTYPES: dict[str, str] = {
     "phase_recovery_time": "float64",  # [s]; NaN when the error never re-enters the band
     "status": "string",
     "reason": "string",
+    # the case file was rejected by the last batch that read it: the run is of an earlier version of the file
+    # (the index leaves it out: report.render.stale_runs' rule, the case record's status "error")
+    "stale": "boolean",
     "engine": "string",
     "case_hash": "string",
     "n_robots": "Int32",
@@ -363,11 +366,13 @@ def metrics_table(out: Path) -> pd.DataFrame:
     rows: list[dict] = []
     for rec in sorted(out.glob("*/case.json")):
         name = rec.parent.name
-        if not isinstance(read_json(rec), dict):  # not a case record: export names it (store.unrecorded_cases)
+        record = read_json(rec)
+        if not isinstance(record, dict):  # not a case record: export names it (store.unrecorded_cases)
             continue
+        stale = record.get("status") == "error"
         for s, run in stored_runs(out, name).items():  # a damaged run is a row with status error, not left out
             key = (run.record or {}).get("key") or ""
-            rows += _phase_rows({"case": name, "scheme": s} | run.shown(), key)
+            rows += _phase_rows({"case": name, "scheme": s} | run.shown() | {"stale": stale}, key)
     df = pd.DataFrame(rows, columns=list(METRICS_DTYPES))
     for col, dtype in METRICS_DTYPES.items():
         if dtype == "float64":

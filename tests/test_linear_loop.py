@@ -251,3 +251,29 @@ def test_the_limits_case_gain_is_the_loop_at_its_point(scheme):
     again = _blocks_at_gain(case, scheme, built, fz, None, 2.0, loop.k_v, None, base)
     assert _same_blocks(again, base)
     assert not _same_blocks(_blocks_at_gain(case, scheme, built, fz, None, 2.0, 2.0 * loop.k_v, None, base), base)
+
+
+def test_the_ukf_update_through_its_steps_derivative_is_its_central_differences():
+    """The UKF scheme's discrete update linearized through the filter step's derivative (SchemeLoop._ukf_map)
+    against central differences of the whole compiled update (the analysis's method before 2026-12-02), at
+    healthy and faulty points of two_link_active and three_link_active: every row within 2e-6 of the row's
+    largest entry.  Measured: 3.7e-7 at most, which is the whole update's differences' own error (against
+    differences of the filter step Richardson-extrapolated, tests/test_ukf_compiled.py, they are off by up
+    to 3e-7 of a row: the step's round-off over 2 h = 2e-6, amplified by the sigma points' weights), and the
+    law's (the clips of sigma_hat sit on the estimates at the truth: both difference the law at the same
+    points to O(h^2))."""
+    for name in ("two_link_active.toml", "three_link_active.toml"):
+        case, built = _case(name)
+        loop = SchemeLoop(case, "active_ukf", built)
+        assert loop._ukf_law is not None
+        nw, T = built.chain.n_wheels, case.simulation.dt
+        lost = Faults(np.r_[1.0, 0.0, np.ones(nw - 2)], np.r_[0.0, 0.0, 0.3, np.zeros(nw - 3)], np.zeros((0, 4)))
+        for fz in (Faults.healthy(nw, False), lost):
+            for t in (2.0, 7.3):
+                pt = loop.point(t, fz, period=T)
+                Dc, Dy = loop._discrete_map(pt, T, loop._lin)
+                law, loop._ukf_law = loop._ukf_law, None  # the whole update's central differences
+                Dc0, Dy0 = loop._discrete_map(pt, T, loop._lin)
+                loop._ukf_law = law
+                new, old = np.hstack((Dc, Dy)), np.hstack((Dc0, Dy0))
+                assert np.all(np.abs(new - old).max(axis=1) <= 2e-6 * np.abs(old).max(axis=1)), (name, t)

@@ -19,7 +19,9 @@ numbers only through the compiled kernels, so the Jacobians are central differen
 functions (error O(h^2) for a relative step h = 1e-6: about 1e-12 of each entry, far below what a
 pole or a limit needs; ``tests/test_linear_loop.py`` checks them against the model's analytic
 Jacobians and the sympy Lagrangian).  The same code linearizes a plug-in scheme, which is known only
-through that interface.
+through that interface.  One exception, for cost: the UKF scheme's filter step enters its update through
+its derivative (:meth:`SchemeLoop._ukf_map`, ``observers.ukf_compiled.ukf_step_jacobian``), not
+through differences of the whole step (112 filter steps per frozen instant for six robots).
 
 Operating point (a frozen instant t of a fault phase): the plant on the reference,
 ``q = q_d(t), eta = eta_d(t)``, the motors' currents quasi-static for the command held there; the
@@ -357,6 +359,7 @@ class SchemeLoop:
         nk = self.nk
         self._own = slice(self._lin.start - nk, self._lin.stop - nk) if contiguous else lin - nk
         self._linearized_at: dict[tuple, Blocks] = {}  # :meth:`blocks` by the content of its arguments
+        self._ukf_law = _ukf_law(self.ctrl)  # the UKF scheme's compiled parameters (:meth:`_ukf_map`), or None
 
     # ------------------------------------------------------------------------------------------ calls
     def law(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray, st, ut) -> tuple[np.ndarray, np.ndarray]:
@@ -513,10 +516,16 @@ class SchemeLoop:
         )  # fmt: skip
 
     def _discrete_map(self, pt: Point, period: float, lin: slice | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(Dc, Dy): the Jacobian of the discrete update c <- d(c, y) at pt for samples ``period`` apart."""
+        """(Dc, Dy): the Jacobian of the discrete update c <- d(c, y) at pt for samples ``period`` apart.
+
+        The UKF scheme's through its filter step's derivative (:meth:`_ukf_map`); any other by central
+        differences of the update.
+        """
         nq, ny = self.n_q, self.n_q + 2
         xc0 = pt.xc.copy()
         y0 = pt.xp[:ny].copy()
+        if self._ukf_law is not None and float(pt.t) - xc0[self.ctrl._t.start] > 0.0:
+            return self._ukf_map(pt, lin)
 
         def d(y, c):
             xc = xc0.copy()
@@ -525,6 +534,64 @@ class SchemeLoop:
 
         Dc = central_columns(lambda c: d(y0, c), xc0[lin])
         Dy = central_columns(lambda y: d(y, xc0[lin]), y0)
+        return Dc, Dy
+
+    def _ukf_map(self, pt: Point, lin: slice | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r"""(Dc, Dy) of the UKF scheme's update ``c+ = L(E(c, y), y)``: the filter step by its derivative.
+
+        The update (``control.active_law.ukf_discrete``) is the filter's step on the estimate x with the
+        held command u and the measured q, ``x+ = s(x, u, q)`` (E: c with x replaced by x+), then the law
+        (4.14) on the new estimates (L: the same compiled update called with no time elapsed since its
+        sample computes the law alone; it overwrites the held command and leaves x+ as it is).  The central
+        difference of the whole update along column j, ``(L(E(c + h e_j)) - L(E(c - h e_j))) / 2 h``, is
+        taken with E to first order, ``E(c +- h e_j) = E(c) +- h E_c e_j`` (E_c from
+        :func:`~ftcreport.observers.ukf_compiled.ukf_step_jacobian`, the filter's derivative with its
+        covariance held): L is differenced along the direction the step gives the perturbation, with
+        the same h, and the rows of x+ are E_c's own.  So the law sees what it saw when the whole update
+        was differenced, to O(h^2) (the clips of the law sit on the estimates: sigma_hat = clip(rho, 0,
+        1) with rho at the truth, 1 or 0; across such a kink a difference depends on where its two points
+        fall, and these fall where they fell), and the step costs one filter step and its derivative
+        instead of 2 (nx + 2n + N + 2) filter steps (112 for six robots, 0.25 ms each).
+        tests/test_linear_loop.py compares the two.
+        """
+        from ..observers.ukf_compiled import ukf_message, ukf_step_jacobian
+
+        ctrl, law = self.ctrl, self._ukf_law
+        nq, ny = self.n_q, self.n_q + 2
+        nx, nw = int(law.ukf.nx), self.plant.nw
+        t = float(pt.t)
+        xc0 = pt.xc.copy()
+        y0 = pt.xp[:ny].copy()
+        est, held = ctrl._est, ctrl._u
+        h = t - xc0[ctrl._t.start]  # as ukf_discrete computes it
+        s = xc0[est.start : est.start + nx * (nx + 1)]
+        J, status = ukf_step_jacobian(law.pf, law.ukf, s, xc0[held].copy(), y0[:nq].copy(), h, STEP)
+        if status:
+            raise ModelError(f"scheme {self.scheme}: {ukf_message(int(status))} (its step's derivative at t = {t:g} s)")
+        xc1 = self.discrete(t, y0[:nq], y0[nq:], xc0)  # the step and the law; at xc1 no time has elapsed
+        where = {int(i): k for k, i in enumerate(self.linearized)}
+        rows = np.array([where[est.start + i] for i in range(nx)])
+        cols = np.concatenate((rows, [where[i] for i in range(held.start, held.stop)]))
+        n = len(self.linearized)
+        Ec = np.eye(n)  # dE / dc and dE / dy: the step's derivative in x's rows, the identity elsewhere
+        Ec[rows] = 0.0
+        Ec[np.ix_(rows, cols)] = J[:, : nx + nw]
+        Ey = np.zeros((n, ny))
+        Ey[rows, :nq] = J[:, nx + nw :]
+        c0, c1 = xc0[lin], xc1[lin]
+
+        def law_at(c, y):
+            xc = xc1.copy()
+            xc[lin] = c
+            return self.discrete(t, y[:nq], y[nq:ny], xc)[lin]
+
+        def column(v, w, h):  # the law's central difference along (v, w), the step's image of a perturbation
+            return (law_at(c1 + h * v, y0 + h * w) - law_at(c1 - h * v, y0 - h * w)) / (2.0 * h)
+
+        zero = np.zeros(ny)
+        Dc = np.column_stack([column(Ec[:, j], zero, STEP * max(1.0, abs(c0[j]))) for j in range(n)])
+        Dy = np.column_stack([column(Ey[:, k], np.eye(ny)[k], STEP * max(1.0, abs(y0[k]))) for k in range(ny)])
+        Dc[rows], Dy[rows] = Ec[rows], Ey[rows]  # x+ is the step's: its derivative, not its difference
         return Dc, Dy
 
 
@@ -581,6 +648,17 @@ def _layout(ctrl, nk: int) -> tuple[set[int], bool]:
         o, start = ctrl.est, ctrl._est.start
         held |= set(range(start + o._Y.start, start + o._P.stop))
     return held, disc
+
+
+def _ukf_law(ctrl):
+    """The UKF scheme's ``UkfLaw`` (observers.ukf_compiled: the filter's model and constants), None for any
+    other scheme."""
+    from ..control.active import ActiveController
+    from ..observers.ukf import UKFEstimator
+
+    if isinstance(ctrl, ActiveController) and isinstance(ctrl.est, UKFEstimator) and ctrl.discrete_time:
+        return ctrl.P.ukf
+    return None
 
 
 def _world_pairs(ctrl) -> list[tuple[int, int]]:

@@ -58,8 +58,9 @@ K_MAX = 1e7  # 1/s
 STEP = 2.0  # the bracketing walk's ratio
 #: |z| within this of 1 is marginal, not a loss of stability: a time constant beyond T / 1e-6 (83 min at
 #: 5 ms).  Poles that sit on the boundary by structure (an estimate of a parameter the measurements do
-#: not see, ERRATA P3: the UKF's at 1 + 2e-8) come out of the central differences that far off it, and a
-#: double one as far as the square root of the differences' error
+#: not see, ERRATA P3: the UKF's at 1 + 2e-8 from central differences of its whole step, at 1 + 5e-11
+#: through the step's derivative) come out of the central differences that far off it, and a double one
+#: as far as the square root of the differences' error
 MARGINAL_Z = 1e-6
 #: a continuous pole within this fraction of the fastest pole's magnitude of the imaginary axis is marginal
 #: (the Farza observer's unseen parameter directions come out at +2e-7 1/s with poles of 20 1/s)

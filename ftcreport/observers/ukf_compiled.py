@@ -62,6 +62,7 @@ import numpy as np
 
 from ..jit import packed as P
 from ..jit.compiling import jit
+from ..jit.packed import _inv2
 from ..model.compiled import reduced
 
 if TYPE_CHECKING:
@@ -78,6 +79,7 @@ __all__ = [
     "ukf_message",
     "ukf_params",
     "ukf_step",
+    "ukf_step_jacobian",
 ]
 
 # status of ukf_step
@@ -463,6 +465,309 @@ def ukf_step(pc, U, s, u, y, h):
     if not _all_finite(out):
         return s.copy(), UKF_NONFINITE
     return out, UKF_OK
+
+
+# =========================================================================== its derivative (the linearized analysis)
+@jit
+def _model_columns(pc, q, eta, tau, rel, A, z, qd, ed, fp):
+    """``A = d f / d [q, eta]`` of the process model ``f = (S eta, Mbar1^-1 (Bbar tau - Mbar2 eta - Cbar))`` at
+    tau held, by central differences (relative step ``rel``, as ``analysis.closed_loop.central_columns``).
+
+    Columns 0 and 1 (the position of P_n) are exactly 0 and not differenced: the model's terms read q only
+    through the headings (``model.compiled.s_column`` reads ``q[2:]``: the chain's dynamics do not depend
+    on where it is).  ``z``, ``qd``, ``ed``, ``fp``: work arrays (N + 2, N, 2, N + 2).
+    """
+    N = q.shape[0]
+    for i in range(N + 2):
+        for j in range(N + 2):
+            A[i, j] = 0.0
+    for j in range(2, N + 2):
+        for i in range(N):
+            z[i] = q[i]
+        z[N] = eta[0]
+        z[N + 1] = eta[1]
+        x0 = z[j]
+        hj = rel * max(1.0, abs(x0))
+        z[j] = x0 + hj
+        Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(pc, z[:N], z[N:])
+        _rhs(Mbar1, Mbar2, Cbar, Bbar, S, z[N:], tau, qd, ed)
+        for i in range(N):
+            fp[i] = qd[i]
+        fp[N] = ed[0]
+        fp[N + 1] = ed[1]
+        z[j] = x0 - hj
+        Mbar1, Mbar2, Cbar, Bbar, S, _Sd = reduced(pc, z[:N], z[N:])
+        _rhs(Mbar1, Mbar2, Cbar, Bbar, S, z[N:], tau, qd, ed)
+        for i in range(N):
+            A[i, j] = (fp[i] - qd[i]) / (2.0 * hj)
+        A[N, j] = (fp[N] - ed[0]) / (2.0 * hj)
+        A[N + 1, j] = (fp[N + 1] - ed[1]) / (2.0 * hj)
+
+
+@jit
+def _torque_columns(Mbar1, Bbar, u, rho, U, nx, BT):
+    """``BT = d f / d tau  d tau / d [x, u]`` (N + 2, nx + 2n): how the wheels' torques ``tau = diag(rho) u + ubar``
+    (2.102) move the model, exactly (``d eta' / d tau = Mbar1^-1 Bbar``, (2.70); q' does not read tau)."""
+    N = U.N
+    nw = u.shape[0]
+    Minv = _inv2(Mbar1)
+    for i in range(BT.shape[0]):
+        for c in range(BT.shape[1]):
+            BT[i, c] = 0.0
+    for j in range(nw):
+        b0 = Minv[0, 0] * Bbar[0, j] + Minv[0, 1] * Bbar[1, j]
+        b1 = Minv[1, 0] * Bbar[0, j] + Minv[1, 1] * Bbar[1, j]
+        k = N + 2
+        if U.est_rho:
+            BT[N, k + j] = b0 * u[j]
+            BT[N + 1, k + j] = b1 * u[j]
+            k += nw
+        if U.est_ubar:
+            BT[N, k + j] = b0
+            BT[N + 1, k + j] = b1
+        BT[N, nx + j] = b0 * rho[j]
+        BT[N + 1, nx + j] = b1 * rho[j]
+
+
+@jit
+def ukf_step_jacobian(pc, U, s, u, y, h, rel):
+    r"""The derivative of :func:`ukf_step`'s estimate x+ in (x, u, y) with the covariance P held: (J, status).
+
+    What the linearized analysis needs of the UKF scheme's discrete update (analysis.closed_loop: the
+    filter linearized with P frozen, the usual linearization of a Kalman filter).  It replaces central
+    differences of the whole step (2 (nx + 2n + N) steps) by the derivative of each propagated sigma
+    point, and is exact in exact arithmetic for the following reason.  With P held the sigma points are
+    ``X_k = x + d_k`` with offsets d_k = +-rows of chol(c P) that do not move, so ``dX_k / dx = I``.  The
+    step then computes (module docstring)::
+
+        Xf_k = F(X_k, u)   (one midpoint step),   x^- = sum Wm_k Xf_k,
+        P^- = sum Wc_k e_k e_k^T + Qc h,   e_k = Xf_k - x^-
+
+    and updates from sigma points redrawn from (x^-, P^-).  Their statistics are exactly x^- and P^-
+    (``sum Wm_k = 1``, the +-d_k cancel, ``sum Wc_k d_k d_k^T = P^-``), so in exact arithmetic ``zp = H x^-``,
+    ``S = H P^- H^T + R``, ``Pxz = P^- H^T`` (H = [I_N, 0], y = q + v) and the update is the linear Kalman
+    update with the predicted covariance: ``x+ = x^- + K r``, ``K = P^- H^T S^-1``, ``r = y - H x^-``; the
+    redraw's Cholesky factor has no derivative to take.  Differentiating, with ``w = S^-1 r``::
+
+        dx+ = (I - K H) (dx^- + dP^- H^T w) + K dy,   dx^- = sum Wm_k dXf_k,
+        dP^- H^T w = sum Wc_k [de_k (H e_k . w) + e_k (H de_k . w)],   de_k = dXf_k - dx^-
+
+    (dK r = dP^- H^T w - K H dP^- H^T w; the innovation r is small but not zero at the analysis's
+    operating point, so the term is kept).  Only ``dXf_k / d[x, u]`` is left: the midpoint step
+    ``Xm = X + h/2 f(X)``, ``Xf = X + h f(Xm)`` (q, eta; the parameters are carried) by the chain rule,
+    ``dXm = E + h/2 (A(X) E + BT(X))``, ``dXf = E + h (A(Xm) dXm + BT(Xm))`` with E = [I, 0] the (q, eta)
+    rows, ``A = df / d[q, eta]`` the model's Jacobian at each sigma point by central differences
+    (:func:`_model_columns`, step ``rel``) and ``BT`` the torques' columns, exact (:func:`_torque_columns`).
+    The sigma points along the parameter directions keep X_0's (q, eta): their first-stage model terms
+    are X_0's, differenced once (as :func:`_propagate` shares them).
+
+    Parameters
+    ----------
+    pc, U, s, u, y, h
+        As :func:`ukf_step`.
+    rel : float
+        Relative step of the model's central differences (``analysis.closed_loop.STEP``).
+
+    Returns
+    -------
+    J : (nx, nx + 2n + N) ndarray
+        ``[d x+ / d x, d x+ / d u, d x+ / d y]``.
+    status : int
+        UKF_OK, or the status :func:`ukf_step` gives for the same input when its prior covariance is not
+        positive definite (UKF_PRIOR_NOT_PD), a value is not finite (UKF_NONFINITE) or S is singular
+        (UKF_S_SINGULAR); J is then zero.
+    """
+    nx = U.nx
+    N = U.N
+    nw = u.shape[0]
+    m = 2 * nx + 1
+    nq = N + 2  # the propagated rows (q, eta)
+    nin = nx + nw
+    J = np.zeros((nx, nin + N))
+    x = s[:nx].copy()
+    P = s[nx:].copy().reshape(nx, nx)
+    if not (_all_finite(x) and _all_finite(P)):
+        return J, UKF_NONFINITE
+    work = np.empty((nx, nx))
+    Uc = np.empty((nx, nx))
+    X = np.empty((m, nx))
+    if _sigma_points(x, P, U.c, work, Uc, X):
+        return J, UKF_PRIOR_NOT_PD
+    Xf = np.empty((m, nx))
+    _propagate(pc, X, u, h, U.est_rho, U.est_ubar, Xf)
+    xm = np.empty(nx)
+    Pm = np.empty((nx, nx))
+    dev = np.empty((m, nx))
+    _unscented_transform(Xf, U.Wm, U.Wc, U.Qc * h, xm, Pm, dev)
+    if not (_all_finite(xm) and _all_finite(Pm)):
+        return J, UKF_NONFINITE
+    # the Kalman update with the predicted covariance: S = H P^- H^T + R, K = P^- H^T S^-1, w = S^-1 r
+    S = np.empty((N, N))
+    for i in range(N):
+        for j in range(N):
+            S[i, j] = Pm[i, j] + U.R[i, j]
+    SI = np.empty((N, N))
+    if not _lu_inverse(S, SI):
+        return J, UKF_S_SINGULAR
+    K = np.zeros((nx, N))
+    for i in range(nx):
+        for j in range(N):
+            v = 0.0
+            for k in range(N):
+                v += Pm[i, k] * SI[k, j]
+            K[i, j] = v
+    w = np.zeros(N)
+    for i in range(N):
+        v = 0.0
+        for j in range(N):
+            v += SI[i, j] * (y[j] - xm[j])
+        w[i] = v
+
+    # dXf_k / d[x, u] in the (q, eta) rows, sigma point by sigma point
+    D = np.zeros((m, nq, nin))
+    A = np.empty((nq, nq))
+    BT = np.empty((nq, nin))
+    G = np.empty((nq, nin))
+    A0 = np.empty((nq, nq))
+    z = np.empty(nq)
+    fp = np.empty(nq)
+    qd = np.empty(N)
+    ed = np.empty(2)
+    qm = np.empty(N)
+    em = np.empty(2)
+    tau = np.empty(nw)
+    rho = np.empty(nw)
+    terms0 = reduced(pc, X[0, :N], X[0, N:nq])
+    # X_0's first-stage columns at tau held, as f(z, tau) = f0(z) + G(z) tau: the (q, eta) differences of the
+    # model terms at X_0 +- h e_j, kept for the points that share X_0's (q, eta)
+    Zs = np.empty((2 * nq, nq))
+    M1s = np.empty((2 * nq, 2, 2))
+    M2s = np.empty((2 * nq, 2, 2))
+    Cs = np.empty((2 * nq, 2))
+    Bs = np.empty((2 * nq, 2, nw))
+    Ss = np.empty((2 * nq, N, 2))
+    hs = np.zeros(nq)
+    for j in range(2, nq):
+        x0 = X[0, j]
+        hj = rel * max(1.0, abs(x0))
+        hs[j] = hj
+        for side in range(2):
+            r = 2 * j + side
+            for i in range(nq):
+                Zs[r, i] = X[0, i]
+            Zs[r, j] = x0 + hj if side == 0 else x0 - hj
+            Mbar1, Mbar2, Cbar, Bbar, Sm, _Sd = reduced(pc, Zs[r, :N], Zs[r, N:])
+            M1s[r] = Mbar1
+            M2s[r] = Mbar2
+            Cs[r] = Cbar
+            Bs[r] = Bbar
+            Ss[r] = Sm
+    half = 0.5 * h
+    for k in range(m):
+        xk = X[k]
+        kk = N + 2
+        for j in range(nw):
+            rj = 1.0
+            if U.est_rho:
+                rj = xk[kk + j]
+            ub = 0.0
+            if U.est_ubar:
+                ub = xk[kk + (nw if U.est_rho else 0) + j]
+            rho[j] = rj
+            tau[j] = rj * u[j] + ub  # (2.102)
+        same = True
+        for j in range(nq):
+            if xk[j] != X[0, j]:
+                same = False
+                break
+        # first stage at X_k: f, its (q, eta) columns A0 and its torque columns BT
+        if same:
+            Mbar1, Mbar2, Cbar, Bbar, Sm, _Sd = terms0
+            for i in range(nq):
+                A0[i, 0] = 0.0
+                A0[i, 1] = 0.0
+            for j in range(2, nq):
+                r = 2 * j
+                _rhs(M1s[r], M2s[r], Cs[r], Bs[r], Ss[r], Zs[r, N:], tau, qd, ed)
+                for i in range(N):
+                    fp[i] = qd[i]
+                fp[N] = ed[0]
+                fp[N + 1] = ed[1]
+                _rhs(M1s[r + 1], M2s[r + 1], Cs[r + 1], Bs[r + 1], Ss[r + 1], Zs[r + 1, N:], tau, qd, ed)
+                for i in range(N):
+                    A0[i, j] = (fp[i] - qd[i]) / (2.0 * hs[j])
+                A0[N, j] = (fp[N] - ed[0]) / (2.0 * hs[j])
+                A0[N + 1, j] = (fp[N + 1] - ed[1]) / (2.0 * hs[j])
+        else:
+            Mbar1, Mbar2, Cbar, Bbar, Sm, _Sd = reduced(pc, xk[:N], xk[N:nq])
+            _model_columns(pc, xk[:N], xk[N:nq], tau, rel, A0, z, qd, ed, fp)
+        _torque_columns(Mbar1, Bbar, u, rho, U, nx, BT)
+        _rhs(Mbar1, Mbar2, Cbar, Bbar, Sm, xk[N:nq], tau, qd, ed)
+        for j in range(N):
+            qm[j] = xk[j] + half * qd[j]
+        for j in range(2):
+            em[j] = xk[N + j] + half * ed[j]
+        # dXm = E + h/2 (A0 E + BT)
+        for i in range(nq):
+            for c in range(nin):
+                v = BT[i, c]
+                if c < nq:
+                    v += A0[i, c]
+                G[i, c] = half * v
+            G[i, i] += 1.0
+        # second stage at Xm: dXf = E + h (A dXm + BT)
+        Mbar1, Mbar2, Cbar, Bbar, Sm, _Sd = reduced(pc, qm, em)
+        _torque_columns(Mbar1, Bbar, u, rho, U, nx, BT)
+        _model_columns(pc, qm, em, tau, rel, A, z, qd, ed, fp)
+        for i in range(nq):
+            for c in range(nin):
+                v = BT[i, c]
+                for j in range(2, nq):
+                    v += A[i, j] * G[j, c]
+                D[k, i, c] = h * v
+            D[k, i, i] += 1.0
+
+    # dx^- = sum Wm_k dXf_k (the parameters are carried: identity)
+    dxm = np.zeros((nx, nin))
+    for k in range(m):
+        wk = U.Wm[k]
+        for i in range(nq):
+            for c in range(nin):
+                dxm[i, c] += wk * D[k, i, c]
+    for i in range(nq, nx):
+        dxm[i, i] = 1.0
+    # Z = dx^- + dP^- H^T w: de_k is zero in the parameter rows (both carried)
+    Zm = dxm.copy()
+    b = np.empty(nin)
+    for k in range(m):
+        wk = U.Wc[k]
+        a = 0.0
+        for j in range(N):
+            a += dev[k, j] * w[j]
+        for c in range(nin):
+            v = 0.0
+            for i in range(N):
+                v += w[i] * (D[k, i, c] - dxm[i, c])
+            b[c] = v
+        for i in range(nq):
+            for c in range(nin):
+                Zm[i, c] += wk * a * (D[k, i, c] - dxm[i, c])
+        for i in range(nx):
+            e = wk * dev[k, i]
+            for c in range(nin):
+                Zm[i, c] += e * b[c]
+    # J = [(I - K H) Z, K]
+    for i in range(nx):
+        for c in range(nin):
+            v = Zm[i, c]
+            for j in range(N):
+                v -= K[i, j] * Zm[j, c]
+            J[i, c] = v
+        for j in range(N):
+            J[i, nin + j] = K[i, j]
+    if not _all_finite(J):
+        return np.zeros((nx, nin + N)), UKF_NONFINITE
+    return J, UKF_OK
 
 
 # =========================================================================== the active scheme on the UKF

@@ -277,3 +277,24 @@ def test_the_ukf_update_through_its_steps_derivative_is_its_central_differences(
                 loop._ukf_law = law
                 new, old = np.hstack((Dc, Dy)), np.hstack((Dc0, Dy0))
                 assert np.all(np.abs(new - old).max(axis=1) <= 2e-6 * np.abs(old).max(axis=1)), (name, t)
+
+
+def test_the_frames_walk_is_the_kinematic_laws_own_steps():
+    """closed_loop.frames walks the chained law's frame along the reference in one compiled call
+    (ChainedBackstepping.discrete_along): the same psi, bit for bit, as its discrete update called step by
+    step from Python (what frames did before 2026-12-02), at instants out of order and repeated."""
+    from ftcreport.analysis.closed_loop import frames
+
+    _, built = _case("five_link_cascade.toml")
+    kin = built.kinematic()
+    times = [7.5, 2.5, 40.0, 7.5, 63.3]
+    got = frames(kin, times, step=0.02)
+    xc = np.asarray(kin.initial_state(0.0, kin.reference.at(0.0).q_d), dtype=float)
+    want, t = {}, 0.0
+    for target in sorted(times):
+        for s in [*(np.arange(t, target, 0.02)[1:] if target > t else []), target]:
+            xc = kin.discrete(float(s), None, xc)
+        t = target
+        want[target] = float(xc[0])
+    assert got == want
+    assert len(set(want.values())) > 2  # the frame re-anchors between them

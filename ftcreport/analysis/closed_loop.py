@@ -689,16 +689,21 @@ def frames(kin, times, step: float = 0.01) -> dict[float, float]:
     if kin.n_states == 0:
         return {}
     ts = sorted(float(t) for t in times)
-    out: dict[float, float] = {}
     xc = np.asarray(kin.initial_state(0.0, kin.reference.at(0.0).q_d), dtype=float)
-    t = 0.0
-    for target in ts:
-        grid = np.arange(t, target, step)[1:] if target > t else []
-        for s in [*grid, target]:
-            xc = kin.discrete(float(s), None, xc)
+    walk, ends, t = [], [], 0.0
+    for target in ts:  # the steps up to each instant, the instant itself last
+        walk += [np.arange(t, target, step)[1:] if target > t else np.zeros(0), np.array([target])]
+        ends.append(sum(w.size for w in walk) - 1)
         t = target
-        out[target] = float(xc[0])
-    return out
+    steps = np.concatenate(walk) if walk else np.zeros(0)
+    if hasattr(kin, "discrete_along"):  # one compiled walk: 4,000 steps of 0.03 ms from Python for 80 s
+        psi = kin.discrete_along(steps, xc)
+    else:
+        psi = np.empty(steps.size)
+        for k, s in enumerate(steps):
+            xc = kin.discrete(float(s), None, xc)
+            psi[k] = xc[0]
+    return {target: float(psi[e]) for target, e in zip(ts, ends, strict=True)}
 
 
 def operating_state(loop: SchemeLoop, t: float, q, eta, fz: Faults, psi=None, applied=None, run_xc=None,

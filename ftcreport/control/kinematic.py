@@ -374,6 +374,19 @@ class ChainedBackstepping(_Face):
             self._raise(info)
         return out if out[0] != xc[0] else xc
 
+    def discrete_along(self, times: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        """psi after :meth:`discrete` at each of ``times`` in turn from ``xc``, in one compiled walk (the same
+        numbers: ``kin_discrete`` at each time): the compiled ``kin_discrete_along``."""
+        F = _F()
+        if self._cache is None:
+            self._cache = F.new_cache(self.n)
+        info = np.zeros(4)
+        ts, x = np.ascontiguousarray(times, dtype=float), np.array(xc, dtype=float)
+        out = F.kin_discrete_along(self._packed_any(), self.reference.packed(), self._cache, ts, x, info)
+        if info[0] != 0:
+            self._raise(info)
+        return out
+
     # ------------------------------------------------------------ the law
     def law(self, t: float, q: np.ndarray, xc: np.ndarray) -> KinematicOutput:
         """eta_c (3.98)-(3.106) generalized, T_alpha, f_eta (3.105, E12c) and Z at time t, state q, frame xc[0]."""

@@ -230,6 +230,21 @@ def kin_discrete(Kp, R, C, t, xc, info):
 
 
 @jit
+def kin_discrete_along(Kp, R, C, times, xc, info):
+    """:func:`kin_discrete` after each of ``times`` in turn, from ``xc``: the frame psi after each (one call for
+    a walk along the reference that took one call per step).  On an error the walk stops with ``info``
+    set, the rest of the returned psi NaN."""
+    out = np.full(times.shape[0], np.nan)
+    x = xc.copy()
+    for k in range(times.shape[0]):
+        kin_discrete(Kp, R, C, times[k], x, info)
+        if info[0] != 0:
+            return out
+        out[k] = x[0]
+    return out
+
+
+@jit
 def _reanchor_time(Kp, R, C, t_a, t_b, psi, info):
     """When in (t_a, t_b] the chained law's frame psi must re-anchor (kin_discrete: once the
     reference heading theta_d(t) leaves psi +/- band): t_b if it need not, else the first instant found

@@ -118,3 +118,19 @@ def test_an_error_controlled_method_accepts_any_period():
     raw["plant"]["noise"]["sample_time"] = 0.03
     raw["simulation"]["method"] = "auto"
     assert parse_case(raw, "cases/x.toml").plant.noise.sample_time == 0.03
+
+
+@pytest.mark.parametrize(
+    ("name", "digest"),
+    [("three_link_active", "bfda24c18c3b9209"), ("five_link_cascade", "bb9bba4183e6dd91"),
+     ("motors/two_link_active_motors", "404e114d5f4827a7")],
+)  # fmt: skip
+def test_a_case_without_a_sensor_period_keeps_its_content_hash(name, digest):
+    """The attack on the sensor clock (session 14): 'sample_time: null' joined every case's content hash, so every
+    stored run became another content.  Left out when unset, as the other later fields are (the digests are
+    those of the code before the field, with the version string 'pinned'); set, it is content."""
+    from ftcreport.cases.files import case_hash
+
+    case = load_case(CASES / f"{name}.toml")
+    assert case_hash(case, "pinned") == digest
+    assert case_hash(_with_period(case, case.simulation.dt), "pinned") != digest

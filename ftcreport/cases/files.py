@@ -272,6 +272,8 @@ def case_hash(case: Case, version: str) -> str:
         exclude["base_case"] = True
     # the tolerances (issue 36) are content for a fixed step too: a stopped fixed-step run is re-checked by its
     # error-controlled twin at them, which labels the stop (fast.recheck: step_unstable or diverged)
+    if case.plant.noise.sample_time is None:  # the sensor's own clock (issue 36): older cases keep their hashes
+        exclude["plant"] = {"noise": {"sample_time": True}}
     plain = {i: {"motor", "value"} for i, f in enumerate(case.faults) if f.motor is None and f.value is None}
     if plain:
         exclude["faults"] = plain

@@ -134,3 +134,19 @@ def test_a_case_without_a_sensor_period_keeps_its_content_hash(name, digest):
     case = load_case(CASES / f"{name}.toml")
     assert case_hash(case, "pinned") == digest
     assert case_hash(_with_period(case, case.simulation.dt), "pinned") != digest
+
+
+def test_a_sample_time_confirmation_runs_with_a_sensor_period_written_out():
+    """The attack on the sensor clock: analysis.confirm.variant sets dt = T / steps for the sample-time limit's
+    runs and kept a written sensor period the new dt does not divide (even one equal to the case's dt, the
+    default): every confirmation ended 'error' and no limit was confirmed.  The variant's sensor is on its
+    default clock (its dt), which the sampled law reads once a sample."""
+    from ftcreport.analysis.confirm import variant
+
+    case = load_case(CASES / "motors" / "two_link_switching_motors.toml")
+    noise = case.plant.noise.model_copy(update={"position": 1e-3, "sample_time": case.simulation.dt})
+    case = case.model_copy(update={"plant": case.plant.model_copy(update={"noise": noise})})
+    v = variant(case, "nominal", "sample_time_max", 0.9 * 1.371e-3, 200)
+    assert v.plant.noise.sample_time is None and v.plant.noise.position == 1e-3
+    run, m = run_scheme(v, "nominal")
+    assert m["status"] == "ok", run.reason

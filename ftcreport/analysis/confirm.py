@@ -100,6 +100,10 @@ def variant(case, scheme: str, which: str, value: float, samples: int, nudge: fl
         steps = sampled_steps(s, float(value))
         T = float(value)
         data |= {"sample_time": T, "dt": T / steps}
+        if case.plant.noise.sample_time is not None:  # a sensor period the new step need not divide: the
+            # default clock (dt), which the sampled law reads once a sample, as it reads the sensor at its samples
+            noise = case.plant.noise.model_copy(update={"sample_time": None})
+            case = case.model_copy(update={"plant": case.plant.model_copy(update={"noise": noise})})
     else:
         case = with_k_v(case, scheme, value)
     period = T if T is not None else s.dt

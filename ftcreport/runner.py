@@ -295,7 +295,8 @@ def explain_nulls(metrics: dict) -> dict:
 
 def halve_dt(case: Case, source: str = "") -> Case:
     """The case ``run --verify-dt`` compares with: at half the step, logged every 2 * log_every steps (a
-    fixed step: the same instants), the sensor's noise on the clock it had (dt: the same draws).  An
+    fixed step: the same instants), the sensor on the clock it had (dt: the same noise draws, and a discrete-time
+    filter's updates, the UKF's, at the same instants).  An
     error-controlled method also runs at a tenth of rtol and atol:
     its longest step halved too, since a run whose every step is capped at dt (a sampled loop's steps
     land on every sample; or dt binds) takes the same steps at any tolerance.
@@ -312,7 +313,7 @@ def halve_dt(case: Case, source: str = "") -> Case:
         update |= {"rtol": sim.rtol / 10, "atol": sim.atol / 10}
     half = case.model_copy(update={"simulation": sim.model_copy(update=update)})
     noise = case.plant.noise
-    if noise.sample_time is None:  # the sensor keeps its clock (dt's): the same draws, held over two steps
+    if noise.sample_time is None:  # the sensor keeps its clock (dt's): the same draws and UKF updates, over two steps
         plant = case.plant.model_copy(update={"noise": noise.model_copy(update={"sample_time": sim.dt})})
         half = half.model_copy(update={"plant": plant})
     if sim.method in AUTO_METHODS and sim.min_step >= sim.dt / 2:  # as Simulation's validator asks of dt

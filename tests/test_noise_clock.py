@@ -150,3 +150,33 @@ def test_a_sample_time_confirmation_runs_with_a_sensor_period_written_out():
     assert v.plant.noise.sample_time is None and v.plant.noise.position == 1e-3
     run, m = run_scheme(v, "nominal")
     assert m["status"] == "ok", run.reason
+
+
+def test_the_ukf_updates_on_the_sensors_clock_so_refining_the_step_keeps_its_filter():
+    """The attack on the sensor clock: halve_dt kept the noise's draws but halved dt, which was also the UKF's
+    period (it updated at every fixed step, and on an error-controlled run's dt ticks): 'run --verify-dt' on the
+    shipped three_link_active called active_ukf not converged (torque_peak 2.26 %), and RK4's dt -> dt/2 -> dt/4
+    differences fell 3.2x (9.4e-5, 2.9e-5 m).  The filter now updates when a measurement arrives, on the sensor's
+    ticks: measured 1.5e-11 and 1.0e-12 m (15x, RK4's order), torque_peak equal to 1e-10."""
+    case = _active(5.0, log_every=1)
+    case = case.model_copy(update={"faults": [f for f in case.faults if f.time < 5.0]})
+    runs = [run_scheme(c, "active_ukf") for c in (case, halve_dt(case), halve_dt(halve_dt(case)))]
+    xs = [r.stream["q"][-1, :2] for r, _ in runs]
+    d1, d2 = np.max(np.abs(xs[0] - xs[1])), np.max(np.abs(xs[1] - xs[2]))
+    assert d1 < 1e-9 and 10.0 < d1 / d2 < 25.0, (d1, d2)
+    peaks = [m["torque_peak"] for _, m in runs]
+    assert max(peaks) - min(peaks) < 1e-8 * max(peaks)
+
+
+def test_a_fixed_and_an_error_controlled_ukf_update_at_the_same_ticks():
+    """With a sensor slower than the step (0.04 s, dt = 0.02 s) the fixed step's filter updates every other step
+    and the error-controlled run's on the same ticks: the two runs agree to their integration error (measured
+    1.3e-11 m); the filter at 0.02 s is another filter (1.3e-4 m away)."""
+    case = _with_period(_active(2.0), 0.04)
+    case = case.model_copy(update={"faults": [f for f in case.faults if f.time < 2.0]})
+    fixed, _ = run_scheme(case, "active_ukf")
+    sim = case.simulation.model_copy(update={"method": "dopri5", "rtol": 1e-10, "atol": 1e-12})
+    auto, _ = run_scheme(case.model_copy(update={"simulation": sim}), "active_ukf")
+    assert np.max(np.abs(_xy_at(fixed, 2.0) - _xy_at(auto, 2.0))) < 1e-8
+    every, _ = run_scheme(_with_period(case, 0.02), "active_ukf")  # the filter at dt: another filter
+    assert np.max(np.abs(_xy_at(fixed, 2.0) - _xy_at(every, 2.0))) > 1e-7

@@ -64,7 +64,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     t_end = t0 + duration
     times = np.array(sorted(set(float(v) for v in plant.faults.times)), dtype=float)
     events = times[(times > t0) & (times < t_end)]
-    clock = noise_clock(plant, settings) if plant.noisy else NAN  # the sensor's draws (the UKF ticks at dt)
+    clock = noise_clock(plant, settings) if plant.noisy else NAN  # the sensor's draws (and the UKF's updates)
     compile0 = _FIRST_CALLS[0]  # compile_time below
     L = _Loop(spec, plant, q0, eta0, settings, np.concatenate(([t0], events)), n_noise_ticks(plant, settings))
     steps_new = L.loop.run_auto not in _READY
@@ -73,7 +73,9 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     row_bytes = 8 * (L.nc + spec.n_sig + 5 * L.nw + 2 * (L.nq + 2) + L.nm + 1)
     rows = max(64, min(math.ceil(duration / settings.dt / 100) * 4 + 8, (32 << 20) // row_bytes))
     L.buffers(rows)
-    opt, ctl = _auto_arrays(spec, settings, t0, t_end, t0, clock, _AUTO_CODES[settings.method], L.nm)
+    opt, ctl = _auto_arrays(
+        spec, settings, t0, t_end, t0, clock, _AUTO_CODES[settings.method], L.nm, noise_clock(plant, settings)
+    )
     stream: dict[str, np.ndarray] = {}
     log_parts: list[list[np.ndarray]] = []
     si = 0
@@ -152,15 +154,18 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
                    meta, progress)  # fmt: skip
 
 
-def _auto_arrays(spec: Spec, settings, t_start: float, t_end: float, t0: float, clock: float, method: int, nm: int):
+def _auto_arrays(
+    spec: Spec, settings, t_start: float, t_end: float, t0: float, clock: float, method: int, nm: int, disc_clock: float
+):
     """fast.loop.run_auto's ``opt`` (settings) and ``ctl`` (state) for a run from t_start to t_end (the
-    sensor's clock ``clock`` (nan: no noise) and a discrete-time filter's (the UKF: dt) ticking from t0;
+    sensor's draws on ``clock`` (nan: no noise) and a discrete-time filter's updates (the UKF) on ``disc_clock``
+    (the sensor's period, noise or not) ticking from t0;
     ``method`` -1: auto picks; ``nm`` the motor states)."""
     slot, T_min = _dwell(spec.controller)
     opt = np.array(
         [
             settings.rtol, settings.atol, settings.dt, settings.min_step, t_end, t_start, clock, t0, float(slot),
-            T_min, float(method), float(settings.dt) if spec.start else 0.0,
+            T_min, float(method), disc_clock if spec.start else 0.0,
         ]
     )  # fmt: skip
     # fast.loop's C_ entries, then etd3ec's linear block (fast.loop.C_JAGE, C_JTAKEN, C_JCOLS: (2 + nm) squared)

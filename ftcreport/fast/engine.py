@@ -394,6 +394,20 @@ def noise_ticks(plant, settings, t0: float, times: np.ndarray) -> np.ndarray:
     return np.floor((np.asarray(times, dtype=float) - t0) / noise_clock(plant, settings) + 1e-9).astype(np.int64)
 
 
+def disc_ticks(spec, plant, settings, times: np.ndarray) -> np.ndarray:
+    """Whether the scheme's discrete update runs at each instant of ``times`` (a fixed step's grid): at every
+    step, or for a discrete-time filter (the UKF: ``spec.start``) at the sensor's ticks (:func:`noise_clock`:
+    the filter updates when a measurement arrives; with the default clock dt, every step of dt) and at the end."""
+    times = np.asarray(times, dtype=float)
+    on = np.ones(times.shape[0], dtype=np.bool_)
+    if spec.start and times.size:
+        T = noise_clock(plant, settings)
+        r = (times - float(settings.t0)) / T
+        on = np.abs(r - np.round(r)) <= 1e-9 * np.maximum(1.0, r)
+        on[-1] = on[-1] or times[-1] >= float(settings.t0) + float(settings.duration) - 1e-9 * T
+    return on
+
+
 def n_noise_ticks(plant, settings) -> int:
     """How many draws a run takes: the ticks of its clock over the duration, and one past the end."""
     return math.floor(float(settings.duration) / noise_clock(plant, settings) + 1e-9) + 2
@@ -513,15 +527,17 @@ class _Loop:
         x, self.grow, self.hold_t, self.u_h, self.dx_h, self.sig_h, self.v_h, self.mbuf = (a.copy() for a in saved)
         self.x = x
 
-    def steps(self, grid, fidx, noise, method: int, k0: int, k1: int, logged) -> tuple[int, int, int]:
-        """run_steps over steps k0..k1 of ``grid``: (last step, rows logged, where); updates x."""
+    def steps(self, grid, fidx, noise, method: int, k0: int, k1: int, logged, disc_on=None) -> tuple[int, int, int]:
+        """run_steps over steps k0..k1 of ``grid``: (last step, rows logged, where); updates x.  ``disc_on``:
+        whether the scheme's discrete update runs at the end of each step (:func:`disc_ticks`; default every step)."""
         spec, st = self.spec, self.settings
         # compiles the loop on its first use (jit.compiling); the law's errors name the scheme (_law_errors)
         with _compiling(self.loop, self.loop.run_steps), _law_errors(spec):
             self.x, k_last, li, where = self.loop.run_steps(
                 self.P, spec.kin, spec.ref, spec.chain, self.pp,
                 grid, fidx, self.fsig, self.fubar, noise, self.sat, self.diag, method, self.lim, st.max_speed,
-                st.max_position, self.x, k0, k1, logged, 0,
+                st.max_position, self.x, k0, k1, logged, disc_ticks(self.spec, self.plant, st, grid) if disc_on is None
+                else disc_on, 0,
                 self.lq, self.leta, self.lu, self.ltau, self.lsig, self.lubar, self.lxc, self.lmeas, self.lsg, self.lt,
                 spec.n_sig, self.info, self.share, self.grow, self.growth,
                 self.lia, self.hold_t, self.u_h, self.dx_h, self.sig_h, self.mo, self.fmot, self.v_h, self.mbuf,

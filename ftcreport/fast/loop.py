@@ -589,7 +589,7 @@ def first_discrete(P, Kp, R, pc, t, q, eta, xc, info):
 def run_steps(
     P0, Kp0, R0, pc0, pp0,
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,
-    x, k0, k1, is_logged, li,
+    x, k0, k1, is_logged, disc_on, li,
     lq, leta, lu, ltau, lsig, lubar, lxc, lmeas, lsg, lt, n_sig, info, share, grow, growth,
     lia, hold_t, u_h, dx_h, sig_h, mo0, fmot, v_h, mbuf, dr0,
 ):  # fmt: skip
@@ -741,6 +741,9 @@ def run_steps(
         if mid and method != 1:  # ROS2 has no interpolant here: its steps keep the trapezoid
             lia[li - 1, nm:] = _mid_torque(ctx, xm, sigma, ubar, fm, u_h, v_h)
         if SAMPLED and sampled:  # the controller's discrete updates run at its samples
+            x = xn
+            continue
+        if not disc_on[k + 1]:  # a discrete-time filter (the UKF) runs on the sensor's ticks only
             x = xn
             continue
         # discrete updates on the new state (xn is a new array: updated in place, it becomes the state)

@@ -136,7 +136,9 @@ def _controlled_recheck(L: _Loop, grid, checkpoints, k_stop: int, k_to: int) -> 
     t0 = float(grid[0])
     # the sensor's draws by tick, as the coarse steps read them (each step lies inside one tick)
     clock = noise_clock(L.plant, settings) if L.plant.noisy else NAN
-    opt, ctl = _auto_arrays(L.spec, fine_settings, t_from, t_to, t0, clock, _AUTO_CODES[method], L.nm)
+    opt, ctl = _auto_arrays(
+        L.spec, fine_settings, t_from, t_to, t0, clock, _AUTO_CODES[method], L.nm, noise_clock(L.plant, settings)
+    )
     opt[5] = t_to  # one chunk
     L.restore(saved)
     L.info[:] = 0.0

@@ -17,6 +17,7 @@ from .engine import (
     _finish,
     _Loop,
     _timing_mark,
+    disc_ticks,
     n_noise_ticks,
     noise_ticks,
 )
@@ -59,6 +60,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
     chunk = max(1, n_steps // 100)
     L.buffers(chunk + 1)
     every_step = np.ones(n_steps + 1, dtype=np.bool_)
+    disc_on = disc_ticks(spec, plant, settings, grid)  # the UKF's update on the sensor's ticks
     method = METHOD_CODES[settings.method]
     stream: dict[str, np.ndarray] = {}  # preallocated for every step on the first chunk
     log_parts: list[list[np.ndarray]] = []
@@ -78,7 +80,7 @@ def simulate_compiled(spec: Spec, plant, q0, eta0, settings, grid, log_idx, prog
             if k == 0:
                 _timing_mark("loop_call")
             checkpoints = _keep_checkpoints(checkpoints, k, L)
-            k_last, li, where = L.steps(grid, fidx, L.step_noise, method, k, k1, every_step)
+            k_last, li, where = L.steps(grid, fidx, L.step_noise, method, k, k1, every_step, disc_on)
             if k == 0:
                 _timing_mark("first_chunk")
                 first_s = _time.perf_counter() - wall0

@@ -180,3 +180,21 @@ def test_a_fixed_and_an_error_controlled_ukf_update_at_the_same_ticks():
     assert np.max(np.abs(_xy_at(fixed, 2.0) - _xy_at(auto, 2.0))) < 1e-8
     every, _ = run_scheme(_with_period(case, 0.02), "active_ukf")  # the filter at dt: another filter
     assert np.max(np.abs(_xy_at(fixed, 2.0) - _xy_at(every, 2.0))) > 1e-7
+
+
+def test_the_stops_recheck_refines_the_step_not_the_ukfs_clock():
+    """CI's check of the shipped two_link_adaptive_circle: after the UKF moved to the sensor's clock, the stop's
+    re-check at dt/4 (fast.recheck._recheck) still ran its filter through run_steps' default ticks, which it
+    passed the coarse settings, by accident of an argument left out.  The re-check now says it: the filter updates
+    on the coarse run's ticks (the sensor's 5 ms), as 'run --verify-dt' keeps them.  At dt/4 with that filter the
+    torque grows as fast as at dt (measured 330x over the detector's 3 steps of dt, against 20 for e-fold a
+    step) and the rk4 step then jumps into the articulation singularity, where dopri5 stops too: the loop's own
+    fast mode, ``diverged``, as the case now expects; with the filter at dt/4 the finer run reached the set
+    slower (``singular``)."""
+    case = load_case(CASES / "two_link_adaptive_circle.toml")
+    case = case.model_copy(update={"simulation": case.simulation.model_copy(update={"duration": 42.0})})
+    run, m = run_scheme(case, "active_ukf")
+    fine = run.meta["integrator"]["recheck"]
+    assert m["status"] == "diverged" and m["status"] in case.expected_status_of["active_ukf"], run.reason
+    assert fine["dt"] == 0.00125 and fine["growth"] > 2.72**3 * 5, fine
+    assert abs(fine["t_end"] - 40.87) < 0.01, fine

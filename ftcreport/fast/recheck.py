@@ -10,7 +10,7 @@ import numpy as np
 from ..errors import step_words
 from ..jit.packed import AT_TRIAL, E_STEP_GROWTH
 from .auto_run import _AUTO_CODES, _auto_arrays, _auto_stop
-from .engine import NAN, noise_clock
+from .engine import NAN, disc_ticks, noise_clock
 from .integrators import METHOD_CODES
 from .stops import _SINGULAR_CODES, _in_singular_set, _message, _stop
 
@@ -50,7 +50,8 @@ def _recheck(L: _Loop, grid, fidx, checkpoints, k_stop: int) -> dict:
     the finer run passes the stop's interval; ``growth`` the ratio of max |tau| over the growth
     detector's window (the stop and the GROWTH_STEPS steps of dt before it) in the finer run.  Faults,
     samples and dwell ends fall where they fell (the fine grid holds every coarse instant); the noise of
-    each coarse step is held over its four.
+    each coarse step is held over its four, and a discrete-time filter (the UKF) updates on the sensor's
+    ticks as in the coarse run: the re-check refines the integration step, not the sensor.
     """
     import dataclasses
 
@@ -79,8 +80,11 @@ def _recheck(L: _Loop, grid, fidx, checkpoints, k_stop: int) -> dict:
     L.info[:] = 0.0
     n_fine = fine.shape[0]
     L.buffers(n_fine)
+    # the sensor keeps its clock (the case's, dt's by default): a discrete-time filter (the UKF) updates at the
+    # coarse run's ticks, every RECHECK_SPLIT fine steps, as 'run --verify-dt' keeps it (runner.halve_dt)
+    disc_on = disc_ticks(L.spec, L.plant, settings, fine)
     k_last, li, where = L.steps(fine, fine_fidx, noise, METHOD_CODES[settings.method], first, n_fine - 1,
-                                np.ones(n_fine, dtype=np.bool_))  # fmt: skip
+                                np.ones(n_fine, dtype=np.bool_), disc_on)  # fmt: skip
     tt, tau = L.lt[:li].copy(), np.max(np.abs(L.ltau[:li]), axis=1) if li else np.zeros(0)
     out = {
         "method": settings.method,

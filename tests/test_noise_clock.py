@@ -113,6 +113,35 @@ def test_a_sensor_clock_the_step_cannot_hold_is_refused_naming_the_field(noise, 
     assert why in str(info.value)
 
 
+def test_a_sensor_clock_over_the_step_limit_advises_on_the_sensors_period():
+    """The attack on the sensor clock: a refusal renamed to plant.noise.sample_time still said 'use dt >= ...',
+    advice on a field that does not bind (an error-controlled run lands on every tick whatever dt)."""
+    raw = _raw()
+    raw["plant"]["noise"]["sample_time"] = 1e-7
+    raw["simulation"]["method"] = "auto"
+    with pytest.raises(CaseError) as info:
+        parse_case(raw, "cases/x.toml")
+    text = str(info.value)
+    assert "plant.noise.sample_time: " in text and "use plant.noise.sample_time >= 4e-05 s" in text, text
+    assert "use dt" not in text and "duration / sample_time = 400 / 1e-07" in text, text
+
+
+def test_a_noiseless_sensor_clock_binds_no_step_unless_a_discrete_time_filter_reads_it():
+    """The attack on the sensor clock: a noiseless case was budgeted with the sensor's ticks under auto (1e-7 s:
+    refused), though the run lands on them only to read a draw or to run the UKF's update.  Without noise the
+    schemes without a discrete-time filter run; the UKF still reads the sensor's clock and is refused."""
+    raw = _raw()
+    raw["plant"]["noise"] = {"sample_time": 1e-7}
+    raw["simulation"]["method"] = "auto"
+    ukf = raw["schemes"].pop("active_ukf")
+    raw["schemes"]["run"] = ["nominal", "active", "oracle"]
+    assert parse_case(raw, "cases/x.toml").plant.noise.sample_time == 1e-7
+    raw["schemes"] |= {"active_ukf": ukf, "run": ["nominal", "active", "active_ukf", "oracle"]}
+    with pytest.raises(CaseError) as info:
+        parse_case(raw, "cases/x.toml")
+    assert "plant.noise.sample_time: " in str(info.value) and "active_ukf" in str(info.value)
+
+
 def test_an_error_controlled_method_accepts_any_period():
     raw = _raw()
     raw["plant"]["noise"]["sample_time"] = 0.03

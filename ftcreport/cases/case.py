@@ -562,10 +562,29 @@ def _check_budget(case: Case, schemes: list[str] | None = None) -> None:
         cfg = getattr(case.schemes, scheme)
         pats = getattr(cfg, "patterns", "all")
         models = None if pats == "all" else len(pats)
-        # an error-controlled run lands on every tick of the sensor's clock: its steps are at most that long
-        T = case.plant.noise.sample_time
-        dt = min(s.dt, T) if (T is not None and s.method in AUTO_METHODS) else s.dt
+        # an error-controlled run lands on every tick of the sensor's clock where it reads one: a noise draw, or a
+        # discrete-time filter's update (the UKF's, fast.engine.disc_ticks); its steps are then at most that long
+        T, why_ticks = case.plant.noise.sample_time, _tick_readers(case, scheme)
+        dt = min(s.dt, T) if (T is not None and s.method in AUTO_METHODS and why_ticks) else s.dt
         problem = budget_problem(case.robots.n, s.duration, dt, s.log_every, scheme, models)
         if problem is not None:
             field, why = problem
-            raise _FieldError("plant.noise.sample_time" if dt < s.dt and field == "simulation.dt" else field, why)
+            if dt < s.dt and field == "simulation.dt":  # the sensor's clock binds, not dt: advise on it
+                why = why.replace("duration / dt", "duration / sample_time").replace(
+                    "use dt >=", "use plant.noise.sample_time >="
+                )
+                raise _FieldError("plant.noise.sample_time", f"{why} ({s.method} lands on each tick: {why_ticks})")
+            raise _FieldError(field, why)
+
+
+def _tick_readers(case: Case, scheme: str) -> str:
+    """What makes a run of ``scheme`` land on the sensor's ticks ("" when nothing does): the noise's draws, and
+    a discrete-time filter's updates (a scheme whose discrete update starts at t0: the UKF's)."""
+    from ..schemes.registry import every
+
+    nz = case.plant.noise
+    readers = ["the noise's draws"] if (nz.position > 0 or nz.heading > 0 or nz.velocity > 0) else []
+    sc = every().get(scheme)
+    if sc is not None and sc.start:
+        readers.append(f"the {scheme} filter's updates")
+    return " and ".join(readers)

@@ -98,6 +98,46 @@ def test_motors_under_sampled_control_pick_etd3():
     assert np.all(np.min(np.abs(t[None, :] - samples[:, None]), axis=1) < 1e-12)
 
 
+def _pi_drive_at(rate: float | None, **sim):
+    case = _case("motors/three_link_switching_pi", sample_time=None, **sim)  # continuous control
+    return case.model_copy(update={"actuators": case.actuators.model_copy(update={"drive_rate": rate})})
+
+
+def test_auto_on_continuous_control_with_a_sampled_pi_drive_picks_etd3():
+    """The attack on the Rosenbrock pick: continuous control through a PI drive sampled at its own 200 Hz
+    (three_link_switching_pi without its control sample) went to ros34pw2, 2.33M evaluations for 5 s (1.5e-3 m
+    from a tight DOPRI5 reference, where DOPRI5 took 220k for 3.8e-5 m and etd3ec 22k for 3.5e-5 m; at rtol
+    1e-8: ros34pw2 4.1M, etd3ec 59k, dopri5 198k).  The drive holds its voltage between its own samples, so
+    the stiff currents are linear there, as under sampled control: auto takes etd3ec.  A continuous PI drive
+    keeps ros34pw2, the cheapest there (14k evaluations, 1.0e-8 m; etd3ec 56k, dopri5 73k)."""
+    run, m = run_scheme(_pi_drive_at(200.0, duration=1.0, method="auto"), "nominal")
+    assert run.status == "ok", run.reason
+    assert m["integrator"]["method"] == "etd3ec"
+    explicit, me = run_scheme(_pi_drive_at(200.0, duration=1.0, method="dopri5"), "nominal")
+    assert m["integrator"]["evaluations"] < 0.5 * me["integrator"]["evaluations"]
+    # the same end to the two methods' tolerance (rtol 1e-6: measured 3.5e-5 m apart at 5 s, both from a tight run)
+    assert np.max(np.abs(run.stream["q"][-1, :2] - explicit.stream["q"][-1, :2])) < 1e-4
+    cont, mc = run_scheme(_pi_drive_at(None, duration=1.0, method="auto"), "nominal")
+    assert cont.status == "ok" and mc["integrator"]["method"] == "ros34pw2", cont.reason
+
+
+def test_a_tolerance_min_step_cannot_reach_is_named_with_the_step_it_asks_for():
+    """The attack on the error control: ros34pw2 at rtol = 1e-12 on the motor plant stops at min_step (the
+    error 1e9 times the tolerance), and the reason offered only 'a finite-time blow-up, or a discontinuity'.
+    It now names the step the tolerance asks for at the method's error order and the two ways out."""
+    run, _ = _run("motors/two_link_switching_motors", "nominal", duration=0.05, method="ros34pw2", rtol=1e-12,
+                  atol=1e-14, min_step=1e-4)  # fmt: skip
+    assert run.status == "diverged", run.reason
+    words = (
+        "rtol = 1e-12, atol = 1e-14 ask for steps near",
+        "below min_step = 0.0001 s",
+        "loosen rtol and atol or lower min_step",
+        "or the rates change faster than any step resolves",
+    )
+    for w in words:
+        assert w in run.reason, run.reason
+
+
 def test_steps_land_on_faults_and_dwell_ends():
     """Fault times are step boundaries; after each switch at t_s (switching, T_min = 0.01 s) a step ends
     at t_s + T_min exactly, where the dwell lets the rule choose again."""

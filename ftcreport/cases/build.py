@@ -139,7 +139,7 @@ T_min = 0.01
 k_v = 5.0
 
 [simulation]
-method = "auto"     # error-controlled: DOPRI5, or ROS2/ETD2 for a stiff loop (the page says which); "rk4": fixed
+method = "auto"     # error-controlled: DOPRI5, or ROS34PW2/ETD3 for a stiff loop (the page says which); "rk4": fixed
 dt = 0.02           # [s] the longest step (metrics and figures read the steps); auto takes shorter ones where needed
 rtol = 1e-6         # each step's local error at most atol + rtol |x| for every state
 atol = 1e-8

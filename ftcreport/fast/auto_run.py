@@ -223,10 +223,15 @@ def _auto_cause(L: _Loop, where: int, ctl: np.ndarray, settings, spec: Spec) -> 
     cause = ctl[10:14]
     code = int(cause[0])
     if code == 0:
+        ratio = float(cause[1])
+        order = 5.0 if used == "dopri5" else 3.0  # the embedded error's order in h (fast.loop.run_auto: k_err)
+        asks = settings.min_step * ratio ** (-1.0 / order) if ratio > 1.0 else settings.min_step
         why = (
-            f"the local error stayed {float(cause[1]):.3g} times the tolerance for {FORCED_STREAK} steps in a row at "
-            "min_step: the rates change faster than any step resolves (a finite-time blow-up, or a discontinuity "
-            "crossed at every step)"
+            f"the local error stayed {ratio:.3g} times the tolerance for {FORCED_STREAK} steps in a row at "
+            f"min_step: either rtol = {settings.rtol:g}, atol = {settings.atol:g} ask for steps near {asks:.2g} s "
+            f"(the error ~ h^{order:.0f}), below min_step = {settings.min_step:g} s (loosen rtol and atol or lower "
+            "min_step), or the rates change faster than any step resolves (a finite-time blow-up, or a "
+            "discontinuity crossed at every step)"
         )
         return "diverged", min_step_reason(t, float(info[2]), how, settings.min_step, why)
     if code == E_STEP_JUMP:

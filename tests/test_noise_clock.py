@@ -227,3 +227,17 @@ def test_the_stops_recheck_refines_the_step_not_the_ukfs_clock():
     assert m["status"] == "diverged" and m["status"] in case.expected_status_of["active_ukf"], run.reason
     assert fine["dt"] == 0.00125 and fine["growth"] > 2.72**3 * 5, fine
     assert abs(fine["t_end"] - 40.87) < 0.01, fine
+
+
+def test_the_case_page_says_the_filter_updates_on_the_sensors_clock():
+    """The page's idealizations name the UKF's clock beside the control's timing: a 0.04 s sensor, 0.04 s."""
+    from ftcreport.report.plant import _idealizations
+
+    def timing(case) -> str:
+        return next(r["includes"] for r in _idealizations(case) if r["aspect"] == "control timing")
+
+    assert "active_ukf: a discrete-time filter, updated once a measurement (every 0.02 s)" in timing(_active())
+    assert "every 0.04 s" in timing(_with_period(_active(), 0.04))
+    case = _active()
+    no_ukf = case.model_copy(update={"schemes": case.schemes.model_copy(update={"active_ukf": None})})
+    assert "discrete-time filter" not in timing(no_ukf)

@@ -102,6 +102,19 @@ def _motor_rows(case: Case) -> tuple[list[dict], dict]:
     return rows, {"kind": kind, "loop": loop, "compensation": comp}
 
 
+def _filter_clock(case: Case) -> str:
+    """The discrete-time filters' clock (the UKF's: a scheme whose update starts at t0), which updates once a
+    measurement whatever the control's timing (fast.engine.disc_ticks); "" when the case runs none."""
+    from ..schemes.registry import every
+
+    known = every()
+    names = [s for s in configured_schemes(case) if s in known and known[s].start]
+    if not names:
+        return ""
+    T = case.plant.noise.sample_time if case.plant.noise.sample_time is not None else case.simulation.dt
+    return f"; {', '.join(names)}: a discrete-time filter, updated once a measurement (every {T:g} s)"
+
+
 def _idealizations(case: Case) -> list[dict]:
     """What the plant includes and leaves out, one row per aspect."""
     r, sim, pl = case.robots, case.simulation, case.plant
@@ -190,7 +203,8 @@ def _idealizations(case: Case) -> list[dict]:
                 f"sampled at T_s = {sim.sample_time:g} s, the command held between samples (zero-order hold)"
                 if sim.sample_time is not None
                 else "continuous-time control (the law evaluated at every stage of the integration)"
-            ),
+            )
+            + _filter_clock(case),
             "leaves_out": "computation time, jitter",
         }
     )

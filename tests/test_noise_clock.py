@@ -238,6 +238,8 @@ def test_the_case_page_says_the_filter_updates_on_the_sensors_clock():
 
     assert "active_ukf: a discrete-time filter, updated once a measurement (every 0.02 s)" in timing(_active())
     assert "every 0.04 s" in timing(_with_period(_active(), 0.04))
+    sampled = _active(sample_time=0.04)
+    assert "active_ukf: a discrete-time filter, updated at each sample" in timing(sampled)
     case = _active()
     no_ukf = case.model_copy(update={"schemes": case.schemes.model_copy(update={"active_ukf": None})})
     assert "discrete-time filter" not in timing(no_ukf)

@@ -103,15 +103,18 @@ def _motor_rows(case: Case) -> tuple[list[dict], dict]:
 
 
 def _filter_clock(case: Case) -> str:
-    """The discrete-time filters' clock (the UKF's: a scheme whose update starts at t0), which updates once a
-    measurement whatever the control's timing (fast.engine.disc_ticks); "" when the case runs none."""
+    """The discrete-time filters' clock (the UKF's: a scheme whose update starts at t0): once a measurement under
+    continuous control (fast.engine.disc_ticks), at each sample under sampled control; "" when the case runs none."""
     from ..schemes.registry import every
 
     known = every()
     names = [s for s in configured_schemes(case) if s in known and known[s].start]
     if not names:
         return ""
-    T = case.plant.noise.sample_time if case.plant.noise.sample_time is not None else case.simulation.dt
+    sim = case.simulation
+    if sim.sample_time is not None:  # sampled control: the filter's update is part of the sample (fast.loop.sample)
+        return f"; {', '.join(names)}: a discrete-time filter, updated at each sample"
+    T = case.plant.noise.sample_time if case.plant.noise.sample_time is not None else sim.dt
     return f"; {', '.join(names)}: a discrete-time filter, updated once a measurement (every {T:g} s)"
 
 

@@ -14,7 +14,7 @@ from ..model import FaultEvent, FaultSchedule, wheel_index, wheel_names
 from ..model.actuators import DriveParams, MotorParams
 from ..model.faults import motor_row
 from ..runs import AUTO_METHODS
-from ..schemes.budget import budget_problem
+from ..schemes.budget import STEP_DT, STEP_SENSOR, budget_problem
 from ..schemes.fields import _f, _FieldError, _num, _Strict, did_you_mean
 from .scheme_tables import (
     SCHEME_NAMES,
@@ -565,26 +565,22 @@ def _check_budget(case: Case, schemes: list[str] | None = None) -> None:
         # an error-controlled run lands on every tick of the sensor's clock where it reads one: a noise draw, or a
         # discrete-time filter's update (the UKF's, fast.engine.disc_ticks); its steps are then at most that long
         T, why_ticks = case.plant.noise.sample_time, _tick_readers(case, scheme)
-        dt = min(s.dt, T) if (T is not None and s.method in AUTO_METHODS and why_ticks) else s.dt
-        problem = budget_problem(case.robots.n, s.duration, dt, s.log_every, scheme, models)
+        ticks = T is not None and s.dt > T and s.method in AUTO_METHODS and bool(why_ticks)
+        dt, step = (T, STEP_SENSOR) if ticks else (s.dt, STEP_DT)
+        problem = budget_problem(case.robots.n, s.duration, dt, s.log_every, scheme, models, step)
         if problem is not None:
             field, why = problem
-            if dt < s.dt and field == "simulation.dt":  # the sensor's clock binds, not dt: advise on it
-                why = why.replace("duration / dt", "duration / sample_time").replace(
-                    "use dt >=", "use plant.noise.sample_time >="
-                )
-                raise _FieldError("plant.noise.sample_time", f"{why} ({s.method} lands on each tick: {why_ticks})")
+            if field == STEP_SENSOR[0]:  # the sensor's clock binds, not dt: say what lands on each tick
+                why = f"{why} ({s.method} lands on each tick: {why_ticks})"
             raise _FieldError(field, why)
 
 
 def _tick_readers(case: Case, scheme: str) -> str:
     """What makes a run of ``scheme`` land on the sensor's ticks ("" when nothing does): the noise's draws, and
     a discrete-time filter's updates (a scheme whose discrete update starts at t0: the UKF's)."""
-    from ..schemes.registry import every
+    from ..schemes.registry import discrete_time
 
-    nz = case.plant.noise
-    readers = ["the noise's draws"] if (nz.position > 0 or nz.heading > 0 or nz.velocity > 0) else []
-    sc = every().get(scheme)
-    if sc is not None and sc.start:
+    readers = ["the noise's draws"] if case.plant.noise.noisy else []
+    if discrete_time(scheme):
         readers.append(f"the {scheme} filter's updates")
     return " and ".join(readers)

@@ -425,6 +425,15 @@ class Noise(_Strict):
     # 63 bits: campaigns give each sample a SeedSequence child of 63 bits (ftcreport.studies.campaign.sample_seeds)
     seed: Int = _f(0, "seed of the noise (runs are reproducible)", "1", ge=0, le=2**63 - 1)
 
+    @property
+    def noisy(self) -> bool:
+        """Whether the sensor draws any noise (some standard deviation above 0)."""
+        return self.position > 0 or self.heading > 0 or self.velocity > 0
+
+    def period(self, dt: float) -> float:
+        """The sensor's sample period: ``sample_time``, else the run's step dt (fast.engine.noise_clock's rule)."""
+        return float(dt) if self.sample_time is None else float(self.sample_time)
+
 
 class Mismatch(_Strict):
     """Plant parameters = [robots] x these factors (the controllers keep [robots])."""

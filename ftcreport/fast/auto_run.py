@@ -64,7 +64,8 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     t_end = t0 + duration
     times = np.array(sorted(set(float(v) for v in plant.faults.times)), dtype=float)
     events = times[(times > t0) & (times < t_end)]
-    clock = noise_clock(plant, settings) if plant.noisy else NAN  # the sensor's draws (and the UKF's updates)
+    period = noise_clock(plant, settings)  # the sensor's clock: its draws (noisy), the UKF's updates
+    clock = period if plant.noisy else NAN
     compile0 = _FIRST_CALLS[0]  # compile_time below
     L = _Loop(spec, plant, q0, eta0, settings, np.concatenate(([t0], events)), n_noise_ticks(plant, settings))
     steps_new = L.loop.run_auto not in _READY
@@ -73,9 +74,7 @@ def _simulate_auto(spec: Spec, plant, q0, eta0, settings, progress=None):
     row_bytes = 8 * (L.nc + spec.n_sig + 5 * L.nw + 2 * (L.nq + 2) + L.nm + 1)
     rows = max(64, min(math.ceil(duration / settings.dt / 100) * 4 + 8, (32 << 20) // row_bytes))
     L.buffers(rows)
-    opt, ctl = _auto_arrays(
-        spec, settings, t0, t_end, t0, clock, _AUTO_CODES[settings.method], L.nm, noise_clock(plant, settings)
-    )
+    opt, ctl = _auto_arrays(spec, settings, t0, t_end, t0, clock, _AUTO_CODES[settings.method], L.nm, period)
     stream: dict[str, np.ndarray] = {}
     log_parts: list[list[np.ndarray]] = []
     si = 0

@@ -139,10 +139,9 @@ def _controlled_recheck(L: _Loop, grid, checkpoints, k_stop: int, k_to: int) -> 
     rows_of = np.searchsorted(seg_all, np.searchsorted(times, np.concatenate(([t_from], events)), side="right"))
     t0 = float(grid[0])
     # the sensor's draws by tick, as the coarse steps read them (each step lies inside one tick)
-    clock = noise_clock(L.plant, settings) if L.plant.noisy else NAN
-    opt, ctl = _auto_arrays(
-        L.spec, fine_settings, t_from, t_to, t0, clock, _AUTO_CODES[method], L.nm, noise_clock(L.plant, settings)
-    )
+    period = noise_clock(L.plant, settings)
+    clock = period if L.plant.noisy else NAN
+    opt, ctl = _auto_arrays(L.spec, fine_settings, t_from, t_to, t0, clock, _AUTO_CODES[method], L.nm, period)
     opt[5] = t_to  # one chunk
     L.restore(saved)
     L.info[:] = 0.0

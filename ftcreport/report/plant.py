@@ -105,17 +105,16 @@ def _motor_rows(case: Case) -> tuple[list[dict], dict]:
 def _filter_clock(case: Case) -> str:
     """The discrete-time filters' clock (the UKF's: a scheme whose update starts at t0): once a measurement under
     continuous control (fast.engine.disc_ticks), at each sample under sampled control; "" when the case runs none."""
-    from ..schemes.registry import every
+    from ..schemes.registry import discrete_time
 
-    known = every()
-    names = [s for s in configured_schemes(case) if s in known and known[s].start]
+    names = [s for s in configured_schemes(case) if discrete_time(s)]
     if not names:
         return ""
     sim = case.simulation
     if sim.sample_time is not None:  # sampled control: the filter's update is part of the sample (fast.loop.sample)
         return f"; {', '.join(names)}: a discrete-time filter, updated at each sample"
-    T = case.plant.noise.sample_time if case.plant.noise.sample_time is not None else sim.dt
-    return f"; {', '.join(names)}: a discrete-time filter, updated once a measurement (every {T:g} s)"
+    period = case.plant.noise.period(sim.dt)
+    return f"; {', '.join(names)}: a discrete-time filter, updated once a measurement (every {period:g} s)"
 
 
 def _idealizations(case: Case) -> list[dict]:
@@ -185,13 +184,13 @@ def _idealizations(case: Case) -> list[dict]:
         }
     )
     nz = pl.noise
-    noisy = nz.position > 0 or nz.heading > 0 or nz.velocity > 0
+    noisy = nz.noisy
     rows.append(
         {
             "aspect": "sensors",
             "includes": (
                 f"q and eta with white noise (std {nz.position:g} m, {nz.heading:g} rad, {nz.velocity:g} m/s), "
-                f"one draw every {nz.sample_time if nz.sample_time is not None else sim.dt:g} s, held in between"
+                f"one draw every {nz.period(sim.dt):g} s, held in between"
                 if noisy
                 else "the controllers read q and eta exactly"
             )

@@ -49,27 +49,50 @@ def _budget_hook(scheme: str):
     return None if sc is None else sc.budget
 
 
+#: the field that sets a run's step, its symbol in the reason and the name the advice uses
+STEP_DT = ("simulation.dt", "dt", "dt")
+#: ... where an error-controlled run lands on the sensor's ticks, shorter than dt
+STEP_SENSOR = ("plant.noise.sample_time", "sample_time", "plant.noise.sample_time")
+
+
 def budget_problem(
-    n: int, duration: float, dt: float, log_every: int, scheme: str = "", models: int | None = None
+    n: int,
+    duration: float,
+    dt: float,
+    log_every: int,
+    scheme: str = "",
+    models: int | None = None,
+    step: tuple[str, str, str] = STEP_DT,
 ) -> tuple[str, str] | None:
-    """(fields, reason) when a run exceeds :data:`MAX_STEPS` or :data:`MEMORY_BUDGET_BYTES`, else None."""
+    """(fields, reason) when a run exceeds :data:`MAX_STEPS` or :data:`MEMORY_BUDGET_BYTES`, else None.  ``dt``
+    is the run's step, set by ``step`` (:data:`STEP_DT`, or :data:`STEP_SENSOR`): the field a too-short step is
+    blamed on, its symbol and the name the advice gives."""
     if not (math.isfinite(duration) and math.isfinite(dt) and dt > 0 and duration > 0):
         return None  # range errors are reported by the field validators
+    field, symbol, advice = step
     steps = math.ceil(duration / dt)
     if steps > MAX_STEPS:
         return (
-            "simulation.dt",
-            f"duration / dt = {duration:g} / {dt:g} = {steps:.3g} steps exceeds the limit of {MAX_STEPS:.0e} "
-            f"steps per run; use dt >= {duration / MAX_STEPS:.3g} s or a shorter duration",
+            field,
+            f"duration / {symbol} = {duration:g} / {dt:g} = {steps:.3g} steps exceeds the limit of {MAX_STEPS:.0e} "
+            f"steps per run; use {advice} >= {duration / MAX_STEPS:.3g} s or a shorter duration",
         )
     need, steps, samples = run_memory_bytes(n, duration, dt, log_every, scheme, models)
     if need > MEMORY_BUDGET_BYTES:
-        return _memory_problem(n, duration, dt, scheme, models, need, steps, samples)
+        return _memory_problem(n, duration, dt, scheme, models, need, steps, samples, field)
     return None
 
 
 def _memory_problem(
-    n: int, duration: float, dt: float, scheme: str, models: int | None, need: int, steps: int, samples: int
+    n: int,
+    duration: float,
+    dt: float,
+    scheme: str,
+    models: int | None,
+    need: int,
+    steps: int,
+    samples: int,
+    step_field: str = STEP_DT[0],
 ) -> tuple[str, str]:
     """(field, reason) of a run over the memory budget: the part of the estimate that dominates (the time
     grid, the logged time series, or the scheme's model bank) and what brings it within the budget."""
@@ -113,8 +136,8 @@ def _memory_problem(
             f"its {N} models), so no logging interval brings it within the budget; {fewer}",
         )
     return (
-        "simulation.dt",
-        f"{head}: the time grid of {steps} steps takes about {_mib(grid)} MiB; raise simulation.dt or shorten "
+        step_field,
+        f"{head}: the time grid of {steps} steps takes about {_mib(grid)} MiB; raise {step_field} or shorten "
         "simulation.duration",
     )
 

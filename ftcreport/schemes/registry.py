@@ -181,6 +181,14 @@ def every() -> dict[str, Scheme]:
     return built_in() | registered()
 
 
+def discrete_time(name: str) -> bool:
+    """Whether scheme ``name`` (any registered) is a discrete-time filter: its discrete update also runs at t0
+    (``Scheme.start``: the UKF's), so it updates on the sensor's clock (fast.engine.disc_ticks); False for a name
+    no scheme has."""
+    sc = every().get(name)
+    return sc is not None and bool(sc.start)
+
+
 def get(name: str) -> Scheme:
     _load_built_ins()
     try:

@@ -349,6 +349,17 @@ def _refinement(full: dict, half: dict) -> str:
     return f"dt = {full.get('dt'):g} s vs {half.get('dt'):g} s"
 
 
+def _recheck_found(check: dict) -> str:
+    """What the stop's re-check at dt/4 (fast.recheck._recheck) found, in words: it passed the stop, or where it
+    stopped again and how fast the torque grew over the growth detector's window there."""
+    if check.get("status") == "ok":
+        return "it runs past the stop"
+    words = f"it stops again at t = {check['t_end']:.6g} s"
+    if check.get("growth") is not None:
+        words += f", max |tau| {check['growth']:.3g}x over the growth detector's window"
+    return words
+
+
 def integrator_words(metrics: dict) -> str:
     """The integrator of a run in words (the case page's provenance): the method, auto's pick, the steps."""
     g = metrics.get("integrator") or {}
@@ -357,8 +368,8 @@ def integrator_words(metrics: dict) -> str:
     if "rtol" not in g:  # a fixed step
         words = f"{g.get('method')} at dt = {g.get('dt'):g} s, {g.get('steps')} steps"
         check = g.get("recheck")
-        if check:
-            words += f" (its stop re-checked at dt = {check['dt']:g} s: {check['status']})"
+        if check:  # what the re-check found; the label it led to is the run's status and reason
+            words += f" (its stop re-checked at dt = {check['dt']:g} s: {_recheck_found(check)})"
         return words
     rho = g.get("spectral_radius")
     pick = ""

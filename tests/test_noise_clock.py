@@ -243,3 +243,19 @@ def test_the_case_page_says_the_filter_updates_on_the_sensors_clock():
     case = _active()
     no_ukf = case.model_copy(update={"schemes": case.schemes.model_copy(update={"active_ukf": None})})
     assert "discrete-time filter" not in timing(no_ukf)
+
+
+def test_the_pages_provenance_says_what_the_stops_recheck_found_not_its_detectors_label():
+    """Seen on the batch page of two_link_adaptive_circle: the provenance read 'its stop re-checked at dt =
+    0.00125 s: step_unstable' beside a run labelled diverged (the fine run's own detector, not the verdict), as
+    if the step were to blame.  It now says what the re-check found: where it stopped again and how fast the
+    torque grew there, or that it passed."""
+    from ftcreport.runner import integrator_words
+
+    g = {"method": "rk4", "dt": 0.005, "steps": 8174}
+    stopped = g | {"recheck": {"dt": 0.00125, "status": "step_unstable", "t_end": 40.87125, "growth": 330.04}}
+    words = integrator_words({"integrator": stopped})
+    assert "step_unstable" not in words, words
+    assert "re-checked at dt = 0.00125 s: it stops again at t = 40.8713 s, max |tau| 330x over the" in words, words
+    passed = g | {"recheck": {"dt": 0.00125, "status": "ok", "t_end": 41.0, "growth": None}}
+    assert "re-checked at dt = 0.00125 s: it runs past the stop" in integrator_words({"integrator": passed})

@@ -103,20 +103,28 @@ def central_columns(f, x0: np.ndarray, columns=None, step: float = STEP) -> np.n
 
     Column j: ``(f(x0 + h e_j) - f(x0 - h e_j)) / (2 h)`` with ``h = step max(1, |x0_j|)``.  A function
     that does not read x_j gives exactly 0 (the same evaluation twice): :func:`relevant_states` relies on it.
+    The result is Fortran-ordered, each column written once in place (a column is contiguous: on the
+    adaptive law's 36,864 rows, stacking and then reading them along a column cost more than the law).
     """
     x0 = np.asarray(x0, dtype=float)
     cols = range(x0.size) if columns is None else columns
-    out = []
-    for j in cols:
+    xp, xm = x0.copy(), x0.copy()  # perturbed one entry at a time, restored after it
+    out = None
+    for k, j in enumerate(cols):
         h = step * max(1.0, abs(x0[j]))
-        xp = x0.copy()
-        xm = x0.copy()
         xp[j] += h
         xm[j] -= h
-        out.append((np.asarray(f(xp)) - np.asarray(f(xm))) / (2.0 * h))
-    if not out:
+        fp = np.asarray(f(xp), dtype=float)
+        fm = np.asarray(f(xm), dtype=float)
+        if out is None:
+            out = np.empty((fp.size, len(cols)), order="F")
+        col = out[:, k]
+        np.subtract(fp, fm, out=col)
+        col /= 2.0 * h
+        xp[j] = xm[j] = x0[j]
+    if out is None:
         return np.zeros((np.asarray(f(x0)).size, 0))
-    return np.column_stack(out)
+    return out
 
 
 def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP, x0_norm: float | None = None) -> np.ndarray:
@@ -350,7 +358,7 @@ class SchemeLoop:
         self.nk = int(self.ctrl.kin.n_states)
         self.held, self.has_disc = _layout(self.ctrl, self.nk)
         self.linearized = [i for i in range(int(self.ctrl.n_states)) if i not in self.held]
-        lin = np.array(self.linearized, dtype=int)
+        lin = self._lin_index = np.array(self.linearized, dtype=int)
         # the linearized states as a slice when contiguous (the adaptive weights, 36,852 for six robots:
         # a view and a copy where an index array gathers and scatters them at every evaluation)
         contiguous = lin.size > 0 and np.array_equal(lin, np.arange(lin[0], lin[0] + lin.size))
@@ -465,29 +473,32 @@ class SchemeLoop:
         Fa = self.plant.input_columns(pt.xp, pt.a, fz)
         na = pt.a.size
         y0 = pt.xp[:ny].copy()
-        lin = np.array(self.linearized, dtype=int)
+        lin = self._lin_index
         at = self._lin  # the same states, for indexing
 
         def g(xp, y, xc):
             return self._rows(t, xp, y, xc, fz)  # [a, c']
 
-        def with_c(c):
-            xc = pt.xc.copy()
-            xc[at] = c
-            return xc
+        work = pt.xc.copy()
+
+        def with_c(c):  # the controller state with its linearized entries c (one buffer: 36,853 entries)
+            work[at] = c
+            return work
 
         Gy = central_columns(lambda y: g(pt.xp, y, pt.xc), y0)
         motor_faults = self.plant.motors is not None and fz.motor.size and np.any(fz.motor != _healthy_row())
-        Gx = np.zeros((na + lin.size, self.plant.n_states))
+        Gx = None  # zero unless the motors are faulty (then the controller reads the true plant state)
         if motor_faults:  # the oracle is told the faults the chain sees, which depend on the wheel speeds
             Gx = central_columns(lambda x: g(x, y0, pt.xc), pt.xp)
+            if not np.any(Gx):
+                Gx = None
         c0 = pt.xc[at]
         disc = None
         if self.has_disc:
             if period is None:
                 raise ModelError(f"scheme {self.scheme}: its discrete update needs a sample time to be linearized")
             disc = self._discrete_map(pt, period, at)
-        elif lin.size and not np.any(Gx):
+        elif lin.size and Gx is None:
             torque = lambda c: self._rows(t, pt.xp, y0, with_c(c), fz, rates=False)  # noqa: E731
             block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis, torque)
             if block is not None:
@@ -499,6 +510,8 @@ class SchemeLoop:
                     basis=U,
                 )  # fmt: skip
         Gc = central_columns(lambda c: g(pt.xp, y0, with_c(c)), c0)
+        if Gx is None:
+            Gx = np.zeros((na + lin.size, self.plant.n_states))
         if disc is None:
             Dc, Dy = np.eye(lin.size), np.zeros((lin.size, ny))
         else:

@@ -1,10 +1,10 @@
 """CI (issue 38 item 2): runs are bit-identical with ftcreport's compile-time acceleration on and off.
 
 Runs every scheme of a few cases (the passive loop, the active loop, the motor variant) for a short
-time in a fresh process per mode, each mode with its own empty cache directory (``FTCREPORT_CACHE``),
-once with the acceleration (the default) and once with ``FTCREPORT_FAST_COMPILE=0`` (numba's own
-pipeline), and compares every logged array and every metric bit for bit.  Prints one line per run and
-exits 1 on the first difference.
+time in a fresh process per mode (the two side by side), each mode with its own empty cache
+directory (``FTCREPORT_CACHE``), once with the acceleration (the default) and once with
+``FTCREPORT_FAST_COMPILE=0`` (numba's own pipeline), and compares every logged array and every
+metric bit for bit.  Prints one line per run and exits 1 on the first difference.
 
     python .ci/bit_identical.py [--duration 2]
 """
@@ -47,18 +47,25 @@ print(json.dumps(out))
 """
 
 
-def _mode(folder: Path, duration: float, **env: str) -> dict:
+def _start(folder: Path, duration: float, **env: str) -> tuple[subprocess.Popen, float]:
+    """One mode's run in a fresh process with its own empty cache, started (the two modes side by side:
+    CI's machine has two cores, and each mode is one process)."""
     folder.mkdir()
     environ = dict(os.environ, FTCREPORT_CACHE=str(folder / "cache"), **env)
-    t0 = time.perf_counter()
     cases = [str(ROOT / "cases" / c) for c in CASES]
-    res = subprocess.run(
-        [sys.executable, "-c", RUN, str(folder), str(duration), *cases], capture_output=True, text=True, env=environ
-    )
-    if res.returncode != 0:
-        sys.exit(f"bit_identical: the run failed ({env or 'accelerated'}):\n{res.stderr}")
-    out = json.loads(res.stdout.splitlines()[-1])
-    out["wall"] = time.perf_counter() - t0
+    argv = [sys.executable, "-c", RUN, str(folder), str(duration), *cases]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=environ)
+    return proc, time.perf_counter()
+
+
+def _finish(started: tuple[subprocess.Popen, float], what: str) -> dict:
+    proc, t0 = started
+    stdout, stderr = proc.communicate()
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        sys.exit(f"bit_identical: the run failed ({what}):\n{stderr}")
+    out = json.loads(stdout.splitlines()[-1])
+    out["wall"] = wall
     return out
 
 
@@ -72,8 +79,10 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=2.0, help="simulated seconds per run")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
-        on = _mode(Path(d) / "on", args.duration)
-        off = _mode(Path(d) / "off", args.duration, FTCREPORT_FAST_COMPILE="0")
+        started_on = _start(Path(d) / "on", args.duration)
+        started_off = _start(Path(d) / "off", args.duration, FTCREPORT_FAST_COMPILE="0")
+        on = _finish(started_on, "accelerated")
+        off = _finish(started_off, "FTCREPORT_FAST_COMPILE=0")
         if not on["accelerated"] or off["accelerated"]:
             print(f"bit_identical: expected accelerated on/off, got {on['accelerated']}/{off['accelerated']}")
             return 1
@@ -88,7 +97,7 @@ def main() -> int:
             verdict = "bit-identical" if not diff else "DIFFERENT: " + ", ".join(diff)
             print(f"{a['name']} ({a['status']}, {len(x.files)} arrays, {len(a['metrics'])} metrics): {verdict}")
             failed += bool(diff)
-        print(f"accelerated {on['wall']:.0f} s, numba's own pipeline {off['wall']:.0f} s (cold, wall)")
+        print(f"accelerated {on['wall']:.0f} s, numba's own pipeline {off['wall']:.0f} s (cold, wall, side by side)")
         return 1 if failed else 0
 
 

@@ -17,6 +17,7 @@ __all__ = [
     "FaultError",
     "FtcError",
     "ModelError",
+    "PluginError",
     "RunEnvironmentError",
     "SingularityError",
     "StoredCaseChangedError",
@@ -79,6 +80,11 @@ class UncompensableError(FtcError):
 
 class SingularityError(FtcError):
     """The state approaches a singular configuration (ERRATA P4)."""
+
+
+class PluginError(ModelError):
+    """A plug-in scheme's own code raised (its pack, n_states, signals, stiff, initial_state or derived):
+    the message names its file and line, the scheme and the hook; a run of it ends with status error."""
 
 
 class ReferenceError(FtcError, ValueError):

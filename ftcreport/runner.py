@@ -33,6 +33,7 @@ __all__ = [
     "make_controller",
     "run_metrics",
     "run_scheme",
+    "start_problems",
 ]
 
 
@@ -91,7 +92,50 @@ def build(case: Case) -> Built:
     return Built(case)
 
 
-def make_controller(built: Built, scheme: str):
+def start_problems(case: Case) -> tuple[list[str], list[str]]:
+    """What makes a valid case's runs fail before or while they start, found without running them
+    (``cases validate``): ``(errors, warnings)``, each ``field: reason``.
+
+    Errors: the reference infeasible at t = 0 (no run can start), a plug-in scheme whose declarations
+    (n_states, signals, pack, stiff, initial_state) raise when bound to the case.  Warnings: the
+    reference infeasible later in the run (every run stops there, status error), checked every 50 ms.
+    """
+    from .errors import ReferenceError
+    from .schemes import get
+
+    errors: list[str] = []
+    warnings: list[str] = []
+    try:
+        built = build(case)
+        built.reference.at(0.0)
+    except FtcError as exc:
+        field = "reference" if isinstance(exc, ReferenceError) else "case"
+        return [f"{field}: {exc} (no run can start)"], []
+    try:
+        built.reference.check(case.simulation.duration)
+    except ReferenceError as exc:
+        warnings.append(f"reference: {exc}: every run stops there (status error)")
+    from .cases import configured_schemes
+
+    for name in configured_schemes(case):
+        if get(name).controller is not None:
+            continue  # a built-in scheme: its declarations are ftcreport's own
+        try:
+            ctrl = make_controller(built, name, checked=False)
+            x0 = ctrl.own_initial_state(0.0, built.q0, built.eta0)
+        except FtcError as exc:
+            errors.append(f"schemes.{name}: {exc}")
+            continue
+        if not np.all(np.isfinite(x0)):
+            from .schemes.registry import _where
+
+            sc = get(name)
+            where = _where(sc.initial_state) if sc.initial_state is not None else name
+            errors.append(f"schemes.{name}: {where}: initial_state is not finite at t = 0 ({x0.tolist()[:6]})")
+    return errors, warnings
+
+
+def make_controller(built: Built, scheme: str, checked: bool = True):
     """The controller of one scheme of the case: the registered scheme bound to the case (ftcreport.schemes)."""
     from .evaluation.families import default_k_v
     from .schemes import SchemeContext, SchemeController, get
@@ -108,7 +152,8 @@ def make_controller(built: Built, scheme: str):
         from .fast.scheme_check import ensure_checked
 
         ctrl = SchemeController(sc, built.chain, kin, k_v, cfg, saturation=case.plant.saturation, case=case)
-        ensure_checked(ctrl)  # its first run: its law under bounds checks first (once per version of its file)
+        if checked:  # its first run: its law under bounds checks first (once per version of its file)
+            ensure_checked(ctrl)
         return ctrl
     nz, nq = len(kin.z_names), built.chain.n_q
     ctx = SchemeContext(built.chain, kin, float(k_v), cfg, case.plant.saturation, kin.n_states, 6 + nz + nq, case)

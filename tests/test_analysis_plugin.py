@@ -30,3 +30,58 @@ def test_analysis_of_a_plugin_only_case_does_not_crash(tmp_path):
     res = analyze_case(plugin_only_case(tmp_path))
     assert res["case"] == "plugin_only"
     assert res["controllability"]
+
+
+def _raising_hook_case(tmp_path: Path, hook: str, tag: str):
+    """The sliding-mode example copied under another name with one declaration hook raising KeyError.
+
+    Returns (the case, the plug-in file, the line that raises, the scheme's name, the case file)."""
+    src = (ROOT / "examples" / "schemes" / "sliding_mode.py").read_text()
+    name = f"raising_{hook}_{tag}"  # a scheme file's stem is its module's name: one per test
+    src = src.replace('name="sliding_mode"', f'name="{name}"')
+    if hook == "pack":
+        anchor = "    p = ctx.params if ctx.params is not None else SlidingModeParams()\n"
+        src = src.replace(anchor, anchor + '    {}["missing_key"]\n')
+    else:  # initial_state: the law has no own state; declare one so that the hook runs
+        src = src.replace("        pack=pack,\n", "        pack=pack,\n        initial_state=_init,\n")
+        src = src.replace("# 5. Register", 'def _init(ctx, q, eta):\n    return {}["missing_key"]\n\n\n# 5. Register')
+    plugin = tmp_path / f"{name}.py"
+    plugin.write_text(src)
+    line = next(i for i, text in enumerate(src.splitlines(), 1) if '{}["missing_key"]' in text)
+    data = tomllib.loads((ROOT / "cases" / "two_link_sliding_mode.toml").read_text())
+    data["plugins"] = [str(plugin)]
+    data["schemes"][name] = data["schemes"].pop("sliding_mode")
+    data["schemes"]["run"] = ["nominal", name]
+    data.pop("thresholds", None)
+    path = tmp_path / f"{name}_case.toml"
+    path.write_text(tomli_w.dumps(data))
+    return load_case(path), plugin, line, name, path
+
+
+def test_a_plugin_whose_pack_raises_is_not_analyzed_and_says_where(tmp_path):
+    """Was exit 3 ('unexpected KeyError ... a bug', the page's render and analyze both): the plug-in's own
+    error is the plug-in's, named by its file, line and hook, and the case's other schemes are analysed."""
+    from ftcreport.analysis import analyze_case
+    from ftcreport.runner import run_scheme
+
+    case, plugin, line, name, _ = _raising_hook_case(tmp_path, "pack", "analyze")
+    res = analyze_case(case, margins=False, limits=False)
+    why = res["not_analyzed"][name]
+    assert f"{plugin}:{line}" in why and "pack raised KeyError" in why and "missing_key" in why
+    assert name not in res["phases"] and "nominal" in res["phases"]
+    _, metrics = run_scheme(case, name)  # a run's outcome (status error, stored as such), not a bug
+    assert metrics["status"] == "error" and f"{plugin}:{line}" in metrics["reason"]
+
+
+def test_cases_validate_names_a_plugin_hook_that_raises(tmp_path):
+    """Was 'ok': validate now binds every plug-in scheme to the case (its declarations, not its compiled law)."""
+    from typer.testing import CliRunner
+
+    from ftcreport.cli import app
+
+    for hook in ("pack", "initial_state"):
+        _, plugin, line, name, path = _raising_hook_case(tmp_path, hook, "validate")
+        res = CliRunner().invoke(app, ["cases", "validate", str(path)])
+        assert res.exit_code == 2, res.output
+        assert f"schemes.{name}" in res.output and f"{plugin}:{line}" in res.output
+        assert f"{hook} raised KeyError" in res.output

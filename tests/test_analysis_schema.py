@@ -458,6 +458,7 @@ def test_a_limit_the_simulation_contradicts_shows_no_green_margin():
         "k_v": {"active_ukf": 5.0},
         "limits": {"active_ukf": {"sample_time_max": None}},
         "limit_notes": {"active_ukf": {"limits.sample_time_max": "not searched: the UKF's gain comes from ..."}},
+        "limit_kinds": {"active_ukf": {"limits.sample_time_max": "not_searched"}},
     }
     html = env.get_template("_analysis.html").render(
         analysis={
@@ -487,6 +488,31 @@ def test_a_limit_the_simulation_contradicts_shows_no_green_margin():
     from ftcreport.analysis.summary import fmt_limit
 
     assert fmt_limit(None, "s") == "no finite limit" and fmt_limit(None, "1/s") == "no finite limit"
+    # a null says which null it is (the attack on analyze: "no finite limit" was printed for a loop unstable
+    # at every point searched, or marginal, or not computed, whose JSON nulls only limit_notes told apart)
+    assert fmt_limit(None, "s", "unbounded") == "no finite limit (stable up to 10 s)"
+    assert fmt_limit(None, "1/s", "unbounded") == "no finite limit (stable up to 1e+07 1/s)"
+    assert fmt_limit(None, "s", "unstable") == "no stable value (unstable throughout the search)"
+    assert fmt_limit(None, "1/s", "marginal") == "no stable range (the loop is marginal)"
+    assert fmt_limit(None, "s", "not_computed") == "not computed"
+    assert fmt_limit(2.5e-3, "s", "limit") == "2.5 ms" and fmt_limit(250.0, "1/s", "limit") == "250 1/s"
+    kinds = {"sample_time": 0.005, "k_v": {"nominal": 5.0}, "limits": {"nominal": {"sample_time_max": None,
+             "k_v_max": None}}, "velocity_loop": {"nominal": {"sample_time_max": None, "k_v_max": None}},
+             "limit_kinds": {"nominal": {"limits.sample_time_max": "unstable", "limits.k_v_max": "marginal",
+                                         "velocity_loop.sample_time_max": "not_computed",
+                                         "velocity_loop.k_v_max": "not_applicable"}}}  # fmt: skip
+    html = env.get_template("_analysis.html").render(
+        analysis={
+            "limit_rows": limit_rows(kinds),
+            "sampled": True,
+            "sample_time": 0.005,
+            "actuator_input": "torque",
+            "not_analyzed": {},
+        }
+    )
+    row = html[html.index('data-scheme="nominal"') :].split("</tr>")[0]
+    assert "<td>no stable value (unstable throughout the search)</td>" in row, row
+    assert "<td>no stable range (the loop is marginal)</td>" in row and "not computed, n/a" in row, row
 
 
 def test_a_phase_a_raising_plugin_law_leaves_not_computed_is_documented(tmp_path):

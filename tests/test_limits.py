@@ -258,3 +258,126 @@ def test_the_gain_limit_is_found_far_below_a_huge_case_gain():
     assert res["value"] == pytest.approx(87.47, rel=1e-6)
     res = largest_gain(lambda k: 1.0, 9.0e5)  # unstable at every gain: null, and the note says how far down
     assert res["value"] is None and "unstable at every gain down to" in res["note"]
+
+
+def test_boundary_modes_tell_a_plant_integrator_from_an_unseen_estimate():
+    """The modes on the boundary and which of them hold a plant perturbation in the plant
+    (limits.boundary_modes): an open plant integrator (q' = eta, no feedback) does; an estimate the plant
+    does not drive (it only feeds the plant), or one the plant drives but that feeds nothing back, does not:
+    a plant perturbation dies out in the plant in both."""
+    from ftcreport.analysis.limits import boundary_modes
+
+    open_plant = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -2.0]])  # plant q, eta; a filter
+    assert boundary_modes(open_plant, 2, False) == {"count": 1, "in_plant": 1, "largest": 0.0}
+    feeds = np.array([[-1.0, 0.0, 0.0], [0.0, -3.0, 0.5], [0.0, 0.0, 0.0]])  # the estimate feeds eta only
+    assert boundary_modes(feeds, 2, False) == {"count": 1, "in_plant": 0, "largest": None}
+    driven = np.array([[-1.0, 0.0, 0.0], [0.0, -3.0, 0.0], [0.0, 1.0, 0.0]])  # eta drives it, it feeds nothing
+    assert boundary_modes(driven, 2, False) == {"count": 1, "in_plant": 0, "largest": None}
+    loop = np.array([[-1.0, 0.0, 0.0], [0.0, -3.0, 0.5], [0.0, 1.0, -1.0 / 6.0]])  # both ways: a zero mode
+    modes = boundary_modes(loop, 2, False)
+    assert modes["count"] == 1 and modes["in_plant"] == 1 and abs(modes["largest"]) < 1e-12
+    T = 0.01  # the same in discrete time: z = 1 on the boundary, the plant's row a forward-Euler step
+    assert boundary_modes(np.eye(3) + T * open_plant, 2, True)["in_plant"] == 1
+    assert boundary_modes(np.eye(3) + T * feeds, 2, True)["in_plant"] == 0
+    stable = np.array([[-1.0, 1.0], [0.0, -2.0]])
+    assert boundary_modes(stable, 2, False) == {"count": 0, "in_plant": 0, "largest": None}
+
+
+def test_a_loop_marginal_at_the_case_setting_has_no_limits_not_stable_everywhere(tmp_path):
+    """The attack on analyze: with [plant] saturation = 1e-9 N m every phase is marginal (the law has no
+    authority: the plant's integrators sit on the boundary), yet the limits read 'stable at every sample
+    time up to 10 s' and 'every gain up to 1e+07'.  Now they are null of kind 'marginal', and say why."""
+    import tomllib
+
+    import tomli_w
+
+    from ftcreport.analysis import analyze_case
+    from ftcreport.analysis.summary import text_summary
+
+    data = tomllib.loads((ROOT / "cases" / "two_link_active.toml").read_text())
+    data["plant"]["saturation"] = 1e-9
+    data["schemes"]["run"] = ["nominal", "active"]
+    data["schemes"] = {
+        k: v for k, v in data["schemes"].items() if not isinstance(v, dict) or k in ["nominal", "active"]
+    }
+    data.pop("thresholds", None)
+    data.pop("claims", None)
+    path = tmp_path / "saturated.toml"
+    path.write_text(tomli_w.dumps(data))
+    res = analyze_case(load_case(path), margins=False)
+    for scheme in ("nominal", "active"):
+        assert {p["stability"] for p in res["phases"][scheme]} == {"marginal"}
+        assert res["limits"][scheme] == {"sample_time_max": None, "k_v_max": None}
+        assert res["limit_kinds"][scheme]["limits.sample_time_max"] == "marginal"
+        assert res["limit_kinds"][scheme]["limits.k_v_max"] == "marginal"
+        note = res["limit_notes"][scheme]["limits.k_v_max"]
+        assert "marginal, not stable" in note and "move the plant" in note
+    text = "\n".join(text_summary(res))
+    assert "stable at every sample time" not in text and "stable at every gain up to" not in text
+    assert "no stable range (the loop is marginal)" in text
+
+
+def test_the_unscented_filters_unseen_estimates_keep_its_gain_limit(tmp_path):
+    """The UKF's phases are marginal by structure (estimates the measurements do not see, ERRATA P3: their
+    modes do not move the plant), and its loop tracks: its k_v limit stays a limit (two_link_active:
+    197.74 1/s, the value the analysis gave before boundary_modes existed)."""
+    import tomllib
+
+    import tomli_w
+
+    from ftcreport.analysis import analyze_case
+
+    data = tomllib.loads((ROOT / "cases" / "two_link_active.toml").read_text())
+    data["schemes"]["run"] = ["active_ukf"]
+    tables = data["schemes"].items()
+    data["schemes"] = {k: v for k, v in tables if not isinstance(v, dict) or k in ["active_ukf"]}
+    data.pop("thresholds", None)
+    data.pop("claims", None)
+    path = tmp_path / "ukf_only.toml"
+    path.write_text(tomli_w.dumps(data))
+    res = analyze_case(load_case(path), margins=False)
+    assert {p["stability"] for p in res["phases"]["active_ukf"]} == {"marginal"}
+    assert res["limit_kinds"]["active_ukf"]["limits.k_v_max"] == "limit"
+    assert res["limits"]["active_ukf"]["k_v_max"] == pytest.approx(197.741, rel=1e-5)
+
+
+def test_a_stiff_loop_is_stable_where_its_poles_are_resolved(tmp_path):
+    """The attack on analyze: at k_v = 1e6 every phase read 'marginal' with max Re -0.155 1/s, because the
+    marginal band was 1e-6 of the fastest pole (1e6 1/s: a band of 1 1/s).  Each pole is now held to its own
+    resolution (limits.pole_bands: 1e-9 kappa |A|, 0.02 1/s for this pole): stable, and the sample-time
+    limit is the ideal velocity loop's 2 / k_v (module limits: T_max = 2 / k_v)."""
+    import tomllib
+
+    import tomli_w
+
+    from ftcreport.analysis import analyze_case
+
+    data = tomllib.loads((ROOT / "cases" / "two_link_switching.toml").read_text())
+    data["schemes"] = {"run": ["nominal"], "nominal": {"k_v": 1e6}}
+    data.pop("thresholds", None)
+    data.pop("claims", None)
+    path = tmp_path / "stiff.toml"
+    path.write_text(tomli_w.dumps(data))
+    res = analyze_case(load_case(path), margins=False)
+    for phase in res["phases"]["nominal"]:
+        assert phase["stability"] == "stable"
+        assert phase["max_real_part"] == pytest.approx(-0.1552, abs=2e-4)
+    assert res["limits"]["nominal"]["sample_time_max"] == pytest.approx(2e-6, rel=1e-3)
+    assert res["limit_kinds"]["nominal"]["limits.k_v_max"] == "unbounded"
+
+
+def test_stability_holds_each_continuous_pole_to_its_own_resolution():
+    """limits.stability with the loop's matrix: the fastest pole's band (1e-6 of 1e6 1/s = 1 1/s) called a
+    pole at -0.155 1/s marginal; its resolution is 1e-9 kappa |A| = 1e-3 1/s (kappa = 1, diagonal)."""
+    from ftcreport.analysis.limits import pole_bands, stability
+
+    A = np.diag([-1e6, -0.155])
+    poles = np.linalg.eigvals(A)
+    assert stability(-0.155, poles, False) == "marginal"  # the band alone
+    assert stability(-0.155, poles, False, A) == "stable"
+    _, bands = pole_bands(A, 1.0)
+    assert np.allclose(sorted(bands), [1e-3, 1e-3], rtol=1e-12)
+    Z = np.diag([-1e6, -1e-9])  # a structural zero perturbed by the differences' error: still marginal
+    assert stability(-1e-9, np.linalg.eigvals(Z), False, Z) == "marginal"
+    assert stability(-0.155, poles, False, A, internal=-1e-7) == "marginal"  # a left-out mode on the boundary
+    assert stability(2.0, np.array([2.0, -1e6]), False, np.diag([2.0, -1e6])) == "unstable"  # beyond the band

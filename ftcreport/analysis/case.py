@@ -19,7 +19,7 @@ from ..errors import FtcError
 from .classic import classic_analyses
 from .closed_loop import Plant
 from .confirm import confirm_limit, needs_confirmation
-from .phases import analyze_scheme, case_frames
+from .phases import analyze_scheme, case_frames, failure_words
 
 __all__ = ["analyze_case", "classic_model"]
 
@@ -80,6 +80,7 @@ def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: b
     out["drive"] = _drive_words(built.plant)
     out["time_varying"] = None
     out["phases"], out["limits"], out["velocity_loop"], out["limit_notes"] = {}, {}, {}, {}
+    out["limit_kinds"] = {}
     out["confirmation"] = {}
     out["not_analyzed"] = {}
     out["k_v"] = {}
@@ -89,7 +90,7 @@ def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: b
         try:
             res = analyze_scheme(case, scheme, built, (runs or {}).get(scheme), margins, limits, psis)
         except (FtcError, ValueError, np.linalg.LinAlgError) as exc:
-            out["not_analyzed"][scheme] = str(exc)
+            out["not_analyzed"][scheme] = failure_words(exc, scheme)
             continue
         out["phases"][scheme] = res["phases"]
         out["k_v"][scheme] = res["k_v"]
@@ -97,6 +98,7 @@ def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: b
             out["limits"][scheme] = res["limits"]
             out["velocity_loop"][scheme] = res["velocity_loop"]
             out["limit_notes"][scheme] = {k: v for k, v in res["limit_notes"].items() if v}
+            out["limit_kinds"][scheme] = res["limit_kinds"]
             out.setdefault("_curves", {})[scheme] = res.get("_curves")
             if confirm and needs_confirmation(case):
                 out["confirmation"][scheme] = _confirm(case, scheme, res)

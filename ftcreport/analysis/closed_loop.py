@@ -389,6 +389,40 @@ class SchemeLoop:
             raise ModelError(self._stopped("law", t, info))
         return np.asarray(u, dtype=float)
 
+    def _whose(self, role: str = "law") -> str:
+        """``file:line: `` of a plug-in scheme's law (or another of its hooks: where to look), empty for a
+        built-in scheme."""
+        from ..schemes import get
+        from ..schemes.registry import _where
+
+        sc = get(self.scheme)
+        fn = getattr(sc, role, None) or sc.law
+        return "" if sc.controller is not None or isinstance(fn, str) else f"{_where(fn)}: "
+
+    def _finite(self, pt: Point, **jacobians: np.ndarray) -> None:
+        """Raise ModelError naming the first Jacobian that holds an inf or a NaN (a law whose output
+        overflows within the central differences' step, a plant driven out of its domain)."""
+        words = {"Fx": "the plant's Jacobian against its state", "Fa": "the plant's Jacobian against its input",
+                 "Gy": "the law's Jacobian against the measurement", "Gx": "the law's Jacobian against the true state",
+                 "Gc": "the law's Jacobian against the scheme's states"}  # fmt: skip
+        for name, J in jacobians.items():
+            if J is None or not J.size:
+                continue
+            big = float(np.abs(pt.a).max(initial=0.0))
+            if not np.all(np.isfinite(J)):
+                raise ModelError(
+                    f"{self._whose()}scheme {self.scheme}: at t = {pt.t:g} s {words[name]} ({name}) is not finite: "
+                    f"the loop's outputs overflow or leave their domain within a central difference's step of the "
+                    f"operating point (largest |{self.plant.input_name}| there {big:.3g})"
+                )
+            top = float(np.abs(J).max())
+            if top > _OVERFLOW:
+                raise ModelError(
+                    f"{self._whose()}scheme {self.scheme}: at t = {pt.t:g} s {words[name]} ({name}) reaches "
+                    f"{top:.3g}: the closed loop's matrices would overflow (a product of two such entries), so its "
+                    f"poles mean nothing (largest |{self.plant.input_name}| at the operating point {big:.3g})"
+                )
+
     def _stopped(self, what: str, t: float, info: np.ndarray) -> str:
         """Why the scheme's law or discrete update stopped at t: a plug-in's that raised (E_LAW_RAISED: the
         loop caught it; run again in Python, it is named with its line, as a run's reason names it)."""
@@ -444,8 +478,20 @@ class SchemeLoop:
         q = np.asarray(r.q_d if q is None else q, dtype=float)
         eta = np.asarray(r.eta_d if eta is None else eta, dtype=float)
         xc, applied = operating_state(self, t, q, eta, faults, psi, applied, run_xc, period)
+        if not np.all(np.isfinite(xc)):
+            bad = int(np.count_nonzero(~np.isfinite(xc)))
+            src = "its initial_state" + (" or its run" if run_xc is not None else "")
+            raise ModelError(
+                f"{self._whose('initial_state')}scheme {self.scheme}: its state at the operating point "
+                f"(t = {t:g} s) is not finite ({bad} of {xc.size} entries: {src}): nothing to linearize about"
+            )
         xp = np.concatenate((q, eta, np.zeros(self.plant.nm)))
         a, _ = self.controller(t, xp, xp[: self.n_q + 2], xc, faults)
+        if not np.all(np.isfinite(a)):
+            raise ModelError(
+                f"{self._whose()}scheme {self.scheme}: its law's command at the operating point (t = {t:g} s) is "
+                f"not finite ({self.plant.input_name} {np.array2string(a, precision=3)}): nothing to linearize about"
+            )
         xp[self.n_q + 2 :] = self.plant.operating_currents(q, eta, a, faults)
         omega = float((self.ctrl.chain.S(q) @ eta)[2])  # theta_n's rate: P_n's direction of motion turns at it
         return Point(float(t), faults, xp, xc, a, applied, omega)
@@ -486,6 +532,7 @@ class SchemeLoop:
             return work
 
         Gy = central_columns(lambda y: g(pt.xp, y, pt.xc), y0)
+        self._finite(pt, Fx=Fx, Fa=Fa, Gy=Gy)
         motor_faults = self.plant.motors is not None and fz.motor.size and np.any(fz.motor != _healthy_row())
         Gx = None  # zero unless the motors are faulty (then the controller reads the true plant state)
         if motor_faults:  # the oracle is told the faults the chain sees, which depend on the wheel speeds
@@ -503,6 +550,7 @@ class SchemeLoop:
             block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis, torque)
             if block is not None:
                 Gy_r, Gc_r, U = block
+                self._finite(pt, Gy=Gy_r, Gc=Gc_r)
                 rank = Gc_r.shape[1]
                 return Blocks(
                     Fx, Fa, np.zeros((na + rank, Fx.shape[0])), Gy_r, Gc_r, np.eye(rank), np.zeros((rank, ny)), na,
@@ -510,6 +558,7 @@ class SchemeLoop:
                     basis=U,
                 )  # fmt: skip
         Gc = central_columns(lambda c: g(pt.xp, y0, with_c(c)), c0)
+        self._finite(pt, Gx=Gx, Gc=Gc)
         if Gx is None:
             Gx = np.zeros((na + lin.size, self.plant.n_states))
         if disc is None:
@@ -606,6 +655,11 @@ class SchemeLoop:
         Dy = np.column_stack([column(Ey[:, k], np.eye(ny)[k], STEP * max(1.0, abs(y0[k]))) for k in range(ny)])
         Dc[rows], Dy[rows] = Ec[rows], Ey[rows]  # x+ is the step's: its derivative, not its difference
         return Dc, Dy
+
+
+#: a Jacobian entry beyond this makes the loop's matrix products overflow (1e150^2 = 1e300, near float's
+#: 1.8e308): no physical loop's gain comes near it
+_OVERFLOW = 1e150
 
 
 def _point_key(pt: Point, period: float | None, basis: np.ndarray | None) -> tuple:

@@ -49,6 +49,7 @@ from .sampled import closed_loop_matrix, plant_zoh, spectral_radius
 
 __all__ = ["K_MAX", "T_MAX", "T_MIN", "boundary", "continuous_margin", "fastest_pole", "gain_family", "largest_gain"]
 __all__ += ["MARGINAL_S", "MARGINAL_Z", "largest_sample_time", "periodic_growth", "sampled_radius", "stability"]
+__all__ += ["KINDS", "RESOLUTION", "VISIBLE", "boundary_modes", "limit_words", "pole_bands"]
 
 T_MIN = 1e-6  # s: the smallest sample time searched
 T_MAX = 10.0  # s: beyond it a "sample time" is no longer a control loop's
@@ -66,6 +67,21 @@ MARGINAL_Z = 1e-6
 #: (the Farza observer's unseen parameter directions come out at +2e-7 1/s with poles of 20 1/s)
 MARGINAL_S = 1e-6
 RTOL = 1e-9
+#: a mode on the boundary holds a perturbation of the plant in the plant when both its unit right eigenvector
+#: (where it shows) and its unit left eigenvector (what excites it) have at least this much of their norm in
+#: the plant's states (and the delay line's copies of them).  Measured, the smaller of the two shares: the
+#: structural modes, estimates the measurements do not see, at 0 to 5e-10 (the adaptive law's and the Farza
+#: observer's: they show nowhere in the plant) and at most 7.6e-5 (the UKF's, two_link_active and its motor
+#: twin: the plant does not excite them, though they show in it by up to 7 %); the plant's own integrators
+#: and its turning pair under a law saturated everywhere at 0.59 to 1.  1e-2 is 130x above the first and 58x
+#: below the second (tests/test_limits.py)
+VISIBLE = 1e-2
+#: what a limit's value is (``limit_kinds`` in the analysis): a finite limit; none up to the search's end
+#: (stable at every point searched); none because the loop is unstable at every point searched; none because
+#: the case's own loop is marginal with modes that move the plant (its tracking error does not converge, so
+#: there is no stable range to bound); not computed (the linearization failed); not searched (the UKF's
+#: sample time); not applicable (a velocity loop alone for a law that does not read eta)
+KINDS = ("limit", "unbounded", "unstable", "marginal", "not_computed", "not_searched", "not_applicable")
 
 
 def boundary(margin: Callable[[float], float], lo: float, hi: float, rtol: float = RTOL) -> float:
@@ -116,6 +132,7 @@ def largest_sample_time(rho: Callable[[float], float], guess: float, t_min: floa
     if rate > MARGINAL_S * max(1.0, 2.0 / guess) or r0 - (1.0 + MARGINAL_Z) >= 0.0:
         return {
             "value": None,
+            "kind": "unstable",
             "note": f"the loop is unstable in continuous time (growth rate {rate:.4g} 1/s as T -> 0): no sample "
             "time stabilizes it",
         }
@@ -123,12 +140,12 @@ def largest_sample_time(rho: Callable[[float], float], guess: float, t_min: floa
     if margin(guess) < 0.0:
         pair = _bracket(margin, guess, t_max)
         if pair is None:
-            return {"value": None, "note": f"stable at every sample time up to {t_max:g} s"}
+            return {"value": None, "kind": "unbounded", "note": f"stable at every sample time up to {t_max:g} s"}
     else:
         pair = _bracket(margin, guess, t_min)
         if pair is None:
             pair = (t_min, guess)
-    return {"value": boundary(margin, *pair), "note": ""}
+    return {"value": boundary(margin, *pair), "kind": "limit", "note": ""}
 
 
 def largest_gain(margin_at: Callable[[float], float], k_v: float) -> dict:
@@ -140,13 +157,13 @@ def largest_gain(margin_at: Callable[[float], float], k_v: float) -> dict:
     if margin_at(k_v) < 0.0:
         pair = _bracket(margin_at, k_v, K_MAX)
         if pair is None:
-            return {"value": None, "note": f"stable at every gain up to {K_MAX:g} 1/s"}
-        return {"value": boundary(margin_at, *pair), "note": ""}
+            return {"value": None, "kind": "unbounded", "note": f"stable at every gain up to {K_MAX:g} 1/s"}
+        return {"value": boundary(margin_at, *pair), "kind": "limit", "note": ""}
     k_lo = min(k_v * K_MIN_FACTOR, K_MIN)
     pair = _bracket(margin_at, k_v, k_lo)
     if pair is None:
-        return {"value": None, "note": f"unstable at every gain down to {k_lo:g} 1/s"}
-    return {"value": boundary(margin_at, *pair), "note": "the loop is unstable at the case's own gain"}
+        return {"value": None, "kind": "unstable", "note": f"unstable at every gain down to {k_lo:g} 1/s"}
+    return {"value": boundary(margin_at, *pair), "kind": "limit", "note": "the loop is unstable at the case's own gain"}
 
 
 def gain_family(blocks_at: Callable[[float], Blocks], k_v: float) -> Callable[[float], Blocks]:
@@ -177,13 +194,105 @@ def gain_family(blocks_at: Callable[[float], Blocks], k_v: float) -> Callable[[f
     return blocks_at
 
 
-def stability(measure: float, poles: np.ndarray, discrete: bool) -> str:
-    """'stable', 'marginal' or 'unstable' from the spectral radius (discrete) or the largest real part."""
+def boundary_modes(M: np.ndarray, n_plant: int, discrete: bool) -> dict:
+    """The loop's modes on the stability boundary (within the marginal band of :func:`stability`) and how
+    many of them hold a perturbation of the plant in the plant: ``{"count", "in_plant", "largest"}``.
+
+    ``M``: the continuous loop's A or the sampled loop's matrix; its first ``n_plant`` states are the
+    plant's (and the delay line's).  A perturbation ``dx`` of the state excites mode i by ``y_i^H dx`` (its
+    left eigenvector) and the mode shows as ``v_i`` (its right one): a mode whose unit ``y_i`` and ``v_i``
+    both have at least :data:`VISIBLE` of their norm in the plant's states keeps part of any plant
+    perturbation in the plant for ever (it neither decays nor grows): the tracking error does not converge
+    (the plant's own integrators under a law that saturates everywhere, a drive too slow to act).  The
+    others are the scheme's own directions (an estimate the measurements do not reach): the plant does not
+    excite them or does not see them, the loop tracks, and its limits are where it turns unstable.
+    ``largest``: the largest |z| - 1 (or Re) of those that hold the plant (None without any).
+    """
+    from scipy.linalg import eig
+
+    if not M.size:
+        return {"count": 0, "in_plant": 0, "largest": None}
+    w, left, right = eig(M, left=True, right=True)
+    if discrete:
+        d, band = np.abs(w) - 1.0, MARGINAL_Z
+    else:  # the stable side held to each pole's own resolution, as stability() does
+        d, band = w.real, MARGINAL_S * max(1.0, float(np.abs(w).max()))
+        band = np.where(d < 0.0, _resolved(M, left, right, band), band)
+    on = np.abs(d) <= band
+
+    def share(V: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(V[:n_plant], axis=0) / np.maximum(np.linalg.norm(V, axis=0), 1e-300)
+
+    seen = on & (np.minimum(share(left), share(right)) >= VISIBLE)
+    largest = float(d[seen].max()) if seen.any() else None
+    return {"count": int(on.sum()), "in_plant": int(seen.sum()), "largest": largest}
+
+
+def limit_words(value: float | None, kind: str | None, unit: str) -> str:
+    """A limit as the text summary and the page write it: '12.3 ms', '250 1/s', or what a null one means
+    (:data:`KINDS`): 'no finite limit (stable up to 10 s)', 'no stable value (unstable throughout the
+    search)', 'no stable range (the loop is marginal)', 'not computed', 'not searched', 'n/a'; a null of
+    no known kind (a result written before the kinds): 'no finite limit'."""
+    if value is not None:
+        return f"{value * 1e3:.4g} ms" if unit == "s" else f"{value:.4g} 1/s"
+    end = f"{T_MAX:g} s" if unit == "s" else f"{K_MAX:g} 1/s"
+    return {
+        "unbounded": f"no finite limit (stable up to {end})",
+        "unstable": "no stable value (unstable throughout the search)",
+        "marginal": "no stable range (the loop is marginal)",
+        "not_computed": "not computed",
+        "not_searched": "not searched",
+        "not_applicable": "n/a",
+    }.get(kind or "", "no finite limit")
+
+
+def stability(measure: float, poles: np.ndarray, discrete: bool, A: np.ndarray | None = None,
+              internal: float | None = None) -> str:  # fmt: skip
+    """'stable', 'marginal' or 'unstable' from the spectral radius (discrete) or the largest real part.
+
+    Continuous time: a pole within MARGINAL_S of the fastest pole's magnitude of the imaginary axis is
+    marginal.  In a stiff loop (k_v = 1e6: a pole at -1e6 1/s beside the kinematic ones at -0.16) that band
+    swallows poles the linearization resolves, so with the loop's matrix ``A`` a pole on the stable side
+    is held to its own resolution instead, :func:`pole_bands` (never a wider band than MARGINAL_S's):
+    -0.155 1/s there is stable.  ``internal``: the left-out states' largest real part (their own modes,
+    within ``measure``), judged on MARGINAL_S's band.
+    """
     band = MARGINAL_Z if discrete else MARGINAL_S * max(1.0, float(np.abs(poles).max(initial=0.0)))
     edge = 1.0 if discrete else 0.0
     if measure < edge - band:
         return "stable"
-    return "marginal" if measure <= edge + band else "unstable"
+    if measure > edge + band:
+        return "unstable"
+    if discrete or A is None or not A.size:
+        return "marginal"
+    if internal is not None and internal >= -band:
+        return "marginal"
+    w, bands = pole_bands(A, band)
+    return "marginal" if np.any(w.real >= -bands) else "stable"
+
+
+#: the relative accuracy of the loop's Jacobians by central differences (closed_loop.STEP = 1e-6: round-off
+#: about 2e-16 / 1e-6 = 2e-10 of an entry, truncation 1e-12), with a factor 5 above the round-off
+RESOLUTION = 1e-9
+
+
+def pole_bands(A: np.ndarray, band: float) -> tuple[np.ndarray, np.ndarray]:
+    """The poles of ``A`` and how far each is resolved: ``min(band, RESOLUTION kappa_i |A|_2)``, with
+    ``kappa_i = |y_i| |v_i| / |y_i^H v_i|`` its condition number (left and right eigenvectors: the first-order
+    bound on how far an error dA of the Jacobian, |dA| <= RESOLUTION |A|, moves it).  A defective cluster
+    (the adaptive law's weights the torque does not see: kappa 1e10 and more) keeps the wide band."""
+    from scipy.linalg import eig
+
+    w, left, right = eig(A, left=True, right=True)
+    return w, _resolved(A, left, right, band)
+
+
+def _resolved(A: np.ndarray, left: np.ndarray, right: np.ndarray, band: float) -> np.ndarray:
+    """:func:`pole_bands` from the eigenvectors already computed."""
+    dots = np.abs(np.sum(left.conj() * right, axis=0))
+    norms = np.linalg.norm(left, axis=0) * np.linalg.norm(right, axis=0)
+    kappa = np.where(dots > 0.0, norms / np.maximum(dots, 1e-300), np.inf)
+    return np.minimum(band, RESOLUTION * kappa * float(np.linalg.norm(A, 2)))
 
 
 def sampled_radius(blk: Blocks, T: float, delay: int) -> float:

@@ -34,6 +34,7 @@ from ..errors import FtcError, ModelError
 from .closed_loop import Blocks, Faults, SchemeLoop, frames
 from .limits import (
     MARGINAL_Z,
+    boundary_modes,
     continuous_margin,
     dominant_pole,
     fastest_pole,
@@ -156,6 +157,15 @@ class RunStates:
         return int(vals[k]), float(counts[k] / counts.sum())
 
 
+def failure_words(exc: BaseException, scheme: str, t: float | None = None) -> str:
+    """Why a linearization failed, for the page and --json: ftcreport's own message (it names the scheme and
+    where), or numpy's or scipy's (a linear solve, an SVD on the loop's numbers) with the scheme and the time."""
+    if isinstance(exc, FtcError):
+        return str(exc)
+    at = f" at t = {t:g} s" if t is not None else ""
+    return f"scheme {scheme}: the linear algebra on its loop{at} failed on its numbers ({type(exc).__name__}: {exc})"
+
+
 def pole_rows(poles: np.ndarray, T: float | None) -> list[dict]:
     """Poles with natural frequency, damping and time constant, slowest first (as ``control.damp``).
 
@@ -227,7 +237,7 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
                 pt = loop.point(t, fz, psis.get(t), applied, run_xc, period)
                 blk = loop.blocks(pt, period)
             except (FtcError, ValueError, np.linalg.LinAlgError) as exc:
-                rows.append({"t": t, "error": str(exc)})
+                rows.append({"t": t, "error": failure_words(exc, scheme, t)})
                 continue
             if discrete:
                 M = closed_loop_matrix(blk, period, delay)
@@ -262,11 +272,11 @@ def analyze_scheme(case, scheme: str, built, run: dict | None = None, margins: b
         pt, blk = worst["pt"], worst["blk"]
         if worst["run"] and scheme not in ("nominal", "oracle", "switching"):
             applied_from = "its run's states"
-        stability = limits_stability(worst["measure"], worst["poles"], discrete)
+        stability = _verdict(worst, discrete)
         # frozen instants that disagree (one stable, another unstable) decide nothing about a time-varying
         # loop: four_link_eight_step's healthy loop is frozen-unstable at 10 s (+11.6 1/s), stable at
         # 3.3 and 16.7 s, and every run tracks it
-        each = {r["t"]: limits_stability(r["measure"], r["poles"], discrete) for r in good}
+        each = {r["t"]: _verdict(r, discrete) for r in good}
         disagree = "stable" in each.values() and "unstable" in each.values()
         if disagree:
             stability = "inconclusive"
@@ -330,13 +340,16 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
     loop: its ``velocity_loop`` limits are null, and say so.
     """
     fz = Faults.healthy(built.chain.n_wheels, built.plant.motors is not None)
-    out = {"limits": {}, "velocity_loop": {}, "limit_notes": {}}
+    out = {"limits": {}, "velocity_loop": {}, "limit_notes": {}, "limit_kinds": {}}
+    kinds = out["limit_kinds"]
     try:
         blocks = [loop.blocks(loop.point(t, fz, psis.get(t), None, None, period), period) for t in ts]
     except (FtcError, ValueError, np.linalg.LinAlgError) as exc:
         for name in ("limits", "velocity_loop"):
             out[name] = {"sample_time_max": None, "k_v_max": None}
-            out["limit_notes"] |= {f"{name}.{k}": f"not computed: {exc}" for k in out[name]}
+            why = f"not computed: {failure_words(exc, scheme, ts[0])}"
+            out["limit_notes"] |= {f"{name}.{k}": why for k in out[name]}
+            kinds |= {f"{name}.{k}": "not_computed" for k in out[name]}
         return out
     picks = {"limits": lambda b: b}
     if _law_reads_eta(loop, ts[0], fz, psis, period):
@@ -345,7 +358,33 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         out["velocity_loop"] = {"sample_time_max": None, "k_v_max": None}
         why = "the law does not read eta (it estimates the velocity from q): without q there is no velocity loop"
         out["limit_notes"] |= {"velocity_loop.sample_time_max": why, "velocity_loop.k_v_max": why}
-    periodic = _periodic_blocks(case, built, loop, fz, period)
+        kinds |= {"velocity_loop.sample_time_max": "not_applicable", "velocity_loop.k_v_max": "not_applicable"}
+    # a loop marginal at the case's own setting with modes that move the plant has no stable range to bound:
+    # its tracking error does not converge (a law saturated everywhere, a drive too slow to act), and a
+    # "limit" where it turns unstable would be read as a stability limit that simulation then refutes
+    marginal = {}
+    for name, pick in list(picks.items()):
+        own = pick(blocks[0])
+        M = closed_loop_matrix(own, period, delay) if period is not None else own.continuous()
+        nb = delay * own.Gy.shape[1] if period is not None else 0
+        modes = boundary_modes(M, own.Fx.shape[0] + nb, period is not None)
+        unstable = (sampled_radius(own, period, delay) - 1.0 - MARGINAL_Z if period is not None
+                    else continuous_margin(own)) > 0.0  # fmt: skip
+        if modes["in_plant"] and not unstable:  # an unstable one: the searches say where it is stable
+            marginal[name] = modes
+            del picks[name]
+            at = f"T_s = {period * 1e3:g} ms" if period is not None else "in continuous time"
+            edge = "|z| - 1" if period is not None else "Re"
+            note = (
+                f"no stable range: the loop at the case's own setting ({at}, k_v = {loop.k_v:g} 1/s) is marginal, "
+                f"not stable: {modes['in_plant']} of its modes sit on the stability boundary and move the plant "
+                f"(largest {edge} {modes['largest']:.3g}), so the tracking error does not converge and there is no "
+                "stable range to bound"
+            )
+            out[name] = {"sample_time_max": None, "k_v_max": None}
+            out["limit_notes"] |= {f"{name}.sample_time_max": note, f"{name}.k_v_max": note}
+            kinds |= {f"{name}.sample_time_max": "marginal", f"{name}.k_v_max": "marginal"}
+    periodic = _periodic_blocks(case, built, loop, fz, period) if "limits" in picks else None
     for name, pick in picks.items():
         if loop.has_disc:
             out[name]["sample_time_max"] = None
@@ -353,6 +392,7 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
                 "not searched: the UKF's gain comes from its covariance, the run's (or the initial one) at its own "
                 "period; at another sample time the filter would settle to another gain"
             )
+            kinds[f"{name}.sample_time_max"] = "not_searched"
             continue
         guess = 2.0 / max(fastest_pole(pick(b)) for b in blocks)
         rho = lambda T, p=pick: max(sampled_radius(p(b), T, delay) for b in blocks)  # noqa: E731
@@ -361,6 +401,7 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
             res, rho = _periodic_limit(periodic, res, guess, delay)
         out[name]["sample_time_max"] = res["value"]
         out["limit_notes"][f"{name}.sample_time_max"] = res["note"]
+        kinds[f"{name}.sample_time_max"] = res["kind"]
         if name == "limits" and res["value"] is not None:
             T1 = 1.1 * res["value"]
             z = dominant_pole(blocks[0], T1, delay)
@@ -397,6 +438,7 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         res = largest_gain(margin, loop.k_v)
         out[name]["k_v_max"] = res["value"]
         out["limit_notes"][f"{name}.k_v_max"] = res["note"]
+        kinds[f"{name}.k_v_max"] = res["kind"]
         if name == "limits":
             grid = _grid(res["value"] or k_v, k_v)
             key = "rho_k" if period is not None else "max_re_k"
@@ -444,7 +486,7 @@ def _periodic_limit(periodic: tuple[float, list], frozen: dict, guess: float, de
         f"over one period of the reference ({P:.4g} s, {len(blocks)} instants: the growth per sample of the "
         f"sampled loop's product over it); the worst frozen instant of the first phase alone gives {seen}"
     )
-    return {"value": res["value"], "note": "; ".join(x for x in (res["note"], note) if x)}, rho
+    return {"value": res["value"], "kind": res["kind"], "note": "; ".join(x for x in (res["note"], note) if x)}, rho
 
 
 def _law_reads_eta(loop: SchemeLoop, t: float, fz: Faults, psis: dict, period) -> bool:
@@ -455,6 +497,13 @@ def _law_reads_eta(loop: SchemeLoop, t: float, fz: Faults, psis: dict, period) -
     q, eta = pt.xp[:nq], pt.xp[nq : nq + 2]
     u0 = loop.law(t, q, eta, pt.xc, st, ut)[0]
     return any(np.any(loop.law(t, q, eta + 1e-4 * e, pt.xc, st, ut)[0] != u0) for e in np.eye(2))
+
+
+def _verdict(row: dict, discrete: bool) -> str:
+    """A frozen instant's stability (:func:`limits.stability`), a continuous loop's poles held to their own
+    resolution where the fastest pole's band would call them marginal."""
+    A = None if discrete else row["blk"].continuous()
+    return limits_stability(row["measure"], row["poles"], discrete, A, row.get("internal"))
 
 
 def _words(stability: str) -> str:

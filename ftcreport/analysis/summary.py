@@ -15,6 +15,7 @@ from ..evaluation.verdict_analysis import (
     phase_measure,
     verdict_sentence,
 )
+from .limits import limit_words
 
 __all__ = ["MAX_SENTENCES", "analysis_sentences", "fmt_limit", "measure_text", "pattern_text", "text_summary"]
 __all__ += ["split_text", "verdict_sentence"]
@@ -27,18 +28,16 @@ def pattern_text(p) -> str:
     return " ".join(f"{v:g}" for v in p)
 
 
-def fmt_limit(value, unit: str) -> str:
-    if value is None:  # null: no finite limit (stable up to 10 s or 1e7 1/s); "none" read as "no stable gain"
-        return "no finite limit"
-    return f"{value * 1e3:.4g} ms" if unit == "s" else f"{value:.4g} 1/s"
+def fmt_limit(value, unit: str, kind: str | None = None) -> str:
+    """A limit, or what its null means (``limit_kinds``, :func:`ftcreport.analysis.limits.limit_words`)."""
+    return limit_words(value, kind, unit)
 
 
-def _limit(table: dict, notes: dict, where: str, key: str, unit: str) -> str:
-    """A limit as :func:`fmt_limit` writes it, but "not searched" for a null one its note says was not searched
-    (the UKF's sample time): that null is no "no finite limit"."""
-    if table.get(key) is None and str(notes.get(f"{where}.{key}", "")).startswith("not searched"):
-        return "not searched"
-    return fmt_limit(table.get(key), unit)
+def _limit(table: dict, kinds: dict, where: str, key: str, unit: str) -> str:
+    """One limit of a scheme's table as the summary writes it, a null one by its kind: 'none up to 10 s
+    (stable throughout)' is not 'none (unstable throughout)', 'none (the loop is marginal, not stable)' nor
+    'not computed'."""
+    return fmt_limit(table.get(key), unit, kinds.get(f"{where}.{key}"))
 
 
 def _worst_margin(m: dict | None) -> str:
@@ -65,12 +64,12 @@ def text_summary(res: dict) -> list[str]:
         lines.append("  the loop is time-varying along this reference: frozen-instant poles are evidence, not proof")
     for scheme, lim in res.get("limits", {}).items():
         vl = res.get("velocity_loop", {}).get(scheme, {})
-        notes = res.get("limit_notes", {}).get(scheme, {})
+        kinds = res.get("limit_kinds", {}).get(scheme, {})
         lines.append(
-            f"  {scheme}: largest stable sample time {_limit(lim, notes, 'limits', 'sample_time_max', 's')}, "
-            f"largest stable k_v {_limit(lim, notes, 'limits', 'k_v_max', '1/s')} (velocity loop alone: "
-            f"{_limit(vl, notes, 'velocity_loop', 'sample_time_max', 's')}, "
-            f"{_limit(vl, notes, 'velocity_loop', 'k_v_max', '1/s')})"
+            f"  {scheme}: largest stable sample time {_limit(lim, kinds, 'limits', 'sample_time_max', 's')}, "
+            f"largest stable k_v {_limit(lim, kinds, 'limits', 'k_v_max', '1/s')} (velocity loop alone: "
+            f"{_limit(vl, kinds, 'velocity_loop', 'sample_time_max', 's')}, "
+            f"{_limit(vl, kinds, 'velocity_loop', 'k_v_max', '1/s')})"
         )
         # limit / the case's setting, as on the case page (report.analysis_figs.limit_rows): "margin factors",
         # not "margins", which the phases' lines below use for the gain and phase margins (GM, PM)

@@ -21,6 +21,8 @@ def cases_validate(
     """Validate case files: 'ok' per valid file, every error of the others; exit 0 if all are valid, 2 otherwise.
 
     Each error is one line 'file: field: reason' (at most 50 per file, then the count of the rest).
+    Beyond the file itself: a reference infeasible at t = 0 and a plug-in scheme whose declarations
+    raise when bound to the case are errors (no run could start); a reference infeasible later, a warning.
     A directory is searched recursively (cases/ holds cases/motors/).
 
     Example: ftcreport cases validate
@@ -44,8 +46,16 @@ def cases_validate(
             if len(lines) > _MAX_ERRORS:
                 typer.echo(f"ftcreport: error: {f}: and {len(lines) - _MAX_ERRORS} more error(s)", err=True)
             continue
+        from ..runner import start_problems
+
+        errors, warnings = start_problems(c)
+        if errors:  # valid as a file, but no run of these schemes can start
+            bad += 1
+            for line in errors[:_MAX_ERRORS]:
+                typer.echo(f"ftcreport: error: {f}: {line}", err=True)
+            continue
         typer.echo(f"ok     {f}")
-        for w in c.warnings():
+        for w in [*c.warnings(), *warnings]:
             typer.echo(f"warning: {f}: {w}", err=True)
     if bad:
         raise typer.Exit(code=2)

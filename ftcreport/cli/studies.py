@@ -48,12 +48,16 @@ def analyze(
     """
     from ..analysis import analyze_case
     from ..cases import load_case
+    from ..errors import ReferenceError
 
     c = load_case(case)
     runs = _current_runs(results, c) if results is not None else None
     # progress on a terminal only (as batch): nothing when piped or -q
     say = None if quiet or not sys.stderr.isatty() else (lambda line: typer.echo(f"  analysed {line}", err=True))
-    res = analyze_case(c, runs=runs, confirm=confirm, progress=say)
+    try:
+        res = analyze_case(c, runs=runs, confirm=confirm, progress=say)
+    except ReferenceError as exc:  # the reference alone (no scheme's): name the file and the table
+        raise ReferenceError(f"{case}: reference: {exc}") from None
     if as_json:
         from ..storage.store import _jsonable
 

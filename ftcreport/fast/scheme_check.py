@@ -369,6 +369,7 @@ def check_scheme(sc: Scheme, path: str) -> list[Finding]:
     try:
         bound = _contexts(sc)
     except Exception as exc:
+        exc = _own(exc)
         fail(_hook_where(sc, exc), f"{_hook_name(exc)}: {type(exc).__name__}: {_first_line(exc)}")
         return out
     for label, ctrl in bound:
@@ -378,7 +379,7 @@ def check_scheme(sc: Scheme, path: str) -> list[Finding]:
         try:
             x0 = ctrl.initial_state(0.0, *_start(ctrl))
         except Exception as exc:
-            fail(_where(sc.initial_state) if sc.initial_state else path, f"initial_state ({label}): {exc}")
+            fail(_where(sc.initial_state) if sc.initial_state else path, f"initial_state ({label}): {_own(exc)}")
             continue
         if not np.all(np.isfinite(x0)):
             fail(_where(sc.initial_state) if sc.initial_state else path, f"initial_state ({label}): not finite")
@@ -407,6 +408,13 @@ def _start(ctrl) -> tuple[np.ndarray, np.ndarray]:
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return " ".join(x.strip() for x in text[:3]) if text else type(exc).__name__
+
+
+def _own(exc: BaseException) -> BaseException:
+    """What the scheme's own code raised: the cause of the PluginError that names it for a run."""
+    from ..errors import PluginError
+
+    return exc.__cause__ if isinstance(exc, PluginError) and exc.__cause__ is not None else exc
 
 
 def _hook_where(sc: Scheme, exc: BaseException) -> str:

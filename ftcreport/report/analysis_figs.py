@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from ..analysis.limits import limit_words
 from ..analysis.summary import measure_text, split_text
 from ..errors import FtcError
 from . import plots
@@ -82,13 +83,16 @@ def limit_rows(res: dict) -> list[dict]:
         k_v = res.get("k_v", {}).get(scheme)
         vl = res.get("velocity_loop", {}).get(scheme, {})
         conf = res.get("confirmation", {}).get(scheme, {})
-        notes = res.get("limit_notes", {}).get(scheme, {})
+        kinds = res.get("limit_kinds", {}).get(scheme, {})
+        words = lambda v, k, unit, kinds=kinds: limit_words(v, kinds.get(k), unit)  # noqa: E731  a null by its kind
         out.append(
             {
                 "scheme": scheme,
                 "T_max": lim.get("sample_time_max"),
-                # null for two reasons: no finite limit (the caption's 'none'), or not searched (the UKF's)
-                "T_not_searched": str(notes.get("limits.sample_time_max", "")).startswith("not searched"),
+                "T_text": words(lim.get("sample_time_max"), "limits.sample_time_max", "s"),
+                "k_text": words(lim.get("k_v_max"), "limits.k_v_max", "1/s"),
+                "vl_T_text": words(vl.get("sample_time_max"), "velocity_loop.sample_time_max", "s"),
+                "vl_k_text": words(vl.get("k_v_max"), "velocity_loop.k_v_max", "1/s"),
                 "T_factor": _factor(lim.get("sample_time_max"), T),
                 "k_v": k_v,
                 "k_max": lim.get("k_v_max"),

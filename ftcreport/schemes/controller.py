@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ModelError
+from ..errors import FtcError, ModelError, PluginError
 from .api import Scheme, SchemeContext
 
 __all__ = ["KINEMATIC_SIGNALS", "SchemeController"]
@@ -38,13 +38,15 @@ class SchemeController:
     def __init__(self, scheme: Scheme, chain, kinematic, k_v: float, params=None, saturation=None, case=None) -> None:
         self._bind(scheme, chain, kinematic, k_v, params, saturation, case)
         ctx = self.ctx
-        n_own = scheme.n_states(ctx)
+        n_own = hook(scheme, "n_states", scheme.n_states, ctx)
         if isinstance(n_own, bool) or not isinstance(n_own, int | np.integer) or n_own < 0:
             raise ModelError(f"scheme {scheme.name}: n_states must be an int >= 0, got {n_own!r}")
         self.n_own = int(n_own)
         self.widths = _widths(scheme, ctx)
-        self.P = scheme.pack(ctx)
-        stiff = None if scheme.stiff is None else np.asarray(scheme.stiff(ctx), dtype=float).reshape(self.n_own)
+        self.P = hook(scheme, "pack", scheme.pack, ctx)
+        stiff = None
+        if scheme.stiff is not None:
+            stiff = np.asarray(hook(scheme, "stiff", scheme.stiff, ctx), dtype=float).reshape(self.n_own)
         self._finish(stiff)
 
     # ------------------------------------------------------------------ the parts a face sets itself
@@ -64,7 +66,7 @@ class SchemeController:
         nk = self.kin.n_states
         self.n_states = nk + self.n_own
         names = self.scheme.derived_names
-        derived = tuple(names(self) if callable(names) else names)
+        derived = tuple(hook(self.scheme, "derived_names", names, self) if callable(names) else names)
         self.signal_names = (*self.kinematic_signals, *self.widths, *derived)
         self.stiff_diagonal = np.zeros(self.n_states)
         if stiff_own is not None:
@@ -74,7 +76,7 @@ class SchemeController:
         """The scheme's own states at t0 (``Scheme.initial_state``, default zeros)."""
         if self.scheme.initial_state is None:
             return np.zeros(self.n_own)
-        x0 = np.asarray(self.scheme.initial_state(self.ctx, q, eta), dtype=float)
+        x0 = np.asarray(hook(self.scheme, "initial_state", self.scheme.initial_state, self.ctx, q, eta), dtype=float)
         if x0.size != self.n_own:
             raise ModelError(f"scheme {self.name}: initial_state returned {x0.size} values, n_states is {self.n_own}")
         return x0.reshape(self.n_own)
@@ -90,12 +92,31 @@ class SchemeController:
         ``meas`` the measured [q, eta], ``costs`` also those only the saved log holds."""
         if self.scheme.derived is None:
             return {}
-        return self.scheme.derived(self, xc, meas, costs)
+        return hook(self.scheme, "derived", self.scheme.derived, self, xc, meas, costs)
+
+
+def hook(scheme: Scheme, role: str, fn, *args):
+    """``fn(*args)``, one of a scheme's declaration hooks; what a plug-in's own code raises becomes a
+    :class:`~ftcreport.errors.PluginError` naming its file and line, the scheme and the hook (a run of it
+    then ends with status error and that reason; the analysis lists it under ``not_analyzed``).  An
+    error raised in ftcreport's own code is not the plug-in's and propagates as it is."""
+    from .registry import user_frame
+
+    try:
+        return fn(*args)
+    except FtcError:
+        raise
+    except Exception as exc:
+        where = user_frame(exc)
+        if where is None:
+            raise
+        text = " ".join(str(exc).split())[:300]
+        raise PluginError(f"{where}: scheme {scheme.name}: {role} raised {type(exc).__name__}: {text}") from exc
 
 
 def _widths(scheme: Scheme, ctx: SchemeContext) -> dict[str, int]:
     """The declared signals, checked: names of the safe set, whole widths >= 1, no kinematic name."""
-    widths = scheme.signal_widths(ctx)
+    widths = hook(scheme, "signals", scheme.signal_widths, ctx)
     for name, width in widths.items():
         if not isinstance(name, str) or not name.isidentifier():
             raise ModelError(f"scheme {scheme.name}: signal name {name!r} is not an identifier")

@@ -241,6 +241,24 @@ def _system_roots() -> tuple[Path, ...]:
     return tuple(Path(r).resolve() for r in roots if r)
 
 
+def user_frame(exc: BaseException) -> str | None:
+    """``file:line`` of the innermost frame of ``exc``'s traceback in the user's own code (a scheme file,
+    a module it imports), or None when every frame is ftcreport's, the interpreter's or an installed
+    package's (then the error is not the user's code's)."""
+    import traceback
+
+    roots = _system_roots()
+    for frame in reversed(traceback.extract_tb(exc.__traceback__)):
+        try:
+            f = Path(frame.filename).resolve()
+        except OSError:
+            continue
+        if frame.filename.startswith("<") or any(f.is_relative_to(r) for r in roots):
+            continue
+        return f"{frame.filename}:{frame.lineno}"
+    return None
+
+
 def _module_file(module) -> Path | None:
     f = getattr(module, "__file__", None)
     if not isinstance(f, str) or not f.endswith(".py"):

@@ -86,10 +86,18 @@ LIMITS = {
     "properties": {"sample_time_max": NUM_OR_NULL, "k_v_max": NUM_OR_NULL},
     "additionalProperties": False,
 }
+KINDS = {
+    "type": "object",
+    "propertyNames": {"pattern": "^(limits|velocity_loop)[.](sample_time_max|k_v_max)$"},
+    "additionalProperties": {
+        "enum": ["limit", "unbounded", "unstable", "marginal", "not_computed", "not_searched", "not_applicable"]
+    },
+}
 SCHEMA = {
     "type": "object",
-    "required": ["case", "limits", "phases", "closed_loop_poles", "controllability", "velocity_loop"],
+    "required": ["case", "limits", "phases", "closed_loop_poles", "controllability", "velocity_loop", "limit_kinds"],
     "properties": {
+        "limit_kinds": {"type": "object", "additionalProperties": KINDS},
         "limits": {"type": "object", "additionalProperties": LIMITS},
         "velocity_loop": {"type": "object", "additionalProperties": LIMITS},
         "phases": {"type": "object", "additionalProperties": {"type": "array", "items": PHASE, "minItems": 1}},
@@ -115,6 +123,12 @@ def test_analysis_keys_on_every_shipped_case(path):
         assert "observability" in res["observer"]
     assert "_curves" not in res
     assert all("_bode" not in (p["margins"] or {}) for ph in res["phases"].values() for p in ph)
+    # every limit has its kind, "limit" exactly where it has a value (the summary and the page word a null by it)
+    for scheme in res["limits"]:
+        for where in ("limits", "velocity_loop"):
+            for key, value in res[where][scheme].items():
+                kind = res["limit_kinds"][scheme][f"{where}.{key}"]
+                assert (kind == "limit") == (value is not None), (scheme, where, key, value, kind)
     # motor faults in words only on a motor case (README: the phase keys)
     assert all(("motor_faults" in p) == (case.actuators is not None) for ph in res["phases"].values() for p in ph)
 

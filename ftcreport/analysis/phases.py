@@ -428,6 +428,7 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         for name in picks:
             out[name]["k_v_max"] = None
             out["limit_notes"][f"{name}.k_v_max"] = str(exc)
+            kinds[f"{name}.k_v_max"] = "not_searched"
         return out
     for name, pick in picks.items():
         if period is not None:

@@ -42,12 +42,19 @@ def _raising_hook_case(tmp_path: Path, hook: str, tag: str):
     if hook == "pack":
         anchor = "    p = ctx.params if ctx.params is not None else SlidingModeParams()\n"
         src = src.replace(anchor, anchor + '    {}["missing_key"]\n')
+    elif hook == "pack_ftc":  # an ftcreport error the plug-in raises itself: its message, with its line
+        anchor = "    p = ctx.params if ctx.params is not None else SlidingModeParams()\n"
+        src = src.replace(anchor, anchor + "    raise ModelError(\"k0 is too large {}['missing_key']\")\n")
+        src = src.replace(
+            "from ftcreport import schemes\n",
+            "from ftcreport import schemes\nfrom ftcreport.errors import ModelError\n",
+        )
     else:  # initial_state: the law has no own state; declare one so that the hook runs
         src = src.replace("        pack=pack,\n", "        pack=pack,\n        initial_state=_init,\n")
         src = src.replace("# 5. Register", 'def _init(ctx, q, eta):\n    return {}["missing_key"]\n\n\n# 5. Register')
     plugin = tmp_path / f"{name}.py"
     plugin.write_text(src)
-    line = next(i for i, text in enumerate(src.splitlines(), 1) if '{}["missing_key"]' in text)
+    line = next(i for i, text in enumerate(src.splitlines(), 1) if "missing_key" in text)
     data = tomllib.loads((ROOT / "cases" / "two_link_sliding_mode.toml").read_text())
     data["plugins"] = [str(plugin)]
     data["schemes"][name] = data["schemes"].pop("sliding_mode")
@@ -79,9 +86,12 @@ def test_cases_validate_names_a_plugin_hook_that_raises(tmp_path):
 
     from ftcreport.cli import app
 
-    for hook in ("pack", "initial_state"):
+    for hook in ("pack", "initial_state", "pack_ftc"):
         _, plugin, line, name, path = _raising_hook_case(tmp_path, hook, "validate")
         res = CliRunner().invoke(app, ["cases", "validate", str(path)])
         assert res.exit_code == 2, res.output
         assert f"schemes.{name}" in res.output and f"{plugin}:{line}" in res.output
-        assert f"{hook} raised KeyError" in res.output
+        if hook == "pack_ftc":
+            assert f"scheme {name}: pack: k0 is too large" in res.output, res.output
+        else:
+            assert f"{hook} raised KeyError" in res.output

@@ -98,20 +98,22 @@ class SchemeController:
 def hook(scheme: Scheme, role: str, fn, *args):
     """``fn(*args)``, one of a scheme's declaration hooks; what a plug-in's own code raises becomes a
     :class:`~ftcreport.errors.PluginError` naming its file and line, the scheme and the hook (a run of it
-    then ends with status error and that reason; the analysis lists it under ``not_analyzed``).  An
-    error raised in ftcreport's own code is not the plug-in's and propagates as it is."""
+    then ends with status error and that reason; the analysis lists it under ``not_analyzed``); an
+    ftcreport error it raises (or an ftcreport call in it raises) keeps its message, prefixed so.  An
+    error raised in ftcreport's own code alone is not the plug-in's and propagates as it is."""
     from .registry import user_frame
 
     try:
         return fn(*args)
-    except FtcError:
+    except PluginError:
         raise
     except Exception as exc:
         where = user_frame(exc)
         if where is None:
             raise
         text = " ".join(str(exc).split())[:300]
-        raise PluginError(f"{where}: scheme {scheme.name}: {role} raised {type(exc).__name__}: {text}") from exc
+        what = f"{role}: {text}" if isinstance(exc, FtcError) else f"{role} raised {type(exc).__name__}: {text}"
+        raise PluginError(f"{where}: scheme {scheme.name}: {what}") from exc
 
 
 def _widths(scheme: Scheme, ctx: SchemeContext) -> dict[str, int]:

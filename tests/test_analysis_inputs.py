@@ -85,3 +85,79 @@ def test_a_plugin_state_or_law_that_is_not_finite_is_named_not_numpys_words(tmp_
         assert "overflow_probe.py:" in note and "scheme overflow_probe: at t = " in note
         assert "would overflow" in note or "is not finite" in note
         assert "Array must not contain" not in note
+
+
+# the second attack on analyze and validate (helper report, 2026-12-03): hooks that return junk, call a
+# builtin or sys.exit, laws whose output or rates are not finite, a drive saturated everywhere
+JUNK_HOOKS = {
+    "stiff_size": ("        pack=pack,\n", "        pack=pack,\n        stiff=lambda ctx: [1.0, 2.0, 3.0],\n",
+                   "stiff returned 3 values, n_states is 0"),
+    "stiff_nan": ("        pack=pack,\n", "        pack=pack,\n        n_states=lambda ctx: 1,\n"
+                  "        stiff=lambda ctx: [float('nan')],\n", "stiff returned values that are not finite"),
+    "names_int": ("        pack=pack,\n", "        pack=pack,\n        derived_names=lambda ctrl: 5,\n",
+                  "derived_names returned 5, not a tuple of names"),
+    "n_builtin": ("        pack=pack,\n", "        pack=pack,\n        n_states=len,\n",
+                  "n_states raised TypeError: object of type 'SchemeContext' has no len()"),
+    "init_none": ("        pack=pack,\n", "        pack=pack,\n        n_states=lambda ctx: 1,\n"
+                  "        initial_state=lambda ctx, q, eta: None,\n", "initial_state returned None"),
+    "exits": ("def pack(ctx: SchemeContext) -> P:\n", "def pack(ctx: SchemeContext) -> P:\n    import sys\n\n"
+              "    sys.exit(0)\n", "pack called sys.exit(0)"),
+}  # fmt: skip
+
+
+def test_a_plugin_hook_that_returns_junk_or_exits_is_named_in_validate(tmp_path):
+    """Were exit 3 'unexpected ValueError/TypeError ... (a bug)' (a stiff of the wrong size, derived_names
+    not a tuple, the builtin len as n_states) or silence with exit 0 (sys.exit in pack)."""
+    for tag, (anchor, edit, words) in JUNK_HOOKS.items():
+        path = _plugin_case(tmp_path, f"junk_{tag}", lambda src, a=anchor, e=edit: src.replace(a, e, 1))
+        res = CliRunner().invoke(app, ["cases", "validate", str(path)])
+        assert res.exit_code == 2, (tag, res.output)
+        assert f"junk_{tag}.py:" in res.output and f"scheme junk_{tag}: {words}" in res.output, (tag, res.output)
+
+
+def test_a_law_whose_command_or_rates_are_not_finite_is_named_in_the_analysis(tmp_path):
+    """Were 'the law stops at t = 5 s (error code 18)' (an inf command) and a NaN state rate blamed on the
+    measurement's Jacobian overflowing."""
+    from ftcreport.analysis import analyze_case
+
+    inf = _plugin_case(
+        tmp_path,
+        "inf_command",
+        lambda s: s.replace("    out.sig[2] = K\n", "    out.sig[2] = K\n    out.u[1] = math.inf\n"),
+    )
+    out = analyze_case(load_case(inf), margins=False)
+    note = out["phases"]["inf_command"][0]["note"]
+    assert "inf_command.py:" in note and "its law returned a non-finite command out.u[1] (wheel 1l) = inf" in note
+    assert "error code" not in note
+    nan_rate = lambda s: _nan_state(s).replace("    out.dx[0] = -x[0]\n", "    out.dx[0] = math.nan\n")  # noqa: E731
+    path = _plugin_case(
+        tmp_path,
+        "nan_rate",
+        lambda s: nan_rate(s).replace("lambda ctx, q, eta: [float('nan')]", "lambda ctx, q, eta: [0.0]"),
+    )
+    out = analyze_case(load_case(path), margins=False)
+    note = out["phases"]["nan_rate"][0]["note"]
+    assert "its law's state rates at the operating point" in note and "out.dx[0]" in note, note
+
+
+def test_a_drive_saturated_everywhere_has_no_gain_limit_below_which_it_is_marginal(tmp_path):
+    """cases/motors/two_link_switching_motors.toml with I_max = 1e-6 A: its own loop (k_v = 3000) is unstable,
+    the search down found 'largest stable k_v 638 1/s', below which every loop is only marginal (the drive has
+    no authority: at 300 1/s every phase marginal) and both confirmation runs diverged.  Now no stable range."""
+    from ftcreport.analysis import analyze_case
+
+    data = tomllib.loads((ROOT / "cases" / "motors" / "two_link_switching_motors.toml").read_text())
+    data["base_case"] = str(ROOT / "cases" / "two_link_switching.toml")
+    data["actuators"]["I_max"] = 1e-6
+    for key in ("thresholds", "claims", "requirements"):
+        data.pop(key, None)
+    path = tmp_path / "saturated_drive.toml"
+    path.write_text(tomli_w.dumps(data))
+    out = analyze_case(load_case(path), margins=False)
+    for scheme in ("nominal", "switching", "oracle"):
+        assert out["limits"][scheme]["k_v_max"] is None
+        assert out["limit_kinds"][scheme]["limits.k_v_max"] == "marginal"
+        assert (
+            "no stable range: below the point where the loop turns unstable"
+            in out["limit_notes"][scheme]["limits.k_v_max"]
+        )

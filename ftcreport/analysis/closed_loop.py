@@ -426,12 +426,21 @@ class SchemeLoop:
     def _stopped(self, what: str, t: float, info: np.ndarray) -> str:
         """Why the scheme's law or discrete update stopped at t: a plug-in's that raised (E_LAW_RAISED: the
         loop caught it; run again in Python, it is named with its line, as a run's reason names it)."""
-        from ..fast.stops import law_raised_reason
-        from ..jit.packed import E_LAW_RAISED
+        from ..fast.stops import law_nonfinite_reason, law_raised_reason, law_signal_reason
+        from ..jit.packed import E_LAW_NONFINITE, E_LAW_RAISED, E_LAW_SIGNAL, E_LAW_WRITE
+        from ..schemes.controller import write_reason
 
-        if int(info[0]) == E_LAW_RAISED:
+        code = int(info[0])
+        if code == E_LAW_RAISED:
             return law_raised_reason(self.spec, info, self._bufs)
-        return f"scheme {self.scheme}: the {what} stops at t = {t:g} s (error code {int(info[0])})"
+        # the run's own words for the engine's stops (fast.stops), the plug-in's law file first
+        if code == E_LAW_NONFINITE:
+            return self._whose() + law_nonfinite_reason(self.spec, int(info[2]), float(info[3]), float(info[1]))
+        if code == E_LAW_SIGNAL:
+            return self._whose() + law_signal_reason(self.spec, int(info[2]), float(info[3]), float(info[1]))
+        if code == E_LAW_WRITE:
+            return self._whose() + write_reason(self.ctrl, int(info[1]), float(info[2]))
+        return f"scheme {self.scheme}: the {what} stops at t = {t:g} s (error code {code})"
 
     def discrete(self, t: float, q: np.ndarray, eta: np.ndarray, xc: np.ndarray) -> np.ndarray:
         """The scheme's discrete update at t (a copy of xc updated)."""
@@ -486,7 +495,13 @@ class SchemeLoop:
                 f"(t = {t:g} s) is not finite ({bad} of {xc.size} entries: {src}): nothing to linearize about"
             )
         xp = np.concatenate((q, eta, np.zeros(self.plant.nm)))
-        a, _ = self.controller(t, xp, xp[: self.n_q + 2], xc, faults)
+        a, dx = self.controller(t, xp, xp[: self.n_q + 2], xc, faults)
+        if not np.all(np.isfinite(dx)):
+            bad = [int(i) for i in np.flatnonzero(~np.isfinite(dx)) if i >= self.nk]
+            raise ModelError(
+                f"{self._whose()}scheme {self.scheme}: its law's state rates at the operating point (t = {t:g} s) "
+                f"are not finite (out.dx{[i - self.nk for i in bad]}): nothing to linearize about"
+            )
         if not np.all(np.isfinite(a)):
             raise ModelError(
                 f"{self._whose()}scheme {self.scheme}: its law's command at the operating point (t = {t:g} s) is "

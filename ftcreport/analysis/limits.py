@@ -215,9 +215,12 @@ def boundary_modes(M: np.ndarray, n_plant: int, discrete: bool) -> dict:
     w, left, right = eig(M, left=True, right=True)
     if discrete:
         d, band = np.abs(w) - 1.0, MARGINAL_Z
-    else:  # the stable side held to each pole's own resolution, as stability() does
+    else:
         d, band = w.real, MARGINAL_S * max(1.0, float(np.abs(w).max()))
-        band = np.where(d < 0.0, _resolved(M, left, right, band), band)
+    # the stable side held to each pole's own resolution, as stability() does a continuous loop's: at a
+    # sample time of 1.8 us the stiff loop's kinematic poles (-0.155 1/s) sit at |z| - 1 = -2.8e-7, inside
+    # MARGINAL_Z, and are resolved to 1e-9
+    band = np.where(d < 0.0, _resolved(M, left, right, band), band)
     on = np.abs(d) <= band
 
     def share(V: np.ndarray) -> np.ndarray:

@@ -399,6 +399,11 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         res = largest_sample_time(rho, guess)
         if name == "limits" and periodic is not None:
             res, rho = _periodic_limit(periodic, res, guess, delay)
+        if res["value"] is not None:  # the range below the limit must be stable, not only marginal (below)
+            T9 = 0.9 * res["value"]
+            frozen = periodic[1] if name == "limits" and periodic is not None else blocks
+            mats = [(closed_loop_matrix(pick(b), T9, delay), _n_plant(pick(b), delay)) for b in frozen]
+            res = _unless_held(res, mats, True, f"T_s = {T9 * 1e3:.4g} ms", f"{res['value'] * 1e3:.4g} ms")
         out[name]["sample_time_max"] = res["value"]
         out["limit_notes"][f"{name}.sample_time_max"] = res["note"]
         kinds[f"{name}.sample_time_max"] = res["kind"]
@@ -437,6 +442,14 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         else:
             margin = lambda k, p=pick: max(continuous_margin(p(f(k))) for f in fam)  # noqa: E731
         res = largest_gain(margin, loop.k_v)
+        if res["value"] is not None:  # as the sample time's: the gains below the limit must be stable
+            k9 = 0.9 * res["value"]
+            loops = [pick(f(k9)) for f in fam]
+            mats = [
+                (closed_loop_matrix(b, period, delay) if period is not None else b.continuous(), _n_plant(b, delay))
+                for b in loops
+            ]
+            res = _unless_held(res, mats, period is not None, f"k_v = {k9:.4g} 1/s", f"{res['value']:.4g} 1/s")
         out[name]["k_v_max"] = res["value"]
         out["limit_notes"][f"{name}.k_v_max"] = res["note"]
         kinds[f"{name}.k_v_max"] = res["kind"]
@@ -451,6 +464,30 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
             out.setdefault("crossing", {})["k_v_max"] = [z.real, z.imag]
             out.setdefault("crossing_internal", {})["k_v_max"] = bool(b1.internal_measure(period) >= abs(z))
     return out
+
+
+def _n_plant(blk: Blocks, delay: int) -> int:
+    """The plant's states and the delay line's copies of them, first in the loop's matrix."""
+    return blk.Fx.shape[0] + delay * blk.Gy.shape[1]
+
+
+def _unless_held(res: dict, mats, discrete: bool, at: str, limit: str) -> dict:
+    """``res`` (a limit found), or null of kind marginal when the loop at 0.9x the limit is marginal with
+    boundary modes that hold a plant perturbation in the plant (:func:`limits.boundary_modes`): then the
+    search's "stable" side is only marginal, the tracking error does not converge below the limit, and the
+    limit is only where it turns unstable (a drive saturated at I_max = 1e-6: a k_v limit of 638 1/s, and
+    at 300 1/s every phase marginal; simulation at 0.9x and 1.1x diverged)."""
+    for M, n_plant in mats:
+        modes = boundary_modes(M, n_plant, discrete)
+        if modes["in_plant"]:
+            edge = "|z| - 1" if discrete else "Re"
+            note = (
+                f"no stable range: below the point where the loop turns unstable ({limit}) it is marginal, not "
+                f"stable: at {at} {modes['in_plant']} of its modes sit on the stability boundary and move the "
+                f"plant (largest {edge} {modes['largest']:.3g}), so the tracking error does not converge there"
+            )
+            return {"value": None, "kind": "marginal", "note": "; ".join(x for x in (res["note"], note) if x)}
+    return res
 
 
 def _periodic_blocks(case, built, loop: SchemeLoop, fz: Faults, period) -> tuple[float, list] | None:

@@ -98,6 +98,7 @@ def text_summary(res: dict) -> list[str]:
                 f"    {p['t_start']:g}-{p['t_end']:g} s: true {pattern_text(p['pattern_true'])}, applied "
                 f"{pattern_text(p.get('pattern_applied'))} ({p.get('applied_from', '-')}); {phase_measure(p)}, "
                 f"{p.get('stability')}{_in_parentheses(split_text(p.get('frozen_disagree')))}{_worst_margin(p.get('margins'))}"
+                + (f": {p.get('note')}" if p.get("stability") == "not computed" and p.get("note") else "")
             )
     for scheme, why in res.get("not_analyzed", {}).items():
         lines.append(f"  {scheme}: not analysed: {why}")

@@ -40,13 +40,15 @@ class SchemeController:
         ctx = self.ctx
         n_own = hook(scheme, "n_states", scheme.n_states, ctx)
         if isinstance(n_own, bool) or not isinstance(n_own, int | np.integer) or n_own < 0:
-            raise ModelError(f"scheme {scheme.name}: n_states must be an int >= 0, got {n_own!r}")
+            where = _hook_where(scheme, scheme.n_states)
+            raise ModelError(f"{where}scheme {scheme.name}: n_states must be an int >= 0, got {_text(repr(n_own))}")
         self.n_own = int(n_own)
         self.widths = _widths(scheme, ctx)
         self.P = hook(scheme, "pack", scheme.pack, ctx)
         stiff = None
         if scheme.stiff is not None:
-            stiff = np.asarray(hook(scheme, "stiff", scheme.stiff, ctx), dtype=float).reshape(self.n_own)
+            n = self.n_own
+            stiff = hook(scheme, "stiff", scheme.stiff, ctx, convert=lambda v: _floats(v, n, "stiff"))
         self._finish(stiff)
 
     # ------------------------------------------------------------------ the parts a face sets itself
@@ -66,7 +68,7 @@ class SchemeController:
         nk = self.kin.n_states
         self.n_states = nk + self.n_own
         names = self.scheme.derived_names
-        derived = tuple(hook(self.scheme, "derived_names", names, self) if callable(names) else names)
+        derived = hook(self.scheme, "derived_names", names, self, convert=_names) if callable(names) else tuple(names)
         self.signal_names = (*self.kinematic_signals, *self.widths, *derived)
         self.stiff_diagonal = np.zeros(self.n_states)
         if stiff_own is not None:
@@ -76,10 +78,9 @@ class SchemeController:
         """The scheme's own states at t0 (``Scheme.initial_state``, default zeros)."""
         if self.scheme.initial_state is None:
             return np.zeros(self.n_own)
-        x0 = np.asarray(hook(self.scheme, "initial_state", self.scheme.initial_state, self.ctx, q, eta), dtype=float)
-        if x0.size != self.n_own:
-            raise ModelError(f"scheme {self.name}: initial_state returned {x0.size} values, n_states is {self.n_own}")
-        return x0.reshape(self.n_own)
+        n = self.n_own
+        convert = lambda v: _floats(v, n, "initial_state", finite=False)  # noqa: E731  (not finite: its caller says)
+        return hook(self.scheme, "initial_state", self.scheme.initial_state, self.ctx, q, eta, convert=convert)
 
     # ------------------------------------------------------------------ what the engine reads
     def initial_state(self, t: float, q: np.ndarray, eta: np.ndarray) -> np.ndarray:
@@ -95,25 +96,90 @@ class SchemeController:
         return hook(self.scheme, "derived", self.scheme.derived, self, xc, meas, costs)
 
 
-def hook(scheme: Scheme, role: str, fn, *args):
+def hook(scheme: Scheme, role: str, fn, *args, convert=None):
     """``fn(*args)``, one of a scheme's declaration hooks; what a plug-in's own code raises becomes a
     :class:`~ftcreport.errors.PluginError` naming its file and line, the scheme and the hook (a run of it
     then ends with status error and that reason; the analysis lists it under ``not_analyzed``); an
     ftcreport error it raises (or an ftcreport call in it raises) keeps its message, prefixed so.  An
-    error raised in ftcreport's own code alone is not the plug-in's and propagates as it is."""
+    error raised in ftcreport's own code alone is not the plug-in's and propagates as it is.
+
+    ``convert``: what is done with the hook's result (a shape, a type), under the same rule: a plug-in's
+    hook that returns what cannot be converted is named the same way.  For a plug-in (a scheme without a
+    built-in face) every exception counts, even one raised in a library its hook called (a builtin or a
+    numpy function given as the hook: the hook itself is named) and ``sys.exit`` in it.
+    """
     from .registry import user_frame
 
+    plugin = scheme.controller is None
     try:
-        return fn(*args)
+        out = fn(*args)
+        return out if convert is None else convert(out)
     except PluginError:
         raise
-    except Exception as exc:
-        where = user_frame(exc)
-        if where is None:
+    except (Exception, SystemExit) as exc:
+        where = user_frame(exc) if isinstance(exc, Exception) else None
+        if where is None and not plugin:
             raise
-        text = " ".join(str(exc).split())[:300]
-        what = f"{role}: {text}" if isinstance(exc, FtcError) else f"{role} raised {type(exc).__name__}: {text}"
-        raise PluginError(f"{where}: scheme {scheme.name}: {what}") from exc
+        where = f"{where}: " if where else _hook_where(scheme, fn)
+        if isinstance(exc, SystemExit):
+            what = f"{role} called sys.exit({_text(repr(exc.code))})"
+        elif isinstance(exc, _ResultError):
+            what = f"{role} {exc.args[0]}"
+        elif isinstance(exc, FtcError):
+            what = f"{role}: {_text(exc)}"
+        else:
+            what = f"{role} raised {type(exc).__name__}: {_text(exc)}"
+        raise PluginError(f"{where}scheme {scheme.name}: {what}") from exc
+
+
+class _ResultError(ValueError):
+    """A hook's result that is not what the hook must return (its words: 'returned ...')."""
+
+
+def _text(obj) -> str:
+    """``str(obj)`` on one line, at most 300 characters; an object whose ``__str__`` raises, by its type."""
+    try:
+        text = str(obj)
+    except Exception:
+        text = f"<{type(obj).__name__} whose str() raised>"
+    return " ".join(text.split())[:300]
+
+
+def _hook_where(scheme: Scheme, fn) -> str:
+    """``file:line: `` of a hook's definition, else of the scheme's signals or law (its file), else nothing;
+    never one of ftcreport's own functions (a bound ``Scheme.signal_widths``)."""
+    from pathlib import Path
+
+    from .registry import _where
+
+    package = Path(__file__).resolve().parents[1]
+    for f in (fn, scheme.signals, scheme.law):
+        code = getattr(getattr(f, "py_func", f), "__code__", None)
+        if code is not None and not Path(code.co_filename).resolve().is_relative_to(package):
+            return f"{_where(f)}: "
+    return ""
+
+
+def _floats(value, n: int, role: str, finite: bool = True) -> np.ndarray:
+    """A hook's result as n floats (``stiff``, ``initial_state``), or :class:`_ResultError` saying what it was."""
+    if value is None:
+        raise _ResultError(f"returned None, not {n} numbers")
+    try:
+        x = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise _ResultError(f"returned {_text(repr(value))[:80]}, not {n} numbers") from None
+    if x.size != n:
+        raise _ResultError(f"returned {x.size} values, n_states is {n}")
+    if finite and not np.all(np.isfinite(x)):
+        raise _ResultError(f"returned values that are not finite ({_text(x.tolist())[:80]})")
+    return x
+
+
+def _names(value) -> tuple[str, ...]:
+    """``derived_names``'s result as a tuple of names, or :class:`_ResultError`."""
+    if isinstance(value, str) or not hasattr(value, "__iter__"):
+        raise _ResultError(f"returned {_text(repr(value))[:80]}, not a tuple of names")
+    return tuple(value)
 
 
 def _widths(scheme: Scheme, ctx: SchemeContext) -> dict[str, int]:

@@ -137,6 +137,18 @@ def _readme_row(key: str) -> str:
     return next(ln for ln in (ROOT / "README.md").read_text().splitlines() if ln.startswith(f"| `{key}`"))
 
 
+def _limits_table(env, rows: list[dict]) -> str:
+    """templates/_analysis.html rendered with only the limits' rows (a sampled case at 5 ms, torque inputs)."""
+    analysis = {
+        "limit_rows": rows,
+        "sampled": True,
+        "sample_time": 0.005,
+        "actuator_input": "torque",
+        "not_analyzed": {},
+    }
+    return env.get_template("_analysis.html").render(analysis=analysis)
+
+
 def test_readme_documents_the_keys_of_a_stopped_or_erred_confirmation_run():
     """A confirmation run that stopped early carries t_end and reason (analysis.confirm.classify), an erred
     one reason: the README's key table names them; motor_faults is said to be on motor cases only."""
@@ -474,29 +486,13 @@ def test_a_limit_the_simulation_contradicts_shows_no_green_margin():
         "limit_notes": {"active_ukf": {"limits.sample_time_max": "not searched: the UKF's gain comes from ..."}},
         "limit_kinds": {"active_ukf": {"limits.sample_time_max": "not_searched"}},
     }
-    html = env.get_template("_analysis.html").render(
-        analysis={
-            "limit_rows": limit_rows(ukf),
-            "sampled": True,
-            "sample_time": 0.005,
-            "actuator_input": "torque",
-            "not_analyzed": {},
-        }
-    )
+    html = _limits_table(env, limit_rows(ukf))
     assert "<td>not searched</td>" in html
     # a null limit of a loop with no finite one reads so, not "none" (session 12's new user read "largest
     # stable k_v: none" as "no gain is stable")
     free = {"sample_time": 0.005, "k_v": {"nominal": 5.0}, "limits": {"nominal": {"sample_time_max": None,
             "k_v_max": None}}, "limit_notes": {}}  # fmt: skip
-    html = env.get_template("_analysis.html").render(
-        analysis={
-            "limit_rows": limit_rows(free),
-            "sampled": True,
-            "sample_time": 0.005,
-            "actuator_input": "torque",
-            "not_analyzed": {},
-        }
-    )
+    html = _limits_table(env, limit_rows(free))
     row = html[html.index('data-scheme="nominal"') :].split("</tr>")[0]
     assert ">none<" not in row and row.count("no finite limit") >= 2, row
     from ftcreport.analysis.summary import fmt_limit
@@ -515,15 +511,7 @@ def test_a_limit_the_simulation_contradicts_shows_no_green_margin():
              "limit_kinds": {"nominal": {"limits.sample_time_max": "unstable", "limits.k_v_max": "marginal",
                                          "velocity_loop.sample_time_max": "not_computed",
                                          "velocity_loop.k_v_max": "not_applicable"}}}  # fmt: skip
-    html = env.get_template("_analysis.html").render(
-        analysis={
-            "limit_rows": limit_rows(kinds),
-            "sampled": True,
-            "sample_time": 0.005,
-            "actuator_input": "torque",
-            "not_analyzed": {},
-        }
-    )
+    html = _limits_table(env, limit_rows(kinds))
     row = html[html.index('data-scheme="nominal"') :].split("</tr>")[0]
     assert "<td>no stable value (unstable throughout the search)</td>" in row, row
     assert "<td>no stable range (the loop is marginal)</td>" in row and "not computed, n/a" in row, row

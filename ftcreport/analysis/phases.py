@@ -362,24 +362,20 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
     # a loop marginal at the case's own setting with modes that move the plant has no stable range to bound:
     # its tracking error does not converge (a law saturated everywhere, a drive too slow to act), and a
     # "limit" where it turns unstable would be read as a stability limit that simulation then refutes
-    marginal = {}
     for name, pick in list(picks.items()):
         own = pick(blocks[0])
-        M = closed_loop_matrix(own, period, delay) if period is not None else own.continuous()
-        nb = delay * own.Gy.shape[1] if period is not None else 0
-        modes = boundary_modes(M, own.Fx.shape[0] + nb, period is not None)
-        unstable = (sampled_radius(own, period, delay) - 1.0 - MARGINAL_Z if period is not None
+        sampled = period is not None
+        M = closed_loop_matrix(own, period, delay) if sampled else own.continuous()
+        modes = boundary_modes(M, _n_plant(own, delay if sampled else 0), sampled)
+        unstable = (sampled_radius(own, period, delay) - 1.0 - MARGINAL_Z if sampled
                     else continuous_margin(own)) > 0.0  # fmt: skip
         if modes["in_plant"] and not unstable:  # an unstable one: the searches say where it is stable
-            marginal[name] = modes
             del picks[name]
-            at = f"T_s = {period * 1e3:g} ms" if period is not None else "in continuous time"
-            edge = "|z| - 1" if period is not None else "Re"
+            at = f"T_s = {period * 1e3:g} ms" if sampled else "in continuous time"
             note = (
                 f"no stable range: the loop at the case's own setting ({at}, k_v = {loop.k_v:g} 1/s) is marginal, "
-                f"not stable: {modes['in_plant']} of its modes sit on the stability boundary and move the plant "
-                f"(largest {edge} {modes['largest']:.3g}), so the tracking error does not converge and there is no "
-                "stable range to bound"
+                f"not stable: {_held_words(modes, sampled)}, so the tracking error does not converge and there is "
+                "no stable range to bound"
             )
             out[name] = {"sample_time_max": None, "k_v_max": None}
             out["limit_notes"] |= {f"{name}.sample_time_max": note, f"{name}.k_v_max": note}
@@ -471,6 +467,15 @@ def _n_plant(blk: Blocks, delay: int) -> int:
     return blk.Fx.shape[0] + delay * blk.Gy.shape[1]
 
 
+def _held_words(modes: dict, discrete: bool) -> str:
+    """'3 of its modes sit on the stability boundary and move the plant (largest |z| - 1 -2.8e-07)'."""
+    edge = "|z| - 1" if discrete else "Re"
+    return (
+        f"{modes['in_plant']} of its modes sit on the stability boundary and move the plant "
+        f"(largest {edge} {modes['largest']:.3g})"
+    )
+
+
 def _unless_held(res: dict, mats, discrete: bool, at: str, limit: str) -> dict:
     """``res`` (a limit found), or null of kind marginal when the loop at 0.9x the limit is marginal with
     boundary modes that hold a plant perturbation in the plant (:func:`limits.boundary_modes`): then the
@@ -480,11 +485,9 @@ def _unless_held(res: dict, mats, discrete: bool, at: str, limit: str) -> dict:
     for M, n_plant in mats:
         modes = boundary_modes(M, n_plant, discrete)
         if modes["in_plant"]:
-            edge = "|z| - 1" if discrete else "Re"
             note = (
                 f"no stable range: below the point where the loop turns unstable ({limit}) it is marginal, not "
-                f"stable: at {at} {modes['in_plant']} of its modes sit on the stability boundary and move the "
-                f"plant (largest {edge} {modes['largest']:.3g}), so the tracking error does not converge there"
+                f"stable: at {at} {_held_words(modes, discrete)}, so the tracking error does not converge there"
             )
             return {"value": None, "kind": "marginal", "note": "; ".join(x for x in (res["note"], note) if x)}
     return res

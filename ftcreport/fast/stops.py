@@ -210,13 +210,11 @@ def _named(n: int, label: str) -> _Named:
 def _rerun(spec: Spec, rec: np.ndarray) -> tuple[str, str, str | None] | None:
     """(exception class, message, ``file:line`` in the user's code) of the law or discrete update run again in
     Python on the inputs ``rec`` the loop recorded (fast.loop._raised); None when it raises nothing here."""
-    import traceback
-    from pathlib import Path
 
     from ..jit.packed import new_cache
     from ..jit.refs import to_ref
     from ..schemes.api import Out, Step, Terms
-    from ..schemes.registry import _system_roots
+    from ..schemes.registry import user_frame
 
     c = spec.controller
     nq, nx, nw, nk = c.chain.n_q, int(c.n_states), c.chain.n_wheels, int(c.kin.n_states)
@@ -239,19 +237,8 @@ def _rerun(spec: Spec, rec: np.ndarray) -> tuple[str, str, str | None] | None:
             spec.law.py_func(spec.P, step, Terms(w, MB.reshape(2, nw), g, ee), x, out)
         else:
             spec.disc.py_func(spec.P, step, _named(c.n_own, "x"))
-    except Exception as exc:  # whatever the law raises is what the user is told
-        package = Path(__file__).resolve().parents[1]
-        roots = _system_roots()
-        line = None
-        for frame in reversed(traceback.extract_tb(exc.__traceback__)):
-            f = Path(frame.filename).resolve()
-            if (
-                f != Path(__file__).resolve()
-                and not f.is_relative_to(package)
-                and not any(f.is_relative_to(r) for r in roots)
-            ):
-                line = f"{frame.filename}:{frame.lineno}"
-                break
+    except Exception as exc:  # whatever the law raises is what the user is told, at its innermost own line
+        line = user_frame(exc)
         return type(exc).__name__, str(exc).strip().splitlines()[0] if str(exc).strip() else "", line
     return None
 

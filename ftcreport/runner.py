@@ -102,6 +102,7 @@ def start_problems(case: Case) -> tuple[list[str], list[str]]:
     """
     from .errors import ReferenceError
     from .schemes import get
+    from .schemes.registry import is_built_in
 
     errors: list[str] = []
     warnings: list[str] = []
@@ -118,11 +119,12 @@ def start_problems(case: Case) -> tuple[list[str], list[str]]:
     from .cases import configured_schemes
 
     for name in configured_schemes(case):
-        if get(name).controller is not None:
+        if is_built_in(get(name)):
             continue  # a built-in scheme: its declarations are ftcreport's own
         try:
             ctrl = make_controller(built, name, checked=False)
             x0 = ctrl.own_initial_state(0.0, built.q0, built.eta0)
+            run_cost(case, name)
         except FtcError as exc:
             errors.append(f"schemes.{name}: {exc}")
             continue
@@ -139,6 +141,8 @@ def make_controller(built: Built, scheme: str, checked: bool = True):
     """The controller of one scheme of the case: the registered scheme bound to the case (ftcreport.schemes)."""
     from .evaluation.families import default_k_v
     from .schemes import SchemeContext, SchemeController, get
+    from .schemes.controller import hook
+    from .schemes.registry import is_built_in
 
     case = built.case
     cfg = getattr(case.schemes, scheme, None)
@@ -148,16 +152,50 @@ def make_controller(built: Built, scheme: str, checked: bool = True):
     sc = get(scheme)
     k_v = getattr(cfg, "k_v", None)
     k_v = default_k_v(case) if k_v is None else k_v
-    if sc.controller is None:  # a plug-in: the engine runs its compiled law
-        from .fast.scheme_check import ensure_checked
+    if is_built_in(sc):  # a built-in scheme's face (ftcreport.control)
+        nz, nq = len(kin.z_names), built.chain.n_q
+        ctx = SchemeContext(built.chain, kin, float(k_v), cfg, case.plant.saturation, kin.n_states, 6 + nz + nq, case)
+        return sc.controller(sc, ctx)
+    # a plug-in: the engine runs its compiled law (through its own face, when it declares one)
+    from .fast.scheme_check import ensure_checked
 
+    if sc.controller is None:
         ctrl = SchemeController(sc, built.chain, kin, k_v, cfg, saturation=case.plant.saturation, case=case)
-        if checked:  # its first run: its law under bounds checks first (once per version of its file)
-            ensure_checked(ctrl)
-        return ctrl
-    nz, nq = len(kin.z_names), built.chain.n_q
-    ctx = SchemeContext(built.chain, kin, float(k_v), cfg, case.plant.saturation, kin.n_states, 6 + nz + nq, case)
-    return sc.controller(sc, ctx)  # a built-in scheme's face (ftcreport.control)
+    else:
+        nz, nq = len(kin.z_names), built.chain.n_q
+        ctx = SchemeContext(built.chain, kin, float(k_v), cfg, case.plant.saturation, kin.n_states, 6 + nz + nq, case)
+        ctrl = hook(sc, "controller", sc.controller, sc, ctx, convert=_face)
+    if checked:  # its first run: its law under bounds checks first (once per version of its file)
+        ensure_checked(ctrl)
+    return ctrl
+
+
+def _face(value):
+    """A plug-in's ``controller`` hook's result: a :class:`~ftcreport.schemes.SchemeController`."""
+    from .schemes import SchemeController
+    from .schemes.controller import ResultError, one_line
+
+    if not isinstance(value, SchemeController):
+        raise ResultError(f"returned {one_line(repr(value))[:80]}, not a SchemeController (ftcreport.schemes)")
+    return value
+
+
+def run_cost(case: Case, scheme: str) -> float:
+    """A run's relative cost per step, ``Scheme.cost`` (1 without one): a finite number > 0, else a
+    :class:`~ftcreport.errors.PluginError` naming the plug-in's hook (a batch orders its runs by it)."""
+    from .schemes import get
+    from .schemes.controller import ResultError, hook, one_line
+
+    sc = get(scheme)
+    if sc.cost is None:
+        return 1.0
+
+    def number(value) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not 0.0 < value < math.inf:
+            raise ResultError(f"returned {one_line(repr(value))[:80]}, not a finite number > 0")
+        return float(value)
+
+    return hook(sc, "cost", sc.cost, case, convert=number)
 
 
 def run_scheme(case: Case, scheme: str, built: Built | None = None, progress=None) -> tuple[Run, dict]:
@@ -255,10 +293,30 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
         held=sampled and not motors,
     )  # fmt: skip
     out["singularity_margin_min"] = singularity_margin(S["q"])
-    hook = ctrl.scheme.metrics  # the scheme's own metrics (switching detection, adaptive weights, diagnosis)
-    if hook is not None:
-        out |= hook(case, scheme, t, S, built, ctrl, run)
+    own = ctrl.scheme.metrics  # the scheme's own metrics (switching detection, adaptive weights, diagnosis)
+    if own is not None:
+        from .errors import PluginError
+        from .schemes.controller import hook
+
+        try:
+            convert = lambda v: _metrics_dict(v, out)  # noqa: E731
+            out |= hook(ctrl.scheme, "metrics", own, case, scheme, t, S, built, ctrl, run, convert=convert)
+        except PluginError as exc:  # a plug-in's: the run keeps its log and the common metrics, and fails
+            run.status, run.reason = "error", str(exc)
+            out |= {"status": "error", "reason": str(exc)}
     return out
+
+
+def _metrics_dict(value, common: dict) -> dict:
+    """A ``metrics`` hook's result: a dict keyed by names, none of the ``common`` ones (a scheme's own
+    metrics never overwrite the run's status, reason or tracking errors)."""
+    from .schemes.controller import ResultError, one_line
+
+    if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
+        raise ResultError(f"returned {one_line(repr(value))[:80]}, not a dict of metrics keyed by name")
+    if taken := sorted(set(value) & set(common)):
+        raise ResultError(f"returned {', '.join(map(repr, taken[:5]))}: names of the run's own metrics (status ...)")
+    return value
 
 
 def current_time_constants(case: Case) -> np.ndarray:

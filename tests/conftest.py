@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+import tomli_w
 
 from ftcreport.model import Chain
+
+_ROOT = Path(__file__).resolve().parents[1]
 
 
 def random_chain(rng: np.random.Generator, n: int) -> Chain:
@@ -29,6 +33,27 @@ def harness():
 
     load_plugin(Path(__file__).parent / "data" / "harness_scheme.py")
     return sys.modules["ftcreport_plugin_harness_scheme"]
+
+
+def plugin_case(tmp_path: Path, name: str, edit, duration: float | None = None) -> Path:
+    """The sliding-mode example as scheme ``name`` (edited by ``edit``), the case's only scheme, in a copy of
+    cases/two_link_sliding_mode.toml (``duration``: its simulation's, the faults after it left out; default
+    the case's 70 s)."""
+    src = edit((_ROOT / "examples" / "schemes" / "sliding_mode.py").read_text().replace('"sliding_mode"', f'"{name}"'))
+    plugin = tmp_path / f"{name}.py"
+    plugin.write_text(src)
+    data = tomllib.loads((_ROOT / "cases" / "two_link_sliding_mode.toml").read_text())
+    data["plugins"] = [str(plugin)]
+    data["schemes"][name] = data["schemes"].pop("sliding_mode")
+    data["schemes"]["run"] = [name]
+    data.pop("thresholds", None)
+    data["plant"].pop("saturation", None)
+    if duration is not None:
+        data["simulation"]["duration"] = duration
+        data["faults"] = [f for f in data["faults"] if f["time"] < duration]
+    path = tmp_path / f"{name}_case.toml"
+    path.write_text(tomli_w.dumps(data))
+    return path
 
 
 def random_q(rng: np.random.Generator, n: int, max_art: float = np.radians(60)) -> np.ndarray:

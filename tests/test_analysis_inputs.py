@@ -8,6 +8,7 @@ import tomllib
 from pathlib import Path
 
 import tomli_w
+from conftest import plugin_case as _plugin_case
 from typer.testing import CliRunner
 
 from ftcreport.cases import load_case
@@ -33,22 +34,6 @@ def test_an_infeasible_reference_is_named_by_file_and_field(tmp_path):
     assert f"{path}: reference: infeasible reference at t = 0 s" in res.output
     res = CliRunner().invoke(app, ["cases", "validate", str(path)])  # was 'ok'
     assert res.exit_code == 2 and f"{path}: reference: infeasible reference at t = 0 s" in res.output
-
-
-def _plugin_case(tmp_path: Path, name: str, edit) -> Path:
-    """The sliding-mode example as scheme ``name`` (edited by ``edit``), the case's only scheme."""
-    src = edit((ROOT / "examples" / "schemes" / "sliding_mode.py").read_text().replace('"sliding_mode"', f'"{name}"'))
-    plugin = tmp_path / f"{name}.py"
-    plugin.write_text(src)
-    data = tomllib.loads((ROOT / "cases" / "two_link_sliding_mode.toml").read_text())
-    data["plugins"] = [str(plugin)]
-    data["schemes"][name] = data["schemes"].pop("sliding_mode")
-    data["schemes"]["run"] = [name]
-    data.pop("thresholds", None)
-    data["plant"].pop("saturation", None)
-    path = tmp_path / f"{name}_case.toml"
-    path.write_text(tomli_w.dumps(data))
-    return path
 
 
 def _nan_state(src: str) -> str:

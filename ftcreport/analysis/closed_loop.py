@@ -393,11 +393,11 @@ class SchemeLoop:
         """``file:line: `` of a plug-in scheme's law (or another of its hooks: where to look), empty for a
         built-in scheme."""
         from ..schemes import get
-        from ..schemes.registry import _where
+        from ..schemes.registry import _where, is_built_in
 
         sc = get(self.scheme)
         fn = getattr(sc, role, None) or sc.law
-        return "" if sc.controller is not None or isinstance(fn, str) else f"{_where(fn)}: "
+        return "" if is_built_in(sc) or isinstance(fn, str) else f"{_where(fn)}: "
 
     def _finite(self, pt: Point, **jacobians: np.ndarray) -> None:
         """Raise ModelError naming the first Jacobian that holds an inf or a NaN (a law whose output

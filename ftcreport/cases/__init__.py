@@ -85,7 +85,6 @@ from .scheme_tables import (  # noqa: F401 - re-exported
     Schemes,
     _plugin_table,
     _scheme_file,
-    _scheme_hook,
     _schemes_model,
     _SchemesBase,
     _unknown_hint,

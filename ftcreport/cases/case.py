@@ -8,7 +8,7 @@ from typing import get_args
 
 from pydantic import field_validator, model_validator
 
-from ..errors import FtcError
+from ..errors import FtcError, PluginError
 from ..infra.limits import name_problem
 from ..model import FaultEvent, FaultSchedule, wheel_index, wheel_names
 from ..model.actuators import DriveParams, MotorParams
@@ -21,7 +21,6 @@ from .scheme_tables import (
     Kinematic,
     Schemes,
     _scheme_file,
-    _scheme_hook,
     configured_schemes,
     known_schemes,
 )
@@ -165,9 +164,7 @@ class Case(_Strict):
             raise _FieldError("simulation.dt", "longer than the duration")
         _check_noise_clock(self.plant.noise, self.simulation)
         for sname in configured_schemes(self):  # each scheme's own checks of its table against the case
-            hook = _scheme_hook(sname, "validate")
-            if hook is not None:
-                hook(getattr(self.schemes, sname), self)
+            _scheme_validate(sname, getattr(self.schemes, sname), self)
         for key in ("a", "b", "r", "m", "I", "d"):
             v = getattr(self.plant.mismatch, key)
             count = n - 1 if key == "d" else n
@@ -547,6 +544,21 @@ def _rk4_on_currents(sim: Simulation, motors: list[MotorParams], drives: list[Dr
     )
 
 
+def _scheme_validate(name: str, table, case: Case) -> None:
+    """A scheme's own check of its table against the case (``Scheme.validate``): a ``fields.FieldError`` it
+    raises is the table's error; anything else a plug-in's validate raises is named by its file and line."""
+    from ..schemes import every
+    from ..schemes.controller import hook
+
+    sc = every().get(name)
+    if sc is None or sc.validate is None:
+        return
+    try:
+        hook(sc, "validate", sc.validate, table, case, passes=(_FieldError,))
+    except PluginError as exc:
+        raise _FieldError(f"schemes.{name}", str(exc)) from None
+
+
 def _check_name(v: str | None) -> str | None:
     """A case name is a directory name and a page title: the safe set of ftcreport.infra.limits."""
     if v is not None and (why := name_problem(v)) is not None:
@@ -567,7 +579,10 @@ def _check_budget(case: Case, schemes: list[str] | None = None) -> None:
         T, why_ticks = case.plant.noise.sample_time, _tick_readers(case, scheme)
         ticks = T is not None and s.dt > T and s.method in AUTO_METHODS and bool(why_ticks)
         dt, step = (T, STEP_SENSOR) if ticks else (s.dt, STEP_DT)
-        problem = budget_problem(case.robots.n, s.duration, dt, s.log_every, scheme, models, step)
+        try:
+            problem = budget_problem(case.robots.n, s.duration, dt, s.log_every, scheme, models, step)
+        except PluginError as exc:  # a plug-in's own budget hook (Scheme.budget), named by its line
+            raise _FieldError(f"schemes.{scheme}", str(exc)) from None
         if problem is not None:
             field, why = problem
             if field == STEP_SENSOR[0]:  # the sensor's clock binds, not dt: say what lands on each tick

@@ -184,14 +184,6 @@ def _scheme_file(name: str) -> str | None:
     return str(Path(code.co_filename).resolve())
 
 
-def _scheme_hook(name: str, hook: str):
-    """A registered scheme's hook (``Scheme.validate``, ``Scheme.budget``), None for a scheme without it."""
-    from ..schemes import every
-
-    sc = every().get(name)
-    return None if sc is None else getattr(sc, hook)
-
-
 def known_schemes() -> list[str]:
     """The built-in scheme names, then the registered (plug-in) ones."""
     from ..schemes import registered

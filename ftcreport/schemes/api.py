@@ -174,8 +174,8 @@ class Scheme:
     every case unless ``schemes.run`` narrows the list (ftcreport.evaluation.families); defaults : ``(case, k_v) ->
     table``, the table a case that does not give one gets; not_applicable : ``(case, k_v) -> str |
     None``, why a default table is not added; validate : ``(table, case) -> None``, raising
-    ``fields.FieldError`` for a table that does not fit the case; budget : ``(n, table) -> (values
-    logged per sample, bytes of its bank, models)`` beyond the common ones (ftcreport.infra.limits); cost :
+    ``fields.FieldError`` for a table that does not fit the case; budget : ``(n, models) -> (values
+    logged per sample, bytes of its bank)`` beyond the common ones (ftcreport.schemes.budget); cost :
     ``(case) -> float``, a run's relative cost per step (a batch starts the longest first).
     """
 

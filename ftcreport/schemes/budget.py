@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ..infra.limits import _BYTES_PER_STEP, MAX_STEPS, MEMORY_BUDGET_BYTES, n_models
 
-__all__ = ["budget_problem", "run_memory_bytes"]
+__all__ = ["budget_problem", "own_memory_problem", "run_memory_bytes"]
 
 
 def run_memory_bytes(
@@ -37,16 +39,30 @@ def _width(n: int) -> int:
 
 
 def _bank(n: int, scheme: str, N: int) -> tuple[int, int]:
-    """(values logged per sample, bytes) a scheme keeps beyond the common ones (``Scheme.budget``), or (0, 0)."""
-    hook = _budget_hook(scheme)
-    return (0, 0) if hook is None else hook(n, N)
+    """(values logged per sample, bytes) a scheme keeps beyond the common ones (``Scheme.budget``), or (0, 0);
+    a plug-in's budget that raises or returns anything else is named (:func:`.controller.hook`)."""
+    from .controller import hook
+
+    sc = _budgeted(scheme)
+    return (0, 0) if sc is None else hook(sc, "budget", sc.budget, n, N, convert=_counts)
 
 
-def _budget_hook(scheme: str):
+def _counts(value) -> tuple[int, int]:
+    """A ``budget`` hook's result: (values logged per sample, bytes), two whole numbers >= 0."""
+    from .controller import ResultError, one_line
+
+    ok = isinstance(value, tuple | list) and len(value) == 2
+    if not ok or not all(isinstance(v, int | np.integer) and not isinstance(v, bool) and v >= 0 for v in value):
+        raise ResultError(f"returned {one_line(repr(value))[:80]}, not (values logged per sample, bytes) >= 0")
+    return int(value[0]), int(value[1])
+
+
+def _budgeted(scheme: str):
+    """The registered scheme of that name when it declares a budget, else None."""
     from .registry import every
 
     sc = every().get(scheme)
-    return None if sc is None else sc.budget
+    return None if sc is None or sc.budget is None else sc
 
 
 #: the field that sets a run's step, its symbol in the reason and the name the advice uses
@@ -97,7 +113,7 @@ def _memory_problem(
     """(field, reason) of a run over the memory budget: the part of the estimate that dominates (the time
     grid, the logged time series, or the scheme's model bank) and what brings it within the budget."""
     N = n_models(n) if models is None else models
-    banked = _budget_hook(scheme) is not None
+    banked = _budgeted(scheme) is not None
     extra, bank = _bank(n, scheme, N)
     per_sample = (_width(n) + extra) * 8
     grid = steps * _BYTES_PER_STEP
@@ -139,6 +155,40 @@ def _memory_problem(
         step_field,
         f"{head}: the time grid of {steps} steps takes about {_mib(grid)} MiB; raise {step_field} or shorten "
         "simulation.duration",
+    )
+
+
+#: the fewest rows a run's chunk buffers hold (fast.auto_run: at least 64; fast.simulate: 1 % of the steps)
+_MIN_CHUNK_ROWS = 64
+
+
+def own_memory_problem(scheme: str, n_own: int, widths: dict[str, int], case) -> str | None:
+    """Why a plug-in's own states and signals do not fit a run of ``case`` in the memory budget, else None.
+
+    A run logs them with every saved sample (``simulation.log_every``) and holds them in its chunk buffers
+    (1 % of the steps, at least 64 rows), beside what :func:`run_memory_bytes` counts; checked when the scheme
+    is bound to the case, before any array of that size is made (``signals = {"K": 10**11}``: the run failed
+    with out of memory, naming neither the scheme nor the signal).
+    """
+    s = case.simulation
+    common, steps, samples = run_memory_bytes(case.robots.n, s.duration, s.dt, s.log_every, scheme)
+    width = n_own + sum(widths.values())
+    rows = samples + max(_MIN_CHUNK_ROWS, steps // 100 + 1)
+    need = common + rows * width * 8
+    if need <= MEMORY_BUDGET_BYTES:
+        return None
+    wide = sorted(widths.items(), key=lambda kv: -kv[1])[:3]
+    parts = ", ".join([f"n_states: {n_own:.3g}", *(f"signal {k}: {v:.3g}" for k, v in wide)])
+    fewest = common + (2 + _MIN_CHUNK_ROWS) * width * 8  # two saved samples, the smallest chunk
+    fix = (
+        "declare fewer states or narrower signals"
+        if fewest > MEMORY_BUDGET_BYTES
+        else "raise simulation.log_every or shorten simulation.duration, or declare fewer states or narrower signals"
+    )
+    return (
+        f"scheme {scheme}: its own states and signals are {width:.3g} values per logged row ({parts}); a run of "
+        f"{samples} saved samples and {rows - samples} buffered steps needs about {_mib(need)} MiB, over the memory "
+        f"budget of {_mib(MEMORY_BUDGET_BYTES)} MiB: {fix}"
     )
 
 

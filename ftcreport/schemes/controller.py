@@ -12,11 +12,28 @@ import numpy as np
 
 from ..errors import FtcError, ModelError, PluginError
 from .api import Scheme, SchemeContext
+from .budget import own_memory_problem
 
-__all__ = ["KINEMATIC_SIGNALS", "SchemeController"]
+__all__ = ["ENGINE_SIGNALS", "KINEMATIC_SIGNALS", "SchemeController"]
 
 #: The kinematic controller's logged signals, before every scheme's own (fast.engine splits them).
 KINEMATIC_SIGNALS = ("eta_c", "eta_c_dot", "z", "q_d", "eta_d")
+#: What every run logs besides the controller's signals (fast.engine._chunk_signals), by name: a scheme's
+#: signal or derived signal of one of these names would take its place in the log and the metrics.
+ENGINE_SIGNALS = {
+    "t": "the time",
+    "q": "the chain's configuration",
+    "eta": "the chain's velocities",
+    "u": "the commanded torques",
+    "tau": "the wheels' torques",
+    "sigma": "the wheels' effectiveness",
+    "ubar": "the wheels' additive faults",
+    "xc": "the controller's states",
+    "i_a": "the motor currents",
+    "z_drive": "the drives' states",
+    "tau_mid": "the torques at each step's midpoint",
+    "q_meas": "the measured configuration",
+}
 
 
 class SchemeController:
@@ -41,9 +58,11 @@ class SchemeController:
         n_own = hook(scheme, "n_states", scheme.n_states, ctx)
         if isinstance(n_own, bool) or not isinstance(n_own, int | np.integer) or n_own < 0:
             where = _hook_where(scheme, scheme.n_states)
-            raise ModelError(f"{where}scheme {scheme.name}: n_states must be an int >= 0, got {_text(repr(n_own))}")
+            raise ModelError(f"{where}scheme {scheme.name}: n_states must be an int >= 0, got {one_line(repr(n_own))}")
         self.n_own = int(n_own)
         self.widths = _widths(scheme, ctx)
+        if case is not None and (why := own_memory_problem(scheme.name, self.n_own, self.widths, case)) is not None:
+            raise ModelError(f"{_hook_where(scheme, scheme.n_states)}{why}")  # before any array of that size
         self.P = hook(scheme, "pack", scheme.pack, ctx)
         stiff = None
         if scheme.stiff is not None:
@@ -69,6 +88,7 @@ class SchemeController:
         self.n_states = nk + self.n_own
         names = self.scheme.derived_names
         derived = hook(self.scheme, "derived_names", names, self, convert=_names) if callable(names) else tuple(names)
+        _check_derived(self.scheme, derived, self.widths)
         self.signal_names = (*self.kinematic_signals, *self.widths, *derived)
         self.stiff_diagonal = np.zeros(self.n_states)
         if stiff_own is not None:
@@ -96,7 +116,7 @@ class SchemeController:
         return hook(self.scheme, "derived", self.scheme.derived, self, xc, meas, costs)
 
 
-def hook(scheme: Scheme, role: str, fn, *args, convert=None):
+def hook(scheme: Scheme, role: str, fn, *args, convert=None, passes: tuple[type[BaseException], ...] = ()):
     """``fn(*args)``, one of a scheme's declaration hooks; what a plug-in's own code raises becomes a
     :class:`~ftcreport.errors.PluginError` naming its file and line, the scheme and the hook (a run of it
     then ends with status error and that reason; the analysis lists it under ``not_analyzed``); an
@@ -106,15 +126,16 @@ def hook(scheme: Scheme, role: str, fn, *args, convert=None):
     ``convert``: what is done with the hook's result (a shape, a type), under the same rule: a plug-in's
     hook that returns what cannot be converted is named the same way.  For a plug-in (a scheme without a
     built-in face) every exception counts, even one raised in a library its hook called (a builtin or a
-    numpy function given as the hook: the hook itself is named) and ``sys.exit`` in it.
+    numpy function given as the hook: the hook itself is named) and ``sys.exit`` in it.  ``passes``: what
+    the hook raises by design and its caller reads (``Scheme.validate``'s ``fields.FieldError``), as it is.
     """
-    from .registry import user_frame
+    from .registry import is_built_in, user_frame
 
-    plugin = scheme.controller is None
+    plugin = not is_built_in(scheme)
     try:
         out = fn(*args)
         return out if convert is None else convert(out)
-    except PluginError:
+    except (PluginError, *passes):
         raise
     except (Exception, SystemExit) as exc:
         where = user_frame(exc) if isinstance(exc, Exception) else None
@@ -122,21 +143,21 @@ def hook(scheme: Scheme, role: str, fn, *args, convert=None):
             raise
         where = f"{where}: " if where else _hook_where(scheme, fn)
         if isinstance(exc, SystemExit):
-            what = f"{role} called sys.exit({_text(repr(exc.code))})"
-        elif isinstance(exc, _ResultError):
+            what = f"{role} called sys.exit({one_line(repr(exc.code))})"
+        elif isinstance(exc, ResultError):
             what = f"{role} {exc.args[0]}"
         elif isinstance(exc, FtcError):
-            what = f"{role}: {_text(exc)}"
+            what = f"{role}: {one_line(exc)}"
         else:
-            what = f"{role} raised {type(exc).__name__}: {_text(exc)}"
+            what = f"{role} raised {type(exc).__name__}: {one_line(exc)}"
         raise PluginError(f"{where}scheme {scheme.name}: {what}") from exc
 
 
-class _ResultError(ValueError):
+class ResultError(ValueError):
     """A hook's result that is not what the hook must return (its words: 'returned ...')."""
 
 
-def _text(obj) -> str:
+def one_line(obj) -> str:
     """``str(obj)`` on one line, at most 300 characters; an object whose ``__str__`` raises, by its type."""
     try:
         text = str(obj)
@@ -161,37 +182,58 @@ def _hook_where(scheme: Scheme, fn) -> str:
 
 
 def _floats(value, n: int, role: str, finite: bool = True) -> np.ndarray:
-    """A hook's result as n floats (``stiff``, ``initial_state``), or :class:`_ResultError` saying what it was."""
+    """A hook's result as n floats (``stiff``, ``initial_state``), or :class:`ResultError` saying what it was."""
     if value is None:
-        raise _ResultError(f"returned None, not {n} numbers")
+        raise ResultError(f"returned None, not {n} numbers")
     try:
         x = np.asarray(value, dtype=float).reshape(-1)
     except (TypeError, ValueError):
-        raise _ResultError(f"returned {_text(repr(value))[:80]}, not {n} numbers") from None
+        raise ResultError(f"returned {one_line(repr(value))[:80]}, not {n} numbers") from None
     if x.size != n:
-        raise _ResultError(f"returned {x.size} values, n_states is {n}")
+        raise ResultError(f"returned {x.size} values, n_states is {n}")
     if finite and not np.all(np.isfinite(x)):
-        raise _ResultError(f"returned values that are not finite ({_text(x.tolist())[:80]})")
+        raise ResultError(f"returned values that are not finite ({one_line(x.tolist())[:80]})")
     return x
 
 
 def _names(value) -> tuple[str, ...]:
-    """``derived_names``'s result as a tuple of names, or :class:`_ResultError`."""
+    """``derived_names``'s result as a tuple of names, or :class:`ResultError`."""
     if isinstance(value, str) or not hasattr(value, "__iter__"):
-        raise _ResultError(f"returned {_text(repr(value))[:80]}, not a tuple of names")
+        raise ResultError(f"returned {one_line(repr(value))[:80]}, not a tuple of names")
     return tuple(value)
 
 
+def _check_derived(scheme: Scheme, names: tuple[str, ...], widths: dict[str, int]) -> None:
+    """The derived signals' names: identifiers, none the engine's, the kinematic controller's or the law's."""
+    where = _hook_where(scheme, scheme.derived_names if callable(scheme.derived_names) else scheme.derived)
+    for name in names:
+        if not isinstance(name, str) or not name.isidentifier():
+            raise ModelError(f"{where}scheme {scheme.name}: derived signal name {name!r} is not an identifier")
+        if name in ENGINE_SIGNALS or name in KINEMATIC_SIGNALS:
+            what = ENGINE_SIGNALS.get(name, "a kinematic signal")
+            raise ModelError(f"{where}scheme {scheme.name}: derived signal {name!r} is a name the engine logs ({what})")
+        if name in widths:
+            raise ModelError(
+                f"{where}scheme {scheme.name}: derived signal {name!r} is also a signal of the law (signals)"
+            )
+
+
 def _widths(scheme: Scheme, ctx: SchemeContext) -> dict[str, int]:
-    """The declared signals, checked: names of the safe set, whole widths >= 1, no kinematic name."""
+    """The declared signals, checked: identifiers, whole widths >= 1, no kinematic or engine signal's name."""
     widths = hook(scheme, "signals", scheme.signal_widths, ctx)
+    where = _hook_where(scheme, scheme.signals)
     for name, width in widths.items():
         if not isinstance(name, str) or not name.isidentifier():
-            raise ModelError(f"scheme {scheme.name}: signal name {name!r} is not an identifier")
+            raise ModelError(f"{where}scheme {scheme.name}: signal name {name!r} is not an identifier")
         if name in KINEMATIC_SIGNALS:
-            raise ModelError(f"scheme {scheme.name}: signal {name!r} is a kinematic signal the engine logs")
+            raise ModelError(f"{where}scheme {scheme.name}: signal {name!r} is a kinematic signal the engine logs")
+        if name in ENGINE_SIGNALS:
+            what = ENGINE_SIGNALS[name]
+            raise ModelError(
+                f"{where}scheme {scheme.name}: signal {name!r} is a name the engine logs ({what}); rename it"
+            )
         if isinstance(width, bool) or not isinstance(width, int | np.integer) or width < 1:
-            raise ModelError(f"scheme {scheme.name}: signal {name!r}: width must be an int >= 1, got {width!r}")
+            raise ModelError(f"{where}scheme {scheme.name}: signal {name!r}: width must be an int >= 1, got {width!r}")
     return {k: int(v) for k, v in widths.items()}
 
 

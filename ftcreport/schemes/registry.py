@@ -175,6 +175,11 @@ def built_in() -> dict[str, Scheme]:
     return {k: _REGISTRY[k] for k in _BUILT_IN}
 
 
+def is_built_in(scheme: Scheme) -> bool:
+    """Whether ``scheme`` is one of ftcreport's own (a plug-in's hooks are its author's code, named when they fail)."""
+    return built_in().get(scheme.name) is scheme
+
+
 def every() -> dict[str, Scheme]:
     """Every scheme: the built-in ones, then the plug-ins in registration order."""
     _load_built_ins()

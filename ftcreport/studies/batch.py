@@ -427,14 +427,19 @@ def memory_summary(res: BatchResult) -> dict:
     }
 
 
-def _cost(case: Case, scheme: str) -> float:
+def _cost(case: Case, scheme: str, source: str) -> float:
     """A rough relative cost of a run (steps x the scheme's per-step weight, ``Scheme.cost``): the longest
-    start first, so the last worker does not start a long run when the others are done."""
-    from ..schemes import get
+    start first, so the last worker does not start a long run when the others are done.  A plug-in's cost
+    that fails only orders its run as weight 1, said on stderr (``cases validate`` refuses it)."""
+    from ..errors import PluginError
+    from ..runner import run_cost
 
     steps = case.simulation.duration / case.simulation.dt
-    hook = get(scheme).cost
-    return steps * (1.0 if hook is None else hook(case))
+    try:
+        return steps * run_cost(case, scheme)
+    except PluginError as exc:
+        _note(f"ftcreport: warning: {source}: {exc}; its run is ordered as weight 1 (the cost only orders the runs)")
+        return steps
 
 
 def _loop_of(case: Case, scheme: str) -> tuple:
@@ -692,7 +697,8 @@ def _run_batch(paths, out: Path, jobs, force, duration, show_progress, render, r
             todo.append((case, str(path), s, key))
     for path, error in res.case_errors.items():  # after every valid name is known
         _record_error(out, Path(path), error, taken)
-    todo = _compile_first(sorted(todo, key=lambda job: -_cost(job[0], job[2])))
+    costs = [_cost(case, s, source) for case, source, s, _ in todo]
+    todo = _compile_first([job for _, job in sorted(zip(costs, todo, strict=True), key=lambda p: -p[0])])
 
     def finish(pool=None) -> None:
         """Manifests, the tidy table and the pages (in the workers, when there are some)."""

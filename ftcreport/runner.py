@@ -98,7 +98,8 @@ def start_problems(case: Case) -> tuple[list[str], list[str]]:
 
     Errors: the reference infeasible at t = 0 (no run can start), a plug-in scheme whose declarations
     (n_states, signals, pack, stiff, initial_state) raise when bound to the case.  Warnings: the
-    reference infeasible later in the run (every run stops there, status error), checked every 50 ms.
+    reference infeasible later in the run (every run stops there at the latest, status error), found on a grid
+    of 50 ms and then of 50 us (``FlatReference.first_infeasible``: the instant analyze covers the run up to).
     """
     from .errors import ReferenceError
     from .schemes import get
@@ -112,10 +113,10 @@ def start_problems(case: Case) -> tuple[list[str], list[str]]:
     except FtcError as exc:
         field = "reference" if isinstance(exc, ReferenceError) else "case"
         return [f"{field}: {exc} (no run can start)"], []
-    try:
-        built.reference.check(case.simulation.duration)
-    except ReferenceError as exc:
-        warnings.append(f"reference: {exc}: every run stops there (status error)")
+    found = built.reference.first_infeasible(case.simulation.duration)
+    if found is not None:  # the instant analyze analyses up to (analysis.case.analysed_horizon)
+        why = "every run stops there at the latest (status error); analyze covers the run up to it"
+        warnings.append(f"reference: {found[1]}: {why}")
     from .cases import configured_schemes
 
     for name in configured_schemes(case):

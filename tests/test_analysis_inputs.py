@@ -146,3 +146,39 @@ def test_a_drive_saturated_everywhere_has_no_gain_limit_below_which_it_is_margin
             "no stable range: below the point where the loop turns unstable"
             in out["limit_notes"][scheme]["limits.k_v_max"]
         )
+
+
+def test_a_reference_infeasible_after_the_start_is_analysed_up_to_that_instant(tmp_path):
+    """Was: validate warned 'infeasible reference at t = 1 s' (its 50-ms grid), analyze refused the case
+    (exit 2, 'at t = 0.9733 s', a frozen instant) and the run stopped at its own step: three instants.  Now one
+    instant, validate's warning and analyze's horizon alike; no run goes more than a step past it."""
+    import json
+
+    from ftcreport.runner import run_scheme
+
+    data = tomllib.loads((ROOT / "cases" / "three_link_circle_faults.toml").read_text())
+    data["reference"] = {"kind": "eight", "scale": 0.18}  # the thesis's eight at 0.18x: too tight after 0.97 s
+    data["simulation"]["duration"] = 5.0
+    data["faults"] = []
+    data["initial"] = {}  # on the reference (its offsets zero): the run follows it until it turns infeasible
+    for key in ("thresholds", "claims", "requirements"):
+        data.pop(key, None)
+    path = tmp_path / "tight_eight.toml"
+    path.write_text(tomli_w.dumps(data))
+    res = CliRunner().invoke(app, ["cases", "validate", str(path)])
+    assert res.exit_code == 0 and "infeasible reference at t = 0.9708 s" in res.output, res.output
+    res = CliRunner().invoke(app, ["analyze", str(path), "--json", "--no-confirm"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    horizon = out["horizon"]
+    assert horizon["duration"] == 5.0 and "infeasible reference at t = 0.9708 s" in horizon["reason"]
+    t = horizon["t_end"]
+    assert 0.9707 < t < 0.9708  # dt / 1000 = 50 us: the grid's resolution
+    for scheme, phases in out["phases"].items():
+        assert [(p["t_start"], p["t_end"]) for p in phases] == [(0.0, t)], scheme
+        assert all(p["stability"] in ("stable", "marginal", "unstable") for p in phases), (scheme, phases)
+    assert out["limits"] and not out["not_analyzed"]
+    _, metrics = run_scheme(load_case(path), "nominal")  # this chain turns singular first, at 0.68 s
+    assert metrics["status"] != "ok" and metrics["t_end"] <= t + data["simulation"]["dt"], metrics["t_end"]
+    res = CliRunner().invoke(app, ["analyze", str(path), "--no-confirm"])
+    assert "analysed up to t = 0.9708 s of 5 s: infeasible reference at t = 0.9708 s" in res.output, res.output

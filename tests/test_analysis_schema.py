@@ -90,7 +90,16 @@ KINDS = {
     "type": "object",
     "propertyNames": {"pattern": "^(limits|velocity_loop)[.](sample_time_max|k_v_max)$"},
     "additionalProperties": {
-        "enum": ["limit", "unbounded", "unstable", "marginal", "not_computed", "not_searched", "not_applicable"]
+        "enum": [
+            "limit",
+            "unbounded",
+            "beyond_range",
+            "unstable",
+            "marginal",
+            "not_computed",
+            "not_searched",
+            "not_applicable",
+        ]
     },
 }
 SCHEMA = {
@@ -501,7 +510,7 @@ def test_a_limit_the_simulation_contradicts_shows_no_green_margin():
     # a null says which null it is (the attack on analyze: "no finite limit" was printed for a loop unstable
     # at every point searched, or marginal, or not computed, whose JSON nulls only limit_notes told apart)
     assert fmt_limit(None, "s", "unbounded") == "no finite limit (stable up to 10 s)"
-    assert fmt_limit(None, "1/s", "unbounded") == "no finite limit (stable up to 1e+07 1/s)"
+    assert fmt_limit(None, "1/s", "unbounded") == "no finite limit (stable up to 1e+06 1/s)"
     assert fmt_limit(None, "s", "unstable") == "no stable value (unstable throughout the search)"
     assert fmt_limit(None, "1/s", "marginal") == "no stable range (the loop is marginal)"
     assert fmt_limit(None, "s", "not_computed") == "not computed"

@@ -381,3 +381,38 @@ def test_stability_holds_each_continuous_pole_to_its_own_resolution():
     assert stability(-1e-9, np.linalg.eigvals(Z), False, Z) == "marginal"
     assert stability(-0.155, poles, False, A, internal=-1e-7) == "marginal"  # a left-out mode on the boundary
     assert stability(2.0, np.array([2.0, -1e6]), False, np.diag([2.0, -1e6])) == "unstable"  # beyond the band
+
+
+def test_the_gain_search_ends_at_the_largest_gain_a_case_file_accepts():
+    """K_MAX is the bound of every k_v field (schemes.fields.Gain): 'stable up to K_MAX' never claims a gain
+    no case can set (it was 1e7, 10x past the tables' 1e6), and a plug-in whose table takes the same range
+    gets the same words as a built-in scheme, not 'beyond the scheme's range'."""
+    from pydantic import ValidationError
+
+    from ftcreport.analysis.limits import K_MAX
+    from ftcreport.cases.scheme_tables import PluginTable
+
+    assert PluginTable(k_v=K_MAX).k_v == K_MAX
+    with pytest.raises(ValidationError):
+        PluginTable(k_v=K_MAX * (1.0 + 1e-12))
+
+
+def test_largest_gain_stops_where_the_scheme_refuses_a_gain():
+    """The walk from the case's gain by factors of 2 never evaluates a gain the scheme refuses: the limit
+    inside the accepted range as before; stable up to a refused gain, kind beyond_range; unstable down to one,
+    kind unstable; each note names the refused gain and the scheme's reason."""
+    refuses = lambda k: "too large" if k > 100.0 else "too small" if k < 5.0 else None  # noqa: E731
+    seen: list[float] = []
+
+    def margin(limit):
+        return lambda k: (seen.append(k), k - limit)[1]
+
+    res = largest_gain(margin(50.0), 20.0, refuses)
+    assert res["kind"] == "limit" and res["value"] == pytest.approx(50.0, rel=1e-8)
+    res = largest_gain(margin(1e3), 20.0, refuses)
+    assert res["kind"] == "beyond_range" and res["value"] is None
+    assert "from the case's 20 up to 80 1/s" in res["note"] and "k_v = 160 1/s" in res["note"]
+    assert "(too large)" in res["note"]
+    res = largest_gain(lambda k: 1.0, 20.0, refuses)  # unstable everywhere: walked down to 10, 5, 2.5 (refused)
+    assert res["kind"] == "unstable" and "down to 5 1/s" in res["note"] and "k_v = 2.5 1/s" in res["note"]
+    assert all(refuses(k) is None for k in seen)

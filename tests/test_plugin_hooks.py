@@ -186,3 +186,29 @@ def test_signals_too_wide_for_memory_are_named_before_any_allocation(tmp_path):
             assert res.exit_code in (1, 2), (role, command, res.output)
             assert f"scheme {name}:" in text and words in text and "over the memory budget of 1024 MiB" in text, text
 
+
+def test_a_gain_limit_never_reaches_past_the_gains_the_scheme_accepts(tmp_path):
+    """Was 'stable at every gain up to 1e+07' for a pack that refuses k_v > 100 (the gain family's line,
+    drawn through 10, 20 and 40 1/s, was followed where the scheme never ran).  Both ways a plug-in bounds its
+    gain: its pack raising, its table's range (le = 150)."""
+    from ftcreport.analysis import analyze_case
+
+    refusing = "    if ctx.k_v > 100.0:\n        raise ValueError(f'k_v {ctx.k_v} too large for this law')\n"
+    edits = {
+        "pack_bound": lambda s: s.replace("def pack(ctx: SchemeContext) -> P:\n", "def pack(ctx: SchemeContext) -> P:\n"
+                                          + refusing),
+        "table_bound": lambda s: s.replace("        le=1e6,\n        description=\"linear velocity-error gain",
+                                           "        le=150.0,\n        description=\"linear velocity-error gain"),
+    }  # fmt: skip
+    for tag, edit in edits.items():
+        name = f"bounded_{tag}"
+        case = load_case(plugin_case(tmp_path, name, edit, 2.0))
+        out = analyze_case(case, margins=False, confirm=False)
+        assert out["limit_kinds"][name]["limits.k_v_max"] == "beyond_range", out["limit_notes"][name]
+        assert out["limits"][name]["k_v_max"] is None
+        note = out["limit_notes"][name]["limits.k_v_max"]
+        # the walk from the case's 20 1/s by factors of 2: 80 the last gain accepted, 160 above 100 and 150
+        assert "stable at every gain tried from the case's 20 up to 80 1/s" in note, note
+        assert "k_v = 160 1/s, which the scheme does not accept" in note, note
+        assert ("too large for this law" if tag == "pack_bound" else "less than or equal to 150") in note, note
+        assert max(out["_curves"][name]["k"]) <= 100.0  # the figure's curve too: only gains the scheme ran

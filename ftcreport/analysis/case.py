@@ -21,7 +21,24 @@ from .closed_loop import Plant
 from .confirm import confirm_limit, needs_confirmation
 from .phases import analyze_scheme, case_frames, failure_words
 
-__all__ = ["analyze_case", "classic_model"]
+__all__ = ["analysed_horizon", "analyze_case", "classic_model"]
+
+
+def analysed_horizon(case, built) -> dict | None:
+    """Where the reference turns infeasible before the case's end (``FlatReference.first_infeasible``, the
+    instant ``cases validate`` warns of; a run stops at its first step past it), else None: ``{"t_end",
+    "duration", "reason", "case"}``, ``case`` the case cut there (its faults after it left out), which the
+    analysis then covers.  Infeasible at t = 0: the ReferenceError (nothing to analyse)."""
+    duration = float(case.simulation.duration)
+    found = built.reference.first_infeasible(duration)
+    if found is None:
+        return None
+    t, exc = found
+    if t <= 0.0:
+        raise exc
+    sim = case.simulation.model_copy(update={"duration": t})
+    cut = case.model_copy(update={"simulation": sim, "faults": [f for f in case.faults if f.time < t]})
+    return {"t_end": t, "duration": duration, "reason": str(exc), "case": cut}
 
 
 def classic_model(case) -> str:
@@ -69,9 +86,14 @@ def analyze_case(case, runs: dict | None = None, margins: bool = True, limits: b
     from ..runner import build
 
     t0 = time.perf_counter()
+    built = build(case)
+    horizon = analysed_horizon(case, built)
+    if horizon is not None:  # the part of the run the reference allows: every run stops where it turns infeasible
+        case = horizon["case"]
+        built = build(case)
     out = classic_analyses(case)
     out["classic_model"] = classic_model(case)
-    built = build(case)
+    out["horizon"] = None if horizon is None else {k: v for k, v in horizon.items() if k != "case"}
     out["sampled"] = case.simulation.sample_time is not None
     out["sample_time"] = case.simulation.sample_time
     out["measurement_delay"] = int(case.simulation.measurement_delay)

@@ -55,7 +55,7 @@ T_MIN = 1e-6  # s: the smallest sample time searched
 T_MAX = 10.0  # s: beyond it a "sample time" is no longer a control loop's
 K_MIN = 1e-3  # 1/s: the search for k_v goes down to this gain (or a 1e-4th of the case's, if lower)
 K_MIN_FACTOR = 1e-4
-K_MAX = 1e7  # 1/s
+K_MAX = 1e6  # 1/s: the largest k_v a case file gives (schemes.fields.Gain): no search beyond what a case can set
 STEP = 2.0  # the bracketing walk's ratio
 #: |z| within this of 1 is marginal, not a loss of stability: a time constant beyond T / 1e-6 (83 min at
 #: 5 ms).  Poles that sit on the boundary by structure (an estimate of a parameter the measurements do
@@ -77,11 +77,12 @@ RTOL = 1e-9
 #: below the second (tests/test_limits.py)
 VISIBLE = 1e-2
 #: what a limit's value is (``limit_kinds`` in the analysis): a finite limit; none up to the search's end
-#: (stable at every point searched); none because the loop is unstable at every point searched; none because
+#: (stable at every point searched); none up to the gains the scheme accepts (stable at every gain searched
+#: below one its table or its ``pack`` refuses); none because the loop is unstable at every point searched; none because
 #: the case's own loop is marginal with modes that move the plant (its tracking error does not converge, so
 #: there is no stable range to bound); not computed (the linearization failed); not searched (the UKF's
 #: sample time); not applicable (a velocity loop alone for a law that does not read eta)
-KINDS = ("limit", "unbounded", "unstable", "marginal", "not_computed", "not_searched", "not_applicable")
+KINDS = ("limit", "unbounded", "beyond_range", "unstable", "marginal", "not_computed", "not_searched", "not_applicable")
 
 
 def boundary(margin: Callable[[float], float], lo: float, hi: float, rtol: float = RTOL) -> float:
@@ -148,12 +149,50 @@ def largest_sample_time(rho: Callable[[float], float], guess: float, t_min: floa
     return {"value": boundary(margin, *pair), "kind": "limit", "note": ""}
 
 
-def largest_gain(margin_at: Callable[[float], float], k_v: float) -> dict:
-    """The largest stable k_v from the case's gain (module docstring): ``{"value", "note"}``.
+def largest_gain(
+    margin_at: Callable[[float], float], k_v: float, refuses: Callable[[float], str | None] | None = None
+) -> dict:
+    """The largest stable k_v from the case's gain (module docstring): ``{"value", "kind", "note"}``.
 
     ``margin_at(k)``: < 0 where the loop with gain k is stable (the spectral radius minus 1, or the
-    largest real part).
+    largest real part).  ``refuses(k)``: why the scheme does not accept gain k (a plug-in's table bounds
+    its k_v, or its ``pack`` raises), else None; the search ends where it reaches such a gain, with kind
+    ``beyond_range`` when the loop was stable at every gain it tried (the limit, if any, lies beyond what
+    the scheme accepts) and ``unstable`` when it was unstable at every one.
     """
+    tried: dict[float, float] = {}
+
+    def margin(k: float) -> float:
+        if refuses is not None and k != k_v and (why := refuses(k)) is not None:
+            raise _RefusedGainError(k, why)
+        tried[k] = value = margin_at(k)
+        return value
+
+    try:
+        return _largest_gain(margin, k_v)
+    except _RefusedGainError as exc:
+        k, why = exc.args
+        stable = [x for x, m in tried.items() if m < 0.0]
+        if tried[k_v] < 0.0:
+            return {
+                "value": None,
+                "kind": "beyond_range",
+                "note": f"stable at every gain tried from the case's {k_v:.4g} up to {max(stable):.4g} 1/s; the "
+                f"search stopped at k_v = {k:.4g} 1/s, which the scheme does not accept ({why})",
+            }
+        return {
+            "value": None,
+            "kind": "unstable",
+            "note": f"unstable at every gain tried down to {min(tried):.4g} 1/s; the search stopped at k_v = "
+            f"{k:.4g} 1/s, which the scheme does not accept ({why})",
+        }
+
+
+class _RefusedGainError(Exception):
+    """A gain the scheme does not accept, reached by the search: ``args = (k, why)``."""
+
+
+def _largest_gain(margin_at: Callable[[float], float], k_v: float) -> dict:
     if margin_at(k_v) < 0.0:
         pair = _bracket(margin_at, k_v, K_MAX)
         if pair is None:
@@ -234,13 +273,15 @@ def boundary_modes(M: np.ndarray, n_plant: int, discrete: bool) -> dict:
 def limit_words(value: float | None, kind: str | None, unit: str) -> str:
     """A limit as the text summary and the page write it: '12.3 ms', '250 1/s', or what a null one means
     (:data:`KINDS`): 'no finite limit (stable up to 10 s)', 'no stable value (unstable throughout the
-    search)', 'no stable range (the loop is marginal)', 'not computed', 'not searched', 'n/a'; a null of
+    search)', 'no stable range (the loop is marginal)', 'no limit in the gains the scheme accepts (...)', 'not
+    computed', 'not searched', 'n/a'; a null of
     no known kind (a result written before the kinds): 'no finite limit'."""
     if value is not None:
         return f"{value * 1e3:.4g} ms" if unit == "s" else f"{value:.4g} 1/s"
     end = f"{T_MAX:g} s" if unit == "s" else f"{K_MAX:g} 1/s"
     return {
         "unbounded": f"no finite limit (stable up to {end})",
+        "beyond_range": "no limit in the gains the scheme accepts (stable up to where it refuses them)",
         "unstable": "no stable value (unstable throughout the search)",
         "marginal": "no stable range (the loop is marginal)",
         "not_computed": "not computed",

@@ -24,6 +24,7 @@ z-plane poles and the spectral radius; elsewhere s-plane poles and the largest r
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 from dataclasses import dataclass
@@ -424,7 +425,11 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         return b if k == k_v else _blocks_at_gain(case, scheme, built, fz, psis.get(t), t, k, period, b)
 
     try:
-        fam = [gain_family(lambda k, t=t, b=b: at_gain(k, t, b), k_v) for t, b in zip(ts, blocks, strict=True)]
+        refuses = gain_refusal(case, scheme, built)
+        if refuses is not None and (refuses(2.0 * k_v) or refuses(0.5 * k_v)):  # no line through them: each gain
+            fam = [lambda k, t=t, b=b: at_gain(k, t, b) for t, b in zip(ts, blocks, strict=True)]
+        else:
+            fam = [gain_family(lambda k, t=t, b=b: at_gain(k, t, b), k_v) for t, b in zip(ts, blocks, strict=True)]
     except ModelError as exc:  # a plug-in without a k_v field
         for name in picks:
             out[name]["k_v_max"] = None
@@ -437,7 +442,7 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
             margin = lambda k, r=radius: r(k) - 1.0 - MARGINAL_Z  # noqa: E731
         else:
             margin = lambda k, p=pick: max(continuous_margin(p(f(k))) for f in fam)  # noqa: E731
-        res = largest_gain(margin, loop.k_v)
+        res = largest_gain(margin, loop.k_v, refuses)
         if res["value"] is not None:  # as the sample time's: the gains below the limit must be stable
             k9 = 0.9 * res["value"]
             loops = [pick(f(k9)) for f in fam]
@@ -451,6 +456,7 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         kinds[f"{name}.k_v_max"] = res["kind"]
         if name == "limits":
             grid = _grid(res["value"] or k_v, k_v)
+            grid = grid if refuses is None else np.array([k for k in grid if k == k_v or refuses(k) is None])
             key = "rho_k" if period is not None else "max_re_k"
             curve = radius if period is not None else margin
             out.setdefault("_curves", {}).update({"k": grid.tolist(), key: [curve(k) for k in grid]})
@@ -557,6 +563,48 @@ def _grid(limit: float, case_value: float | None, points: int = 48) -> np.ndarra
     lo = min(limit, case_value or limit)
     hi = max(limit, case_value or limit)
     return np.geomspace(lo / 10.0, hi * 3.0, points)
+
+
+def gain_refusal(case, scheme: str, built):
+    """For a plug-in scheme: ``refuses(k)``, why it does not accept velocity gain k (its table's range: the
+    table validated with k; its hooks bound with k: ``pack`` raising on it), else None; None for a built-in
+    scheme (its law takes any gain > 0).  A plug-in whose table has no k_v: ModelError (nothing to vary).
+    Each gain's answer is kept (the search and the figure's grid ask again)."""
+    from pydantic import ValidationError
+
+    from ..runner import make_controller
+    from ..schemes import get
+    from ..schemes.registry import is_built_in
+    from .closed_loop import with_k_v
+
+    if is_built_in(get(scheme)):
+        return None
+    with_k_v(case, scheme, 1.0)  # ModelError without a k_v field
+    cfg = getattr(case.schemes, scheme)
+    model, data = type(cfg), cfg.model_dump()
+    try:
+        model.model_validate(data)
+        table_checks = True
+    except ValidationError:  # a table that does not round-trip through its dump: its hooks alone tell
+        table_checks = False
+    answers: dict[float, str | None] = {}
+
+    def refuses(k: float) -> str | None:
+        if k not in answers:
+            answers[k] = None
+            try:
+                if table_checks:
+                    model.model_validate(data | {"k_v": float(k)})
+                b = copy.copy(built)
+                b.case = with_k_v(case, scheme, k)
+                make_controller(b, scheme, checked=False)
+            except ValidationError as exc:
+                answers[k] = f"its table: {' '.join(str(exc.errors()[0].get('msg', exc)).split())}"
+            except FtcError as exc:
+                answers[k] = str(exc)
+        return answers[k]
+
+    return refuses
 
 
 def _blocks_at_gain(case, scheme, built, fz, psi, t, k, period, base: Blocks) -> Blocks:

@@ -62,6 +62,8 @@ def text_summary(res: dict) -> list[str]:
     lines.append(f"  {how}; actuator inputs: {res.get('actuator_input', 'torque')}")
     if res.get("time_varying"):
         lines.append("  the loop is time-varying along this reference: frozen-instant poles are evidence, not proof")
+    if res.get("horizon"):
+        lines.append(f"  {horizon_words(res['horizon'])}")
     for scheme, lim in res.get("limits", {}).items():
         vl = res.get("velocity_loop", {}).get(scheme, {})
         kinds = res.get("limit_kinds", {}).get(scheme, {})
@@ -110,6 +112,15 @@ def text_summary(res: dict) -> list[str]:
         for r in worst:
             lines.append(f"    {r['pattern']}: {r['gramian_min_eig']:.3g}")
     return lines
+
+
+def horizon_words(h: dict) -> str:
+    """'analysed up to t = 0.9708 s of 5 s: infeasible reference at t = 0.9708 s ...; a run stops there at the
+    latest ...' (analysis.case.analysed_horizon)."""
+    return (
+        f"analysed up to t = {h['t_end']:.4g} s of {h['duration']:g} s: {h['reason']}; a run stops there at the "
+        "latest (status error), and the fault phases after it are not analysed"
+    )
 
 
 def split_text(split: dict | None) -> str:

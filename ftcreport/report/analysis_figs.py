@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from ..analysis.limits import limit_words
-from ..analysis.summary import measure_text, split_text
+from ..analysis.summary import horizon_words, measure_text, split_text
 from ..errors import FtcError
 from . import plots
 
@@ -57,6 +57,9 @@ def analysis_section(case, names, series: dict, events: list[float]) -> dict | N
     if res.get("pole_tables"):
         res["pole_groups"] = group_tables(res["pole_tables"])
     res["limit_rows"] = limit_rows(res)
+    if res.get("horizon"):  # the part of the run the reference allows (analysis.case.analysed_horizon)
+        words = horizon_words(res["horizon"])
+        res["horizon_text"] = words[:1].upper() + words[1:] + "."
     res["phase_rows"] = phase_rows(res)
     figs = []
     if res.get("phases"):

@@ -153,20 +153,17 @@ def make_controller(built: Built, scheme: str, checked: bool = True):
     sc = get(scheme)
     k_v = getattr(cfg, "k_v", None)
     k_v = default_k_v(case) if k_v is None else k_v
-    if is_built_in(sc):  # a built-in scheme's face (ftcreport.control)
-        nz, nq = len(kin.z_names), built.chain.n_q
-        ctx = SchemeContext(built.chain, kin, float(k_v), cfg, case.plant.saturation, kin.n_states, 6 + nz + nq, case)
-        return sc.controller(sc, ctx)
-    # a plug-in: the engine runs its compiled law (through its own face, when it declares one)
-    from .fast.scheme_check import ensure_checked
-
-    if sc.controller is None:
+    if sc.controller is None:  # a plug-in: the engine runs its compiled law
         ctrl = SchemeController(sc, built.chain, kin, k_v, cfg, saturation=case.plant.saturation, case=case)
     else:
         nz, nq = len(kin.z_names), built.chain.n_q
         ctx = SchemeContext(built.chain, kin, float(k_v), cfg, case.plant.saturation, kin.n_states, 6 + nz + nq, case)
-        ctrl = hook(sc, "controller", sc.controller, sc, ctx, convert=_face)
-    if checked:  # its first run: its law under bounds checks first (once per version of its file)
+        if is_built_in(sc):
+            return sc.controller(sc, ctx)  # a built-in scheme's face (ftcreport.control)
+        ctrl = hook(sc, "controller", sc.controller, sc, ctx, convert=_face)  # a plug-in's own face
+    from .fast.scheme_check import ensure_checked
+
+    if checked:  # a plug-in's first run: its law under bounds checks first (once per version of its file)
         ensure_checked(ctrl)
     return ctrl
 
@@ -303,8 +300,9 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
             convert = lambda v: _metrics_dict(v, out)  # noqa: E731
             out |= hook(ctrl.scheme, "metrics", own, case, scheme, t, S, built, ctrl, run, convert=convert)
         except PluginError as exc:  # a plug-in's: the run keeps its log and the common metrics, and fails
-            run.status, run.reason = "error", str(exc)
-            out |= {"status": "error", "reason": str(exc)}
+            failed = run.status != "ok"  # already stopped (diverged, singular...): its own reason first
+            run.status, run.reason = (run.status, f"{run.reason}; and {exc}") if failed else ("error", str(exc))
+            out |= {"status": run.status, "reason": run.reason}
     return out
 
 

@@ -611,3 +611,32 @@ def test_a_verdict_among_loops_all_predicted_unstable_says_so_first():
     )
     again = compare.compare_case("c", runs, {"ok"}, [20.0], facts).sentences
     assert "analysis" not in again[0], again
+
+
+def test_the_summary_says_the_limits_are_the_healthy_loops_beside_unstable_fault_phases():
+    """The limits are searched on the healthy pattern (README): beside a fault phase whose loop is unstable at
+    the case's own setting, the summary says so on the scheme's lines, not only in the README (an unstable
+    healthy phase, or an unstable phase of another scheme, is not named)."""
+    from ftcreport.analysis.summary import text_summary
+
+    def phase(t0, t1, sigma, stability, **extra):
+        return {"t_start": t0, "t_end": t1, "pattern_true": sigma, "friction_true": [0.0] * 4, "stability": stability,
+                "max_re": -1.0, "discrete": False} | extra  # fmt: skip
+
+    healthy = [1.0, 1.0, 1.0, 1.0]
+    res = {
+        "case": "probe", "n_robots": 2, "reference_kind": "circle",
+        "limits": {s: {"sample_time_max": None, "k_v_max": 50.0} for s in ("nominal", "oracle")},
+        "limit_kinds": {s: {"limits.sample_time_max": "unbounded", "limits.k_v_max": "limit"} for s in ("nominal",
+                                                                                                      "oracle")},
+        "phases": {
+            "nominal": [phase(0, 30, healthy, "stable"), phase(30, 60, [1.0, 0.0, 1.0, 1.0], "unstable"),
+                        phase(60, 70, healthy, "unstable", motor_faults=["1r: open"])],
+            "oracle": [phase(0, 30, healthy, "unstable"), phase(30, 60, [1.0, 0.0, 1.0, 1.0], "stable")],
+        },
+    }  # fmt: skip
+    lines = text_summary(res)
+    said = [line for line in lines if "the limits are the healthy loop's" in line]
+    assert said == ["      the limits are the healthy loop's: its faulty phase(s) 30-60 s, 60-70 s are unstable at the "
+                    "case's own setting"], lines  # fmt: skip
+    assert any(line.startswith("  nominal (healthy pattern): largest stable sample time") for line in lines)

@@ -68,7 +68,8 @@ def text_summary(res: dict) -> list[str]:
         vl = res.get("velocity_loop", {}).get(scheme, {})
         kinds = res.get("limit_kinds", {}).get(scheme, {})
         lines.append(
-            f"  {scheme}: largest stable sample time {_limit(lim, kinds, 'limits', 'sample_time_max', 's')}, "
+            f"  {scheme} (healthy pattern): largest stable sample time "
+            f"{_limit(lim, kinds, 'limits', 'sample_time_max', 's')}, "
             f"largest stable k_v {_limit(lim, kinds, 'limits', 'k_v_max', '1/s')} (velocity loop alone: "
             f"{_limit(vl, kinds, 'velocity_loop', 'sample_time_max', 's')}, "
             f"{_limit(vl, kinds, 'velocity_loop', 'k_v_max', '1/s')})"
@@ -93,6 +94,9 @@ def text_summary(res: dict) -> list[str]:
             lines.append(f"      {which}{' (velocity loop alone)' if where == 'velocity_loop' else ''}: {note}")
         for which, c in res.get("confirmation", {}).get(scheme, {}).items():
             lines.append(f"      {which}: {c['sentence']}")
+        if faulty := _unstable_faulty(res.get("phases", {}).get(scheme, [])):
+            own = "are unstable at the case's own setting"
+            lines.append(f"      the limits are the healthy loop's: its faulty phase(s) {faulty} {own}")
     for scheme, phases in res.get("phases", {}).items():
         lines.append(f"  {scheme}, per fault phase:")
         for p in phases:
@@ -112,6 +116,21 @@ def text_summary(res: dict) -> list[str]:
         for r in worst:
             lines.append(f"    {r['pattern']}: {r['gramian_min_eig']:.3g}")
     return lines
+
+
+def _unstable_faulty(phases: list[dict]) -> str:
+    """The fault phases (a wheel's sigma not 1, friction, a motor fault) a scheme's loop is unstable in, '35-70 s,
+    ...', or ''."""
+
+    def faulty(p: dict) -> bool:
+        return (
+            any(v != 1 for v in p.get("pattern_true") or ())
+            or any(p.get("friction_true") or ())
+            or bool(p.get("motor_faults"))
+        )
+
+    bad = [p for p in phases if p.get("stability") == "unstable" and faulty(p)]
+    return ", ".join(f"{p['t_start']:g}-{p['t_end']:g} s" for p in bad)
 
 
 def horizon_words(h: dict) -> str:

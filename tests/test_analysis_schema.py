@@ -640,3 +640,7 @@ def test_the_summary_says_the_limits_are_the_healthy_loops_beside_unstable_fault
     assert said == ["      the limits are the healthy loop's: its faulty phase(s) 30-60 s, 60-70 s are unstable at the "
                     "case's own setting"], lines  # fmt: skip
     assert any(line.startswith("  nominal (healthy pattern): largest stable sample time") for line in lines)
+    from ftcreport.report.analysis_figs import limit_rows  # the page's limits table: the same words, its note row
+
+    notes = {r["scheme"]: r["notes"] for r in limit_rows(res)}
+    assert notes["nominal"] == [said[0].strip()] and notes["oracle"] == []

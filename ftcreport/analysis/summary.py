@@ -18,6 +18,7 @@ from ..evaluation.verdict_analysis import (
 from .limits import limit_words
 
 __all__ = ["MAX_SENTENCES", "analysis_sentences", "fmt_limit", "measure_text", "pattern_text", "text_summary"]
+__all__ += ["healthy_words", "horizon_words", "unstable_faulty"]
 __all__ += ["split_text", "verdict_sentence"]
 
 
@@ -94,9 +95,8 @@ def text_summary(res: dict) -> list[str]:
             lines.append(f"      {which}{' (velocity loop alone)' if where == 'velocity_loop' else ''}: {note}")
         for which, c in res.get("confirmation", {}).get(scheme, {}).items():
             lines.append(f"      {which}: {c['sentence']}")
-        if faulty := _unstable_faulty(res.get("phases", {}).get(scheme, [])):
-            own = "are unstable at the case's own setting"
-            lines.append(f"      the limits are the healthy loop's: its faulty phase(s) {faulty} {own}")
+        if faulty := unstable_faulty(res.get("phases", {}).get(scheme, [])):
+            lines.append(f"      {healthy_words(faulty)}")
     for scheme, phases in res.get("phases", {}).items():
         lines.append(f"  {scheme}, per fault phase:")
         for p in phases:
@@ -118,7 +118,7 @@ def text_summary(res: dict) -> list[str]:
     return lines
 
 
-def _unstable_faulty(phases: list[dict]) -> str:
+def unstable_faulty(phases: list[dict]) -> str:
     """The fault phases (a wheel's sigma not 1, friction, a motor fault) a scheme's loop is unstable in, '35-70 s,
     ...', or ''."""
 
@@ -131,6 +131,11 @@ def _unstable_faulty(phases: list[dict]) -> str:
 
     bad = [p for p in phases if p.get("stability") == "unstable" and faulty(p)]
     return ", ".join(f"{p['t_start']:g}-{p['t_end']:g} s" for p in bad)
+
+
+def healthy_words(faulty: str) -> str:
+    """'the limits are the healthy loop's: its faulty phase(s) 30-60 s are unstable at the case's own setting'."""
+    return f"the limits are the healthy loop's: its faulty phase(s) {faulty} are unstable at the case's own setting"
 
 
 def horizon_words(h: dict) -> str:

@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from ..analysis.limits import limit_words
-from ..analysis.summary import horizon_words, measure_text, split_text
+from ..analysis.summary import healthy_words, horizon_words, measure_text, split_text, unstable_faulty
 from ..errors import FtcError
 from . import plots
 
@@ -88,6 +88,8 @@ def limit_rows(res: dict) -> list[dict]:
         conf = res.get("confirmation", {}).get(scheme, {})
         kinds = res.get("limit_kinds", {}).get(scheme, {})
         words = lambda v, k, unit, kinds=kinds: limit_words(v, kinds.get(k), unit)  # noqa: E731  a null by its kind
+        faulty = unstable_faulty(res.get("phases", {}).get(scheme, []))
+        healthy = [healthy_words(faulty)] if faulty else []
         out.append(
             {
                 "scheme": scheme,
@@ -105,7 +107,7 @@ def limit_rows(res: dict) -> list[dict]:
                 "k_contradicted": (conf.get("k_v_max") or {}).get("agrees") is False,
                 "vl_T_max": vl.get("sample_time_max"),
                 "vl_k_max": vl.get("k_v_max"),
-                "notes": _limit_notes(res.get("limit_notes", {}).get(scheme, {})),
+                "notes": _limit_notes(res.get("limit_notes", {}).get(scheme, {})) + healthy,
                 "confirm": [{"which": w, **c} for w, c in conf.items()],
             }
         )

@@ -113,7 +113,10 @@ def start_problems(case: Case) -> tuple[list[str], list[str]]:
     except FtcError as exc:
         field = "reference" if isinstance(exc, ReferenceError) else "case"
         return [f"{field}: {exc} (no run can start)"], []
-    found = built.reference.first_infeasible(case.simulation.duration)
+    try:
+        found = reference_stop(case, built)
+    except ReferenceError as exc:
+        return [f"reference: {exc}"], []
     if found is not None:  # the instant analyze analyses up to (analysis.case.analysed_horizon)
         why = "every run stops there at the latest (status error); analyze covers the run up to it"
         warnings.append(f"reference: {found[1]}: {why}")
@@ -136,6 +139,20 @@ def start_problems(case: Case) -> tuple[list[str], list[str]]:
             where = _where(sc.initial_state) if sc.initial_state is not None else name
             errors.append(f"schemes.{name}: {where}: initial_state is not finite at t = 0 ({x0.tolist()[:6]})")
     return errors, warnings
+
+
+def reference_stop(case: Case, built: Built) -> tuple[float, Exception, float] | None:
+    """Where the reference turns infeasible within the run (``FlatReference.first_infeasible``: the first
+    instant found infeasible, its error, the last found feasible), else None; a ReferenceError when the
+    last feasible instant is within the run's first step (no run takes one: ``cases validate`` and ``analyze``
+    both refuse the case)."""
+    from .errors import ReferenceError
+
+    found = built.reference.first_infeasible(case.simulation.duration)
+    if found is not None and found[2] < case.simulation.dt:
+        dt = case.simulation.dt
+        raise ReferenceError(f"{found[1]}, within the run's first step (dt = {dt:g} s): no run takes a step")
+    return found
 
 
 def make_controller(built: Built, scheme: str, checked: bool = True):
@@ -295,9 +312,10 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     if own is not None:
         from .errors import PluginError
         from .schemes.controller import hook
+        from .schemes.registry import is_built_in
 
         try:
-            convert = lambda v: _metrics_dict(v, out)  # noqa: E731
+            convert = lambda v: _metrics_dict(v, out, not is_built_in(ctrl.scheme))  # noqa: E731
             out |= hook(ctrl.scheme, "metrics", own, case, scheme, t, S, built, ctrl, run, convert=convert)
         except PluginError as exc:  # a plug-in's: the run keeps its log and the common metrics, and fails
             failed = run.status != "ok"  # already stopped (diverged, singular...): its own reason first
@@ -306,16 +324,48 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     return out
 
 
-def _metrics_dict(value, common: dict) -> dict:
+def _metrics_dict(value, common: dict, plugin: bool = True) -> dict:
     """A ``metrics`` hook's result: a dict keyed by names, none of the ``common`` ones (a scheme's own
-    metrics never overwrite the run's status, reason or tracking errors)."""
+    metrics never overwrite the run's status, reason or tracking errors), its values what metrics.json holds."""
     from .schemes.controller import ResultError, one_line
 
     if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
         raise ResultError(f"returned {one_line(repr(value))[:80]}, not a dict of metrics keyed by name")
-    if taken := sorted(set(value) & set(common)):
+    if not plugin:  # a built-in scheme's: ftcreport's own (its arrays are stored by storage.store._jsonable)
+        return value
+    if taken := sorted(set(value) & (set(common) | _SET_AFTER)):
         raise ResultError(f"returned {', '.join(map(repr, taken[:5]))}: names of the run's own metrics (status ...)")
+    for key, v in value.items():
+        if (why := _not_stored(v)) is not None:
+            raise ResultError(
+                f"returned {key!r}: {why} (metrics.json holds numbers, text, null and lists or dicts of them)"
+            )
     return value
+
+
+#: metrics the run sets after the scheme's own (run_scheme)
+_SET_AFTER = frozenset({"wall_time", "compile_time"})
+
+
+def _not_stored(v, depth: int = 0) -> str | None:
+    """Why ``v`` cannot be a metric of metrics.json (JSON, and a 64-bit number where it is a number), or None."""
+    if depth > 8:
+        return "nested more than 8 deep"
+    if v is None or isinstance(v, bool | np.bool_ | str):
+        return None
+    if isinstance(v, int | np.integer):
+        return None if -(2**63) <= int(v) < 2**63 else f"an integer of {len(str(abs(int(v))))} digits, beyond 64 bits"
+    if isinstance(v, float | np.floating):
+        return None
+    if isinstance(v, np.ndarray):  # stored as its list (storage.store._jsonable)
+        return None if v.dtype.kind in "biuf" else f"an array of {v.dtype}"
+    if isinstance(v, list | tuple):
+        return next((w for x in v if (w := _not_stored(x, depth + 1)) is not None), None)
+    if isinstance(v, dict):
+        if not all(isinstance(k, str) for k in v):
+            return "a dict whose keys are not all text"
+        return next((w for x in v.values() if (w := _not_stored(x, depth + 1)) is not None), None)
+    return f"a value of type {type(v).__name__}"
 
 
 def current_time_constants(case: Case) -> np.ndarray:

@@ -173,7 +173,7 @@ def test_a_reference_infeasible_after_the_start_is_analysed_up_to_that_instant(t
     horizon = out["horizon"]
     assert horizon["duration"] == 5.0 and "infeasible reference at t = 0.9708 s" in horizon["reason"]
     t = horizon["t_end"]
-    assert 0.9707 < t < 0.9708  # dt / 1000 = 50 us: the grid's resolution
+    assert 0.97065 < t < 0.97075  # the last feasible instant, within the fine grid's 50 us (50 ms / 1000)
     for scheme, phases in out["phases"].items():
         assert [(p["t_start"], p["t_end"]) for p in phases] == [(0.0, t)], scheme
         assert all(p["stability"] in ("stable", "marginal", "unstable") for p in phases), (scheme, phases)
@@ -181,4 +181,40 @@ def test_a_reference_infeasible_after_the_start_is_analysed_up_to_that_instant(t
     _, metrics = run_scheme(load_case(path), "nominal")  # this chain turns singular first, at 0.68 s
     assert metrics["status"] != "ok" and metrics["t_end"] <= t + data["simulation"]["dt"], metrics["t_end"]
     res = CliRunner().invoke(app, ["analyze", str(path), "--no-confirm"])
-    assert "analysed up to t = 0.9708 s of 5 s: infeasible reference at t = 0.9708 s" in res.output, res.output
+    assert "analysed up to t = 0.9707 s of 5 s: infeasible reference at t = 0.9708 s" in res.output, res.output
+
+
+def _tight_eight(tmp_path: Path, name: str, scale: float, duration: float, **simulation) -> Path:
+    """cases/three_link_circle_faults.toml on the thesis's eight at ``scale`` (too tight after about 1 s), from
+    on the reference, without faults, the nominal scheme alone."""
+    data = tomllib.loads((ROOT / "cases" / "three_link_circle_faults.toml").read_text())
+    data["reference"] = {"kind": "eight", "scale": scale}
+    data["simulation"] |= {"duration": duration} | simulation
+    data["faults"], data["initial"], data["schemes"] = [], {}, {"run": ["nominal"]}
+    for key in ("thresholds", "claims", "requirements"):
+        data.pop(key, None)
+    path = tmp_path / f"{name}.toml"
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def test_the_horizon_is_within_the_run_and_its_first_step(tmp_path):
+    """The attack on the horizon: its grid ran 25 ms past the case's end (a run of 0.98 s 'analysed up to
+    0.9922 s of 0.98 s'); a reference infeasible within the first step (0.00525 s, dt 20 ms) was validate's
+    warning and analyze's 'dt longer than the duration'; with sampled control the periodic limit's instants
+    went past the horizon (every scheme 'not analysed')."""
+    import json
+
+    path = _tight_eight(tmp_path, "ends_first", 0.1825, 0.98)  # infeasible from 0.9922 s, after the end
+    res = CliRunner().invoke(app, ["cases", "validate", str(path)])
+    assert res.exit_code == 0 and "infeasible" not in res.output, res.output
+    res = CliRunner().invoke(app, ["analyze", str(path), "--json", "--no-confirm"])
+    assert res.exit_code == 0 and json.loads(res.output)["horizon"] is None, res.output
+    path = _tight_eight(tmp_path, "first_step", 0.0655, 5.0)  # infeasible from 0.00525 s
+    for command in (["cases", "validate"], ["analyze", "--no-confirm"]):
+        res = CliRunner().invoke(app, [*command, str(path)])
+        assert res.exit_code == 2, res.output
+        assert "within the run's first step (dt = 0.02 s): no run takes a step" in " ".join(res.output.split())
+    path = _tight_eight(tmp_path, "sampled", 0.18, 5.0, sample_time=0.04)
+    out = json.loads(CliRunner().invoke(app, ["analyze", str(path), "--json", "--no-confirm"]).output)
+    assert not out["not_analyzed"] and out["phases"]["nominal"][0]["t_end"] == out["horizon"]["t_end"]

@@ -397,22 +397,38 @@ def test_the_gain_search_ends_at_the_largest_gain_a_case_file_accepts():
         PluginTable(k_v=K_MAX * (1.0 + 1e-12))
 
 
-def test_largest_gain_stops_where_the_scheme_refuses_a_gain():
-    """The walk from the case's gain by factors of 2 never evaluates a gain the scheme refuses: the limit
-    inside the accepted range as before; stable up to a refused gain, kind beyond_range; unstable down to one,
-    kind unstable; each note names the refused gain and the scheme's reason."""
-    refuses = lambda k: "too large" if k > 100.0 else "too small" if k < 5.0 else None  # noqa: E731
+def test_the_gain_search_stays_within_the_gains_the_scheme_accepts():
+    """The walk from the case's gain by factors of 2 finds the interval of gains the scheme accepts (its edge
+    by bisection) and searches inside it: the limit inside it as before, even when the first refused walk
+    point lies past it (a table's lt = 150, the loop unstable from 142.5: the attack's lt150 case, which said
+    'no limit'); stable up to the edge, kind beyond_range; unstable down to it, kind unstable; a refused
+    point with an accepted one past it (a pack that refuses only 2 k_v) is a hole, not an end."""
+    from ftcreport.analysis.limits import gain_domain
+
+    below = lambda lim: lambda k: None if k < lim else f"k_v must be below {lim:g}"  # noqa: E731
     seen: list[float] = []
 
     def margin(limit):
         return lambda k: (seen.append(k), k - limit)[1]
 
-    res = largest_gain(margin(50.0), 20.0, refuses)
-    assert res["kind"] == "limit" and res["value"] == pytest.approx(50.0, rel=1e-8)
-    res = largest_gain(margin(1e3), 20.0, refuses)
+    dom = gain_domain(below(150.0), 20.0)
+    assert dom["top"] == pytest.approx(150.0, rel=2e-6) and dom["top"] < 150.0 and dom["why_top"]
+    res = largest_gain(margin(142.5), 20.0, dom)
+    assert res["kind"] == "limit" and res["value"] == pytest.approx(142.5, rel=1e-8)
+    assert all(k <= dom["top"] for k in seen)
+    res = largest_gain(margin(1e3), 20.0, dom)
     assert res["kind"] == "beyond_range" and res["value"] is None
-    assert "from the case's 20 up to 80 1/s" in res["note"] and "k_v = 160 1/s" in res["note"]
-    assert "(too large)" in res["note"]
-    res = largest_gain(lambda k: 1.0, 20.0, refuses)  # unstable everywhere: walked down to 10, 5, 2.5 (refused)
-    assert res["kind"] == "unstable" and "down to 5 1/s" in res["note"] and "k_v = 2.5 1/s" in res["note"]
-    assert all(refuses(k) is None for k in seen)
+    assert (
+        "from the case's 20 up to 150 1/s, the largest the scheme accepts (above it: k_v must be below 150)"
+        in (res["note"])
+    )
+    above = gain_domain(lambda k: "too small" if k < 5.0 else None, 20.0)
+    assert above["bottom"] == pytest.approx(5.0, rel=2e-6) and "top" not in above
+    res = largest_gain(lambda k: 1.0, 20.0, above)
+    assert (
+        res["kind"] == "unstable"
+        and "down to 5 1/s, the smallest the scheme accepts (below it: too small)" in (res["note"])
+    )
+    hole = gain_domain(lambda k: "not 40" if k == 40.0 else None, 20.0)
+    assert hole == {"hole": "the scheme refuses k_v = 40 1/s (not 40) but accepts 80 1/s"}
+    assert gain_domain(lambda k: None, 20.0) == {}  # nothing refused: the search's own ends

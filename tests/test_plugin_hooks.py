@@ -189,26 +189,57 @@ def test_signals_too_wide_for_memory_are_named_before_any_allocation(tmp_path):
 
 def test_a_gain_limit_never_reaches_past_the_gains_the_scheme_accepts(tmp_path):
     """Was 'stable at every gain up to 1e+07' for a pack that refuses k_v > 100 (the gain family's line,
-    drawn through 10, 20 and 40 1/s, was followed where the scheme never ran).  Both ways a plug-in bounds its
-    gain: its pack raising, its table's range (le = 150)."""
+    drawn through 10, 20 and 40 1/s, was followed where the scheme never ran).  Every way a plug-in bounds
+    its gain: its pack raising, its table's range (le = 150), its validate hook refusing the table."""
     from ftcreport.analysis import analyze_case
 
     refusing = "    if ctx.k_v > 100.0:\n        raise ValueError(f'k_v {ctx.k_v} too large for this law')\n"
+    validating = (
+        "def _val(table, case):\n    from ftcreport.schemes import fields\n\n    if table.k_v > 120.0:\n"
+        "        raise fields.FieldError('schemes.bounded_validate.k_v', 'chatters above 120')\n\n\n"
+    )
     edits = {
-        "pack_bound": lambda s: s.replace("def pack(ctx: SchemeContext) -> P:\n", "def pack(ctx: SchemeContext) -> P:\n"
-                                          + refusing),
-        "table_bound": lambda s: s.replace("        le=1e6,\n        description=\"linear velocity-error gain",
-                                           "        le=150.0,\n        description=\"linear velocity-error gain"),
+        "pack": (lambda s: s.replace("def pack(ctx: SchemeContext) -> P:\n", "def pack(ctx: SchemeContext) -> P:\n"
+                                     + refusing), 100.0, "too large for this law"),
+        "table": (lambda s: s.replace("        le=1e6,\n        description=\"linear velocity-error gain",
+                                      "        le=150.0,\n        description=\"linear velocity-error gain"), 150.0,
+                  "less than or equal to 150"),
+        "validate": (lambda s: s.replace("# 5. Register", validating + "# 5. Register").replace(
+            "        pack=pack,\n", "        pack=pack,\n        validate=_val,\n"), 120.0, "chatters above 120"),
     }  # fmt: skip
-    for tag, edit in edits.items():
+    for tag, (edit, top, why) in edits.items():
         name = f"bounded_{tag}"
         case = load_case(plugin_case(tmp_path, name, edit, 2.0))
         out = analyze_case(case, margins=False, confirm=False)
         assert out["limit_kinds"][name]["limits.k_v_max"] == "beyond_range", out["limit_notes"][name]
         assert out["limits"][name]["k_v_max"] is None
         note = out["limit_notes"][name]["limits.k_v_max"]
-        # the walk from the case's 20 1/s by factors of 2: 80 the last gain accepted, 160 above 100 and 150
-        assert "stable at every gain tried from the case's 20 up to 80 1/s" in note, note
-        assert "k_v = 160 1/s, which the scheme does not accept" in note, note
-        assert ("too large for this law" if tag == "pack_bound" else "less than or equal to 150") in note, note
-        assert max(out["_curves"][name]["k"]) <= 100.0  # the figure's curve too: only gains the scheme ran
+        assert f"stable at every gain tried from the case's 20 up to {top:g} 1/s, the largest the scheme accepts" in (
+            note
+        ), note
+        assert why in note, note
+        assert max(out["_curves"][name]["k"]) <= top  # the figure's curve too: only gains the scheme runs
+
+
+def test_a_metrics_hook_value_that_metrics_json_cannot_hold_is_named(tmp_path):
+    """Was exit 3 'Object of type object is not JSON serializable' at the end of the run (the attack's metobj):
+    every value is checked; numeric arrays are stored as lists."""
+    from ftcreport.runner import run_scheme
+
+    body = "import numpy as np\n    return {'per_wheel': np.arange(4.0), 'mine': object()}"
+    path = plugin_case(tmp_path, "odd_metrics", _with_hook("metrics", body), 1.0)
+    _, metrics = run_scheme(load_case(path), "odd_metrics")
+    assert metrics["status"] == "error" and "metrics returned 'mine': a value of type object" in metrics["reason"]
+
+
+def test_a_validate_hook_that_changes_the_case_does_not_change_the_run(tmp_path):
+    """Was: a validate hook that set the frozen case's duration to 0.5 s (object.__setattr__) made a 2-s case
+    run 0.5 s, status ok; the hook now gets copies."""
+    from ftcreport.runner import run_scheme
+
+    body = "object.__setattr__(args[1].simulation, 'duration', 0.5)"
+    path = plugin_case(tmp_path, "meddling_validate", _with_hook("validate", body), 2.0)
+    case = load_case(path)
+    assert case.simulation.duration == 2.0
+    _, metrics = run_scheme(case, "meddling_validate")
+    assert metrics["status"] == "ok" and metrics["t_end"] == 2.0

@@ -27,15 +27,17 @@ __all__ = ["analysed_horizon", "analyze_case", "classic_model"]
 def analysed_horizon(case, built) -> dict | None:
     """Where the reference turns infeasible before the case's end (``FlatReference.first_infeasible``, the
     instant ``cases validate`` warns of; a run stops at its first step past it), else None: ``{"t_end",
-    "duration", "reason", "case"}``, ``case`` the case cut there (its faults after it left out), which the
-    analysis then covers.  Infeasible at t = 0: the ReferenceError (nothing to analyse)."""
-    duration = float(case.simulation.duration)
-    found = built.reference.first_infeasible(duration)
+    "duration", "reason", "case"}``, ``t_end`` the last instant found feasible before it (50 us before at most,
+    so that no frozen instant lands in between), ``case`` the case cut there (its faults from it on left out),
+    which the analysis then covers.  Infeasible before the run's first step ends (t <= dt: no run takes a
+    step, ``cases validate`` refuses it too): the ReferenceError, saying so."""
+    from ..runner import reference_stop
+
+    found = reference_stop(case, built)  # ReferenceError when no run takes a step
     if found is None:
         return None
-    t, exc = found
-    if t <= 0.0:
-        raise exc
+    _, exc, t = found
+    duration = float(case.simulation.duration)
     sim = case.simulation.model_copy(update={"duration": t})
     cut = case.model_copy(update={"simulation": sim, "faults": [f for f in case.faults if f.time < t]})
     return {"t_end": t, "duration": duration, "reason": str(exc), "case": cut}

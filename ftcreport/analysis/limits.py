@@ -49,7 +49,16 @@ from .sampled import closed_loop_matrix, plant_zoh, spectral_radius
 
 __all__ = ["K_MAX", "T_MAX", "T_MIN", "boundary", "continuous_margin", "fastest_pole", "gain_family", "largest_gain"]
 __all__ += ["MARGINAL_S", "MARGINAL_Z", "largest_sample_time", "periodic_growth", "sampled_radius", "stability"]
-__all__ += ["KINDS", "RESOLUTION", "VISIBLE", "boundary_modes", "limit_words", "pole_bands"]
+__all__ += [
+    "KINDS",
+    "RESOLUTION",
+    "VISIBLE",
+    "boundary_modes",
+    "gain_domain",
+    "gain_floor",
+    "limit_words",
+    "pole_bands",
+]
 
 T_MIN = 1e-6  # s: the smallest sample time searched
 T_MAX = 10.0  # s: beyond it a "sample time" is no longer a control loop's
@@ -149,60 +158,72 @@ def largest_sample_time(rho: Callable[[float], float], guess: float, t_min: floa
     return {"value": boundary(margin, *pair), "kind": "limit", "note": ""}
 
 
-def largest_gain(
-    margin_at: Callable[[float], float], k_v: float, refuses: Callable[[float], str | None] | None = None
-) -> dict:
+def largest_gain(margin_at: Callable[[float], float], k_v: float, domain: dict | None = None) -> dict:
     """The largest stable k_v from the case's gain (module docstring): ``{"value", "kind", "note"}``.
 
     ``margin_at(k)``: < 0 where the loop with gain k is stable (the spectral radius minus 1, or the
-    largest real part).  ``refuses(k)``: why the scheme does not accept gain k (a plug-in's table bounds
-    its k_v, or its ``pack`` raises), else None; the search ends where it reaches such a gain, with kind
-    ``beyond_range`` when the loop was stable at every gain it tried (the limit, if any, lies beyond what
-    the scheme accepts) and ``unstable`` when it was unstable at every one.
+    largest real part).  ``domain``: the gains the scheme accepts (:func:`gain_domain`), which bound the
+    walk: kind ``beyond_range`` when the loop is stable at every gain tried up to the largest the scheme
+    accepts (the limit, if any, lies beyond it); a walk down that ends at the smallest it accepts says so.
     """
-    tried: dict[float, float] = {}
-
-    def margin(k: float) -> float:
-        if refuses is not None and k != k_v and (why := refuses(k)) is not None:
-            raise _RefusedGainError(k, why)
-        tried[k] = value = margin_at(k)
-        return value
-
-    try:
-        return _largest_gain(margin, k_v)
-    except _RefusedGainError as exc:
-        k, why = exc.args
-        stable = [x for x, m in tried.items() if m < 0.0]
-        if tried[k_v] < 0.0:
-            return {
-                "value": None,
-                "kind": "beyond_range",
-                "note": f"stable at every gain tried from the case's {k_v:.4g} up to {max(stable):.4g} 1/s; the "
-                f"search stopped at k_v = {k:.4g} 1/s, which the scheme does not accept ({why})",
-            }
+    domain = domain or {}
+    top, bottom = domain.get("top", K_MAX), domain.get("bottom")
+    if margin_at(k_v) < 0.0:
+        pair = _bracket(margin_at, k_v, top)
+        if pair is not None:
+            return {"value": boundary(margin_at, *pair), "kind": "limit", "note": ""}
+        if domain.get("why_top") is None:
+            return {"value": None, "kind": "unbounded", "note": f"stable at every gain up to {K_MAX:g} 1/s"}
         return {
             "value": None,
-            "kind": "unstable",
-            "note": f"unstable at every gain tried down to {min(tried):.4g} 1/s; the search stopped at k_v = "
-            f"{k:.4g} 1/s, which the scheme does not accept ({why})",
+            "kind": "beyond_range",
+            "note": f"stable at every gain tried from the case's {k_v:.4g} up to {top:.6g} 1/s, the largest the "
+            f"scheme accepts (above it: {domain['why_top']})",
         }
-
-
-class _RefusedGainError(Exception):
-    """A gain the scheme does not accept, reached by the search: ``args = (k, why)``."""
-
-
-def _largest_gain(margin_at: Callable[[float], float], k_v: float) -> dict:
-    if margin_at(k_v) < 0.0:
-        pair = _bracket(margin_at, k_v, K_MAX)
-        if pair is None:
-            return {"value": None, "kind": "unbounded", "note": f"stable at every gain up to {K_MAX:g} 1/s"}
-        return {"value": boundary(margin_at, *pair), "kind": "limit", "note": ""}
-    k_lo = min(k_v * K_MIN_FACTOR, K_MIN)
+    k_lo = gain_floor(k_v) if bottom is None else max(gain_floor(k_v), bottom)
     pair = _bracket(margin_at, k_v, k_lo)
     if pair is None:
-        return {"value": None, "kind": "unstable", "note": f"unstable at every gain down to {k_lo:g} 1/s"}
+        end = f", the smallest the scheme accepts (below it: {domain['why_bottom']})" if k_lo == bottom else ""
+        return {"value": None, "kind": "unstable", "note": f"unstable at every gain down to {k_lo:g} 1/s{end}"}
     return {"value": boundary(margin_at, *pair), "kind": "limit", "note": "the loop is unstable at the case's own gain"}
+
+
+def gain_floor(k_v: float) -> float:
+    """The smallest gain the search goes down to: K_MIN, or a 1e-4th of the case's gain if lower."""
+    return min(k_v * K_MIN_FACTOR, K_MIN)
+
+
+def gain_domain(refuses: Callable[[float], str | None], k_v: float) -> dict:
+    """The interval of gains a scheme accepts around its case's gain k_v, as the k_v search walks it.
+
+    ``refuses(k)``: why the scheme does not accept gain k, else None.  Along the walk's points (factors of 2
+    from k_v up to K_MAX and down to :func:`gain_floor`), the first refused one ends the interval when every
+    point past it is refused too: its edge is then found by bisection to a relative 1e-6, ``{"top",
+    "why_top", "bottom", "why_bottom"}`` (a side without a refusal: K_MAX, or no bottom, and no why).  A
+    refused point with an accepted one past it is a hole, not an end (``pack`` refusing only k_v = 40):
+    ``{"hole": words}``, and the gains are not searched (the line through a hole would claim stability
+    where the scheme never runs).
+    """
+    out: dict = {}
+    for end, key in ((K_MAX, "top"), (gain_floor(k_v), "bottom")):
+        walk = []
+        x = k_v
+        while (x < end) if key == "top" else (x > end):
+            x = min(x * STEP, end) if key == "top" else max(x / STEP, end)
+            walk.append(x)
+        for i, x in enumerate(walk):
+            if (why := refuses(x)) is None:
+                continue
+            if (back := next((y for y in walk[i + 1 :] if refuses(y) is None), None)) is not None:
+                return {"hole": f"the scheme refuses k_v = {x:.4g} 1/s ({why}) but accepts {back:.4g} 1/s"}
+            ok = walk[i - 1] if i else k_v
+            bad = x
+            while abs(bad - ok) > 1e-6 * ok:
+                mid = math.sqrt(ok * bad)
+                ok, bad = (mid, bad) if refuses(mid) is None else (ok, mid)
+            out[key], out[f"why_{key}"] = ok, refuses(bad)
+            break
+    return out
 
 
 def gain_family(blocks_at: Callable[[float], Blocks], k_v: float) -> Callable[[float], Blocks]:

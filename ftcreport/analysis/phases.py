@@ -39,6 +39,7 @@ from .limits import (
     continuous_margin,
     dominant_pole,
     fastest_pole,
+    gain_domain,
     gain_family,
     largest_gain,
     largest_sample_time,
@@ -426,11 +427,14 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
 
     try:
         refuses = gain_refusal(case, scheme, built)
+        domain = {} if refuses is None else gain_domain(refuses, k_v)  # the gains a plug-in accepts
+        if "hole" in domain:
+            raise ModelError(f"not searched: {domain['hole']}: its gains are not an interval")
         if refuses is not None and (refuses(2.0 * k_v) or refuses(0.5 * k_v)):  # no line through them: each gain
             fam = [lambda k, t=t, b=b: at_gain(k, t, b) for t, b in zip(ts, blocks, strict=True)]
         else:
             fam = [gain_family(lambda k, t=t, b=b: at_gain(k, t, b), k_v) for t, b in zip(ts, blocks, strict=True)]
-    except ModelError as exc:  # a plug-in without a k_v field
+    except ModelError as exc:  # a plug-in without a k_v field, or whose gains have a hole
         for name in picks:
             out[name]["k_v_max"] = None
             out["limit_notes"][f"{name}.k_v_max"] = str(exc)
@@ -442,7 +446,7 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
             margin = lambda k, r=radius: r(k) - 1.0 - MARGINAL_Z  # noqa: E731
         else:
             margin = lambda k, p=pick: max(continuous_margin(p(f(k))) for f in fam)  # noqa: E731
-        res = largest_gain(margin, loop.k_v, refuses)
+        res = largest_gain(margin, loop.k_v, domain)
         if res["value"] is not None:  # as the sample time's: the gains below the limit must be stable
             k9 = 0.9 * res["value"]
             loops = [pick(f(k9)) for f in fam]
@@ -456,7 +460,8 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         kinds[f"{name}.k_v_max"] = res["kind"]
         if name == "limits":
             grid = _grid(res["value"] or k_v, k_v)
-            grid = grid if refuses is None else np.array([k for k in grid if k == k_v or refuses(k) is None])
+            lo, hi = domain.get("bottom", 0.0), domain.get("top", math.inf)
+            grid = grid[(grid >= lo) & (grid <= hi)]  # only gains the scheme accepts
             key = "rho_k" if period is not None else "max_re_k"
             curve = radius if period is not None else margin
             out.setdefault("_curves", {}).update({"k": grid.tolist(), key: [curve(k) for k in grid]})
@@ -515,8 +520,8 @@ def _periodic_blocks(case, built, loop: SchemeLoop, fz: Faults, period) -> tuple
     if P is None:
         return None
     ts = [(k + 0.5) * P / PERIODIC_INSTANTS for k in range(PERIODIC_INSTANTS)]
-    psis = frames(built.kinematic(), ts, step=max(float(case.simulation.dt), 0.01))
-    try:
+    try:  # a period the reference does not complete (a horizon: analysis.case.analysed_horizon) has no product
+        psis = frames(built.kinematic(), ts, step=max(float(case.simulation.dt), 0.01))
         return P, [loop.blocks(loop.point(t, fz, psis.get(t), None, None, period), period) for t in ts]
     except (FtcError, ValueError, np.linalg.LinAlgError):
         return None
@@ -567,13 +572,16 @@ def _grid(limit: float, case_value: float | None, points: int = 48) -> np.ndarra
 
 def gain_refusal(case, scheme: str, built):
     """For a plug-in scheme: ``refuses(k)``, why it does not accept velocity gain k (its table's range: the
-    table validated with k; its hooks bound with k: ``pack`` raising on it), else None; None for a built-in
+    table validated with k; its ``validate`` hook on that table; its hooks bound with k: ``pack`` raising on
+    it), else None; None for a built-in
     scheme (its law takes any gain > 0).  A plug-in whose table has no k_v: ModelError (nothing to vary).
     Each gain's answer is kept (the search and the figure's grid ask again)."""
     from pydantic import ValidationError
 
+    from ..cases.case import scheme_validate
     from ..runner import make_controller
     from ..schemes import get
+    from ..schemes.fields import FieldError
     from ..schemes.registry import is_built_in
     from .closed_loop import with_k_v
 
@@ -597,9 +605,12 @@ def gain_refusal(case, scheme: str, built):
                     model.model_validate(data | {"k_v": float(k)})
                 b = copy.copy(built)
                 b.case = with_k_v(case, scheme, k)
+                scheme_validate(scheme, getattr(b.case.schemes, scheme), b.case)
                 make_controller(b, scheme, checked=False)
             except ValidationError as exc:
                 answers[k] = f"its table: {' '.join(str(exc.errors()[0].get('msg', exc)).split())}"
+            except FieldError as exc:  # its validate hook's refusal of the table
+                answers[k] = f"its validate: {exc.loc}: {exc.msg}"
             except FtcError as exc:
                 answers[k] = str(exc)
         return answers[k]

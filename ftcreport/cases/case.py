@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 from pathlib import Path
 from typing import get_args
@@ -164,7 +165,7 @@ class Case(_Strict):
             raise _FieldError("simulation.dt", "longer than the duration")
         _check_noise_clock(self.plant.noise, self.simulation)
         for sname in configured_schemes(self):  # each scheme's own checks of its table against the case
-            _scheme_validate(sname, getattr(self.schemes, sname), self)
+            scheme_validate(sname, getattr(self.schemes, sname), self)
         for key in ("a", "b", "r", "m", "I", "d"):
             v = getattr(self.plant.mismatch, key)
             count = n - 1 if key == "d" else n
@@ -544,15 +545,20 @@ def _rk4_on_currents(sim: Simulation, motors: list[MotorParams], drives: list[Dr
     )
 
 
-def _scheme_validate(name: str, table, case: Case) -> None:
+def scheme_validate(name: str, table, case: Case) -> None:
     """A scheme's own check of its table against the case (``Scheme.validate``): a ``fields.FieldError`` it
-    raises is the table's error; anything else a plug-in's validate raises is named by its file and line."""
+    raises is the table's error; anything else a plug-in's validate raises is named by its file and line.  A
+    plug-in's hook gets copies: what it changes in them (``object.__setattr__`` past the frozen models) is
+    not the case that runs."""
     from ..schemes import every
     from ..schemes.controller import hook
+    from ..schemes.registry import is_built_in
 
     sc = every().get(name)
     if sc is None or sc.validate is None:
         return
+    if not is_built_in(sc):
+        table, case = copy.deepcopy(table), case.model_copy(deep=True)
     try:
         hook(sc, "validate", sc.validate, table, case, passes=(_FieldError,))
     except PluginError as exc:

@@ -362,28 +362,29 @@ class FlatReference:
 
     def first_infeasible(
         self, duration: float, dt: float = 0.05, t0: float = 0.0
-    ) -> tuple[float, ReferenceError] | None:
-        """(the first instant of [t0, t0 + duration] where the reference is infeasible, :meth:`at`'s error
-        there), or None where it is feasible throughout: on a grid of ``dt``, then on a grid of dt / 1000
-        between the last feasible grid point and the first infeasible one (a run stops at its first step
-        past it; ``cases validate`` warns of it and ``analyze`` analyses up to it, the same instant)."""
-        grid = np.arange(t0, t0 + duration + 0.5 * dt, dt)
+    ) -> tuple[float, ReferenceError, float] | None:
+        """(the first instant of [t0, t0 + duration] found infeasible, :meth:`at`'s error there, the last
+        instant found feasible before it), or None where it is feasible throughout: on a grid of ``dt`` (its
+        last point the end, never past it), then of dt / 1000 between the last feasible grid point and the
+        first infeasible one (a run stops at its first step past it; ``cases validate`` warns of it and
+        ``analyze`` analyses up to the feasible instant, 50 us before at most).  Infeasible at t0: the last
+        feasible instant is t0 too."""
+        end = t0 + duration
+        grid = np.append(np.arange(t0, end, dt), end)
         bad = np.flatnonzero(~self.rows(grid)[2])
         if bad.size == 0:
             return None
         k = int(bad[0])
-        t = float(grid[k])
+        t, ok = float(grid[k]), float(grid[max(k - 1, 0)])
         if k > 0:
-            fine = np.linspace(float(grid[k - 1]), t, 1001)
-            t = float(fine[int(np.flatnonzero(~self.rows(fine)[2])[0])])
+            fine = np.linspace(ok, t, 1001)
+            j = int(np.flatnonzero(~self.rows(fine)[2])[0])
+            t, ok = float(fine[j]), float(fine[j - 1])
         try:
             self.at(t)
         except ReferenceError as exc:
-            return t, exc
-        return t, ReferenceError(f"infeasible reference at t = {t:.6g} s")  # rows and at disagree: say where
-
-
-A = "/work/main/ftcreport/analysis/case.py"
+            return t, exc, ok
+        return t, ReferenceError(f"infeasible reference at t = {t:.6g} s"), ok  # rows and at disagree: say where
 
 
 _TAYLOR_REACH = 1e-4  # [s] largest shift served from cached jets (truncation ~ delta^5: round-off)

@@ -113,6 +113,8 @@ def _memory_problem(
     """(field, reason) of a run over the memory budget: the part of the estimate that dominates (the time
     grid, the logged time series, or the scheme's model bank) and what brings it within the budget."""
     N = n_models(n) if models is None else models
+    from .registry import is_built_in
+
     banked = _budgeted(scheme) is not None
     extra, bank = _bank(n, scheme, N)
     per_sample = (_width(n) + extra) * 8
@@ -127,6 +129,14 @@ def _memory_problem(
         f"list fewer patterns in [schemes.{scheme}] patterns, leave {scheme} out of [schemes] run (list the schemes "
         f"to run there, without {scheme}, and drop [schemes.{scheme}]), or use fewer robots"
     )
+    if banked and not is_built_in(_budgeted(scheme)):  # a plug-in's own budget hook: no patterns field to name
+        from .controller import _hook_where
+
+        where = _hook_where(_budgeted(scheme), _budgeted(scheme).budget)
+        fewer = (
+            f"its budget hook ({where.rstrip(': ')}) declares {extra} values per sample and {_mib(bank)} MiB; "
+            f"leave {scheme} out of [schemes] run, or use fewer robots"
+        )
     if banked and bank >= max(grid, series):
         return (
             "robots.n",

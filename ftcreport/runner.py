@@ -159,7 +159,7 @@ def make_controller(built: Built, scheme: str, checked: bool = True):
     """The controller of one scheme of the case: the registered scheme bound to the case (ftcreport.schemes)."""
     from .evaluation.families import default_k_v
     from .schemes import SchemeContext, SchemeController, get
-    from .schemes.controller import hook
+    from .schemes.hooks import hook
     from .schemes.registry import is_built_in
 
     case = built.case
@@ -188,7 +188,7 @@ def make_controller(built: Built, scheme: str, checked: bool = True):
 def _face(value):
     """A plug-in's ``controller`` hook's result: a :class:`~ftcreport.schemes.SchemeController`."""
     from .schemes import SchemeController
-    from .schemes.controller import ResultError, one_line
+    from .schemes.hooks import ResultError, one_line
 
     if not isinstance(value, SchemeController):
         raise ResultError(f"returned {one_line(repr(value))[:80]}, not a SchemeController (ftcreport.schemes)")
@@ -199,7 +199,7 @@ def run_cost(case: Case, scheme: str) -> float:
     """A run's relative cost per step, ``Scheme.cost`` (1 without one): a finite number > 0, else a
     :class:`~ftcreport.errors.PluginError` naming the plug-in's hook (a batch orders its runs by it)."""
     from .schemes import get
-    from .schemes.controller import ResultError, hook, one_line
+    from .schemes.hooks import ResultError, hook, one_line
 
     sc = get(scheme)
     if sc.cost is None:
@@ -311,7 +311,7 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
     own = ctrl.scheme.metrics  # the scheme's own metrics (switching detection, adaptive weights, diagnosis)
     if own is not None:
         from .errors import PluginError
-        from .schemes.controller import hook
+        from .schemes.hooks import hook
         from .schemes.registry import is_built_in
 
         try:
@@ -327,7 +327,7 @@ def run_metrics(case: Case, scheme: str, run: Run, built: Built, ctrl) -> dict:
 def _metrics_dict(value, common: dict, plugin: bool = True) -> dict:
     """A ``metrics`` hook's result: a dict keyed by names, none of the ``common`` ones (a scheme's own
     metrics never overwrite the run's status, reason or tracking errors), its values what metrics.json holds."""
-    from .schemes.controller import ResultError, one_line
+    from .schemes.hooks import ResultError, one_line
 
     if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
         raise ResultError(f"returned {one_line(repr(value))[:80]}, not a dict of metrics keyed by name")

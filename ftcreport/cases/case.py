@@ -551,7 +551,7 @@ def scheme_validate(name: str, table, case: Case) -> None:
     plug-in's hook gets copies: what it changes in them (``object.__setattr__`` past the frozen models) is
     not the case that runs."""
     from ..schemes import every
-    from ..schemes.controller import hook
+    from ..schemes.hooks import hook
     from ..schemes.registry import is_built_in
 
     sc = every().get(name)

@@ -41,7 +41,7 @@ def _width(n: int) -> int:
 def _bank(n: int, scheme: str, N: int) -> tuple[int, int]:
     """(values logged per sample, bytes) a scheme keeps beyond the common ones (``Scheme.budget``), or (0, 0);
     a plug-in's budget that raises or returns anything else is named (:func:`.controller.hook`)."""
-    from .controller import hook
+    from .hooks import hook
 
     sc = _budgeted(scheme)
     return (0, 0) if sc is None else hook(sc, "budget", sc.budget, n, N, convert=_counts)
@@ -49,7 +49,7 @@ def _bank(n: int, scheme: str, N: int) -> tuple[int, int]:
 
 def _counts(value) -> tuple[int, int]:
     """A ``budget`` hook's result: (values logged per sample, bytes), two whole numbers >= 0."""
-    from .controller import ResultError, one_line
+    from .hooks import ResultError, one_line
 
     ok = isinstance(value, tuple | list) and len(value) == 2
     if not ok or not all(isinstance(v, int | np.integer) and not isinstance(v, bool) and v >= 0 for v in value):
@@ -130,9 +130,9 @@ def _memory_problem(
         f"to run there, without {scheme}, and drop [schemes.{scheme}]), or use fewer robots"
     )
     if banked and not is_built_in(_budgeted(scheme)):  # a plug-in's own budget hook: no patterns field to name
-        from .controller import _hook_where
+        from .hooks import hook_where
 
-        where = _hook_where(_budgeted(scheme), _budgeted(scheme).budget)
+        where = hook_where(_budgeted(scheme), _budgeted(scheme).budget)
         fewer = (
             f"its budget hook ({where.rstrip(': ')}) declares {extra} values per sample and {_mib(bank)} MiB; "
             f"leave {scheme} out of [schemes] run, or use fewer robots"

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import FtcError, ModelError, PluginError
+from ..errors import ModelError
 from .api import Scheme, SchemeContext
 from .budget import own_memory_problem
+from .hooks import ResultError, hook, hook_where, one_line
 
 __all__ = ["ENGINE_SIGNALS", "KINEMATIC_SIGNALS", "SchemeController"]
 
@@ -57,12 +58,12 @@ class SchemeController:
         ctx = self.ctx
         n_own = hook(scheme, "n_states", scheme.n_states, ctx)
         if isinstance(n_own, bool) or not isinstance(n_own, int | np.integer) or n_own < 0:
-            where = _hook_where(scheme, scheme.n_states)
+            where = hook_where(scheme, scheme.n_states)
             raise ModelError(f"{where}scheme {scheme.name}: n_states must be an int >= 0, got {one_line(repr(n_own))}")
         self.n_own = int(n_own)
         self.widths = _widths(scheme, ctx)
         if case is not None and (why := own_memory_problem(scheme.name, self.n_own, self.widths, case)) is not None:
-            raise ModelError(f"{_hook_where(scheme, scheme.n_states)}{why}")  # before any array of that size
+            raise ModelError(f"{hook_where(scheme, scheme.n_states)}{why}")  # before any array of that size
         self.P = hook(scheme, "pack", scheme.pack, ctx)
         stiff = None
         if scheme.stiff is not None:
@@ -116,71 +117,6 @@ class SchemeController:
         return hook(self.scheme, "derived", self.scheme.derived, self, xc, meas, costs)
 
 
-def hook(scheme: Scheme, role: str, fn, *args, convert=None, passes: tuple[type[BaseException], ...] = ()):
-    """``fn(*args)``, one of a scheme's declaration hooks; what a plug-in's own code raises becomes a
-    :class:`~ftcreport.errors.PluginError` naming its file and line, the scheme and the hook (a run of it
-    then ends with status error and that reason; the analysis lists it under ``not_analyzed``); an
-    ftcreport error it raises (or an ftcreport call in it raises) keeps its message, prefixed so.  An
-    error raised in ftcreport's own code alone is not the plug-in's and propagates as it is.
-
-    ``convert``: what is done with the hook's result (a shape, a type), under the same rule: a plug-in's
-    hook that returns what cannot be converted is named the same way.  For a plug-in (a scheme without a
-    built-in face) every exception counts, even one raised in a library its hook called (a builtin or a
-    numpy function given as the hook: the hook itself is named) and ``sys.exit`` in it.  ``passes``: what
-    the hook raises by design and its caller reads (``Scheme.validate``'s ``fields.FieldError``), as it is.
-    """
-    from .registry import is_built_in, user_frame
-
-    plugin = not is_built_in(scheme)
-    try:
-        out = fn(*args)
-        return out if convert is None else convert(out)
-    except (PluginError, *passes):
-        raise
-    except (Exception, SystemExit) as exc:
-        where = user_frame(exc) if isinstance(exc, Exception) else None
-        if where is None and not plugin:
-            raise
-        where = f"{where}: " if where else _hook_where(scheme, fn)
-        if isinstance(exc, SystemExit):
-            what = f"{role} called sys.exit({one_line(repr(exc.code))})"
-        elif isinstance(exc, ResultError):
-            what = f"{role} {exc.args[0]}"
-        elif isinstance(exc, FtcError):
-            what = f"{role}: {one_line(exc)}"
-        else:
-            what = f"{role} raised {type(exc).__name__}: {one_line(exc)}"
-        raise PluginError(f"{where}scheme {scheme.name}: {what}") from exc
-
-
-class ResultError(ValueError):
-    """A hook's result that is not what the hook must return (its words: 'returned ...')."""
-
-
-def one_line(obj) -> str:
-    """``str(obj)`` on one line, at most 300 characters; an object whose ``__str__`` raises, by its type."""
-    try:
-        text = str(obj)
-    except Exception:
-        text = f"<{type(obj).__name__} whose str() raised>"
-    return " ".join(text.split())[:300]
-
-
-def _hook_where(scheme: Scheme, fn) -> str:
-    """``file:line: `` of a hook's definition, else of the scheme's signals or law (its file), else nothing;
-    never one of ftcreport's own functions (a bound ``Scheme.signal_widths``)."""
-    from pathlib import Path
-
-    from .registry import _where
-
-    package = Path(__file__).resolve().parents[1]
-    for f in (fn, scheme.signals, scheme.law):
-        code = getattr(getattr(f, "py_func", f), "__code__", None)
-        if code is not None and not Path(code.co_filename).resolve().is_relative_to(package):
-            return f"{_where(f)}: "
-    return ""
-
-
 def _floats(value, n: int, role: str, finite: bool = True) -> np.ndarray:
     """A hook's result as n floats (``stiff``, ``initial_state``), or :class:`ResultError` saying what it was."""
     if value is None:
@@ -205,7 +141,7 @@ def _names(value) -> tuple[str, ...]:
 
 def _check_derived(scheme: Scheme, names: tuple[str, ...], widths: dict[str, int]) -> None:
     """The derived signals' names: identifiers, none the engine's, the kinematic controller's or the law's."""
-    where = _hook_where(scheme, scheme.derived_names if callable(scheme.derived_names) else scheme.derived)
+    where = hook_where(scheme, scheme.derived_names if callable(scheme.derived_names) else scheme.derived)
     for name in names:
         if not isinstance(name, str) or not name.isidentifier():
             raise ModelError(f"{where}scheme {scheme.name}: derived signal name {name!r} is not an identifier")
@@ -221,7 +157,7 @@ def _check_derived(scheme: Scheme, names: tuple[str, ...], widths: dict[str, int
 def _widths(scheme: Scheme, ctx: SchemeContext) -> dict[str, int]:
     """The declared signals, checked: identifiers, whole widths >= 1, no kinematic or engine signal's name."""
     widths = hook(scheme, "signals", scheme.signal_widths, ctx)
-    where = _hook_where(scheme, scheme.signals)
+    where = hook_where(scheme, scheme.signals)
     for name, width in widths.items():
         if not isinstance(name, str) or not name.isidentifier():
             raise ModelError(f"{where}scheme {scheme.name}: signal name {name!r} is not an identifier")

@@ -36,6 +36,16 @@ def _invoke(*args: str):
     return CliRunner().invoke(app, list(args))
 
 
+def _raising(tmp_path, name: str, role: str, duration: float | None = None):
+    """A case whose plug-in's ``role`` hook raises RuntimeError('<name> boom'): (its path, the words that name
+    the hook's line), after checking that ``cases validate`` refuses it with them (exit 2)."""
+    path = plugin_case(tmp_path, name, _with_hook(role, f"raise RuntimeError('{name} boom')"), duration)
+    words = f"{name}.py:{_line(path, f'{name} boom')}: scheme {name}: {role} raised RuntimeError: {name} boom"
+    res = _invoke("cases", "validate", str(path))
+    assert res.exit_code == 2 and words in " ".join(res.output.split()), res.output
+    return path, words
+
+
 def test_a_validate_or_budget_hook_that_raises_is_named_by_its_line(tmp_path):
     """Were exit 3 in validate and analyze: now exit 2 naming the table, the file and line and the hook."""
     for role in ("validate", "budget"):
@@ -72,11 +82,7 @@ def test_a_controller_hook_that_raises_fails_its_runs_and_is_not_analyzed(tmp_pa
     from ftcreport.analysis import analyze_case
     from ftcreport.runner import run_scheme
 
-    path = plugin_case(tmp_path, "raising_face", _with_hook("controller", "raise RuntimeError('face boom')"), 2.0)
-    line = _line(path, "face boom")
-    words = f"raising_face.py:{line}: scheme raising_face: controller raised RuntimeError: face boom"
-    res = _invoke("cases", "validate", str(path))
-    assert res.exit_code == 2 and words in " ".join(res.output.split()), res.output
+    path, words = _raising(tmp_path, "raising_face", "controller", 2.0)
     case = load_case(path)
     out = analyze_case(case, margins=False, limits=False)
     assert words in out["not_analyzed"]["raising_face"] and "raising_face" not in out["phases"]
@@ -121,11 +127,7 @@ def test_a_metrics_hook_that_returns_no_dict_is_named(tmp_path):
 
 def test_a_cost_hook_that_raises_is_an_error_in_validate_and_only_a_warning_in_batch(tmp_path):
     """The cost only orders a batch's runs: the batch warns and runs the case; validate refuses it."""
-    path = plugin_case(tmp_path, "raising_cost", _with_hook("cost", "raise RuntimeError('cost boom')"), 1.0)
-    line = _line(path, "cost boom")
-    words = f"raising_cost.py:{line}: scheme raising_cost: cost raised RuntimeError: cost boom"
-    res = _invoke("cases", "validate", str(path))
-    assert res.exit_code == 2 and words in " ".join(res.output.split()), res.output
+    path, words = _raising(tmp_path, "raising_cost", "cost", 1.0)
     out = tmp_path / "out"
     res = _invoke("batch", str(path), "--out", str(out), "--jobs", "1")
     assert res.exit_code == 0, res.output

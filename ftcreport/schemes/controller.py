@@ -139,15 +139,24 @@ def _names(value) -> tuple[str, ...]:
     return tuple(value)
 
 
+def _name_problem(name) -> str | None:
+    """Why a signal's name cannot be logged beside the engine's ('name 5 is not an identifier', "'q' is a name
+    the engine logs (the chain's configuration); rename it"), else None: the law's and derived signals alike."""
+    if not isinstance(name, str) or not name.isidentifier():
+        return f"name {name!r} is not an identifier"
+    if name in KINEMATIC_SIGNALS:
+        return f"{name!r} is a kinematic signal the engine logs; rename it"
+    if name in ENGINE_SIGNALS:
+        return f"{name!r} is a name the engine logs ({ENGINE_SIGNALS[name]}); rename it"
+    return None
+
+
 def _check_derived(scheme: Scheme, names: tuple[str, ...], widths: dict[str, int]) -> None:
     """The derived signals' names: identifiers, none the engine's, the kinematic controller's or the law's."""
     where = hook_where(scheme, scheme.derived_names if callable(scheme.derived_names) else scheme.derived)
     for name in names:
-        if not isinstance(name, str) or not name.isidentifier():
-            raise ModelError(f"{where}scheme {scheme.name}: derived signal name {name!r} is not an identifier")
-        if name in ENGINE_SIGNALS or name in KINEMATIC_SIGNALS:
-            what = ENGINE_SIGNALS.get(name, "a kinematic signal")
-            raise ModelError(f"{where}scheme {scheme.name}: derived signal {name!r} is a name the engine logs ({what})")
+        if (why := _name_problem(name)) is not None:
+            raise ModelError(f"{where}scheme {scheme.name}: derived signal {why}")
         if name in widths:
             raise ModelError(
                 f"{where}scheme {scheme.name}: derived signal {name!r} is also a signal of the law (signals)"
@@ -159,15 +168,8 @@ def _widths(scheme: Scheme, ctx: SchemeContext) -> dict[str, int]:
     widths = hook(scheme, "signals", scheme.signal_widths, ctx)
     where = hook_where(scheme, scheme.signals)
     for name, width in widths.items():
-        if not isinstance(name, str) or not name.isidentifier():
-            raise ModelError(f"{where}scheme {scheme.name}: signal name {name!r} is not an identifier")
-        if name in KINEMATIC_SIGNALS:
-            raise ModelError(f"{where}scheme {scheme.name}: signal {name!r} is a kinematic signal the engine logs")
-        if name in ENGINE_SIGNALS:
-            what = ENGINE_SIGNALS[name]
-            raise ModelError(
-                f"{where}scheme {scheme.name}: signal {name!r} is a name the engine logs ({what}); rename it"
-            )
+        if (why := _name_problem(name)) is not None:
+            raise ModelError(f"{where}scheme {scheme.name}: signal {why}")
         if isinstance(width, bool) or not isinstance(width, int | np.integer) or width < 1:
             raise ModelError(f"{where}scheme {scheme.name}: signal {name!r}: width must be an int >= 1, got {width!r}")
     return {k: int(v) for k, v in widths.items()}

@@ -127,20 +127,70 @@ def central_columns(f, x0: np.ndarray, columns=None, step: float = STEP) -> np.n
     return out
 
 
-def directional(f, x0: np.ndarray, v: np.ndarray, step: float = STEP, x0_norm: float | None = None) -> np.ndarray:
-    """``J(x0) v`` by a central difference along v (h scaled to v and x0; ``x0_norm``: |x0| if known).
+#: entries of a batch of evaluation points (:func:`central_rows`): 8 MB, ~28 rows of six robots' adaptive weights
+BATCH_ENTRIES = 1 << 20
+
+
+def central_rows(f_rows, x0: np.ndarray, columns=None, step: float = STEP) -> np.ndarray:
+    """:func:`central_columns` with f evaluated a batch of points at a time: ``f_rows(X)`` is f at each row
+    of X, an (m, len(f)) array (:meth:`SchemeLoop._rows_at`: one compiled call for the batch).
+
+    The points are those of :func:`central_columns`, in its order (``x0 + h e_j``, then ``x0 - h e_j``,
+    column by column), in batches of at most :data:`BATCH_ENTRIES` entries; each column is computed by
+    the same operations, so the two give the same numbers bit for bit (``tests/test_linear_loop.py``).
+    """
+    x0 = np.asarray(x0, dtype=float)
+    cols = list(range(x0.size) if columns is None else columns)
+    if not cols:
+        return np.zeros((np.asarray(f_rows(x0[None, :])).shape[1], 0))
+    per = max(1, BATCH_ENTRIES // max(1, 2 * x0.size))  # columns per batch
+    out = None
+    for s in range(0, len(cols), per):
+        block = cols[s : s + per]
+        hs = np.array([step * max(1.0, abs(x0[j])) for j in block])
+        X = np.repeat(x0[None, :], 2 * len(block), axis=0)
+        for k, j in enumerate(block):
+            X[2 * k, j] += hs[k]
+            X[2 * k + 1, j] -= hs[k]
+        F = np.asarray(f_rows(X), dtype=float)
+        if out is None:
+            out = np.empty((F.shape[1], len(cols)), order="F")
+        diff = np.subtract(F[0::2], F[1::2])
+        diff /= (2.0 * hs)[:, None]
+        out[:, s : s + len(block)] = diff.T
+    return out
+
+
+def directional_rows(f_rows, x0: np.ndarray, V: np.ndarray, step: float = STEP,
+                     x0_norm: float | None = None) -> np.ndarray:  # fmt: skip
+    """``J(x0) V``: a central difference along each column v of V (h scaled to v and x0; ``x0_norm``: |x0|
+    if known), f evaluated in one batch (``f_rows`` as in :func:`central_rows`).
 
     The norms are sums of squares, not ``np.linalg.norm``: on a vector of 36,840 adaptive weights that
     calls the threaded BLAS, 27 ms a call on the loaded 2-core machine against 0.1 ms.
     """
-    nv = math.sqrt(float(np.sum(v * v)))
-    if nv == 0.0:
-        return np.zeros(np.asarray(f(x0)).size)
+    x0 = np.asarray(x0, dtype=float)
     if x0_norm is None:
         x0_norm = math.sqrt(float(np.sum(x0 * x0)))
-    h = step * max(1.0, x0_norm) / nv
-    hv = h * v
-    return (np.asarray(f(x0 + hv)) - np.asarray(f(x0 - hv))) / (2.0 * h)
+    hs = []
+    for k in range(V.shape[1]):
+        nv = math.sqrt(float(np.sum(V[:, k] * V[:, k])))
+        hs.append(step * max(1.0, x0_norm) / nv if nv != 0.0 else 0.0)
+    along = [k for k, h in enumerate(hs) if h != 0.0]
+    if not along:
+        return np.zeros((np.asarray(f_rows(x0[None, :])).shape[1], V.shape[1]))
+    X = np.empty((2 * len(along), x0.size))  # the points written in place (20 rows of 36,852 weights)
+    hv = np.empty(x0.size)
+    for r, k in enumerate(along):
+        np.multiply(hs[k], V[:, k], out=hv)
+        np.add(x0, hv, out=X[2 * r])
+        np.subtract(x0, hv, out=X[2 * r + 1])
+    F = np.asarray(f_rows(X), dtype=float)
+    out = np.zeros((F.shape[1], V.shape[1]))
+    for r, k in enumerate(along):
+        np.subtract(F[2 * r], F[2 * r + 1], out=out[:, k])
+        out[:, k] /= 2.0 * hs[k]
+    return out
 
 
 # ----------------------------------------------------------------------------------------------- plant
@@ -366,6 +416,9 @@ class SchemeLoop:
         # the same states in the law's buffer of the own states' rates (after the nk kinematic states, held)
         nk = self.nk
         self._own = slice(self._lin.start - nk, self._lin.stop - nk) if contiguous else lin - nk
+        self._held_index = np.array(sorted(self.held), dtype=int)
+        # every own state linearized (the adaptive weights): the law's rates are the rows' own, uncopied
+        self._own_all = contiguous and self._own == slice(0, int(self.ctrl.n_states) - nk)
         self._linearized_at: dict[tuple, Blocks] = {}  # :meth:`blocks` by the content of its arguments
         self._ukf_law = _ukf_law(self.ctrl)  # the UKF scheme's compiled parameters (:meth:`_ukf_map`), or None
 
@@ -409,13 +462,13 @@ class SchemeLoop:
             if J is None or not J.size:
                 continue
             big = float(np.abs(pt.a).max(initial=0.0))
-            if not np.all(np.isfinite(J)):
+            top = float(np.abs(J).max())  # NaN when J holds one (one pass over J: 36,864 rows for six robots)
+            if not math.isfinite(top):
                 raise ModelError(
                     f"{self._whose()}scheme {self.scheme}: at t = {pt.t:g} s {words[name]} ({name}) is not finite: "
                     f"the loop's outputs overflow or leave their domain within a central difference's step of the "
                     f"operating point (largest |{self.plant.input_name}| there {big:.3g})"
                 )
-            top = float(np.abs(J).max())
             if top > _OVERFLOW:
                 raise ModelError(
                     f"{self._whose()}scheme {self.scheme}: at t = {pt.t:g} s {words[name]} ({name}) reaches "
@@ -467,6 +520,53 @@ class SchemeLoop:
         st, ut = self.plant.true_faults(xp, fz)
         a = self._actuator(self._command(t, y[:nq], y[nq : nq + 2], xc, st, ut), y, fz)
         return np.concatenate((a, self._bufs[2][self._own])) if rates else a
+
+    def _rows_at(self, t: float, XP: np.ndarray, Y: np.ndarray, XC: np.ndarray, fz: Faults,
+                 rates: bool = True) -> np.ndarray:  # fmt: skip
+        """:meth:`_rows` at each row of (XP, Y, XC), (m, len): the law evaluated for all of them in one
+        compiled call (the loop's ``law_rows``), the same numbers as :meth:`_rows` row by row.  An
+        argument of one row serves every row."""
+        nq = self.n_q
+        XP, Y, XC = (np.ascontiguousarray(np.atleast_2d(v), dtype=float) for v in (XP, Y, XC))
+        m = max(XP.shape[0], Y.shape[0], XC.shape[0])
+        if self.plant.motors is None:
+            ST, UT = fz.sigma[None, :], fz.ubar[None, :]
+        else:  # the faults the chain sees depend on its wheel speeds (an oracle reads them)
+            pairs = [self.plant.true_faults(xp, fz) for xp in XP]
+            ST, UT = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+        ST, UT = np.ascontiguousarray(ST, dtype=float), np.ascontiguousarray(UT, dtype=float)
+        nw, n_own = self.plant.nw, int(self.ctrl.n_states) - self.nk
+        OUT = np.empty((m, nw + (n_own if rates else 0)))  # [u, the own states' rates] per row
+        info = np.zeros(4)
+        spec = self.spec
+        self._loop.law_rows(
+            (spec.P, self._bufs), spec.kin, spec.ref, spec.chain, float(t), np.ascontiguousarray(Y[:, :nq]),
+            np.ascontiguousarray(Y[:, nq : nq + 2]), XC, ST, UT, info, OUT,
+        )  # fmt: skip
+        if info[0] != 0:
+            raise ModelError(self._stopped("law", t, info))
+        if self.plant.motors is not None:  # the drive's signal for each command, at its row's measurement
+            for r in range(m):
+                OUT[r, :nw] = self._actuator(OUT[r, :nw], Y[min(r, Y.shape[0] - 1)], fz)
+        if not rates or self._own_all:
+            return OUT
+        return np.hstack((OUT[:, :nw], OUT[:, nw:][:, self._own]))
+
+    def _discrete_rows(self, t: float, Y: np.ndarray, XC: np.ndarray) -> np.ndarray:
+        """:meth:`discrete` at each row of (Y, XC) (one row of Y serves every row): the updated copies,
+        from one compiled call (the loop's ``discrete_rows``)."""
+        nq = self.n_q
+        Y = np.ascontiguousarray(np.atleast_2d(Y), dtype=float)
+        out = np.array(np.atleast_2d(XC), dtype=float, order="C")
+        info = np.zeros(4)
+        spec = self.spec
+        self._loop.discrete_rows(
+            (spec.P, self._bufs), spec.kin, spec.ref, spec.chain, float(t), np.ascontiguousarray(Y[:, :nq]),
+            np.ascontiguousarray(Y[:, nq : nq + 2]), out, info,
+        )  # fmt: skip
+        if info[0] != 0:
+            raise ModelError(self._stopped("discrete update", t, info))
+        return out
 
     def _actuator(self, u: np.ndarray, y: np.ndarray, fz: Faults) -> np.ndarray:
         """The held actuator signal for the law's u at the measurement y (:meth:`Plant.command`)."""
@@ -537,32 +637,35 @@ class SchemeLoop:
         lin = self._lin_index
         at = self._lin  # the same states, for indexing
 
-        def g(xp, y, xc):
-            return self._rows(t, xp, y, xc, fz)  # [a, c']
+        xp1, y1, xc1 = pt.xp[None, :], y0[None, :], pt.xc[None, :]
 
-        work = pt.xc.copy()
+        held_at = self._held_index
 
-        def with_c(c):  # the controller state with its linearized entries c (one buffer: 36,853 entries)
-            work[at] = c
-            return work
+        def with_c(C):  # the controller states with their linearized entries the rows of C (one pass)
+            XC = np.empty((C.shape[0], pt.xc.size))
+            XC[:, held_at] = pt.xc[held_at]
+            XC[:, at] = C
+            return XC
 
-        Gy = central_columns(lambda y: g(pt.xp, y, pt.xc), y0)
+        # [a, c'] at batches of points (:meth:`_rows_at`): the measurement, the true state or the scheme's states varied
+        Gy = central_rows(lambda Y: self._rows_at(t, xp1, Y, xc1, fz), y0)
         self._finite(pt, Fx=Fx, Fa=Fa, Gy=Gy)
         motor_faults = self.plant.motors is not None and fz.motor.size and np.any(fz.motor != _healthy_row())
         Gx = None  # zero unless the motors are faulty (then the controller reads the true plant state)
         if motor_faults:  # the oracle is told the faults the chain sees, which depend on the wheel speeds
-            Gx = central_columns(lambda x: g(x, y0, pt.xc), pt.xp)
+            Gx = central_rows(lambda X: self._rows_at(t, X, y1, xc1, fz), pt.xp)
             if not np.any(Gx):
                 Gx = None
         c0 = pt.xc[at]
+        g_c = lambda C: self._rows_at(t, xp1, y1, with_c(C), fz)  # noqa: E731
         disc = None
         if self.has_disc:
             if period is None:
                 raise ModelError(f"scheme {self.scheme}: its discrete update needs a sample time to be linearized")
             disc = self._discrete_map(pt, period, at)
         elif lin.size and Gx is None:
-            torque = lambda c: self._rows(t, pt.xp, y0, with_c(c), fz, rates=False)  # noqa: E731
-            block = _parameter_block(lambda c: g(pt.xp, y0, with_c(c)), c0, Gy, na, basis, torque)
+            torque = lambda C: self._rows_at(t, xp1, y1, with_c(C), fz, rates=False)  # noqa: E731
+            block = _parameter_block(g_c, c0, Gy, na, basis, torque)
             if block is not None:
                 Gy_r, Gc_r, U = block
                 self._finite(pt, Gy=Gy_r, Gc=Gc_r)
@@ -572,7 +675,7 @@ class SchemeLoop:
                     dropped=int(lin.size - rank), parameter_block=int(lin.size), omega=pt.omega, frame=[(0, 1)],
                     basis=U,
                 )  # fmt: skip
-        Gc = central_columns(lambda c: g(pt.xp, y0, with_c(c)), c0)
+        Gc = central_rows(g_c, c0)
         self._finite(pt, Gx=Gx, Gc=Gc)
         if Gx is None:
             Gx = np.zeros((na + lin.size, self.plant.n_states))
@@ -598,19 +701,19 @@ class SchemeLoop:
         The UKF scheme's through its filter step's derivative (:meth:`_ukf_map`); any other by central
         differences of the update.
         """
-        nq, ny = self.n_q, self.n_q + 2
+        ny = self.n_q + 2
         xc0 = pt.xc.copy()
         y0 = pt.xp[:ny].copy()
         if self._ukf_law is not None and float(pt.t) - xc0[self.ctrl._t.start] > 0.0:
             return self._ukf_map(pt, lin)
 
-        def d(y, c):
-            xc = xc0.copy()
-            xc[lin] = c
-            return self.discrete(pt.t, y[:nq], y[nq:ny], xc)[lin]
+        def d(Y, C):  # the update at rows of (Y, C), C the linearized states
+            XC = np.repeat(xc0[None, :], max(Y.shape[0], C.shape[0]), axis=0)
+            XC[:, lin] = C
+            return self._discrete_rows(pt.t, Y, XC)[:, lin]
 
-        Dc = central_columns(lambda c: d(y0, c), xc0[lin])
-        Dy = central_columns(lambda y: d(y, xc0[lin]), y0)
+        Dc = central_rows(lambda C: d(y0[None, :], C), xc0[lin])
+        Dy = central_rows(lambda Y: d(Y, xc0[lin][None, :]), y0)
         return Dc, Dy
 
     def _ukf_map(self, pt: Point, lin: slice | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -656,18 +759,18 @@ class SchemeLoop:
         Ey = np.zeros((n, ny))
         Ey[rows, :nq] = J[:, nx + nw :]
         c0, c1 = xc0[lin], xc1[lin]
-
-        def law_at(c, y):
-            xc = xc1.copy()
-            xc[lin] = c
-            return self.discrete(t, y[:nq], y[nq:ny], xc)[lin]
-
-        def column(v, w, h):  # the law's central difference along (v, w), the step's image of a perturbation
-            return (law_at(c1 + h * v, y0 + h * w) - law_at(c1 - h * v, y0 - h * w)) / (2.0 * h)
-
+        # the law's central differences along (v, w), the step's image of a perturbation: every point's
+        # law in one compiled call (:meth:`_discrete_rows`), the columns of Dc and then of Dy
         zero = np.zeros(ny)
-        Dc = np.column_stack([column(Ec[:, j], zero, STEP * max(1.0, abs(c0[j]))) for j in range(n)])
-        Dy = np.column_stack([column(Ey[:, k], np.eye(ny)[k], STEP * max(1.0, abs(y0[k]))) for k in range(ny)])
+        dirs = [(Ec[:, j], zero, STEP * max(1.0, abs(c0[j]))) for j in range(n)]
+        dirs += [(Ey[:, k], np.eye(ny)[k], STEP * max(1.0, abs(y0[k]))) for k in range(ny)]
+        C = np.array([c1 + s * h * v for v, _w, h in dirs for s in (1.0, -1.0)])
+        Y = np.array([y0 + s * h * w for _v, w, h in dirs for s in (1.0, -1.0)])
+        XC = np.repeat(xc1[None, :], C.shape[0], axis=0)
+        XC[:, lin] = C
+        out = self._discrete_rows(t, Y, XC)[:, lin]
+        D = np.column_stack([(out[2 * k] - out[2 * k + 1]) / (2.0 * h) for k, (_v, _w, h) in enumerate(dirs)])
+        Dc, Dy = D[:, :n], D[:, n:]
         Dc[rows], Dy[rows] = Ec[rows], Ey[rows]  # x+ is the step's: its derivative, not its difference
         return Dc, Dy
 
@@ -959,22 +1062,21 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarr
     The other modes are constant: weight combinations that leave the torque unchanged, and torque
     offsets the adaptation never moves (both block-triangular, eigenvalue 0, outside the loop).  The
     check that the rates do not read the states probes two random directions.  Costs O(ny) law
-    evaluations instead of O(len(c)) (7,670 weights for five robots).  ``g(c)`` returns
-    [a, c'] at the point's measurement, ``torque(c)`` its a rows alone (default: from g), ``Gy`` its
-    Jacobian in y (a rows first).  Returns (Gy, Gc) of
+    evaluations instead of O(len(c)) (7,670 weights for five robots).  ``g(C)`` returns
+    [a, c'] at the point's measurement for each row of C (a batch: :func:`directional_rows`),
+    ``torque(C)`` its a columns alone (default: from g), ``Gy`` its Jacobian in y (a rows first).  Returns (Gy, Gc) of
     [a, xi] and the basis U (``basis``: use this one, e.g. the same loop's at another gain), or None
     when the states have dynamics of their own (then each is differentiated).
     """
     V = _probes(c0.size)
-    probes = V.shape[1]
     norm = math.sqrt(float(np.sum(c0 * c0)))  # every direction below differentiates at c0
-    outs = np.column_stack([directional(g, c0, V[:, k], x0_norm=norm) for k in range(probes)])
+    outs = directional_rows(g, c0, V, x0_norm=norm)
     scale = max(1.0, float(np.abs(outs[:na]).max()))
     if np.abs(outs[na:]).max() > 1e-7 * scale:
         return None  # the states' rates read the states: differentiate them all
     # W = K_c G_cy: the torque's rate along each measurement direction
-    torque = (lambda c: g(c)[:na]) if torque is None else torque
-    W = np.column_stack([directional(torque, c0, Gy[na:, k], x0_norm=norm) for k in range(Gy.shape[1])])
+    torque = (lambda C: g(C)[:, :na]) if torque is None else torque
+    W = directional_rows(torque, c0, Gy[na:], x0_norm=norm)
     if basis is None:
         U, s, _ = np.linalg.svd(W, full_matrices=False)
         # directions below 1e-6 of the largest are the differences' error (~1e-9 here), not dynamics

@@ -586,6 +586,49 @@ def first_discrete(P, Kp, R, pc, t, q, eta, xc, info):
 
 
 @jit
+def law_rows(P, Kp, R, pc, t, Q, ETA, XC, ST, UT, info, OUT):
+    """:func:`first_law` at each row r of (Q, ETA, XC, ST, UT) in turn (an input of one row serves every
+    row): the command in ``OUT[r, :nw]`` and, when OUT is wider, the own states' rates after it.  The
+    linearized analysis's central differences (ftcreport.analysis.closed_loop) take many evaluations at
+    one instant; one call for all of them saves each its entry from Python, which costs more than a
+    small law.  Returns the rows done: all of them, or the row whose call stopped (info says why)."""
+    Pr, Kr, Rr, pr = as_ref(P), as_ref(Kp), as_ref(R), as_ref(pc)
+    none = np.zeros(0)
+    m = OUT.shape[0]
+    for r in range(m):
+        C = as_ref(KCACHE(pc.n))  # a new kinematic cache per row, as first_law's per call
+        u, dx = _law(
+            Pr, Kr, Rr, C, pr, t, Q[r if Q.shape[0] > 1 else 0], ETA[r if ETA.shape[0] > 1 else 0],
+            XC[r if XC.shape[0] > 1 else 0], ST[r if ST.shape[0] > 1 else 0], UT[r if UT.shape[0] > 1 else 0],
+            info, none,
+        )  # fmt: skip
+        if info[0] != 0:
+            return r
+        nw = u.shape[0]
+        OUT[r, :nw] = u
+        if OUT.shape[1] > nw:
+            OUT[r, nw:] = dx
+    return m
+
+
+@jit
+def discrete_rows(P, Kp, R, pc, t, Q, ETA, XC, info):
+    """:func:`first_discrete` on each row r of XC in place, at (Q[r], ETA[r]) (one row serves every row).
+    Returns the rows done: all of them, or the row whose update stopped (info says why)."""
+    Pr, Kr, Rr, pr = as_ref(P), as_ref(Kp), as_ref(R), as_ref(pc)
+    nw = 2 * pc.n
+    m = XC.shape[0]
+    for r in range(m):
+        C = as_ref(KCACHE(pc.n))
+        z = np.zeros(nw)  # as first_discrete's per call: an update that writes its inputs spoils no other row
+        _disc(Pr, Kr, Rr, C, pr, t, Q[r if Q.shape[0] > 1 else 0], ETA[r if ETA.shape[0] > 1 else 0], XC[r],
+              z + 1.0, z, info)  # fmt: skip
+        if info[0] != 0:
+            return r
+    return m
+
+
+@jit
 def run_steps(
     P0, Kp0, R0, pc0, pp0,
     grid, fidx, fsig, fubar, noise, sat, diag, method, lim, max_speed, max_position,

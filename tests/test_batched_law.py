@@ -158,3 +158,20 @@ def test_a_plugin_law_that_raises_in_a_batch_is_named_as_in_one_call(tmp_path):
         loop._rows_at(1.0, pt.xp[None, :], Y, pt.xc[None, :], fz)
     assert str(batch.value) == str(single.value)
     assert "q far off" in str(batch.value) and "batch_raiser.py" in str(batch.value)
+
+
+def test_the_rates_range_keeps_every_direction_above_its_floor(rng):
+    """closed_loop._range: G = D R up to the singular values below RANGE_FLOOR of the largest, so K_c G is
+    K_c D R (the parameter block's W from 2 rank law evaluations): a rank-2 matrix with noise at 1e-9 of it
+    (the six-robot adaptive law's rates: 1, 1.3e-2, then 1e-8) gives rank 2, a direction at 1e-5 is kept."""
+    from ftcreport.analysis.closed_loop import RANGE_FLOOR, _range
+
+    U = np.linalg.qr(rng.standard_normal((500, 10)))[0]
+    V = np.linalg.qr(rng.standard_normal((10, 10)))[0]
+    for s, rank in (([1.0, 1.3e-2] + [1e-9] * 8, 2), ([1.0, 1.3e-2, 1e-5] + [1e-10] * 7, 3)):
+        G = U @ np.diag(s) @ V.T
+        D, R = _range(G)
+        assert D.shape == (500, rank) and R.shape == (rank, 10)
+        assert np.abs(D @ R - G).max() < 10 * RANGE_FLOOR * np.abs(G).max()
+        assert np.abs(D @ R - G).max() < 1e-8  # what is dropped is the noise, not a direction
+    assert _range(np.zeros((5, 3)))[0].shape == (5, 0)

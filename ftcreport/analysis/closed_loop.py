@@ -155,19 +155,22 @@ def central_rows(f_rows, x0: np.ndarray, columns=None, step: float = STEP) -> np
         F = np.asarray(f_rows(X), dtype=float)
         if out is None:
             out = np.empty((F.shape[1], len(cols)), order="F")
-        diff = np.subtract(F[0::2], F[1::2])
-        diff /= (2.0 * hs)[:, None]
-        out[:, s : s + len(block)] = diff.T
+        for k in range(len(block)):  # into out's contiguous column, no temporary (36,864 rows for six robots)
+            col = out[:, s + k]
+            np.subtract(F[2 * k], F[2 * k + 1], out=col)
+            col /= 2.0 * hs[k]
     return out
 
 
 def directional_rows(f_rows, x0: np.ndarray, V: np.ndarray, step: float = STEP,
-                     x0_norm: float | None = None) -> np.ndarray:  # fmt: skip
+                     x0_norm: float | None = None, embed=None) -> np.ndarray:  # fmt: skip
     """``J(x0) V``: a central difference along each column v of V (h scaled to v and x0; ``x0_norm``: |x0|
     if known), f evaluated in one batch (``f_rows`` as in :func:`central_rows`).
 
     The norms are sums of squares, not ``np.linalg.norm``: on a vector of 36,840 adaptive weights that
-    calls the threaded BLAS, 27 ms a call on the loaded 2-core machine against 0.1 ms.
+    calls the threaded BLAS, 27 ms a call on the loaded 2-core machine against 0.1 ms.  ``embed``
+    ``(z, at, held)``: x is the part ``z[at]`` of a longer vector z (a scheme's state), and f_rows takes
+    rows of z, each written once with ``z[held]`` and the varied x at ``at``.
     """
     x0 = np.asarray(x0, dtype=float)
     if x0_norm is None:
@@ -179,12 +182,19 @@ def directional_rows(f_rows, x0: np.ndarray, V: np.ndarray, step: float = STEP,
     along = [k for k, h in enumerate(hs) if h != 0.0]
     if not along:
         return np.zeros((np.asarray(f_rows(x0[None, :])).shape[1], V.shape[1]))
-    X = np.empty((2 * len(along), x0.size))  # the points written in place (20 rows of 36,852 weights)
+    # the points written in place (20 rows of 36,852 weights for six robots), in z when embedded
+    z, at, held = embed if embed is not None else (x0, slice(0, x0.size), np.zeros(0, dtype=int))
+    X = np.empty((2 * len(along), z.size))
+    X[:, held] = z[held]
     hv = np.empty(x0.size)
     for r, k in enumerate(along):
         np.multiply(hs[k], V[:, k], out=hv)
-        np.add(x0, hv, out=X[2 * r])
-        np.subtract(x0, hv, out=X[2 * r + 1])
+        if isinstance(at, slice):  # a view: written directly
+            np.add(x0, hv, out=X[2 * r, at])
+            np.subtract(x0, hv, out=X[2 * r + 1, at])
+        else:
+            X[2 * r, at] = x0 + hv
+            X[2 * r + 1, at] = x0 - hv
     F = np.asarray(f_rows(X), dtype=float)
     out = np.zeros((F.shape[1], V.shape[1]))
     for r, k in enumerate(along):
@@ -462,7 +472,7 @@ class SchemeLoop:
             if J is None or not J.size:
                 continue
             big = float(np.abs(pt.a).max(initial=0.0))
-            top = float(np.abs(J).max())  # NaN when J holds one (one pass over J: 36,864 rows for six robots)
+            top = max(float(J.max()), -float(J.min()))  # NaN when J holds one (no |J| copy: 36,864 rows)
             if not math.isfinite(top):
                 raise ModelError(
                     f"{self._whose()}scheme {self.scheme}: at t = {pt.t:g} s {words[name]} ({name}) is not finite: "
@@ -658,14 +668,15 @@ class SchemeLoop:
                 Gx = None
         c0 = pt.xc[at]
         g_c = lambda C: self._rows_at(t, xp1, y1, with_c(C), fz)  # noqa: E731
+        g_z = lambda XC: self._rows_at(t, xp1, y1, XC, fz)  # noqa: E731  (rows of the whole state)
         disc = None
         if self.has_disc:
             if period is None:
                 raise ModelError(f"scheme {self.scheme}: its discrete update needs a sample time to be linearized")
             disc = self._discrete_map(pt, period, at)
         elif lin.size and Gx is None:
-            torque = lambda C: self._rows_at(t, xp1, y1, with_c(C), fz, rates=False)  # noqa: E731
-            block = _parameter_block(g_c, c0, Gy, na, basis, torque)
+            torque = lambda XC: self._rows_at(t, xp1, y1, XC, fz, rates=False)  # noqa: E731
+            block = _parameter_block(g_z, c0, Gy, na, basis, torque, embed=(pt.xc, at, held_at))
             if block is not None:
                 Gy_r, Gc_r, U = block
                 self._finite(pt, Gy=Gy_r, Gc=Gc_r)
@@ -1048,7 +1059,8 @@ def _closure(dep: np.ndarray, seed: np.ndarray) -> np.ndarray:
         member = new
 
 
-def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarray | None = None, torque=None):
+def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarray | None = None, torque=None,
+                     embed=None):  # fmt: skip
     r"""Scheme states without dynamics of their own, replaced by the part of their image the loop reaches.
 
     When the states c have ``dc'/dc = 0`` at the point and reach the plant only through a (the
@@ -1062,21 +1074,26 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarr
     The other modes are constant: weight combinations that leave the torque unchanged, and torque
     offsets the adaptation never moves (both block-triangular, eigenvalue 0, outside the loop).  The
     check that the rates do not read the states probes two random directions.  Costs O(ny) law
-    evaluations instead of O(len(c)) (7,670 weights for five robots).  ``g(C)`` returns
-    [a, c'] at the point's measurement for each row of C (a batch: :func:`directional_rows`),
-    ``torque(C)`` its a columns alone (default: from g), ``Gy`` its Jacobian in y (a rows first).  Returns (Gy, Gc) of
-    [a, xi] and the basis U (``basis``: use this one, e.g. the same loop's at another gain), or None
-    when the states have dynamics of their own (then each is differentiated).
+    evaluations instead of O(len(c)) (7,670 weights for five robots): W is differenced along a basis of
+    range(G_cy), which the rates' dependence on y through eta_e makes 2-dimensional for the adaptive law.
+    ``g(C)`` returns [a, c'] at the point's measurement for each row of C (a batch:
+    :func:`directional_rows`), ``torque(C)`` its a columns alone (default: from g), ``Gy`` its Jacobian in
+    y (a rows first); ``embed``: as :func:`directional_rows`' (then g and torque take rows of the whole
+    state).  Returns (Gy, Gc) of [a, xi] and the basis U (``basis``: use this one, e.g. the same loop's
+    at another gain), or None when the states have dynamics of their own (then each is differentiated).
     """
     V = _probes(c0.size)
     norm = math.sqrt(float(np.sum(c0 * c0)))  # every direction below differentiates at c0
-    outs = directional_rows(g, c0, V, x0_norm=norm)
+    outs = directional_rows(g, c0, V, x0_norm=norm, embed=embed)
     scale = max(1.0, float(np.abs(outs[:na]).max()))
     if np.abs(outs[na:]).max() > 1e-7 * scale:
         return None  # the states' rates read the states: differentiate them all
-    # W = K_c G_cy: the torque's rate along each measurement direction
+    # W = K_c G_cy: the torque's rate along each measurement direction.  K_c is differenced along a basis
+    # of range(G_cy) only, G_cy = D R (:func:`_range`): the rates read y through few combinations (the
+    # adaptive law's through eta_e: 2, against ny = n + 4 columns), so 2 rank law evaluations, not 2 ny
     torque = (lambda C: g(C)[:, :na]) if torque is None else torque
-    W = directional_rows(torque, c0, Gy[na:], x0_norm=norm)
+    D, R = _range(Gy[na:])
+    W = directional_rows(torque, c0, D, x0_norm=norm, embed=embed) @ R
     if basis is None:
         U, s, _ = np.linalg.svd(W, full_matrices=False)
         # directions below 1e-6 of the largest are the differences' error (~1e-9 here), not dynamics
@@ -1084,6 +1101,25 @@ def _parameter_block(g, c0: np.ndarray, Gy: np.ndarray, na: int, basis: np.ndarr
         basis = U[:, :rank]
     rank = basis.shape[1]
     return np.vstack((Gy[:na], basis.T @ W)), np.vstack((basis, np.zeros((rank, rank)))), basis
+
+
+#: directions of a rate Jacobian below this fraction of its largest singular value are the central
+#: differences' noise (1e-8 on the six-robot adaptive law, whose next one is 1.3e-2), not a direction it reads
+RANGE_FLOOR = 1e-6
+
+
+def _range(G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(D, R) with ``G = D R`` up to the singular values of G below :data:`RANGE_FLOOR` of its largest:
+    ``D = G V`` and ``R = V^T``, V the eigenvectors of ``G^T G`` (ny x ny) above the floor squared.
+
+    The Gram matrix instead of an SVD of G itself: 0.4 ms against 2.5 ms on the adaptive law's 36,852 rows
+    (its eigenvalues carry an error of eps times the largest, 1e-16, far below the floor's 1e-12).
+    """
+    if not G.size:
+        return np.zeros((G.shape[0], 0)), np.zeros((0, G.shape[1]))
+    lam, V = np.linalg.eigh(G.T @ G)
+    V = V[:, lam > RANGE_FLOOR**2 * max(float(lam.max()), 1e-300)]
+    return G @ V, V.T
 
 
 _PROBES: dict[int, np.ndarray] = {}

@@ -175,3 +175,15 @@ def test_the_rates_range_keeps_every_direction_above_its_floor(rng):
         assert np.abs(D @ R - G).max() < 10 * RANGE_FLOOR * np.abs(G).max()
         assert np.abs(D @ R - G).max() < 1e-8  # what is dropped is the noise, not a direction
     assert _range(np.zeros((5, 3)))[0].shape == (5, 0)
+
+
+def test_the_ideal_plants_columns_are_its_single_rates_bit_for_bit():
+    """The ideal plant's state Jacobian from one compiled call for all its points (model.compiled.plant_rhs_rows)
+    equals central_columns of Plant.rates called point by point, on a faulty phase (sigma, ubar, a limit)."""
+    loop = _loop("three_link_switching.toml", "nominal")
+    nw = loop.plant.nw
+    fz = Faults(np.linspace(0.3, 1.0, nw), np.linspace(-0.2, 0.1, nw), np.zeros((0, 4)))
+    pt = loop.point(4.0, fz, psi=None)
+    a = pt.a + 0.5
+    want = central_columns(lambda x: loop.plant.rates(x, a, fz), pt.xp)
+    assert np.array_equal(loop.plant._state_columns(pt.xp, a, fz), want)

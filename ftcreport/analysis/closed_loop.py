@@ -298,6 +298,12 @@ class Plant:
         qdot, etadot, idot, _tau = motor_plant_rhs(self._pref, self.motors, q, eta, xm[:nw], v, fz.motor)
         return np.concatenate((qdot, etadot, idot, zdot))
 
+    def _rates_rows(self, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """:meth:`rates` of the ideal plant at each row of X, the torques tau (``model.compiled.plant_rhs_rows``)."""
+        out = np.empty(X.shape)
+        self._F.plant_rhs_rows(self._pref, np.ascontiguousarray(X, dtype=float), tau, out)
+        return out
+
     def operating_currents(self, q: np.ndarray, eta: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         """The motor states at the operating point: the currents quasi-static for the held voltages a
         (L_a di/dt = 0), or a PI drive's steady state for the held target a (``drive_compiled.pi_steady_states``)."""
@@ -342,7 +348,10 @@ class Plant:
     def _state_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
         nq = self.n_q
         f = lambda x: self.rates(x, a, fz)  # noqa: E731
-        if self.motors is None or self.pi:  # a PI: affine in i_a and z off its limits
+        if self.motors is None:  # the ideal plant: its points in one compiled call, the same numbers
+            tau = np.ascontiguousarray(fz.sigma * self.clip(a) + fz.ubar, dtype=float)
+            return central_rows(lambda X: self._rates_rows(X, tau), xp)
+        if self.pi:  # a PI: affine in i_a and z off its limits
             return central_columns(f, xp)
         from ..model.motor_compiled import current_jacobian
 
@@ -417,8 +426,8 @@ class SchemeLoop:
         self.n_q = self.plant.n_q
         self.nk = int(self.ctrl.kin.n_states)
         self.held, self.has_disc = _layout(self.ctrl, self.nk)
-        self.linearized = [i for i in range(int(self.ctrl.n_states)) if i not in self.held]
-        lin = self._lin_index = np.array(self.linearized, dtype=int)
+        lin = self._lin_index = np.setdiff1d(np.arange(int(self.ctrl.n_states)), np.fromiter(self.held, dtype=int))
+        self.linearized = lin.tolist()
         # the linearized states as a slice when contiguous (the adaptive weights, 36,852 for six robots:
         # a view and a copy where an index array gathers and scatters them at every evaluation)
         contiguous = lin.size > 0 and np.array_equal(lin, np.arange(lin[0], lin[0] + lin.size))

@@ -112,6 +112,7 @@ from ..model.compiled import (  # noqa: F401 - re-exported
     input_matrix_and_rate,
     mass_and_coriolis,
     plant_rhs,
+    plant_rhs_rows,
     reduced,
     rotor_mass,
     s_column,

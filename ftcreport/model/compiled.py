@@ -307,3 +307,14 @@ def plant_rhs(p, q, eta, tau):
     # etadot = Mbar1^-1 (Bbar tau - Mbar2 eta - Cbar)
     rhs = _mv(Bbar, tau) - _mv(Mbar2, eta) - Cbar
     return _mv(S, eta), _solve2(Mbar1, rhs)
+
+
+@jit
+def plant_rhs_rows(p, X, tau, out):
+    """:func:`plant_rhs` at each row ``[q, eta]`` of X with the torques tau, ``out[r] = [qdot, etadot]``
+    (the linearized analysis's central differences of the plant: one call for all their points)."""
+    nq = X.shape[1] - 2
+    for r in range(X.shape[0]):
+        qd, ed = plant_rhs(p, X[r, :nq], X[r, nq:], tau)
+        out[r, :nq] = qd
+        out[r, nq:] = ed

@@ -178,8 +178,9 @@ def test_the_rates_range_keeps_every_direction_above_its_floor(rng):
 
 
 def test_the_ideal_plants_columns_are_its_single_rates_bit_for_bit():
-    """The ideal plant's state Jacobian from one compiled call for all its points (model.compiled.plant_rhs_rows)
-    equals central_columns of Plant.rates called point by point, on a faulty phase (sigma, ubar, a limit)."""
+    """The ideal plant's Jacobians in its state and its input from one compiled call for all their points
+    (model.compiled.plant_rhs_rows) equal central_columns of Plant.rates called point by point, on a faulty
+    phase (sigma, ubar, the torque limit)."""
     loop = _loop("three_link_switching.toml", "nominal")
     nw = loop.plant.nw
     fz = Faults(np.linspace(0.3, 1.0, nw), np.linspace(-0.2, 0.1, nw), np.zeros((0, 4)))
@@ -187,3 +188,5 @@ def test_the_ideal_plants_columns_are_its_single_rates_bit_for_bit():
     a = pt.a + 0.5
     want = central_columns(lambda x: loop.plant.rates(x, a, fz), pt.xp)
     assert np.array_equal(loop.plant._state_columns(pt.xp, a, fz), want)
+    want_a = central_columns(lambda v: loop.plant.rates(pt.xp, v, fz), a)
+    assert np.array_equal(loop.plant._input_columns(pt.xp, a, fz), want_a)

@@ -298,10 +298,12 @@ class Plant:
         qdot, etadot, idot, _tau = motor_plant_rhs(self._pref, self.motors, q, eta, xm[:nw], v, fz.motor)
         return np.concatenate((qdot, etadot, idot, zdot))
 
-    def _rates_rows(self, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """:meth:`rates` of the ideal plant at each row of X, the torques tau (``model.compiled.plant_rhs_rows``)."""
-        out = np.empty(X.shape)
-        self._F.plant_rhs_rows(self._pref, np.ascontiguousarray(X, dtype=float), tau, out)
+    def _rates_rows(self, X: np.ndarray, TAU: np.ndarray) -> np.ndarray:
+        """:meth:`rates` of the ideal plant at each row of X and of the torques TAU (one row serves every row;
+        ``model.compiled.plant_rhs_rows``)."""
+        X, TAU = np.ascontiguousarray(X, dtype=float), np.ascontiguousarray(TAU, dtype=float)
+        out = np.empty((max(X.shape[0], TAU.shape[0]), X.shape[1]))
+        self._F.plant_rhs_rows(self._pref, X, TAU, out)
         return out
 
     def operating_currents(self, q: np.ndarray, eta: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
@@ -335,7 +337,9 @@ class Plant:
         return self._jacobians[key].copy()
 
     def _input_columns(self, xp: np.ndarray, a: np.ndarray, fz: Faults) -> np.ndarray:
-        if self.motors is None or self.pi:  # a PI: K_p / L_a and K_i off its limits, central differences
+        if self.motors is None:  # the torques of the held commands, each point's in one compiled call
+            return central_rows(lambda A: self._rates_rows(xp[None, :], fz.sigma * self.clip(A) + fz.ubar), a)
+        if self.pi:  # a PI: K_p / L_a and K_i off its limits, central differences
             return central_columns(lambda v: self.rates(xp, v, fz), a)
         from ..model.motor_compiled import winding_voltage
 
@@ -350,7 +354,7 @@ class Plant:
         f = lambda x: self.rates(x, a, fz)  # noqa: E731
         if self.motors is None:  # the ideal plant: its points in one compiled call, the same numbers
             tau = np.ascontiguousarray(fz.sigma * self.clip(a) + fz.ubar, dtype=float)
-            return central_rows(lambda X: self._rates_rows(X, tau), xp)
+            return central_rows(lambda X: self._rates_rows(X, tau[None, :]), xp)
         if self.pi:  # a PI: affine in i_a and z off its limits
             return central_columns(f, xp)
         from ..model.motor_compiled import current_jacobian
@@ -426,7 +430,9 @@ class SchemeLoop:
         self.n_q = self.plant.n_q
         self.nk = int(self.ctrl.kin.n_states)
         self.held, self.has_disc = _layout(self.ctrl, self.nk)
-        lin = self._lin_index = np.setdiff1d(np.arange(int(self.ctrl.n_states)), np.fromiter(self.held, dtype=int))
+        keep = np.ones(int(self.ctrl.n_states), dtype=bool)
+        keep[np.fromiter(self.held, dtype=int, count=len(self.held))] = False
+        lin = self._lin_index = np.flatnonzero(keep)
         self.linearized = lin.tolist()
         # the linearized states as a slice when contiguous (the adaptive weights, 36,852 for six robots:
         # a view and a copy where an index array gathers and scatters them at every evaluation)

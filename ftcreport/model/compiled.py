@@ -310,11 +310,13 @@ def plant_rhs(p, q, eta, tau):
 
 
 @jit
-def plant_rhs_rows(p, X, tau, out):
-    """:func:`plant_rhs` at each row ``[q, eta]`` of X with the torques tau, ``out[r] = [qdot, etadot]``
-    (the linearized analysis's central differences of the plant: one call for all their points)."""
+def plant_rhs_rows(p, X, TAU, out):
+    """:func:`plant_rhs` at each row r of ``[q, eta]`` X and torques TAU (an input of one row serves every
+    row), ``out[r] = [qdot, etadot]`` (the linearized analysis's central differences of the plant: one call
+    for all their points)."""
     nq = X.shape[1] - 2
-    for r in range(X.shape[0]):
-        qd, ed = plant_rhs(p, X[r, :nq], X[r, nq:], tau)
+    for r in range(out.shape[0]):
+        x = X[r if X.shape[0] > 1 else 0]
+        qd, ed = plant_rhs(p, x[:nq], x[nq:], TAU[r if TAU.shape[0] > 1 else 0])
         out[r, :nq] = qd
         out[r, nq:] = ed

@@ -190,3 +190,45 @@ def test_disk_margins_do_not_depend_on_the_grid():
     w = np.geomspace(1e-3, 1e3, 6000)
     dense = float(np.min(control.disk_margins(Lm, w, returnall=True)[0]))
     assert res["all_inputs"]["disk_margin"] == pytest.approx(dense, rel=1e-5)
+
+
+def test_the_grids_hold_the_closed_loops_lightly_damped_modes():
+    """A mode damped at 0.002 makes a dip narrower than any grid's spacing: resonant_frequencies puts its
+    natural frequency on the grids, so the MIMO disk margin is the least of a grid 20 times as fine near it."""
+    from ftcreport.analysis.margins import resonant_frequencies
+
+    blk = _resonant_blocks(zeta=0.002)
+    A = blk.continuous()
+    wn = resonant_frequencies(A, None)
+    assert wn.size == 1 and 0.8 < wn[0] < 1.25  # the 1 rad/s mode, moved a little by the feedback
+    T = 0.05  # and in discrete time: the same mode from ln z / T
+    Ad = np.asarray(control.c2d(control.ss(A, np.zeros((3, 1)), np.eye(3), 0), T).A)
+    assert resonant_frequencies(Ad, T) == pytest.approx(wn, rel=1e-9)
+    if not hasattr(control, "disk_margins"):
+        return
+    res = loop_margins(blk, None, 0, ["1r", "1l"], "N m")
+    Bf, Kf = blk.feedback()
+    Lm = control.ss(A - Bf @ Kf, Bf, -Kf, np.zeros((2, 2)))
+    w = np.unique(np.concatenate((np.geomspace(1e-3, 1e3, 400), np.geomspace(0.9 * wn[0], 1.1 * wn[0], 4000))))
+    dense = float(np.min(control.disk_margins(Lm, w, returnall=True)[0]))
+    assert res["all_inputs"]["disk_margin"] == pytest.approx(dense, rel=1e-4)
+
+
+def test_the_mimo_disk_margin_finds_the_dip_beside_a_lightly_damped_mode():
+    """two_link_adaptive_circle's adaptive loop in its first phase: its MIMO disk margin dips to 1.37 at 0.744
+    rad/s, beside its mode of 0.752 rad/s (damping 0.06); the 24-point grid and the loops' worst frequencies
+    alone gave 1.60.  With the mode's frequency on the grid it is the least of 600 frequencies around it."""
+    if not hasattr(control, "disk_margins"):
+        pytest.skip("python-control < 0.10.2 has no disk_margins")
+    from ftcreport.analysis.margins import mimo_loop
+    from ftcreport.analysis.phases import fault_phases, instants
+
+    case = load_case(ROOT / "cases" / "two_link_adaptive_circle.toml")
+    loop = SchemeLoop(case, "adaptive", build(case))
+    t = instants(case, *fault_phases(case)[0])[0]
+    blk = loop.blocks(loop.point(t, Faults.healthy(loop.plant.nw, False), None))
+    got = loop_margins(blk, None, 0, loop.ctrl.chain.wheels, "N m")["all_inputs"]["disk_margin"]
+    w = np.geomspace(0.6, 0.9, 600)
+    dense = float(np.min(control.disk_margins(mimo_loop(blk, None, 0), w, returnall=True)[0]))
+    assert dense < 1.45  # the dip is there
+    assert got == pytest.approx(dense, rel=1e-4)

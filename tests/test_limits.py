@@ -432,3 +432,38 @@ def test_the_gain_search_stays_within_the_gains_the_scheme_accepts():
     hole = gain_domain(lambda k: "not 40" if k == 40.0 else None, 20.0)
     assert hole == {"hole": "the scheme refuses k_v = 40 1/s (not 40) but accepts 80 1/s"}
     assert gain_domain(lambda k: None, 20.0) == {}  # nothing refused: the search's own ends
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["two_link_active.toml", "three_link_adaptive.toml", "motors/two_link_active_motors.toml",
+     "motors/three_link_switching_pi.toml", "three_link_circle_faults.toml"],
+)  # fmt: skip
+def test_every_built_in_law_is_affine_in_its_velocity_gain(name):
+    """phases.scheme_limits does not check a built-in law's line through k_v and 2 k_v at k_v / 2 (the law is
+    affine in k_v by construction at the operating point: limits.gain_family): here every built-in scheme of
+    ideal, motor (static driver, sampled), PI-drive, adaptive and chained cases passes that check, at the
+    first phase's instants, so the check moved from every analysis to this test."""
+    from ftcreport.analysis.phases import _blocks_at_gain, case_frames, fault_phases, instants
+    from ftcreport.cases import configured_schemes
+
+    case = load_case(ROOT / "cases" / name)
+    built = build(case)
+    psis = case_frames(case, built)
+    fz = Faults.healthy(built.chain.n_wheels, built.plant.motors is not None)
+    T = case.simulation.sample_time
+    checked = 0
+    for scheme in configured_schemes(case):
+        loop = SchemeLoop(case, scheme, built)
+        period = T if T is not None else (case.simulation.dt if loop.has_disc else None)
+        for t in instants(case, *fault_phases(case)[0]):
+            base = loop.blocks(loop.point(t, fz, psis.get(t), None, None, period), period)
+
+            def at(k, t=t, base=base, scheme=scheme, period=period, k_v=loop.k_v):
+                if k == k_v:
+                    return base
+                return _blocks_at_gain(case, scheme, built, fz, psis.get(t), t, k, period, base)
+
+            assert gain_family(at, loop.k_v) is not at, (name, scheme, t)  # the line passed the check at k_v / 2
+            checked += 1
+    assert checked >= 6

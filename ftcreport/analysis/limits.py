@@ -33,8 +33,9 @@ voltage drives the current through L_a / R_a and the back-EMF within the sample,
 limit (two_link_switching_motors: 1.3 ms at k_v = 3000, twice the ideal plant's 0.67 ms).
 
 The scheme's Jacobians are affine in k_v (k_v multiplies eta_e in (3.37), and nothing else reads it):
-they are computed at two gains and checked at a third (:func:`gain_family`); a scheme whose
-Jacobians are not affine in its k_v is linearized again at every gain tried.
+they are computed at two gains and, for a plug-in, checked at a third (:func:`gain_family`; a built-in law
+is affine in k_v by construction, which tests/test_limits.py checks); a plug-in whose Jacobians are not
+affine in its k_v is linearized again at every gain tried.
 """
 
 from __future__ import annotations
@@ -226,17 +227,38 @@ def gain_domain(refuses: Callable[[float], str | None], k_v: float) -> dict:
     return out
 
 
-def gain_family(blocks_at: Callable[[float], Blocks], k_v: float) -> Callable[[float], Blocks]:
+def gain_family(blocks_at: Callable[[float], Blocks], k_v: float, checked: bool = True) -> Callable[[float], Blocks]:
     """Blocks as a function of k_v: linear interpolation when the Jacobians are affine in k_v.
 
     ``blocks_at(k)`` linearizes the loop with gain k.  The blocks at k_v and 2 k_v give the line; the
     blocks at k_v / 2 check it (every controller block within 1e-6 of its largest entry).  When the
-    check fails, ``blocks_at`` itself is returned (linearized again at every gain).
+    check fails, ``blocks_at`` itself is returned (linearized again at every gain).  ``checked`` False:
+    the law is known affine in k_v at the operating point (a built-in one: k_v multiplies eta_e, zero
+    there, in (3.35), (3.37), (3.117) and (4.14), so the command and every rate are affine in it and the
+    states' values do not depend on it; tests/test_limits.py checks each built-in scheme at k_v / 2 on
+    ideal, motor, PI-drive, sampled and chained cases), and the line is not checked.
     """
     b0, b1 = blocks_at(k_v), blocks_at(2.0 * k_v)
-    bh = blocks_at(0.5 * k_v)
     names = ("Gx", "Gy", "Gc", "Dc", "Dy")
+    if not checked:
+        if all(getattr(b0, n).shape == getattr(b1, n).shape for n in names):
+            return _line(b0, b1, k_v, names)
+        return blocks_at
+    bh = blocks_at(0.5 * k_v)
     same = all(getattr(b0, n).shape == getattr(b1, n).shape == getattr(bh, n).shape for n in names)
+
+    at = _line(b0, b1, k_v, names)
+    if same:
+        guess = at(0.5 * k_v)
+        scale = {n: 1e-6 * max(1.0, float(np.abs(getattr(bh, n)).max(initial=0.0))) for n in names}
+        ok = all(np.allclose(getattr(guess, n), getattr(bh, n), rtol=0.0, atol=scale[n]) for n in names)
+        if ok:
+            return at
+    return blocks_at
+
+
+def _line(b0: Blocks, b1: Blocks, k_v: float, names) -> Callable[[float], Blocks]:
+    """The blocks at gain k on the line through b0 (at k_v) and b1 (at 2 k_v)."""
 
     def at(k: float) -> Blocks:
         s = (k - k_v) / k_v
@@ -245,13 +267,7 @@ def gain_family(blocks_at: Callable[[float], Blocks], k_v: float) -> Callable[[f
                       b0.dropped, b0.parameter_block, b0.omega, b0.frame, internal=b0.internal,
                       internal_map=b0.internal_map)  # fmt: skip
 
-    if same:
-        guess = at(0.5 * k_v)
-        scale = {n: 1e-6 * max(1.0, float(np.abs(getattr(bh, n)).max(initial=0.0))) for n in names}
-        ok = all(np.allclose(getattr(guess, n), getattr(bh, n), rtol=0.0, atol=scale[n]) for n in names)
-        if ok:
-            return at
-    return blocks_at
+    return at
 
 
 def boundary_modes(M: np.ndarray, n_plant: int, discrete: bool) -> dict:

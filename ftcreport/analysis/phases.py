@@ -433,7 +433,10 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         if refuses is not None and (refuses(2.0 * k_v) or refuses(0.5 * k_v)):  # no line through them: each gain
             fam = [lambda k, t=t, b=b: at_gain(k, t, b) for t, b in zip(ts, blocks, strict=True)]
         else:
-            fam = [gain_family(lambda k, t=t, b=b: at_gain(k, t, b), k_v) for t, b in zip(ts, blocks, strict=True)]
+            checked = not _built_in(scheme)  # a built-in law is affine in k_v by construction (limits.gain_family)
+            fam = [
+                gain_family(lambda k, t=t, b=b: at_gain(k, t, b), k_v, checked) for t, b in zip(ts, blocks, strict=True)
+            ]
     except ModelError as exc:  # a plug-in without a k_v field, or whose gains have a hole
         for name in picks:
             out[name]["k_v_max"] = None
@@ -616,6 +619,14 @@ def gain_refusal(case, scheme: str, built):
         return answers[k]
 
     return refuses
+
+
+def _built_in(scheme: str) -> bool:
+    """Whether ``scheme`` is one of ftcreport's own laws (schemes.registry)."""
+    from ..schemes import get
+    from ..schemes.registry import is_built_in
+
+    return is_built_in(get(scheme))
 
 
 def _blocks_at_gain(case, scheme, built, fz, psi, t, k, period, base: Blocks) -> Blocks:

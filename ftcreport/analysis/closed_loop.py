@@ -137,7 +137,7 @@ def central_rows(f_rows, x0: np.ndarray, columns=None, step: float = STEP) -> np
 
     The points are those of :func:`central_columns`, in its order (``x0 + h e_j``, then ``x0 - h e_j``,
     column by column), in batches of at most :data:`BATCH_ENTRIES` entries; each column is computed by
-    the same operations, so the two give the same numbers bit for bit (``tests/test_linear_loop.py``).
+    the same operations, so the two give the same numbers bit for bit (``tests/test_batched_law.py``).
     """
     x0 = np.asarray(x0, dtype=float)
     cols = list(range(x0.size) if columns is None else columns)

@@ -33,9 +33,10 @@ voltage drives the current through L_a / R_a and the back-EMF within the sample,
 limit (two_link_switching_motors: 1.3 ms at k_v = 3000, twice the ideal plant's 0.67 ms).
 
 The scheme's Jacobians are affine in k_v (k_v multiplies eta_e in (3.37), and nothing else reads it):
-they are computed at two gains and, for a plug-in, checked at a third (:func:`gain_family`; a built-in law
-is affine in k_v by construction, which tests/test_limits.py checks); a plug-in whose Jacobians are not
-affine in its k_v is linearized again at every gain tried.
+they are computed at two gains and checked at a third (:func:`gain_family`; not for a built-in law on a
+plant with no torque limit and no motors, affine in k_v by construction, which tests/test_limits.py
+checks); a loop whose Jacobians are not affine in its k_v (a plug-in's, a clipped command's) is linearized
+again at every gain tried.
 """
 
 from __future__ import annotations
@@ -233,10 +234,13 @@ def gain_family(blocks_at: Callable[[float], Blocks], k_v: float, checked: bool 
     ``blocks_at(k)`` linearizes the loop with gain k.  The blocks at k_v and 2 k_v give the line; the
     blocks at k_v / 2 check it (every controller block within 1e-6 of its largest entry).  When the
     check fails, ``blocks_at`` itself is returned (linearized again at every gain).  ``checked`` False:
-    the law is known affine in k_v at the operating point (a built-in one: k_v multiplies eta_e, zero
-    there, in (3.35), (3.37), (3.117) and (4.14), so the command and every rate are affine in it and the
-    states' values do not depend on it; tests/test_limits.py checks each built-in scheme at k_v / 2 on
-    ideal, motor, PI-drive, sampled and chained cases), and the line is not checked.
+    the law is known affine in k_v at the operating point, and the line is not checked: a built-in law on
+    a plant with no torque limit and no motors (k_v multiplies eta_e, zero there, in (3.35), (3.37),
+    (3.117) and (4.14), so the command and every rate are affine in it and the states' values do not
+    depend on it).  A limit breaks that: with a drive saturated everywhere (I_max = 1e-6 A) the line
+    through k_v and 2 k_v misses the loop at k_v / 2 by 0.16 of 18.9 (tests/test_analysis_inputs.py), so
+    there the check stays; tests/test_limits.py checks every built-in scheme at k_v / 2 on ideal, motor,
+    PI-drive, adaptive and chained cases.
     """
     b0, b1 = blocks_at(k_v), blocks_at(2.0 * k_v)
     names = ("Gx", "Gy", "Gc", "Dc", "Dy")

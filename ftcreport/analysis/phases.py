@@ -433,7 +433,9 @@ def scheme_limits(case, scheme, built, loop: SchemeLoop, ts, psis, period, delay
         if refuses is not None and (refuses(2.0 * k_v) or refuses(0.5 * k_v)):  # no line through them: each gain
             fam = [lambda k, t=t, b=b: at_gain(k, t, b) for t, b in zip(ts, blocks, strict=True)]
         else:
-            checked = not _built_in(scheme)  # a built-in law is affine in k_v by construction (limits.gain_family)
+            # a built-in law is affine in k_v by construction unless a limit clips its command (limits.gain_family)
+            unclipped = built.plant.motors is None and built.plant.saturation is None
+            checked = not (unclipped and _built_in(scheme))
             fam = [
                 gain_family(lambda k, t=t, b=b: at_gain(k, t, b), k_v, checked) for t, b in zip(ts, blocks, strict=True)
             ]

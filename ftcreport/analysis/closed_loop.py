@@ -105,26 +105,10 @@ def central_columns(f, x0: np.ndarray, columns=None, step: float = STEP) -> np.n
     that does not read x_j gives exactly 0 (the same evaluation twice): :func:`relevant_states` relies on it.
     The result is Fortran-ordered, each column written once in place (a column is contiguous: on the
     adaptive law's 36,864 rows, stacking and then reading them along a column cost more than the law).
+    :func:`central_rows` with f evaluated one point at a time.
     """
-    x0 = np.asarray(x0, dtype=float)
-    cols = range(x0.size) if columns is None else columns
-    xp, xm = x0.copy(), x0.copy()  # perturbed one entry at a time, restored after it
-    out = None
-    for k, j in enumerate(cols):
-        h = step * max(1.0, abs(x0[j]))
-        xp[j] += h
-        xm[j] -= h
-        fp = np.asarray(f(xp), dtype=float)
-        fm = np.asarray(f(xm), dtype=float)
-        if out is None:
-            out = np.empty((fp.size, len(cols)), order="F")
-        col = out[:, k]
-        np.subtract(fp, fm, out=col)
-        col /= 2.0 * h
-        xp[j] = xm[j] = x0[j]
-    if out is None:
-        return np.zeros((np.asarray(f(x0)).size, 0))
-    return out
+    # the same points and operations as central_rows, f called on each row in turn
+    return central_rows(lambda X: np.array([np.asarray(f(x), dtype=float) for x in X]), x0, columns, step)
 
 
 #: entries of a batch of evaluation points (:func:`central_rows`): 8 MB, ~28 rows of six robots' adaptive weights

@@ -266,8 +266,8 @@ def _with(omega: np.ndarray, extra) -> np.ndarray:
 def loop_faces(L):
     """(at, many): ``w -> L(w)`` for a scalar frequency (with ``at.dt``, the sample time or None) and for an
     array of them, of ``Loops.at(j)`` or of a python-control system."""
-    if callable(L) and not isinstance(L, control.StateSpace):
-        return L, getattr(L, "many", None) or (lambda w: np.array([L(float(v)) for v in np.atleast_1d(w)]))
+    if callable(L) and not isinstance(L, control.StateSpace):  # Loops.at(j): it carries its array face
+        return L, L.many
     dt = L.dt if L.isdtime(strict=True) else None
 
     def at(w: float) -> complex:
@@ -406,7 +406,7 @@ def loop_margins(blk: Blocks, T: float | None, delay: int, names, unit: str, all
             "open_loop_unstable": unstable,
         }
         # the disk margin's peak |(1 - L) / (2 (1 + L))| refined off the grid as the stability margin's least
-        _at, many = loop_faces(lp.at(j))
+        many = lambda w, j=j: lp.response(j, w)  # noqa: E731
         disk = lambda v: -np.abs((1.0 - v) / (2.0 * (1.0 + v)))  # noqa: E731
         with np.errstate(divide="ignore", invalid="ignore"):
             w_dm, _v = refine_least(disk, many, omega, disk(Ljw))
